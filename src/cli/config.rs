@@ -1,0 +1,94 @@
+//! The run configuration: defaults < TOML file (`--config`) < command-line flags.
+//!
+//! A configuration file mirrors the flags of `diffsound modes` (every key optional):
+//!
+//! ```toml
+//! mesh = "examples/bowl/bowl.msh"   # Gmsh .msh 2.2 or 4.1, ASCII or binary
+//! units = "m"                       # mesh length unit: m, cm, mm, um, in, ft or metres per unit
+//! order = 2                         # 1 (P1 baseline) or 2 (P2, default)
+//! fix_inverted = false              # flip inverted tets instead of rejecting the mesh
+//!
+//! [material]                        # a preset, then any field overridden
+//! preset = "ceramic"
+//! youngs_modulus = 72e9             # Pa
+//! poisson_ratio = 0.19
+//! density = 2700.0                  # kg/m³
+//! rayleigh_alpha = 6.0              # 1/s
+//! rayleigh_beta = 1e-7              # s
+//!
+//! [solver]
+//! modes = 20                        # first N elastic modes …
+//! # fmax = 20000.0                  # … or every mode up to this frequency (Hz)
+//! tolerance = 1e-10
+//! verify_count = true               # prove the mode count by an inertia check
+//! cluster_rtol = 1e-3               # relative gap below which modes form a cluster
+//! petsc_options = ["-eps_ncv", "64"] # applied before the options after `--`
+//!
+//! [output]
+//! h5 = "out/bowl_modes.h5"          # an .xdmf sidecar is written next to it
+//! wav = "out/bowl_strike.wav"
+//! strike_vertex = 1234              # 0-based node id on the surface; default: farthest from the centre
+//! duration = 2.0                    # s
+//! sample_rate = 48000               # Hz
+//! timings_json = "out/timings.json"
+//! ```
+
+use serde::Deserialize;
+use std::path::PathBuf;
+
+#[derive(Clone, Debug, Default, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct FileConfig {
+    pub mesh: Option<PathBuf>,
+    pub units: Option<String>,
+    pub order: Option<u32>,
+    pub fix_inverted: Option<bool>,
+    #[serde(default)]
+    pub material: MaterialConfig,
+    #[serde(default)]
+    pub solver: SolverConfig,
+    #[serde(default)]
+    pub output: OutputConfig,
+}
+
+#[derive(Clone, Debug, Default, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct MaterialConfig {
+    pub preset: Option<String>,
+    pub youngs_modulus: Option<f64>,
+    pub poisson_ratio: Option<f64>,
+    pub density: Option<f64>,
+    pub rayleigh_alpha: Option<f64>,
+    pub rayleigh_beta: Option<f64>,
+}
+
+#[derive(Clone, Debug, Default, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SolverConfig {
+    pub modes: Option<usize>,
+    pub fmax: Option<f64>,
+    pub tolerance: Option<f64>,
+    pub verify_count: Option<bool>,
+    pub cluster_rtol: Option<f64>,
+    pub shift: Option<f64>,
+    #[serde(default)]
+    pub petsc_options: Vec<String>,
+}
+
+#[derive(Clone, Debug, Default, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct OutputConfig {
+    pub h5: Option<PathBuf>,
+    pub wav: Option<PathBuf>,
+    pub strike_vertex: Option<usize>,
+    pub duration: Option<f64>,
+    pub sample_rate: Option<u32>,
+    pub timings_json: Option<PathBuf>,
+}
+
+impl FileConfig {
+    pub fn load(path: &std::path::Path) -> Result<FileConfig, String> {
+        let text = std::fs::read_to_string(path).map_err(|e| format!("cannot read config file {}: {e}", path.display()))?;
+        toml::from_str(&text).map_err(|e| format!("config file {}: {e}", path.display()))
+    }
+}

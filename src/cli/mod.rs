@@ -1,0 +1,195 @@
+//! The `diffsound` command line: argument parsing, the MPI/PETSc runtime, and the `modes` job.
+//!
+//! Sample runs:
+//! ```text
+//! mpirun -np 2 diffsound modes --mesh examples/bowl/bowl.msh --material ceramic --modes 20 \
+//!        --out out/bowl.h5 --wav out/bowl.wav
+//! mpirun -np 2 diffsound modes --config run.toml -- -eps_ncv 80 -st_pc_factor_mat_solver_type mumps
+//! ```
+//! Everything after `--` goes to PETSc/SLEPc and overrides our defaults.
+//!
+//! A failure on any rank ends the whole MPI job with a message and a non-zero exit (MPI_Abort),
+//! so a job never hangs waiting for a rank that gave up; a panic does the same.
+
+pub mod config;
+mod modes;
+
+use clap::{Args, Parser, Subcommand};
+use std::io::IsTerminal;
+use std::path::PathBuf;
+
+#[derive(Parser, Debug)]
+#[command(name = "diffsound", version, about = "Physics-based modal sound: P2 tet FEM → SLEPc modes → HDF5 and audio")]
+pub struct Cli {
+    #[command(subcommand)]
+    pub command: Command,
+}
+
+#[derive(Subcommand, Debug)]
+pub enum Command {
+    /// Compute the vibration modes of a free body, write them to HDF5 (+ XDMF) and render a strike.
+    Modes(ModesArgs),
+    /// List the material presets with their values.
+    Materials,
+}
+
+#[derive(Args, Debug, Clone, Default)]
+pub struct ModesArgs {
+    /// TOML configuration file (see the README); flags given here override it.
+    #[arg(long)]
+    pub config: Option<PathBuf>,
+    /// Tet mesh: Gmsh .msh 2.2 or 4.1, ASCII or binary, 4- or 10-node tets.
+    #[arg(long)]
+    pub mesh: Option<PathBuf>,
+    /// Length unit of the mesh: m, cm, mm, um, in, ft, or metres per unit (e.g. 0.1).
+    #[arg(long)]
+    pub units: Option<String>,
+    /// Element order: 2 (quadratic, default) or 1 (linear baseline).
+    #[arg(long)]
+    pub order: Option<u32>,
+    /// Flip inverted tets instead of rejecting the mesh.
+    #[arg(long)]
+    pub fix_inverted: bool,
+    /// Material preset (ceramic, glass, steel, aluminium, wood, plastic, …); default ceramic.
+    #[arg(long)]
+    pub material: Option<String>,
+    /// Young's modulus E in Pa (overrides the preset).
+    #[arg(long)]
+    pub youngs: Option<f64>,
+    /// Poisson's ratio ν (overrides the preset).
+    #[arg(long)]
+    pub poisson: Option<f64>,
+    /// Density ρ in kg/m³ (overrides the preset).
+    #[arg(long)]
+    pub density: Option<f64>,
+    /// Rayleigh mass damping α in 1/s (overrides the preset).
+    #[arg(long)]
+    pub alpha: Option<f64>,
+    /// Rayleigh stiffness damping β in s (overrides the preset).
+    #[arg(long)]
+    pub beta: Option<f64>,
+    /// Compute the first N elastic modes (default 20).
+    #[arg(long, conflicts_with = "fmax")]
+    pub modes: Option<usize>,
+    /// Compute every elastic mode up to this frequency in Hz (spectrum slicing).
+    #[arg(long)]
+    pub fmax: Option<f64>,
+    /// Relative eigen-solver tolerance (default 1e-10).
+    #[arg(long)]
+    pub tol: Option<f64>,
+    /// Shift σ in rad²/s² (default −10⁻²·μ/(ρL²)).
+    #[arg(long, allow_hyphen_values = true)]
+    pub shift: Option<f64>,
+    /// Skip the inertia check that proves no mode was missed.
+    #[arg(long)]
+    pub no_verify: bool,
+    /// HDF5 output (default: <mesh stem>_modes.h5 in the current directory).
+    #[arg(long)]
+    pub out: Option<PathBuf>,
+    /// Render a strike at a surface vertex to this WAV file.
+    #[arg(long)]
+    pub wav: Option<PathBuf>,
+    /// Surface node (0-based, in file order after unused nodes are dropped) to strike.
+    #[arg(long)]
+    pub strike_vertex: Option<usize>,
+    /// Length of the rendered strike in s (default 2).
+    #[arg(long)]
+    pub duration: Option<f64>,
+    /// Sample rate of the rendered strike in Hz (default 48000).
+    #[arg(long)]
+    pub sample_rate: Option<u32>,
+    /// Write assembly/solve timings, memory and eigenvalues as JSON (for benchmarks).
+    #[arg(long)]
+    pub timings_json: Option<PathBuf>,
+    /// Print progress even when stderr is not a terminal.
+    #[arg(long, short)]
+    pub verbose: bool,
+    /// PETSc/SLEPc options, after `--` (e.g. -- -eps_ncv 64 -st_type sinvert).
+    #[arg(last = true, allow_hyphen_values = true)]
+    pub petsc_options: Vec<String>,
+}
+
+/// Rank-0 progress lines on stderr: shown on a terminal (or with --verbose), silent in batch logs.
+pub struct Progress {
+    enabled: bool,
+    start: std::time::Instant,
+}
+
+impl Progress {
+    pub fn new(rank: usize, verbose: bool) -> Self {
+        Progress { enabled: rank == 0 && (verbose || std::io::stderr().is_terminal()), start: std::time::Instant::now() }
+    }
+    pub fn say(&self, msg: impl AsRef<str>) {
+        if self.enabled {
+            eprintln!("[{:7.2} s] {}", self.start.elapsed().as_secs_f64(), msg.as_ref());
+        }
+    }
+}
+
+/// Ends the whole MPI job: the one way out after an error or panic on any rank.
+fn abort_job(code: i32) -> ! {
+    // SAFETY: MPI is initialised whenever this is reachable from `main` after `initialize`.
+    unsafe {
+        mpi::ffi::MPI_Abort(mpi::ffi::RSMPI_COMM_WORLD, code);
+    }
+    std::process::exit(code)
+}
+
+/// Entry point of the binary.
+pub fn main() {
+    let cli = Cli::parse();
+    match cli.command {
+        Command::Materials => print_materials(),
+        Command::Modes(args) => run_under_mpi(args),
+    }
+}
+
+fn print_materials() {
+    println!("{:<11} {:>12} {:>6} {:>9} {:>8} {:>9}", "preset", "E [Pa]", "nu", "rho", "alpha", "beta");
+    for name in crate::fem::Material::preset_names() {
+        let m = crate::fem::Material::preset(name).expect("listed preset exists");
+        println!("{:<11} {:>12.3e} {:>6.3} {:>9.1} {:>8.3} {:>9.2e}", name, m.youngs_modulus, m.poisson_ratio, m.density, m.rayleigh_alpha, m.rayleigh_beta);
+    }
+}
+
+fn run_under_mpi(args: ModesArgs) {
+    let Some(universe) = mpi::initialize() else {
+        eprintln!("error: MPI could not be initialised");
+        std::process::exit(2);
+    };
+    let rank = {
+        use mpi::topology::Communicator;
+        universe.world().rank()
+    };
+    let size = {
+        use mpi::topology::Communicator;
+        universe.world().size()
+    };
+    let default_hook = std::panic::take_hook();
+    std::panic::set_hook(Box::new(move |info| {
+        eprintln!("diffsound: rank {rank} of {size} panicked; aborting the MPI job");
+        default_hook(info);
+        abort_job(101);
+    }));
+
+    if let Err(message) = modes::run(universe, args) {
+        fail(rank as usize, size as usize, &message);
+    }
+}
+
+/// Reports an error and ends the job on every rank. Called before the PETSc runtime is dropped,
+/// because finalising is collective and the other ranks may be waiting elsewhere.
+pub(crate) fn fail(rank: usize, size: usize, message: &str) -> ! {
+    // Every rank usually meets the same input error; let rank 0 speak first so the message is
+    // printed once, then whoever is left aborts the job.
+    if rank != 0 {
+        std::thread::sleep(std::time::Duration::from_millis(500));
+        eprintln!("error (rank {rank}): {message}");
+    } else {
+        eprintln!("error: {message}");
+    }
+    if size > 1 {
+        abort_job(1);
+    }
+    std::process::exit(1);
+}

@@ -1,0 +1,353 @@
+//! The `modes` job: mesh → P2 → assembly → SLEPc → HDF5/XDMF (+ WAV strike).
+
+use super::config::FileConfig;
+use super::{fail, ModesArgs, Progress};
+use crate::assembly;
+use crate::audio::{self, ModalBank, WavFormat};
+use crate::eigen::{self, EigenConfig, ModeRequest};
+use crate::fem::Material;
+use crate::io::{self, MaterialRecord, ModesFile};
+use crate::mesh::{self, ReadOptions, TetMesh};
+use crate::petsc::Petsc;
+use mpi::environment::Universe;
+use std::path::{Path, PathBuf};
+
+/// Everything the job needs, resolved from defaults, the config file and the flags.
+#[derive(Clone, Debug)]
+pub struct Job {
+    pub mesh: PathBuf,
+    pub unit_scale: f64,
+    pub units: String,
+    pub order: u32,
+    pub fix_inverted: bool,
+    pub material: Material,
+    pub material_name: String,
+    pub request: ModeRequest,
+    pub tolerance: f64,
+    pub verify_count: bool,
+    pub cluster_rtol: Option<f64>,
+    pub shift: Option<f64>,
+    pub out: PathBuf,
+    pub wav: Option<PathBuf>,
+    pub strike_vertex: Option<usize>,
+    pub duration: f64,
+    pub sample_rate: u32,
+    pub timings_json: Option<PathBuf>,
+    pub petsc_options: Vec<String>,
+    pub verbose: bool,
+}
+
+/// Merges defaults < config file < command-line flags and validates the result.
+pub fn resolve(args: &ModesArgs) -> Result<Job, String> {
+    let file = match &args.config {
+        Some(p) => FileConfig::load(p)?,
+        None => FileConfig::default(),
+    };
+    let mesh = args.mesh.clone().or(file.mesh.clone()).ok_or("no mesh given: use --mesh FILE or `mesh = \"…\"` in the config file")?;
+    let units = args.units.clone().or(file.units.clone()).unwrap_or_else(|| "m".into());
+    let unit_scale = mesh::parse_unit(&units).map_err(|e| e.to_string())?;
+    let order = args.order.or(file.order).unwrap_or(2);
+    if order != 1 && order != 2 {
+        return Err(format!("--order must be 1 or 2, got {order}"));
+    }
+    let material_name = args.material.clone().or(file.material.preset.clone()).unwrap_or_else(|| "ceramic".into());
+    let mut material = Material::preset(&material_name)
+        .ok_or_else(|| format!("unknown material preset '{material_name}'; known: {}", Material::preset_names().join(", ")))?;
+    let mut custom = false;
+    let mut set = |field: &mut f64, flag: Option<f64>, file: Option<f64>| {
+        if let Some(v) = flag.or(file) {
+            *field = v;
+            custom = true;
+        }
+    };
+    set(&mut material.youngs_modulus, args.youngs, file.material.youngs_modulus);
+    set(&mut material.poisson_ratio, args.poisson, file.material.poisson_ratio);
+    set(&mut material.density, args.density, file.material.density);
+    set(&mut material.rayleigh_alpha, args.alpha, file.material.rayleigh_alpha);
+    set(&mut material.rayleigh_beta, args.beta, file.material.rayleigh_beta);
+    material.validate().map_err(|e| format!("material: {e}"))?;
+    let material_name = if custom { format!("{material_name} (modified)") } else { material_name };
+
+    let fmax = args.fmax.or(if args.modes.is_some() { None } else { file.solver.fmax });
+    let request = match (args.modes.or(if args.fmax.is_some() { None } else { file.solver.modes }), fmax) {
+        (Some(_), Some(_)) => return Err("give either a number of modes or a frequency limit, not both".into()),
+        (Some(0), None) => return Err("the number of modes must be at least 1".into()),
+        (Some(n), None) => ModeRequest::FirstN(n),
+        (None, Some(f)) if f.is_finite() && f > 0.0 => ModeRequest::UpTo { f_max_hz: f },
+        (None, Some(f)) => return Err(format!("the frequency limit must be a positive number of Hz, got {f}")),
+        (None, None) => ModeRequest::FirstN(20),
+    };
+    let tolerance = args.tol.or(file.solver.tolerance).unwrap_or(1e-10);
+    if !(tolerance > 0.0 && tolerance < 1.0) {
+        return Err(format!("the solver tolerance must lie in (0, 1), got {tolerance}"));
+    }
+    let duration = args.duration.or(file.output.duration).unwrap_or(2.0);
+    if !(duration > 0.0 && duration <= 600.0) {
+        return Err(format!("the strike duration must lie in (0, 600] s, got {duration}"));
+    }
+    let sample_rate = args.sample_rate.or(file.output.sample_rate).unwrap_or(48_000);
+    if !(8_000..=384_000).contains(&sample_rate) {
+        return Err(format!("the sample rate must lie in 8000..=384000 Hz, got {sample_rate}"));
+    }
+    let out = args.out.clone().or(file.output.h5.clone()).unwrap_or_else(|| {
+        let stem = mesh.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_else(|| "mesh".into());
+        PathBuf::from(format!("{stem}_modes.h5"))
+    });
+    let mut petsc_options = file.solver.petsc_options.clone();
+    petsc_options.extend(args.petsc_options.iter().cloned());
+    Ok(Job {
+        mesh,
+        unit_scale,
+        units,
+        order,
+        fix_inverted: args.fix_inverted || file.fix_inverted.unwrap_or(false),
+        material,
+        material_name,
+        request,
+        tolerance,
+        verify_count: !args.no_verify && file.solver.verify_count.unwrap_or(true),
+        cluster_rtol: file.solver.cluster_rtol,
+        shift: args.shift.or(file.solver.shift),
+        out,
+        wav: args.wav.clone().or(file.output.wav.clone()),
+        strike_vertex: args.strike_vertex.or(file.output.strike_vertex),
+        duration,
+        sample_rate,
+        timings_json: args.timings_json.clone().or(file.output.timings_json.clone()),
+        petsc_options,
+        verbose: args.verbose,
+    })
+}
+
+/// Runs the job on every rank. Input errors found before PETSc starts are returned; errors
+/// after that end the job through [`fail`] so that no rank waits forever in a collective call.
+pub fn run(universe: Universe, args: ModesArgs) -> Result<(), String> {
+    let job = resolve(&args)?;
+    check_output_dir(&job.out)?;
+    if let Some(w) = &job.wav {
+        check_output_dir(w)?;
+    }
+    let petsc = Petsc::initialize(universe, "diffsound", &job.petsc_options).map_err(|e| e.to_string())?;
+    let (rank, size) = (petsc.rank(), petsc.size());
+    match compute(&petsc, &job) {
+        Ok(()) => Ok(()),
+        Err(message) => fail(rank, size, &message),
+    }
+}
+
+fn check_output_dir(path: &Path) -> Result<(), String> {
+    let dir = path.parent().filter(|p| !p.as_os_str().is_empty()).unwrap_or(Path::new("."));
+    if !dir.is_dir() {
+        return Err(format!("output directory {} does not exist (for {})", dir.display(), path.display()));
+    }
+    Ok(())
+}
+
+fn compute(petsc: &Petsc, job: &Job) -> Result<(), String> {
+    let total = std::time::Instant::now();
+    let rank = petsc.rank();
+    let progress = Progress::new(rank, job.verbose);
+
+    progress.say(format!("reading {}", job.mesh.display()));
+    let read = mesh::read_mesh(&job.mesh, &ReadOptions { unit_scale: job.unit_scale, fix_inverted: job.fix_inverted }).map_err(|e| e.to_string())?;
+    if rank == 0 {
+        for w in &read.warnings {
+            eprintln!("warning: {w}");
+        }
+    }
+    let input_order = read.mesh.nodes_per_tet();
+    let mesh: TetMesh = if job.order == 2 { mesh::lift_to_quadratic(&read.mesh) } else { mesh::to_linear(&read.mesh) };
+    drop(read);
+    let (lo, hi) = mesh.bounding_box();
+    let diagonal = ((hi[0] - lo[0]).powi(2) + (hi[1] - lo[1]).powi(2) + (hi[2] - lo[2]).powi(2)).sqrt();
+    progress.say(format!(
+        "mesh: {} tets, {} nodes (P{}, from {}-node input), {} DOF on {} rank(s)",
+        mesh.n_tets(),
+        mesh.n_nodes(),
+        job.order,
+        input_order,
+        3 * mesh.n_nodes(),
+        petsc.size()
+    ));
+
+    let assembled = assembly::assemble(petsc, &mesh).map_err(|e| e.to_string())?;
+    let stats = assembled.stats.clone();
+    progress.say(format!("assembled M, K_λ, K_μ in {:.2} s ({:.0} nonzeros each, {} mallocs)", stats.seconds, stats.nonzeros, stats.mallocs));
+    let t_ops = std::time::Instant::now();
+    let (k, m, layout, _) = assembled.into_operators(&job.material).map_err(|e| e.to_string())?;
+    let operator_seconds = t_ops.elapsed().as_secs_f64();
+
+    let scale = eigen::spectrum_scale(job.material.lame_mu(), job.material.density, diagonal);
+    let mut cfg = EigenConfig::new(job.request, scale);
+    cfg.tolerance = job.tolerance;
+    cfg.verify_count = job.verify_count;
+    cfg.shift = job.shift;
+    if let Some(r) = job.cluster_rtol {
+        cfg.cluster_rtol = r;
+    }
+    progress.say(match job.request {
+        ModeRequest::FirstN(n) => format!("solving for the first {n} elastic modes (shift {:.3e} rad²/s²)", cfg.effective_shift()),
+        ModeRequest::UpTo { f_max_hz } => format!("solving for every mode up to {f_max_hz} Hz (spectrum slicing)"),
+    });
+    let modes = eigen::solve_modes(petsc, &k, &m, &cfg).map_err(|e| e.to_string())?;
+    if rank == 0 {
+        for w in &modes.warnings {
+            eprintln!("warning: {w}");
+        }
+    }
+    progress.say(format!("{} elastic modes in {:.2} s", modes.eigenvalues.len(), modes.solve_seconds));
+
+    // Gather every mode to rank 0 in original node order, with a deterministic sign: the entry
+    // of largest magnitude is made positive, so runs on any number of ranks agree.
+    let mut shapes: Vec<Vec<f64>> = Vec::new();
+    for v in &modes.vectors {
+        if let Some(full) = v.gather_to_root(rank).map_err(|e| e.to_string())? {
+            let mut s = layout.to_original_order(&full);
+            let (imax, _) = s.iter().enumerate().fold((0, 0.0f64), |(bi, bv), (i, &x)| if x.abs() > bv + 1e-12 * bv { (i, x.abs()) } else { (bi, bv) });
+            if s[imax] < 0.0 {
+                s.iter_mut().for_each(|x| *x = -*x);
+            }
+            shapes.push(s);
+        }
+    }
+    let frequencies: Vec<f64> = modes.eigenvalues.iter().map(|&l| eigen::frequency_hz(l)).collect();
+    let solve_seconds = modes.solve_seconds;
+    let peak_rss_local = petsc.peak_rss_bytes();
+    let peak_rss_sum: f64 = {
+        use mpi::collective::{CommunicatorCollectives, SystemOperation};
+        let mut sum = 0.0;
+        petsc.world().all_reduce_into(&peak_rss_local, &mut sum, SystemOperation::sum());
+        sum
+    };
+
+    if rank == 0 {
+        let mut solver = modes.settings.clone();
+        solver.push(("petsc_options".into(), job.petsc_options.join(" ")));
+        let (pv, sv) = petsc.versions();
+        solver.push(("petsc_version".into(), pv));
+        solver.push(("slepc_version".into(), sv));
+        if let Some(c) = &modes.inertia_check {
+            solver.push(("inertia_check".into(), format!("{} eigenvalues below {:e} rad²/s²; {} returned", c.below, c.threshold, c.found)));
+        }
+        solver.push(("clusters".into(), modes.clusters.iter().map(|r| format!("{}-{}", r.start, r.end - 1)).collect::<Vec<_>>().join(",")));
+        let timings = vec![
+            ("assembly".to_string(), stats.seconds + operator_seconds),
+            ("solve".to_string(), solve_seconds),
+            ("inertia_check".to_string(), modes.inertia_check.map_or(0.0, |c| c.seconds)),
+            ("total".to_string(), total.elapsed().as_secs_f64()),
+            ("peak_rss_bytes_sum".to_string(), peak_rss_sum),
+        ];
+        let provenance = vec![
+            ("mesh".to_string(), job.mesh.display().to_string()),
+            ("units".to_string(), format!("{} ({} m per unit)", job.units, job.unit_scale)),
+            ("command_line".to_string(), std::env::args().collect::<Vec<_>>().join(" ")),
+            ("diffsound_version".to_string(), env!("CARGO_PKG_VERSION").to_string()),
+        ];
+        let file = ModesFile {
+            nodes: &mesh.nodes,
+            connectivity: &mesh.connectivity,
+            nodes_per_tet: mesh.nodes_per_tet(),
+            material: MaterialRecord {
+                name: job.material_name.clone(),
+                youngs_modulus: job.material.youngs_modulus,
+                poisson_ratio: job.material.poisson_ratio,
+                density: job.material.density,
+                rayleigh_alpha: job.material.rayleigh_alpha,
+                rayleigh_beta: job.material.rayleigh_beta,
+            },
+            eigenvalues: &modes.eigenvalues,
+            frequencies_hz: &frequencies,
+            mode_shapes: &shapes,
+            residual_norms: &modes.residuals,
+            rigid_eigenvalues: &modes.rigid_eigenvalues,
+            solver,
+            n_ranks: petsc.size(),
+            element_order: job.order,
+            timings,
+            provenance,
+        };
+        io::write_modes(&job.out, &file).map_err(|e| e.to_string())?;
+        progress.say(format!("wrote {} and its .xdmf sidecar", job.out.display()));
+
+        if let Some(wav) = &job.wav {
+            let vertex = strike(&mesh, job.strike_vertex)?;
+            render_strike(wav, &mesh, vertex, &modes.eigenvalues, &shapes, job)?;
+            progress.say(format!("wrote {} (strike at node {})", wav.display(), vertex.0));
+        }
+
+        print_summary(job, &mesh, &stats, &modes, &frequencies, total.elapsed().as_secs_f64(), petsc.size());
+        if let Some(path) = &job.timings_json {
+            let json = serde_json::json!({
+                "ndof": stats.n_dofs,
+                "n_ranks": petsc.size(),
+                "assembly_s": stats.seconds + operator_seconds,
+                "solve_s": solve_seconds,
+                "inertia_check_s": modes.inertia_check.map_or(0.0, |c| c.seconds),
+                "total_s": total.elapsed().as_secs_f64(),
+                "peak_rss_mb": peak_rss_sum / 1048576.0,
+                "mallocs": stats.mallocs,
+                "eigenvalues": modes.eigenvalues,
+                "frequencies_hz": frequencies,
+                "rigid_eigenvalues": modes.rigid_eigenvalues,
+                "residuals": modes.residuals,
+            });
+            io::write_atomically(path, |tmp| std::fs::write(tmp, serde_json::to_string_pretty(&json).unwrap_or_default()).map_err(|e| io::IoError::Fs { path: tmp.to_path_buf(), context: "writing timings".into(), source: e }))
+                .map_err(|e| e.to_string())?;
+        }
+    }
+    Ok(())
+}
+
+/// The strike point: the given node (must be on the surface) or, by default, the surface vertex
+/// farthest from the bounding-box centre (a rim or corner, where most modes move). Returns the
+/// node and its outward unit normal, the strike direction.
+fn strike(mesh: &TetMesh, requested: Option<usize>) -> Result<(usize, [f64; 3]), String> {
+    let normals = mesh.vertex_normals();
+    if normals.is_empty() {
+        return Err("the mesh has no surface vertices to strike".into());
+    }
+    if let Some(v) = requested {
+        return normals
+            .iter()
+            .find(|(n, _)| *n == v)
+            .map(|&(n, d)| (n, d))
+            .ok_or_else(|| format!("strike vertex {v} is not a surface vertex of the mesh ({} nodes)", mesh.n_nodes()));
+    }
+    let (lo, hi) = mesh.bounding_box();
+    let centre = [0.5 * (lo[0] + hi[0]), 0.5 * (lo[1] + hi[1]), 0.5 * (lo[2] + hi[2])];
+    let dist2 = |n: usize| (0..3).map(|d| (mesh.nodes[n][d] - centre[d]).powi(2)).sum::<f64>();
+    let best = normals.iter().fold(normals[0], |best, &cand| if dist2(cand.0) > dist2(best.0) + 1e-30 { cand } else { best });
+    Ok(best)
+}
+
+/// A unit impulse along the normal at `vertex`: mode k starts with velocity amplitude
+/// φ_k(v)·n (mass-normalised modes), rings at its Rayleigh-damped frequency and decays at
+/// (α + βω²)/2. The signal is normalised to a peak of 0.9 and written as 16-bit PCM.
+fn render_strike(path: &Path, mesh: &TetMesh, (vertex, normal): (usize, [f64; 3]), eigenvalues: &[f64], shapes: &[Vec<f64>], job: &Job) -> Result<(), String> {
+    let amplitudes: Vec<f64> = shapes.iter().map(|s| (0..3).map(|d| s[3 * vertex + d] * normal[d]).sum()).collect();
+    let bank = ModalBank::from_eigenvalues(eigenvalues, &amplitudes, job.material.rayleigh_alpha, job.material.rayleigh_beta);
+    let _ = mesh;
+    let samples = audio::render(&bank, job.sample_rate as f64, job.duration);
+    audio::write_wav(path, &samples, job.sample_rate, WavFormat::Pcm16, Some(0.9)).map_err(|e| e.to_string())
+}
+
+fn print_summary(job: &Job, mesh: &TetMesh, stats: &assembly::AssemblyStats, modes: &eigen::Modes<'_>, freqs: &[f64], total: f64, ranks: usize) {
+    println!("diffsound modes: {} ({} tets, {} DOF, P{}, {} rank(s))", job.mesh.display(), mesh.n_tets(), stats.n_dofs, job.order, ranks);
+    println!(
+        "material: {} E={:.4e} Pa nu={} rho={} kg/m3",
+        job.material_name, job.material.youngs_modulus, job.material.poisson_ratio, job.material.density
+    );
+    println!("rigid modes removed: {}  |  elastic modes: {}", modes.rigid_eigenvalues.len(), modes.eigenvalues.len());
+    if let Some(c) = &modes.inertia_check {
+        println!("inertia check: {} eigenvalues below {:.6e} rad^2/s^2, {} found -> {}", c.below, c.threshold, c.found, if c.below == c.found { "complete" } else { "MISMATCH" });
+    }
+    println!("{:>5} {:>14} {:>18} {:>10}", "mode", "freq [Hz]", "lambda [rad2/s2]", "residual");
+    for (i, (&l, &f)) in modes.eigenvalues.iter().zip(freqs).enumerate() {
+        let tag = if modes.clusters.iter().any(|r| r.contains(&i)) { " *" } else { "" };
+        println!("{:>5} {:>14.4} {:>18.10e} {:>10.2e}{}", i, f, l, modes.residuals[i], tag);
+    }
+    if !modes.clusters.is_empty() {
+        println!("(* near-degenerate cluster, relative gap <= {:e})", 1e-3);
+    }
+    println!("time: assembly {:.2} s, solve {:.2} s, total {:.2} s; output {}", stats.seconds, modes.solve_seconds, total, job.out.display());
+}

@@ -1,0 +1,382 @@
+//! Free-vibration modes: the generalised eigenproblem K φ = λ M φ with SLEPc.
+//!
+//! λ = ω² [rad²/s²], f = √λ / 2π [Hz]; modes are mass-normalised, φᵀMφ = 1 (M in kg, so φ is in
+//! kg^-½).
+//!
+//! **Defaults for a free body.** K is singular (six rigid-body modes), so shift-invert at σ = 0
+//! would factor a singular matrix. We shift just below zero, σ = −10⁻²·s with the spectrum scale
+//! s = μ/(ρL²) (L the bounding-box diagonal), which keeps K − σM positive definite (Cholesky stays
+//! valid) and makes the rigid modes come out first. Modes with λ < 10⁻⁶·s (f ≲ 10⁻³ of the shear
+//! wave frequency over the body) are classed as rigid and removed; anything other than six of them
+//! is reported (several disconnected pieces give 6 per piece).
+//!
+//! **Two ways to ask.** [`ModeRequest::FirstN`] runs Krylov–Schur with shift-invert (MUMPS
+//! Cholesky) for the N + 6 eigenvalues nearest σ. [`ModeRequest::UpTo`] uses SLEPc spectrum
+//! slicing over [σ, (2π f_max)²], which finds every eigenvalue of the interval from MUMPS inertia
+//! counts.
+//!
+//! **No lost modes.** For FirstN, a degenerate or near-degenerate cluster that straddles the N-th
+//! mode is completed (relative gap ≤ `cluster_rtol`), and the count is then proven: by Sylvester's
+//! law of inertia the number of negative pivots of K − τM equals the number of eigenvalues below τ.
+//! We factor K − τM with τ halfway between the last kept and the next eigenvalue and compare; if
+//! SLEPc missed one, the solve is repeated with more vectors.
+//!
+//! **User control.** Our defaults are set in code first, then `EPSSetFromOptions` applies any
+//! `-eps_*`, `-st_*`, `-mat_mumps_*` options, so every setting can be overridden.
+
+pub mod analytic;
+
+use crate::petsc::{self, Eps, EpsWhich, Mat, NonzeroPattern, Petsc, PetscError, Vector};
+
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum ModeRequest {
+    /// The first N elastic modes.
+    FirstN(usize),
+    /// Every elastic mode with undamped frequency up to `f_max_hz`.
+    UpTo { f_max_hz: f64 },
+}
+
+#[derive(Clone, Debug)]
+pub struct EigenConfig {
+    pub request: ModeRequest,
+    /// Characteristic eigenvalue scale s = μ/(ρL²) [rad²/s²] used for the default shift and the
+    /// rigid-mode threshold.
+    pub spectrum_scale: f64,
+    /// Shift σ [rad²/s²]; `None` means −10⁻²·s.
+    pub shift: Option<f64>,
+    /// Relative convergence tolerance of SLEPc.
+    pub tolerance: f64,
+    /// λ below `rigid_threshold · s` counts as a rigid-body mode.
+    pub rigid_threshold: f64,
+    /// Modes whose eigenvalues differ by at most this relative gap form a cluster.
+    pub cluster_rtol: f64,
+    /// Prove the mode count with an inertia check (one extra factorisation).
+    pub verify_count: bool,
+    /// Rigid modes expected (6 for one free body).
+    pub expected_rigid: usize,
+}
+
+impl EigenConfig {
+    pub fn new(request: ModeRequest, spectrum_scale: f64) -> Self {
+        EigenConfig {
+            request,
+            spectrum_scale,
+            shift: None,
+            tolerance: 1e-10,
+            rigid_threshold: 1e-6,
+            cluster_rtol: 1e-6,
+            verify_count: true,
+            expected_rigid: 6,
+        }
+    }
+
+    pub fn effective_shift(&self) -> f64 {
+        self.shift.unwrap_or(-1e-2 * self.spectrum_scale)
+    }
+}
+
+/// s = μ/(ρ L²) for shear modulus μ [Pa], density ρ [kg/m³] and size L [m].
+pub fn spectrum_scale(shear_modulus: f64, density: f64, size: f64) -> f64 {
+    shear_modulus / (density * size * size)
+}
+
+pub fn frequency_hz(eigenvalue: f64) -> f64 {
+    eigenvalue.max(0.0).sqrt() / (2.0 * std::f64::consts::PI)
+}
+
+#[derive(Debug, thiserror::Error)]
+pub enum EigenError {
+    #[error("{0}")]
+    Petsc(#[from] PetscError),
+    #[error("SLEPc converged only {converged} of the {wanted} eigenpairs requested (reason code {reason}); try a larger -eps_ncv or -eps_max_it")]
+    NotConverged { converged: usize, wanted: usize, reason: i32 },
+    #[error("inertia check failed: {below} eigenvalues lie below {threshold:.6e} rad²/s² but the solver returned {found}, even after {attempts} attempts")]
+    MissedModes { below: usize, found: usize, threshold: f64, attempts: usize },
+    #[error("invalid request: {0}")]
+    BadRequest(String),
+}
+
+/// The proof that no mode was lost.
+#[derive(Clone, Copy, Debug)]
+pub struct InertiaCheck {
+    /// τ [rad²/s²].
+    pub threshold: f64,
+    /// Eigenvalues below τ according to the inertia of K − τM.
+    pub below: usize,
+    /// Eigenpairs the solver returned below τ (rigid + elastic).
+    pub found: usize,
+    pub seconds: f64,
+}
+
+pub struct Modes<'p> {
+    /// Elastic eigenvalues, ascending [rad²/s²].
+    pub eigenvalues: Vec<f64>,
+    /// Mass-normalised eigenvectors (PETSc layout).
+    pub vectors: Vec<Vector<'p>>,
+    /// SLEPc's relative residual ‖Kφ − λMφ‖/(|λ|‖φ‖) per elastic mode.
+    pub residuals: Vec<f64>,
+    /// The near-zero eigenvalues removed as rigid-body modes.
+    pub rigid_eigenvalues: Vec<f64>,
+    /// Index ranges of (near-)degenerate clusters among `eigenvalues` (only those of size ≥ 2).
+    pub clusters: Vec<std::ops::Range<usize>>,
+    pub inertia_check: Option<InertiaCheck>,
+    /// Solver settings in force (for the output file).
+    pub settings: Vec<(String, String)>,
+    pub warnings: Vec<String>,
+    pub solve_seconds: f64,
+}
+
+struct RawPairs<'p> {
+    values: Vec<f64>,
+    vectors: Vec<Vector<'p>>,
+    residuals: Vec<f64>,
+    settings: Vec<(String, String)>,
+}
+
+/// Computes the modes requested in `cfg` for stiffness `k` and mass `m` (both symmetric).
+pub fn solve_modes<'p>(petsc: &'p Petsc, k: &Mat<'p>, m: &Mat<'p>, cfg: &EigenConfig) -> Result<Modes<'p>, EigenError> {
+    let start = std::time::Instant::now();
+    let shift = cfg.effective_shift();
+    if !(cfg.spectrum_scale.is_finite() && cfg.spectrum_scale > 0.0) {
+        return Err(EigenError::BadRequest(format!("spectrum scale must be positive, got {}", cfg.spectrum_scale)));
+    }
+    let rigid_limit = cfg.rigid_threshold * cfg.spectrum_scale;
+    let mut warnings = Vec::new();
+
+    let (raw, n_keep_hint) = match cfg.request {
+        ModeRequest::FirstN(0) => return Err(EigenError::BadRequest("number of modes must be at least 1".into())),
+        ModeRequest::FirstN(n) => (None, n),
+        ModeRequest::UpTo { f_max_hz } => {
+            if !(f_max_hz.is_finite() && f_max_hz > 0.0) {
+                return Err(EigenError::BadRequest(format!("frequency limit must be positive, got {f_max_hz}")));
+            }
+            let upper = (2.0 * std::f64::consts::PI * f_max_hz).powi(2);
+            (Some(solve_interval(petsc, k, m, shift, upper, cfg)?), 0)
+        }
+    };
+
+    let mut nev = n_keep_hint + cfg.expected_rigid + 4.max(n_keep_hint / 10);
+    let max_attempts = 3;
+    let mut attempt = 0;
+    let mut raw = raw;
+    loop {
+        attempt += 1;
+        let pairs = match (cfg.request, raw.take()) {
+            (_, Some(p)) => p,
+            (ModeRequest::UpTo { f_max_hz }, None) => solve_interval(petsc, k, m, shift, (2.0 * std::f64::consts::PI * f_max_hz).powi(2), cfg)?,
+            (ModeRequest::FirstN(_), None) => solve_nearest(petsc, k, m, shift, nev, cfg)?,
+        };
+        let RawPairs { values, vectors, residuals, mut settings } = pairs;
+        let mut order: Vec<usize> = (0..values.len()).collect();
+        order.sort_by(|&a, &b| values[a].total_cmp(&values[b]));
+        let mut vectors: Vec<Option<Vector<'p>>> = vectors.into_iter().map(Some).collect();
+        let mut rigid = Vec::new();
+        let mut elastic = Vec::new();
+        let mut elastic_vecs = Vec::new();
+        let mut elastic_res = Vec::new();
+        for &i in &order {
+            if values[i] < rigid_limit {
+                rigid.push(values[i]);
+            } else {
+                elastic.push(values[i]);
+                elastic_vecs.push(vectors[i].take().expect("each vector taken once"));
+                elastic_res.push(residuals[i]);
+            }
+        }
+
+        // How many elastic modes to keep: N, extended to complete a straddling cluster.
+        let keep = match cfg.request {
+            ModeRequest::FirstN(n) => {
+                if elastic.len() < n {
+                    if attempt < max_attempts {
+                        nev += n;
+                        continue;
+                    }
+                    return Err(EigenError::NotConverged { converged: elastic.len() + rigid.len(), wanted: n + cfg.expected_rigid, reason: 0 });
+                }
+                let mut keep = n;
+                while keep < elastic.len() && relative_gap(elastic[keep - 1], elastic[keep]) <= cfg.cluster_rtol {
+                    keep += 1;
+                }
+                if keep == elastic.len() && keep > n && attempt < max_attempts {
+                    // The cluster may go on beyond what was computed.
+                    nev += 10;
+                    continue;
+                }
+                if keep > n {
+                    warnings.push(format!("kept {} modes instead of {n} so as not to split a near-degenerate cluster (relative gap ≤ {:e})", keep, cfg.cluster_rtol));
+                }
+                keep
+            }
+            ModeRequest::UpTo { .. } => elastic.len(),
+        };
+
+        let inertia_check = if cfg.verify_count {
+            let threshold = match cfg.request {
+                ModeRequest::UpTo { f_max_hz } => (2.0 * std::f64::consts::PI * f_max_hz).powi(2),
+                ModeRequest::FirstN(_) if keep < elastic.len() => 0.5 * (elastic[keep - 1] + elastic[keep]),
+                ModeRequest::FirstN(_) => elastic[keep - 1] * (1.0 + 10.0 * cfg.cluster_rtol),
+            };
+            let t0 = std::time::Instant::now();
+            let below = count_below(petsc, k, m, threshold)?;
+            let found = rigid.len() + elastic.iter().filter(|&&l| l < threshold).count();
+            let check = InertiaCheck { threshold, below, found, seconds: t0.elapsed().as_secs_f64() };
+            if below > found {
+                if matches!(cfg.request, ModeRequest::FirstN(_)) && attempt < max_attempts {
+                    warnings.push(format!("inertia count found {below} eigenvalues below {threshold:.6e} but the solver returned {found}; solving again with more vectors"));
+                    nev = nev.max(below + 4) + 4;
+                    continue;
+                }
+                return Err(EigenError::MissedModes { below, found, threshold, attempts: attempt });
+            }
+            if below < found {
+                warnings.push(format!("inertia count found only {below} eigenvalues below {threshold:.6e} but the solver returned {found}: some returned pairs may be spurious"));
+            }
+            Some(check)
+        } else {
+            None
+        };
+
+        if rigid.len() != cfg.expected_rigid {
+            warnings.push(format!(
+                "found {} near-zero (rigid-body) modes, expected {} for one free body; a mesh in several disconnected pieces has 6 per piece",
+                rigid.len(),
+                cfg.expected_rigid
+            ));
+        }
+
+        elastic.truncate(keep);
+        elastic_vecs.truncate(keep);
+        elastic_res.truncate(keep);
+        let mut mx = m.create_vector()?;
+        for v in &mut elastic_vecs {
+            m.mult(v, &mut mx)?;
+            let norm = v.dot(&mx)?.sqrt();
+            v.scale(1.0 / norm)?;
+        }
+        let clusters = find_clusters(&elastic, cfg.cluster_rtol);
+        settings.push(("rigid_threshold_rad2_s2".into(), format!("{rigid_limit:e}")));
+        settings.push(("cluster_rtol".into(), format!("{:e}", cfg.cluster_rtol)));
+        settings.push(("attempts".into(), attempt.to_string()));
+        return Ok(Modes {
+            eigenvalues: elastic,
+            vectors: elastic_vecs,
+            residuals: elastic_res,
+            rigid_eigenvalues: rigid,
+            clusters,
+            inertia_check,
+            settings,
+            warnings,
+            solve_seconds: start.elapsed().as_secs_f64(),
+        });
+    }
+}
+
+fn relative_gap(a: f64, b: f64) -> f64 {
+    (b - a).abs() / a.abs().max(b.abs()).max(f64::MIN_POSITIVE)
+}
+
+/// Consecutive runs (length ≥ 2) of eigenvalues whose neighbours differ by at most `rtol`.
+pub fn find_clusters(sorted: &[f64], rtol: f64) -> Vec<std::ops::Range<usize>> {
+    let mut out = Vec::new();
+    let mut start = 0;
+    for i in 1..=sorted.len() {
+        if i == sorted.len() || relative_gap(sorted[i - 1], sorted[i]) > rtol {
+            if i - start >= 2 {
+                out.push(start..i);
+            }
+            start = i;
+        }
+    }
+    out
+}
+
+/// Number of eigenvalues of (K, M) below τ: the negative inertia of K − τM.
+pub fn count_below<'p>(petsc: &'p Petsc, k: &Mat<'p>, m: &Mat<'p>, tau: f64) -> Result<usize, PetscError> {
+    let mut a = k.duplicate()?;
+    a.axpy(-tau, m, NonzeroPattern::Same)?;
+    a.set_symmetric()?;
+    Ok(petsc::inertia(petsc, &a)?.negative)
+}
+
+/// Common defaults: GHEP, Krylov–Schur, shift-invert with MUMPS Cholesky, no purification.
+fn configure_common<'p>(petsc: &'p Petsc, k: &Mat<'p>, m: &Mat<'p>, cfg: &EigenConfig) -> Result<Eps<'p>, PetscError> {
+    let mut eps = Eps::new(petsc)?;
+    eps.set_operators_ghep(k, m)?;
+    eps.set_type(petsc::sys::EPSKRYLOVSCHUR)?;
+    eps.set_tolerances(cfg.tolerance, None)?;
+    eps.set_purify(false)?;
+    {
+        let st = eps.st()?;
+        st.set_type(petsc::sys::STSINVERT)?;
+        st.set_same_nonzero_pattern()?;
+        st.use_direct_solver(petsc::sys::PCCHOLESKY, petsc::sys::MATSOLVERMUMPS)?;
+    }
+    Ok(eps)
+}
+
+fn solve_nearest<'p>(petsc: &'p Petsc, k: &Mat<'p>, m: &Mat<'p>, shift: f64, nev: usize, cfg: &EigenConfig) -> Result<RawPairs<'p>, EigenError> {
+    let mut eps = configure_common(petsc, k, m, cfg)?;
+    eps.set_which(EpsWhich::TargetMagnitude)?;
+    eps.set_target(shift)?;
+    eps.set_dimensions(nev, None, None)?;
+    eps.set_from_options()?;
+    eps.solve()?;
+    collect(&eps, k, nev)
+}
+
+fn solve_interval<'p>(petsc: &'p Petsc, k: &Mat<'p>, m: &Mat<'p>, lower: f64, upper: f64, cfg: &EigenConfig) -> Result<RawPairs<'p>, EigenError> {
+    // MUMPS reports the inertia that slicing relies on only with ICNTL(13)=1 in parallel.
+    petsc.set_default_option("-mat_mumps_icntl_13", "1")?;
+    let mut eps = configure_common(petsc, k, m, cfg)?;
+    eps.set_which(EpsWhich::All)?;
+    eps.set_interval(lower, upper)?;
+    eps.set_from_options()?;
+    eps.solve()?;
+    collect(&eps, k, 0)
+}
+
+fn collect<'p>(eps: &Eps<'p>, k: &Mat<'p>, wanted: usize) -> Result<RawPairs<'p>, EigenError> {
+    let n = eps.converged()?;
+    if n < wanted {
+        return Err(EigenError::NotConverged { converged: n, wanted, reason: eps.converged_reason()? });
+    }
+    let mut values = Vec::with_capacity(n);
+    let mut vectors = Vec::with_capacity(n);
+    let mut residuals = Vec::with_capacity(n);
+    for i in 0..n {
+        let mut x = k.create_vector()?;
+        values.push(eps.eigenpair(i, &mut x)?);
+        vectors.push(x);
+        residuals.push(eps.relative_error(i)?);
+    }
+    Ok(RawPairs { values, vectors, residuals, settings: describe(eps)? })
+}
+
+fn describe(eps: &Eps<'_>) -> Result<Vec<(String, String)>, PetscError> {
+    let (tol, max_it) = eps.tolerances()?;
+    let (nev, ncv, mpd) = eps.dimensions()?;
+    let st = eps.st()?;
+    let (ksp, pc, solver) = st.solver_description()?;
+    let mut s = vec![
+        ("eps_type".to_string(), eps.type_name()?),
+        ("problem_type".into(), "ghep".into()),
+        ("st_type".into(), st.type_name()?),
+        ("ksp_type".into(), ksp),
+        ("pc_type".into(), pc),
+        ("pc_factor_mat_solver_type".into(), solver),
+        ("eps_tol".into(), format!("{tol:e}")),
+        ("eps_max_it".into(), max_it.to_string()),
+        ("eps_nev".into(), nev.to_string()),
+        ("eps_ncv".into(), ncv.to_string()),
+        ("eps_mpd".into(), mpd.to_string()),
+        ("eps_target".into(), format!("{:e}", eps.target()?)),
+        ("iterations".into(), eps.iterations()?.to_string()),
+    ];
+    if let Ok((a, b)) = eps.interval() {
+        if a != b {
+            s.push(("eps_interval".into(), format!("{a:e},{b:e}")));
+        }
+    }
+    Ok(s)
+}

@@ -1,0 +1,761 @@
+//! Results on disk: one HDF5 file per modal solve, plus an XDMF sidecar so
+//! ParaView can show every mode shape on the mesh without any plugin.
+//!
+//! Everything here is serial: the caller gathers the distributed data to rank 0
+//! and calls [`write_modes`] there. Both files are written through
+//! [`write_atomically`], so a reader never sees a half-written file: after a
+//! crash there is either the complete previous file, the complete new one, or
+//! nothing (plus possibly a stale `.<name>.tmp.<pid>`).
+//!
+//! # HDF5 layout
+//!
+//! | path                        | type / shape                        | units, meaning |
+//! |-----------------------------|-------------------------------------|----------------|
+//! | `/` attrs                   | `format` = `"diffsound.modes"`, `format_version` (u64) = 1 | identifies the file |
+//! | `/mesh/nodes`               | f64 `[n_nodes, 3]`                  | m, original mesh numbering |
+//! | `/mesh/tets`                | u64 `[n_tets, nodes_per_tet]`       | 0-based node ids, Gmsh order; attr `element_order` (u32, 1 or 2) |
+//! | `/mesh/tets_vtk`            | u64 `[n_tets, nodes_per_tet]`       | same cells in VTK/XDMF order (used by the sidecar) |
+//! | `/material` attrs           | `youngs_modulus` f64, `poisson_ratio` f64, `density` f64, `rayleigh_alpha` f64, `rayleigh_beta` f64, `name` string | Pa, –, kg/m³, 1/s, s |
+//! | `/modes/eigenvalues`        | f64 `[n_modes]`                     | λ = ω², rad²/s², elastic modes only, ascending |
+//! | `/modes/frequencies`        | f64 `[n_modes]`                     | Hz, f = √λ / 2π |
+//! | `/modes/shapes`             | f64 `[n_modes, n_nodes, 3]`         | mass-normalised φ (φᵀMφ = 1), node-major x,y,z |
+//! | `/modes/residual_norms`     | f64 `[n_modes]`                     | relative residual ‖Kφ − λMφ‖ / … |
+//! | `/modes/rigid_eigenvalues`  | f64 `[k]`                           | rad²/s², the near-zero modes that were removed |
+//! | `/solver` attrs             | key → value strings, plus `n_ranks` (u64) | solver settings and PETSc options |
+//! | `/timings` attrs            | key → f64                           | seconds (assembly, solve, total, …) |
+//! | `/provenance` attrs         | key → value strings                 | mesh path, units, command line, diffsound version |
+//!
+//! Strings are variable-length UTF-8. Attribute keys must be non-empty and
+//! unique within their group (a repeated key is an error, not a silent
+//! overwrite); `/solver` may not use the key `n_ranks`, which is reserved.
+//!
+//! # XDMF sidecar
+//!
+//! `<path>` with the extension replaced by `.xdmf`, XDMF 3 (`<Xdmf Version="3.0">`):
+//! one uniform Grid `mesh` (with an `Information` element naming the material)
+//! whose Topology is `Tetrahedron` (4 nodes) or
+//! `Tetrahedron_10` (10 nodes) reading `/mesh/tets_vtk`, Geometry `XYZ` reading
+//! `/mesh/nodes`, and per mode `k` a node-centred vector Attribute named
+//! `mode_KKK (F Hz)` whose HyperSlab DataItem selects start `[k,0,0]`, stride
+//! `[1,1,1]`, count `[1,n_nodes,3]` of `/modes/shapes`. The HDF5 file is named
+//! by its file name only (relative to the sidecar), so the pair can be moved
+//! together. Connectivity is declared `NumberType="Int" Precision="8"`: HDF5
+//! converts the stored u64 on read, and signed 64-bit is the index type every
+//! XDMF reader accepts. If writing the sidecar fails after the HDF5 file was
+//! renamed into place, the HDF5 file stays (it is complete and self-describing)
+//! and the error is returned.
+//!
+//! # Tet10 node order: Gmsh → XDMF/VTK
+//!
+//! Gmsh's 10-node tet puts the mid-edge nodes on edges
+//! 4:(0,1) 5:(1,2) 6:(0,2) 7:(0,3) 8:(2,3) 9:(1,3); VTK's `VTK_QUADRATIC_TETRA`
+//! (vtkQuadraticTetra.h) uses (0,1) (1,2) (2,0) (0,3) (1,3) (2,3). ParaView's
+//! XDMF readers (VTK `vtkXdmfHeavyData`, `vtkXdmf3DataSet`) map
+//! `Tetrahedron_10` to `VTK_QUADRATIC_TETRA` and copy the connectivity
+//! verbatim, so XDMF order is VTK order and the conversion is swapping local
+//! nodes 8 and 9: `vtk[i] = gmsh[GMSH_TO_VTK_TET10[i]]`.
+
+use std::fmt::Write as _;
+use std::fs;
+use std::path::{Path, PathBuf};
+
+use hdf5::types::VarLenUnicode;
+
+/// Value of the root attribute `format`.
+pub const FORMAT_NAME: &str = "diffsound.modes";
+/// Value of the root attribute `format_version`; bump on any layout change.
+pub const FORMAT_VERSION: u64 = 1;
+
+/// `vtk[i] = gmsh[GMSH_TO_VTK_TET10[i]]` for one 10-node tet (see module docs).
+pub const GMSH_TO_VTK_TET10: [usize; 10] = [0, 1, 2, 3, 4, 5, 6, 7, 9, 8];
+
+/// Material as stored under `/material`.
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct MaterialRecord {
+    /// "custom" when the material was not taken from a named preset.
+    pub name: String,
+    /// Young's modulus E, Pa.
+    pub youngs_modulus: f64,
+    /// Poisson's ratio ν, dimensionless.
+    pub poisson_ratio: f64,
+    /// Density ρ, kg/m³.
+    pub density: f64,
+    /// Rayleigh mass-proportional damping α, 1/s (C = αM + βK).
+    pub rayleigh_alpha: f64,
+    /// Rayleigh stiffness-proportional damping β, s.
+    pub rayleigh_beta: f64,
+}
+
+/// Everything one modal solve produces, borrowed from the caller (rank 0).
+pub struct ModesFile<'a> {
+    /// Node coordinates, m, original mesh numbering.
+    pub nodes: &'a [[f64; 3]],
+    /// `nodes_per_tet` 0-based node ids per tet, Gmsh order
+    /// (tet10: corners 0..3, mid-edge 4:(0,1) 5:(1,2) 6:(0,2) 7:(0,3) 8:(2,3) 9:(1,3)).
+    pub connectivity: &'a [usize],
+    /// 4 or 10.
+    pub nodes_per_tet: usize,
+    pub material: MaterialRecord,
+    /// λ = ω², rad²/s², elastic modes only, ascending.
+    pub eigenvalues: &'a [f64],
+    /// f = √λ / 2π, Hz.
+    pub frequencies_hz: &'a [f64],
+    /// One per mode, length 3·n_nodes, node-major (x,y,z), mass-normalised.
+    pub mode_shapes: &'a [Vec<f64>],
+    /// Relative residual per mode.
+    pub residual_norms: &'a [f64],
+    /// The near-zero (rigid-body) eigenvalues that were removed, rad²/s².
+    pub rigid_eigenvalues: &'a [f64],
+    /// Solver settings and PETSc options as key/value strings.
+    pub solver: Vec<(String, String)>,
+    pub n_ranks: usize,
+    /// 1 (tet4) or 2 (tet10).
+    pub element_order: u32,
+    /// Wall-clock seconds per phase (assembly, solve, total, …).
+    pub timings: Vec<(String, f64)>,
+    /// Mesh path, units, command line, diffsound version, …
+    pub provenance: Vec<(String, String)>,
+}
+
+/// What [`read_modes`] returns: the whole file, owned.
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct ModesSummary {
+    pub n_nodes: usize,
+    pub n_tets: usize,
+    pub n_modes: usize,
+    pub nodes_per_tet: usize,
+    pub element_order: u32,
+    /// m, original numbering.
+    pub nodes: Vec<[f64; 3]>,
+    /// Gmsh order, flattened `nodes_per_tet` per tet.
+    pub connectivity: Vec<usize>,
+    pub material: MaterialRecord,
+    /// rad²/s².
+    pub eigenvalues: Vec<f64>,
+    /// Hz.
+    pub frequencies_hz: Vec<f64>,
+    /// One per mode, length 3·n_nodes, node-major (x,y,z).
+    pub mode_shapes: Vec<Vec<f64>>,
+    pub residual_norms: Vec<f64>,
+    pub rigid_eigenvalues: Vec<f64>,
+    pub n_ranks: usize,
+    /// Attribute order as HDF5 lists it (by name), without `n_ranks`.
+    pub solver: Vec<(String, String)>,
+    pub timings: Vec<(String, f64)>,
+    pub provenance: Vec<(String, String)>,
+}
+
+/// Errors of this module; every variant names the file it concerns.
+#[derive(thiserror::Error, Debug)]
+pub enum IoError {
+    #[error("{path}: {context}: {source}")]
+    Hdf5 {
+        path: PathBuf,
+        context: String,
+        #[source]
+        source: hdf5::Error,
+    },
+    #[error("{path}: {context}: {source}")]
+    Fs {
+        path: PathBuf,
+        context: String,
+        #[source]
+        source: std::io::Error,
+    },
+    /// The data handed to a writer is inconsistent (nothing was written).
+    #[error("{path}: refusing to write: {reason}")]
+    InvalidInput { path: PathBuf, reason: String },
+    /// The file exists and is HDF5 but does not hold the layout documented above.
+    #[error("{path}: not a valid diffsound modes file: {reason}")]
+    BadLayout { path: PathBuf, reason: String },
+}
+
+impl IoError {
+    fn hdf5(path: &Path, context: impl Into<String>) -> impl FnOnce(hdf5::Error) -> IoError + '_ {
+        let context = context.into();
+        move |source| IoError::Hdf5 {
+            path: path.to_path_buf(),
+            context,
+            source,
+        }
+    }
+    fn fs(path: &Path, context: impl Into<String>) -> impl FnOnce(std::io::Error) -> IoError + '_ {
+        let context = context.into();
+        move |source| IoError::Fs {
+            path: path.to_path_buf(),
+            context,
+            source,
+        }
+    }
+}
+
+/// The sidecar path: `<path>` with its extension replaced by `xdmf`.
+pub fn xdmf_path(h5_path: &Path) -> PathBuf {
+    h5_path.with_extension("xdmf")
+}
+
+/// Permutes Gmsh-ordered connectivity into VTK/XDMF order (identity for tet4).
+pub fn gmsh_to_vtk_connectivity(connectivity: &[usize], nodes_per_tet: usize) -> Vec<usize> {
+    if nodes_per_tet != 10 {
+        return connectivity.to_vec();
+    }
+    connectivity
+        .chunks_exact(10)
+        .flat_map(|tet| GMSH_TO_VTK_TET10.iter().map(move |&g| tet[g]))
+        .collect()
+}
+
+/// Writes `path` via a temporary `<dir>/.<name>.tmp.<pid>` in the same
+/// directory, then renames it over `path`. Rename within one directory is
+/// atomic on POSIX, so readers see the old file or the complete new one. The
+/// temporary is fsynced before the rename (so a crash cannot leave a renamed
+/// but empty file) and removed if `write` or anything after it fails.
+pub fn write_atomically<F>(path: &Path, write: F) -> Result<(), IoError>
+where
+    F: FnOnce(&Path) -> Result<(), IoError>,
+{
+    let tmp = temp_path_for(path)?;
+    let result = write(&tmp).and_then(|()| {
+        fs::File::open(&tmp)
+            .and_then(|f| f.sync_all())
+            .map_err(IoError::fs(&tmp, "syncing temporary file"))?;
+        fs::rename(&tmp, path).map_err(IoError::fs(
+            path,
+            format!("renaming {} into place", tmp.display()),
+        ))
+    });
+    match result {
+        Ok(()) => {
+            // Persist the rename itself; failure here loses no data already
+            // visible to readers, so it is not worth failing the whole write.
+            if let Some(dir) = path.parent() {
+                let dir = if dir.as_os_str().is_empty() {
+                    Path::new(".")
+                } else {
+                    dir
+                };
+                if let Ok(d) = fs::File::open(dir) {
+                    let _ = d.sync_all();
+                }
+            }
+            Ok(())
+        }
+        Err(e) => {
+            let _ = fs::remove_file(&tmp);
+            Err(e)
+        }
+    }
+}
+
+fn temp_path_for(path: &Path) -> Result<PathBuf, IoError> {
+    let name = path.file_name().ok_or_else(|| IoError::InvalidInput {
+        path: path.to_path_buf(),
+        reason: "path has no file name".into(),
+    })?;
+    let mut tmp_name = std::ffi::OsString::from(".");
+    tmp_name.push(name);
+    tmp_name.push(format!(".tmp.{}", std::process::id()));
+    Ok(path.with_file_name(tmp_name))
+}
+
+/// Writes the HDF5 results file `path` and its XDMF sidecar (see module docs),
+/// each atomically, HDF5 first so the sidecar never points at a missing file.
+/// The input is validated before anything touches the disk.
+pub fn write_modes(path: &Path, f: &ModesFile) -> Result<(), IoError> {
+    validate(path, f)?;
+    let h5_name = path
+        .file_name()
+        .and_then(|n| n.to_str())
+        .ok_or_else(|| IoError::InvalidInput {
+            path: path.to_path_buf(),
+            reason: "file name is not valid UTF-8 (the XDMF sidecar must name it)".into(),
+        })?
+        .to_string();
+    write_atomically(path, |tmp| write_h5(tmp, f))?;
+    let xml = xdmf_document(&h5_name, f);
+    let xdmf = xdmf_path(path);
+    write_atomically(&xdmf, |tmp| {
+        fs::write(tmp, xml.as_bytes()).map_err(IoError::fs(tmp, "writing XDMF sidecar"))
+    })
+}
+
+fn validate(path: &Path, f: &ModesFile) -> Result<(), IoError> {
+    let bad = |reason: String| {
+        Err(IoError::InvalidInput {
+            path: path.to_path_buf(),
+            reason,
+        })
+    };
+    let n_nodes = f.nodes.len();
+    let npt = f.nodes_per_tet;
+    let expected_order = match npt {
+        4 => 1,
+        10 => 2,
+        _ => return bad(format!("nodes_per_tet is {npt}, expected 4 or 10")),
+    };
+    if f.element_order != expected_order {
+        return bad(format!(
+            "element_order {} does not match nodes_per_tet {npt}",
+            f.element_order
+        ));
+    }
+    if f.connectivity.len() % npt != 0 {
+        return bad(format!(
+            "connectivity length {} is not a multiple of {npt}",
+            f.connectivity.len()
+        ));
+    }
+    if let Some(&id) = f.connectivity.iter().find(|&&id| id >= n_nodes) {
+        return bad(format!(
+            "connectivity refers to node {id} but there are {n_nodes} nodes"
+        ));
+    }
+    let n_modes = f.eigenvalues.len();
+    for (what, len) in [
+        ("frequencies_hz", f.frequencies_hz.len()),
+        ("mode_shapes", f.mode_shapes.len()),
+        ("residual_norms", f.residual_norms.len()),
+    ] {
+        if len != n_modes {
+            return bad(format!(
+                "{what} has {len} entries but there are {n_modes} eigenvalues"
+            ));
+        }
+    }
+    if let Some((k, s)) = f
+        .mode_shapes
+        .iter()
+        .enumerate()
+        .find(|(_, s)| s.len() != 3 * n_nodes)
+    {
+        return bad(format!(
+            "mode shape {k} has length {}, expected 3·n_nodes = {}",
+            s.len(),
+            3 * n_nodes
+        ));
+    }
+    check_keys(
+        path,
+        "solver",
+        f.solver.iter().map(|(k, _)| k.as_str()),
+        &["n_ranks"],
+    )?;
+    check_keys(
+        path,
+        "timings",
+        f.timings.iter().map(|(k, _)| k.as_str()),
+        &[],
+    )?;
+    check_keys(
+        path,
+        "provenance",
+        f.provenance.iter().map(|(k, _)| k.as_str()),
+        &[],
+    )?;
+    Ok(())
+}
+
+fn check_keys<'k>(
+    path: &Path,
+    group: &str,
+    keys: impl Iterator<Item = &'k str>,
+    reserved: &[&str],
+) -> Result<(), IoError> {
+    let mut seen = std::collections::HashSet::new();
+    for key in keys {
+        let reason = if key.is_empty() {
+            format!("/{group} has an empty attribute name")
+        } else if reserved.contains(&key) {
+            format!("/{group} attribute name '{key}' is reserved")
+        } else if !seen.insert(key) {
+            format!("/{group} attribute '{key}' is given twice")
+        } else {
+            continue;
+        };
+        return Err(IoError::InvalidInput {
+            path: path.to_path_buf(),
+            reason,
+        });
+    }
+    Ok(())
+}
+
+fn write_h5(path: &Path, f: &ModesFile) -> Result<(), IoError> {
+    let file = hdf5::File::create(path).map_err(IoError::hdf5(path, "creating HDF5 file"))?;
+    // All group/dataset handles live inside this call, so they are closed
+    // before `file.close()`; HDF5 keeps a file open while any handle is alive.
+    fill_h5(path, &file, f)?;
+    file.close()
+        .map_err(IoError::hdf5(path, "closing HDF5 file"))
+}
+
+fn fill_h5(path: &Path, file: &hdf5::File, f: &ModesFile) -> Result<(), IoError> {
+    let n_nodes = f.nodes.len();
+    let npt = f.nodes_per_tet;
+    let n_tets = f.connectivity.len() / npt;
+    let n_modes = f.eigenvalues.len();
+
+    write_str_attr(path, file, "format", FORMAT_NAME)?;
+    write_attr(path, file, "format_version", &FORMAT_VERSION)?;
+
+    let mesh = create_group(path, file, "mesh")?;
+    let flat_nodes: Vec<f64> = f.nodes.iter().flatten().copied().collect();
+    write_dataset(path, &mesh, "nodes", &[n_nodes, 3], &flat_nodes)?;
+    let tets: Vec<u64> = f.connectivity.iter().map(|&i| i as u64).collect();
+    let tets_ds = write_dataset(path, &mesh, "tets", &[n_tets, npt], &tets)?;
+    write_attr(path, &tets_ds, "element_order", &f.element_order)?;
+    let tets_vtk: Vec<u64> = gmsh_to_vtk_connectivity(f.connectivity, npt)
+        .into_iter()
+        .map(|i| i as u64)
+        .collect();
+    write_dataset(path, &mesh, "tets_vtk", &[n_tets, npt], &tets_vtk)?;
+
+    let mat = create_group(path, file, "material")?;
+    let m = &f.material;
+    for (key, value) in [
+        ("youngs_modulus", m.youngs_modulus),
+        ("poisson_ratio", m.poisson_ratio),
+        ("density", m.density),
+        ("rayleigh_alpha", m.rayleigh_alpha),
+        ("rayleigh_beta", m.rayleigh_beta),
+    ] {
+        write_attr(path, &mat, key, &value)?;
+    }
+    write_str_attr(path, &mat, "name", &m.name)?;
+
+    let modes = create_group(path, file, "modes")?;
+    write_dataset(path, &modes, "eigenvalues", &[n_modes], f.eigenvalues)?;
+    write_dataset(path, &modes, "frequencies", &[n_modes], f.frequencies_hz)?;
+    // One contiguous buffer: hdf5-metno writes multi-dimensional slabs only
+    // from ndarray views, which this crate does not depend on. The cost is
+    // a transient copy of the shapes.
+    let shapes: Vec<f64> = f.mode_shapes.iter().flatten().copied().collect();
+    write_dataset(path, &modes, "shapes", &[n_modes, n_nodes, 3], &shapes)?;
+    drop(shapes);
+    write_dataset(path, &modes, "residual_norms", &[n_modes], f.residual_norms)?;
+    write_dataset(
+        path,
+        &modes,
+        "rigid_eigenvalues",
+        &[f.rigid_eigenvalues.len()],
+        f.rigid_eigenvalues,
+    )?;
+
+    let solver = create_group(path, file, "solver")?;
+    for (key, value) in &f.solver {
+        write_str_attr(path, &solver, key, value)?;
+    }
+    write_attr(path, &solver, "n_ranks", &(f.n_ranks as u64))?;
+
+    let timings = create_group(path, file, "timings")?;
+    for (key, seconds) in &f.timings {
+        write_attr(path, &timings, key, seconds)?;
+    }
+
+    let provenance = create_group(path, file, "provenance")?;
+    for (key, value) in &f.provenance {
+        write_str_attr(path, &provenance, key, value)?;
+    }
+    Ok(())
+}
+
+fn create_group(path: &Path, file: &hdf5::File, name: &str) -> Result<hdf5::Group, IoError> {
+    file.create_group(name)
+        .map_err(IoError::hdf5(path, format!("creating group /{name}")))
+}
+
+fn write_dataset<T: hdf5::H5Type>(
+    path: &Path,
+    group: &hdf5::Group,
+    name: &str,
+    shape: &[usize],
+    data: &[T],
+) -> Result<hdf5::Dataset, IoError> {
+    let full = format!("{}/{name}", group.name());
+    let ds = group
+        .new_dataset::<T>()
+        .shape(shape)
+        .create(name)
+        .map_err(IoError::hdf5(path, format!("creating dataset {full}")))?;
+    // A zero-size dataset (e.g. no rigid modes) has nothing to write, and
+    // hdf5-metno rejects writing an empty buffer.
+    if !data.is_empty() {
+        ds.write_raw(data)
+            .map_err(IoError::hdf5(path, format!("writing dataset {full}")))?;
+    }
+    Ok(ds)
+}
+
+fn write_attr<T: hdf5::H5Type>(
+    path: &Path,
+    loc: &hdf5::Location,
+    name: &str,
+    value: &T,
+) -> Result<(), IoError> {
+    let where_ = format!("attribute '{name}' on {}", loc.name());
+    loc.new_attr::<T>()
+        .create(name)
+        .and_then(|a| a.write_scalar(value))
+        .map_err(IoError::hdf5(path, format!("writing {where_}")))
+}
+
+fn write_str_attr(
+    path: &Path,
+    loc: &hdf5::Location,
+    name: &str,
+    value: &str,
+) -> Result<(), IoError> {
+    let v: VarLenUnicode = value.parse().map_err(|e| IoError::InvalidInput {
+        path: path.to_path_buf(),
+        reason: format!(
+            "attribute '{name}' on {}: value cannot be stored: {e}",
+            loc.name()
+        ),
+    })?;
+    write_attr(path, loc, name, &v)
+}
+
+/// The XDMF 3 sidecar text for a results file named `h5_name` (see module docs).
+pub fn xdmf_document(h5_name: &str, f: &ModesFile) -> String {
+    let n_nodes = f.nodes.len();
+    let npt = f.nodes_per_tet;
+    let n_tets = f.connectivity.len() / npt;
+    let n_modes = f.eigenvalues.len();
+    let h5 = xml_escape(h5_name);
+    let topology = if npt == 10 {
+        "Tetrahedron_10"
+    } else {
+        "Tetrahedron"
+    };
+
+    let mut x = String::new();
+    // `write!` into a String cannot fail.
+    let _ = write!(
+        x,
+        r#"<?xml version="1.0" encoding="utf-8"?>
+<Xdmf Version="3.0">
+  <Domain>
+    <Grid Name="mesh" GridType="Uniform">
+      <Information Name="material" Value="{material}"/>
+      <Topology TopologyType="{topology}" NumberOfElements="{n_tets}" NodesPerElement="{npt}">
+        <DataItem Dimensions="{n_tets} {npt}" NumberType="Int" Precision="8" Format="HDF">{h5}:/mesh/tets_vtk</DataItem>
+      </Topology>
+      <Geometry GeometryType="XYZ">
+        <DataItem Dimensions="{n_nodes} 3" NumberType="Float" Precision="8" Format="HDF">{h5}:/mesh/nodes</DataItem>
+      </Geometry>
+"#,
+        material = xml_escape(&f.material.name),
+    );
+    for (k, freq) in f.frequencies_hz.iter().enumerate() {
+        let _ = write!(
+            x,
+            r#"      <Attribute Name="mode_{k:03} ({freq:.1} Hz)" Center="Node" AttributeType="Vector">
+        <DataItem ItemType="HyperSlab" Type="HyperSlab" Dimensions="{n_nodes} 3" NumberType="Float" Precision="8">
+          <DataItem Dimensions="3 3" NumberType="Int" Format="XML">{k} 0 0 1 1 1 1 {n_nodes} 3</DataItem>
+          <DataItem Dimensions="{n_modes} {n_nodes} 3" NumberType="Float" Precision="8" Format="HDF">{h5}:/modes/shapes</DataItem>
+        </DataItem>
+      </Attribute>
+"#
+        );
+    }
+    x.push_str("    </Grid>\n  </Domain>\n</Xdmf>\n");
+    x
+}
+
+fn xml_escape(s: &str) -> String {
+    let mut out = String::with_capacity(s.len());
+    for c in s.chars() {
+        match c {
+            '&' => out.push_str("&amp;"),
+            '<' => out.push_str("&lt;"),
+            '>' => out.push_str("&gt;"),
+            '"' => out.push_str("&quot;"),
+            '\'' => out.push_str("&apos;"),
+            _ => out.push(c),
+        }
+    }
+    out
+}
+
+/// Reads a file written by [`write_modes`] back in full, checking the layout
+/// (format tag, dataset shapes, consistent counts) as it goes.
+pub fn read_modes(path: &Path) -> Result<ModesSummary, IoError> {
+    if !path.exists() {
+        return Err(IoError::Fs {
+            path: path.to_path_buf(),
+            context: "opening modes file".into(),
+            source: std::io::Error::from(std::io::ErrorKind::NotFound),
+        });
+    }
+    let file = hdf5::File::open(path).map_err(IoError::hdf5(path, "opening HDF5 file"))?;
+    let bad = |reason: String| IoError::BadLayout {
+        path: path.to_path_buf(),
+        reason,
+    };
+
+    let format = read_str_attr(path, &file, "format")?;
+    if format != FORMAT_NAME {
+        return Err(bad(format!(
+            "root attribute format is '{format}', expected '{FORMAT_NAME}'"
+        )));
+    }
+    let version: u64 = read_attr(path, &file, "format_version")?;
+    if version != FORMAT_VERSION {
+        return Err(bad(format!(
+            "format_version {version} is not supported (this build reads {FORMAT_VERSION})"
+        )));
+    }
+
+    let (nodes_flat, nshape) = read_dataset::<f64>(path, &file, "/mesh/nodes")?;
+    if nshape.len() != 2 || nshape[1] != 3 {
+        return Err(bad(format!(
+            "/mesh/nodes has shape {nshape:?}, expected [n_nodes, 3]"
+        )));
+    }
+    let n_nodes = nshape[0];
+    let nodes: Vec<[f64; 3]> = nodes_flat
+        .chunks_exact(3)
+        .map(|c| [c[0], c[1], c[2]])
+        .collect();
+
+    let (tets, tshape) = read_dataset::<u64>(path, &file, "/mesh/tets")?;
+    if tshape.len() != 2 || !(tshape[1] == 4 || tshape[1] == 10) {
+        return Err(bad(format!(
+            "/mesh/tets has shape {tshape:?}, expected [n_tets, 4 or 10]"
+        )));
+    }
+    let (n_tets, nodes_per_tet) = (tshape[0], tshape[1]);
+    let tets_ds = file
+        .dataset("/mesh/tets")
+        .map_err(IoError::hdf5(path, "opening /mesh/tets"))?;
+    let element_order: u32 = read_attr(path, &tets_ds, "element_order")?;
+    let connectivity: Vec<usize> = tets.into_iter().map(|i| i as usize).collect();
+
+    let mat = file
+        .group("material")
+        .map_err(IoError::hdf5(path, "opening /material"))?;
+    let material = MaterialRecord {
+        name: read_str_attr(path, &mat, "name")?,
+        youngs_modulus: read_attr(path, &mat, "youngs_modulus")?,
+        poisson_ratio: read_attr(path, &mat, "poisson_ratio")?,
+        density: read_attr(path, &mat, "density")?,
+        rayleigh_alpha: read_attr(path, &mat, "rayleigh_alpha")?,
+        rayleigh_beta: read_attr(path, &mat, "rayleigh_beta")?,
+    };
+
+    let (eigenvalues, _) = read_dataset::<f64>(path, &file, "/modes/eigenvalues")?;
+    let n_modes = eigenvalues.len();
+    let (frequencies_hz, _) = read_dataset::<f64>(path, &file, "/modes/frequencies")?;
+    let (residual_norms, _) = read_dataset::<f64>(path, &file, "/modes/residual_norms")?;
+    let (rigid_eigenvalues, _) = read_dataset::<f64>(path, &file, "/modes/rigid_eigenvalues")?;
+    let (shapes, sshape) = read_dataset::<f64>(path, &file, "/modes/shapes")?;
+    if sshape != [n_modes, n_nodes, 3] {
+        return Err(bad(format!(
+            "/modes/shapes has shape {sshape:?}, expected [{n_modes}, {n_nodes}, 3]"
+        )));
+    }
+    if frequencies_hz.len() != n_modes || residual_norms.len() != n_modes {
+        return Err(bad(format!(
+            "{n_modes} eigenvalues but {} frequencies and {} residual norms",
+            frequencies_hz.len(),
+            residual_norms.len()
+        )));
+    }
+    let mode_shapes: Vec<Vec<f64>> = if n_nodes == 0 {
+        vec![Vec::new(); n_modes]
+    } else {
+        shapes
+            .chunks_exact(3 * n_nodes)
+            .map(<[f64]>::to_vec)
+            .collect()
+    };
+
+    let solver_g = file
+        .group("solver")
+        .map_err(IoError::hdf5(path, "opening /solver"))?;
+    let n_ranks: u64 = read_attr(path, &solver_g, "n_ranks")?;
+    let mut solver = Vec::new();
+    for key in attr_names(path, &solver_g)? {
+        if key != "n_ranks" {
+            let value = read_str_attr(path, &solver_g, &key)?;
+            solver.push((key, value));
+        }
+    }
+    let timings_g = file
+        .group("timings")
+        .map_err(IoError::hdf5(path, "opening /timings"))?;
+    let mut timings = Vec::new();
+    for key in attr_names(path, &timings_g)? {
+        let seconds = read_attr(path, &timings_g, &key)?;
+        timings.push((key, seconds));
+    }
+    let prov_g = file
+        .group("provenance")
+        .map_err(IoError::hdf5(path, "opening /provenance"))?;
+    let mut provenance = Vec::new();
+    for key in attr_names(path, &prov_g)? {
+        let value = read_str_attr(path, &prov_g, &key)?;
+        provenance.push((key, value));
+    }
+
+    Ok(ModesSummary {
+        n_nodes,
+        n_tets,
+        n_modes,
+        nodes_per_tet,
+        element_order,
+        nodes,
+        connectivity,
+        material,
+        eigenvalues,
+        frequencies_hz,
+        mode_shapes,
+        residual_norms,
+        rigid_eigenvalues,
+        n_ranks: n_ranks as usize,
+        solver,
+        timings,
+        provenance,
+    })
+}
+
+fn read_dataset<T: hdf5::H5Type>(
+    path: &Path,
+    file: &hdf5::File,
+    name: &str,
+) -> Result<(Vec<T>, Vec<usize>), IoError> {
+    let ds = file
+        .dataset(name)
+        .map_err(IoError::hdf5(path, format!("opening dataset {name}")))?;
+    let shape = ds.shape();
+    let data = if shape.iter().product::<usize>() == 0 {
+        Vec::new()
+    } else {
+        ds.read_raw::<T>()
+            .map_err(IoError::hdf5(path, format!("reading dataset {name}")))?
+    };
+    Ok((data, shape))
+}
+
+fn read_attr<T: hdf5::H5Type>(path: &Path, loc: &hdf5::Location, name: &str) -> Result<T, IoError> {
+    loc.attr(name)
+        .and_then(|a| a.read_scalar::<T>())
+        .map_err(IoError::hdf5(
+            path,
+            format!("reading attribute '{name}' on {}", loc.name()),
+        ))
+}
+
+fn read_str_attr(path: &Path, loc: &hdf5::Location, name: &str) -> Result<String, IoError> {
+    read_attr::<VarLenUnicode>(path, loc, name).map(|s| s.as_str().to_owned())
+}
+
+fn attr_names(path: &Path, loc: &hdf5::Location) -> Result<Vec<String>, IoError> {
+    loc.attr_names().map_err(IoError::hdf5(
+        path,
+        format!("listing attributes of {}", loc.name()),
+    ))
+}
+
+#[cfg(test)]
+mod tests;

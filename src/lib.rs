@@ -1,0 +1,24 @@
+//! diffsound: physics-based modal sound.
+//!
+//! The crate is laid out as the pipeline it implements:
+//!
+//! | stage      | module       | what it does |
+//! |------------|--------------|--------------|
+//! | mesh       | [`mesh`]     | reads Gmsh tet meshes, validates them, lifts P1 to P2 |
+//! | fem        | [`fem`]      | pure, serial element kernels: mass, Lamé-split stiffness, materials |
+//! | assembly   | [`assembly`] | node partition, exact preallocation, distributed PETSc matrices |
+//! | eigen      | [`eigen`]    | SLEPc shift-invert Krylov–Schur, rigid-mode removal, spectrum slicing |
+//! | audio      | [`audio`]    | damped-sinusoid synthesis and WAV I/O |
+//! | io         | [`io`]       | HDF5 results with an XDMF sidecar, written atomically |
+//!
+//! [`petsc`] is the one thin unsafe boundary: raw bindgen bindings under safe RAII handles.
+//! [`cli`] is the `diffsound` command line.
+
+pub mod assembly;
+pub mod audio;
+pub mod cli;
+pub mod eigen;
+pub mod fem;
+pub mod io;
+pub mod mesh;
+pub mod petsc;

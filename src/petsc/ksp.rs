@@ -1,0 +1,69 @@
+//! A stand-alone linear solver, used here to factor `A` and read its inertia.
+
+use super::error::{check, Result};
+use super::{sys, Mat, Petsc};
+use std::marker::PhantomData;
+
+pub struct Ksp<'p> {
+    raw: sys::KSP,
+    _runtime: PhantomData<&'p Petsc>,
+}
+
+impl<'p> Ksp<'p> {
+    pub fn new(petsc: &'p Petsc) -> Result<Self> {
+        let mut raw: sys::KSP = std::ptr::null_mut();
+        // SAFETY: creation on the world communicator.
+        unsafe { check(sys::KSPCreate(petsc.comm(), &mut raw), "KSPCreate")? };
+        Ok(Ksp { raw, _runtime: PhantomData })
+    }
+
+    pub fn raw(&self) -> sys::KSP {
+        self.raw
+    }
+}
+
+impl Drop for Ksp<'_> {
+    fn drop(&mut self) {
+        // SAFETY: we own the handle.
+        unsafe {
+            sys::KSPDestroy(&mut self.raw);
+        }
+    }
+}
+
+/// Sylvester inertia of a symmetric matrix: how many eigenvalues are negative, zero and positive.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Inertia {
+    pub negative: usize,
+    pub zero: usize,
+    pub positive: usize,
+}
+
+/// Factors the symmetric matrix `a` with MUMPS Cholesky (LDLᵀ) and returns its inertia.
+///
+/// By Sylvester's law, for `a = K − σM` with M positive definite the count of negative
+/// eigenvalues of `a` equals the number of generalised eigenvalues of (K, M) below σ. That is how
+/// we prove no mode was missed. In parallel MUMPS only reports the inertia when ICNTL(13) = 1
+/// (no ScaLAPACK on the root front), so we set it.
+pub fn inertia<'p>(petsc: &'p Petsc, a: &Mat<'p>) -> Result<Inertia> {
+    let ksp = Ksp::new(petsc)?;
+    // SAFETY: handles created here, destroyed by `ksp`'s Drop; `a` outlives the call.
+    unsafe {
+        check(sys::KSPSetOperators(ksp.raw, a.raw(), a.raw()), "KSPSetOperators")?;
+        check(sys::KSPSetType(ksp.raw, sys::KSPPREONLY.as_ptr() as _), "KSPSetType")?;
+        let mut pc: sys::PC = std::ptr::null_mut();
+        check(sys::KSPGetPC(ksp.raw, &mut pc), "KSPGetPC")?;
+        check(sys::PCSetType(pc, sys::PCCHOLESKY.as_ptr() as _), "PCSetType")?;
+        check(sys::PCFactorSetMatSolverType(pc, sys::MATSOLVERMUMPS.as_ptr() as _), "PCFactorSetMatSolverType")?;
+        check(sys::PCFactorSetUpMatSolverType(pc), "PCFactorSetUpMatSolverType")?;
+        let mut factor: sys::Mat = std::ptr::null_mut();
+        check(sys::PCFactorGetMatrix(pc, &mut factor), "PCFactorGetMatrix")?;
+        check(sys::MatMumpsSetIcntl(factor, 13, 1), "MatMumpsSetIcntl(13)")?;
+        // PETSc only returns MUMPS inertia with null-pivot detection on.
+        check(sys::MatMumpsSetIcntl(factor, 24, 1), "MatMumpsSetIcntl(24)")?;
+        check(sys::KSPSetUp(ksp.raw), "KSPSetUp")?;
+        let (mut neg, mut zero, mut pos) = (0, 0, 0);
+        check(sys::MatGetInertia(factor, &mut neg, &mut zero, &mut pos), "MatGetInertia")?;
+        Ok(Inertia { negative: neg as usize, zero: zero as usize, positive: pos as usize })
+    }
+}

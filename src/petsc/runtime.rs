@@ -1,0 +1,131 @@
+//! The PETSc/SLEPc runtime guard.
+//!
+//! Order matters (stack note 7): MPI is initialised by rsmpi first, `PETSC_COMM_WORLD` is set to
+//! its world communicator, then `SlepcInitialize` runs; on drop `SlepcFinalize` runs before the
+//! MPI universe is dropped (which finalises MPI). PETSc does not finalise an MPI it did not start.
+
+use super::error::{check, record_error, Result};
+use super::{cstring, sys};
+use mpi::environment::Universe;
+use mpi::raw::AsRaw;
+use mpi::topology::{Communicator, SimpleCommunicator};
+use std::ffi::CString;
+use std::os::raw::c_char;
+
+pub struct Petsc {
+    // Field order is drop order: the argv PETSc saw must outlive SlepcFinalize, and the
+    // universe (MPI_Finalize) goes last.
+    _argv_storage: Vec<CString>,
+    _argv_ptrs: Vec<*mut c_char>,
+    world: SimpleCommunicator,
+    universe: Universe,
+}
+
+impl Petsc {
+    /// Initialises SLEPc (and PETSc) on the universe's world communicator.
+    ///
+    /// `petsc_args` are PETSc/SLEPc options (`-eps_nev 30`, `-st_type sinvert`, …). They are
+    /// read after `.petscrc` and `PETSC_OPTIONS`, so the command line wins; solver objects call
+    /// `XSetFromOptions` after our code defaults, so these options override the defaults.
+    pub fn initialize(universe: Universe, program: &str, petsc_args: &[String]) -> Result<Petsc> {
+        let world = universe.world();
+        let mut argv_storage: Vec<CString> = std::iter::once(program).chain(petsc_args.iter().map(String::as_str)).map(cstring).collect();
+        let mut argv_ptrs: Vec<*mut c_char> = argv_storage.iter_mut().map(|s| s.as_ptr() as *mut c_char).collect();
+        argv_ptrs.push(std::ptr::null_mut());
+        let mut argc = (argv_ptrs.len() - 1) as i32;
+        let mut argv = argv_ptrs.as_mut_ptr();
+        // SAFETY: MPI is initialised (we hold the universe); argv lives in `self` for the whole run.
+        unsafe {
+            sys::PETSC_COMM_WORLD = world.as_raw();
+            check(sys::SlepcInitialize(&mut argc, &mut argv, std::ptr::null(), std::ptr::null()), "SlepcInitialize")?;
+            check(sys::PetscPushErrorHandler(Some(record_error), std::ptr::null_mut()), "PetscPushErrorHandler")?;
+        }
+        Ok(Petsc { _argv_storage: argv_storage, _argv_ptrs: argv_ptrs, world, universe })
+    }
+
+    pub fn world(&self) -> &SimpleCommunicator {
+        &self.world
+    }
+
+    pub fn universe(&self) -> &Universe {
+        &self.universe
+    }
+
+    pub fn rank(&self) -> usize {
+        self.world.rank() as usize
+    }
+
+    pub fn size(&self) -> usize {
+        self.world.size() as usize
+    }
+
+    pub(crate) fn comm(&self) -> mpi::ffi::MPI_Comm {
+        self.world.as_raw()
+    }
+
+    /// True if the user gave `name` (e.g. `-eps_tol`) in any options source.
+    pub fn option_given(&self, name: &str) -> Result<bool> {
+        let name = cstring(name);
+        let mut found: sys::PetscBool = 0;
+        // SAFETY: plain query of the global options database.
+        unsafe { check(sys::PetscOptionsHasName(std::ptr::null_mut(), std::ptr::null(), name.as_ptr(), &mut found), "PetscOptionsHasName")? };
+        Ok(found != 0)
+    }
+
+    /// Sets an option only when the user has not given it: our defaults for settings that are
+    /// reachable only through the options database (MUMPS ICNTLs, for instance).
+    pub fn set_default_option(&self, name: &str, value: &str) -> Result<()> {
+        if self.option_given(name)? {
+            return Ok(());
+        }
+        let (n, v) = (cstring(name), cstring(value));
+        // SAFETY: PETSc copies both strings.
+        unsafe { check(sys::PetscOptionsSetValue(std::ptr::null_mut(), n.as_ptr(), v.as_ptr()), "PetscOptionsSetValue") }
+    }
+
+    /// The value of a string option, if given.
+    pub fn option_value(&self, name: &str) -> Result<Option<String>> {
+        let name = cstring(name);
+        let mut buf = vec![0 as c_char; 512];
+        let mut found: sys::PetscBool = 0;
+        // SAFETY: buffer length is passed; PETSc NUL-terminates.
+        unsafe {
+            check(
+                sys::PetscOptionsGetString(std::ptr::null_mut(), std::ptr::null(), name.as_ptr(), buf.as_mut_ptr(), buf.len(), &mut found),
+                "PetscOptionsGetString",
+            )?;
+            Ok(if found != 0 { Some(super::from_cstr(buf.as_ptr())) } else { None })
+        }
+    }
+
+    /// Version strings of the PETSc and SLEPc libraries we run on.
+    pub fn versions(&self) -> (String, String) {
+        let mut p = vec![0 as c_char; 256];
+        let mut s = vec![0 as c_char; 256];
+        // SAFETY: buffers are sized as passed.
+        unsafe {
+            sys::PetscGetVersion(p.as_mut_ptr(), p.len());
+            sys::SlepcGetVersion(s.as_mut_ptr(), s.len());
+            (super::from_cstr(p.as_ptr()), super::from_cstr(s.as_ptr()))
+        }
+    }
+
+    /// Peak resident memory of this process (Linux `VmHWM`), in bytes; 0 if unavailable.
+    pub fn peak_rss_bytes(&self) -> f64 {
+        let status = std::fs::read_to_string("/proc/self/status").unwrap_or_default();
+        status
+            .lines()
+            .find_map(|l| l.strip_prefix("VmHWM:"))
+            .and_then(|v| v.trim().trim_end_matches("kB").trim().parse::<f64>().ok())
+            .map_or(0.0, |kb| kb * 1024.0)
+    }
+}
+
+impl Drop for Petsc {
+    fn drop(&mut self) {
+        // SAFETY: every handle borrows `self`, so all were destroyed before this runs.
+        unsafe {
+            sys::SlepcFinalize();
+        }
+    }
+}

@@ -1,0 +1,2 @@
+#include <petsc.h>
+#include <slepceps.h>
