@@ -413,28 +413,29 @@ pub fn read_wav(path: &Path) -> Result<(Vec<Vec<f64>>, u32), AudioError> {
             reason: "zero channels".into(),
         });
     }
-    let interleaved: Vec<f64> =
-        match (spec.sample_format, spec.bits_per_sample) {
-            (hound::SampleFormat::Int, bits @ (8 | 16 | 24 | 32)) => {
-                let scale = 1.0 / f64::from(1u32 << (bits - 1));
-                reader
-                    .samples::<i32>()
-                    .map(|s| s.map(|v| f64::from(v) * scale))
-                    .collect::<Result<_, _>>()
-                    .map_err(wav_err("reading samples"))?
-            }
-            (hound::SampleFormat::Float, 32) => reader
-                .samples::<f32>()
-                .map(|s| s.map(f64::from))
+    let interleaved: Vec<f64> = match (spec.sample_format, spec.bits_per_sample) {
+        (hound::SampleFormat::Int, bits @ (8 | 16 | 24 | 32)) => {
+            let scale = 1.0 / f64::from(1u32 << (bits - 1));
+            reader
+                .samples::<i32>()
+                .map(|s| s.map(|v| f64::from(v) * scale))
                 .collect::<Result<_, _>>()
-                .map_err(wav_err("reading samples"))?,
-            (format, bits) => return Err(AudioError::Unsupported {
+                .map_err(wav_err("reading samples"))?
+        }
+        (hound::SampleFormat::Float, 32) => reader
+            .samples::<f32>()
+            .map(|s| s.map(f64::from))
+            .collect::<Result<_, _>>()
+            .map_err(wav_err("reading samples"))?,
+        (format, bits) => {
+            return Err(AudioError::Unsupported {
                 path: path.to_path_buf(),
                 reason: format!(
                     "{bits}-bit {format:?} samples (supported: 8/16/24/32-bit Int, 32-bit Float)"
                 ),
-            }),
-        };
+            })
+        }
+    };
     // hound stops quietly at the end of a short final frame; a partial frame
     // means the data chunk was cut mid-frame.
     if interleaved.len() % n_channels != 0 {

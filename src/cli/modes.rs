@@ -156,8 +156,14 @@ fn compute(petsc: &Petsc, job: &Job) -> Result<(), String> {
         }
     }
     let input_order = read.mesh.nodes_per_tet();
+
     let mesh: TetMesh = if job.order == 2 { mesh::lift_to_quadratic(&read.mesh) } else { mesh::to_linear(&read.mesh) };
     drop(read);
+    // Check the strike point now, not after a long solve.
+    let strike_point = match &job.wav {
+        Some(_) => Some(strike(&mesh, job.strike_vertex)?),
+        None => None,
+    };
     let (lo, hi) = mesh.bounding_box();
     let diagonal = ((hi[0] - lo[0]).powi(2) + (hi[1] - lo[1]).powi(2) + (hi[2] - lo[2]).powi(2)).sqrt();
     progress.say(format!(
@@ -269,8 +275,7 @@ fn compute(petsc: &Petsc, job: &Job) -> Result<(), String> {
         io::write_modes(&job.out, &file).map_err(|e| e.to_string())?;
         progress.say(format!("wrote {} and its .xdmf sidecar", job.out.display()));
 
-        if let Some(wav) = &job.wav {
-            let vertex = strike(&mesh, job.strike_vertex)?;
+        if let (Some(wav), Some(vertex)) = (&job.wav, strike_point) {
             render_strike(wav, &mesh, vertex, &modes.eigenvalues, &shapes, job)?;
             progress.say(format!("wrote {} (strike at node {})", wav.display(), vertex.0));
         }

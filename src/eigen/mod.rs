@@ -326,8 +326,11 @@ fn solve_nearest<'p>(petsc: &'p Petsc, k: &Mat<'p>, m: &Mat<'p>, shift: f64, nev
 }
 
 fn solve_interval<'p>(petsc: &'p Petsc, k: &Mat<'p>, m: &Mat<'p>, lower: f64, upper: f64, cfg: &EigenConfig) -> Result<RawPairs<'p>, EigenError> {
-    // MUMPS reports the inertia that slicing relies on only with ICNTL(13)=1 in parallel.
-    petsc.set_default_option("-mat_mumps_icntl_13", "1")?;
+    // MUMPS reports the inertia that slicing relies on only with ICNTL(13)=1 (no ScaLAPACK root)
+    // and PETSc wants null-pivot detection (ICNTL(24)=1) with it. The factor inherits the ST's
+    // options prefix, hence `-st_`.
+    petsc.set_default_option("-st_mat_mumps_icntl_13", "1")?;
+    petsc.set_default_option("-st_mat_mumps_icntl_24", "1")?;
     let mut eps = configure_common(petsc, k, m, cfg)?;
     eps.set_which(EpsWhich::All)?;
     eps.set_interval(lower, upper)?;

@@ -11,7 +11,7 @@
 //!
 //! | path                        | type / shape                        | units, meaning |
 //! |-----------------------------|-------------------------------------|----------------|
-//! | `/` attrs                   | `format` = `"diffsound.modes"`, `format_version` (u64) = 1 | identifies the file |
+//! | `/` attrs                   | `format` = `"diffsound.modes"`, `format_version` (u64) = 2 | identifies the file (1: no `/modes/by_mode`) |
 //! | `/mesh/nodes`               | f64 `[n_nodes, 3]`                  | m, original mesh numbering |
 //! | `/mesh/tets`                | u64 `[n_tets, nodes_per_tet]`       | 0-based node ids, Gmsh order; attr `element_order` (u32, 1 or 2) |
 //! | `/mesh/tets_vtk`            | u64 `[n_tets, nodes_per_tet]`       | same cells in VTK/XDMF order (used by the sidecar) |
@@ -19,11 +19,22 @@
 //! | `/modes/eigenvalues`        | f64 `[n_modes]`                     | λ = ω², rad²/s², elastic modes only, ascending |
 //! | `/modes/frequencies`        | f64 `[n_modes]`                     | Hz, f = √λ / 2π |
 //! | `/modes/shapes`             | f64 `[n_modes, n_nodes, 3]`         | mass-normalised φ (φᵀMφ = 1), node-major x,y,z |
+//! | `/modes/by_mode/mode_KKK`   | f64 `[n_nodes, 3]`, virtual         | mode `KKK` = `/modes/shapes[KKK, :, :]`, no copy (see below) |
 //! | `/modes/residual_norms`     | f64 `[n_modes]`                     | relative residual ‖Kφ − λMφ‖ / … |
 //! | `/modes/rigid_eigenvalues`  | f64 `[k]`                           | rad²/s², the near-zero modes that were removed |
 //! | `/solver` attrs             | key → value strings, plus `n_ranks` (u64) | solver settings and PETSc options |
 //! | `/timings` attrs            | key → f64                           | seconds (assembly, solve, total, …) |
 //! | `/provenance` attrs         | key → value strings                 | mesh path, units, command line, diffsound version |
+//!
+//! `/modes/shapes` is the only stored copy of the shapes. Each
+//! `/modes/by_mode/mode_KKK` is an HDF5 virtual dataset (HDF5 ≥ 1.10) whose
+//! one mapping takes all of it from the slab `[KKK, :, :]` of
+//! `/modes/shapes` in source file `"."`, which `H5Pset_virtual` documents as
+//! naming a source dataset in the same file; so the mapping survives the
+//! temp-file rename and moving the file. (With no nodes they are plain empty
+//! datasets: an empty selection cannot be mapped.) `KKK` is the mode index zero-padded to
+//! [`mode_index_width`] digits (enough for `n_modes - 1`, at least 3). They
+//! exist for XDMF readers that cannot take a slab of a 3-D dataset (below).
 //!
 //! Strings are variable-length UTF-8. Attribute keys must be non-empty and
 //! unique within their group (a repeated key is an error, not a silent
@@ -36,12 +47,22 @@
 //! whose Topology is `Tetrahedron` (4 nodes) or
 //! `Tetrahedron_10` (10 nodes) reading `/mesh/tets_vtk`, Geometry `XYZ` reading
 //! `/mesh/nodes`, and per mode `k` a node-centred vector Attribute named
-//! `mode_KKK (F Hz)` whose HyperSlab DataItem selects start `[k,0,0]`, stride
-//! `[1,1,1]`, count `[1,n_nodes,3]` of `/modes/shapes`. The HDF5 file is named
+//! `mode_KKK (F Hz)` whose plain HDF DataItem (`Dimensions="n_nodes 3"`)
+//! reads `/modes/by_mode/mode_KKK`. The HDF5 file is named
 //! by its file name only (relative to the sidecar), so the pair can be moved
 //! together. Connectivity is declared `NumberType="Int" Precision="8"`: HDF5
 //! converts the stored u64 on read, and signed 64-bit is the index type every
-//! XDMF reader accepts. If writing the sidecar fails after the HDF5 file was
+//! XDMF reader accepts.
+//!
+//! ParaView opens the sidecar with its default `.xdmf` reader
+//! (`Xdmf3ReaderS`) or the legacy "XDMF Reader"; the tests check both with
+//! ParaView 5.11 `pvbatch` when it is installed (quadratic tets, every mode as
+//! a point vector with the stored values). The per-mode virtual datasets are
+//! what makes the Xdmf3 readers work: given a HyperSlab DataItem instead they
+//! load the mesh but drop the attribute ("Skipping unrecognized array type
+//! [None]").
+//!
+//! If writing the sidecar fails after the HDF5 file was
 //! renamed into place, the HDF5 file stays (it is complete and self-describing)
 //! and the error is returned.
 //!
@@ -64,7 +85,9 @@ use hdf5::types::VarLenUnicode;
 /// Value of the root attribute `format`.
 pub const FORMAT_NAME: &str = "diffsound.modes";
 /// Value of the root attribute `format_version`; bump on any layout change.
-pub const FORMAT_VERSION: u64 = 1;
+/// Version 2 added `/modes/by_mode`; [`read_modes`] still reads version 1
+/// (it needs only `/modes/shapes`).
+pub const FORMAT_VERSION: u64 = 2;
 
 /// `vtk[i] = gmsh[GMSH_TO_VTK_TET10[i]]` for one 10-node tet (see module docs).
 pub const GMSH_TO_VTK_TET10: [usize; 10] = [0, 1, 2, 3, 4, 5, 6, 7, 9, 8];
@@ -432,6 +455,7 @@ fn fill_h5(path: &Path, file: &hdf5::File, f: &ModesFile) -> Result<(), IoError>
     let shapes: Vec<f64> = f.mode_shapes.iter().flatten().copied().collect();
     write_dataset(path, &modes, "shapes", &[n_modes, n_nodes, 3], &shapes)?;
     drop(shapes);
+    write_mode_views(path, &modes, n_modes, n_nodes)?;
     write_dataset(path, &modes, "residual_norms", &[n_modes], f.residual_norms)?;
     write_dataset(
         path,
@@ -455,6 +479,57 @@ fn fill_h5(path: &Path, file: &hdf5::File, f: &ModesFile) -> Result<(), IoError>
     let provenance = create_group(path, file, "provenance")?;
     for (key, value) in &f.provenance {
         write_str_attr(path, &provenance, key, value)?;
+    }
+    Ok(())
+}
+
+/// Name of mode `k`'s virtual dataset under `/modes/by_mode` (and the stem of
+/// its XDMF attribute name): `mode_` plus `k` zero-padded to
+/// [`mode_index_width`] digits.
+pub fn mode_name(k: usize, n_modes: usize) -> String {
+    format!("mode_{k:0w$}", w = mode_index_width(n_modes))
+}
+
+/// Digits in the mode index of [`mode_name`]: enough for the largest index
+/// `n_modes - 1`, and at least 3, so names sort in mode order.
+pub fn mode_index_width(n_modes: usize) -> usize {
+    let digits = n_modes.saturating_sub(1).max(1).ilog10() as usize + 1;
+    digits.max(3)
+}
+
+/// `/modes/by_mode/mode_KKK` for every mode: HDF5 virtual datasets, each
+/// mapping all of its `[n_nodes, 3]` onto the slab `[k, :, :]` of
+/// `/modes/shapes` in the same file (source file name `"."`, which HDF5
+/// resolves to the file holding the virtual dataset, so renaming or moving
+/// the file keeps the mapping valid). No data is duplicated.
+fn write_mode_views(
+    path: &Path,
+    modes: &hdf5::Group,
+    n_modes: usize,
+    n_nodes: usize,
+) -> Result<(), IoError> {
+    let by_mode = modes
+        .create_group("by_mode")
+        .map_err(IoError::hdf5(path, "creating group /modes/by_mode"))?;
+    for k in 0..n_modes {
+        let name = mode_name(k, n_modes);
+        let mut builder = by_mode.new_dataset::<f64>().shape([n_nodes, 3]);
+        // A zero-element selection cannot be mapped; an empty mesh gets
+        // plain empty datasets instead.
+        if n_nodes > 0 {
+            builder = builder.virtual_map(
+                ".",
+                "/modes/shapes",
+                [n_modes, n_nodes, 3],
+                (k, 0..n_nodes, 0..3),
+                [n_nodes, 3],
+                hdf5::Selection::All,
+            );
+        }
+        builder.create(name.as_str()).map_err(IoError::hdf5(
+            path,
+            format!("creating virtual dataset /modes/by_mode/{name}"),
+        ))?;
     }
     Ok(())
 }
@@ -547,13 +622,11 @@ pub fn xdmf_document(h5_name: &str, f: &ModesFile) -> String {
         material = xml_escape(&f.material.name),
     );
     for (k, freq) in f.frequencies_hz.iter().enumerate() {
+        let name = mode_name(k, n_modes);
         let _ = write!(
             x,
-            r#"      <Attribute Name="mode_{k:03} ({freq:.1} Hz)" Center="Node" AttributeType="Vector">
-        <DataItem ItemType="HyperSlab" Type="HyperSlab" Dimensions="{n_nodes} 3" NumberType="Float" Precision="8">
-          <DataItem Dimensions="3 3" NumberType="Int" Format="XML">{k} 0 0 1 1 1 1 {n_nodes} 3</DataItem>
-          <DataItem Dimensions="{n_modes} {n_nodes} 3" NumberType="Float" Precision="8" Format="HDF">{h5}:/modes/shapes</DataItem>
-        </DataItem>
+            r#"      <Attribute Name="{name} ({freq:.1} Hz)" Center="Node" AttributeType="Vector">
+        <DataItem Dimensions="{n_nodes} 3" NumberType="Float" Precision="8" Format="HDF">{h5}:/modes/by_mode/{name}</DataItem>
       </Attribute>
 "#
         );
@@ -600,9 +673,9 @@ pub fn read_modes(path: &Path) -> Result<ModesSummary, IoError> {
         )));
     }
     let version: u64 = read_attr(path, &file, "format_version")?;
-    if version != FORMAT_VERSION {
+    if !(1..=FORMAT_VERSION).contains(&version) {
         return Err(bad(format!(
-            "format_version {version} is not supported (this build reads {FORMAT_VERSION})"
+            "format_version {version} is not supported (this build reads 1 to {FORMAT_VERSION})"
         )));
     }
 

@@ -275,7 +275,7 @@ fn tets_vtk_swaps_local_nodes_8_and_9_and_matches_vtk_edges() {
 }
 
 #[test]
-fn xdmf_sidecar_references_the_h5_by_name_and_slabs_fit() {
+fn xdmf_sidecar_references_the_h5_by_name_and_per_mode_datasets() {
     let dir = TempDir::new("xdmf");
     let fx = fixture(true);
     let path = dir.path("results.h5");
@@ -291,17 +291,162 @@ fn xdmf_sidecar_references_the_h5_by_name_and_slabs_fit() {
         "h5 must be referenced by file name only"
     );
     assert!(xml.contains(&format!("mode_001 ({:.1} Hz)", fx.frequencies[1])));
-    assert!(xml.contains(&format!(">2 0 0 1 1 1 1 {n} 3<")));
-    assert!(xml.contains(&format!(r#"Dimensions="3 {n} 3""#)));
+    assert!(xml.contains(&format!(
+        r#"<DataItem Dimensions="{n} 3" NumberType="Float" Precision="8" Format="HDF">results.h5:/modes/by_mode/mode_002</DataItem>"#
+    )));
+    assert!(!xml.contains("HyperSlab"), "Xdmf3 readers drop HyperSlabs");
     assert!(xml.contains(r#"<Information Name="material" Value="steel &amp; &lt;co&gt;"/>"#));
     assert_eq!(xml.matches("<Attribute ").count(), 3);
     check_xdmf_with_python(&dir.path("results.xdmf"));
     check_with_paraview(&dir.path("results.xdmf"), &fx);
 }
 
+#[test]
+fn by_mode_datasets_are_virtual_views_of_shapes() {
+    let dir = TempDir::new("vds");
+    let fx = fixture(true);
+    let path = dir.path("v.h5");
+    write_modes(&path, &modes_file(&fx)).unwrap();
+    let n = fx.nodes.len();
+    let file = hdf5::File::open(&path).unwrap();
+    let by_mode = file.group("/modes/by_mode").unwrap();
+    let mut names = by_mode.member_names().unwrap();
+    names.sort();
+    assert_eq!(names, ["mode_000", "mode_001", "mode_002"]);
+    for (k, name) in names.iter().enumerate() {
+        let ds = by_mode.dataset(name).unwrap();
+        assert_eq!(ds.shape(), [n, 3], "{name}");
+        assert_eq!(
+            ds.layout(),
+            hdf5::plist::dataset_create::Layout::Virtual,
+            "{name}"
+        );
+        // The mapping itself (source file ".", dataset /modes/shapes) is
+        // checked through h5py below: hdf5-metno 0.15's `get_virtual_map`
+        // fails to parse the source slab ("Blocks can not overlap").
+        assert_eq!(ds.read_raw::<f64>().unwrap(), fx.shapes[k], "{name}");
+    }
+    drop(file);
+    check_by_mode_with_h5py(&path, 2);
+}
+
+#[test]
+fn moved_pair_still_resolves_virtual_datasets() {
+    let src = TempDir::new("move-src");
+    let dst = TempDir::new("move-dst");
+    let fx = fixture(true);
+    write_modes(&src.path("bowl.h5"), &modes_file(&fx)).unwrap();
+    // write_modes itself renamed `.bowl.h5.tmp.<pid>` into place; now move
+    // the pair to another directory as a user would.
+    for name in ["bowl.h5", "bowl.xdmf"] {
+        fs::rename(src.path(name), dst.path(name)).unwrap();
+    }
+    assert!(src.entries().is_empty());
+    let moved = dst.path("bowl.h5");
+    let file = hdf5::File::open(&moved).unwrap();
+    let m1: Vec<f64> = file
+        .dataset("/modes/by_mode/mode_001")
+        .unwrap()
+        .read_raw()
+        .unwrap();
+    assert_eq!(m1, fx.shapes[1]);
+    drop(file);
+    check_by_mode_with_h5py(&moved, 1);
+    check_xdmf_with_python(&dst.path("bowl.xdmf"));
+    check_with_paraview(&dst.path("bowl.xdmf"), &fx);
+}
+
+#[test]
+fn mode_names_are_zero_padded_to_fit_every_index() {
+    assert_eq!(mode_index_width(0), 3);
+    assert_eq!(mode_index_width(1), 3);
+    assert_eq!(mode_index_width(1000), 3);
+    assert_eq!(mode_index_width(1001), 4);
+    assert_eq!(mode_name(7, 12), "mode_007");
+    assert_eq!(mode_name(7, 12_000), "mode_00007");
+}
+
+#[test]
+fn read_modes_accepts_format_version_1() {
+    let dir = TempDir::new("v1");
+    let fx = fixture(false);
+    let path = dir.path("old.h5");
+    write_modes(&path, &modes_file(&fx)).unwrap();
+    {
+        let file = hdf5::File::open_rw(&path).unwrap();
+        file.attr("format_version")
+            .unwrap()
+            .write_scalar(&1u64)
+            .unwrap();
+        file.unlink("/modes/by_mode").unwrap();
+    }
+    assert_eq!(read_modes(&path).unwrap().mode_shapes, fx.shapes);
+    {
+        let file = hdf5::File::open_rw(&path).unwrap();
+        file.attr("format_version")
+            .unwrap()
+            .write_scalar(&99u64)
+            .unwrap();
+    }
+    let err = read_modes(&path).unwrap_err();
+    assert!(matches!(err, IoError::BadLayout { .. }), "{err}");
+}
+
+/// Python interpreters to try: Debian's python3 carries python3-h5py; a
+/// pyenv shim in PATH may not.
+const PYTHONS: [&str; 2] = ["/usr/bin/python3", "python3"];
+
+/// Runs `script` with `args` under the first Python that starts; asserts
+/// success and returns its output, or `None` (with a note) without Python.
+fn run_python(script: &str, args: &[&std::ffi::OsStr]) -> Option<String> {
+    for python in PYTHONS {
+        let Ok(out) = std::process::Command::new(python)
+            .arg("-c")
+            .arg(script)
+            .args(args)
+            .output()
+        else {
+            continue;
+        };
+        let text = format!(
+            "{}{}",
+            String::from_utf8_lossy(&out.stdout),
+            String::from_utf8_lossy(&out.stderr)
+        );
+        assert!(out.status.success(), "{python} check failed:\n{text}");
+        eprintln!("{python}: {}", text.trim());
+        return Some(text);
+    }
+    eprintln!("note: python3 not found; check skipped");
+    None
+}
+
+/// Reads `/modes/by_mode/mode_KKK` with h5py (independent HDF5 reader) and
+/// compares it to `/modes/shapes[k]`. Skipped with a note without h5py.
+fn check_by_mode_with_h5py(h5: &Path, k: usize) {
+    const SCRIPT: &str = r#"
+import sys
+try:
+    import h5py, numpy as np
+except ImportError:
+    print("note: h5py not importable, virtual dataset not read by h5py"); sys.exit(0)
+path, k = sys.argv[1], int(sys.argv[2])
+with h5py.File(path, "r") as f:
+    ds = f["/modes/by_mode/mode_%03d" % k]
+    assert ds.is_virtual
+    (src,) = ds.virtual_sources()
+    assert src.file_name == "." and src.dset_name == "/modes/shapes", src
+    assert np.array_equal(ds[()], f["/modes/shapes"][k])
+    print("h5py: mode_%03d == shapes[%d]" % (k, k), ds.shape)
+"#;
+    let k = k.to_string();
+    run_python(SCRIPT, &[h5.as_os_str(), k.as_ref()]);
+}
+
 /// Parses the sidecar with Python's xml.etree and, where h5py is importable,
 /// checks every HDF DataItem's Dimensions against the real dataset and every
-/// HyperSlab against its source. Skipped (with a note) without python3.
+/// mode attribute's data against `/modes/shapes[k]`. Skipped (with a note)
+/// without python3.
 fn check_xdmf_with_python(xdmf: &Path) {
     const SCRIPT: &str = r#"
 import sys, os, xml.etree.ElementTree as ET
@@ -315,15 +460,19 @@ topo = grid.find("Topology")
 assert topo.get("TopologyType") in ("Tetrahedron", "Tetrahedron_10")
 dims = lambda e: [int(x) for x in e.get("Dimensions").split()]
 try:
-    import h5py
+    import h5py, numpy as np
 except ImportError:
     h5py = None
     print("note: h5py not importable, dataset dimensions not checked")
-def check_hdf(item):
+def h5file(item):
     fname, dset = item.text.strip().split(":", 1)
     assert os.sep not in fname, fname
+    return os.path.join(os.path.dirname(path), fname), dset
+def check_hdf(item):
+    assert item.get("Format") == "HDF", item.attrib
+    fname, dset = h5file(item)
     if h5py:
-        with h5py.File(os.path.join(os.path.dirname(path), fname), "r") as f:
+        with h5py.File(fname, "r") as f:
             assert list(f[dset].shape) == dims(item), (dset, f[dset].shape, dims(item))
     return dims(item)
 n_elem = int(topo.get("NumberOfElements"))
@@ -332,76 +481,66 @@ n_nodes = check_hdf(grid.find("Geometry/DataItem"))[0]
 attrs = grid.findall("Attribute")
 for k, a in enumerate(attrs):
     assert a.get("Center") == "Node" and a.get("AttributeType") == "Vector"
-    slab = a.find("DataItem")
-    assert slab.get("ItemType") == "HyperSlab"
-    sel, src = slab.findall("DataItem")
-    start, stride, count = [[int(x) for x in row] for row in zip(*[iter(sel.text.split())] * 3)]
-    assert dims(sel) == [3, 3]
-    src_dims = check_hdf(src)
-    assert start == [k, 0, 0] and stride == [1, 1, 1] and count == [1, n_nodes, 3], (start, stride, count)
-    assert dims(slab) == [n_nodes, 3] == count[1:]
-    assert all(s + c <= d for s, c, d in zip(start, count, src_dims))
+    (item,) = a.findall("DataItem")
+    assert check_hdf(item) == [n_nodes, 3]
+    fname, dset = h5file(item)
+    assert dset == "/modes/by_mode/mode_%03d" % k, dset
+    assert a.get("Name").startswith("mode_%03d " % k), a.get("Name")
+    if h5py:
+        with h5py.File(fname, "r") as f:
+            assert np.array_equal(f[dset][()], f["/modes/shapes"][k]), dset
 print("xdmf ok", len(attrs), "modes")
 "#;
-    // Debian's python3 carries python3-h5py; a pyenv shim in PATH may not.
-    let candidates = ["/usr/bin/python3", "python3"];
-    for python in candidates {
-        match std::process::Command::new(python)
-            .arg("-c")
-            .arg(SCRIPT)
-            .arg(xdmf)
-            .output()
-        {
-            Ok(out) => {
-                let text = format!(
-                    "{}{}",
-                    String::from_utf8_lossy(&out.stdout),
-                    String::from_utf8_lossy(&out.stderr)
-                );
-                assert!(out.status.success(), "python XDMF check failed:\n{text}");
-                eprintln!("{python}: {}", text.trim());
-                return;
-            }
-            Err(_) => continue,
-        }
-    }
-    eprintln!("note: python3 not found; XDMF XML not parsed independently");
+    run_python(SCRIPT, &[xdmf.as_os_str()]);
 }
 
-/// Loads the sidecar with ParaView's "XDMF Reader" through `pvbatch` (if
-/// installed) and checks cell type, sizes and every mode array against the
-/// fixture. Skipped with a note when ParaView is absent (as on CI).
+/// Loads the sidecar in ParaView through `pvbatch` (if installed) with both
+/// the reader ParaView picks for `.xdmf` by default (`OpenDataFile`, i.e.
+/// `Xdmf3ReaderS`) and the legacy "XDMF Reader", and checks cell type, sizes
+/// and every mode array against the fixture. Skipped with a note when
+/// ParaView is absent (as on CI).
 fn check_with_paraview(xdmf: &Path, fx: &Fixture) {
     const SCRIPT: &str = r#"
 import sys, json
 from paraview import simple as pv, servermanager as sm
-r = pv.XDMFReader(FileNames=[sys.argv[1]])
-r.UpdatePipeline()
-ds = sm.Fetch(r)
-if ds.IsA("vtkMultiBlockDataSet"):
-    ds = ds.GetBlock(0)
-pd = ds.GetPointData()
-arrays = []
-for i in range(pd.GetNumberOfArrays()):
-    a = pd.GetArray(i)
-    arrays.append([pd.GetArrayName(i), a.GetNumberOfComponents(),
-                   [a.GetComponent(t, c) for t in range(a.GetNumberOfTuples()) for c in range(3)]])
-# VTK's own view of each cell edge: ends 0 and 1, mid-edge node 2 (quadratic).
-worst = 0.0
-for i in range(ds.GetNumberOfCells()):
-    cell = ds.GetCell(i)
-    for e in range(cell.GetNumberOfEdges()):
-        edge = cell.GetEdge(e)
-        if edge.GetNumberOfPoints() == 3:
-            p, q, m = (edge.GetPoints().GetPoint(j) for j in range(3))
-            worst = max(worst, max(abs(m[c] - 0.5 * (p[c] + q[c])) for c in range(3)))
-print("PVRESULT " + json.dumps({"points": ds.GetNumberOfPoints(), "edge_mid_error": worst,
-    "cell_types": sorted({ds.GetCellType(i) for i in range(ds.GetNumberOfCells())}),
-    "cells": ds.GetNumberOfCells(), "arrays": arrays}))
+def first_leaf(ds):
+    while ds.IsA("vtkMultiBlockDataSet"):
+        ds = ds.GetBlock(0)
+    return ds
+for label, make in (("default", lambda p: pv.OpenDataFile(p)),
+                    ("legacy", lambda p: pv.XDMFReader(FileNames=[p]))):
+    r = make(sys.argv[1])
+    r.UpdatePipeline()
+    ds = first_leaf(sm.Fetch(r))
+    pd = ds.GetPointData()
+    arrays = []
+    for i in range(pd.GetNumberOfArrays()):
+        a = pd.GetArray(i)
+        arrays.append([pd.GetArrayName(i), a.GetNumberOfComponents(),
+                       [a.GetComponent(t, c) for t in range(a.GetNumberOfTuples()) for c in range(3)]])
+    # VTK's own view of each cell edge: ends 0 and 1, mid-edge node 2 (quadratic).
+    worst = 0.0
+    for i in range(ds.GetNumberOfCells()):
+        cell = ds.GetCell(i)
+        for e in range(cell.GetNumberOfEdges()):
+            edge = cell.GetEdge(e)
+            if edge.GetNumberOfPoints() == 3:
+                p, q, m = (edge.GetPoints().GetPoint(j) for j in range(3))
+                worst = max(worst, max(abs(m[c] - 0.5 * (p[c] + q[c])) for c in range(3)))
+    print("PVRESULT " + json.dumps({"label": label, "reader": r.GetXMLName(),
+        "points": ds.GetNumberOfPoints(), "edge_mid_error": worst,
+        "cell_types": sorted({ds.GetCellType(i) for i in range(ds.GetNumberOfCells())}),
+        "cells": ds.GetNumberOfCells(), "arrays": arrays}))
+    pv.Delete(r)
 "#;
     let script = xdmf.with_extension("pvcheck.py");
     fs::write(&script, SCRIPT).unwrap();
-    let out = match std::process::Command::new("pvbatch").arg(&script).arg(xdmf).output() {
+    let out = std::process::Command::new("pvbatch")
+        .arg(&script)
+        .arg(xdmf)
+        .output();
+    let _ = fs::remove_file(&script);
+    let out = match out {
         Ok(out) => out,
         Err(_) => {
             eprintln!("note: pvbatch (ParaView) not found; sidecar not loaded in ParaView");
@@ -409,26 +548,67 @@ print("PVRESULT " + json.dumps({"points": ds.GetNumberOfPoints(), "edge_mid_erro
         }
     };
     let stdout = String::from_utf8_lossy(&out.stdout);
-    let line = stdout.lines().find_map(|l| l.strip_prefix("PVRESULT ")).unwrap_or_else(|| {
-        panic!("pvbatch gave no result:\n{stdout}\n{}", String::from_utf8_lossy(&out.stderr))
-    });
-    let v: serde_json::Value = serde_json::from_str(line).unwrap();
+    let results: Vec<serde_json::Value> = stdout
+        .lines()
+        .filter_map(|l| l.strip_prefix("PVRESULT "))
+        .map(|l| serde_json::from_str(l).unwrap())
+        .collect();
+    assert_eq!(
+        results.len(),
+        2,
+        "pvbatch gave {} of 2 results:\n{stdout}\n{}",
+        results.len(),
+        String::from_utf8_lossy(&out.stderr)
+    );
     // VTK_TETRA = 10, VTK_QUADRATIC_TETRA = 24.
     let cell_type = if fx.nodes_per_tet == 10 { 24 } else { 10 };
-    assert_eq!(v["cell_types"], serde_json::json!([cell_type]));
-    assert_eq!(v["points"], fx.nodes.len());
-    assert_eq!(v["cells"], fx.connectivity.len() / fx.nodes_per_tet);
-    // A wrong Gmsh→VTK permutation would put mid-edge nodes off their edges.
-    assert!(v["edge_mid_error"].as_f64().unwrap() < 1e-12, "{v}");
-    let arrays = v["arrays"].as_array().unwrap();
-    assert_eq!(arrays.len(), fx.shapes.len(), "one point array per mode");
-    for (k, a) in arrays.iter().enumerate() {
-        assert_eq!(a[0].as_str().unwrap(), format!("mode_{k:03} ({:.1} Hz)", fx.frequencies[k]));
-        assert_eq!(a[1], 3);
-        let values: Vec<f64> = a[2].as_array().unwrap().iter().map(|x| x.as_f64().unwrap()).collect();
-        assert_eq!(values, fx.shapes[k], "mode {k} as ParaView sees it");
+    for v in &results {
+        let reader = format!("{} ({})", v["label"], v["reader"]);
+        assert_eq!(v["cell_types"], serde_json::json!([cell_type]), "{reader}");
+        assert_eq!(v["points"], fx.nodes.len(), "{reader}");
+        assert_eq!(
+            v["cells"],
+            fx.connectivity.len() / fx.nodes_per_tet,
+            "{reader}"
+        );
+        // A wrong Gmsh→VTK permutation would put mid-edge nodes off their edges.
+        assert!(
+            v["edge_mid_error"].as_f64().unwrap() < 1e-12,
+            "{reader}: {v}"
+        );
+        let mut arrays = v["arrays"].as_array().unwrap().clone();
+        // Readers differ in array order; names sort in mode order.
+        arrays.sort_by_key(|a| a[0].as_str().unwrap().to_owned());
+        assert_eq!(
+            arrays.len(),
+            fx.shapes.len(),
+            "{reader}: one point array per mode"
+        );
+        for (k, a) in arrays.iter().enumerate() {
+            assert_eq!(
+                a[0].as_str().unwrap(),
+                format!("mode_{k:03} ({:.1} Hz)", fx.frequencies[k]),
+                "{reader}"
+            );
+            assert_eq!(a[1], 3, "{reader}");
+            let values: Vec<f64> = a[2]
+                .as_array()
+                .unwrap()
+                .iter()
+                .map(|x| x.as_f64().unwrap())
+                .collect();
+            assert_eq!(
+                values, fx.shapes[k],
+                "{reader}: mode {k} as ParaView sees it"
+            );
+        }
+        eprintln!(
+            "pvbatch {reader}: {} modes on cell type {cell_type}",
+            arrays.len()
+        );
     }
-    eprintln!("pvbatch: XDMF Reader loaded {} modes on cell type {cell_type}", arrays.len());
+    assert_eq!(results[0]["reader"], "Xdmf3ReaderS", "default .xdmf reader");
+    assert_eq!(results[1]["reader"], "XdmfReader", "legacy \"XDMF Reader\"");
 }
 
 #[test]
@@ -464,6 +644,29 @@ fn no_modes_and_no_rigid_modes_still_round_trip() {
     assert_eq!(
         (s.n_modes, s.rigid_eigenvalues.len(), s.mode_shapes.len()),
         (0, 0, 0)
+    );
+}
+
+#[test]
+fn empty_mesh_with_a_mode_still_round_trips() {
+    let dir = TempDir::new("nonodes");
+    let fx = fixture(false);
+    let mut f = modes_file(&fx);
+    let empty_shape = vec![Vec::new()];
+    f.nodes = &[];
+    f.connectivity = &[];
+    f.eigenvalues = &fx.eigenvalues[..1];
+    f.frequencies_hz = &fx.frequencies[..1];
+    f.residual_norms = &fx.residuals[..1];
+    f.mode_shapes = &empty_shape;
+    let path = dir.path("empty.h5");
+    write_modes(&path, &f).unwrap();
+    let s = read_modes(&path).unwrap();
+    assert_eq!((s.n_nodes, s.n_modes, s.mode_shapes), (0, 1, empty_shape));
+    let file = hdf5::File::open(&path).unwrap();
+    assert_eq!(
+        file.dataset("/modes/by_mode/mode_000").unwrap().shape(),
+        [0, 3]
     );
 }
 

@@ -1,0 +1,122 @@
+//! Helpers shared by the integration tests: run the `diffsound` binary under `mpirun` with a
+//! hard time limit (a hung MPI job fails the test instead of hanging CI), and locate data.
+#![allow(dead_code)]
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Stdio};
+use std::time::{Duration, Instant};
+
+pub fn binary() -> PathBuf {
+    PathBuf::from(env!("CARGO_BIN_EXE_diffsound"))
+}
+
+pub fn repo() -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+}
+
+/// The shared data folder: `$DIFFSOUND_SHARED`, else `<repo>/../shared`.
+pub fn shared() -> Option<PathBuf> {
+    let p = std::env::var_os("DIFFSOUND_SHARED").map(PathBuf::from).unwrap_or_else(|| repo().join("../shared"));
+    p.join("data").is_dir().then_some(p)
+}
+
+/// The bowl mesh: bundled under examples/ (always present in a clone).
+pub fn bowl_mesh() -> PathBuf {
+    repo().join("examples/bowl/bowl.msh")
+}
+
+pub fn fixture(name: &str) -> PathBuf {
+    repo().join("tests/data").join(name)
+}
+
+/// A fresh scratch directory under the target dir, unique per test.
+pub fn scratch(name: &str) -> PathBuf {
+    let dir = repo().join("target/test-scratch").join(name);
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).expect("create scratch dir");
+    dir
+}
+
+pub struct Run {
+    pub status: Option<i32>,
+    pub stdout: String,
+    pub stderr: String,
+    pub timed_out: bool,
+}
+
+impl Run {
+    pub fn success(&self) -> bool {
+        self.status == Some(0) && !self.timed_out
+    }
+    pub fn describe(&self) -> String {
+        format!("status {:?} (timed out: {})\n--- stdout\n{}\n--- stderr\n{}", self.status, self.timed_out, self.stdout, self.stderr)
+    }
+}
+
+/// Runs `diffsound ARGS` on `np` ranks under mpirun, killing it after `limit`.
+pub fn mpirun(np: usize, args: &[&str], limit: Duration) -> Run {
+    let mut cmd = Command::new("mpirun");
+    cmd.args(["-np", &np.to_string()]).arg(binary()).args(args);
+    run_with_limit(cmd, limit)
+}
+
+pub fn run_with_limit(mut cmd: Command, limit: Duration) -> Run {
+    cmd.env("OMPI_ALLOW_RUN_AS_ROOT", "1")
+        .env("OMPI_ALLOW_RUN_AS_ROOT_CONFIRM", "1")
+        .env("OPENBLAS_NUM_THREADS", "1")
+        .env("OMPI_MCA_btl", "self,vader")
+        .current_dir(repo())
+        .stdin(Stdio::null())
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped());
+    let mut child = cmd.spawn().expect("spawn mpirun (is openmpi-bin installed? run scripts/install-deps.sh)");
+    // Drain the pipes on threads so a chatty child cannot block on a full pipe.
+    let mut out = child.stdout.take().unwrap();
+    let mut err = child.stderr.take().unwrap();
+    let t_out = std::thread::spawn(move || {
+        let mut s = String::new();
+        std::io::Read::read_to_string(&mut out, &mut s).ok();
+        s
+    });
+    let t_err = std::thread::spawn(move || {
+        let mut s = String::new();
+        std::io::Read::read_to_string(&mut err, &mut s).ok();
+        s
+    });
+    let start = Instant::now();
+    let mut timed_out = false;
+    let status = loop {
+        if let Some(st) = child.try_wait().expect("wait") {
+            break st.code();
+        }
+        if start.elapsed() > limit {
+            timed_out = true;
+            let _ = child.kill();
+            let _ = child.wait();
+            break None;
+        }
+        std::thread::sleep(Duration::from_millis(50));
+    };
+    Run { status, stdout: t_out.join().unwrap_or_default(), stderr: t_err.join().unwrap_or_default(), timed_out }
+}
+
+/// Parses the `--timings-json` output.
+pub fn read_json(path: &Path) -> serde_json::Value {
+    let text = std::fs::read_to_string(path).unwrap_or_else(|e| panic!("read {}: {e}", path.display()));
+    serde_json::from_str(&text).expect("valid JSON")
+}
+
+pub fn f64s(v: &serde_json::Value, key: &str) -> Vec<f64> {
+    v[key].as_array().unwrap_or_else(|| panic!("{key} missing")).iter().map(|x| x.as_f64().unwrap()).collect()
+}
+
+/// Meshes a .geo with gmsh at element size `h` (second order: curved boundary nodes).
+pub fn gmsh_mesh(geo: &Path, h: f64, order: u32, out: &Path) {
+    let mut cmd = Command::new("gmsh");
+    cmd.args(["-3", "-order", &order.to_string(), "-clmin", &h.to_string(), "-clmax", &h.to_string(), "-format", "msh41"])
+        .arg(geo)
+        .arg("-o")
+        .arg(out);
+    let r = run_with_limit(cmd, Duration::from_secs(120));
+    assert!(r.success() && out.exists(), "gmsh failed (is gmsh installed? run scripts/install-deps.sh):\n{}", r.describe());
+}
