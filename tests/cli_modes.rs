@@ -174,3 +174,18 @@ fn ten_node_input_is_kept_curved_and_linear_input_is_lifted() {
     }
     assert!((first[0] - first[1]).abs() / first[1] > 1e-3, "curved geometry should change the modes: {first:?}");
 }
+
+#[test]
+fn a_panic_on_one_rank_ends_the_whole_job() {
+    // Rank 1 panics while rank 0 goes on into collective assembly: without the abort hook the
+    // job would hang there forever.
+    let dir = scratch("panic");
+    let mut cmd = std::process::Command::new("mpirun");
+    cmd.args(["-np", "2"]).arg(binary()).args(["modes", "--mesh", s(&bowl_mesh()), "--modes", "5", "--out", s(&dir.join("p.h5"))]);
+    cmd.env("DIFFSOUND_TEST_PANIC_ON_RANK", "1");
+    let run = run_with_limit(cmd, Duration::from_secs(60));
+    assert!(!run.timed_out, "the job hung after a panic on rank 1:\n{}", run.describe());
+    assert!(!run.success());
+    assert!(run.stderr.contains("rank 1 of 2 panicked"), "{}", run.describe());
+    assert!(!dir.join("p.h5").exists());
+}

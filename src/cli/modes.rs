@@ -129,6 +129,10 @@ pub fn run(universe: Universe, args: ModesArgs) -> Result<(), String> {
     }
     let petsc = Petsc::initialize(universe, "diffsound", &job.petsc_options).map_err(|e| e.to_string())?;
     let (rank, size) = (petsc.rank(), petsc.size());
+    // Fault injection for the tests: a panic on one rank must end the whole job, not hang it.
+    if std::env::var("DIFFSOUND_TEST_PANIC_ON_RANK").ok().and_then(|v| v.parse::<usize>().ok()) == Some(rank) {
+        panic!("injected panic (DIFFSOUND_TEST_PANIC_ON_RANK={rank})");
+    }
     match compute(&petsc, &job) {
         Ok(()) => Ok(()),
         Err(message) => fail(rank, size, &message),
