@@ -39,7 +39,6 @@
 //! map to [-1, 1) by dividing by 2^(bits−1); writing uses the same scale, so a
 //! 16-bit round trip is exact to half a quantisation step (1.5e-5).
 
-use std::fs;
 use std::path::{Path, PathBuf};
 
 /// Samples between direct re-evaluations of each mode in [`render`]; the
@@ -264,7 +263,8 @@ pub enum AudioError {
 /// With `normalise_peak = Some(p)` the samples are first scaled so that the
 /// largest magnitude equals `p` (an all-zero signal is left as is). The file
 /// appears atomically: it is written to `<dir>/.<name>.tmp.<pid>`, synced and
-/// renamed; on any error the temporary is removed and `path` is untouched.
+/// renamed (via [`crate::io::atomic::replace_atomically`]); on any error the
+/// temporary is removed and `path` is untouched.
 pub fn write_wav(
     path: &Path,
     samples: &[f64],
@@ -311,25 +311,25 @@ pub fn write_wav(
         },
     };
 
-    let tmp = temp_path_for(path)?;
-    let result = write_wav_file(&tmp, spec, samples, gain, format).and_then(|()| {
-        fs::File::open(&tmp)
-            .and_then(|f| f.sync_all())
-            .map_err(|source| AudioError::Fs {
-                path: tmp.clone(),
-                context: "syncing temporary file".into(),
-                source,
-            })?;
-        fs::rename(&tmp, path).map_err(|source| AudioError::Fs {
+    crate::io::atomic::replace_atomically(path, |tmp| {
+        write_wav_file(tmp, spec, samples, gain, format)
+    })
+}
+
+impl crate::io::atomic::AtomicWriteError for AudioError {
+    fn fs(path: &Path, context: String, source: std::io::Error) -> Self {
+        AudioError::Fs {
             path: path.to_path_buf(),
-            context: format!("renaming {} into place", tmp.display()),
+            context,
             source,
-        })
-    });
-    if result.is_err() {
-        let _ = fs::remove_file(&tmp);
+        }
     }
-    result
+    fn no_file_name(path: &Path) -> Self {
+        AudioError::InvalidInput {
+            path: path.to_path_buf(),
+            reason: "path has no file name".into(),
+        }
+    }
 }
 
 fn write_wav_file(
@@ -379,17 +379,6 @@ fn write_wav_file(
 /// [−1, 1] → i16 with full scale 2^15, rounding to nearest and saturating.
 fn pcm16(x: f64) -> i16 {
     (x * 32768.0).round().clamp(-32768.0, 32767.0) as i16
-}
-
-fn temp_path_for(path: &Path) -> Result<PathBuf, AudioError> {
-    let name = path.file_name().ok_or_else(|| AudioError::InvalidInput {
-        path: path.to_path_buf(),
-        reason: "path has no file name".into(),
-    })?;
-    let mut tmp_name = std::ffi::OsString::from(".");
-    tmp_name.push(name);
-    tmp_name.push(format!(".tmp.{}", std::process::id()));
-    Ok(path.with_file_name(tmp_name))
 }
 
 /// Reads a WAV file into one vector per channel, scaled to [−1, 1], and its

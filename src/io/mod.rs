@@ -82,6 +82,10 @@ use std::path::{Path, PathBuf};
 
 use hdf5::types::VarLenUnicode;
 
+pub mod atomic;
+#[cfg(test)]
+pub(crate) mod test_support;
+
 /// Value of the root attribute `format`.
 pub const FORMAT_NAME: &str = "diffsound.modes";
 /// Value of the root attribute `format_version`; bump on any layout change.
@@ -233,52 +237,28 @@ pub fn gmsh_to_vtk_connectivity(connectivity: &[usize], nodes_per_tet: usize) ->
 /// atomic on POSIX, so readers see the old file or the complete new one. The
 /// temporary is fsynced before the rename (so a crash cannot leave a renamed
 /// but empty file) and removed if `write` or anything after it fails.
+/// A thin wrapper over [`atomic::replace_atomically`].
 pub fn write_atomically<F>(path: &Path, write: F) -> Result<(), IoError>
 where
     F: FnOnce(&Path) -> Result<(), IoError>,
 {
-    let tmp = temp_path_for(path)?;
-    let result = write(&tmp).and_then(|()| {
-        fs::File::open(&tmp)
-            .and_then(|f| f.sync_all())
-            .map_err(IoError::fs(&tmp, "syncing temporary file"))?;
-        fs::rename(&tmp, path).map_err(IoError::fs(
-            path,
-            format!("renaming {} into place", tmp.display()),
-        ))
-    });
-    match result {
-        Ok(()) => {
-            // Persist the rename itself; failure here loses no data already
-            // visible to readers, so it is not worth failing the whole write.
-            if let Some(dir) = path.parent() {
-                let dir = if dir.as_os_str().is_empty() {
-                    Path::new(".")
-                } else {
-                    dir
-                };
-                if let Ok(d) = fs::File::open(dir) {
-                    let _ = d.sync_all();
-                }
-            }
-            Ok(())
-        }
-        Err(e) => {
-            let _ = fs::remove_file(&tmp);
-            Err(e)
-        }
-    }
+    atomic::replace_atomically(path, write)
 }
 
-fn temp_path_for(path: &Path) -> Result<PathBuf, IoError> {
-    let name = path.file_name().ok_or_else(|| IoError::InvalidInput {
-        path: path.to_path_buf(),
-        reason: "path has no file name".into(),
-    })?;
-    let mut tmp_name = std::ffi::OsString::from(".");
-    tmp_name.push(name);
-    tmp_name.push(format!(".tmp.{}", std::process::id()));
-    Ok(path.with_file_name(tmp_name))
+impl atomic::AtomicWriteError for IoError {
+    fn fs(path: &Path, context: String, source: std::io::Error) -> Self {
+        IoError::Fs {
+            path: path.to_path_buf(),
+            context,
+            source,
+        }
+    }
+    fn no_file_name(path: &Path) -> Self {
+        IoError::InvalidInput {
+            path: path.to_path_buf(),
+            reason: "path has no file name".into(),
+        }
+    }
 }
 
 /// Writes the HDF5 results file `path` and its XDMF sidecar (see module docs),
