@@ -112,10 +112,15 @@ def mumps_info(pc):
             "infog21_max_used_mb": int(f.getMumpsInfog(21)),
             "infog22_sum_used_mb": int(f.getMumpsInfog(22)),
             "infog9_factor_entries": int(f.getMumpsInfog(9)),
+            # BLR: entries after compression, estimated in-core / OOC sizes
+            "infog35_blr_factor_entries": int(f.getMumpsInfog(35)),
+            "infog37_blr_sum_est_mb": int(f.getMumpsInfog(37)),
+            "infog39_blr_ooc_sum_est_mb": int(f.getMumpsInfog(39)),
             "infog7_ordering": int(f.getMumpsInfog(7)),
             "rinfog3_flops": float(f.getMumpsRinfog(3)),
             "icntl35_blr": int(f.getMumpsIcntl(35)),
             "icntl22_ooc": int(f.getMumpsIcntl(22)),
+            "cntl7_blr_eps": float(f.getMumpsCntl(7)),
         }
     except Exception as exc:  # not MUMPS, or petsc4py without these calls
         return {"error": str(exc)}

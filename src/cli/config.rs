@@ -21,7 +21,7 @@
 //! # fmax = 20000.0                  # … or every mode up to this frequency (Hz)
 //! tolerance = 1e-10
 //! verify_count = true               # prove the mode count by an inertia check
-//! cluster_rtol = 1e-3               # relative gap below which modes form a cluster
+//! cluster_rtol = 1e-2               # relative eigenvalue gap below which modes form a cluster
 //! petsc_options = ["-eps_ncv", "64"] # applied before the options after `--`
 //!
 //! [output]

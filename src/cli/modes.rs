@@ -356,7 +356,7 @@ fn print_summary(job: &Job, mesh: &TetMesh, stats: &assembly::AssemblyStats, mod
         println!("{:>5} {:>14.4} {:>18.10e} {:>10.2e}{}", i, f, l, modes.residuals[i], tag);
     }
     if !modes.clusters.is_empty() {
-        println!("(* near-degenerate cluster, relative gap <= {:e})", 1e-3);
+        println!("(* near-degenerate cluster: relative eigenvalue gap <= {:e})", modes.cluster_rtol);
     }
     println!("time: assembly {:.2} s, solve {:.2} s, total {:.2} s; output {}", stats.seconds, modes.solve_seconds, total, job.out.display());
 }

@@ -53,6 +53,7 @@
 pub mod element;
 pub mod material;
 pub mod quadrature;
+pub mod sensitivity;
 pub mod shape;
 
 pub use element::{
@@ -61,4 +62,5 @@ pub use element::{
 };
 pub use material::{Material, MaterialError};
 pub use quadrature::{tet_rule, QuadratureRule};
+pub use sensitivity::{ElasticCoefficients, ModeEnergy, SensitivityKernel};
 pub use shape::{p1_grad_ref, p1_shape, p2_grad_ref, p2_shape, P1_NODES, P2_EDGES, P2_NODES};
