@@ -310,6 +310,12 @@ impl SensitivityKernel {
     }
 }
 
+/// det > 0, rejecting NaN as well (as assembly does).
+#[inline(always)]
+fn is_positive(det: f64) -> bool {
+    det > 0.0
+}
+
 fn check_nodes(n: usize) -> Result<(), ElementError> {
     if n == 4 || n == 10 {
         Ok(())
@@ -336,7 +342,7 @@ fn accumulate<const N: usize>(
     let affine_geom = if affine {
         let j = affine_jacobian(x);
         let det = det3(&j);
-        if !(det > 0.0) {
+        if !is_positive(det) {
             return Err(ElementError::NonPositiveJacobian {
                 det,
                 point: [0.25; 3],
@@ -356,7 +362,7 @@ fn accumulate<const N: usize>(
             None => {
                 let j = jacobian(x, gref);
                 let det = det3(&j);
-                if !(det > 0.0) {
+                if !is_positive(det) {
                     return Err(ElementError::NonPositiveJacobian {
                         det,
                         point: t.points[q],
@@ -504,6 +510,7 @@ fn matvec(m: &[[f64; 3]; 3], v: &[f64; 3]) -> [f64; 3] {
 }
 
 #[cfg(test)]
+#[allow(clippy::needless_range_loop)]
 mod tests {
     use super::*;
     use crate::fem::element::{ElementKernel, ElementMatrices};
