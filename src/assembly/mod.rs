@@ -129,6 +129,12 @@ impl<'p> Assembled<'p> {
     }
 }
 
+/// The one rank that owns element `e` for element-wise sums that must count each element once
+/// (e.g. shape gradients): the owner of its first corner node.
+pub fn element_owner(mesh: &TetMesh, partition: &NodePartition, e: usize) -> usize {
+    partition.owner_of_new(partition.new_of_old[mesh.tet(e)[0]])
+}
+
 /// Sparsity of this rank's rows: for each owned node (new numbering), the sorted new ids of
 /// every node it shares an element with; and the elements that touch an owned node.
 pub struct LocalPattern {

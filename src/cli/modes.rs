@@ -275,6 +275,8 @@ fn compute(petsc: &Petsc, job: &Job) -> Result<(), String> {
             element_order: job.order,
             timings,
             provenance,
+            extra_datasets: Vec::new(),
+            node_fields: Vec::new(),
         };
         io::write_modes(&job.out, &file).map_err(|e| e.to_string())?;
         progress.say(format!("wrote {} and its .xdmf sidecar", job.out.display()));

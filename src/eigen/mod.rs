@@ -25,6 +25,7 @@
 //! `-eps_*`, `-st_*`, `-mat_mumps_*` options, so every setting can be overridden.
 
 pub mod analytic;
+pub mod sensitivity;
 
 use crate::petsc::{self, Eps, EpsWhich, Mat, NonzeroPattern, Petsc, PetscError, Vector};
 
@@ -327,7 +328,9 @@ fn solve_nearest<'p>(petsc: &'p Petsc, k: &Mat<'p>, m: &Mat<'p>, shift: f64, nev
     eps.set_dimensions(nev, None, None)?;
     eps.set_from_options()?;
     eps.solve()?;
-    collect(&eps, k, nev)
+    // The user may have changed nev with -eps_nev; hold SLEPc to what is in force.
+    let wanted = eps.dimensions()?.0;
+    collect(&eps, k, wanted)
 }
 
 fn solve_interval<'p>(petsc: &'p Petsc, k: &Mat<'p>, m: &Mat<'p>, lower: f64, upper: f64, cfg: &EigenConfig) -> Result<RawPairs<'p>, EigenError> {

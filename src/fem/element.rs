@@ -125,7 +125,14 @@ pub fn default_rule(nodes_per_tet: usize, curved: bool) -> QuadratureRule {
 const CURVED_DEGREE: usize = 8;
 
 /// True if a P2 element's mid-edge nodes are off the straight-edge midpoints by
-/// more than 1e-10 × edge length (then its geometry map is not affine).
+/// more than 1e-14 × edge length (then its geometry map is not affine).
+///
+/// The bar sits at rounding level on purpose: the straight path ignores any
+/// mid-node offset, so a looser bar (it was 1e-10) would make the assembled
+/// matrices a non-smooth function of node positions, and a finite difference
+/// of eigenvalues over a smooth node displacement (what shape optimisation
+/// does) would see a jump of that size. Midpoints made by `lift_to_quadratic`
+/// are computed with this same formula and so stay exactly straight.
 /// P1 elements (and any other node count) are never curved.
 pub fn is_curved(coords: &[[f64; 3]]) -> bool {
     if coords.len() != 10 {
@@ -140,7 +147,7 @@ pub fn is_curved(coords: &[[f64; 3]]) -> bool {
             off2 += o * o;
             len2 += (b[d] - a[d]) * (b[d] - a[d]);
         }
-        off2 > 1e-20 * len2
+        off2 > 1e-28 * len2
     })
 }
 

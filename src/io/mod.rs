@@ -11,7 +11,7 @@
 //!
 //! | path                        | type / shape                        | units, meaning |
 //! |-----------------------------|-------------------------------------|----------------|
-//! | `/` attrs                   | `format` = `"diffsound.modes"`, `format_version` (u64) = 2 | identifies the file (1: no `/modes/by_mode`) |
+//! | `/` attrs                   | `format` = `"diffsound.modes"`, `format_version` (u64) = 3 | identifies the file (1: no `/modes/by_mode`; 2: no `/node_fields`, no extra datasets) |
 //! | `/mesh/nodes`               | f64 `[n_nodes, 3]`                  | m, original mesh numbering |
 //! | `/mesh/tets`                | u64 `[n_tets, nodes_per_tet]`       | 0-based node ids, Gmsh order; attr `element_order` (u32, 1 or 2) |
 //! | `/mesh/tets_vtk`            | u64 `[n_tets, nodes_per_tet]`       | same cells in VTK/XDMF order (used by the sidecar) |
@@ -25,6 +25,22 @@
 //! | `/solver` attrs             | key → value strings, plus `n_ranks` (u64) | solver settings and PETSc options |
 //! | `/timings` attrs            | key → f64                           | seconds (assembly, solve, total, …) |
 //! | `/provenance` attrs         | key → value strings                 | mesh path, units, command line, diffsound version |
+//! | `/node_fields/<name>`       | f64 `[n_nodes, 3]`; attr `units` (string) | optional per-node vectors (e.g. `d_lambda_dx_mode_003`), node-major x,y,z, original numbering; also in the XDMF sidecar |
+//! | `/sensitivities/…`          | f64, any shape; string attrs (e.g. `units`) | written when sensitivities are requested: see `eigen::sensitivity` |
+//! | any other `/<group>/…/<name>` | f64, any shape; string attrs      | extra datasets ([`ExtraDataset`]), e.g. the `/sensitivities/…` above |
+//!
+//! `/node_fields` and the extra datasets are optional: a file without them
+//! (including every format-1 and format-2 file) reads back with both lists
+//! empty. An extra dataset's path is absolute (`/a/b/name`), every component
+//! is non-empty `[A-Za-z0-9_.-]` (not `.` or `..`), and its first component
+//! must not be one of the fixed top-level groups ([`RESERVED_GROUPS`]: `mesh`,
+//! `material`, `modes`, `solver`, `timings`, `provenance`, `node_fields`), so
+//! [`read_modes`] can tell extras from the fixed layout: every dataset outside
+//! those groups (root-level ones included) is an extra. Intermediate groups
+//! are created as needed; two extras may share groups but neither may sit at
+//! or below the other's path. Node field names are non-empty `[A-Za-z0-9_]`
+//! and unique. [`read_modes`] returns both lists sorted by path / name (HDF5's
+//! link order), not in the order they were given.
 //!
 //! `/modes/shapes` is the only stored copy of the shapes. Each
 //! `/modes/by_mode/mode_KKK` is an HDF5 virtual dataset (HDF5 ≥ 1.10) whose
@@ -48,7 +64,10 @@
 //! `Tetrahedron_10` (10 nodes) reading `/mesh/tets_vtk`, Geometry `XYZ` reading
 //! `/mesh/nodes`, and per mode `k` a node-centred vector Attribute named
 //! `mode_KKK (F Hz)` whose plain HDF DataItem (`Dimensions="n_nodes 3"`)
-//! reads `/modes/by_mode/mode_KKK`. The HDF5 file is named
+//! reads `/modes/by_mode/mode_KKK`; then per node field a node-centred
+//! vector Attribute named `<name>` (with an `Information` element
+//! `units`) whose plain HDF DataItem (`Dimensions="n_nodes 3"`) reads
+//! `/node_fields/<name>`. The HDF5 file is named
 //! by its file name only (relative to the sidecar), so the pair can be moved
 //! together. Connectivity is declared `NumberType="Int" Precision="8"`: HDF5
 //! converts the stored u64 on read, and signed 64-bit is the index type every
@@ -57,7 +76,7 @@
 //! ParaView opens the sidecar with its default `.xdmf` reader
 //! (`Xdmf3ReaderS`) or the legacy "XDMF Reader"; the tests check both with
 //! ParaView 5.11 `pvbatch` when it is installed (quadratic tets, every mode as
-//! a point vector with the stored values). The per-mode virtual datasets are
+//! a point vector with the stored values, and every node field likewise). The per-mode virtual datasets are
 //! what makes the Xdmf3 readers work: given a HyperSlab DataItem instead they
 //! load the mesh but drop the attribute ("Skipping unrecognized array type
 //! [None]").
@@ -89,9 +108,51 @@ pub(crate) mod test_support;
 /// Value of the root attribute `format`.
 pub const FORMAT_NAME: &str = "diffsound.modes";
 /// Value of the root attribute `format_version`; bump on any layout change.
-/// Version 2 added `/modes/by_mode`; [`read_modes`] still reads version 1
-/// (it needs only `/modes/shapes`).
-pub const FORMAT_VERSION: u64 = 2;
+/// Version 2 added `/modes/by_mode`, version 3 the optional `/node_fields`
+/// and extra datasets; [`read_modes`] still reads versions 1 and 2 (it needs
+/// only `/modes/shapes`, and reads the optional parts only where present).
+pub const FORMAT_VERSION: u64 = 3;
+
+/// Top-level groups of the fixed layout. An [`ExtraDataset`] may not live in
+/// (or be) any of them.
+pub const RESERVED_GROUPS: [&str; 7] = [
+    "mesh",
+    "material",
+    "modes",
+    "solver",
+    "timings",
+    "provenance",
+    "node_fields",
+];
+
+/// An additional f64 dataset stored at an arbitrary path outside the fixed
+/// layout (see module docs), e.g. `/sensitivities/d_eigenvalue_d_youngs`.
+/// Also what [`read_modes`] returns for each one found.
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct ExtraDataset {
+    /// Absolute HDF5 path, `/group/…/name`; intermediate groups are created.
+    pub path: String,
+    /// Dataset shape, row-major; `[]` is a scalar (one value).
+    pub shape: Vec<usize>,
+    /// Row-major values; length = product of `shape`.
+    pub data: Vec<f64>,
+    /// String attributes on the dataset (e.g. `("units", "rad²/s²/Pa")`);
+    /// keys non-empty and unique.
+    pub attrs: Vec<(String, String)>,
+}
+
+/// A per-node vector field shown on the mesh, stored as
+/// `/node_fields/<name>` and referenced from the XDMF sidecar.
+#[derive(Clone, Debug, PartialEq)]
+pub struct NodeField<'a> {
+    /// Non-empty `[A-Za-z0-9_]`, unique; dataset and ParaView array name
+    /// (e.g. `d_lambda_dx_mode_003`).
+    pub name: String,
+    /// 3·n_nodes values, node-major (x,y,z), original mesh numbering.
+    pub data: &'a [f64],
+    /// Stored as the dataset's `units` attribute (e.g. `rad²/s²/m`).
+    pub units: String,
+}
 
 /// `vtk[i] = gmsh[GMSH_TO_VTK_TET10[i]]` for one 10-node tet (see module docs).
 pub const GMSH_TO_VTK_TET10: [usize; 10] = [0, 1, 2, 3, 4, 5, 6, 7, 9, 8];
@@ -142,6 +203,10 @@ pub struct ModesFile<'a> {
     pub timings: Vec<(String, f64)>,
     /// Mesh path, units, command line, diffsound version, …
     pub provenance: Vec<(String, String)>,
+    /// Additional f64 datasets outside the fixed layout (e.g. `/sensitivities/…`).
+    pub extra_datasets: Vec<ExtraDataset>,
+    /// Per-node vector fields, written to `/node_fields` and the sidecar.
+    pub node_fields: Vec<NodeField<'a>>,
 }
 
 /// What [`read_modes`] returns: the whole file, owned.
@@ -170,6 +235,12 @@ pub struct ModesSummary {
     pub solver: Vec<(String, String)>,
     pub timings: Vec<(String, f64)>,
     pub provenance: Vec<(String, String)>,
+    /// Every dataset outside [`RESERVED_GROUPS`], sorted by path; attributes
+    /// in HDF5's (name) order. Empty for files without any.
+    pub extra_datasets: Vec<ExtraDataset>,
+    /// `/node_fields/<name>` as (name, 3·n_nodes node-major values, units),
+    /// sorted by name. Empty for files without `/node_fields`.
+    pub node_fields: Vec<(String, Vec<f64>, String)>,
 }
 
 /// Errors of this module; every variant names the file it concerns.
@@ -355,6 +426,125 @@ fn validate(path: &Path, f: &ModesFile) -> Result<(), IoError> {
         f.provenance.iter().map(|(k, _)| k.as_str()),
         &[],
     )?;
+    validate_node_fields(path, f)?;
+    validate_extra_datasets(path, &f.extra_datasets)?;
+    Ok(())
+}
+
+/// Whether `c` may appear in a node field name.
+fn is_name_char(c: char) -> bool {
+    c.is_ascii_alphanumeric() || c == '_'
+}
+
+fn check_no_nul(path: &Path, what: &str, value: &str) -> Result<(), IoError> {
+    if value.contains('\0') {
+        return Err(IoError::InvalidInput {
+            path: path.to_path_buf(),
+            reason: format!("{what} contains a NUL character"),
+        });
+    }
+    Ok(())
+}
+
+fn validate_node_fields(path: &Path, f: &ModesFile) -> Result<(), IoError> {
+    let bad = |reason: String| {
+        Err(IoError::InvalidInput {
+            path: path.to_path_buf(),
+            reason,
+        })
+    };
+    let n_nodes = f.nodes.len();
+    let mut seen = std::collections::HashSet::new();
+    for field in &f.node_fields {
+        let name = &field.name;
+        if name.is_empty() {
+            return bad("node field with an empty name".into());
+        }
+        if !name.chars().all(is_name_char) {
+            return bad(format!(
+                "node field name '{name}' has characters outside [A-Za-z0-9_]"
+            ));
+        }
+        if !seen.insert(name.as_str()) {
+            return bad(format!("node field '{name}' is given twice"));
+        }
+        if field.data.len() != 3 * n_nodes {
+            return bad(format!(
+                "node field '{name}' has length {}, expected 3·n_nodes = {}",
+                field.data.len(),
+                3 * n_nodes
+            ));
+        }
+        check_no_nul(path, &format!("units of node field '{name}'"), &field.units)?;
+    }
+    Ok(())
+}
+
+fn validate_extra_datasets(path: &Path, extras: &[ExtraDataset]) -> Result<(), IoError> {
+    let bad = |reason: String| {
+        Err(IoError::InvalidInput {
+            path: path.to_path_buf(),
+            reason,
+        })
+    };
+    let mut datasets = std::collections::HashSet::new();
+    // Every proper prefix of every extra path: the groups it needs.
+    let mut groups = std::collections::HashSet::new();
+    for e in extras {
+        let p = e.path.as_str();
+        let Some(rest) = p.strip_prefix('/') else {
+            return bad(format!(
+                "extra dataset path '{p}' is not absolute (must start with '/')"
+            ));
+        };
+        let parts: Vec<&str> = rest.split('/').collect();
+        for part in &parts {
+            let ok = !part.is_empty()
+                && *part != "."
+                && *part != ".."
+                && part
+                    .chars()
+                    .all(|c| c.is_ascii_alphanumeric() || "_.-".contains(c));
+            if !ok {
+                return bad(format!(
+                    "extra dataset path '{p}': component '{part}' is empty, '.', '..' \
+                     or has characters outside [A-Za-z0-9_.-]"
+                ));
+            }
+        }
+        if RESERVED_GROUPS.contains(&parts[0]) {
+            return bad(format!(
+                "extra dataset path '{p}' collides with the fixed layout (/{} is reserved)",
+                parts[0]
+            ));
+        }
+        let n = e
+            .shape
+            .iter()
+            .try_fold(1usize, |acc, &d| acc.checked_mul(d));
+        if n != Some(e.data.len()) {
+            return bad(format!(
+                "extra dataset '{p}' has {} values but shape {:?}",
+                e.data.len(),
+                e.shape
+            ));
+        }
+        if !datasets.insert(p) {
+            return bad(format!("extra dataset '{p}' is given twice"));
+        }
+        for i in 1..parts.len() {
+            groups.insert(format!("/{}", parts[..i].join("/")));
+        }
+        check_keys(path, rest, e.attrs.iter().map(|(k, _)| k.as_str()), &[])?;
+        for (k, v) in &e.attrs {
+            check_no_nul(path, &format!("attribute '{k}' of {p}"), v)?;
+        }
+    }
+    if let Some(p) = extras.iter().map(|e| &e.path).find(|p| groups.contains(*p)) {
+        return bad(format!(
+            "extra dataset '{p}' collides with another extra dataset below it"
+        ));
+    }
     Ok(())
 }
 
@@ -460,6 +650,38 @@ fn fill_h5(path: &Path, file: &hdf5::File, f: &ModesFile) -> Result<(), IoError>
     for (key, value) in &f.provenance {
         write_str_attr(path, &provenance, key, value)?;
     }
+
+    if !f.node_fields.is_empty() {
+        let fields = create_group(path, file, "node_fields")?;
+        for field in &f.node_fields {
+            let ds = write_dataset(path, &fields, &field.name, &[n_nodes, 3], field.data)?;
+            write_str_attr(path, &ds, "units", &field.units)?;
+        }
+    }
+
+    for e in &f.extra_datasets {
+        // Validated: absolute, non-empty components, outside the fixed groups.
+        let (parent, name) = e.path.rsplit_once('/').unwrap_or(("", &e.path));
+        let mut group: hdf5::Group = (**file).clone();
+        for part in parent.split('/').filter(|s| !s.is_empty()) {
+            group = if group.link_exists(part) {
+                group.group(part)
+            } else {
+                group.create_group(part)
+            }
+            .map_err(IoError::hdf5(
+                path,
+                format!(
+                    "creating group {}/{part}",
+                    group.name().trim_end_matches('/')
+                ),
+            ))?;
+        }
+        let ds = write_dataset(path, &group, name, &e.shape, &e.data)?;
+        for (key, value) in &e.attrs {
+            write_str_attr(path, &ds, key, value)?;
+        }
+    }
     Ok(())
 }
 
@@ -526,7 +748,7 @@ fn write_dataset<T: hdf5::H5Type>(
     shape: &[usize],
     data: &[T],
 ) -> Result<hdf5::Dataset, IoError> {
-    let full = format!("{}/{name}", group.name());
+    let full = format!("{}/{name}", group.name().trim_end_matches('/'));
     let ds = group
         .new_dataset::<T>()
         .shape(shape)
@@ -607,6 +829,18 @@ pub fn xdmf_document(h5_name: &str, f: &ModesFile) -> String {
             x,
             r#"      <Attribute Name="{name} ({freq:.1} Hz)" Center="Node" AttributeType="Vector">
         <DataItem Dimensions="{n_nodes} 3" NumberType="Float" Precision="8" Format="HDF">{h5}:/modes/by_mode/{name}</DataItem>
+      </Attribute>
+"#
+        );
+    }
+    for field in &f.node_fields {
+        let name = xml_escape(&field.name);
+        let units = xml_escape(&field.units);
+        let _ = write!(
+            x,
+            r#"      <Attribute Name="{name}" Center="Node" AttributeType="Vector">
+        <Information Name="units" Value="{units}"/>
+        <DataItem Dimensions="{n_nodes} 3" NumberType="Float" Precision="8" Format="HDF">{h5}:/node_fields/{name}</DataItem>
       </Attribute>
 "#
         );
@@ -751,6 +985,35 @@ pub fn read_modes(path: &Path) -> Result<ModesSummary, IoError> {
         provenance.push((key, value));
     }
 
+    let mut node_fields = Vec::new();
+    if file.link_exists("node_fields") {
+        let fields_g = file
+            .group("node_fields")
+            .map_err(IoError::hdf5(path, "opening /node_fields"))?;
+        let names = fields_g
+            .member_names()
+            .map_err(IoError::hdf5(path, "listing /node_fields"))?;
+        for name in names {
+            let full = format!("/node_fields/{name}");
+            let (data, shape) = read_dataset::<f64>(path, &file, &full)?;
+            if shape != [n_nodes, 3] {
+                return Err(bad(format!(
+                    "{full} has shape {shape:?}, expected [{n_nodes}, 3]"
+                )));
+            }
+            let ds = file
+                .dataset(&full)
+                .map_err(IoError::hdf5(path, format!("opening {full}")))?;
+            let units = read_str_attr(path, &ds, "units")?;
+            node_fields.push((name, data, units));
+        }
+    }
+
+    let mut extra_datasets = Vec::new();
+    read_extras(path, &file, "", true, &mut extra_datasets)?;
+    // Depth-first link order is not plain path order when names hold '-' or '.'.
+    extra_datasets.sort_by(|a, b| a.path.cmp(&b.path));
+
     Ok(ModesSummary {
         n_nodes,
         n_tets,
@@ -769,7 +1032,60 @@ pub fn read_modes(path: &Path) -> Result<ModesSummary, IoError> {
         solver,
         timings,
         provenance,
+        extra_datasets,
+        node_fields,
     })
+}
+
+/// Appends every dataset under `group` (absolute path `prefix`, `""` for the
+/// root) to `out`, depth-first in link order, skipping [`RESERVED_GROUPS`]
+/// at the root.
+fn read_extras(
+    path: &Path,
+    file: &hdf5::File,
+    prefix: &str,
+    root: bool,
+    out: &mut Vec<ExtraDataset>,
+) -> Result<(), IoError> {
+    let group_path = if prefix.is_empty() { "/" } else { prefix };
+    let group = file
+        .group(group_path)
+        .map_err(IoError::hdf5(path, format!("opening group {group_path}")))?;
+    let names = group
+        .member_names()
+        .map_err(IoError::hdf5(path, format!("listing {group_path}")))?;
+    for name in names {
+        if root && RESERVED_GROUPS.contains(&name.as_str()) {
+            continue;
+        }
+        let full = format!("{prefix}/{name}");
+        let kind = group
+            .loc_type_by_name(&name)
+            .map_err(IoError::hdf5(path, format!("inspecting {full}")))?;
+        match kind {
+            hdf5::LocationType::Group => read_extras(path, file, &full, false, out)?,
+            hdf5::LocationType::Dataset => {
+                let (data, shape) = read_dataset::<f64>(path, file, &full)?;
+                let ds = file
+                    .dataset(&full)
+                    .map_err(IoError::hdf5(path, format!("opening {full}")))?;
+                let mut attrs = Vec::new();
+                for key in attr_names(path, &ds)? {
+                    let value = read_str_attr(path, &ds, &key)?;
+                    attrs.push((key, value));
+                }
+                out.push(ExtraDataset {
+                    path: full,
+                    shape,
+                    data,
+                    attrs,
+                });
+            }
+            // Committed datatypes and the like are not ours; ignore them.
+            _ => {}
+        }
+    }
+    Ok(())
 }
 
 fn read_dataset<T: hdf5::H5Type>(

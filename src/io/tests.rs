@@ -12,6 +12,10 @@ struct Fixture {
     shapes: Vec<Vec<f64>>,
     residuals: Vec<f64>,
     rigid: Vec<f64>,
+    /// Node fields as (name, 3·n values, units), sorted by name.
+    fields: Vec<(String, Vec<f64>, String)>,
+    /// Sorted by path.
+    extras: Vec<ExtraDataset>,
 }
 
 /// Gmsh tet10 mid-edge pairs, local nodes 4..9.
@@ -66,6 +70,61 @@ fn fixture(quadratic: bool) -> Fixture {
         shapes,
         residuals: vec![1e-12, 2e-12, 3e-11],
         rigid: vec![1e-6, -2e-6, 3e-7, 0.0, 1e-7, -1e-7],
+        fields: vec![
+            (
+                "d_lambda_dx_mode_001".into(),
+                (0..3 * n).map(|i| -1.5e9 + i as f64 * 0.25).collect(),
+                "rad²/s²/m".into(),
+            ),
+            (
+                "marker".into(),
+                (0..3 * n)
+                    .map(|i| (i % 3) as f64 + (i / 3) as f64 * 10.0)
+                    .collect(),
+                String::new(),
+            ),
+        ],
+        extras: vec![
+            ExtraDataset {
+                path: "/a-b/x".into(),
+                shape: vec![],
+                data: vec![42.0],
+                attrs: vec![],
+            },
+            ExtraDataset {
+                path: "/a/deep/nested/cube".into(),
+                shape: vec![2, 2, 2],
+                data: (0..8).map(|i| i as f64 - 3.5).collect(),
+                attrs: vec![("note".into(), "x & <y> ünï".into())],
+            },
+            ExtraDataset {
+                path: "/root_level".into(),
+                shape: vec![2],
+                data: vec![f64::MIN_POSITIVE, -0.0],
+                attrs: vec![],
+            },
+            ExtraDataset {
+                path: "/sensitivities/d_eigenvalue_d_density".into(),
+                shape: vec![3],
+                data: vec![-510.0, -1146.5, -3184.7],
+                attrs: vec![("units".into(), "rad²/s² per kg/m³".into())],
+            },
+            ExtraDataset {
+                path: "/sensitivities/d_eigenvalue_d_youngs".into(),
+                shape: vec![3],
+                data: vec![2.0e-5, 4.5e-5, 1.25e-4],
+                attrs: vec![
+                    ("method".into(), "adjoint".into()),
+                    ("units".into(), "rad²/s²/Pa".into()),
+                ],
+            },
+            ExtraDataset {
+                path: "/sensitivities/empty".into(),
+                shape: vec![0, 3],
+                data: vec![],
+                attrs: vec![("units".into(), "m".into())],
+            },
+        ],
     }
 }
 
@@ -103,6 +162,16 @@ fn modes_file(fx: &Fixture) -> ModesFile<'_> {
             ("units".into(), "m".into()),
             ("version".into(), "0.1.0 ünïcode".into()),
         ],
+        extra_datasets: fx.extras.clone(),
+        node_fields: fx
+            .fields
+            .iter()
+            .map(|(name, data, units)| NodeField {
+                name: name.clone(),
+                data,
+                units: units.clone(),
+            })
+            .collect(),
     }
 }
 
@@ -152,6 +221,80 @@ fn tet10_round_trip_reads_back_everything() {
         assert!(s.timings.contains(&(k.clone(), *v)), "timing {k}");
     }
     assert_eq!(sorted(&s.provenance), sorted(&f.provenance));
+    assert_eq!(s.node_fields, fx.fields);
+    assert_eq!(s.extra_datasets, fx.extras);
+}
+
+#[test]
+fn files_without_node_fields_or_extras_read_back_empty() {
+    let dir = TempDir::new("noextras");
+    let fx = fixture(true);
+    let mut f = modes_file(&fx);
+    f.node_fields.clear();
+    f.extra_datasets.clear();
+    let path = dir.path("plain.h5");
+    write_modes(&path, &f).unwrap();
+    let xml = fs::read_to_string(dir.path("plain.xdmf")).unwrap();
+    assert!(!xml.contains("node_fields"));
+    {
+        let file = hdf5::File::open_rw(&path).unwrap();
+        let mut top = file.member_names().unwrap();
+        top.sort();
+        assert_eq!(
+            top,
+            [
+                "material",
+                "mesh",
+                "modes",
+                "provenance",
+                "solver",
+                "timings"
+            ]
+        );
+        // Exactly what a format-2 writer produced.
+        file.attr("format_version")
+            .unwrap()
+            .write_scalar(&2u64)
+            .unwrap();
+    }
+    let s = read_modes(&path).unwrap();
+    assert_eq!(s.mode_shapes, fx.shapes);
+    assert!(s.node_fields.is_empty() && s.extra_datasets.is_empty());
+}
+
+#[test]
+fn node_fields_and_extras_are_stored_as_documented() {
+    let dir = TempDir::new("extras");
+    let fx = fixture(false);
+    let path = dir.path("e.h5");
+    write_modes(&path, &modes_file(&fx)).unwrap();
+    let n = fx.nodes.len();
+    let file = hdf5::File::open(&path).unwrap();
+    let v: u64 = file.attr("format_version").unwrap().read_scalar().unwrap();
+    assert_eq!(v, FORMAT_VERSION);
+    for (name, data, units) in &fx.fields {
+        let ds = file.dataset(&format!("/node_fields/{name}")).unwrap();
+        assert_eq!(ds.shape(), [n, 3], "{name}");
+        assert_eq!(&ds.read_raw::<f64>().unwrap(), data, "{name}");
+        let u: VarLenUnicode = ds.attr("units").unwrap().read_scalar().unwrap();
+        assert_eq!(u.as_str(), units);
+    }
+    for e in &fx.extras {
+        let ds = file.dataset(&e.path).unwrap();
+        assert_eq!(ds.shape(), e.shape, "{}", e.path);
+        if !e.data.is_empty() {
+            assert_eq!(ds.read_raw::<f64>().unwrap(), e.data, "{}", e.path);
+        }
+    }
+    assert!(file.dataset("/a-b/x").unwrap().is_scalar());
+    let units: VarLenUnicode = file
+        .dataset("/sensitivities/d_eigenvalue_d_youngs")
+        .unwrap()
+        .attr("units")
+        .unwrap()
+        .read_scalar()
+        .unwrap();
+    assert_eq!(units.as_str(), "rad²/s²/Pa");
 }
 
 #[test]
@@ -264,8 +407,13 @@ fn xdmf_sidecar_references_the_h5_by_name_and_per_mode_datasets() {
     )));
     assert!(!xml.contains("HyperSlab"), "Xdmf3 readers drop HyperSlabs");
     assert!(xml.contains(r#"<Information Name="material" Value="steel &amp; &lt;co&gt;"/>"#));
-    assert_eq!(xml.matches("<Attribute ").count(), 3);
-    check_xdmf_with_python(&dir.path("results.xdmf"));
+    assert!(xml.contains(&format!(
+        r#"<DataItem Dimensions="{n} 3" NumberType="Float" Precision="8" Format="HDF">results.h5:/node_fields/d_lambda_dx_mode_001</DataItem>"#
+    )));
+    assert!(xml.contains(r#"<Attribute Name="marker" Center="Node" AttributeType="Vector">"#));
+    assert!(xml.contains(r#"<Information Name="units" Value="rad²/s²/m"/>"#));
+    assert_eq!(xml.matches("<Attribute ").count(), 3 + fx.fields.len());
+    check_xdmf_with_python(&dir.path("results.xdmf"), &fx);
     check_with_paraview(&dir.path("results.xdmf"), &fx);
 }
 
@@ -320,7 +468,7 @@ fn moved_pair_still_resolves_virtual_datasets() {
     assert_eq!(m1, fx.shapes[1]);
     drop(file);
     check_by_mode_with_h5py(&moved, 1);
-    check_xdmf_with_python(&dst.path("bowl.xdmf"));
+    check_xdmf_with_python(&dst.path("bowl.xdmf"), &fx);
     check_with_paraview(&dst.path("bowl.xdmf"), &fx);
 }
 
@@ -412,10 +560,11 @@ with h5py.File(path, "r") as f:
 }
 
 /// Parses the sidecar with Python's xml.etree and, where h5py is importable,
-/// checks every HDF DataItem's Dimensions against the real dataset and every
-/// mode attribute's data against `/modes/shapes[k]`. Skipped (with a note)
+/// checks every HDF DataItem's Dimensions against the real dataset, every
+/// mode attribute's data against `/modes/shapes[k]`, and that exactly the
+/// fixture's node fields follow, each with its units. Skipped (with a note)
 /// without python3.
-fn check_xdmf_with_python(xdmf: &Path) {
+fn check_xdmf_with_python(xdmf: &Path, fx: &Fixture) {
     const SCRIPT: &str = r#"
 import sys, os, xml.etree.ElementTree as ET
 path = sys.argv[1]
@@ -447,19 +596,37 @@ n_elem = int(topo.get("NumberOfElements"))
 assert check_hdf(topo.find("DataItem"))[0] == n_elem
 n_nodes = check_hdf(grid.find("Geometry/DataItem"))[0]
 attrs = grid.findall("Attribute")
+fields = [tuple(x.split("=", 1)) for x in sys.argv[2:]]
+n_modes = len(attrs) - len(fields)
 for k, a in enumerate(attrs):
     assert a.get("Center") == "Node" and a.get("AttributeType") == "Vector"
     (item,) = a.findall("DataItem")
     assert check_hdf(item) == [n_nodes, 3]
     fname, dset = h5file(item)
-    assert dset == "/modes/by_mode/mode_%03d" % k, dset
-    assert a.get("Name").startswith("mode_%03d " % k), a.get("Name")
-    if h5py:
-        with h5py.File(fname, "r") as f:
-            assert np.array_equal(f[dset][()], f["/modes/shapes"][k]), dset
-print("xdmf ok", len(attrs), "modes")
+    if k < n_modes:
+        assert dset == "/modes/by_mode/mode_%03d" % k, dset
+        assert a.get("Name").startswith("mode_%03d " % k), a.get("Name")
+        if h5py:
+            with h5py.File(fname, "r") as f:
+                assert np.array_equal(f[dset][()], f["/modes/shapes"][k]), dset
+    else:
+        name, units = fields[k - n_modes]
+        assert a.get("Name") == name and dset == "/node_fields/" + name, (a.attrib, dset)
+        (info,) = a.findall("Information")
+        assert info.get("Name") == "units" and info.get("Value") == units, info.attrib
+        if h5py:
+            with h5py.File(fname, "r") as f:
+                assert f[dset].attrs["units"] == units, dset
+print("xdmf ok", n_modes, "modes,", len(fields), "node fields")
 "#;
-    run_python(SCRIPT, &[xdmf.as_os_str()]);
+    let fields: Vec<std::ffi::OsString> = fx
+        .fields
+        .iter()
+        .map(|(name, _, units)| format!("{name}={units}").into())
+        .collect();
+    let mut args = vec![xdmf.as_os_str()];
+    args.extend(fields.iter().map(|a| a.as_os_str()));
+    run_python(SCRIPT, &args);
 }
 
 /// Loads the sidecar in ParaView through `pvbatch` (if installed) with both
@@ -545,19 +712,23 @@ for label, make in (("default", lambda p: pv.OpenDataFile(p)),
             "{reader}: {v}"
         );
         let mut arrays = v["arrays"].as_array().unwrap().clone();
-        // Readers differ in array order; names sort in mode order.
+        // Readers differ in array order; compare sorted by name.
         arrays.sort_by_key(|a| a[0].as_str().unwrap().to_owned());
+        let mut expected: Vec<(String, &Vec<f64>)> = fx
+            .shapes
+            .iter()
+            .enumerate()
+            .map(|(k, s)| (format!("mode_{k:03} ({:.1} Hz)", fx.frequencies[k]), s))
+            .chain(fx.fields.iter().map(|(name, data, _)| (name.clone(), data)))
+            .collect();
+        expected.sort_by(|a, b| a.0.cmp(&b.0));
         assert_eq!(
             arrays.len(),
-            fx.shapes.len(),
-            "{reader}: one point array per mode"
+            expected.len(),
+            "{reader}: one point array per mode and node field"
         );
-        for (k, a) in arrays.iter().enumerate() {
-            assert_eq!(
-                a[0].as_str().unwrap(),
-                format!("mode_{k:03} ({:.1} Hz)", fx.frequencies[k]),
-                "{reader}"
-            );
+        for (a, (name, want)) in arrays.iter().zip(&expected) {
+            assert_eq!(a[0].as_str().unwrap(), name, "{reader}");
             assert_eq!(a[1], 3, "{reader}");
             let values: Vec<f64> = a[2]
                 .as_array()
@@ -565,14 +736,12 @@ for label, make in (("default", lambda p: pv.OpenDataFile(p)),
                 .iter()
                 .map(|x| x.as_f64().unwrap())
                 .collect();
-            assert_eq!(
-                values, fx.shapes[k],
-                "{reader}: mode {k} as ParaView sees it"
-            );
+            assert_eq!(&values, *want, "{reader}: {name} as ParaView sees it");
         }
         eprintln!(
-            "pvbatch {reader}: {} modes on cell type {cell_type}",
-            arrays.len()
+            "pvbatch {reader}: {} modes + {} node fields on cell type {cell_type}",
+            fx.shapes.len(),
+            fx.fields.len()
         );
     }
     assert_eq!(results[0]["reader"], "Xdmf3ReaderS", "default .xdmf reader");
@@ -591,7 +760,7 @@ fn tet4_uses_plain_tetrahedron_and_identity_order() {
     let a: Vec<u64> = file.dataset("/mesh/tets").unwrap().read_raw().unwrap();
     let b: Vec<u64> = file.dataset("/mesh/tets_vtk").unwrap().read_raw().unwrap();
     assert_eq!(a, b);
-    check_xdmf_with_python(&dir.path("lin.xdmf"));
+    check_xdmf_with_python(&dir.path("lin.xdmf"), &fx);
     check_with_paraview(&dir.path("lin.xdmf"), &fx);
     assert_eq!(read_modes(&path).unwrap().element_order, 1);
 }
@@ -627,9 +796,18 @@ fn empty_mesh_with_a_mode_still_round_trips() {
     f.frequencies_hz = &fx.frequencies[..1];
     f.residual_norms = &fx.residuals[..1];
     f.mode_shapes = &empty_shape;
+    f.node_fields = vec![NodeField {
+        name: "empty".into(),
+        data: &[],
+        units: "m".into(),
+    }];
     let path = dir.path("empty.h5");
     write_modes(&path, &f).unwrap();
     let s = read_modes(&path).unwrap();
+    assert_eq!(
+        s.node_fields,
+        [("empty".to_string(), Vec::new(), "m".to_string())]
+    );
     assert_eq!((s.n_nodes, s.n_modes, s.mode_shapes), (0, 1, empty_shape));
     let file = hdf5::File::open(&path).unwrap();
     assert_eq!(
@@ -680,6 +858,14 @@ fn failing_writer_leaves_neither_final_nor_temporary_file() {
 
 #[test]
 fn inconsistent_input_is_refused_before_touching_disk() {
+    fn extra(path: &str, shape: &[usize], len: usize) -> ExtraDataset {
+        ExtraDataset {
+            path: path.into(),
+            shape: shape.to_vec(),
+            data: vec![1.0; len],
+            attrs: Vec::new(),
+        }
+    }
     let dir = TempDir::new("invalid");
     let fx = fixture(true);
     let path = dir.path("bad.h5");
@@ -706,6 +892,91 @@ fn inconsistent_input_is_refused_before_touching_disk() {
             case(|f| f.provenance.push((String::new(), "x".into()))),
             "empty",
         ),
+        (
+            case(|f| f.extra_datasets.push(extra("sens/x", &[1], 1))),
+            "not absolute",
+        ),
+        (
+            case(|f| f.extra_datasets.push(extra("/modes/x", &[1], 1))),
+            "fixed layout",
+        ),
+        (
+            case(|f| f.extra_datasets.push(extra("/mesh", &[1], 1))),
+            "fixed layout",
+        ),
+        (
+            case(|f| f.extra_datasets.push(extra("/node_fields/x", &[1], 1))),
+            "/node_fields is reserved",
+        ),
+        (
+            case(|f| f.extra_datasets.push(extra("/s//x", &[1], 1))),
+            "component ''",
+        ),
+        (
+            case(|f| f.extra_datasets.push(extra("/s/../x", &[1], 1))),
+            "'..'",
+        ),
+        (
+            case(|f| f.extra_datasets.push(extra("/s/", &[1], 1))),
+            "component ''",
+        ),
+        (
+            case(|f| f.extra_datasets.push(extra("/s/a b", &[1], 1))),
+            "[A-Za-z0-9_.-]",
+        ),
+        (
+            case(|f| f.extra_datasets.push(extra("/s/x", &[2, 3], 5))),
+            "5 values but shape [2, 3]",
+        ),
+        (
+            case(|f| f.extra_datasets.push(extra("/s/x", &[], 0))),
+            "0 values but shape []",
+        ),
+        (
+            case(|f| f.extra_datasets.push(extra("/s/x", &[usize::MAX, 2], 0))),
+            "shape",
+        ),
+        (
+            case(|f| {
+                let e = f.extra_datasets[3].clone();
+                f.extra_datasets.push(e)
+            }),
+            "'/sensitivities/d_eigenvalue_d_density' is given twice",
+        ),
+        (
+            case(|f| {
+                f.extra_datasets
+                    .push(extra("/sensitivities/d_eigenvalue_d_youngs/sub", &[1], 1))
+            }),
+            "collides with another",
+        ),
+        (
+            case(|f| f.extra_datasets.push(extra("/a/deep", &[1], 1))),
+            "'/a/deep' collides with another",
+        ),
+        (
+            case(|f| f.extra_datasets[0].attrs.push((String::new(), "x".into()))),
+            "empty attribute name",
+        ),
+        (
+            case(|f| f.extra_datasets[4].attrs.push(("units".into(), "x".into()))),
+            "'units' is given twice",
+        ),
+        (
+            case(|f| f.extra_datasets[0].attrs.push(("k".into(), "a\0b".into()))),
+            "NUL",
+        ),
+        (case(|f| f.node_fields[0].name.clear()), "empty name"),
+        (case(|f| f.node_fields[0].name = "d-x".into()), "'d-x'"),
+        (
+            case(|f| f.node_fields[1].name = f.node_fields[0].name.clone()),
+            "given twice",
+        ),
+        (
+            case(|f| f.node_fields[1].data = &short[0]),
+            "'marker' has length 5",
+        ),
+        (case(|f| f.node_fields[1].units = "\0".into()), "NUL"),
     ];
     for (mutate, needle) in cases {
         let mut f = modes_file(&fx);

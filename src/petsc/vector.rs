@@ -92,6 +92,40 @@ impl<'p> Vector<'p> {
         unsafe { check(sys::VecAXPY(self.raw, a, x.raw), "VecAXPY") }
     }
 
+    /// The entries at the given global indices, on this rank (each rank asks for its own list,
+    /// typically its owned entries plus the ghosts its elements need). Collective.
+    pub fn gather_indices(&self, indices: &[super::PetscInt]) -> Result<Vec<f64>> {
+        let n = super::to_petsc_int(indices.len())?;
+        let mut is_from: sys::IS = std::ptr::null_mut();
+        let mut local: sys::Vec = std::ptr::null_mut();
+        let mut scatter: sys::VecScatter = std::ptr::null_mut();
+        // SAFETY: every object created here is destroyed before returning; PETSc copies the
+        // index array (PETSC_COPY_VALUES).
+        unsafe {
+            let self_comm = mpi::ffi::RSMPI_COMM_SELF;
+            check(sys::ISCreateGeneral(self_comm, n, indices.as_ptr(), sys::PetscCopyMode_PETSC_COPY_VALUES, &mut is_from), "ISCreateGeneral")?;
+            let result = (|| {
+                check(sys::VecCreateSeq(self_comm, n, &mut local), "VecCreateSeq")?;
+                check(sys::VecScatterCreate(self.raw, is_from, local, std::ptr::null_mut(), &mut scatter), "VecScatterCreate")?;
+                check(sys::VecScatterBegin(scatter, self.raw, local, sys::InsertMode_INSERT_VALUES, sys::ScatterMode_SCATTER_FORWARD), "VecScatterBegin")?;
+                check(sys::VecScatterEnd(scatter, self.raw, local, sys::InsertMode_INSERT_VALUES, sys::ScatterMode_SCATTER_FORWARD), "VecScatterEnd")?;
+                let mut ptr: *const f64 = std::ptr::null();
+                check(sys::VecGetArrayRead(local, &mut ptr), "VecGetArrayRead")?;
+                let out = if indices.is_empty() { Vec::new() } else { std::slice::from_raw_parts(ptr, indices.len()).to_vec() };
+                check(sys::VecRestoreArrayRead(local, &mut ptr), "VecRestoreArrayRead")?;
+                Ok(out)
+            })();
+            if !scatter.is_null() {
+                sys::VecScatterDestroy(&mut scatter);
+            }
+            if !local.is_null() {
+                sys::VecDestroy(&mut local);
+            }
+            sys::ISDestroy(&mut is_from);
+            result
+        }
+    }
+
     /// The whole vector in global order on rank 0 (`None` elsewhere). Collective.
     pub fn gather_to_root(&self, rank: usize) -> Result<Option<Vec<f64>>> {
         let mut scatter: sys::VecScatter = std::ptr::null_mut();
