@@ -189,3 +189,27 @@ fn a_panic_on_one_rank_ends_the_whole_job() {
     assert!(run.stderr.contains("rank 1 of 2 panicked"), "{}", run.describe());
     assert!(!dir.join("p.h5").exists());
 }
+
+#[test]
+fn sensitivities_and_node_gradients_reach_the_hdf5_file() {
+    let dir = scratch("sensitivities");
+    let out = dir.join("s.h5");
+    let run = mpirun(2, &["modes", "--mesh", s(&fixture("mesh/cube_tet4_msh22_ascii.msh")), "--modes", "6", "--node-gradients", "--out", s(&out)], LIMIT);
+    assert!(run.success(), "{}", run.describe());
+    assert!(run.stdout.contains("df/dE"), "summary shows the sensitivities:\n{}", run.stdout);
+    let f = diffsound::io::read_modes(&out).expect("read back");
+    let get = |p: &str| f.extra_datasets.iter().find(|d| d.path == p).unwrap_or_else(|| panic!("{p} missing"));
+    let per_mode = get("/sensitivities/per_mode_d_eigenvalue_d_youngs");
+    assert_eq!(per_mode.data.len(), f.n_modes);
+    // λ_L and μ are both proportional to E, so dλ/dE = λ/E exactly.
+    let e = f.material.youngs_modulus;
+    for (d, l) in per_mode.data.iter().zip(&f.eigenvalues) {
+        assert!((d - l / e).abs() < 1e-8 * l / e, "dλ/dE {d} vs λ/E {}", l / e);
+    }
+    let density = get("/sensitivities/d_eigenvalue_d_density");
+    assert!(density.attrs.iter().any(|(k, v)| k == "units" && v.contains("kg")));
+    assert_eq!(f.node_fields.len(), f.n_modes);
+    assert_eq!(f.node_fields[0].1.len(), 3 * f.n_nodes);
+    let xdmf = std::fs::read_to_string(out.with_extension("xdmf")).unwrap();
+    assert!(xdmf.contains("d_lambda_dx_mode_000"));
+}

@@ -31,6 +31,8 @@
 //! duration = 2.0                    # s
 //! sample_rate = 48000               # Hz
 //! timings_json = "out/timings.json"
+//! sensitivities = true              # dλ/dE, dλ/dν, dλ/dρ per mode (and df/d·) in /sensitivities
+//! node_gradients = false            # dλ/dx per node and mode, as ParaView fields (implies the above)
 //! ```
 
 use serde::Deserialize;
@@ -84,6 +86,8 @@ pub struct OutputConfig {
     pub duration: Option<f64>,
     pub sample_rate: Option<u32>,
     pub timings_json: Option<PathBuf>,
+    pub sensitivities: Option<bool>,
+    pub node_gradients: Option<bool>,
 }
 
 impl FileConfig {

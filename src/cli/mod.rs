@@ -98,6 +98,13 @@ pub struct ModesArgs {
     /// Sample rate of the rendered strike in Hz (default 48000).
     #[arg(long)]
     pub sample_rate: Option<u32>,
+    /// Also compute exact eigenvalue derivatives with respect to E, ν and ρ (written to HDF5).
+    #[arg(long)]
+    pub sensitivities: bool,
+    /// Also compute dλ/dx at every node for every mode (HDF5 + ParaView fields); implies
+    /// --sensitivities.
+    #[arg(long)]
+    pub node_gradients: bool,
     /// Write assembly/solve timings, memory and eigenvalues as JSON (for benchmarks).
     #[arg(long)]
     pub timings_json: Option<PathBuf>,

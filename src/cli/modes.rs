@@ -4,6 +4,7 @@ use super::config::FileConfig;
 use super::{fail, ModesArgs, Progress};
 use crate::assembly;
 use crate::audio::{self, ModalBank, WavFormat};
+use crate::eigen::sensitivity::{self, ClusterTreatment};
 use crate::eigen::{self, EigenConfig, ModeRequest};
 use crate::fem::Material;
 use crate::io::{self, MaterialRecord, ModesFile};
@@ -33,6 +34,8 @@ pub struct Job {
     pub duration: f64,
     pub sample_rate: u32,
     pub timings_json: Option<PathBuf>,
+    pub sensitivities: bool,
+    pub node_gradients: bool,
     pub petsc_options: Vec<String>,
     pub verbose: bool,
 }
@@ -114,6 +117,8 @@ pub fn resolve(args: &ModesArgs) -> Result<Job, String> {
         duration,
         sample_rate,
         timings_json: args.timings_json.clone().or(file.output.timings_json.clone()),
+        sensitivities: args.sensitivities || args.node_gradients || file.output.sensitivities.unwrap_or(false) || file.output.node_gradients.unwrap_or(false),
+        node_gradients: args.node_gradients || file.output.node_gradients.unwrap_or(false),
         petsc_options,
         verbose: args.verbose,
     })
@@ -184,7 +189,15 @@ fn compute(petsc: &Petsc, job: &Job) -> Result<(), String> {
     let stats = assembled.stats.clone();
     progress.say(format!("assembled M, K_λ, K_μ in {:.2} s ({:.0} nonzeros each, {} mallocs)", stats.seconds, stats.nonzeros, stats.mallocs));
     let t_ops = std::time::Instant::now();
-    let (k, m, layout, _) = assembled.into_operators(&job.material).map_err(|e| e.to_string())?;
+    // Sensitivities need the split K_λ, K_μ and M₁; a forward-only run releases them.
+    let (k, m, layout, split) = if job.sensitivities {
+        let (k, m) = assembled.operators(&job.material).map_err(|e| e.to_string())?;
+        let layout = assembled.layout.clone();
+        (k, m, layout, Some(assembled))
+    } else {
+        let (k, m, layout, _) = assembled.into_operators(&job.material).map_err(|e| e.to_string())?;
+        (k, m, layout, None)
+    };
     let operator_seconds = t_ops.elapsed().as_secs_f64();
 
     let scale = eigen::spectrum_scale(job.material.lame_mu(), job.material.density, diagonal);
@@ -206,6 +219,21 @@ fn compute(petsc: &Petsc, job: &Job) -> Result<(), String> {
         }
     }
     progress.say(format!("{} elastic modes in {:.2} s", modes.eigenvalues.len(), modes.solve_seconds));
+
+    let t_sens = std::time::Instant::now();
+    let material_sens = match &split {
+        Some(a) => Some(sensitivity::material_sensitivities(&a.k_lambda, &a.k_mu, &a.mass_unit, &modes, &job.material).map_err(|e| e.to_string())?),
+        None => None,
+    };
+    let node_grads = if job.node_gradients {
+        sensitivity::node_gradients(petsc, &mesh, &layout, &modes, &job.material, ClusterTreatment::Mean).map_err(|e| e.to_string())?
+    } else {
+        None
+    };
+    let sensitivity_seconds = t_sens.elapsed().as_secs_f64();
+    if material_sens.is_some() {
+        progress.say(format!("sensitivities in {sensitivity_seconds:.2} s"));
+    }
 
     // Gather every mode to rank 0 in original node order, with a deterministic sign: the entry
     // of largest magnitude is made positive, so runs on any number of ranks agree.
@@ -244,6 +272,7 @@ fn compute(petsc: &Petsc, job: &Job) -> Result<(), String> {
             ("assembly".to_string(), stats.seconds + operator_seconds),
             ("solve".to_string(), solve_seconds),
             ("inertia_check".to_string(), modes.inertia_check.map_or(0.0, |c| c.seconds)),
+            ("sensitivities".to_string(), sensitivity_seconds),
             ("total".to_string(), total.elapsed().as_secs_f64()),
             ("peak_rss_bytes_sum".to_string(), peak_rss_sum),
         ];
@@ -253,6 +282,8 @@ fn compute(petsc: &Petsc, job: &Job) -> Result<(), String> {
             ("command_line".to_string(), std::env::args().collect::<Vec<_>>().join(" ")),
             ("diffsound_version".to_string(), env!("CARGO_PKG_VERSION").to_string()),
         ];
+        let width = io::mode_index_width(modes.eigenvalues.len());
+        let node_field_names: Vec<String> = (0..node_grads.as_ref().map_or(0, Vec::len)).map(|k| format!("d_lambda_dx_mode_{k:0width$}")).collect();
         let file = ModesFile {
             nodes: &mesh.nodes,
             connectivity: &mesh.connectivity,
@@ -275,8 +306,12 @@ fn compute(petsc: &Petsc, job: &Job) -> Result<(), String> {
             element_order: job.order,
             timings,
             provenance,
-            extra_datasets: Vec::new(),
-            node_fields: Vec::new(),
+            extra_datasets: material_sens.as_ref().map(|s| sensitivity_datasets(s, &modes, &job.material)).unwrap_or_default(),
+            node_fields: node_field_names
+                .iter()
+                .zip(node_grads.iter().flatten())
+                .map(|(name, data)| io::NodeField { name: name.clone(), data, units: "rad^2/s^2/m".into() })
+                .collect(),
         };
         io::write_modes(&job.out, &file).map_err(|e| e.to_string())?;
         progress.say(format!("wrote {} and its .xdmf sidecar", job.out.display()));
@@ -286,7 +321,7 @@ fn compute(petsc: &Petsc, job: &Job) -> Result<(), String> {
             progress.say(format!("wrote {} (strike at node {})", wav.display(), vertex.0));
         }
 
-        print_summary(job, &mesh, &stats, &modes, &frequencies, total.elapsed().as_secs_f64(), petsc.size());
+        print_summary(job, &mesh, &stats, &modes, &frequencies, total.elapsed().as_secs_f64(), petsc.size(), material_sens.as_ref());
         if let Some(path) = &job.timings_json {
             let json = serde_json::json!({
                 "ndof": stats.n_dofs,
@@ -342,7 +377,63 @@ fn render_strike(path: &Path, mesh: &TetMesh, (vertex, normal): (usize, [f64; 3]
     audio::write_wav(path, &samples, job.sample_rate, WavFormat::Pcm16, Some(0.9)).map_err(|e| e.to_string())
 }
 
-fn print_summary(job: &Job, mesh: &TetMesh, stats: &assembly::AssemblyStats, modes: &eigen::Modes<'_>, freqs: &[f64], total: f64, ranks: usize) {
+/// The `/sensitivities` datasets: dλ/dp (cluster means for clustered modes), the per-mode
+/// values, df/dp through f = √λ/2π, and the cluster ranges with their split derivatives.
+fn sensitivity_datasets(s: &sensitivity::MaterialSensitivities, modes: &eigen::Modes<'_>, material: &crate::fem::Material) -> Vec<io::ExtraDataset> {
+    let ds = |name: &str, data: Vec<f64>, units: &str, what: &str| io::ExtraDataset {
+        path: format!("/sensitivities/{name}"),
+        shape: vec![data.len()],
+        data,
+        attrs: vec![("units".into(), units.into()), ("meaning".into(), what.into())],
+    };
+    let df = |d: &[f64]| -> Vec<f64> { d.iter().zip(&modes.eigenvalues).map(|(x, &l)| x / (4.0 * std::f64::consts::PI * l.sqrt())).collect() };
+    let mean = "derivative of the mode's eigenvalue; inside a near-degenerate cluster, of the cluster mean";
+    let mut out = vec![
+        ds("d_eigenvalue_d_youngs", s.d_youngs.clone(), "rad^2/s^2/Pa", mean),
+        ds("d_eigenvalue_d_poisson", s.d_poisson.clone(), "rad^2/s^2", mean),
+        ds("d_eigenvalue_d_density", s.d_density.clone(), "rad^2/s^2/(kg/m^3)", mean),
+        ds("d_frequency_d_youngs", df(&s.d_youngs), "Hz/Pa", "df = dlambda / (4 pi sqrt(lambda))"),
+        ds("d_frequency_d_poisson", df(&s.d_poisson), "Hz", "df = dlambda / (4 pi sqrt(lambda))"),
+        ds("d_frequency_d_density", df(&s.d_density), "Hz/(kg/m^3)", "df = dlambda / (4 pi sqrt(lambda))"),
+        ds("per_mode_d_eigenvalue_d_youngs", s.per_mode_youngs.clone(), "rad^2/s^2/Pa", "each mode on its own (undefined inside a cluster)"),
+        ds("per_mode_d_eigenvalue_d_poisson", s.per_mode_poisson.clone(), "rad^2/s^2", "each mode on its own (undefined inside a cluster)"),
+        ds("per_mode_d_eigenvalue_d_density", s.per_mode_density.clone(), "rad^2/s^2/(kg/m^3)", "each mode on its own (undefined inside a cluster)"),
+    ];
+    let chain: Vec<_> = modes.eigenvalues.iter().map(|&l| sensitivity::damped_chain(l, material.rayleigh_alpha, material.rayleigh_beta)).collect();
+    let pick = |f: &dyn Fn(&sensitivity::DampedChain) -> f64| chain.iter().map(|c| c.as_ref().map_or(f64::NAN, f)).collect::<Vec<_>>();
+    out.push(ds("d_damped_omega_d_eigenvalue", pick(&|c| c.domega_d_dlambda), "(rad/s)/(rad^2/s^2)", "Rayleigh damping; NaN where overdamped"));
+    out.push(ds("d_decay_d_eigenvalue", pick(&|c| c.ddecay_dlambda), "(1/s)/(rad^2/s^2)", "decay d = (alpha + beta lambda)/2"));
+    let mut ranges = Vec::new();
+    for c in &s.clusters {
+        ranges.extend_from_slice(&[c.modes.start as f64, c.modes.end as f64]);
+    }
+    out.push(io::ExtraDataset {
+        path: "/sensitivities/clusters".into(),
+        shape: vec![s.clusters.len(), 2],
+        data: ranges,
+        attrs: vec![("meaning".into(), "mode index ranges [start, end) of near-degenerate clusters".into()), ("cluster_rtol".into(), format!("{:e}", modes.cluster_rtol))],
+    });
+    for (k, c) in s.clusters.iter().enumerate() {
+        let mut data = Vec::new();
+        for v in [&c.d_youngs, &c.d_poisson, &c.d_density] {
+            data.extend_from_slice(v);
+        }
+        out.push(io::ExtraDataset {
+            path: format!("/sensitivities/cluster_split/{k:03}"),
+            shape: vec![3, c.modes.len()],
+            data,
+            attrs: vec![
+                ("modes".into(), format!("{}..{}", c.modes.start, c.modes.end)),
+                ("rows".into(), "d/dE [rad^2/s^2/Pa], d/dnu [rad^2/s^2], d/drho [rad^2/s^2/(kg/m^3)]".into()),
+                ("meaning".into(), "eigenvalues of Phi^T (dK - mean(lambda) dM) Phi over the cluster".into()),
+            ],
+        });
+    }
+    out
+}
+
+#[allow(clippy::too_many_arguments)]
+fn print_summary(job: &Job, mesh: &TetMesh, stats: &assembly::AssemblyStats, modes: &eigen::Modes<'_>, freqs: &[f64], total: f64, ranks: usize, sens: Option<&sensitivity::MaterialSensitivities>) {
     println!("diffsound modes: {} ({} tets, {} DOF, P{}, {} rank(s))", job.mesh.display(), mesh.n_tets(), stats.n_dofs, job.order, ranks);
     println!(
         "material: {} E={:.4e} Pa nu={} rho={} kg/m3",
@@ -352,10 +443,15 @@ fn print_summary(job: &Job, mesh: &TetMesh, stats: &assembly::AssemblyStats, mod
     if let Some(c) = &modes.inertia_check {
         println!("inertia check: {} eigenvalues below {:.6e} rad^2/s^2, {} found -> {}", c.below, c.threshold, c.found, if c.below == c.found { "complete" } else { "MISMATCH" });
     }
-    println!("{:>5} {:>14} {:>18} {:>10}", "mode", "freq [Hz]", "lambda [rad2/s2]", "residual");
+    let sens_header = if sens.is_some() { format!(" {:>14} {:>12}", "df/dE [Hz/GPa]", "df/dnu [Hz]") } else { String::new() };
+    println!("{:>5} {:>14} {:>18} {:>10}{}", "mode", "freq [Hz]", "lambda [rad2/s2]", "residual", sens_header);
     for (i, (&l, &f)) in modes.eigenvalues.iter().zip(freqs).enumerate() {
         let tag = if modes.clusters.iter().any(|r| r.contains(&i)) { " *" } else { "" };
-        println!("{:>5} {:>14.4} {:>18.10e} {:>10.2e}{}", i, f, l, modes.residuals[i], tag);
+        let sens_cols = sens.map_or(String::new(), |s| {
+            let dfdl = 1.0 / (4.0 * std::f64::consts::PI * l.sqrt());
+            format!(" {:>14.4} {:>12.2}", s.d_youngs[i] * dfdl * 1e9, s.d_poisson[i] * dfdl)
+        });
+        println!("{:>5} {:>14.4} {:>18.10e} {:>10.2e}{}{}", i, f, l, modes.residuals[i], sens_cols, tag);
     }
     if !modes.clusters.is_empty() {
         println!("(* near-degenerate cluster: relative eigenvalue gap <= {:e})", modes.cluster_rtol);
