@@ -376,11 +376,11 @@ impl ElementKernel {
 
 /// det > 0, written so that NaN (from NaN/infinite coordinates) is rejected too.
 #[inline(always)]
-fn is_positive(det: f64) -> bool {
+pub(super) fn is_positive(det: f64) -> bool {
     det > 0.0
 }
 
-fn check_nodes(n: usize) -> Result<(), ElementError> {
+pub(super) fn check_nodes(n: usize) -> Result<(), ElementError> {
     if n == 4 || n == 10 {
         Ok(())
     } else {
@@ -404,7 +404,7 @@ fn jacobian(coords: &[[f64; 3]], grad: &[[f64; 3]]) -> [[f64; 3]; 3] {
 
 /// Jacobian of the affine map through the 4 corners (columns are edge vectors from corner 0).
 #[inline(always)]
-fn affine_jacobian(coords: &[[f64; 3]]) -> [[f64; 3]; 3] {
+pub(super) fn affine_jacobian(coords: &[[f64; 3]]) -> [[f64; 3]; 3] {
     let mut j = [[0.0; 3]; 3];
     for r in 0..3 {
         for c in 0..3 {
@@ -415,7 +415,7 @@ fn affine_jacobian(coords: &[[f64; 3]]) -> [[f64; 3]; 3] {
 }
 
 #[inline(always)]
-fn det3(j: &[[f64; 3]; 3]) -> f64 {
+pub(super) fn det3(j: &[[f64; 3]; 3]) -> f64 {
     j[0][0] * (j[1][1] * j[2][2] - j[1][2] * j[2][1])
         - j[0][1] * (j[1][0] * j[2][2] - j[1][2] * j[2][0])
         + j[0][2] * (j[1][0] * j[2][1] - j[1][1] * j[2][0])
@@ -423,7 +423,7 @@ fn det3(j: &[[f64; 3]; 3]) -> f64 {
 
 /// J⁻ᵀ: maps reference gradients to physical ones, G = J⁻ᵀ g.
 #[inline(always)]
-fn inv_transpose(j: &[[f64; 3]; 3], det: f64) -> [[f64; 3]; 3] {
+pub(super) fn inv_transpose(j: &[[f64; 3]; 3], det: f64) -> [[f64; 3]; 3] {
     let id = 1.0 / det;
     // Cofactor matrix C (C[r][c] = cofactor of J[r][c]); J⁻ᵀ = C / det.
     [
@@ -446,7 +446,7 @@ fn inv_transpose(j: &[[f64; 3]; 3], det: f64) -> [[f64; 3]; 3] {
 }
 
 #[inline(always)]
-fn matvec(m: &[[f64; 3]; 3], v: &[f64; 3]) -> [f64; 3] {
+pub(super) fn matvec(m: &[[f64; 3]; 3], v: &[f64; 3]) -> [f64; 3] {
     [
         m[0][0] * v[0] + m[0][1] * v[1] + m[0][2] * v[2],
         m[1][0] * v[0] + m[1][1] * v[1] + m[1][2] * v[2],

@@ -89,7 +89,7 @@
 //! [`ElementKernel`]: super::element::ElementKernel
 //! [`is_curved`]: super::element::is_curved
 
-use super::element::{default_rule, is_curved, ElementError};
+use super::element::{affine_jacobian, check_nodes, default_rule, det3, inv_transpose, is_curved, is_positive, matvec, ElementError};
 use super::material::Material;
 use super::quadrature::{tet_rule, QuadratureRule};
 use super::shape::{grad_into, shape_into};
@@ -310,19 +310,7 @@ impl SensitivityKernel {
     }
 }
 
-/// det > 0, rejecting NaN as well (as assembly does).
-#[inline(always)]
-fn is_positive(det: f64) -> bool {
-    det > 0.0
-}
 
-fn check_nodes(n: usize) -> Result<(), ElementError> {
-    if n == 4 || n == 10 {
-        Ok(())
-    } else {
-        Err(ElementError::BadNodeCount(n))
-    }
-}
 
 struct Modes<'a> {
     phi: &'a [f64],
@@ -458,56 +446,9 @@ fn jacobian<const N: usize>(x: &[[f64; 3]; N], grad: &[[f64; 3]; N]) -> [[f64; 3
     j
 }
 
-/// Jacobian of the affine map through the 4 corners (as in assembly).
-#[inline(always)]
-fn affine_jacobian(x: &[[f64; 3]]) -> [[f64; 3]; 3] {
-    let mut j = [[0.0; 3]; 3];
-    for (r, row) in j.iter_mut().enumerate() {
-        for (c, v) in row.iter_mut().enumerate() {
-            *v = x[c + 1][r] - x[0][r];
-        }
-    }
-    j
-}
 
-#[inline(always)]
-fn det3(j: &[[f64; 3]; 3]) -> f64 {
-    j[0][0] * (j[1][1] * j[2][2] - j[1][2] * j[2][1])
-        - j[0][1] * (j[1][0] * j[2][2] - j[1][2] * j[2][0])
-        + j[0][2] * (j[1][0] * j[2][1] - j[1][1] * j[2][0])
-}
 
-/// J⁻ᵀ = cofactor(J) / det J.
-#[inline(always)]
-fn inv_transpose(j: &[[f64; 3]; 3], det: f64) -> [[f64; 3]; 3] {
-    let id = 1.0 / det;
-    [
-        [
-            (j[1][1] * j[2][2] - j[1][2] * j[2][1]) * id,
-            (j[1][2] * j[2][0] - j[1][0] * j[2][2]) * id,
-            (j[1][0] * j[2][1] - j[1][1] * j[2][0]) * id,
-        ],
-        [
-            (j[0][2] * j[2][1] - j[0][1] * j[2][2]) * id,
-            (j[0][0] * j[2][2] - j[0][2] * j[2][0]) * id,
-            (j[0][1] * j[2][0] - j[0][0] * j[2][1]) * id,
-        ],
-        [
-            (j[0][1] * j[1][2] - j[0][2] * j[1][1]) * id,
-            (j[0][2] * j[1][0] - j[0][0] * j[1][2]) * id,
-            (j[0][0] * j[1][1] - j[0][1] * j[1][0]) * id,
-        ],
-    ]
-}
 
-#[inline(always)]
-fn matvec(m: &[[f64; 3]; 3], v: &[f64; 3]) -> [f64; 3] {
-    [
-        m[0][0] * v[0] + m[0][1] * v[1] + m[0][2] * v[2],
-        m[1][0] * v[0] + m[1][1] * v[1] + m[1][2] * v[2],
-        m[2][0] * v[0] + m[2][1] * v[1] + m[2][2] * v[2],
-    ]
-}
 
 #[cfg(test)]
 #[allow(clippy::needless_range_loop)]
