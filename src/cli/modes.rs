@@ -334,6 +334,8 @@ fn compute(petsc: &Petsc, job: &Job) -> Result<(), String> {
                 "assembly_s": stats.seconds + operator_seconds,
                 "solve_s": solve_seconds,
                 "inertia_check_s": modes.inertia_check.map_or(0.0, |c| c.seconds),
+                "material_sensitivities_s": material_seconds,
+                "node_gradients_s": node_gradient_seconds,
                 "total_s": total.elapsed().as_secs_f64(),
                 "peak_rss_mb": peak_rss_sum / 1048576.0,
                 "mallocs": stats.mallocs,
