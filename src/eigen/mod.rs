@@ -148,28 +148,28 @@ pub fn solve_modes<'p>(petsc: &'p Petsc, k: &Mat<'p>, m: &Mat<'p>, cfg: &EigenCo
     let rigid_limit = cfg.rigid_threshold * cfg.spectrum_scale;
     let mut warnings = Vec::new();
 
-    let (raw, n_keep_hint) = match cfg.request {
+    // The upper end of the interval for spectrum slicing, λ_max = (2π f_max)².
+    let interval_upper = match cfg.request {
         ModeRequest::FirstN(0) => return Err(EigenError::BadRequest("number of modes must be at least 1".into())),
-        ModeRequest::FirstN(n) => (None, n),
-        ModeRequest::UpTo { f_max_hz } => {
-            if !(f_max_hz.is_finite() && f_max_hz > 0.0) {
-                return Err(EigenError::BadRequest(format!("frequency limit must be positive, got {f_max_hz}")));
-            }
-            let upper = (2.0 * std::f64::consts::PI * f_max_hz).powi(2);
-            (Some(solve_interval(petsc, k, m, shift, upper, cfg)?), 0)
+        ModeRequest::FirstN(_) => None,
+        ModeRequest::UpTo { f_max_hz } if !(f_max_hz.is_finite() && f_max_hz > 0.0) => {
+            return Err(EigenError::BadRequest(format!("frequency limit must be positive, got {f_max_hz}")));
         }
+        ModeRequest::UpTo { f_max_hz } => Some((2.0 * std::f64::consts::PI * f_max_hz).powi(2)),
+    };
+    let wanted = match cfg.request {
+        ModeRequest::FirstN(n) => n,
+        ModeRequest::UpTo { .. } => 0,
     };
 
-    let mut nev = n_keep_hint + cfg.expected_rigid + 4.max(n_keep_hint / 10);
+    let mut nev = wanted + cfg.expected_rigid + 4.max(wanted / 10);
     let max_attempts = 3;
     let mut attempt = 0;
-    let mut raw = raw;
     loop {
         attempt += 1;
-        let pairs = match (cfg.request, raw.take()) {
-            (_, Some(p)) => p,
-            (ModeRequest::UpTo { f_max_hz }, None) => solve_interval(petsc, k, m, shift, (2.0 * std::f64::consts::PI * f_max_hz).powi(2), cfg)?,
-            (ModeRequest::FirstN(_), None) => solve_nearest(petsc, k, m, shift, nev, cfg)?,
+        let pairs = match interval_upper {
+            Some(upper) => solve_interval(petsc, k, m, shift, upper, cfg)?,
+            None => solve_nearest(petsc, k, m, shift, nev, cfg)?,
         };
         let RawPairs { values, vectors, residuals, mut settings } = pairs;
         let mut order: Vec<usize> = (0..values.len()).collect();
@@ -217,10 +217,10 @@ pub fn solve_modes<'p>(petsc: &'p Petsc, k: &Mat<'p>, m: &Mat<'p>, cfg: &EigenCo
         };
 
         let inertia_check = if cfg.verify_count {
-            let threshold = match cfg.request {
-                ModeRequest::UpTo { f_max_hz } => (2.0 * std::f64::consts::PI * f_max_hz).powi(2),
-                ModeRequest::FirstN(_) if keep < elastic.len() => 0.5 * (elastic[keep - 1] + elastic[keep]),
-                ModeRequest::FirstN(_) => elastic[keep - 1] * (1.0 + 10.0 * cfg.cluster_rtol),
+            let threshold = match interval_upper {
+                Some(upper) => upper,
+                None if keep < elastic.len() => 0.5 * (elastic[keep - 1] + elastic[keep]),
+                None => elastic[keep - 1] * (1.0 + 10.0 * cfg.cluster_rtol),
             };
             let t0 = std::time::Instant::now();
             let below = count_below(petsc, k, m, threshold)?;

@@ -167,19 +167,20 @@ pub fn element_volume(coords: &[[f64; 3]], quad: &QuadratureRule) -> Result<f64,
     ElementKernel::with_rule(coords.len(), quad)?.volume(coords)
 }
 
-/// Shape values and reference gradients tabulated at the points of one rule.
+/// Shape values and reference gradients tabulated at the points of one rule
+/// (shared with [`super::sensitivity`]).
 #[derive(Clone, Debug)]
-struct Tables {
-    points: Vec<[f64; 3]>,
-    weights: Vec<f64>,
+pub(super) struct Tables {
+    pub(super) points: Vec<[f64; 3]>,
+    pub(super) weights: Vec<f64>,
     /// `shape[q * nodes + a]`
-    shape: Vec<f64>,
+    pub(super) shape: Vec<f64>,
     /// `grad[q * nodes + a]`, d/dξ, d/dη, d/dζ
-    grad: Vec<[f64; 3]>,
+    pub(super) grad: Vec<[f64; 3]>,
 }
 
 impl Tables {
-    fn new(nodes: usize, rule: &QuadratureRule) -> Self {
+    pub(super) fn new(nodes: usize, rule: &QuadratureRule) -> Self {
         let nq = rule.weights.len();
         let mut shape = vec![0.0; nq * nodes];
         let mut grad = vec![[0.0; 3]; nq * nodes];
@@ -390,7 +391,7 @@ pub(super) fn check_nodes(n: usize) -> Result<(), ElementError> {
 
 /// J[r][c] = ∂x_r/∂ξ_c = Σ_a x_a[r] ∂N_a/∂ξ_c.
 #[inline(always)]
-fn jacobian(coords: &[[f64; 3]], grad: &[[f64; 3]]) -> [[f64; 3]; 3] {
+pub(super) fn jacobian(coords: &[[f64; 3]], grad: &[[f64; 3]]) -> [[f64; 3]; 3] {
     let mut j = [[0.0; 3]; 3];
     for (x, g) in coords.iter().zip(grad) {
         for r in 0..3 {
@@ -580,4 +581,4 @@ impl Acc {
 }
 
 #[cfg(test)]
-mod tests;
+pub(super) mod tests;

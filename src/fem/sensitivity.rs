@@ -89,10 +89,9 @@
 //! [`ElementKernel`]: super::element::ElementKernel
 //! [`is_curved`]: super::element::is_curved
 
-use super::element::{affine_jacobian, check_nodes, default_rule, det3, inv_transpose, is_curved, is_positive, matvec, ElementError};
+use super::element::{affine_jacobian, check_nodes, default_rule, det3, inv_transpose, is_curved, is_positive, matvec, ElementError, Tables, jacobian};
 use super::material::Material;
 use super::quadrature::{tet_rule, QuadratureRule};
-use super::shape::{grad_into, shape_into};
 
 /// Material coefficients of s_e: Lamé λ_L and μ (Pa), density ρ (kg/m³).
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -131,35 +130,6 @@ impl ModeEnergy {
     /// s_e = stiffness − eigenvalue · mass.
     pub fn value(&self, eigenvalue: f64) -> f64 {
         self.stiffness - eigenvalue * self.mass
-    }
-}
-
-/// Shape values and reference gradients tabulated at the points of one rule.
-#[derive(Clone, Debug)]
-struct Tables {
-    points: Vec<[f64; 3]>,
-    weights: Vec<f64>,
-    /// `shape[q * nodes + a]`
-    shape: Vec<f64>,
-    /// `grad[q * nodes + a]`
-    grad: Vec<[f64; 3]>,
-}
-
-impl Tables {
-    fn new(nodes: usize, rule: &QuadratureRule) -> Self {
-        let nq = rule.weights.len();
-        let mut shape = vec![0.0; nq * nodes];
-        let mut grad = vec![[0.0; 3]; nq * nodes];
-        for (q, &p) in rule.points.iter().enumerate() {
-            shape_into(nodes, p, &mut shape[q * nodes..(q + 1) * nodes]);
-            grad_into(nodes, p, &mut grad[q * nodes..(q + 1) * nodes]);
-        }
-        Tables {
-            points: rule.points.clone(),
-            weights: rule.weights.clone(),
-            shape,
-            grad,
-        }
     }
 }
 
@@ -310,8 +280,6 @@ impl SensitivityKernel {
     }
 }
 
-
-
 struct Modes<'a> {
     phi: &'a [f64],
     eig: &'a [f64],
@@ -432,24 +400,6 @@ fn point_mode<const N: usize>(
     (psi, vv)
 }
 
-/// J[r][c] = Σ_a x_a[r] ∂N_a/∂ξ_c.
-#[inline(always)]
-fn jacobian<const N: usize>(x: &[[f64; 3]; N], grad: &[[f64; 3]; N]) -> [[f64; 3]; 3] {
-    let mut j = [[0.0; 3]; 3];
-    for (xa, ga) in x.iter().zip(grad) {
-        for r in 0..3 {
-            for c in 0..3 {
-                j[r][c] += xa[r] * ga[c];
-            }
-        }
-    }
-    j
-}
-
-
-
-
-
 #[cfg(test)]
 #[allow(clippy::needless_range_loop)]
 mod tests {
@@ -457,51 +407,7 @@ mod tests {
     use crate::fem::element::{ElementKernel, ElementMatrices};
     use crate::fem::shape::{P1_NODES, P2_EDGES, P2_NODES};
 
-    /// xorshift64*, deterministic.
-    struct Rng(u64);
-    impl Rng {
-        fn next(&mut self) -> f64 {
-            self.0 ^= self.0 >> 12;
-            self.0 ^= self.0 << 25;
-            self.0 ^= self.0 >> 27;
-            (self.0.wrapping_mul(0x2545_F491_4F6C_DD1D) >> 11) as f64 / (1u64 << 53) as f64
-        }
-        fn uniform(&mut self, lo: f64, hi: f64) -> f64 {
-            lo + (hi - lo) * self.next()
-        }
-    }
-
-    type M3 = [[f64; 3]; 3];
-
-    fn random_rotation(rng: &mut Rng) -> M3 {
-        let mut q = [0.0; 4];
-        loop {
-            q.iter_mut().for_each(|v| *v = rng.uniform(-1.0, 1.0));
-            let n: f64 = q.iter().map(|v| v * v).sum::<f64>().sqrt();
-            if n > 0.1 && n <= 1.0 {
-                q.iter_mut().for_each(|v| *v /= n);
-                break;
-            }
-        }
-        let [w, x, y, z] = q;
-        [
-            [
-                1.0 - 2.0 * (y * y + z * z),
-                2.0 * (x * y - z * w),
-                2.0 * (x * z + y * w),
-            ],
-            [
-                2.0 * (x * y + z * w),
-                1.0 - 2.0 * (x * x + z * z),
-                2.0 * (y * z - x * w),
-            ],
-            [
-                2.0 * (x * z - y * w),
-                2.0 * (y * z + x * w),
-                1.0 - 2.0 * (x * x + y * y),
-            ],
-        ]
-    }
+    use crate::fem::element::tests::{random_rotation, Rng};
 
     /// Random well-shaped map x = L·(R S ξ + t): rotation, anisotropic scale,
     /// mild shear, translation, overall length `len` (m).

@@ -7,21 +7,21 @@ use crate::fem::material::Material;
 use crate::fem::shape::{P1_NODES, P2_NODES};
 use nalgebra::{DMatrix, DVector};
 
-/// xorshift64* — deterministic, dependency-free.
-struct Rng(u64);
+/// xorshift64* — deterministic, dependency-free (also used by the sensitivity tests).
+pub(crate) struct Rng(pub(crate) u64);
 impl Rng {
-    fn next(&mut self) -> f64 {
+    pub(crate) fn next(&mut self) -> f64 {
         self.0 ^= self.0 >> 12;
         self.0 ^= self.0 << 25;
         self.0 ^= self.0 >> 27;
         (self.0.wrapping_mul(0x2545_F491_4F6C_DD1D) >> 11) as f64 / (1u64 << 53) as f64
     }
-    fn uniform(&mut self, lo: f64, hi: f64) -> f64 {
+    pub(crate) fn uniform(&mut self, lo: f64, hi: f64) -> f64 {
         lo + (hi - lo) * self.next()
     }
 }
 
-type M3 = [[f64; 3]; 3];
+pub(crate) type M3 = [[f64; 3]; 3];
 
 fn mul3(a: &M3, b: &M3) -> M3 {
     let mut c = [[0.0; 3]; 3];
@@ -35,7 +35,7 @@ fn mul3(a: &M3, b: &M3) -> M3 {
     c
 }
 
-fn random_rotation(rng: &mut Rng) -> M3 {
+pub(crate) fn random_rotation(rng: &mut Rng) -> M3 {
     let mut q = [0.0; 4];
     loop {
         for v in q.iter_mut() {
