@@ -149,6 +149,15 @@ fn bad_input_fails_clearly_on_every_rank() {
     let fields: Vec<&str> = text[first_line..end_line].split_whitespace().collect();
     std::fs::write(&nan, format!("{}{} nan {} {}{}", &text[..first_line], fields[0], fields[2], fields[3], &text[end_line..])).unwrap();
 
+    let bad_toml = dir.join("bad.toml");
+    std::fs::write(&bad_toml, "mesh = \"x.msh\"\n[solver]\nmodez = 3\n").unwrap();
+    let broken_toml = dir.join("broken.toml");
+    std::fs::write(&broken_toml, "mesh = [unclosed\n").unwrap();
+
+    expect_failure("config_unknown_key", &["--config", s(&bad_toml)], &["bad.toml", "modez"]);
+    expect_failure("config_syntax", &["--config", s(&broken_toml)], &["broken.toml"]);
+    expect_failure("config_missing", &["--config", "no/such/run.toml"], &["no/such/run.toml"]);
+    expect_failure("fmax", &["--mesh", s(&cube), "--fmax", "-5"], &["frequency limit"]);
     expect_failure("missing_mesh", &["--mesh", "no/such/file.msh"], &["no/such/file.msh"]);
     expect_failure("truncated", &["--mesh", s(&truncated)], &["truncated.msh"]);
     expect_failure("nan", &["--mesh", s(&nan)], &["nan.msh"]);

@@ -34,6 +34,8 @@ pub enum Command {
 }
 
 #[derive(Args, Debug, Clone, Default)]
+// Negative numbers are values (so `--fmax -5` meets our own range check, not a parser hint).
+#[command(allow_negative_numbers = true)]
 pub struct ModesArgs {
     /// TOML configuration file (see the README); flags given here override it.
     #[arg(long)]
