@@ -102,6 +102,7 @@ use std::path::{Path, PathBuf};
 use hdf5::types::VarLenUnicode;
 
 pub mod atomic;
+pub mod plot;
 #[cfg(test)]
 pub(crate) mod test_support;
 
