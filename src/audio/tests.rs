@@ -2,6 +2,7 @@ use super::*;
 use crate::io::test_support::TempDir;
 use std::f64::consts::PI;
 use std::fs;
+use std::path::PathBuf;
 
 fn bank(modes: &[(f64, f64, f64, f64)]) -> ModalBank {
     ModalBank {
