@@ -1,1 +1,114 @@
-//! (being written)
+//! PNG figures for people to look at: spectrograms (recording against
+//! rendering, several microphones) and line/scatter plots (damping curves,
+//! decay rates, loss histories, frequency errors).
+//!
+//! Self-contained: the raster ([`Canvas`]), the 5×7 bitmap font, tick
+//! placement and the colour map are all here; only the `png` crate is used,
+//! to encode. Every file is written through
+//! [`crate::io::atomic::replace_atomically`], so a reader sees the old
+//! figure or the complete new one, and a failed or refused write leaves
+//! nothing behind. Invalid input (mismatched lengths, no valid data,
+//! non-finite steps, …) is a [`PlotError::InvalidInput`] naming the file,
+//! never a panic.
+//!
+//! # Entry points
+//!
+//! - [`spectrogram_png`] with a [`SpectrogramFigure`]: panels side by side,
+//!   each a [`SpectrogramPanel`] of dB magnitudes, row-major
+//!   `[n_frames][n_bins]`; frame `i` is centred at
+//!   `time_offset_s + i·time_step_s` (s), bin `j` at `j·freq_step_hz` (Hz),
+//!   and each cell spans half a step either side of its centre. All panels
+//!   share the time axis (the union of their extents; area a panel has no
+//!   data for is light grey), the frequency axis (0 Hz to `max_freq_hz`,
+//!   default the highest bin centre; labelled in kHz from 2 kHz up), and
+//!   one colour scale (default top = the loudest finite value of all
+//!   panels, bottom = top − 80 dB) shown as a bar labelled "dB".
+//!   `panel_width`/`panel_height` size each image; margins are added.
+//! - [`line_plot_png`] with a [`LineFigure`]: [`Series`] drawn as lines,
+//!   markers, both, or stems, on linear or log axes ([`AxisScale`]), colours
+//!   from [`PALETTE`] in order unless set, legend in the emptiest corner
+//!   unless placed. A point that is not finite (or not > 0 on a log axis) is
+//!   skipped and breaks a line. `width`/`height` are the whole image.
+//! - [`Canvas`] for anything else: fill, rectangles, anti-aliased lines and
+//!   markers, text (aligned, optionally rotated 90°), a clip rectangle, and
+//!   [`Canvas::write_png`].
+//!
+//! # Conventions
+//!
+//! Pixel `(i, j)` is column `i` from the left, row `j` from the top; in the
+//! continuous coordinates of lines and [`AxisMap`], pixel `i` covers
+//! `[i, i+1)`. A plot area is a [`PixelRect`] that holds only data; its 1 px
+//! frame lies just outside it and ticks point outwards from the frame, so
+//! neither hides data. [`AxisMap`] sends the axis limits to the outer edges
+//! of the plot area: `to_px(lo)` is the left (bottom) edge, `to_px(hi)` the
+//! right (top) edge.
+//!
+//! Linear ticks are multiples of 1, 2 or 5 × 10^k ([`nice_ticks`]); log
+//! axes tick every decade with minor ticks at 2..9 ([`log_ticks`]). Labels
+//! are compact: `0, 500, 1k, 1.5k`; `0.001`; `1e-7` and `2.5e-7` when the
+//! axis is below 1e-3 or above 1e12 ([`format_ticks`]).
+//!
+//! Text uses the module's own bitmap font at scale 2 (14 px capitals) on a
+//! white background with near-black ink; it covers printable ASCII plus
+//! `°`, `µ`, `²` and `×` (anything else draws as a hollow box).
+
+mod axes;
+mod canvas;
+mod colormap;
+mod font;
+mod line;
+mod spectrogram;
+mod ticks;
+
+use std::path::{Path, PathBuf};
+
+pub use canvas::{text_size, Canvas, HAlign, Marker, PixelRect, Rgb, TextStyle, VAlign};
+pub use colormap::colormap;
+pub use line::{line_plot_png, LegendPlacement, LineFigure, Series, SeriesStyle, PALETTE};
+pub use spectrogram::{spectrogram_png, Resampling, SpectrogramFigure, SpectrogramPanel};
+pub use ticks::{
+    axis_ticks, format_log_ticks, format_ticks, linear_ticks, log_ticks, nice_ticks, AxisMap,
+    AxisScale, Tick,
+};
+
+/// Errors of the plotting functions; each names the file concerned.
+#[derive(thiserror::Error, Debug)]
+pub enum PlotError {
+    /// A filesystem operation failed (the temporary file is removed).
+    #[error("{path}: {context}: {source}")]
+    Fs {
+        path: PathBuf,
+        context: String,
+        #[source]
+        source: std::io::Error,
+    },
+    /// The PNG encoder failed.
+    #[error("{path}: encoding PNG: {source}")]
+    Png {
+        path: PathBuf,
+        #[source]
+        source: png::EncodingError,
+    },
+    /// The figure description is inconsistent; nothing was written.
+    #[error("{path}: refusing to plot: {reason}")]
+    InvalidInput { path: PathBuf, reason: String },
+}
+
+impl crate::io::atomic::AtomicWriteError for PlotError {
+    fn fs(path: &Path, context: String, source: std::io::Error) -> Self {
+        PlotError::Fs {
+            path: path.to_path_buf(),
+            context,
+            source,
+        }
+    }
+    fn no_file_name(path: &Path) -> Self {
+        PlotError::InvalidInput {
+            path: path.to_path_buf(),
+            reason: "path has no file name".into(),
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests;
