@@ -13,6 +13,8 @@
 
 pub mod config;
 mod modes;
+pub mod render;
+pub mod spectrogram;
 
 use clap::{Args, Parser, Subcommand};
 use std::io::IsTerminal;
@@ -29,6 +31,10 @@ pub struct Cli {
 pub enum Command {
     /// Compute the vibration modes of a free body, write them to HDF5 (+ XDMF) and render a strike.
     Modes(ModesArgs),
+    /// Render a strike from a modes HDF5 file to WAV (impact point, direction, force, damping).
+    Render(render::RenderArgs),
+    /// Spectrogram PNG of one WAV file or several side by side (e.g. rendered vs recorded).
+    Spectrogram(spectrogram::SpectrogramArgs),
     /// List the material presets with their values.
     Materials,
 }
@@ -151,6 +157,16 @@ pub fn main() {
     match cli.command {
         Command::Materials => print_materials(),
         Command::Modes(args) => run_under_mpi(args),
+        Command::Render(args) => run_serial(render::run(args)),
+        Command::Spectrogram(args) => run_serial(spectrogram::run(args)),
+    }
+}
+
+/// Jobs that need neither MPI nor PETSc: an error is printed once and the exit code is 1.
+fn run_serial(result: Result<(), String>) {
+    if let Err(message) = result {
+        eprintln!("error: {message}");
+        std::process::exit(1);
     }
 }
 

@@ -63,7 +63,9 @@ mod write;
 #[cfg(test)]
 mod tests;
 
+mod locate;
 pub use generate::box_mesh;
+pub use locate::SurfacePoint;
 pub use gmsh::{read_mesh, read_mesh_from_bytes};
 pub use lift::{lift_to_quadratic, to_linear};
 pub use validate::ZERO_VOLUME_RELATIVE_TOLERANCE;
