@@ -83,8 +83,12 @@ pub fn run(args: SpectrogramArgs) -> Result<(), String> {
         let fs = f64::from(rate);
         let mut start = 0;
         if args.trim_onset {
-            let onset = detect_shared_onset(&[signal.as_slice()], rate, &OnsetOptions::default()).map_err(|e| format!("{}: {e}", path.display()))?;
-            start = onset.sample;
+            // A file that starts with the strike (a rendering) has no pre-roll to measure a
+            // noise floor in; it is shown from its start.
+            match detect_shared_onset(&[signal.as_slice()], rate, &OnsetOptions::default()) {
+                Ok(onset) => start = onset.sample,
+                Err(e) => eprintln!("note: {}: showing from the start ({e})", path.display()),
+            }
         }
         let mut end = signal.len();
         if let Some(d) = args.duration {
