@@ -27,6 +27,16 @@
 //! arithmetic. The error therefore stays ~1e-13 of the amplitude however long
 //! the signal is, instead of drifting.
 //!
+//! # Gradient
+//!
+//! [`render_backward`] is the exact vector–Jacobian product of [`render_samples`]: given
+//! g[n] = dL/ds[n] it returns dL/df, dL/dd, dL/da, dL/dφ and dL/dz (complex amplitude) for
+//! every mode, from the two correlations A = Σ g[n] u_n and B = Σ g[n] n u_n of g with the
+//! unit-amplitude mode u_n = e^(iφ) rⁿ, evaluated with the same re-anchored recursion (formulas
+//! in [`BankGradient`]). Forward and backward each cost one complex multiply-add per mode and
+//! sample; modes are processed four at a time so the recursion vectorises, and split over
+//! [`worker_threads`] threads.
+//!
 //! Modes whose frequency is not strictly between 0 and the Nyquist frequency
 //! f_s/2 are skipped: they cannot be represented at that sample rate and would
 //! alias to a wrong pitch.
