@@ -19,6 +19,7 @@ pub mod audio;
 pub mod cli;
 pub mod eigen;
 pub mod fem;
+pub mod inverse;
 pub mod io;
 pub mod mesh;
 pub mod petsc;

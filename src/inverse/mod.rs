@@ -1,0 +1,10 @@
+//! Inverse problems: recover damping, material, shape and strike from recordings by analysis
+//! by synthesis, with the exact gradients of the forward chain.
+//!
+//! | module       | what it does |
+//! |--------------|--------------|
+//! | [`estimate`] | high-resolution modal estimates (f, d, amplitudes) straight from a recording |
+//! | [`optim`]    | Adam with bounds, the optimiser the fits share |
+
+pub mod estimate;
+pub mod optim;
