@@ -116,7 +116,8 @@ mod tests {
         let mut q = [0.0];
         let mut bounded = Adam::new(vec![0.1]).with_bounds(vec![-1.0], vec![2.0]);
         for _ in 0..500 {
-            bounded.step(&mut q, &[2.0 * (q[0] - 3.0)]);
+            let g = [2.0 * (q[0] - 3.0)];
+            bounded.step(&mut q, &g);
         }
         assert_eq!(q[0], 2.0, "held at the upper bound");
     }
