@@ -24,7 +24,12 @@
 //! by frame:
 //!
 //! p_k = (S_x[t,k] + ε_p) / Σ_j (S_x[t,j] + ε_p),   q_k likewise for the target,
-//! W_t = Δf · Σ_{k=0}^{K−2} |P_k − Q_k|,   P_k = Σ_{j≤k} p_j (cumulative), Δf = f_s/N [Hz]
+//! W_t = Σ_{k=0}^{K−2} |P_k − Q_k| (x_(k+1) − x_k),   P_k = Σ_{j≤k} p_j (cumulative)
+//!
+//! where x_k is the position of bin k: k·f_s/N in Hz on the linear axis (default), or
+//! ln max(k·f_s/N, f_floor) on the log axis. On the log axis a change of E, which scales every
+//! frequency by the same factor, is a pure translation of the spectrum, so W_t falls
+//! steadily as E approaches the target however far it starts.
 //!
 //! L_OT = Σ_t ω_t W_t,   ω_t = Σ_k S_y[t,k] / Σ_{t,k} S_y   (the target's share of frame t)
 //!
@@ -32,7 +37,7 @@
 //! a frame that overlaps either end sees the cut as a step whose broadband splatter turns
 //! with the phase at the cut, making W_t ripple in f far faster than it drifts.
 //!
-//! L_OT is in Hz: the mean distance a unit of spectral mass has to move. ε_p (default 10⁻⁹
+//! L_OT is in Hz (or nepers on the log axis): the mean distance a unit of spectral mass has to move. ε_p (default 10⁻⁹
 //! of the frame's target peak) keeps silent frames defined. ω_t depends on the target only,
 //! so quiet target frames weigh little and carry no gradient of their own.
 //!
@@ -42,7 +47,7 @@
 //! approximation to the unregularised one. Transport across time is not wanted: partials of a
 //! strike all start at the onset, and their time structure is left to the spectral loss.
 //!
-//! Gradient: dL/dP_k = ω_t Δf sign(P_k − Q_k); dL/dp_j = Σ_{k ≥ j, k ≤ K−2} dL/dP_k (a suffix
+//! Gradient: dL/dP_k = ω_t (x_(k+1) − x_k) sign(P_k − Q_k); dL/dp_j = Σ_{k ≥ j, k ≤ K−2} dL/dP_k (a suffix
 //! sum); with Z = Σ_j (S_j + ε_p), dL/dS_i = (dL/dp_i − Σ_j p_j dL/dp_j) / Z.
 //!
 //! # Hybrid schedule
@@ -100,11 +105,23 @@ pub struct TransportLossConfig {
     pub hop_fraction: f64,
     /// ε_p relative to the target's peak magnitude in that frame.
     pub relative_floor: f64,
+    /// The ground distance along frequency: `linear` (Hz) or `log` (ln f, nepers; bins below
+    /// `log_floor_hz` sit at ln of it).
+    pub axis: FrequencyAxis,
+    pub log_floor_hz: f64,
+}
+
+/// How [`TransportLoss`] measures distance along frequency.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum FrequencyAxis {
+    Linear,
+    Log,
 }
 
 impl Default for TransportLossConfig {
     fn default() -> Self {
-        TransportLossConfig { fft_size: 2048, hop_fraction: 0.25, relative_floor: 1e-9 }
+        TransportLossConfig { fft_size: 2048, hop_fraction: 0.25, relative_floor: 1e-9, axis: FrequencyAxis::Linear, log_floor_hz: 20.0 }
     }
 }
 
@@ -265,7 +282,8 @@ pub struct TransportLoss {
     target_cdf: Vec<f64>,
     frame_weights: Vec<f64>,
     frame_floors: Vec<f64>,
-    bin_hz: f64,
+    /// x_(k+1) − x_k: Δf in Hz on the linear axis, Δ ln f on the log axis.
+    spacing: Vec<f64>,
     target_len: usize,
 }
 
@@ -317,8 +335,17 @@ impl TransportLoss {
             )));
         }
         frame_weights.iter_mut().for_each(|w| *w /= inside_total);
+        if config.axis == FrequencyAxis::Log && !(config.log_floor_hz > 0.0) {
+            return Err(LossError::Setting(format!("log_floor_hz {} must be > 0", config.log_floor_hz)));
+        }
+        let bin_hz = sample_rate / config.fft_size as f64;
+        let position = |k: usize| match config.axis {
+            FrequencyAxis::Linear => k as f64 * bin_hz,
+            FrequencyAxis::Log => (k as f64 * bin_hz).max(config.log_floor_hz).ln(),
+        };
+        let spacing = (0..n_bins).map(|k| if k + 1 < n_bins { position(k + 1) - position(k) } else { 0.0 }).collect();
         Ok(TransportLoss {
-            bin_hz: sample_rate / config.fft_size as f64,
+            spacing,
             config,
             plan,
             target_cdf,
@@ -361,7 +388,6 @@ impl TransportLoss {
             let floor = self.frame_floors[t];
             let z: f64 = frame.iter().map(|s| s + floor).sum();
             let q_cdf = &self.target_cdf[t * n_bins..(t + 1) * n_bins];
-            let scale = weight * self.bin_hz;
             let mut cum = 0.0;
             let mut w = 0.0;
             for k in 0..n_bins {
@@ -369,11 +395,11 @@ impl TransportLoss {
                 cum += p[k];
                 if k + 1 < n_bins {
                     let diff = cum - q_cdf[k];
-                    w += diff.abs();
-                    dp[k] = scale * sign(diff);
+                    w += self.spacing[k] * diff.abs();
+                    dp[k] = weight * self.spacing[k] * sign(diff);
                 }
             }
-            value += scale * w;
+            value += weight * w;
             if with_gradient {
                 // Suffix sums turn dL/dP into dL/dp; the last bin's P is 1 by construction.
                 dp[n_bins - 1] = 0.0;
@@ -392,6 +418,161 @@ impl TransportLoss {
             g
         });
         Ok((value, grad))
+    }
+}
+
+/// Settings of [`PeakTransportLoss`].
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct PeakTransportConfig {
+    pub fft_size: usize,
+    pub hop_fraction: f64,
+    /// Levels more than this many dB below the target's peak carry no mass.
+    pub range_db: f64,
+    /// Bins below this frequency [Hz] sit at ln of it on the axis.
+    pub log_floor_hz: f64,
+}
+
+impl Default for PeakTransportConfig {
+    fn default() -> Self {
+        PeakTransportConfig { fft_size: 4096, hop_fraction: 0.25, range_db: 60.0, log_floor_hz: 20.0 }
+    }
+}
+
+/// Transport of the spectral *peaks*: the 1-D Wasserstein-1 distance along ln f between the
+/// level profiles of the time-averaged magnitude spectra,
+///
+/// M_k = mean_t S[t,k] (frames wholly inside the signal),
+/// m_k = max(20 log10(M_k / M_ref) + R, 0)          [dB above the floor; M_ref the target's peak]
+/// p = m / Σm,  W = Σ_k |P_k − Q_k| (ln f_(k+1) − ln f_k)   [nepers]
+///
+/// Counting decibels above a floor gives every audible partial a comparable mass whatever its
+/// amplitude and decay, and averaging over time removes the way decay reshapes each frame; so
+/// a change of E, which multiplies every frequency by one factor, moves the whole profile
+/// rigidly along ln f and W falls steadily towards the target from any start. It is the
+/// transport loss of the material fit, where the frame-wise loss of [`TransportLoss`] is
+/// distorted by frequency-dependent damping (modes moved down also ring longer).
+///
+/// Gradient: dW/dP_k = Δx_k sign(P_k − Q_k), suffix sums to dW/dp, dW/dm_i = (dW/dp_i −
+/// Σ_j p_j dW/dp_j)/Σm, dm_k/dM_k = 20/(ln 10 · M_k) above the floor (0 below),
+/// dM_k/dS[t,k] = 1/T.
+#[derive(Clone, Debug)]
+pub struct PeakTransportLoss {
+    config: PeakTransportConfig,
+    plan: StftPlan,
+    frames: std::ops::Range<usize>,
+    reference: f64,
+    target_cdf: Vec<f64>,
+    spacing: Vec<f64>,
+    target_len: usize,
+}
+
+impl PeakTransportLoss {
+    pub fn new(target: &[f64], sample_rate: f64, config: PeakTransportConfig) -> Result<Self, LossError> {
+        check_target(target)?;
+        if !(sample_rate > 0.0 && config.range_db > 0.0 && config.log_floor_hz > 0.0) {
+            return Err(LossError::Setting("sample rate, range_db and log_floor_hz must be > 0".into()));
+        }
+        let plan = StftPlan::new(config.fft_size, hop_of(config.fft_size, config.hop_fraction)?)?;
+        let n = config.fft_size;
+        let n_frames = plan.n_frames(target.len());
+        // Frames t with t·H − N/2 ≥ 0 and t·H + N/2 ≤ len.
+        let first = (n / 2).div_ceil(plan.hop());
+        let last = if target.len() >= n / 2 { (target.len() - n / 2) / plan.hop() + 1 } else { 0 };
+        let frames = first..last.min(n_frames);
+        if frames.is_empty() {
+            return Err(LossError::Setting(format!("the target ({} samples) is shorter than one FFT of {n}", target.len())));
+        }
+        let mean = Self::mean_spectrum(&plan.forward(target), &frames);
+        let reference = mean.iter().fold(0.0_f64, |m, &v| m.max(v));
+        if !(reference > 0.0) {
+            return Err(LossError::Setting("the target is silent".into()));
+        }
+        let bin_hz = sample_rate / n as f64;
+        let n_bins = n / 2 + 1;
+        let x = |k: usize| (k as f64 * bin_hz).max(config.log_floor_hz).ln();
+        let spacing = (0..n_bins).map(|k| if k + 1 < n_bins { x(k + 1) - x(k) } else { 0.0 }).collect();
+        let mut loss = PeakTransportLoss { config, plan, frames, reference, target_cdf: Vec::new(), spacing, target_len: target.len() };
+        let levels: Vec<f64> = mean.iter().map(|&m| loss.level(m)).collect();
+        let total: f64 = levels.iter().sum();
+        let mut cum = 0.0;
+        loss.target_cdf = levels.iter().map(|l| {
+            cum += l / total;
+            cum
+        }).collect();
+        Ok(loss)
+    }
+
+    fn mean_spectrum(spec: &Spectrogram, frames: &std::ops::Range<usize>) -> Vec<f64> {
+        let mut mean = vec![0.0; spec.n_bins];
+        for t in frames.clone() {
+            mean.iter_mut().zip(spec.frame(t)).for_each(|(m, s)| *m += s);
+        }
+        let count = frames.len() as f64;
+        mean.iter_mut().for_each(|m| *m /= count);
+        mean
+    }
+
+    fn level(&self, m: f64) -> f64 {
+        let db = 20.0 * (m / self.reference).log10() + self.config.range_db;
+        if db > 0.0 { db } else { 0.0 }
+    }
+
+    pub fn value(&self, x: &[f64]) -> Result<f64, LossError> {
+        self.evaluate(x, false).map(|(v, _)| v)
+    }
+
+    pub fn value_and_gradient(&self, x: &[f64]) -> Result<(f64, Vec<f64>), LossError> {
+        self.evaluate(x, true).map(|(v, g)| (v, g.unwrap_or_default()))
+    }
+
+    fn evaluate(&self, x: &[f64], with_gradient: bool) -> Result<(f64, Option<Vec<f64>>), LossError> {
+        if x.len() != self.target_len {
+            return Err(LossError::Length { got: x.len(), expected: self.target_len });
+        }
+        let spec = self.plan.forward(x);
+        let mean = Self::mean_spectrum(&spec, &self.frames);
+        let levels: Vec<f64> = mean.iter().map(|&m| self.level(m)).collect();
+        let total: f64 = levels.iter().sum();
+        let n_bins = spec.n_bins;
+        if !(total > 0.0) {
+            // Nothing within range of the target's level: the largest possible distance, and a
+            // gradient that raises every bin (towards the target's level).
+            let span: f64 = self.spacing.iter().sum();
+            return Ok((span, with_gradient.then(|| vec![0.0; x.len()])));
+        }
+        let mut value = 0.0;
+        let mut dp = vec![0.0; n_bins];
+        let mut cum = 0.0;
+        for k in 0..n_bins {
+            cum += levels[k] / total;
+            if k + 1 < n_bins {
+                let diff = cum - self.target_cdf[k];
+                value += self.spacing[k] * diff.abs();
+                dp[k] = self.spacing[k] * sign(diff);
+            }
+        }
+        if !with_gradient {
+            return Ok((value, None));
+        }
+        dp[n_bins - 1] = 0.0;
+        for k in (0..n_bins - 1).rev() {
+            dp[k] += dp[k + 1];
+        }
+        let mean_dp: f64 = levels.iter().zip(&dp).map(|(l, d)| l / total * d).sum();
+        let count = self.frames.len() as f64;
+        let mut grad_mag = vec![0.0; spec.magnitude.len()];
+        for k in 0..n_bins {
+            if levels[k] > 0.0 {
+                let d_mean = (dp[k] - mean_dp) / total * 20.0 / (std::f64::consts::LN_10 * mean[k]) / count;
+                for t in self.frames.clone() {
+                    grad_mag[t * n_bins + k] = d_mean;
+                }
+            }
+        }
+        let mut g = vec![0.0; x.len()];
+        self.plan.backward(&spec, &grad_mag, &mut g);
+        Ok((value, Some(g)))
     }
 }
 

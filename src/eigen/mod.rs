@@ -25,6 +25,7 @@
 //! `-eps_*`, `-st_*`, `-mat_mumps_*` options, so every setting can be overridden.
 
 pub mod analytic;
+pub mod reduced;
 pub mod sensitivity;
 
 use crate::petsc::{self, Eps, EpsWhich, Mat, NonzeroPattern, Petsc, PetscError, Vector};

@@ -5,6 +5,8 @@
 //! |--------------|--------------|
 //! | [`estimate`] | high-resolution modal estimates (f, d, amplitudes) straight from a recording |
 //! | [`optim`]    | Adam with bounds, the optimiser the fits share |
+//! | [`material`] | stage 2 of the material fit: E and ν by the hybrid transport→spectral schedule |
 
 pub mod estimate;
+pub mod material;
 pub mod optim;
