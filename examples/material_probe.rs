@@ -45,7 +45,7 @@ fn main() {
     println!("reduced vs full at true nu: max rel {rel:e}");
     let targets = vec![target];
     let problem = MaterialProblem { targets: &targets, sample_rate: fs, density: rho, damping, strike, direction_weights: point.normal.to_vec() };
-    let mut settings = MaterialFitSettings::default(); settings.max_steps = 60;
+    let mut settings = MaterialFitSettings::default(); settings.max_steps = 300;
     let t2 = std::time::Instant::now();
     let fit = fit_material(&mut basis, &problem, (e0, nu0), &settings, |b, nu| {
         let modes = b.solve(nu);
@@ -53,6 +53,6 @@ fn main() {
         let worst = r.iter().fold(0.0_f64, |m, v| m.max(*v));
         if worst > settings.residual_tolerance { b.add_sample(&petsc, &asm, nu).map_err(|e| e.to_string())?; }
         Ok(worst)
-    }, |s| if s.step < 40 || s.step % 20 == 0 { println!("step {} {:?} loss {:.4e} E {:.5e} nu {:.5}", s.step, s.phase, s.loss, s.youngs, s.poisson) }).unwrap();
+    }, |s| if s.step % 20 == 0 { println!("step {} {:?} loss {:.4e} E {:.5e} nu {:.5}", s.step, s.phase, s.loss, s.youngs, s.poisson) }).unwrap();
     println!("fit {:.1} s: E {:.6e} ({:.2e} rel) nu {:.5} ({:.2e} rel), steps {}, switched {:?}, samples {:?}, max residual {:.2e}", t2.elapsed().as_secs_f64(), fit.youngs, (fit.youngs - e_true).abs() / e_true, fit.poisson, (fit.poisson - nu_true).abs() / nu_true, fit.steps, fit.switched_at, fit.basis_samples, fit.max_residual);
 }

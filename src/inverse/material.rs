@@ -22,7 +22,9 @@
 //! partials from far away: a start a factor 3 off in E puts every partial √3 off in
 //! frequency), then the multi-scale spectral loss once the transport loss stalls; the Adam
 //! moments are reset at the switch and the step sizes decay geometrically in the spectral
-//! phase so the fit settles. It stops at `max_steps` or when, in the spectral phase, E and ν
+//! phase so the fit settles. ν is held during the transport phase (which sets the overall
+//! scale σ); at the switch it is chosen by a scan over a grid of ν (spectral loss at fixed σ,
+//! a few hundred reduced solves), and from there E and ν descend together. It stops at `max_steps` or when, in the spectral phase, E and ν
 //! have moved less than `tolerance` (relative for E, absolute for ν) over `patience` steps.
 //!
 //! Gradients: dL/dλ_k from the audio chain ([`crate::audio::chain`]), then
@@ -56,6 +58,8 @@ pub struct MaterialFitSettings {
     pub patience: usize,
     pub check_every: usize,
     pub residual_tolerance: f64,
+    /// Grid points of the ν scan at the switch to the spectral loss.
+    pub poisson_scan: usize,
     pub transport: PeakTransportConfig,
     pub spectral: SpectralLossConfig,
 }
@@ -64,18 +68,19 @@ impl Default for MaterialFitSettings {
     fn default() -> Self {
         MaterialFitSettings {
             learn_poisson: true,
-            step_log_youngs: 0.03,
+            step_log_youngs: 0.05,
             step_poisson: 0.01,
             step_log_gain: 0.1,
             poisson_bounds: (0.0, 0.49),
             max_steps: 600,
-            schedule_patience: 15,
-            schedule_min_improvement: 0.01,
+            schedule_patience: 10,
+            schedule_min_improvement: 0.002,
             spectral_decay: 0.99,
             tolerance: 1e-6,
             patience: 20,
             check_every: 50,
-            residual_tolerance: 1e-3,
+            residual_tolerance: 1e-2,
+            poisson_scan: 45,
             transport: PeakTransportConfig::default(),
             spectral: SpectralLossConfig::default(),
         }
@@ -150,6 +155,29 @@ pub fn render_channels(basis: &PoissonBasis, problem: &MaterialProblem, youngs: 
 enum Losses {
     Transport(Vec<PeakTransportLoss>),
     Spectral(Vec<MultiScaleSpectralLoss>),
+}
+
+/// The ν on a grid of `poisson_scan` points over the bounds with the lowest spectral loss at
+/// fixed σ and gains: a global search in one dimension, which makes the fit independent of
+/// the starting ν, at the cost of a few hundred cheap reduced solves.
+fn scan_poisson(basis: &PoissonBasis, problem: &MaterialProblem, spectral: &[MultiScaleSpectralLoss], sigma: f64, log_gains: &[f64], settings: &MaterialFitSettings) -> Result<f64, String> {
+    let (lo, hi) = settings.poisson_bounds;
+    let n = settings.poisson_scan.max(2);
+    let mut best = (f64::INFINITY, lo);
+    for i in 0..n {
+        let nu = lo + (hi - lo) * i as f64 / (n - 1) as f64;
+        let modes = basis.solve(nu);
+        let m = modes.theta.iter().map(|t| t.ln()).sum::<f64>() / modes.theta.len() as f64;
+        let rendered = render_channels(basis, problem, (sigma - m).exp(), nu, log_gains)?;
+        let mut total = 0.0;
+        for (loss, x) in spectral.iter().zip(&rendered) {
+            total += loss.value(x).map_err(|e| e.to_string())?;
+        }
+        if total < best.0 {
+            best = (total, nu);
+        }
+    }
+    Ok(best.1)
 }
 
 /// Fits E (and ν) from `start = (E, ν)`. `on_step` sees every step (progress display).
@@ -236,6 +264,10 @@ pub fn fit_material<'p>(
         // From (ln E, ν) to (σ, ν): dL/dσ = dL/dlnE, dL/dν|σ = dL/dν|E − dL/dlnE · m'(ν).
         let dm_dnu = modes.theta.iter().zip(&modes.dtheta_dnu).map(|(t, d)| d / t).sum::<f64>() / modes.theta.len() as f64;
         grad[1] -= grad[0] * dm_dnu;
+        if schedule.phase() == LossPhase::Transport {
+            // ν waits for the scan at the switch (module docs).
+            grad[1] = 0.0;
+        }
         let record = FitStep { step, phase: schedule.phase(), loss: total, youngs, poisson: nu };
         on_step(&record);
         history.push(record);
@@ -249,6 +281,9 @@ pub fn fit_material<'p>(
                 .map(|t| MultiScaleSpectralLoss::new(t, settings.spectral.clone()))
                 .collect::<Result<_, _>>()
                 .map_err(|e| e.to_string())?;
+            if settings.learn_poisson {
+                params[1] = scan_poisson(basis, problem, &spectral, params[0], &params[2..], settings)?;
+            }
             losses = Losses::Spectral(spectral);
             adam.reset_moments();
         } else if after == LossPhase::Spectral {
