@@ -16,7 +16,7 @@ PyTorch computes the same formulas directly:
 
     s[n] = sum_k a_k exp(-d_k n/fs) sin(2 pi f_k n/fs + phi_k)      (vectorised over modes)
     S    = |torch.stft(F.pad(s, (N/2, N/2)), N, N/4, hann_window(N, periodic), center=False)|
-    spectral:  sum_N mean|S - S_y| + mean|ln(S + 1e-7) - ln(S_y + 1e-7)|,  N = 2048 ... 64
+    spectral:  sum_N mean|S - S_y| + mean|ln(S + e_N) - ln(S_y + e_N)|, e_N = 1e-4 max S_y, N = 2048 ... 64
     transport: sum_t w_t * fs/N * sum_{k<K-1} |P_k - Q_k|  (see src/audio/loss.rs), N = 2048
 
 with .backward() for the gradients. It prints, per loss, the median and min time of each side,
@@ -91,7 +91,7 @@ import torch  # noqa: E402
 import torch.nn.functional as F  # noqa: E402
 
 SPECTRAL_FFT_SIZES = (2048, 1024, 512, 256, 128, 64)
-LOG_EPSILON = 1e-7
+LOG_EPSILON_RELATIVE = 1e-4
 TRANSPORT_FFT = 2048
 TRANSPORT_RELATIVE_FLOOR = 1e-9
 HOP_FRACTION = 0.25
@@ -142,7 +142,8 @@ class TorchSpectral:
         total = 0.0
         for n, sy in self.targets.items():
             s = spectrogram(x, n)
-            total = total + (s - sy).abs().mean() + (torch.log(s + LOG_EPSILON) - torch.log(sy + LOG_EPSILON)).abs().mean()
+            eps = LOG_EPSILON_RELATIVE * sy.max()
+            total = total + (s - sy).abs().mean() + (torch.log(s + eps) - torch.log(sy + eps)).abs().mean()
         return total
 
 

@@ -12,15 +12,60 @@
 //! errors are measured relative to max(|g·v|, λ·|v|∞/L): the directional derivative of a mode
 //! can nearly cancel, and the second term is the size a uniform deformation of the same amplitude
 //! would give.
+//!
+//! Audio loss, end to end (`check brick audio-loss …`): 12 modes of the brick (ceramic, Rayleigh
+//! α = 20 1/s, β = 2e-9 s) → `ModalChain` (default strike) → `synth::render_samples` at
+//! f_s = 4 × the highest frequency (rounded up to 1 kHz; 139 kHz), 0.1 s → loss against a target
+//! rendered from E·1.03, ν + 0.02, α·1.3, β·0.8. Both the multi-scale spectral loss (default FFT
+//! sizes, ε = 1e-2) and the transport loss (defaults). The exact gradient runs
+//! `value_and_gradient` → `render_backward` → `ModalChain::backward` → `material_gradient` with
+//! the per-mode dλ/dp (the brick's clusters are accidental near-coincidences of distinct modes,
+//! and the loss is not symmetric in them, so cluster means would be wrong here). The projections
+//! c_k are fixed numbers (alternating signs, |z_k| ≈ 1/(1+k)), held fixed in the differences for
+//! E, ν, α, β and scaled as c_k·√(ρ0/ρ) for ρ, matching `material_gradient`'s shape term. The
+//! differences re-solve the eigenproblem for E, ν, ρ; α and β only re-render. Only the spectral
+//! check sees the shape term: the transport loss normalises each frame, so a common scale of
+//! all c_k leaves it unchanged.
+//!
+//! Steps for the audio loss: relative 1e-6 for E, ρ, α, β and absolute 1e-6 for ν, not the
+//! eigenvalue rule above. A loss of a decaying partial is curved in its frequency on the scale
+//! δf ~ 1/(2πτ), τ the time it is heard (here its decay time 1/d ≈ 20–60 ms, whatever the clip
+//! length): with the 1e-4 rule the top partial (35 kHz) moves by 1.7 Hz, and central
+//! differences of the transport loss are off by 3.5 %, converging as h² (6e-4 at 1e-5, ~1e-6 at
+//! 1e-6). At 1e-6 the eigenvalue noise divided by the step is still ≤ 1e-5 per mode. α and β
+//! get the same relative step: d moves by ≤ 5e-5 1/s, far inside the linear range, and
+//! re-rendering adds no solver noise. Error measure: |FD − exact| / max(|exact|,
+//! Σ_k |∂L/∂λ_k ∂λ_k/∂p| (+ the |shape terms| for ρ)), i.e. relative to the terms summed before
+//! they can cancel (only |exact| for α, β). Bar: 1e-3. The transport loss lands at ~1e-6. The
+//! spectral loss is a sum of |·| over ~2·10⁵ (frame, bin) terms, each with a kink where S_x = S_y; a central difference that
+//! straddles a kink errs by up to half its slope jump, independently of h once h exceeds the
+//! kink's distance, so its error stays at ~5e-5…4e-4 for steps 1e-7…1e-6 instead of vanishing.
+//! ε = 1e-2 (~65–95 dB below the spectral peaks, S being unnormalised) rather than the default
+//! 1e-7: with 1e-7 the log term's slope 1/(S + ε) is dominated by bins near the nulls of the
+//! window's side lobes, the loss is rough on the 1e-7 scale, and differences scatter by ~5 %
+//! (they only converge below steps of 1e-8, where the solver noise takes over). A last check
+//! demands that every rank computed bit for bit the same values, gradients and differences.
 
 use diffsound::assembly;
+use diffsound::audio::chain::{self, DampingGradient, DampingModel, ModalChain, Strike};
+use diffsound::audio::loss::{MultiScaleSpectralLoss, SpectralLossConfig, TransportLoss, TransportLossConfig};
+use diffsound::audio::synth;
 use diffsound::eigen::sensitivity::{self, ClusterTreatment};
 use diffsound::eigen::{self, EigenConfig, ModeRequest};
 use diffsound::fem::Material;
 use diffsound::mesh::{self, TetMesh};
 use diffsound::petsc::Petsc;
+use mpi::collective::{CommunicatorCollectives, SystemOperation};
 use std::path::PathBuf;
 use std::process::Command;
+
+/// Audio-loss checks (module docs): relative step for E, ρ, α, β; absolute step for ν; the
+/// spectral loss's ε; the clip length [s]; the bar on the relative error.
+const AUDIO_H_REL: f64 = 1e-6;
+const AUDIO_H_NU: f64 = 1e-6;
+const AUDIO_LOG_EPSILON: f64 = 1e-2;
+const AUDIO_SECONDS: f64 = 0.1;
+const AUDIO_TOL: f64 = 1e-3;
 
 fn repo() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR"))
@@ -256,6 +301,111 @@ fn check_mesh(petsc: &Petsc, c: &mut Checker, label: &str, m: &TetMesh, n: usize
     }
 }
 
+/// The audio-loss gradient with respect to E, ν, ρ, α, β through the whole chain, against
+/// central finite differences of the loss (see the module docs for the set-up, the steps and
+/// the error bar). Collective: every rank solves and evaluates the same losses; rank 0 prints.
+fn check_audio_loss(petsc: &Petsc, c: &mut Checker, label: &str, m: &TetMesh, n: usize) {
+    // Ceramic, with Rayleigh damping under which every mode rings through the clip and both α
+    // and β matter: d = (α + βλ)/2 runs from 17 1/s (lowest mode) to 57 1/s (highest).
+    let mat = Material { rayleigh_alpha: 20.0, rayleigh_beta: 2e-9, ..Material::preset("ceramic").unwrap() };
+    let assembled = assembly::assemble(petsc, m).expect("assembly");
+    let solve = |mat: &Material| -> Vec<f64> {
+        let (k, mm) = assembled.operators(mat).expect("operators");
+        let lam = eigen::solve_modes(petsc, &k, &mm, &config(m, mat, n)).expect("solve").eigenvalues;
+        assert!(lam.len() >= n, "only {} modes", lam.len());
+        lam[..n].to_vec()
+    };
+    let (k, mm) = assembled.operators(&mat).expect("operators");
+    let modes = eigen::solve_modes(petsc, &k, &mm, &config(m, &mat, n)).expect("solve");
+    let sens = sensitivity::material_sensitivities(&assembled.k_lambda, &assembled.k_mu, &assembled.mass_unit, &modes, &mat).expect("material sensitivities");
+    let lam0 = modes.eigenvalues[..n].to_vec();
+
+    // Sample rate: 4× the highest frequency, rounded up to 1 kHz; AUDIO_SECONDS of audio.
+    let f_max = lam0[n - 1].sqrt() / (2.0 * std::f64::consts::PI);
+    let fs = (4.0 * f_max / 1000.0).ceil() * 1000.0;
+    let len = (AUDIO_SECONDS * fs).round() as usize;
+    // Fixed projections, alternating in sign, with |z_k| = |c_k|·|s_k|²/ω_d ≈ 1/(1+k) under
+    // the default strike (impulse, acceleration). For ρ they scale as √(ρ0/ρ) (module docs).
+    let proj0: Vec<f64> = (0..n).map(|k| if k % 2 == 0 { 1.0 } else { -1.0 } / ((1 + k) as f64 * lam0[k].sqrt())).collect();
+    let scaled = |density: f64| -> Vec<f64> { proj0.iter().map(|p| p * (mat.density / density).sqrt()).collect() };
+    let strike = Strike::default();
+    let bank = |lam: &[f64], proj: &[f64], alpha: f64, beta: f64| ModalChain::new(lam, proj, &DampingModel::Rayleigh { alpha, beta }, &strike).expect("chain");
+    let signal = |lam: &[f64], proj: &[f64], alpha: f64, beta: f64| synth::render_samples(&bank(lam, proj, alpha, beta).0, fs, len);
+
+    // Target: another material (E·1.03, ν + 0.02, α·1.3, β·0.8), same projections.
+    let target_mat = Material {
+        youngs_modulus: 1.03 * mat.youngs_modulus,
+        poisson_ratio: mat.poisson_ratio + 0.02,
+        rayleigh_alpha: 1.3 * mat.rayleigh_alpha,
+        rayleigh_beta: 0.8 * mat.rayleigh_beta,
+        ..mat
+    };
+    let target = signal(&solve(&target_mat), &proj0, target_mat.rayleigh_alpha, target_mat.rayleigh_beta);
+    let spectral_config = SpectralLossConfig { log_epsilon: AUDIO_LOG_EPSILON, log_epsilon_relative: 0.0, ..SpectralLossConfig::default() };
+    let spectral = MultiScaleSpectralLoss::new(&target, spectral_config).expect("spectral loss");
+    let transport = TransportLoss::new(&target, fs, TransportLossConfig::default()).expect("transport loss");
+    let losses: [(&str, &dyn Fn(&[f64]) -> (f64, Vec<f64>)); 2] = [
+        ("spectral", &|x| spectral.value_and_gradient(x).expect("spectral loss")),
+        ("transport", &|x| transport.value_and_gradient(x).expect("transport loss")),
+    ];
+
+    // The perturbed signals, ± one step (E, ν, ρ need a solve each; α, β none).
+    let (a0, b0) = (mat.rayleigh_alpha, mat.rayleigh_beta);
+    let perturbed = |name: &str, s: f64| -> Vec<f64> {
+        match name {
+            "E" => signal(&solve(&Material { youngs_modulus: mat.youngs_modulus * (1.0 + s * AUDIO_H_REL), ..mat }), &proj0, a0, b0),
+            "ν" => signal(&solve(&Material { poisson_ratio: mat.poisson_ratio + s * AUDIO_H_NU, ..mat }), &proj0, a0, b0),
+            "ρ" => {
+                let rho = mat.density * (1.0 + s * AUDIO_H_REL);
+                signal(&solve(&Material { density: rho, ..mat }), &scaled(rho), a0, b0)
+            }
+            "α" => signal(&lam0, &proj0, a0 * (1.0 + s * AUDIO_H_REL), b0),
+            _ => signal(&lam0, &proj0, a0, b0 * (1.0 + s * AUDIO_H_REL)),
+        }
+    };
+    let names = ["E", "ν", "ρ", "α", "β"];
+    let steps = [AUDIO_H_REL * mat.youngs_modulus, AUDIO_H_NU, AUDIO_H_REL * mat.density, AUDIO_H_REL * a0, AUDIO_H_REL * b0];
+    let signals: Vec<(Vec<f64>, Vec<f64>)> = names.iter().map(|p| (perturbed(p, 1.0), perturbed(p, -1.0))).collect();
+
+    let (bank0, chain0) = bank(&lam0, &proj0, a0, b0);
+    let x0 = synth::render_samples(&bank0, fs, len);
+    let mut all_ranks = Vec::new(); // every number each rank computed, to compare across ranks
+    for (loss_name, loss) in losses {
+        let (value, g) = loss(&x0);
+        let cg = chain0.backward(&synth::render_backward(&bank0, fs, &g));
+        // Per-mode dλ/dp: the brick's clusters are accidental near-coincidences of distinct
+        // modes, each differentiable on its own, and the loss is not symmetric in them.
+        let per_mode = [&sens.per_mode_youngs[..n], &sens.per_mode_poisson[..n], &sens.per_mode_density[..n]];
+        let [de, dnu, drho] = chain::material_gradient(&cg, per_mode[0], per_mode[1], per_mode[2], &proj0, mat.density);
+        let DampingGradient::Rayleigh { alpha: da, beta: db } = cg.damping else { panic!("a Rayleigh damping gradient") };
+        // The size of the terms summed into dL/dp, which may cancel (module docs).
+        let terms = |p: usize| -> f64 {
+            let through_lambda: f64 = cg.eigenvalues.iter().zip(per_mode[p]).map(|(g, d)| (g * d).abs()).sum();
+            let shape: f64 = if p == 2 { cg.projections.iter().zip(&proj0).map(|(g, c)| (g * c / (2.0 * mat.density)).abs()).sum() } else { 0.0 };
+            through_lambda + shape
+        };
+        all_ranks.push(value);
+        for (p, (exact, (plus, minus))) in [de, dnu, drho, da, db].into_iter().zip(&signals).enumerate() {
+            let fd = (loss(plus).0 - loss(minus).0) / (2.0 * steps[p]);
+            let scale = if p < 3 { exact.abs().max(terms(p)) } else { exact.abs() };
+            let e = rel(fd, exact, scale);
+            all_ranks.extend([exact, fd]);
+            let step = if p == 1 { format!("{AUDIO_H_NU:e}") } else { format!("{AUDIO_H_REL:e}·{}", names[p]) };
+            c.check(
+                &format!("{label} audio-loss {loss_name} dL/d{} vs FD (step {step}, {n} modes, fs {fs} Hz)", names[p]),
+                e < AUDIO_TOL,
+                format!("exact {exact:.6e}, FD {fd:.6e}, relative error {e:.2e}"),
+            );
+        }
+    }
+    // Every rank must have computed bit for bit the same losses, gradients and differences.
+    let (mut lo, mut hi) = (vec![0.0; all_ranks.len()], vec![0.0; all_ranks.len()]);
+    petsc.world().all_reduce_into(&all_ranks[..], &mut lo[..], SystemOperation::min());
+    petsc.world().all_reduce_into(&all_ranks[..], &mut hi[..], SystemOperation::max());
+    let differ = lo.iter().zip(&hi).filter(|(a, b)| a != b).count();
+    c.check(&format!("{label} audio-loss values identical on all {} ranks", petsc.size()), differ == 0, format!("{differ} of {} numbers differ", all_ranks.len()));
+}
+
 fn child() {
     let universe = mpi::initialize().expect("MPI");
     let petsc = Petsc::initialize(universe, "mpi_sensitivity", &[]).expect("PETSc");
@@ -263,6 +413,7 @@ fn child() {
     // A small brick with unequal sides, so that its low modes are well separated.
     let brick = mesh::lift_to_quadratic(&mesh::box_mesh([5, 4, 3], [0.10, 0.07, 0.04]));
     check_mesh(&petsc, &mut c, "brick", &brick, 12);
+    check_audio_loss(&petsc, &mut c, "brick", &brick, 12);
     check_mesh(&petsc, &mut c, "bowl", &load("examples/bowl/bowl.msh"), 10);
     let _ = c.failures;
 }
