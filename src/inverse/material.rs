@@ -265,8 +265,11 @@ pub fn fit_material<'p>(
         let dm_dnu = modes.theta.iter().zip(&modes.dtheta_dnu).map(|(t, d)| d / t).sum::<f64>() / modes.theta.len() as f64;
         grad[1] -= grad[0] * dm_dnu;
         if schedule.phase() == LossPhase::Transport {
-            // ν waits for the scan at the switch (module docs).
+            // ν waits for the scan at the switch, and the gains keep their RMS match: the
+            // peak-transport loss counts dB above a floor, so a louder prediction spreads its
+            // mass and blunts the pull on E (module docs).
             grad[1] = 0.0;
+            grad[2..].iter_mut().for_each(|g| *g = 0.0);
         }
         let record = FitStep { step, phase: schedule.phase(), loss: total, youngs, poisson: nu };
         on_step(&record);
