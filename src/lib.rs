@@ -23,3 +23,5 @@ pub mod inverse;
 pub mod io;
 pub mod mesh;
 pub mod petsc;
+#[cfg(test)]
+mod testing;

@@ -124,45 +124,18 @@ impl ContactForce {
 }
 
 fn half_sine_by_quadrature(tau: f64, s: Complex64) -> (Complex64, Complex64) {
-    let (nodes, weights) = gauss_legendre(24);
+    let (nodes, weights) = crate::fem::quadrature::gauss_legendre_01(24);
     let p = std::f64::consts::PI / tau;
     let mut value = Complex64::new(0.0, 0.0);
     let mut derivative = Complex64::new(0.0, 0.0);
-    for (x, w) in nodes.iter().zip(&weights) {
-        let t = 0.5 * tau * (x + 1.0);
+    for (u, w) in nodes.iter().zip(&weights) {
+        let t = tau * u;
         let f = 0.5 * p * (p * t).sin();
-        let term = (-s * t).exp() * (f * w * 0.5 * tau);
+        let term = (-s * t).exp() * (f * w * tau);
         value += term;
         derivative -= term * t;
     }
     (value, derivative)
-}
-
-/// Gauss–Legendre nodes and weights on [−1, 1], by Newton's method on P_n.
-fn gauss_legendre(n: usize) -> (Vec<f64>, Vec<f64>) {
-    let mut nodes = vec![0.0; n];
-    let mut weights = vec![0.0; n];
-    for i in 0..n {
-        let mut x = (std::f64::consts::PI * (i as f64 + 0.75) / (n as f64 + 0.5)).cos();
-        let mut dp = 0.0;
-        for _ in 0..100 {
-            let (mut p0, mut p1) = (1.0, x);
-            for k in 2..=n {
-                let p2 = ((2 * k - 1) as f64 * x * p1 - (k - 1) as f64 * p0) / k as f64;
-                p0 = p1;
-                p1 = p2;
-            }
-            dp = n as f64 * (x * p1 - p0) / (x * x - 1.0);
-            let step = p1 / dp;
-            x -= step;
-            if step.abs() < 1e-16 {
-                break;
-            }
-        }
-        nodes[i] = x;
-        weights[i] = 2.0 / ((1.0 - x * x) * dp * dp);
-    }
-    (nodes, weights)
 }
 
 /// G = s^m F̃(s)/ω_d and its partial derivatives (module docs).

@@ -292,6 +292,41 @@ fn balanced_order(sizes: &[usize]) -> Vec<usize> {
     idx
 }
 
+/// W = Σ_{k<K−1} (x_(k+1) − x_k) |P_k − Q_k| between the distribution p = mass/Σmass (P its
+/// cumulative sum) and a target given by its cumulative `q_cdf`, with `spacing[k]` =
+/// x_(k+1) − x_k. With `grad`, writes dW/dmass_i = (dW/dp_i − Σ_j p_j dW/dp_j)/Σmass, where
+/// dW/dp_j = Σ_{j ≤ k < K−1} spacing[k] sign(P_k − Q_k) (suffix sums of dW/dP). The mass must
+/// have a positive total.
+fn wasserstein_1d(mass: &[f64], q_cdf: &[f64], spacing: &[f64], grad: Option<&mut [f64]>) -> f64 {
+    let n = mass.len();
+    let total: f64 = mass.iter().sum();
+    let mut value = 0.0;
+    let mut cum = 0.0;
+    let mut dp = grad;
+    for k in 0..n {
+        cum += mass[k] / total;
+        let slope = if k + 1 < n {
+            let diff = cum - q_cdf[k];
+            value += spacing[k] * diff.abs();
+            spacing[k] * sign(diff)
+        } else {
+            // The last P is 1 by construction: no slope.
+            0.0
+        };
+        if let Some(d) = dp.as_deref_mut() {
+            d[k] = slope;
+        }
+    }
+    if let Some(d) = dp {
+        for k in (0..n.saturating_sub(1)).rev() {
+            d[k] += d[k + 1];
+        }
+        let mean: f64 = mass.iter().zip(d.iter()).map(|(m, g)| m / total * g).sum();
+        d.iter_mut().for_each(|g| *g = (*g - mean) / total);
+    }
+    value
+}
+
 /// The frame-wise 1-D Wasserstein-1 loss along frequency against a fixed target (see the
 /// module docs). Values are in Hz.
 #[derive(Clone, Debug)]
@@ -397,39 +432,19 @@ impl TransportLoss {
         let n_bins = spec.n_bins;
         let mut value = 0.0;
         let mut grad_mag = if with_gradient { vec![0.0; spec.magnitude.len()] } else { Vec::new() };
-        let mut p = vec![0.0; n_bins];
-        let mut dp = vec![0.0; n_bins];
+        let mut mass = vec![0.0; n_bins];
+        let mut dw = vec![0.0; n_bins];
         for t in 0..spec.n_frames {
             let weight = self.frame_weights[t];
             if weight == 0.0 {
                 continue;
             }
-            let frame = spec.frame(t);
             let floor = self.frame_floors[t];
-            let z: f64 = frame.iter().map(|s| s + floor).sum();
+            mass.iter_mut().zip(spec.frame(t)).for_each(|(m, s)| *m = s + floor);
             let q_cdf = &self.target_cdf[t * n_bins..(t + 1) * n_bins];
-            let mut cum = 0.0;
-            let mut w = 0.0;
-            for k in 0..n_bins {
-                p[k] = (frame[k] + floor) / z;
-                cum += p[k];
-                if k + 1 < n_bins {
-                    let diff = cum - q_cdf[k];
-                    w += self.spacing[k] * diff.abs();
-                    dp[k] = weight * self.spacing[k] * sign(diff);
-                }
-            }
-            value += weight * w;
+            value += weight * wasserstein_1d(&mass, q_cdf, &self.spacing, with_gradient.then_some(&mut dw[..]));
             if with_gradient {
-                // Suffix sums turn dL/dP into dL/dp; the last bin's P is 1 by construction.
-                dp[n_bins - 1] = 0.0;
-                for k in (0..n_bins - 1).rev() {
-                    dp[k] += dp[k + 1];
-                }
-                let mean: f64 = p.iter().zip(&dp).map(|(a, b)| a * b).sum();
-                for k in 0..n_bins {
-                    grad_mag[t * n_bins + k] = (dp[k] - mean) / z;
-                }
+                grad_mag[t * n_bins..(t + 1) * n_bins].iter_mut().zip(&dw).for_each(|(g, d)| *g = weight * d);
             }
         }
         let grad = with_gradient.then(|| {
@@ -556,35 +571,21 @@ impl PeakTransportLoss {
         let total: f64 = levels.iter().sum();
         let n_bins = spec.n_bins;
         if !(total > 0.0) {
-            // Nothing within range of the target's level: the largest possible distance, and a
-            // gradient that raises every bin (towards the target's level).
+            // Nothing within range of the target's level: the largest possible distance, and no
+            // slope (no bin can move mass it does not have).
             let span: f64 = self.spacing.iter().sum();
             return Ok((span, with_gradient.then(|| vec![0.0; x.len()])));
         }
-        let mut value = 0.0;
-        let mut dp = vec![0.0; n_bins];
-        let mut cum = 0.0;
-        for k in 0..n_bins {
-            cum += levels[k] / total;
-            if k + 1 < n_bins {
-                let diff = cum - self.target_cdf[k];
-                value += self.spacing[k] * diff.abs();
-                dp[k] = self.spacing[k] * sign(diff);
-            }
-        }
+        let mut dw = vec![0.0; n_bins];
+        let value = wasserstein_1d(&levels, &self.target_cdf, &self.spacing, with_gradient.then_some(&mut dw[..]));
         if !with_gradient {
             return Ok((value, None));
         }
-        dp[n_bins - 1] = 0.0;
-        for k in (0..n_bins - 1).rev() {
-            dp[k] += dp[k + 1];
-        }
-        let mean_dp: f64 = levels.iter().zip(&dp).map(|(l, d)| l / total * d).sum();
         let count = self.frames.len() as f64;
         let mut grad_mag = vec![0.0; spec.magnitude.len()];
         for k in 0..n_bins {
             if levels[k] > 0.0 {
-                let d_mean = (dp[k] - mean_dp) / total * 20.0 / (std::f64::consts::LN_10 * mean[k]) / count;
+                let d_mean = dw[k] * 20.0 / (std::f64::consts::LN_10 * mean[k]) / count;
                 for t in self.frames.clone() {
                     grad_mag[t * n_bins + k] = d_mean;
                 }

@@ -24,5 +24,21 @@ mod wav;
 pub use synth::{damped_frequency, rayleigh_decay, render, ModalBank, REANCHOR_INTERVAL};
 pub use wav::{read_wav, write_wav, AudioError, WavFormat};
 
+/// Σ a_i b_i for two slices of equal length, with four independent partial sums so the compiler
+/// keeps four multiply-add chains in flight (a single running sum serialises them). Used by
+/// the resampler's and the filtered-noise kernels' inner loops.
+pub(crate) fn dot(a: &[f64], b: &[f64]) -> f64 {
+    let mut partial = [0.0f64; 4];
+    let chunks_a = a.chunks_exact(4);
+    let chunks_b = b.chunks_exact(4);
+    let tail: f64 = chunks_a.remainder().iter().zip(chunks_b.remainder()).map(|(x, y)| x * y).sum();
+    for (ca, cb) in chunks_a.zip(chunks_b) {
+        for lane in 0..4 {
+            partial[lane] += ca[lane] * cb[lane];
+        }
+    }
+    (partial[0] + partial[1]) + (partial[2] + partial[3]) + tail
+}
+
 #[cfg(test)]
 mod tests;

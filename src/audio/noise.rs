@@ -137,6 +137,7 @@
 //! variant caching every noise block's spectrum at construction was ~20 %
 //! faster forward but costs 16·N/hop bytes per sample, so it was not kept.
 
+use super::dot;
 use rustfft::num_complex::Complex;
 use rustfft::{Fft, FftPlanner};
 use std::f64::consts::PI;
@@ -712,25 +713,6 @@ fn packing_scale(values: &[f64]) -> Option<f64> {
     Some(2f64.powi(-exponent))
 }
 
-/// Σ a_i b_i with four independent partial sums, so the compiler can keep
-/// them in vector registers (a single running sum is a serial dependency).
-fn dot(a: &[f64], b: &[f64]) -> f64 {
-    let mut partial = [0.0f64; 4];
-    let chunks_a = a.chunks_exact(4);
-    let chunks_b = b.chunks_exact(4);
-    let tail: f64 = chunks_a
-        .remainder()
-        .iter()
-        .zip(chunks_b.remainder())
-        .map(|(x, y)| x * y)
-        .sum();
-    for (ca, cb) in chunks_a.zip(chunks_b) {
-        for lane in 0..4 {
-            partial[lane] += ca[lane] * cb[lane];
-        }
-    }
-    (partial[0] + partial[1]) + (partial[2] + partial[3]) + tail
-}
 
 fn check_len(what: &'static str, expected: usize, actual: usize) -> Result<(), NoiseError> {
     if expected == actual {

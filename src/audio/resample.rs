@@ -66,6 +66,7 @@
 //!   2-core AMD EPYC virtual machine); the per-tap fallback takes ≈ 150 ms
 //!   per second of audio for 44.1 → 48.001 kHz.
 
+use super::dot;
 use std::f64::consts::PI;
 
 /// Pass band ends at this fraction of the lower Nyquist frequency.
@@ -345,25 +346,6 @@ fn dot_zero_padded(weights: &[f64], x: &[f64], first: i64) -> f64 {
     )
 }
 
-/// Dot product with four running sums, which lets the compiler keep four
-/// independent multiply-add chains in flight (a single sum serialises them).
-fn dot(a: &[f64], b: &[f64]) -> f64 {
-    let mut acc = [0.0; 4];
-    let chunks_a = a.chunks_exact(4);
-    let chunks_b = b.chunks_exact(4);
-    let tail: f64 = chunks_a
-        .remainder()
-        .iter()
-        .zip(chunks_b.remainder())
-        .map(|(p, q)| p * q)
-        .sum();
-    for (p, q) in chunks_a.zip(chunks_b) {
-        for k in 0..4 {
-            acc[k] += p[k] * q[k];
-        }
-    }
-    (acc[0] + acc[1]) + (acc[2] + acc[3]) + tail
-}
 
 /// Modified Bessel function of the first kind, order 0, by its power series
 /// Σ ((x/2)^k / k!)², which converges for all x; here x ≤ β ≈ 10 and about

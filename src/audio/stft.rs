@@ -222,14 +222,8 @@ mod tests {
     use super::*;
 
     fn test_signal(len: usize, seed: u64) -> Vec<f64> {
-        let mut state = seed;
-        (0..len)
-            .map(|i| {
-                state = state.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
-                let noise = ((state >> 11) as f64 / (1u64 << 53) as f64) - 0.5;
-                (0.05 * i as f64).sin() * (-(i as f64) / 300.0).exp() + 0.1 * noise
-            })
-            .collect()
+        let mut rng = crate::testing::Rng(seed);
+        (0..len).map(|i| (0.05 * i as f64).sin() * (-(i as f64) / 300.0).exp() + 0.1 * rng.uniform(-0.5, 0.5)).collect()
     }
 
     #[test]

@@ -355,22 +355,14 @@ fn compute(petsc: &Petsc, job: &Job) -> Result<(), String> {
 /// farthest from the bounding-box centre (a rim or corner, where most modes move). Returns the
 /// node and its outward unit normal, the strike direction.
 fn strike(mesh: &TetMesh, requested: Option<usize>) -> Result<(usize, [f64; 3]), String> {
-    let normals = mesh.vertex_normals();
-    if normals.is_empty() {
-        return Err("the mesh has no surface vertices to strike".into());
-    }
-    if let Some(v) = requested {
-        return normals
-            .iter()
-            .find(|(n, _)| *n == v)
-            .map(|&(n, d)| (n, d))
-            .ok_or_else(|| format!("strike vertex {v} is not a surface vertex of the mesh ({} nodes)", mesh.n_nodes()));
-    }
-    let (lo, hi) = mesh.bounding_box();
-    let centre = [0.5 * (lo[0] + hi[0]), 0.5 * (lo[1] + hi[1]), 0.5 * (lo[2] + hi[2])];
-    let dist2 = |n: usize| (0..3).map(|d| (mesh.nodes[n][d] - centre[d]).powi(2)).sum::<f64>();
-    let best = normals.iter().fold(normals[0], |best, &cand| if dist2(cand.0) > dist2(best.0) + 1e-30 { cand } else { best });
-    Ok(best)
+    let vertex = match requested {
+        Some(v) => v,
+        None => mesh.default_strike_vertex().ok_or("the mesh has no surface vertices to strike")?,
+    };
+    let point = mesh
+        .surface_point_at_vertex(vertex)
+        .ok_or_else(|| format!("strike vertex {vertex} is not a surface vertex of the mesh ({} nodes)", mesh.n_nodes()))?;
+    Ok((vertex, point.normal))
 }
 
 /// A unit impulse along the normal at `vertex`: mode k starts with velocity amplitude

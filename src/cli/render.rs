@@ -169,11 +169,11 @@ pub fn run(args: RenderArgs) -> Result<(), String> {
     let strike = Strike { force: args.force, response: args.response };
     let (bank, _) = ModalChain::new(&file.eigenvalues, &projections, &damping, &strike)?;
     let fs = f64::from(args.sample_rate);
-    let samples = audio::render(&bank, fs, args.duration);
     let audible = bank.frequencies_hz.iter().zip(&bank.amplitudes).filter(|(f, a)| **f > 0.0 && **f < fs / 2.0 && **a > 0.0).count();
     if audible == 0 {
         return Err(format!("no mode rings below the Nyquist frequency {} Hz at this strike point; nothing to render", fs / 2.0));
     }
+    let samples = audio::render(&bank, fs, args.duration);
     audio::write_wav(&args.out, &samples, args.sample_rate, format, normalise).map_err(|e| e.to_string())?;
     let peak = samples.iter().fold(0.0_f64, |m, s| m.max(s.abs()));
     println!(

@@ -125,6 +125,11 @@ pub fn collapsed_rule(q: usize) -> QuadratureRule {
     QuadratureRule { points, weights }
 }
 
+/// Gauss–Legendre rule with `n` points on [0,1] (nodes, weights summing to 1).
+pub(crate) fn gauss_legendre_01(n: usize) -> (Vec<f64>, Vec<f64>) {
+    gauss_jacobi_01(n, 0)
+}
+
 /// Gauss–Jacobi rule with `n` points on [0,1] for the weight (1−t)^alpha.
 ///
 /// Built on [−1,1] with weight (1−x)^α: the nodes are the eigenvalues of the

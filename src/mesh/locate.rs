@@ -148,16 +148,20 @@ impl TetMesh {
         Some(SurfacePoint { tet, barycentric, position: self.nodes[vertex], normal, distance: 0.0 })
     }
 
-    /// The default strike point: the surface vertex farthest from the bounding-box centre (a
-    /// rim or a corner, where most modes move).
-    pub fn default_strike_point(&self) -> Option<SurfacePoint> {
+    /// The default strike vertex: the surface vertex farthest from the bounding-box centre (a
+    /// rim or a corner, where most modes move); the lowest index among equals.
+    pub fn default_strike_vertex(&self) -> Option<usize> {
         let (lo, hi) = self.bounding_box();
         let centre = [0.5 * (lo[0] + hi[0]), 0.5 * (lo[1] + hi[1]), 0.5 * (lo[2] + hi[2])];
         let dist2 = |n: usize| dot(sub(self.nodes[n], centre), sub(self.nodes[n], centre));
-        let normals = self.vertex_normals();
-        let first = normals.first()?.0;
-        let best = normals.iter().fold(first, |best, &(cand, _)| if dist2(cand) > dist2(best) + 1e-30 { cand } else { best });
-        self.surface_point_at_vertex(best)
+        let vertices = self.surface_vertices();
+        let first = *vertices.first()?;
+        Some(vertices.into_iter().fold(first, |best, cand| if dist2(cand) > dist2(best) + 1e-30 { cand } else { best }))
+    }
+
+    /// The surface point at [`Self::default_strike_vertex`].
+    pub fn default_strike_point(&self) -> Option<SurfacePoint> {
+        self.surface_point_at_vertex(self.default_strike_vertex()?)
     }
 
     /// Shape-function weights of the tet's nodes at barycentric coordinates `l` (module docs).

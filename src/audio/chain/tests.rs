@@ -4,14 +4,9 @@ use crate::audio::synth::{render_backward, render_samples};
 const FS: f64 = 16_000.0;
 const N: usize = 4000;
 
-fn lcg(seed: u64, n: usize) -> Vec<f64> {
-    let mut s = seed;
-    (0..n)
-        .map(|_| {
-            s = s.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
-            ((s >> 11) as f64 / (1u64 << 53) as f64) * 2.0 - 1.0
-        })
-        .collect()
+/// `n` values uniform in [−1, 1) from a seeded generator.
+fn uniform_noise(seed: u64, n: usize) -> Vec<f64> {
+    crate::testing::Rng(seed).uniform_vec(n, -1.0, 1.0)
 }
 
 /// L = Σ w[n] s[n] for a fixed random w: linear in the signal, so the test isolates the chain.
@@ -33,7 +28,7 @@ fn rel_close(fd: f64, exact: f64, scale: f64, tol: f64) -> bool {
 #[test]
 fn gradients_match_finite_differences_for_every_damping_model_and_strike() {
     let (eig, proj) = modes();
-    let w = lcg(5, N);
+    let w = uniform_noise(5, N);
     let curve = DampingCurve::new(vec![200.0, 1000.0, 4000.0], &[3.0, 8.0, 40.0]).unwrap();
     let dampings = [
         DampingModel::Rayleigh { alpha: 6.0, beta: 1e-7 },
@@ -105,7 +100,7 @@ fn overdamped_and_negative_modes_stay_silent_with_zero_gradient() {
     assert_eq!(bank.amplitudes[0], 0.0);
     assert_eq!(bank.amplitudes[1], 0.0, "ω = 10 < d = 15: overdamped");
     assert!(bank.amplitudes[2] > 0.0);
-    let g = chain.backward(&render_backward(&bank, FS, &lcg(1, N)));
+    let g = chain.backward(&render_backward(&bank, FS, &uniform_noise(1, N)));
     assert_eq!(&g.eigenvalues[..2], &[0.0, 0.0]);
     assert!(g.eigenvalues[2] != 0.0);
 }

@@ -1,14 +1,9 @@
 use super::*;
 use crate::audio::synth::{render_backward, render_samples, ModalBank};
 
-fn lcg(seed: u64, n: usize) -> Vec<f64> {
-    let mut s = seed;
-    (0..n)
-        .map(|_| {
-            s = s.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
-            ((s >> 11) as f64 / (1u64 << 53) as f64) * 2.0 - 1.0
-        })
-        .collect()
+/// `n` values uniform in [−1, 1) from a seeded generator.
+fn uniform_noise(seed: u64, n: usize) -> Vec<f64> {
+    crate::testing::Rng(seed).uniform_vec(n, -1.0, 1.0)
 }
 
 fn tone(freq: f64, decay: f64, amplitude: f64) -> ModalBank {
@@ -16,7 +11,7 @@ fn tone(freq: f64, decay: f64, amplitude: f64) -> ModalBank {
 }
 
 fn bank(seed: u64, n: usize) -> ModalBank {
-    let r = lcg(seed, 4 * n);
+    let r = uniform_noise(seed, 4 * n);
     ModalBank {
         frequencies_hz: (0..n).map(|k| 200.0 + 3000.0 * (0.5 + 0.5 * r[4 * k])).collect(),
         decay_rates: (0..n).map(|k| 5.0 + 10.0 * (0.5 + 0.5 * r[4 * k + 1])).collect(),
@@ -68,8 +63,8 @@ fn transport_loss_gradient_matches_finite_differences_through_the_synthesiser() 
 
 #[test]
 fn loss_gradients_with_respect_to_the_signal_match_finite_differences() {
-    let target: Vec<f64> = render_samples(&bank(5, 3), FS, 700).iter().zip(lcg(6, 700)).map(|(s, n)| s + 0.01 * n).collect();
-    let x: Vec<f64> = render_samples(&bank(7, 3), FS, 700).iter().zip(lcg(8, 700)).map(|(s, n)| s + 0.01 * n).collect();
+    let target: Vec<f64> = render_samples(&bank(5, 3), FS, 700).iter().zip(uniform_noise(6, 700)).map(|(s, n)| s + 0.01 * n).collect();
+    let x: Vec<f64> = render_samples(&bank(7, 3), FS, 700).iter().zip(uniform_noise(8, 700)).map(|(s, n)| s + 0.01 * n).collect();
     let spectral = MultiScaleSpectralLoss::new(&target, SpectralLossConfig { fft_sizes: vec![256, 64], ..Default::default() }).unwrap();
     let transport = TransportLoss::new(&target, FS, TransportLossConfig { fft_size: 128, ..Default::default() }).unwrap();
     let losses: [(&str, Box<dyn Fn(&[f64]) -> (f64, Vec<f64>)>); 2] = [

@@ -7,19 +7,8 @@ use crate::fem::material::Material;
 use crate::fem::shape::{P1_NODES, P2_NODES};
 use nalgebra::{DMatrix, DVector};
 
-/// xorshift64* — deterministic, dependency-free (also used by the sensitivity tests).
-pub(crate) struct Rng(pub(crate) u64);
-impl Rng {
-    pub(crate) fn next(&mut self) -> f64 {
-        self.0 ^= self.0 >> 12;
-        self.0 ^= self.0 << 25;
-        self.0 ^= self.0 >> 27;
-        (self.0.wrapping_mul(0x2545_F491_4F6C_DD1D) >> 11) as f64 / (1u64 << 53) as f64
-    }
-    pub(crate) fn uniform(&mut self, lo: f64, hi: f64) -> f64 {
-        lo + (hi - lo) * self.next()
-    }
-}
+/// The crate's test RNG (also used by the sensitivity tests).
+pub(crate) use crate::testing::Rng;
 
 pub(crate) type M3 = [[f64; 3]; 3];
 
