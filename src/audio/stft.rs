@@ -81,6 +81,8 @@ pub enum StftError {
     FftSize(usize),
     #[error("hop {hop} must lie in 1..={n_fft}")]
     Hop { hop: usize, n_fft: usize },
+    #[error("the target is silent: a relative spectrogram error is undefined")]
+    SilentTarget,
 }
 
 impl StftPlan {
@@ -217,6 +219,31 @@ impl StftPlan {
     }
 }
 
+/// FFT size and hop of [`spectrogram_error`], the figure reported by the fits and benchmarks.
+pub const SPECTROGRAM_ERROR_FFT: usize = 2048;
+pub const SPECTROGRAM_ERROR_HOP: usize = 512;
+
+/// Relative spectrogram error of `prediction` against `target`:
+///
+/// e = Σ_{t,k} | |P[t,k]| − |T[t,k]| | / Σ_{t,k} |T[t,k]|
+///
+/// over linear STFT magnitudes (Hann, N = [`SPECTROGRAM_ERROR_FFT`], H = [`SPECTROGRAM_ERROR_HOP`],
+/// module conventions), on the common length of the two signals. 0 is a perfect match; silence
+/// scores 1; a prediction with the target's energy in the wrong bins scores up to 2. It does not
+/// depend on the overall level of the target, but it does on the prediction's level, so fits
+/// report it after their own gain. Multichannel figures are the mean over channels.
+pub fn spectrogram_error(prediction: &[f64], target: &[f64]) -> Result<f64, StftError> {
+    let len = prediction.len().min(target.len());
+    let plan = StftPlan::new(SPECTROGRAM_ERROR_FFT, SPECTROGRAM_ERROR_HOP)?;
+    let p = plan.forward(&prediction[..len]);
+    let t = plan.forward(&target[..len]);
+    let norm: f64 = t.magnitude.iter().sum();
+    if norm <= 0.0 {
+        return Err(StftError::SilentTarget);
+    }
+    Ok(p.magnitude.iter().zip(&t.magnitude).map(|(a, b)| (a - b).abs()).sum::<f64>() / norm)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -273,5 +300,15 @@ mod tests {
         assert_eq!(StftPlan::new(2, 1).unwrap_err(), StftError::FftSize(2));
         assert!(matches!(StftPlan::new(64, 0), Err(StftError::Hop { .. })));
         assert!(matches!(StftPlan::new(64, 65), Err(StftError::Hop { .. })));
+    }
+
+    #[test]
+    fn spectrogram_error_scores_match_silence_and_level() {
+        let x = test_signal(8000, 3);
+        assert_eq!(spectrogram_error(&x, &x).unwrap(), 0.0);
+        assert!((spectrogram_error(&vec![0.0; 8000], &x).unwrap() - 1.0).abs() < 1e-12);
+        let half: Vec<f64> = x.iter().map(|v| 0.5 * v).collect();
+        assert!((spectrogram_error(&half, &x).unwrap() - 0.5).abs() < 1e-12);
+        assert!(matches!(spectrogram_error(&x, &vec![0.0; 8000]), Err(StftError::SilentTarget)));
     }
 }

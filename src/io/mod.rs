@@ -103,6 +103,7 @@ use hdf5::types::VarLenUnicode;
 
 pub mod atomic;
 pub mod plot;
+pub mod results;
 #[cfg(test)]
 pub(crate) mod test_support;
 
@@ -735,6 +736,18 @@ fn write_mode_views(
         ))?;
     }
     Ok(())
+}
+
+/// Opens or creates the group `/parts[0]/parts[1]/…` (the root for no parts).
+fn create_nested(path: &Path, file: &hdf5::File, parts: &[&str]) -> Result<hdf5::Group, IoError> {
+    let mut group: hdf5::Group = (**file).clone();
+    for part in parts {
+        group = match group.group(part) {
+            Ok(g) => g,
+            Err(_) => group.create_group(part).map_err(IoError::hdf5(path, format!("creating group {part} in {}", group.name())))?,
+        };
+    }
+    Ok(group)
 }
 
 fn create_group(path: &Path, file: &hdf5::File, name: &str) -> Result<hdf5::Group, IoError> {
