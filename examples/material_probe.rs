@@ -43,8 +43,25 @@ fn main() {
     let rm = basis.solve(nu_true);
     let rel: f64 = rm.theta.iter().zip(&theta).map(|(a, b)| (a - b).abs() / b).fold(0.0, f64::max);
     println!("reduced vs full at true nu: max rel {rel:e}");
+    let estimate = diffsound::inverse::estimate::estimate_modes(&[target.clone()], fs, &Default::default()).unwrap();
+    let target_modes_hz: Vec<f64> = estimate.modes.iter().map(|m| m.frequency_hz).collect();
+    println!("estimated {} target modes", target_modes_hz.len());
     let targets = vec![target];
-    let problem = MaterialProblem { targets: &targets, sample_rate: fs, density: rho, damping, strike, direction_weights: point.normal.to_vec() };
+    let problem = MaterialProblem { targets: &targets, sample_rate: fs, density: rho, damping, strike, direction_weights: point.normal.to_vec(), max_frequency_hz: None, target_modes_hz };
+    if std::env::var("SCAN").is_ok() {
+        use diffsound::audio::loss::MultiScaleSpectralLoss;
+        let loss = MultiScaleSpectralLoss::new(&targets[0], Default::default()).unwrap();
+        let raw = diffsound::inverse::material::render_channels(&basis, &problem, e_true, nu_true, &[0.0], None).unwrap();
+        let rms = |x: &[f64]| (x.iter().map(|v| v * v).sum::<f64>()).sqrt();
+        let g = (rms(&targets[0]) / rms(&raw[0])).ln();
+        for k in -10..=10 {
+            let e = e_true * (1.0 + 0.002 * k as f64);
+            let r = diffsound::inverse::material::render_channels(&basis, &problem, e, nu_true, &[g], None).unwrap();
+            let r2 = diffsound::inverse::material::render_channels(&basis, &problem, e, nu_true, &[g + 0.5], None).unwrap();
+            println!("E x {:.3}: loss {:.4e}  (gain +0.5: {:.4e})", e / e_true, loss.value(&r[0]).unwrap(), loss.value(&r2[0]).unwrap());
+        }
+        return;
+    }
     let mut settings = MaterialFitSettings::default(); settings.max_steps = 300;
     let t2 = std::time::Instant::now();
     let fit = fit_material(&mut basis, &problem, (e0, nu0), &settings, |b, nu| {
@@ -54,5 +71,6 @@ fn main() {
         if worst > settings.residual_tolerance { b.add_sample(&petsc, &asm, nu).map_err(|e| e.to_string())?; }
         Ok(worst)
     }, |s| if s.step % 20 == 0 { println!("step {} {:?} loss {:.4e} E {:.5e} nu {:.5}", s.step, s.phase, s.loss, s.youngs, s.poisson) }).unwrap();
+    println!("line start {:?}", fit.line_start);
     println!("fit {:.1} s: E {:.6e} ({:.2e} rel) nu {:.5} ({:.2e} rel), steps {}, switched {:?}, samples {:?}, max residual {:.2e}", t2.elapsed().as_secs_f64(), fit.youngs, (fit.youngs - e_true).abs() / e_true, fit.poisson, (fit.poisson - nu_true).abs() / nu_true, fit.steps, fit.switched_at, fit.basis_samples, fit.max_residual);
 }

@@ -12,6 +12,7 @@
 //! so a job never hangs waiting for a rank that gave up; a panic does the same.
 
 pub mod config;
+pub mod fit_material;
 mod modes;
 pub mod render;
 pub mod spectrogram;
@@ -35,6 +36,8 @@ pub enum Command {
     Render(render::RenderArgs),
     /// Spectrogram PNG of one WAV file or several side by side (e.g. rendered vs recorded).
     Spectrogram(spectrogram::SpectrogramArgs),
+    /// Fit damping, Young's modulus and Poisson's ratio to recordings of a strike.
+    FitMaterial(fit_material::FitMaterialArgs),
     /// List the material presets with their values.
     Materials,
 }
@@ -156,7 +159,8 @@ pub fn main() {
     let cli = Cli::parse();
     match cli.command {
         Command::Materials => print_materials(),
-        Command::Modes(args) => run_under_mpi(args),
+        Command::Modes(args) => run_under_mpi(|universe| modes::run(universe, args)),
+        Command::FitMaterial(args) => run_under_mpi(|universe| fit_material::run(universe, args)),
         Command::Render(args) => run_serial(render::run(args)),
         Command::Spectrogram(args) => run_serial(spectrogram::run(args)),
     }
@@ -196,7 +200,7 @@ fn print_materials() {
     }
 }
 
-fn run_under_mpi(args: ModesArgs) {
+fn run_under_mpi(job: impl FnOnce(mpi::environment::Universe) -> Result<(), String>) {
     let Some(universe) = mpi::initialize() else {
         eprintln!("error: MPI could not be initialised");
         std::process::exit(2);
@@ -216,7 +220,7 @@ fn run_under_mpi(args: ModesArgs) {
         abort_job(101);
     }));
 
-    if let Err(message) = modes::run(universe, args) {
+    if let Err(message) = job(universe) {
         fail(rank as usize, size as usize, &message);
     }
 }

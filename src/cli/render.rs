@@ -64,7 +64,7 @@ pub struct RenderArgs {
     pub format: String,
 }
 
-fn parse_vec3(s: &str) -> Result<[f64; 3], String> {
+pub(crate) fn parse_vec3(s: &str) -> Result<[f64; 3], String> {
     let parts: Vec<&str> = s.split(',').map(str::trim).collect();
     if parts.len() != 3 {
         return Err(format!("expected x,y,z, got {s:?}"));

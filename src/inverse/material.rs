@@ -48,6 +48,16 @@ pub struct MaterialFitSettings {
     pub step_log_youngs: f64,
     pub step_poisson: f64,
     pub step_log_gain: f64,
+    /// Step sizes in the spectral phase, where the basin is a fraction of a partial's
+    /// bandwidth wide.
+    pub spectral_step_log_youngs: f64,
+    pub spectral_step_poisson: f64,
+    /// Search the line-spectrum start (module docs) when the problem lists target modes.
+    pub line_spectrum_start: bool,
+    /// Largest distance counted per line in the line-spectrum match, in ln f.
+    pub line_match_cap: f64,
+    /// How far from the given start E the line-spectrum search looks, as a factor either way.
+    pub youngs_search_factor: f64,
     pub poisson_bounds: (f64, f64),
     pub max_steps: usize,
     pub schedule_patience: usize,
@@ -60,6 +70,9 @@ pub struct MaterialFitSettings {
     pub residual_tolerance: f64,
     /// Grid points of the ν scan at the switch to the spectral loss.
     pub poisson_scan: usize,
+    /// Learn a log-amplitude offset per mode and channel in the spectral phase (for recordings,
+    /// where the microphones do not hear the driving-point amplitudes).
+    pub free_amplitudes: bool,
     pub transport: PeakTransportConfig,
     pub spectral: SpectralLossConfig,
 }
@@ -71,6 +84,11 @@ impl Default for MaterialFitSettings {
             step_log_youngs: 0.05,
             step_poisson: 0.01,
             step_log_gain: 0.1,
+            spectral_step_log_youngs: 0.0005,
+            spectral_step_poisson: 0.0005,
+            line_spectrum_start: true,
+            line_match_cap: 0.02,
+            youngs_search_factor: 4.0,
             poisson_bounds: (0.0, 0.49),
             max_steps: 600,
             schedule_patience: 10,
@@ -81,6 +99,7 @@ impl Default for MaterialFitSettings {
             check_every: 50,
             residual_tolerance: 1e-2,
             poisson_scan: 45,
+            free_amplitudes: false,
             transport: PeakTransportConfig::default(),
             spectral: SpectralLossConfig::default(),
         }
@@ -100,6 +119,23 @@ pub struct MaterialProblem<'a> {
     /// with it: `direction_weights[i]` multiplies probe value i (e.g. the strike node's x, y, z
     /// DOFs weighted by n, or a shape-function combination of an element's DOFs).
     pub direction_weights: Vec<f64>,
+    /// Band limit: modes above f_max are faded out over [f_max, 1.1 f_max] (raised cosine in f,
+    /// held fixed within a step, not differentiated), as the target must be. `None`: no limit.
+    pub max_frequency_hz: Option<f64>,
+    /// Frequencies [Hz] of the modes found in the target (e.g. stage 1's real modes), for the
+    /// line-spectrum start; empty: start where told.
+    pub target_modes_hz: Vec<f64>,
+}
+
+/// The band-limit weight of a mode at `f` Hz: 1 below `f_max`, a raised-cosine fade to 0 at
+/// 1.1 `f_max` (module docs of [`MaterialProblem::max_frequency_hz`]).
+pub fn band_weight(f: f64, max_frequency_hz: Option<f64>) -> f64 {
+    match max_frequency_hz {
+        None => 1.0,
+        Some(fm) if f <= fm => 1.0,
+        Some(fm) if f >= 1.1 * fm => 0.0,
+        Some(fm) => 0.5 + 0.5 * (std::f64::consts::PI * (f - fm) / (0.1 * fm)).cos(),
+    }
 }
 
 /// One step of the history.
@@ -117,11 +153,15 @@ pub struct MaterialFit {
     pub youngs: f64,
     pub poisson: f64,
     pub log_gains: Vec<f64>,
+    /// Per mode and channel (mode-major: k·C + c) log-amplitude offsets; zeros unless
+    /// `free_amplitudes`.
+    pub log_amplitude_offsets: Vec<f64>,
     pub history: Vec<FitStep>,
     pub switched_at: Option<usize>,
     pub steps: usize,
     pub basis_samples: Vec<f64>,
     pub max_residual: f64,
+    pub line_start: Option<LineSpectrumStart>,
 }
 
 /// Projections c_k (without gain) and the eigenvalues at (E, ν).
@@ -131,21 +171,24 @@ fn modal_inputs(basis: &PoissonBasis, modes: &ReducedModes, problem: &MaterialPr
         .map(|k| {
             let probe = basis.probe(modes, k);
             let along: f64 = probe.iter().zip(&problem.direction_weights).map(|(v, w)| v * w).sum();
-            along * along / problem.density
+            let f = eigenvalues[k].max(0.0).sqrt() / (2.0 * std::f64::consts::PI);
+            band_weight(f, problem.max_frequency_hz) * along * along / problem.density
         })
         .collect();
     (eigenvalues, projections)
 }
 
-/// Renders every channel at (E, ν, gains).
-pub fn render_channels(basis: &PoissonBasis, problem: &MaterialProblem, youngs: f64, poisson: f64, log_gains: &[f64]) -> Result<Vec<Vec<f64>>, String> {
+/// Renders every channel at (E, ν, gains, and per mode·channel log-amplitude offsets if given).
+pub fn render_channels(basis: &PoissonBasis, problem: &MaterialProblem, youngs: f64, poisson: f64, log_gains: &[f64], offsets: Option<&[f64]>) -> Result<Vec<Vec<f64>>, String> {
     let modes = basis.solve(poisson);
     let (eigenvalues, projections) = modal_inputs(basis, &modes, problem, youngs);
     let n = problem.targets[0].len();
+    let n_channels = log_gains.len();
     log_gains
         .iter()
-        .map(|g| {
-            let c: Vec<f64> = projections.iter().map(|p| p * g.exp()).collect();
+        .enumerate()
+        .map(|(ch, g)| {
+            let c: Vec<f64> = projections.iter().enumerate().map(|(k, p)| p * (g + offsets.map_or(0.0, |o| o[k * n_channels + ch])).exp()).collect();
             let (bank, _) = ModalChain::new(&eigenvalues, &c, &problem.damping, &problem.strike)?;
             Ok(render_samples(&bank, problem.sample_rate, n))
         })
@@ -168,7 +211,7 @@ fn scan_poisson(basis: &PoissonBasis, problem: &MaterialProblem, spectral: &[Mul
         let nu = lo + (hi - lo) * i as f64 / (n - 1) as f64;
         let modes = basis.solve(nu);
         let m = modes.theta.iter().map(|t| t.ln()).sum::<f64>() / modes.theta.len() as f64;
-        let rendered = render_channels(basis, problem, (sigma - m).exp(), nu, log_gains)?;
+        let rendered = render_channels(basis, problem, (sigma - m).exp(), nu, log_gains, None)?;
         let mut total = 0.0;
         for (loss, x) in spectral.iter().zip(&rendered) {
             total += loss.value(x).map_err(|e| e.to_string())?;
@@ -178,6 +221,129 @@ fn scan_poisson(basis: &PoissonBasis, problem: &MaterialProblem, spectral: &[Mul
         }
     }
     Ok(best.1)
+}
+
+/// Where the line-spectrum start landed.
+#[derive(Clone, Copy, Debug, serde::Serialize)]
+pub struct LineSpectrumStart {
+    pub youngs: f64,
+    pub poisson: f64,
+    /// The match distance there (mean capped |Δ ln f| of both sides, module docs).
+    pub distance: f64,
+    /// Grid points tried.
+    pub evaluations: usize,
+}
+
+/// Mean over `from` of min(cap, distance in ln f to the nearest of `to` shifted by `shift`);
+/// both sorted ascending.
+fn capped_nearest(from: &[f64], to: &[f64], shift: f64, cap: f64) -> f64 {
+    if from.is_empty() {
+        return 0.0;
+    }
+    let mut total = 0.0;
+    let mut i = 0;
+    for &x in from {
+        // `to` sorted: advance to the first element whose shifted value is ≥ x.
+        while i < to.len() && to[i] + shift < x {
+            i += 1;
+        }
+        let mut best = cap;
+        if i < to.len() {
+            best = best.min(to[i] + shift - x);
+        }
+        if i > 0 {
+            best = best.min(x - to[i - 1] - shift);
+        }
+        total += best;
+    }
+    total / from.len() as f64
+}
+
+/// The line-spectrum start: the (E, ν) whose audible simulated partials best match the
+/// target's modes. For each ν on a grid the pattern u_k = ½ ln θ_k(ν) is fixed and E only
+/// shifts it (ln f_k = u_k + ½ ln(E/ρ) − ln 2π), so the search is over that shift on a grid
+/// of 5·10⁻⁴ in ln f (0.05 % in frequency) across [E₀/F, E₀·F] (F =
+/// `youngs_search_factor`), then refined tenfold around the best point. The distance is
+/// symmetric: the mean over target modes of the capped distance to the nearest simulated
+/// partial, plus the mean over audible simulated partials below 1.02 × the highest target
+/// mode (and the band limit) of the capped distance to the nearest target mode. A partial is
+/// audible when its driving-point weight (φ_k·n)² is at least 10⁻³ of the largest. The cap
+/// (`line_match_cap`, ln f) keeps a missing or extra mode from outweighing the rest.
+pub fn line_spectrum_start(basis: &PoissonBasis, problem: &MaterialProblem, start: (f64, f64), settings: &MaterialFitSettings) -> Result<LineSpectrumStart, String> {
+    let mut target: Vec<f64> = problem.target_modes_hz.iter().filter(|f| f.is_finite() && **f > 0.0).map(|f| f.ln()).collect();
+    if target.is_empty() {
+        return Err("the line-spectrum start needs the target's mode frequencies".into());
+    }
+    target.sort_by(f64::total_cmp);
+    let mut ceiling = target[target.len() - 1] + 0.02_f64.ln_1p();
+    if let Some(fm) = problem.max_frequency_hz {
+        ceiling = ceiling.min(fm.ln());
+    }
+    let (lo, hi) = settings.poisson_bounds;
+    let nus: Vec<f64> = if settings.learn_poisson {
+        let n = ((hi - lo) / 0.0025).ceil().max(1.0) as usize;
+        (0..=n).map(|i| lo + (hi - lo) * i as f64 / n as f64).collect()
+    } else {
+        vec![start.1.clamp(lo, hi)]
+    };
+    let two_pi_ln = (2.0 * std::f64::consts::PI).ln();
+    let shift_of = |youngs: f64| 0.5 * (youngs / problem.density).ln() - two_pi_ln;
+    let factor = settings.youngs_search_factor.max(1.0);
+    let (c_lo, c_hi) = (shift_of(start.0 / factor), shift_of(start.0 * factor));
+    let cap = settings.line_match_cap;
+    // Pattern of the audible partials at ν, sorted.
+    let pattern = |nu: f64| -> Vec<f64> {
+        let modes = basis.solve(nu);
+        let weight: Vec<f64> = (0..modes.theta.len())
+            .map(|k| {
+                let along: f64 = basis.probe(&modes, k).iter().zip(&problem.direction_weights).map(|(v, w)| v * w).sum();
+                along * along
+            })
+            .collect();
+        let loudest = weight.iter().fold(0.0_f64, |m, w| m.max(*w));
+        let mut u: Vec<f64> = modes.theta.iter().zip(&weight).filter(|(t, w)| **t > 0.0 && **w >= 1e-3 * loudest).map(|(t, _)| 0.5 * t.ln()).collect();
+        u.sort_by(f64::total_cmp);
+        u
+    };
+    let distance = |u: &[f64], c: f64| -> f64 {
+        let in_band: Vec<f64> = u.iter().copied().filter(|x| x + c <= ceiling).collect();
+        capped_nearest(&target, u, c, cap) + capped_nearest(&in_band, &target, -c, cap)
+    };
+    let mut evaluations = 0;
+    let mut best = (f64::INFINITY, c_lo, nus[0]);
+    let coarse = 5e-4;
+    let n_c = ((c_hi - c_lo) / coarse).ceil() as usize;
+    for &nu in &nus {
+        let u = pattern(nu);
+        for i in 0..=n_c {
+            let c = c_lo + i as f64 * coarse;
+            let d = distance(&u, c);
+            evaluations += 1;
+            if d < best.0 {
+                best = (d, c, nu);
+            }
+        }
+    }
+    // Refine tenfold around the best grid point.
+    let (c0, nu0) = (best.1, best.2);
+    let nu_step = if settings.learn_poisson { 0.00025 } else { 0.0 };
+    for j in -10..=10 {
+        let nu = (nu0 + j as f64 * nu_step).clamp(lo, hi);
+        let u = pattern(nu);
+        for i in -10..=10 {
+            let c = c0 + i as f64 * coarse / 10.0;
+            let d = distance(&u, c);
+            evaluations += 1;
+            if d < best.0 {
+                best = (d, c, nu);
+            }
+        }
+        if nu_step == 0.0 {
+            break;
+        }
+    }
+    let youngs = problem.density * (2.0 * (best.1 + two_pi_ln)).exp();
+    Ok(LineSpectrumStart { youngs, poisson: best.2, distance: best.0, evaluations })
 }
 
 /// Fits E (and ν) from `start = (E, ν)`. `on_step` sees every step (progress display).
@@ -203,30 +369,51 @@ pub fn fit_material<'p>(
         .map_err(|e| e.to_string())?;
     let mut losses = Losses::Transport(transport);
     let mut schedule = HybridSchedule::new(settings.schedule_patience, settings.schedule_min_improvement);
+    let spectral_losses = || -> Result<Vec<MultiScaleSpectralLoss>, String> {
+        problem.targets.iter().map(|t| MultiScaleSpectralLoss::new(t, settings.spectral.clone())).collect::<Result<_, _>>().map_err(|e| e.to_string())
+    };
 
     // Parameters: [σ, ν, γ_0 … γ_(C−1)] with σ = ln E + m(ν), m(ν) = mean_k ln θ_k(ν): the
     // mean log-eigenvalue up to ln ρ. At fixed σ a change of ν keeps the spectrum's overall
     // scale and only changes its spacing, so ν cannot stand in for E while E is still far off.
     let (lo, hi) = settings.poisson_bounds;
     let mean_log_theta = |modes: &ReducedModes| modes.theta.iter().map(|t| t.ln()).sum::<f64>() / modes.theta.len() as f64;
+    let line_start = if settings.line_spectrum_start && !problem.target_modes_hz.is_empty() { Some(line_spectrum_start(basis, problem, start, settings)?) } else { None };
+    let start = line_start.map_or(start, |l| (l.youngs, l.poisson));
     let start_nu = start.1.clamp(lo, hi);
     let mut params = vec![start.0.ln() + mean_log_theta(&basis.solve(start_nu)), start_nu];
     // Gains that match each channel's RMS at the start.
-    let first = render_channels(basis, problem, start.0, params[1], &vec![0.0; n_channels])?;
+    let first = render_channels(basis, problem, start.0, params[1], &vec![0.0; n_channels], None)?;
     for (rendered, target) in first.iter().zip(problem.targets) {
         let rms = |x: &[f64]| (x.iter().map(|v| v * v).sum::<f64>() / x.len() as f64).sqrt();
         let (r, t) = (rms(rendered), rms(target));
         params.push(if r > 0.0 && t > 0.0 { (t / r).ln() } else { 0.0 });
     }
+    let n_modes = basis.solve(start_nu).theta.len();
+    let n_offsets = if settings.free_amplitudes { n_modes * n_channels } else { 0 };
+    let offsets_at = 2 + n_channels;
+    params.extend(std::iter::repeat_n(0.0, n_offsets));
     let steps: Vec<f64> = [settings.step_log_youngs, if settings.learn_poisson { settings.step_poisson } else { 0.0 }]
         .into_iter()
-        .chain(std::iter::repeat_n(settings.step_log_gain, n_channels))
+        .chain(std::iter::repeat_n(settings.step_log_gain, n_channels + n_offsets))
+        .collect();
+    let spectral_steps: Vec<f64> = [settings.spectral_step_log_youngs, if settings.learn_poisson { settings.spectral_step_poisson } else { 0.0 }]
+        .into_iter()
+        .chain(std::iter::repeat_n(settings.step_log_gain, n_channels + n_offsets))
         .collect();
     let mut lower = vec![f64::NEG_INFINITY; params.len()];
     let mut upper = vec![f64::INFINITY; params.len()];
     lower[1] = lo;
     upper[1] = hi;
     let mut adam = super::optim::Adam::new(steps).with_bounds(lower, upper);
+    if line_start.is_some() {
+        // The line-spectrum start has done the transport phase's work, more finely than the
+        // transport loss resolves (a bin of its FFT is ~1 % of a partial's frequency): go
+        // straight to the spectral loss.
+        losses = Losses::Spectral(spectral_losses()?);
+        schedule = HybridSchedule::fixed(LossPhase::Spectral);
+        adam.set_step_sizes(spectral_steps.clone());
+    }
 
     let mut history = Vec::new();
     let mut max_residual = 0.0_f64;
@@ -243,8 +430,8 @@ pub fn fit_material<'p>(
         let mut grad = vec![0.0; params.len()];
         let mut total = 0.0;
         for c in 0..n_channels {
-            let gain = params[2 + c].exp();
-            let proj: Vec<f64> = projections.iter().map(|p| p * gain).collect();
+            let offset = |k: usize| if n_offsets > 0 { params[offsets_at + k * n_channels + c] } else { 0.0 };
+            let proj: Vec<f64> = projections.iter().enumerate().map(|(k, p)| p * (params[2 + c] + offset(k)).exp()).collect();
             let (bank, chain) = ModalChain::new(&eigenvalues, &proj, &problem.damping, &problem.strike)?;
             let signal = render_samples(&bank, problem.sample_rate, n);
             let (value, g_signal) = match &losses {
@@ -259,6 +446,9 @@ pub fn fit_material<'p>(
                 grad[0] += g.eigenvalues[k] * eigenvalues[k];
                 grad[1] += g.eigenvalues[k] * youngs / problem.density * modes.dtheta_dnu[k];
                 grad[2 + c] += g.projections[k] * proj[k];
+                if n_offsets > 0 {
+                    grad[offsets_at + k * n_channels + c] = g.projections[k] * proj[k];
+                }
             }
         }
         // From (ln E, ν) to (σ, ν): dL/dσ = dL/dlnE, dL/dν|σ = dL/dν|E − dL/dlnE · m'(ν).
@@ -278,17 +468,13 @@ pub fn fit_material<'p>(
         let before = schedule.phase();
         let after = schedule.observe(total);
         if before == LossPhase::Transport && after == LossPhase::Spectral {
-            let spectral: Vec<MultiScaleSpectralLoss> = problem
-                .targets
-                .iter()
-                .map(|t| MultiScaleSpectralLoss::new(t, settings.spectral.clone()))
-                .collect::<Result<_, _>>()
-                .map_err(|e| e.to_string())?;
-            if settings.learn_poisson {
-                params[1] = scan_poisson(basis, problem, &spectral, params[0], &params[2..], settings)?;
+            let spectral = spectral_losses()?;
+            if settings.learn_poisson && line_start.is_none() && settings.poisson_scan > 0 {
+                params[1] = scan_poisson(basis, problem, &spectral, params[0], &params[2..offsets_at], settings)?;
             }
             losses = Losses::Spectral(spectral);
             adam.reset_moments();
+            adam.set_step_sizes(spectral_steps.clone());
         } else if after == LossPhase::Spectral {
             adam.scale_steps(settings.spectral_decay);
             recent.push_back((youngs.ln(), params[1]));
@@ -307,11 +493,13 @@ pub fn fit_material<'p>(
     Ok(MaterialFit {
         youngs,
         poisson: params[1],
-        log_gains: params[2..].to_vec(),
+        log_gains: params[2..offsets_at].to_vec(),
+        log_amplitude_offsets: if n_offsets > 0 { params[offsets_at..].to_vec() } else { vec![0.0; n_modes * n_channels] },
         steps: history.len(),
         history,
         switched_at: schedule.switched_at(),
         basis_samples: basis.samples().to_vec(),
         max_residual,
+        line_start,
     })
 }

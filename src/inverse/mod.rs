@@ -7,6 +7,7 @@
 //! | [`optim`]    | Adam with bounds, the optimiser the fits share |
 //! | [`material`] | stage 2 of the material fit: E and ν by the hybrid transport→spectral schedule |
 
+pub mod damping;
 pub mod estimate;
 pub mod material;
 pub mod optim;

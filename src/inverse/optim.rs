@@ -71,6 +71,15 @@ impl Adam {
         self.step_sizes.iter_mut().for_each(|s| *s *= factor);
     }
 
+    /// Replaces the step sizes (e.g. at a change of loss).
+    ///
+    /// # Panics
+    /// If the length differs from the number of parameters.
+    pub fn set_step_sizes(&mut self, step_sizes: Vec<f64>) {
+        assert_eq!(step_sizes.len(), self.step_sizes.len(), "one step size per parameter");
+        self.step_sizes = step_sizes;
+    }
+
     /// Forgets the moment estimates (after a change of loss, whose gradients have another
     /// scale).
     pub fn reset_moments(&mut self) {

@@ -182,7 +182,8 @@ const BAND_SNR_MARGIN_DB: f64 = 6.0;
 const MERGE_RAYLEIGH_FRACTION: f64 = 0.2;
 
 /// Settings of [`estimate_modes`]; see the module docs for how each is used.
-#[derive(Clone, Debug, PartialEq)]
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(default, deny_unknown_fields)]
 pub struct EstimateOptions {
     /// Lowest frequency estimated, Hz (default 20).
     pub min_frequency_hz: f64,
