@@ -496,21 +496,12 @@ fn compute(petsc: &Petsc, job: &Job) -> Result<(), String> {
         target_modes_hz: in_band.iter().map(|&i| stage.damping.modes[i].frequency_hz).collect(),
     };
     let t3 = std::time::Instant::now();
-    let residual_tolerance = job.fit.residual_tolerance;
     let fit: MaterialFit = fit_material(
         &mut basis,
         &problem,
         (job.start_youngs, job.start_poisson),
         &job.fit,
-        |b, nu| {
-            let modes = b.solve(nu);
-            let r = b.residuals(&assembled, &modes).map_err(|e| e.to_string())?;
-            let worst = r.iter().fold(0.0_f64, |m, v| m.max(*v));
-            if worst > residual_tolerance {
-                b.add_sample(petsc, &assembled, nu).map_err(|e| e.to_string())?;
-            }
-            Ok(worst)
-        },
+        |b, nu| b.refresh_if_needed(petsc, &assembled, nu, job.fit.residual_tolerance, job.fit.min_sample_spacing).map_err(|e| e.to_string()),
         |s| {
             if s.step % 20 == 0 {
                 progress.say(format!("material step {:4} ({:?}): loss {:.5e}, E = {:.5e} Pa, ν = {:.4}", s.step, s.phase, s.loss, s.youngs, s.poisson));

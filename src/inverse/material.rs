@@ -68,6 +68,8 @@ pub struct MaterialFitSettings {
     pub patience: usize,
     pub check_every: usize,
     pub residual_tolerance: f64,
+    /// No new basis sample closer than this to an existing one.
+    pub min_sample_spacing: f64,
     /// Grid points of the ν scan at the switch to the spectral loss.
     pub poisson_scan: usize,
     /// Learn a log-amplitude offset per mode and channel in the spectral phase (for recordings,
@@ -98,6 +100,7 @@ impl Default for MaterialFitSettings {
             patience: 20,
             check_every: 50,
             residual_tolerance: 1e-2,
+            min_sample_spacing: 0.02,
             poisson_scan: 45,
             free_amplitudes: false,
             transport: PeakTransportConfig::default(),

@@ -4,6 +4,7 @@
 //! | module       | what it does |
 //! |--------------|--------------|
 //! | [`estimate`] | high-resolution modal estimates (f, d, amplitudes) straight from a recording |
+//! | [`damping`]  | stage 1 of the material fit: many free modes + filtered noise fitted to a recording, real modes → damping curve d(f) and Rayleigh α, β |
 //! | [`optim`]    | Adam with bounds, the optimiser the fits share |
 //! | [`material`] | stage 2 of the material fit: E and ν by the hybrid transport→spectral schedule |
 
