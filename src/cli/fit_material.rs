@@ -378,6 +378,28 @@ fn stage_one(petsc: &Petsc, job: &Job, progress: &Progress) -> Result<StageOne, 
     shared
 }
 
+/// A pole carrying less than this fraction of its peak's largest member energy is part of the
+/// peak's shape (beating, a fast transient under a long line), not a mode of its own.
+const LINE_ENERGY_FRACTION: f64 = 0.1;
+
+/// The recorded modes: in every kept peak, the members with at least [`LINE_ENERGY_FRACTION`]
+/// of the energy of its strongest member, energy Σ_c a_c² / (2 d) (the integral of a decaying
+/// sinusoid's square). A degenerate pair split by the object's imperfections stays two modes;
+/// the short-lived poles the free fit adds around a long line do not count. Sorted by frequency.
+fn recorded_lines(fit: &DampingFit) -> Vec<usize> {
+    let energy = |i: usize| {
+        let m = &fit.modes[i];
+        m.amplitudes.iter().map(|a| a * a).sum::<f64>() / (2.0 * m.decay_rate.max(1e-9))
+    };
+    let mut lines: Vec<usize> = Vec::new();
+    for peak in fit.peaks.iter().filter(|p| p.kept) {
+        let strongest = peak.members.iter().map(|&i| energy(i)).fold(0.0_f64, f64::max);
+        lines.extend(peak.members.iter().copied().filter(|&i| fit.modes[i].kept && energy(i) >= LINE_ENERGY_FRACTION * strongest));
+    }
+    lines.sort_by(|&a, &b| fit.modes[a].frequency_hz.total_cmp(&fit.modes[b].frequency_hz));
+    lines
+}
+
 /// The stage-2 target: the real modes below the band limit, re-synthesised per channel.
 fn band_limited_target(stage: &StageOne, fs: f64, n: usize, f_max: f64) -> Vec<Vec<f64>> {
     (0..stage.channels.len())
@@ -468,11 +490,11 @@ fn compute(petsc: &Petsc, job: &Job) -> Result<(), String> {
     let stage_one_seconds = t1.elapsed().as_secs_f64();
     let n = stage.channels[0].len();
     let targets = band_limited_target(&stage, fs, n, job.max_frequency_hz);
-    let in_band: Vec<usize> = (0..stage.damping.modes.len()).filter(|&i| stage.damping.modes[i].kept && stage.damping.modes[i].frequency_hz <= job.max_frequency_hz).collect();
+    let in_band: Vec<usize> = recorded_lines(&stage.damping).into_iter().filter(|&i| stage.damping.modes[i].frequency_hz <= job.max_frequency_hz).collect();
     if in_band.is_empty() {
         return Err(format!("no real mode below --fmax {} Hz in the recording; raise --fmax", job.max_frequency_hz));
     }
-    progress.say(format!("target: {} real modes below {} Hz", in_band.len(), job.max_frequency_hz));
+    progress.say(format!("target: the real modes below {} Hz; {} recorded lines there: {:?} Hz", job.max_frequency_hz, in_band.len(), in_band.iter().map(|&i| (stage.damping.modes[i].frequency_hz * 10.0).round() / 10.0).collect::<Vec<_>>()));
 
     let t2 = std::time::Instant::now();
     let assembled = assembly::assemble(petsc, &mesh_model).map_err(|e| e.to_string())?;
