@@ -39,13 +39,13 @@
 //! | `/material` attrs | `youngs_modulus` [Pa], `poisson_ratio`, `density` [kg/m³], `youngs_over_density` [m²/s²], `start_youngs_modulus`, `start_poisson_ratio`, `poisson_learned` (0/1) |
 //! | `/fit/history/{step,phase,loss,youngs_modulus,poisson_ratio}` | per step; phase 0 = transport, 1 = spectral |
 //! | `/fit/log_gains` `[C]`, `/fit/log_amplitude_offsets` `[K, C]` | learned levels (natural log) |
-//! | `/fit` attrs | `steps`, `switched_at` (−1: never), `seconds`, `basis_samples` (string), `max_ritz_residual` |
+//! | `/fit` attrs | `steps`, `switched_at` (−1: never), `seconds`, `basis_samples` (string), `max_ritz_residual`, `line_start_youngs_modulus`, `line_start_poisson_ratio`, `line_start_distance` |
 //! | `/damping/curve/{frequencies_hz,decay_rates}` | knots of d(f) [Hz, 1/s] |
 //! | `/damping/modes/{frequency_hz,decay_rate,level_db,kept}` `[M]`, `…/amplitudes`, `…/phases` `[M, C]` | every stage-1 mode |
 //! | `/damping` attrs | `rayleigh_alpha` [1/s], `rayleigh_beta` [s], `curve_rms_log_error`, `rayleigh_rms_log_error`, `loss_initial`, `loss_final` |
 //! | `/modes/simulated/{frequency_hz,eigenvalues,full_eigenvalues,relative_difference}` `[K]` | fitted modes, reduced vs full solve |
 //! | `/modes/matched/{recorded_frequency_hz,simulated_frequency_hz,error_hz,relative_error,recorded_decay_rate,simulated_decay_rate,simulated_index}` | one row per recorded mode in the band that found a partner |
-//! | `/errors` attrs | `spectrogram_start`, `spectrogram_fit`, `max_relative_eigenvalue_difference`, `mean_abs_relative_frequency_error` |
+//! | `/errors` attrs | `spectrogram_start`, `spectrogram_fit`, `max_relative_eigenvalue_difference`, `mean_abs_relative_frequency_error`, `line_start_mean_abs_relative_frequency_error` |
 //! | `/timings` attrs | seconds per stage |
 //!
 //! Plots (PNG, prefix `plots`): `_spectrogram.png` (recording, target, start, fit of one channel
@@ -565,11 +565,24 @@ fn compute(petsc: &Petsc, job: &Job) -> Result<(), String> {
     let recorded_hz: Vec<f64> = in_band.iter().map(|&i| stage.damping.modes[i].frequency_hz).collect();
     let matches = match_modes(&recorded_hz, &sim_hz);
     let mean_abs_error = matches.iter().map(|m| m.relative_error.abs()).sum::<f64>() / matches.len().max(1) as f64;
+    // The same figure at the line-spectrum start, for comparison with the audio-loss optimum.
+    let line_start_error = fit.line_start.map(|l| {
+        let modes = basis.solve(l.poisson);
+        let hz: Vec<f64> = modes.eigenvalues(l.youngs, job.density).iter().map(|lam| {
+            let d = stage.damping.curve.decay(lam.sqrt() / (2.0 * std::f64::consts::PI));
+            (lam - d * d).max(0.0).sqrt() / (2.0 * std::f64::consts::PI)
+        }).collect();
+        let m = match_modes(&recorded_hz, &hz);
+        (m.iter().map(|m| m.relative_error.abs()).sum::<f64>() / m.len().max(1) as f64, m.len())
+    });
 
     if rank == 0 {
         println!("fit-material: E = {:.6e} Pa (ρ = {} kg/m³, E/ρ = {:.6e} m²/s²), ν = {:.5}", fit.youngs, job.density, fit.youngs / job.density, fit.poisson);
         println!("  damping: {} real modes, Rayleigh α = {:.4} 1/s, β = {:.4e} s; curve knots at {:?} Hz", stage.damping.modes.iter().filter(|m| m.kept).count(), stage.damping.rayleigh.alpha, stage.damping.rayleigh.beta, stage.damping.curve.frequencies_hz.iter().map(|f| f.round()).collect::<Vec<_>>());
         println!("  spectrogram error vs target: start {error_start:.4}, fit {error_fit:.4}");
+        if let (Some(l), Some((err, n))) = (fit.line_start, line_start_error) {
+            println!("  line-spectrum start: E = {:.5e} Pa, ν = {:.4} (distance {:.2e}); {n} lines matched there, mean |relative frequency error| {:.3} %", l.youngs, l.poisson, l.distance, 100.0 * err);
+        }
         println!("  reduced basis vs full solve at the fit: max relative eigenvalue difference {max_difference:.2e}");
         println!("  {} recorded modes below {} Hz matched; mean |relative frequency error| {:.3} %", matches.len(), job.max_frequency_hz, 100.0 * mean_abs_error);
         println!("  {:>10} {:>10} {:>9} {:>8}", "recorded", "simulated", "error", "d [1/s]");
@@ -636,6 +649,12 @@ fn compute(petsc: &Petsc, job: &Job) -> Result<(), String> {
             .number("/errors", "spectrogram_fit", error_fit)
             .number("/errors", "max_relative_eigenvalue_difference", max_difference)
             .number("/errors", "mean_abs_relative_frequency_error", mean_abs_error);
+        if let (Some(l), Some((err, _))) = (fit.line_start, line_start_error) {
+            file.number("/fit", "line_start_youngs_modulus", l.youngs)
+                .number("/fit", "line_start_poisson_ratio", l.poisson)
+                .number("/fit", "line_start_distance", l.distance)
+                .number("/errors", "line_start_mean_abs_relative_frequency_error", err);
+        }
         for (k, v) in timings {
             file.number("/timings", k, v);
         }
@@ -705,6 +724,11 @@ fn write_plots(job: &Job, stage: &StageOne, targets: &[Vec<f64>], start: &[Vec<f
     ];
     line_plot_png(&plot_path(&job.plots, "_loss.png"), &fig).map_err(|e| e.to_string())?;
 
+    if matches.is_empty() {
+        eprintln!("warning: no recorded mode has a simulated partner within {:.0} %; {}_frequencies.png not written", 100.0 * MAX_MATCH_ERROR, job.plots.display());
+        println!("wrote {}_{{spectrogram,damping,loss}}.png", job.plots.display());
+        return Ok(());
+    }
     let mut fig = LineFigure::new("recorded vs simulated modes: relative frequency error", "recorded frequency [Hz]", "(f_sim − f_rec) / f_rec [%]");
     fig.series = vec![Series::markers("matched modes", matches.iter().map(|m| recorded_hz[m.recorded]).collect(), matches.iter().map(|m| 100.0 * (sim_hz[m.simulated] - recorded_hz[m.recorded]) / recorded_hz[m.recorded]).collect(), Marker::Diamond)];
     line_plot_png(&plot_path(&job.plots, "_frequencies.png"), &fig).map_err(|e| e.to_string())?;

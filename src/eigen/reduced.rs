@@ -17,6 +17,13 @@
 //! (a dense solve, ~1 ms), with exact derivatives of the reduced problem
 //! dθ_k/dν = z_kᵀ (a'(ν) A_λ + b'(ν) A_μ) z_k.
 //!
+//! The computed modes carry a trace of the rigid-body motions (θ = 0) from the shift-invert
+//! solve. Two samples at nearby ν give nearly parallel vectors, and whitening their difference
+//! can leave a direction made mostly of that trace: a spurious Ritz value near 0 (seen on the
+//! bowl under 2 ranks after a sample at ν = 0.176 joined one at 0.2). Ritz values below 10⁻²
+//! of the lowest elastic θ met in any sample's full solve are therefore discarded; no elastic
+//! mode of the body lies there.
+//!
 //! Ritz values are upper bounds that are exact at the samples; between them their error is
 //! quadratic in the eigenvector error. [`PoissonBasis::residuals`] measures, for the Ritz pair
 //! (θ, x = V W z), the relative residual ‖(aK_λ + bK_μ)x − θM₁x‖₂ / (θ ‖M₁x‖₂) with three
@@ -29,6 +36,12 @@ use crate::assembly::Assembled;
 use crate::petsc::{Mat, Petsc, PetscError, PetscInt, Vector};
 use mpi::collective::{CommunicatorCollectives, SystemOperation};
 use nalgebra::{DMatrix, DVector, SymmetricEigen};
+
+/// Extra modes a full solve asks for, so that poorly resolved rigid-body modes it has to drop
+/// (see [`PoissonBasis::full_theta`]) do not leave it short.
+fn cfg_rigid_spare() -> usize {
+    6
+}
 
 /// a(ν) = ν/((1+ν)(1−2ν)) and b(ν) = 1/(2(1+ν)): the Lamé parameters for E = 1.
 pub fn lame_unit(nu: f64) -> (f64, f64) {
@@ -75,6 +88,9 @@ pub struct PoissonBasis<'p> {
     /// Values of every basis vector at `probe_dofs` (n_b rows × probes), on every rank.
     probe_values: DMatrix<f64>,
     size: f64,
+    /// Ritz values below this are discarded (module docs): 10⁻² × the lowest elastic θ of any
+    /// sample's full solve.
+    theta_floor: f64,
     /// Full solves done.
     pub full_solves: usize,
     pub full_solve_seconds: f64,
@@ -112,6 +128,7 @@ impl<'p> PoissonBasis<'p> {
             probe_dofs,
             probe_values: DMatrix::zeros(0, 0),
             size,
+            theta_floor: f64::INFINITY,
             full_solves: 0,
             full_solve_seconds: 0.0,
         };
@@ -138,15 +155,32 @@ impl<'p> PoissonBasis<'p> {
         k.scale(a)?;
         k.axpy(b, &assembled.k_mu, crate::petsc::NonzeroPattern::Same)?;
         k.set_symmetric()?;
-        let mut cfg = EigenConfig::new(ModeRequest::FirstN(n), spectrum_scale(b, 1.0, size));
+        let mut cfg = EigenConfig::new(ModeRequest::FirstN(n + cfg_rigid_spare()), spectrum_scale(b, 1.0, size));
         cfg.verify_count = false;
         let modes = solve_modes(petsc, &k, &assembled.mass_unit, &cfg)?;
-        Ok((modes.eigenvalues, modes.vectors))
+        let (mut values, mut vectors) = (modes.eigenvalues, modes.vectors);
+        // Rigid-body modes the solver resolved poorly land above the rigid threshold (seen on the
+        // bowl under 2 ranks: three at ~10⁻³ of the first elastic θ). They are the missing ones
+        // of the expected six, far below the first elastic mode: drop them.
+        let missing = cfg.expected_rigid.saturating_sub(modes.rigid_eigenvalues.len()).min(values.len().saturating_sub(1));
+        let first_elastic = values.get(missing).copied().unwrap_or(0.0);
+        let spurious = values.iter().take(missing).take_while(|v| **v < 1e-2 * first_elastic).count();
+        values.drain(..spurious);
+        vectors.drain(..spurious);
+        values.truncate(n);
+        vectors.truncate(n);
+        if values.len() < n {
+            return Err(ReducedError::Invalid(format!("the full solve at ν = {nu} gave {} elastic modes, {n} wanted", values.len())));
+        }
+        Ok((values, vectors))
     }
 
     fn solve_and_append(&mut self, petsc: &'p Petsc, assembled: &Assembled<'p>, nu: f64) -> Result<(), ReducedError> {
         let start = std::time::Instant::now();
-        let (_, vectors) = Self::full_theta(petsc, assembled, self.size, nu, self.n_modes + self.margin)?;
+        let (theta, vectors) = Self::full_theta(petsc, assembled, self.size, nu, self.n_modes + self.margin)?;
+        if let Some(first) = theta.iter().copied().filter(|t| *t > 0.0).reduce(f64::min) {
+            self.theta_floor = self.theta_floor.min(1e-2 * first);
+        }
         self.full_solves += 1;
         self.full_solve_seconds += start.elapsed().as_secs_f64();
         self.vectors.extend(vectors);
@@ -227,7 +261,8 @@ impl<'p> PoissonBasis<'p> {
         let (da, db) = lame_unit_derivative(nu);
         let matrix = &self.a_lambda * a + &self.a_mu * b;
         let eig = SymmetricEigen::new((&matrix + matrix.transpose()) * 0.5);
-        let mut order: Vec<usize> = (0..eig.eigenvalues.len()).collect();
+        let floor = if self.theta_floor.is_finite() { self.theta_floor } else { 0.0 };
+        let mut order: Vec<usize> = (0..eig.eigenvalues.len()).filter(|&i| eig.eigenvalues[i] > floor).collect();
         order.sort_by(|&i, &j| eig.eigenvalues[i].total_cmp(&eig.eigenvalues[j]));
         let dmatrix = &self.a_lambda * da + &self.a_mu * db;
         let n = self.n_modes.min(order.len());

@@ -506,3 +506,28 @@ pub fn fit_material<'p>(
         line_start,
     })
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn capped_nearest_measures_shifted_lines() {
+        let a = [0.0, 1.0, 2.0];
+        // Each line of `a` is 0.01 from a line of `b` shifted by 0.5.
+        let b = [-0.49, 0.51, 1.51];
+        assert!((capped_nearest(&a, &b, 0.5, 0.1) - 0.01).abs() < 1e-12);
+        // A line with no partner within the cap counts the cap.
+        assert!((capped_nearest(&[0.0, 5.0], &[0.0], 0.0, 0.1) - 0.05).abs() < 1e-12);
+        assert_eq!(capped_nearest(&[], &b, 0.0, 0.1), 0.0);
+    }
+
+    #[test]
+    fn band_weight_fades_out_over_ten_percent() {
+        assert_eq!(band_weight(5000.0, None), 1.0);
+        assert_eq!(band_weight(1000.0, Some(1000.0)), 1.0);
+        assert!((band_weight(1050.0, Some(1000.0)) - 0.5).abs() < 1e-12);
+        assert_eq!(band_weight(1100.0, Some(1000.0)), 0.0);
+        assert_eq!(band_weight(2000.0, Some(1000.0)), 0.0);
+    }
+}
