@@ -14,7 +14,8 @@
 //! 2. **Damping** ([`crate::inverse::damping`], rank 0): many free modes + filtered noise fitted
 //!    to all channels at once (frequencies and decay rates shared, amplitudes per channel); the
 //!    modes judged real give the damping curve d(f) and, beside it, a Rayleigh fit (α, β).
-//! 3. **Target.** The real modes below `max_frequency_hz` (faded out over [f_max, 1.1 f_max],
+//! 3. **Target.** The recorded lines (in each kept peak, the poles with at least a tenth of the
+//!    energy of its strongest one) below `max_frequency_hz` (faded out over [f_max, 1.1 f_max],
 //!    [`crate::inverse::material::band_weight`]) are re-synthesised per channel: the recording
 //!    without its noise and without the partials above the band the simulated modes cover.
 //! 4. **Material** ([`crate::inverse::material`], every rank): the mesh (P1 or P2) is assembled,
@@ -42,6 +43,7 @@
 //! | `/fit` attrs | `steps`, `switched_at` (−1: never), `seconds`, `basis_samples` (string), `max_ritz_residual`, `line_start_youngs_modulus`, `line_start_poisson_ratio`, `line_start_distance` |
 //! | `/damping/curve/{frequencies_hz,decay_rates}` | knots of d(f) [Hz, 1/s] |
 //! | `/damping/modes/{frequency_hz,decay_rate,level_db,kept}` `[M]`, `…/amplitudes`, `…/phases` `[M, C]` | every stage-1 mode |
+//! | `/damping/peaks/{frequency_hz,decay_rate,level_db,kept}` | the peaks the curve is fitted to |
 //! | `/damping` attrs | `rayleigh_alpha` [1/s], `rayleigh_beta` [s], `curve_rms_log_error`, `rayleigh_rms_log_error`, `loss_initial`, `loss_final` |
 //! | `/modes/simulated/{frequency_hz,eigenvalues,full_eigenvalues,relative_difference}` `[K]` | fitted modes, reduced vs full solve |
 //! | `/modes/matched/{recorded_frequency_hz,simulated_frequency_hz,error_hz,relative_error,recorded_decay_rate,simulated_decay_rate,simulated_index}` | one row per recorded mode in the band that found a partner |
@@ -281,7 +283,7 @@ pub fn resolve(args: &FitMaterialArgs) -> Result<Job, String> {
     if !(max_frequency_hz > 0.0 && 1.1 * max_frequency_hz < 0.5 * f64::from(sample_rate)) {
         return Err(format!("--fmax must be positive and 1.1 × fmax below the Nyquist frequency {} Hz, got {max_frequency_hz}", 0.5 * f64::from(sample_rate)));
     }
-    let basis_samples = file.material.basis_samples.clone().unwrap_or_else(|| vec![0.05, 0.2, 0.35, 0.45]);
+    let basis_samples = file.material.basis_samples.clone().unwrap_or_else(|| vec![0.05, 0.15, 0.25, 0.35, 0.45]);
     if basis_samples.is_empty() || basis_samples.iter().any(|nu| !(*nu > -0.99 && *nu < 0.499)) {
         return Err(format!("basis_samples must be one or more ν in (−0.99, 0.499), got {basis_samples:?}"));
     }
@@ -400,12 +402,13 @@ fn recorded_lines(fit: &DampingFit) -> Vec<usize> {
     lines
 }
 
-/// The stage-2 target: the real modes below the band limit, re-synthesised per channel.
-fn band_limited_target(stage: &StageOne, fs: f64, n: usize, f_max: f64) -> Vec<Vec<f64>> {
+/// The stage-2 target: the recorded lines ([`recorded_lines`]) below the band limit,
+/// re-synthesised per channel.
+fn band_limited_target(stage: &StageOne, lines: &[usize], fs: f64, n: usize, f_max: f64) -> Vec<Vec<f64>> {
     (0..stage.channels.len())
         .map(|c| {
             let mut bank = ModalBank { frequencies_hz: Vec::new(), decay_rates: Vec::new(), amplitudes: Vec::new(), phases: Vec::new() };
-            for m in stage.damping.modes.iter().filter(|m| m.kept) {
+            for m in lines.iter().map(|&i| &stage.damping.modes[i]) {
                 let w = band_weight(m.frequency_hz, Some(f_max));
                 if w > 0.0 {
                     bank.frequencies_hz.push(m.frequency_hz);
@@ -489,8 +492,9 @@ fn compute(petsc: &Petsc, job: &Job) -> Result<(), String> {
     let stage = stage_one(petsc, job, &progress)?;
     let stage_one_seconds = t1.elapsed().as_secs_f64();
     let n = stage.channels[0].len();
-    let targets = band_limited_target(&stage, fs, n, job.max_frequency_hz);
-    let in_band: Vec<usize> = recorded_lines(&stage.damping).into_iter().filter(|&i| stage.damping.modes[i].frequency_hz <= job.max_frequency_hz).collect();
+    let lines = recorded_lines(&stage.damping);
+    let targets = band_limited_target(&stage, &lines, fs, n, job.max_frequency_hz);
+    let in_band: Vec<usize> = lines.into_iter().filter(|&i| stage.damping.modes[i].frequency_hz <= job.max_frequency_hz).collect();
     if in_band.is_empty() {
         return Err(format!("no real mode below --fmax {} Hz in the recording; raise --fmax", job.max_frequency_hz));
     }
@@ -541,6 +545,9 @@ fn compute(petsc: &Petsc, job: &Job) -> Result<(), String> {
     let max_difference = relative_difference.iter().fold(0.0_f64, |m, v| m.max(v.abs()));
     let check_seconds = t4.elapsed().as_secs_f64();
     progress.say(format!("full solve at the fit: largest relative eigenvalue difference {max_difference:.2e}"));
+    if rank == 0 && max_difference > 1e-4 {
+        eprintln!("warning: the reduced basis differs from a full solve at the fit by {max_difference:.2e} (relative eigenvalue); add a basis sample near ν = {:.3} ([material] basis_samples) and run again", fit.poisson);
+    }
 
     // Spectrogram errors and renders at the start and the fit (start gains: RMS match).
     let start_gains: Vec<f64> = {
@@ -628,6 +635,10 @@ fn compute(petsc: &Petsc, job: &Job) -> Result<(), String> {
             .column("/damping/modes/kept", dm.iter().map(|m| f64::from(u8::from(m.kept))).collect(), "")
             .dataset("/damping/modes/amplitudes", &[dm.len(), c], dm.iter().flat_map(|m| m.amplitudes.clone()).collect(), "full scale")
             .dataset("/damping/modes/phases", &[dm.len(), c], dm.iter().flat_map(|m| m.phases.clone()).collect(), "rad")
+            .column("/damping/peaks/frequency_hz", stage.damping.peaks.iter().map(|p| p.frequency_hz).collect(), "Hz")
+            .column("/damping/peaks/decay_rate", stage.damping.peaks.iter().map(|p| p.decay_rate).collect(), "1/s")
+            .column("/damping/peaks/level_db", stage.damping.peaks.iter().map(|p| p.level_db).collect(), "dB")
+            .column("/damping/peaks/kept", stage.damping.peaks.iter().map(|p| f64::from(u8::from(p.kept))).collect(), "")
             .number("/damping", "rayleigh_alpha", stage.damping.rayleigh.alpha)
             .number("/damping", "rayleigh_beta", stage.damping.rayleigh.beta)
             .number("/damping", "rayleigh_rms_log_error", stage.damping.rayleigh.rms_log_error)
@@ -680,7 +691,7 @@ fn write_plots(job: &Job, stage: &StageOne, targets: &[Vec<f64>], start: &[Vec<f
     let fs = f64::from(job.sample_rate);
     // Spectrograms of channel 0: recording, target, start, fit; one dB scale (the recording's peak).
     let plan = StftPlan::new(2048, 256).map_err(|e| e.to_string())?;
-    let signals: [(&str, &[f64]); 4] = [("recording", &stage.channels[0]), ("target (real modes in band)", &targets[0]), ("start", &start[0]), ("fit", &fitted[0])];
+    let signals: [(&str, &[f64]); 4] = [("recording", &stage.channels[0]), ("target (recorded lines in band)", &targets[0]), ("start", &start[0]), ("fit", &fitted[0])];
     let specs: Vec<_> = signals.iter().map(|(_, s)| plan.forward(s)).collect();
     let peak = specs.iter().flat_map(|s| s.magnitude.iter()).fold(0.0_f64, |m, &v| m.max(v));
     let dbs: Vec<Vec<f64>> = specs.iter().map(|s| s.decibels(peak.max(1e-300), -120.0)).collect();
@@ -690,7 +701,8 @@ fn write_plots(job: &Job, stage: &StageOne, targets: &[Vec<f64>], start: &[Vec<f
         .zip(&dbs)
         .map(|(((title, _), s), db)| SpectrogramPanel { title: format!("{title} ({})", stage.names[0]), db, n_frames: s.n_frames, n_bins: s.n_bins, time_step_s: plan.hop() as f64 / fs, time_offset_s: 0.0, freq_step_hz: fs / plan.n_fft() as f64 })
         .collect();
-    let mut figure = SpectrogramFigure::new(format!("fit-material: E = {:.4e} Pa, ν = {:.4}", fit.youngs, fit.poisson), panels);
+    // The plot font is ASCII: Greek letters are spelled out.
+    let mut figure = SpectrogramFigure::new(format!("fit-material: E = {:.4e} Pa, nu = {:.4}", fit.youngs, fit.poisson), panels);
     figure.max_freq_hz = Some((1.3 * job.max_frequency_hz).min(fs / 2.0));
     figure.db_max = Some(0.0);
     figure.db_min = Some(-90.0);
@@ -707,11 +719,13 @@ fn write_plots(job: &Job, stage: &StageOne, targets: &[Vec<f64>], start: &[Vec<f
     let mut fig = LineFigure::new("damping: measured decay rates, curve d(f) and Rayleigh fit", "frequency [Hz]", "decay rate d [1/s]");
     fig.x_scale = AxisScale::Log;
     fig.y_scale = AxisScale::Log;
+    let peaks: Vec<_> = stage.damping.peaks.iter().filter(|p| p.kept).collect();
     fig.series = vec![
-        Series::markers("kept modes", kept.iter().map(|m| m.frequency_hz).collect(), kept.iter().map(|m| m.decay_rate).collect(), Marker::Circle),
-        Series::markers("rejected", rejected.iter().map(|m| m.frequency_hz).collect(), rejected.iter().map(|m| m.decay_rate.max(1e-3)).collect(), Marker::Cross),
+        Series::markers("peaks (curve data)", peaks.iter().map(|p| p.frequency_hz).collect(), peaks.iter().map(|p| p.decay_rate).collect(), Marker::Diamond),
+        Series::markers("kept poles", kept.iter().map(|m| m.frequency_hz).collect(), kept.iter().map(|m| m.decay_rate).collect(), Marker::Circle),
+        Series::markers("rejected poles", rejected.iter().map(|m| m.frequency_hz).collect(), rejected.iter().map(|m| m.decay_rate.max(1e-3)).collect(), Marker::Cross),
         Series::line("curve d(f)", grid.clone(), grid.iter().map(|&f| stage.damping.curve.decay(f)).collect()),
-        Series::line(format!("Rayleigh α={alpha:.3}, β={beta:.2e}"), grid.clone(), grid.iter().map(|&f| 0.5 * (alpha + beta * (2.0 * std::f64::consts::PI * f).powi(2))).collect()),
+        Series::line(format!("Rayleigh alpha={alpha:.3}, beta={beta:.2e}"), grid.clone(), grid.iter().map(|&f| 0.5 * (alpha + beta * (2.0 * std::f64::consts::PI * f).powi(2))).collect()),
     ];
     line_plot_png(&plot_path(&job.plots, "_damping.png"), &fig).map_err(|e| e.to_string())?;
 
