@@ -32,7 +32,7 @@ use diffsound::audio::synth::render_samples;
 use diffsound::eigen::reduced::PoissonBasis;
 use diffsound::audio::stft::spectrogram_error;
 use diffsound::inverse::estimate::{estimate_modes, EstimateOptions};
-use diffsound::inverse::material::{fit_material, render_channels, FitStep, MaterialFitSettings, MaterialProblem};
+use diffsound::inverse::material::{rms_matched_log_gains, fit_material, render_channels, FitStep, MaterialFitSettings, MaterialProblem};
 use diffsound::mesh;
 use diffsound::petsc::{Petsc, PetscInt};
 use serde_json::json;
@@ -432,7 +432,6 @@ fn landscape<'p>(
     let target = &problem.targets[0];
     let transport = PeakTransportLoss::new(target, problem.sample_rate, settings.transport.clone()).unwrap();
     let spectral = MultiScaleSpectralLoss::new(target, settings.spectral.clone()).unwrap();
-    let rms = |x: &[f64]| (x.iter().map(|v| v * v).sum::<f64>() / x.len() as f64).sqrt();
     // (loss, dL/d ln E) at (E, ν, gain); `which`: 0 transport, 1 spectral.
     let eval = |which: usize, youngs: f64, nu: f64, log_gain: f64| -> (f64, f64) {
         let modes = basis.solve(nu);
@@ -452,7 +451,7 @@ fn landscape<'p>(
     };
     let rms_gain = |youngs: f64, nu: f64| {
         let r = render_channels(basis, problem, youngs, nu, &[0.0], None).unwrap();
-        (rms(target) / rms(&r[0])).ln()
+        rms_matched_log_gains(&r, problem.targets)[0]
     };
     println!("\n### Landscape: {name}, seed {seed}: E {:.4e}, ν {:.4}; start E₀/E = {:.3}, ν₀ = {:.4}\n", truth.0, truth.1, start.0 / truth.0, start.1);
     for r in [0.2, start.1, truth.1, 0.45] {

@@ -57,13 +57,13 @@
 
 use super::{fail, Progress};
 use crate::assembly;
-use crate::audio::chain::{DampingModel, Strike};
+use crate::audio::chain::{DampingModel, ModalChain, Strike};
 use crate::audio::recording::{load_recording, GainPolicy, RecordingOptions};
 use crate::audio::stft::{spectrogram_error, StftPlan};
 use crate::audio::synth::{render_samples, ModalBank};
 use crate::eigen::reduced::PoissonBasis;
 use crate::inverse::damping::{fit_damping, DampingFit, DampingFitSettings};
-use crate::inverse::material::{band_weight, fit_material, render_channels, MaterialFit, MaterialFitSettings, MaterialProblem};
+use crate::inverse::material::{band_weight, fit_material, render_channels, rms_matched_log_gains, MaterialFit, MaterialFitSettings, MaterialProblem};
 use crate::io::plot::{line_plot_png, spectrogram_png, AxisScale, LineFigure, Marker, Series, SpectrogramFigure, SpectrogramPanel};
 use crate::io::results::ResultsFile;
 use crate::mesh::{self, ReadOptions, SurfacePoint, TetMesh};
@@ -228,13 +228,7 @@ pub fn resolve(args: &FitMaterialArgs) -> Result<Job, String> {
         }
         None => FitFileConfig::default(),
     };
-    let mesh = args.mesh.clone().or(file.mesh.clone()).ok_or("no mesh given: use --mesh FILE or `mesh = \"…\"` in the config file")?;
-    let units = args.units.clone().or(file.units.clone()).unwrap_or_else(|| "m".into());
-    let unit_scale = mesh::parse_unit(&units).map_err(|e| e.to_string())?;
-    let order = args.order.or(file.order).unwrap_or(2);
-    if order != 1 && order != 2 {
-        return Err(format!("--order must be 1 or 2, got {order}"));
-    }
+    let super::modes::MeshChoice { mesh, unit_scale, order, .. } = super::modes::resolve_mesh(&args.mesh, &file.mesh, &args.units, &file.units, args.order.or(file.order))?;
     let recordings = if args.recordings.is_empty() { file.recordings.clone() } else { args.recordings.clone() };
     if recordings.is_empty() {
         return Err("no recordings given: use --recording FILE (repeatable) or `recordings = [...]` in the config file".into());
@@ -289,12 +283,8 @@ pub fn resolve(args: &FitMaterialArgs) -> Result<Job, String> {
     }
     let out = args.out.clone().or(file.out.clone()).unwrap_or_else(|| PathBuf::from("fit_material.h5"));
     let plots = args.plots.clone().or(file.plots.clone()).unwrap_or_else(|| out.with_extension(""));
-    for p in [&out, &plots] {
-        let dir = p.parent().filter(|d| !d.as_os_str().is_empty()).unwrap_or(Path::new("."));
-        if !dir.is_dir() {
-            return Err(format!("output directory {} does not exist (for {})", dir.display(), p.display()));
-        }
-    }
+    super::modes::check_output_dir(&out)?;
+    super::modes::check_output_dir(&plots)?;
     let mut petsc_options = file.solver.petsc_options.clone();
     petsc_options.extend(args.petsc_options.iter().cloned());
     Ok(Job {
@@ -549,12 +539,13 @@ fn compute(petsc: &Petsc, job: &Job) -> Result<(), String> {
         eprintln!("warning: the reduced basis differs from a full solve at the fit by {max_difference:.2e} (relative eigenvalue); add a basis sample near ν = {:.3} ([material] basis_samples) and run again", fit.poisson);
     }
 
-    // Spectrogram errors and renders at the start and the fit (start gains: RMS match).
-    let start_gains: Vec<f64> = {
-        let raw = render_channels(&basis, &problem, job.start_youngs, job.start_poisson, &vec![0.0; targets.len()], None)?;
-        raw.iter().zip(&targets).map(|(r, t)| (rms(t) / rms(r).max(1e-300)).ln()).collect()
-    };
-    let start_render = render_channels(&basis, &problem, job.start_youngs, job.start_poisson, &start_gains, None)?;
+    // Spectrogram errors and renders at the start and the fit. The start is levelled as the fit
+    // levels its own start: each channel scaled to the target's RMS.
+    let mut start_render = render_channels(&basis, &problem, job.start_youngs, job.start_poisson, &vec![0.0; targets.len()], None)?;
+    let start_gains = rms_matched_log_gains(&start_render, &targets);
+    for (channel, gain) in start_render.iter_mut().zip(start_gains) {
+        channel.iter_mut().for_each(|v| *v *= gain.exp());
+    }
     let fit_render = render_channels(&basis, &problem, fit.youngs, fit.poisson, &fit.log_gains, Some(&fit.log_amplitude_offsets))?;
     let mean_error = |renders: &[Vec<f64>]| -> Result<f64, String> {
         let mut total = 0.0;
@@ -567,21 +558,19 @@ fn compute(petsc: &Petsc, job: &Job) -> Result<(), String> {
 
     // Recorded modes in the band against the fitted simulated modes.
     let eigenvalues = reduced.eigenvalues(fit.youngs, job.density);
-    let sim_decay: Vec<f64> = eigenvalues.iter().map(|l| stage.damping.curve.decay(l.sqrt() / (2.0 * std::f64::consts::PI))).collect();
-    let sim_hz: Vec<f64> = eigenvalues.iter().zip(&sim_decay).map(|(l, d)| (l - d * d).max(0.0).sqrt() / (2.0 * std::f64::consts::PI)).collect();
+    let (sim_hz, sim_decay) = damped_partials(&eigenvalues, &problem.damping)?;
     let recorded_hz: Vec<f64> = in_band.iter().map(|&i| stage.damping.modes[i].frequency_hz).collect();
     let matches = match_modes(&recorded_hz, &sim_hz);
     let mean_abs_error = matches.iter().map(|m| m.relative_error.abs()).sum::<f64>() / matches.len().max(1) as f64;
     // The same figure at the line-spectrum start, for comparison with the audio-loss optimum.
-    let line_start_error = fit.line_start.map(|l| {
-        let modes = basis.solve(l.poisson);
-        let hz: Vec<f64> = modes.eigenvalues(l.youngs, job.density).iter().map(|lam| {
-            let d = stage.damping.curve.decay(lam.sqrt() / (2.0 * std::f64::consts::PI));
-            (lam - d * d).max(0.0).sqrt() / (2.0 * std::f64::consts::PI)
-        }).collect();
-        let m = match_modes(&recorded_hz, &hz);
-        (m.iter().map(|m| m.relative_error.abs()).sum::<f64>() / m.len().max(1) as f64, m.len())
-    });
+    let line_start_error = match fit.line_start {
+        Some(l) => {
+            let (hz, _) = damped_partials(&basis.solve(l.poisson).eigenvalues(l.youngs, job.density), &problem.damping)?;
+            let m = match_modes(&recorded_hz, &hz);
+            Some((m.iter().map(|m| m.relative_error.abs()).sum::<f64>() / m.len().max(1) as f64, m.len()))
+        }
+        None => None,
+    };
 
     if rank == 0 {
         println!("fit-material: E = {:.6e} Pa (ρ = {} kg/m³, E/ρ = {:.6e} m²/s²), ν = {:.5}", fit.youngs, job.density, fit.youngs / job.density, fit.poisson);
@@ -676,8 +665,12 @@ fn compute(petsc: &Petsc, job: &Job) -> Result<(), String> {
     Ok(())
 }
 
-fn rms(x: &[f64]) -> f64 {
-    (x.iter().map(|v| v * v).sum::<f64>() / x.len().max(1) as f64).sqrt()
+/// Damped frequencies [Hz] and decay rates [1/s] of the partials the synthesiser plays for these
+/// eigenvalues under `damping` (from the same chain, so report and render agree; an overdamped
+/// mode is at 0 Hz).
+fn damped_partials(eigenvalues: &[f64], damping: &DampingModel) -> Result<(Vec<f64>, Vec<f64>), String> {
+    let (bank, _) = ModalChain::new(eigenvalues, &vec![1.0; eigenvalues.len()], damping, &Strike::default())?;
+    Ok((bank.frequencies_hz, bank.decay_rates))
 }
 
 fn plot_path(prefix: &Path, suffix: &str) -> PathBuf {

@@ -46,13 +46,7 @@ pub fn resolve(args: &ModesArgs) -> Result<Job, String> {
         Some(p) => FileConfig::load(p)?,
         None => FileConfig::default(),
     };
-    let mesh = args.mesh.clone().or(file.mesh.clone()).ok_or("no mesh given: use --mesh FILE or `mesh = \"…\"` in the config file")?;
-    let units = args.units.clone().or(file.units.clone()).unwrap_or_else(|| "m".into());
-    let unit_scale = mesh::parse_unit(&units).map_err(|e| e.to_string())?;
-    let order = args.order.or(file.order).unwrap_or(2);
-    if order != 1 && order != 2 {
-        return Err(format!("--order must be 1 or 2, got {order}"));
-    }
+    let MeshChoice { mesh, units, unit_scale, order } = resolve_mesh(&args.mesh, &file.mesh, &args.units, &file.units, args.order.or(file.order))?;
     let material_name = args.material.clone().or(file.material.preset.clone()).unwrap_or_else(|| "ceramic".into());
     let mut material = Material::preset(&material_name)
         .ok_or_else(|| format!("unknown material preset '{material_name}'; known: {}", Material::preset_names().join(", ")))?;
@@ -144,7 +138,26 @@ pub fn run(universe: Universe, args: ModesArgs) -> Result<(), String> {
     }
 }
 
-fn check_output_dir(path: &Path) -> Result<(), String> {
+/// The mesh, its unit and the element order, from a flag or else the config file.
+pub(super) struct MeshChoice {
+    pub mesh: PathBuf,
+    pub units: String,
+    pub unit_scale: f64,
+    pub order: u32,
+}
+
+pub(super) fn resolve_mesh(flag_mesh: &Option<PathBuf>, file_mesh: &Option<PathBuf>, flag_units: &Option<String>, file_units: &Option<String>, order: Option<u32>) -> Result<MeshChoice, String> {
+    let mesh = flag_mesh.clone().or(file_mesh.clone()).ok_or("no mesh given: use --mesh FILE or `mesh = \"…\"` in the config file")?;
+    let units = flag_units.clone().or(file_units.clone()).unwrap_or_else(|| "m".into());
+    let unit_scale = mesh::parse_unit(&units).map_err(|e| e.to_string())?;
+    let order = order.unwrap_or(2);
+    if order != 1 && order != 2 {
+        return Err(format!("--order must be 1 or 2, got {order}"));
+    }
+    Ok(MeshChoice { mesh, units, unit_scale, order })
+}
+
+pub(super) fn check_output_dir(path: &Path) -> Result<(), String> {
     let dir = path.parent().filter(|p| !p.as_os_str().is_empty()).unwrap_or(Path::new("."));
     if !dir.is_dir() {
         return Err(format!("output directory {} does not exist (for {})", dir.display(), path.display()));

@@ -1297,27 +1297,22 @@ fn check_channels(signals: &[&[f64]], sample_rate: f64) -> Result<usize, Damping
     if !(sample_rate > 0.0 && sample_rate.is_finite()) {
         return Err(DampingError::InvalidSampleRate { sample_rate });
     }
-    let n = signals.first().ok_or(DampingError::NoChannels)?.len();
-    if n == 0 {
+    // An empty channel 0 is reported as such before a longer channel 1 is called a mismatch.
+    if signals.first().is_some_and(|s| s.is_empty()) {
         return Err(DampingError::EmptyChannels);
     }
-    for (channel, s) in signals.iter().enumerate() {
-        if s.len() != n {
-            return Err(DampingError::LengthMismatch {
-                channel,
-                len: s.len(),
-                expected: n,
-            });
-        }
-        if let Some(index) = s.iter().position(|v| !v.is_finite()) {
-            return Err(DampingError::NonFiniteSample {
-                channel,
-                index,
-                value: s[index],
-            });
+    Ok(crate::audio::check_parallel_channels(signals)?)
+}
+
+impl From<crate::audio::ChannelFault> for DampingError {
+    fn from(fault: crate::audio::ChannelFault) -> Self {
+        use crate::audio::ChannelFault as F;
+        match fault {
+            F::NoChannels => DampingError::NoChannels,
+            F::LengthMismatch { channel, len, expected } => DampingError::LengthMismatch { channel, len, expected },
+            F::NonFiniteSample { channel, index, value } => DampingError::NonFiniteSample { channel, index, value },
         }
     }
-    Ok(n)
 }
 
 fn check_settings(s: &DampingFitSettings) -> Result<(), DampingError> {

@@ -171,18 +171,39 @@ pub struct MaterialFit {
     pub line_start: Option<LineSpectrumStart>,
 }
 
+/// (φ_k(x)·n)² for ρ = 1: mode k's driving-point weight at the strike (module docs).
+fn driving_point_weight(basis: &PoissonBasis, modes: &ReducedModes, problem: &MaterialProblem, k: usize) -> f64 {
+    let along: f64 = basis.probe(modes, k).iter().zip(&problem.direction_weights).map(|(v, w)| v * w).sum();
+    along * along
+}
+
 /// Projections c_k (without gain) and the eigenvalues at (E, ν).
 fn modal_inputs(basis: &PoissonBasis, modes: &ReducedModes, problem: &MaterialProblem, youngs: f64) -> (Vec<f64>, Vec<f64>) {
     let eigenvalues = modes.eigenvalues(youngs, problem.density);
     let projections = (0..modes.theta.len())
         .map(|k| {
-            let probe = basis.probe(modes, k);
-            let along: f64 = probe.iter().zip(&problem.direction_weights).map(|(v, w)| v * w).sum();
             let f = eigenvalues[k].max(0.0).sqrt() / (2.0 * std::f64::consts::PI);
-            band_weight(f, problem.max_frequency_hz) * along * along / problem.density
+            band_weight(f, problem.max_frequency_hz) * driving_point_weight(basis, modes, problem, k) / problem.density
         })
         .collect();
     (eigenvalues, projections)
+}
+
+/// ln(RMS(target) / RMS(rendered)) per channel: the gains that level each rendered channel with
+/// its target (0 where either is silent).
+pub fn rms_matched_log_gains(rendered: &[Vec<f64>], targets: &[Vec<f64>]) -> Vec<f64> {
+    rendered
+        .iter()
+        .zip(targets)
+        .map(|(r, t)| {
+            let (r, t) = (crate::audio::rms(r), crate::audio::rms(t));
+            if r > 0.0 && t > 0.0 {
+                (t / r).ln()
+            } else {
+                0.0
+            }
+        })
+        .collect()
 }
 
 /// Renders every channel at (E, ν, gains, and per mode·channel log-amplitude offsets if given).
@@ -301,12 +322,7 @@ pub fn line_spectrum_start(basis: &PoissonBasis, problem: &MaterialProblem, star
     // Pattern of the audible partials at ν, sorted.
     let pattern = |nu: f64| -> Vec<f64> {
         let modes = basis.solve(nu);
-        let weight: Vec<f64> = (0..modes.theta.len())
-            .map(|k| {
-                let along: f64 = basis.probe(&modes, k).iter().zip(&problem.direction_weights).map(|(v, w)| v * w).sum();
-                along * along
-            })
-            .collect();
+        let weight: Vec<f64> = (0..modes.theta.len()).map(|k| driving_point_weight(basis, &modes, problem, k)).collect();
         let loudest = weight.iter().fold(0.0_f64, |m, w| m.max(*w));
         let mut u: Vec<f64> = modes.theta.iter().zip(&weight).filter(|(t, w)| **t > 0.0 && **w >= 1e-3 * loudest).map(|(t, _)| 0.5 * t.ln()).collect();
         u.sort_by(f64::total_cmp);
@@ -391,11 +407,7 @@ pub fn fit_material<'p>(
     let mut params = vec![start.0.ln() + mean_log_theta(&basis.solve(start_nu)), start_nu];
     // Gains that match each channel's RMS at the start.
     let first = render_channels(basis, problem, start.0, params[1], &vec![0.0; n_channels], None)?;
-    for (rendered, target) in first.iter().zip(problem.targets) {
-        let rms = |x: &[f64]| (x.iter().map(|v| v * v).sum::<f64>() / x.len() as f64).sqrt();
-        let (r, t) = (rms(rendered), rms(target));
-        params.push(if r > 0.0 && t > 0.0 { (t / r).ln() } else { 0.0 });
-    }
+    params.extend(rms_matched_log_gains(&first, problem.targets));
     let n_modes = basis.solve(start_nu).theta.len();
     let n_offsets = if settings.free_amplitudes { n_modes * n_channels } else { 0 };
     let offsets_at = 2 + n_channels;

@@ -416,7 +416,6 @@ pub fn estimate_modes<S: AsRef<[f64]>>(
 
     let log_z: Vec<C64> = candidates.iter().map(|c| c.log_z).collect();
     let residual = lsq::residuals(&signals, &log_z, &coeffs);
-    let rms = |x: &[f64]| (x.iter().map(|v| v * v).sum::<f64>() / x.len() as f64).sqrt();
     let mut modes: Vec<EstimatedMode> = candidates
         .iter()
         .zip(&coeffs)
@@ -439,8 +438,8 @@ pub fn estimate_modes<S: AsRef<[f64]>>(
         sample_rate,
         n_samples: n,
         modes,
-        residual_rms: residual.iter().map(|r| rms(r)).collect(),
-        signal_rms: signals.iter().map(|s| rms(s)).collect(),
+        residual_rms: residual.iter().map(|r| crate::audio::rms(r)).collect(),
+        signal_rms: signals.iter().map(|s| crate::audio::rms(s)).collect(),
         bands: reports,
         decimation: plan.decimator.factor,
         filter_taps: plan.decimator.taps.len(),
@@ -452,25 +451,18 @@ fn check_input(signals: &[&[f64]], sample_rate: f64) -> Result<usize, EstimateEr
     if !(sample_rate > 0.0 && sample_rate.is_finite()) {
         return Err(EstimateError::InvalidSampleRate { sample_rate });
     }
-    let first = signals.first().ok_or(EstimateError::NoChannels)?;
-    let n = first.len();
-    for (channel, s) in signals.iter().enumerate() {
-        if s.len() != n {
-            return Err(EstimateError::LengthMismatch {
-                channel,
-                len: s.len(),
-                expected: n,
-            });
-        }
-        if let Some(index) = s.iter().position(|v| !v.is_finite()) {
-            return Err(EstimateError::NonFiniteSample {
-                channel,
-                index,
-                value: s[index],
-            });
+    Ok(crate::audio::check_parallel_channels(signals)?)
+}
+
+impl From<crate::audio::ChannelFault> for EstimateError {
+    fn from(fault: crate::audio::ChannelFault) -> Self {
+        use crate::audio::ChannelFault as F;
+        match fault {
+            F::NoChannels => EstimateError::NoChannels,
+            F::LengthMismatch { channel, len, expected } => EstimateError::LengthMismatch { channel, len, expected },
+            F::NonFiniteSample { channel, index, value } => EstimateError::NonFiniteSample { channel, index, value },
         }
     }
-    Ok(n)
 }
 
 /// One band's centre region and demodulation frequency.
