@@ -132,6 +132,13 @@ fn bad_input_fails_cleanly_without_output() {
         assert!(run.stderr.contains(expected), "{args:?}: expected {expected:?} in\n{}", run.describe());
         assert!(!out.exists());
     }
+    // A config file with a key the command does not know.
+    let config = dir.join("typo.toml");
+    std::fs::write(&config, "[material]\ndensty = 2700.0\n").unwrap();
+    let run = mpirun(2, &["fit-material", "--config", s(&config), "--mesh", s(&bowl_mesh()), "--out", s(&out)], LIMIT);
+    assert!(!run.success());
+    assert!(run.stderr.contains("typo.toml") && run.stderr.contains("densty"), "{}", run.describe());
+    assert!(!out.exists());
     // Not a WAV file: fails in stage 1 on rank 0, and every rank stops.
     let bogus = dir.join("bogus.wav");
     std::fs::write(&bogus, b"RIFF this is not audio").unwrap();
