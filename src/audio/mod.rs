@@ -6,6 +6,7 @@
 //! | [`excitation`]| strike amplitudes and phases: mode shape at the impact × contact-force spectrum |
 //! | [`chain`]     | eigenvalues + damping model → frequencies, decays, amplitudes, and back (gradients) |
 //! | [`noise`]     | time-varying filtered noise (LTV-FIR) and its gradient |
+//! | [`radiation`] | acoustic transfer of a mode: multipole fit to the surface motion, pressure at microphones, power |
 //! | [`stft`]      | magnitude spectrograms and their gradient |
 //! | [`loss`]      | multi-scale spectral loss, 1-D optimal-transport loss, hybrid schedule |
 //! | [`resample`], [`onset`], [`recording`] | recordings: rate conversion, onset, trim, gain |
@@ -16,6 +17,7 @@ pub mod excitation;
 pub mod loss;
 pub mod noise;
 pub mod onset;
+pub mod radiation;
 pub mod recording;
 pub mod resample;
 pub mod stft;

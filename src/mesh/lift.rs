@@ -80,6 +80,93 @@ pub fn to_linear(m: &TetMesh) -> TetMesh {
     }
 }
 
+/// A linear mesh and a quadratic mesh that are not a mesh and its lift.
+#[derive(thiserror::Error, Debug, Clone, PartialEq)]
+pub enum LiftError {
+    #[error("expected a linear mesh and a quadratic one, got {linear:?} and {quadratic:?}")]
+    Order {
+        linear: ElementOrder,
+        quadratic: ElementOrder,
+    },
+    #[error("the quadratic mesh is not the lift of the linear one: {message}")]
+    Mismatch { message: String },
+    #[error("the gradient has {found} entries, expected 3 per quadratic node ({expected})")]
+    GradientLength { expected: usize, found: usize },
+}
+
+/// Chain rule through [`lift_to_quadratic`]: from dL/dx at the nodes of
+/// `quadratic` = `lift_to_quadratic(linear)` (3 per node, dof = 3·node + d) to
+/// dL/dx at the nodes of `linear`. Corners keep their own rows; every
+/// mid-edge node sits at x_m = (x_a + x_b)/2, so half of its row goes to each
+/// corner of its edge. Corners must be the same nodes in both meshes, as
+/// `lift_to_quadratic` leaves them.
+pub fn linear_node_gradient(
+    linear: &TetMesh,
+    quadratic: &TetMesh,
+    d_quadratic: &[f64],
+) -> Result<Vec<f64>, LiftError> {
+    if linear.order != ElementOrder::Linear || quadratic.order != ElementOrder::Quadratic {
+        return Err(LiftError::Order {
+            linear: linear.order,
+            quadratic: quadratic.order,
+        });
+    }
+    if d_quadratic.len() != 3 * quadratic.n_nodes() {
+        return Err(LiftError::GradientLength {
+            expected: 3 * quadratic.n_nodes(),
+            found: d_quadratic.len(),
+        });
+    }
+    if linear.n_tets() != quadratic.n_tets() {
+        return Err(LiftError::Mismatch {
+            message: format!(
+                "{} linear and {} quadratic tets",
+                linear.n_tets(),
+                quadratic.n_tets()
+            ),
+        });
+    }
+    let mut out = vec![0.0; 3 * linear.n_nodes()];
+    // Each quadratic node contributes once: as a corner or as a mid-edge node.
+    let mut seen = vec![false; quadratic.n_nodes()];
+    for e in 0..quadratic.n_tets() {
+        let (q, l) = (quadratic.tet(e), linear.tet(e));
+        if q[..4] != *l {
+            return Err(LiftError::Mismatch {
+                message: format!(
+                    "tet {e} has corners {:?} in the quadratic mesh and {l:?} in the linear one",
+                    &q[..4]
+                ),
+            });
+        }
+        for &c in l {
+            if !seen[c] {
+                seen[c] = true;
+                for d in 0..3 {
+                    out[3 * c + d] += d_quadratic[3 * c + d];
+                }
+            }
+        }
+        for (k, &(a, b)) in TET10_EDGES.iter().enumerate() {
+            let m = q[4 + k];
+            if m < linear.n_nodes() {
+                return Err(LiftError::Mismatch {
+                    message: format!("mid-edge node {m} of tet {e} has the index of a linear node"),
+                });
+            }
+            if !seen[m] {
+                seen[m] = true;
+                for d in 0..3 {
+                    let half = 0.5 * d_quadratic[3 * m + d];
+                    out[3 * l[a] + d] += half;
+                    out[3 * l[b] + d] += half;
+                }
+            }
+        }
+    }
+    Ok(out)
+}
+
 #[cfg(test)]
 mod tests {
     use super::super::box_mesh;
@@ -143,5 +230,71 @@ mod tests {
         assert_eq!(to_linear(&linear), linear);
         let quadratic = lift_to_quadratic(&linear);
         assert_eq!(lift_to_quadratic(&quadratic), quadratic);
+    }
+
+    #[test]
+    fn linear_node_gradient_matches_finite_differences() {
+        // L(x) = Σ_n w_n·x_n + Σ_n |x_n|² over the lifted nodes, as a function of the corners.
+        let mut linear = box_mesh([2, 1, 1], [1.0, 0.5, 0.5]);
+        for (i, x) in linear.nodes.iter_mut().enumerate() {
+            x[0] += 0.03 * (i as f64).sin();
+            x[2] += 0.02 * (i as f64).cos();
+        }
+        let loss = |m: &TetMesh| -> f64 {
+            let q = lift_to_quadratic(m);
+            q.nodes
+                .iter()
+                .enumerate()
+                .map(|(n, x)| {
+                    (n as f64 + 1.0).sqrt() * (x[0] - 2.0 * x[1] + x[2])
+                        + x[0] * x[0]
+                        + x[1] * x[1] * x[2]
+                })
+                .sum()
+        };
+        let quadratic = lift_to_quadratic(&linear);
+        let d_quadratic: Vec<f64> = quadratic
+            .nodes
+            .iter()
+            .enumerate()
+            .flat_map(|(n, x)| {
+                let w = (n as f64 + 1.0).sqrt();
+                [
+                    w + 2.0 * x[0],
+                    -2.0 * w + 2.0 * x[1] * x[2],
+                    w + x[1] * x[1],
+                ]
+            })
+            .collect();
+        let g = linear_node_gradient(&linear, &quadratic, &d_quadratic).unwrap();
+        let eps = 1e-6;
+        for n in 0..linear.n_nodes() {
+            for d in 0..3 {
+                let mut plus = linear.clone();
+                plus.nodes[n][d] += eps;
+                let mut minus = linear.clone();
+                minus.nodes[n][d] -= eps;
+                let fd = (loss(&plus) - loss(&minus)) / (2.0 * eps);
+                assert!(
+                    (fd - g[3 * n + d]).abs() < 1e-7 * (1.0 + fd.abs()),
+                    "node {n} dim {d}: {fd} vs {}",
+                    g[3 * n + d]
+                );
+            }
+        }
+        assert!(matches!(
+            linear_node_gradient(&quadratic, &quadratic, &d_quadratic),
+            Err(LiftError::Order { .. })
+        ));
+        assert!(matches!(
+            linear_node_gradient(&linear, &quadratic, &d_quadratic[1..]),
+            Err(LiftError::GradientLength { .. })
+        ));
+        let other = lift_to_quadratic(&box_mesh([1, 2, 1], [1.0, 0.5, 0.5]));
+        let d_other = vec![0.0; 3 * other.n_nodes()];
+        assert!(matches!(
+            linear_node_gradient(&linear, &other, &d_other),
+            Err(LiftError::Mismatch { .. })
+        ));
     }
 }

@@ -45,6 +45,17 @@
 //! non-positive inside the element are not detected here (only corners are
 //! checked); that is the FEM layer's job.
 //!
+//! # Shapes from signed distances
+//!
+//! For shape optimisation the crate also builds its own meshes:
+//! [`surface`] reads triangle surfaces (OBJ, or the boundary of a tet mesh),
+//! [`sdf`] turns one into a signed distance field (positive inside, sign from
+//! the generalised winding number), and [`marching`] meshes the region
+//! {s > 0} of values on a background grid with marching tetrahedra, keeping
+//! the record of every vertex (grid vertex or interpolated crossing) so that
+//! gradients flow from node positions back to the values and grid offsets
+//! ([`MarchedMesh::vjp`], and [`linear_node_gradient`] from a lifted P2 mesh).
+//!
 //! # Errors and warnings
 //! Every [`MeshError`] names the file and where: the line (ASCII), the byte
 //! offset (binary) or the element tag. Problems that leave a usable mesh
@@ -57,6 +68,9 @@ use std::path::PathBuf;
 mod generate;
 mod gmsh;
 mod lift;
+pub mod marching;
+pub mod sdf;
+pub mod surface;
 mod validate;
 mod write;
 
@@ -67,7 +81,13 @@ mod locate;
 pub use generate::box_mesh;
 pub use locate::SurfacePoint;
 pub use gmsh::{read_mesh, read_mesh_from_bytes};
-pub use lift::{lift_to_quadratic, to_linear};
+pub use lift::{lift_to_quadratic, linear_node_gradient, to_linear, LiftError};
+pub use marching::{
+    march, morph, morph_vjp, shell, BackgroundGrid, MarchedMesh, MarchingError, MarchingGradient,
+    MarchingOptions, MarchingReport, MorphGradient, Shell, ShellGradient, VertexOrigin,
+};
+pub use sdf::SignedDistance;
+pub use surface::{parse_obj, read_obj, SurfaceError, SurfaceRead, TriangleSurface};
 pub use validate::ZERO_VOLUME_RELATIVE_TOLERANCE;
 pub use write::write_msh22_ascii;
 
