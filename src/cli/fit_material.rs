@@ -70,7 +70,7 @@ use crate::mesh::{self, ReadOptions, SurfacePoint, TetMesh};
 use crate::petsc::{Petsc, PetscInt};
 use clap::Args;
 use mpi::environment::Universe;
-use mpi::traits::{Communicator, Root};
+use mpi::traits::{Communicator, CommunicatorCollectives, Root};
 use serde::Deserialize;
 use std::path::{Path, PathBuf};
 
@@ -331,6 +331,23 @@ struct StageOne {
     damping: DampingFit,
 }
 
+/// Compares the fitted (E, ν) across ranks, reports any difference, and hands every rank rank
+/// 0's fit.
+fn agree_on_fit(petsc: &Petsc, fit: MaterialFit, progress: &Progress) -> Result<MaterialFit, String> {
+    if petsc.size() == 1 {
+        return Ok(fit);
+    }
+    let mine = [fit.youngs, fit.poisson];
+    let mut all = vec![0.0_f64; 2 * petsc.size()];
+    petsc.world().all_gather_into(&mine[..], &mut all[..]);
+    let spread = all.chunks(2).map(|p| ((p[0] / all[0] - 1.0).abs()).max((p[1] - all[1]).abs())).fold(0.0_f64, f64::max);
+    if spread > 0.0 {
+        progress.say(format!("ranks' fits differ by up to {spread:.2e} (relative E / absolute ν); using rank 0's"));
+    }
+    let root = if petsc.rank() == 0 { Some(fit) } else { None };
+    broadcast_json(petsc, root)
+}
+
 /// Broadcasts a value from rank 0 as JSON (a length, then the bytes).
 fn broadcast_json<T: serde::Serialize + serde::de::DeserializeOwned>(petsc: &Petsc, value: Option<T>) -> Result<T, String> {
     let root = petsc.world().process_at_rank(0);
@@ -525,6 +542,10 @@ fn compute(petsc: &Petsc, job: &Job) -> Result<(), String> {
         },
     )?;
     let fit_seconds = t3.elapsed().as_secs_f64();
+    // Every rank ran the same fit; they must agree exactly, since the full-solve check below and
+    // every later collective step assemble with this ν on each rank's own rows (a mismatch would
+    // silently assemble a stiffness matrix mixing two materials). Rank 0's fit is authoritative.
+    let fit = agree_on_fit(petsc, fit, &progress)?;
     progress.say(format!("fit: E = {:.5e} Pa, ν = {:.4} after {} steps in {:.1} s", fit.youngs, fit.poisson, fit.steps, fit_seconds));
 
     // Check against a full solve at the optimum.

@@ -236,7 +236,10 @@ pub(crate) fn fail(rank: usize, size: usize, message: &str) -> ! {
     } else {
         eprintln!("error: {message}");
     }
-    if size > 1 {
+    // An input error found before PETSc starts returns through the job and drops the MPI
+    // universe: every rank has then met the same error and finalised, and MPI_Abort after
+    // MPI_Finalize would only add a screen of MPI complaints.
+    if size > 1 && !mpi::environment::is_finalized() {
         abort_job(1);
     }
     std::process::exit(1);

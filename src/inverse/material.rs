@@ -146,7 +146,7 @@ pub fn band_weight(f: f64, max_frequency_hz: Option<f64>) -> f64 {
 }
 
 /// One step of the history.
-#[derive(Clone, Debug, serde::Serialize)]
+#[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
 pub struct FitStep {
     pub step: usize,
     pub phase: LossPhase,
@@ -155,7 +155,7 @@ pub struct FitStep {
     pub poisson: f64,
 }
 
-#[derive(Clone, Debug, serde::Serialize)]
+#[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
 pub struct MaterialFit {
     pub youngs: f64,
     pub poisson: f64,
@@ -252,7 +252,7 @@ fn scan_poisson(basis: &PoissonBasis, problem: &MaterialProblem, spectral: &[Mul
 }
 
 /// Where the line-spectrum start landed.
-#[derive(Clone, Copy, Debug, serde::Serialize)]
+#[derive(Clone, Copy, Debug, serde::Serialize, serde::Deserialize)]
 pub struct LineSpectrumStart {
     pub youngs: f64,
     pub poisson: f64,
