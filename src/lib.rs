@@ -9,6 +9,8 @@
 //! | assembly   | [`assembly`] | node partition, exact preallocation, distributed PETSc matrices |
 //! | eigen      | [`eigen`]    | SLEPc shift-invert Krylov–Schur, rigid-mode removal, spectrum slicing |
 //! | audio      | [`audio`]    | damped-sinusoid synthesis and WAV I/O |
+//! | inverse    | [`inverse`]  | modal estimates, damping and material fits from recordings |
+//! | diagnose   | [`diagnose`] | simulation–recording mismatch: modal parameters with uncertainties |
 //! | io         | [`io`]       | HDF5 results with an XDMF sidecar, written atomically |
 //!
 //! [`petsc`] is the one thin unsafe boundary: raw bindgen bindings under safe RAII handles.
@@ -17,6 +19,7 @@
 pub mod assembly;
 pub mod audio;
 pub mod cli;
+pub mod diagnose;
 pub mod eigen;
 pub mod fem;
 pub mod inverse;

@@ -3,11 +3,11 @@
 
 use nalgebra::Complex;
 
-pub(super) type C64 = Complex<f64>;
+pub(crate) type C64 = Complex<f64>;
 
 /// The shared low-pass of every band and the decimation after it.
 #[derive(Clone, Debug)]
-pub(super) struct Decimator {
+pub(crate) struct Decimator {
     /// h[0..T), symmetric, unity gain at DC.
     pub taps: Vec<f64>,
     /// D: one output every D input samples.
@@ -89,7 +89,7 @@ pub(super) fn phasor(freq_hz: f64, sample_rate: f64, n: usize) -> Vec<C64> {
 /// `transition_hz` (pass edge to stop edge) and stop-band attenuation `stopband_db`, at
 /// `sample_rate`. Length and window shape from Kaiser's empirical formulas:
 /// T = ⌈(A − 7.95) / (2.285 · 2π Δf / f_s)⌉ + 1 (made odd), β = 0.1102 (A − 8.7) for A > 50.
-pub(super) fn kaiser_lowpass(
+pub(crate) fn kaiser_lowpass(
     cutoff_hz: f64,
     transition_hz: f64,
     stopband_db: f64,

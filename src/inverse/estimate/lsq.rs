@@ -51,7 +51,7 @@ fn geometric_sum(lambda: C64, n: usize) -> C64 {
 
 /// Σ_{n=0}^{N−1} e^{−2 d n / f_s} for a mode with per-sample log-pole `log_z`: the energy of
 /// e^{−d t} over the record, in samples (the energy of a e^{−dt} sin(…) is ≈ a²/2 times this).
-pub(super) fn envelope_energy(log_z: C64, n: usize) -> f64 {
+pub(crate) fn envelope_energy(log_z: C64, n: usize) -> f64 {
     geometric_sum(C64::new(2.0 * log_z.re, 0.0), n).re
 }
 
@@ -59,7 +59,7 @@ pub(super) fn envelope_energy(log_z: C64, n: usize) -> f64 {
 /// minimises Σ_n (s_c[n] − Σ_k Im(c_{kc} z_kⁿ))², for per-sample log-poles
 /// `log_z[k] = (−d_k + i 2π f_k)/f_s`. Returns `[k][c]`, or `None` if the Gram matrix is
 /// singular to working precision (duplicate poles).
-pub(super) fn fit_full_rate(signals: &[&[f64]], log_z: &[C64]) -> Option<Vec<Vec<C64>>> {
+pub(crate) fn fit_full_rate(signals: &[&[f64]], log_z: &[C64]) -> Option<Vec<Vec<C64>>> {
     let k_modes = log_z.len();
     let n = signals.first().map_or(0, |s| s.len());
     let channels = signals.len();
@@ -152,7 +152,7 @@ fn solve_spd(gram: DMatrix<f64>, rhs: DMatrix<f64>) -> Option<DMatrix<f64>> {
 }
 
 /// s_c[n] − Σ_k Im(c_{kc} z_kⁿ) for every channel (the full-rate residual).
-pub(super) fn residuals(signals: &[&[f64]], log_z: &[C64], coeffs: &[Vec<C64>]) -> Vec<Vec<f64>> {
+pub(crate) fn residuals(signals: &[&[f64]], log_z: &[C64], coeffs: &[Vec<C64>]) -> Vec<Vec<f64>> {
     let n = signals.first().map_or(0, |s| s.len());
     let mut out: Vec<Vec<f64>> = signals.iter().map(|s| s.to_vec()).collect();
     for (&lz, ck) in log_z.iter().zip(coeffs) {

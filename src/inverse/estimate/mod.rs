@@ -151,14 +151,14 @@
 
 mod eig;
 mod esprit;
-mod filter;
-mod lsq;
+pub(crate) mod filter;
+pub(crate) mod lsq;
 
 #[cfg(test)]
 mod tests;
 
 use crate::audio::synth::ModalBank;
-use filter::{Decimator, C64};
+pub(crate) use filter::{Decimator, C64};
 
 /// Stop-band attenuation of the band filter, dB: leakage of strong modes from other bands stays
 /// below the noise of 16-bit recordings and far below any mode worth estimating.
@@ -172,7 +172,7 @@ const MIN_DECIMATED: usize = 24;
 
 /// Relative amplitude below which the band pipeline's output is rounding (filter sums of ~10³
 /// terms, Gram matrix, eigensolver): the band noise floor is at least this times the signal RMS.
-const ROUNDING_FLOOR: f64 = 1e-10;
+pub(crate) const ROUNDING_FLOOR: f64 = 1e-10;
 
 /// A pole whose full-rate fit gives it less than this fraction of the energy the band fit gave it
 /// is not in the record at its frequency: an alias of another band's mode leaking through the
@@ -180,10 +180,10 @@ const ROUNDING_FLOOR: f64 = 1e-10;
 const MIN_ENERGY_RATIO: f64 = 0.25;
 
 /// How far below `min_snr_db` a pole's band SNR may be and still go to the full-rate fit, dB.
-const BAND_SNR_MARGIN_DB: f64 = 6.0;
+pub(crate) const BAND_SNR_MARGIN_DB: f64 = 6.0;
 
 /// Poles of neighbouring bands closer than this many Rayleigh widths (1/T) are merged.
-const MERGE_RAYLEIGH_FRACTION: f64 = 0.2;
+pub(crate) const MERGE_RAYLEIGH_FRACTION: f64 = 0.2;
 
 /// Settings of [`estimate_modes`]; see the module docs for how each is used.
 #[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
@@ -368,14 +368,51 @@ pub fn estimate_modes<S: AsRef<[f64]>>(
     opts: &EstimateOptions,
 ) -> Result<ModalEstimate, EstimateError> {
     let signals: Vec<&[f64]> = channels.iter().map(|c| c.as_ref()).collect();
-    let n = check_input(&signals, sample_rate)?;
+    estimate_with_bands(&signals, sample_rate, opts, false).map(|d| d.estimate)
+}
+
+/// What a band saw, kept for a later refinement of its poles ([`crate::diagnose`]).
+#[derive(Clone, Debug)]
+pub(crate) struct BandData {
+    /// y_c[m], the decimated complex baseband of every channel (empty unless asked for).
+    pub y: Vec<Vec<C64>>,
+    /// Every finite, non-zero ESPRIT pole w of the band (per decimated sample), guards included.
+    pub poles: Vec<C64>,
+    /// The band SNR of each pole (dB, module docs "SNR and pruning"; −∞ where H(ζ) = 0).
+    pub pole_snr_db: Vec<f64>,
+    /// σ²_{bc} per channel (units², per full-rate sample).
+    pub noise_var: Vec<f64>,
+}
+
+/// [`estimate_modes`] with the band internals it was made from.
+#[derive(Clone, Debug)]
+pub(crate) struct DetailedEstimate {
+    pub estimate: ModalEstimate,
+    /// One per entry of `estimate.bands`.
+    pub bands: Vec<BandData>,
+    /// For each mode of `estimate.modes`: the index of its pole in `bands[mode.band].poles`.
+    pub mode_poles: Vec<usize>,
+    /// The band filter and decimation shared by every band.
+    pub decimator: Decimator,
+}
+
+/// The work of [`estimate_modes`]; `keep_baseband` keeps every band's decimated signals in the
+/// result (the estimate itself is the same either way).
+pub(crate) fn estimate_with_bands(
+    signals: &[&[f64]],
+    sample_rate: f64,
+    opts: &EstimateOptions,
+    keep_baseband: bool,
+) -> Result<DetailedEstimate, EstimateError> {
+    let n = check_input(signals, sample_rate)?;
     let plan = Plan::new(sample_rate, n, opts)?;
 
     // 1. Poles, band by band.
     let mut candidates = Vec::new();
     let mut reports = Vec::with_capacity(plan.bands.len());
+    let mut band_data = Vec::with_capacity(plan.bands.len());
     for (index, band) in plan.bands.iter().enumerate() {
-        let found = analyse_band(&signals, &plan, band, index, opts)?;
+        let found = analyse_band(signals, &plan, band, index, opts)?;
         candidates.extend(found.candidates);
         reports.push(BandReport {
             lo_hz: band.lo_hz,
@@ -385,6 +422,16 @@ pub fn estimate_modes<S: AsRef<[f64]>>(
             pencil_rows: plan.rows,
             noise_rms: found.noise_var.iter().map(|v| v.sqrt()).collect(),
             modes: 0,
+        });
+        band_data.push(BandData {
+            y: if keep_baseband {
+                found.baseband
+            } else {
+                vec![]
+            },
+            poles: found.poles,
+            pole_snr_db: found.pole_snr_db,
+            noise_var: found.noise_var,
         });
     }
     let band_noise: Vec<f64> = reports
@@ -396,7 +443,7 @@ pub fn estimate_modes<S: AsRef<[f64]>>(
     // 2. Amplitudes at full rate; drop weak modes and refit until all pass.
     let (coeffs, snr) = loop {
         let log_z: Vec<C64> = candidates.iter().map(|c| c.log_z).collect();
-        let coeffs = lsq::fit_full_rate(&signals, &log_z)
+        let coeffs = lsq::fit_full_rate(signals, &log_z)
             .ok_or(EstimateError::SingularFit { modes: log_z.len() })?;
         let snr: Vec<f64> = candidates
             .iter()
@@ -445,26 +492,30 @@ pub fn estimate_modes<S: AsRef<[f64]>>(
     };
 
     let log_z: Vec<C64> = candidates.iter().map(|c| c.log_z).collect();
-    let residual = lsq::residuals(&signals, &log_z, &coeffs);
-    let mut modes: Vec<EstimatedMode> = candidates
+    let residual = lsq::residuals(signals, &log_z, &coeffs);
+    let mut modes: Vec<(EstimatedMode, usize)> = candidates
         .iter()
         .zip(&coeffs)
         .zip(&snr)
-        .map(|((cand, ck), &snr_db)| EstimatedMode {
-            frequency_hz: cand.frequency_hz,
-            decay_rate: cand.decay_rate,
-            amplitudes: ck.iter().map(|c| c.norm()).collect(),
-            phases: ck.iter().map(|c| c.arg()).collect(),
-            energies: energies(cand.log_z, ck, n),
-            snr_db,
-            band: cand.band,
+        .map(|((cand, ck), &snr_db)| {
+            let mode = EstimatedMode {
+                frequency_hz: cand.frequency_hz,
+                decay_rate: cand.decay_rate,
+                amplitudes: ck.iter().map(|c| c.norm()).collect(),
+                phases: ck.iter().map(|c| c.arg()).collect(),
+                energies: energies(cand.log_z, ck, n),
+                snr_db,
+                band: cand.band,
+            };
+            (mode, cand.pole)
         })
         .collect();
-    modes.sort_by(|a, b| a.frequency_hz.total_cmp(&b.frequency_hz));
-    for m in &modes {
+    modes.sort_by(|a, b| a.0.frequency_hz.total_cmp(&b.0.frequency_hz));
+    for (m, _) in &modes {
         reports[m.band].modes += 1;
     }
-    Ok(ModalEstimate {
+    let (modes, mode_poles): (Vec<EstimatedMode>, Vec<usize>) = modes.into_iter().unzip();
+    let estimate = ModalEstimate {
         sample_rate,
         n_samples: n,
         modes,
@@ -473,6 +524,12 @@ pub fn estimate_modes<S: AsRef<[f64]>>(
         bands: reports,
         decimation: plan.decimator.factor,
         filter_taps: plan.decimator.taps.len(),
+    };
+    Ok(DetailedEstimate {
+        estimate,
+        bands: band_data,
+        mode_poles,
+        decimator: plan.decimator,
     })
 }
 
@@ -654,6 +711,8 @@ struct Candidate {
     band_snr_db: f64,
     /// Σ_c |c_{kc}|² from the band fit.
     band_power: f64,
+    /// Index of its pole in [`BandResult::poles`].
+    pole: usize,
 }
 
 struct BandResult {
@@ -661,6 +720,11 @@ struct BandResult {
     order: usize,
     /// σ²_{bc} per channel.
     noise_var: Vec<f64>,
+    /// y_c, the decimated baseband per channel.
+    baseband: Vec<Vec<C64>>,
+    /// The finite, non-zero ESPRIT poles w and their band SNR (dB).
+    poles: Vec<C64>,
+    pole_snr_db: Vec<f64>,
 }
 
 fn analyse_band(
@@ -712,7 +776,8 @@ fn analyse_band(
     let factor = dec.factor as f64;
     let omega_b = C64::new(0.0, 2.0 * std::f64::consts::PI * band.demod_hz / fs);
     let mut candidates = Vec::new();
-    for (w, bk) in poles.iter().zip(&beta) {
+    let mut pole_snr_db = vec![f64::NEG_INFINITY; poles.len()];
+    for (pole, (w, bk)) in poles.iter().zip(&beta).enumerate() {
         let lw = w.ln();
         let log_zeta = lw / factor;
         let log_z = log_zeta + omega_b;
@@ -724,6 +789,7 @@ fn analyse_band(
         }
         let coeffs: Vec<C64> = bk.iter().map(|b| C64::new(0.0, 2.0) * b / gain).collect();
         let band_snr_db = snr_db(&energies(log_z, &coeffs, n), noise_total);
+        pole_snr_db[pole] = band_snr_db;
         // The centre region is widened by the merge tolerance: a mode right on the boundary of
         // two bands may be estimated just outside each, and must not be lost; if both keep it,
         // the merge removes one copy.
@@ -741,6 +807,7 @@ fn analyse_band(
                 band: index,
                 band_snr_db,
                 band_power,
+                pole,
             });
         }
     }
@@ -748,6 +815,9 @@ fn analyse_band(
         candidates,
         order: sub.order,
         noise_var,
+        baseband: y,
+        poles,
+        pole_snr_db,
     })
 }
 

@@ -1,0 +1,121 @@
+//! Added mass or fluid loading.
+//!
+//! A mass attached to the object (a label, a glue spot, a finger, liquid in a bowl) lowers
+//! the frequencies of the modes that move where it sits. For a mass-normalised mode, the
+//! Rayleigh quotient with kinetic energy raised by the fraction μ·w_k gives
+//!
+//! Δ ln f_k = −½ ln(1 + μ · w_k),  μ ≥ 0,
+//!
+//! with w_k = |φ_k|² at the candidate region over its maximum over the modes
+//! ([`super::SimulatedMode::mass_weight`]); μ is the added modal mass of the most affected
+//! mode relative to its own. Fluid loading (the object in or filled with water, or a light
+//! shell in air) adds a mass that falls with frequency, roughly as the wavelength of the
+//! bending wave: Δ ln f_k = −½ ln(1 + μ_f · f_1/f_k), f_1/f_k the ratio of the lowest matched
+//! simulated frequency to mode k's (the scale cancels; held-out data use the fit's f_1). Both
+//! variants have one parameter; the criterion picks and the
+//! report names the variant. A uniform shift is indistinguishable from the global scale s, so
+//! only the differential part counts.
+//!
+//! Detector: the weighted regression (with intercept, the scale absorbs it) of the current
+//! ln f residuals on −½ w_k (added mass) or −½ f_1/f_k (fluid); a variant goes on when its
+//! slope (≈ μ) is positive with z > 1.
+
+use std::sync::Arc;
+
+use super::{weighted_regression, Detection, Effect, Fit, ModeTable, ParamSpec, Proposal, Term};
+
+pub struct AddedMass;
+
+#[derive(Debug)]
+pub struct MassLoading {
+    /// None: point mass on the mass weights. Some(ln f_1): fluid loading with reference f_1.
+    pub fluid_ln_f1: Option<f64>,
+}
+
+impl MassLoading {
+    fn weight(&self, ln_f_sim: f64, mass_weight: f64) -> f64 {
+        match self.fluid_ln_f1 {
+            None => mass_weight,
+            Some(ln_f1) => (ln_f1 - ln_f_sim).exp(),
+        }
+    }
+}
+
+impl Term for MassLoading {
+    fn effect(&self) -> &'static str {
+        "added_mass"
+    }
+    fn variant(&self) -> &'static str {
+        if self.fluid_ln_f1.is_some() {
+            "fluid_loading"
+        } else {
+            "added_mass"
+        }
+    }
+    fn params(&self) -> Vec<ParamSpec> {
+        let name = if self.fluid_ln_f1.is_some() {
+            "fluid added-mass ratio μ_f"
+        } else {
+            "added-mass ratio μ"
+        };
+        vec![ParamSpec::new(name, "1", 0.0, 10.0, 1e-2)]
+    }
+    fn frequency(&self, table: &ModeTable, p: &[f64], ln_f: &mut [f64]) {
+        for (f, m) in ln_f.iter_mut().zip(&table.modes) {
+            *f -= 0.5 * (p[0] * self.weight(m.ln_f_sim, m.mass_weight)).ln_1p();
+        }
+    }
+}
+
+impl Effect for AddedMass {
+    fn name(&self) -> &'static str {
+        "added_mass"
+    }
+    fn signature(&self) -> &'static str {
+        "frequencies low where the candidate mass sits (or, fluid loading, increasingly toward low modes)"
+    }
+    fn detect(&self, table: &ModeTable, current: &Fit) -> Detection {
+        if table.modes.len() < 4 {
+            return Detection::NotEnoughData(format!("{} matched modes; at least 4 needed", table.modes.len()));
+        }
+        let res = current.mode_residuals(table);
+        let ln_f1 = table.modes.iter().map(|m| m.ln_f_sim).fold(f64::INFINITY, f64::min);
+        let mut details = Vec::new();
+        let mut proposals = Vec::new();
+        let mut statistic = f64::NEG_INFINITY;
+        let w: Vec<f64> = table.modes.iter().map(|m| m.mass_weight).collect();
+        let spread =
+            w.iter().cloned().fold(f64::NEG_INFINITY, f64::max) - w.iter().cloned().fold(f64::INFINITY, f64::min);
+        for fluid in [None, Some(ln_f1)] {
+            let term = MassLoading { fluid_ln_f1: fluid };
+            if fluid.is_none() && !(spread > 0.05) {
+                details.push("mass weights do not vary".to_string());
+                continue;
+            }
+            let points: Vec<(f64, f64, f64)> = table
+                .modes
+                .iter()
+                .zip(&res.ln_f)
+                .map(|(m, &(r, v))| (-0.5 * term.weight(m.ln_f_sim, m.mass_weight), r, 1.0 / v))
+                .collect();
+            let (mu, z) = weighted_regression(&points);
+            details.push(format!("{}: slope μ ≈ {mu:.3} (z = {z:.1})", term.variant()));
+            statistic = statistic.max(z);
+            if mu > 0.0 && z > 1.0 {
+                proposals.push(Proposal {
+                    term: Arc::new(term),
+                    init: vec![mu.clamp(1e-4, 10.0)],
+                });
+            }
+        }
+        let detail = details.join("; ");
+        if proposals.is_empty() {
+            return Detection::Nothing { statistic, detail };
+        }
+        Detection::Found {
+            statistic,
+            detail,
+            proposals,
+        }
+    }
+}

@@ -1,0 +1,289 @@
+//! Observed ↔ simulated mode matching (parent module docs, "Matching").
+//!
+//! Frequencies are compared as x = ln f: observed modes at their undamped frequency
+//! f₀ = √(f² + (d/2π)²) (the simulation is undamped), simulated ones times a global scale s.
+//!
+//! 1. **Scale.** Every pairing (i, j) proposes ln s = x_i − x_j^sim within [ln s_min, ln s_max].
+//!    Each proposal is scored by the truncated quadratic Σ_i min(e_i², tol²), e_i the distance
+//!    from x_i − ln s to its nearest simulated mode: a matched mode costs its squared error,
+//!    an unmatched one a fixed tol². The best proposal is refined three times by the median of
+//!    the e_i within tol. With a fixed scale (held-out data, matched with the fit's scale) this
+//!    step is skipped.
+//! 2. **One-to-one.** All (i, j) with |e_ij| ≤ tol, in increasing |e_ij|, are taken when both
+//!    are still free.
+//! 3. **Clusters.** A cluster (near-degenerate simulated modes sharing an id) that took two
+//!    observed modes further apart than the largest pair split keeps the closer one. Then
+//!    every observed mode still free may join a cluster holding exactly one observed mode as
+//!    its split partner, if the two observed modes are within the largest pair split and the
+//!    free mode is within tol of the cluster: a simulated single mode or degenerate cluster
+//!    seen as two modes.
+//! 4. **Units.** A cluster with one observed mode is one [`Role::Single`] unit standing for all
+//!    its members; with two, a [`Role::SplitLower`]/[`Role::SplitUpper`] pair; with three or
+//!    more (only when it has that many members), one [`Role::Member`] unit per mode.
+
+use std::collections::BTreeMap;
+
+use super::{CatalogueSettings, Role, SimulatedMode};
+
+/// One matched observed mode and what in the simulation it stands for.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Unit {
+    /// Index into the observed list.
+    pub observed: usize,
+    pub role: Role,
+    pub cluster: usize,
+    /// Position of this observed mode among the cluster's observed modes, by frequency.
+    pub slot: usize,
+    /// Simulated modes whose drive, support and mass weights and transfer it carries.
+    pub represents: Vec<usize>,
+    /// Simulated modes whose (drive²-weighted) ln f it is predicted at.
+    pub frequency_from: Vec<usize>,
+    /// Factor on the combined drive √Σ drive² of `represents`: 1, or 1/√2 for each mode of a
+    /// split pair (the pair shares the cluster's excitation).
+    pub drive_factor: f64,
+}
+
+/// The result of [`match_modes`].
+#[derive(Clone, Debug, PartialEq)]
+pub struct Matching {
+    /// ln s, the global frequency scale.
+    pub ln_scale: f64,
+    pub units: Vec<Unit>,
+    pub unmatched_observed: Vec<usize>,
+    pub unmatched_simulated: Vec<usize>,
+}
+
+/// Nearest value of the ascending `sorted` to `x`: (index, signed distance x − value).
+fn nearest(sorted: &[f64], x: f64) -> (usize, f64) {
+    let pos = sorted.partition_point(|&v| v < x);
+    let mut best = (0, f64::INFINITY);
+    for j in [pos.saturating_sub(1), pos.min(sorted.len() - 1)] {
+        let e = x - sorted[j];
+        if e.abs() < best.1.abs() {
+            best = (j, e);
+        }
+    }
+    best
+}
+
+fn median(values: &mut [f64]) -> f64 {
+    values.sort_by(f64::total_cmp);
+    let n = values.len();
+    if n % 2 == 1 {
+        values[n / 2]
+    } else {
+        0.5 * (values[n / 2 - 1] + values[n / 2])
+    }
+}
+
+/// Step 1 of the module docs.
+fn search_scale(observed: &[f64], sim_sorted: &[f64], settings: &CatalogueSettings) -> f64 {
+    let tol = settings.match_tolerance;
+    let (lo, hi) = (settings.min_scale.ln(), settings.max_scale.ln());
+    let cost = |ln_s: f64| -> f64 {
+        observed
+            .iter()
+            .map(|&x| {
+                let e = nearest(sim_sorted, x - ln_s).1;
+                (e * e).min(tol * tol)
+            })
+            .sum()
+    };
+    let mut best = (f64::INFINITY, 0.0f64.clamp(lo, hi));
+    let mut consider = |ln_s: f64| {
+        let c = cost(ln_s);
+        if c < best.0 || (c == best.0 && ln_s.abs() < best.1.abs()) {
+            best = (c, ln_s);
+        }
+    };
+    consider(0.0f64.clamp(lo, hi));
+    for &x in observed {
+        for &y in sim_sorted {
+            let ln_s = x - y;
+            if ln_s >= lo && ln_s <= hi {
+                consider(ln_s);
+            }
+        }
+    }
+    let mut ln_s = best.1;
+    for _ in 0..3 {
+        let mut within: Vec<f64> = observed
+            .iter()
+            .map(|&x| nearest(sim_sorted, x - ln_s).1)
+            .filter(|e| e.abs() <= tol)
+            .collect();
+        if within.is_empty() {
+            break;
+        }
+        ln_s += median(&mut within);
+    }
+    ln_s
+}
+
+/// Matches observed modes (`observed_ln_f`: ln of the undamped observed frequencies) to the
+/// simulated modes (module docs). `fixed_ln_scale` skips the scale search.
+pub fn match_modes(
+    observed_ln_f: &[f64],
+    simulated: &[SimulatedMode],
+    fixed_ln_scale: Option<f64>,
+    settings: &CatalogueSettings,
+) -> Matching {
+    let sim_ln_f: Vec<f64> = simulated.iter().map(|m| m.frequency_hz.ln()).collect();
+    let mut sim_sorted = sim_ln_f.clone();
+    sim_sorted.sort_by(f64::total_cmp);
+    let ln_scale = if observed_ln_f.is_empty() || simulated.is_empty() {
+        fixed_ln_scale.unwrap_or(0.0)
+    } else {
+        fixed_ln_scale.unwrap_or_else(|| search_scale(observed_ln_f, &sim_sorted, settings))
+    };
+    let tol = settings.match_tolerance;
+    let distance = |i: usize, j: usize| observed_ln_f[i] - ln_scale - sim_ln_f[j];
+
+    // Step 2: greedy one-to-one by distance.
+    let mut edges: Vec<(f64, usize, usize)> = Vec::new();
+    for i in 0..observed_ln_f.len() {
+        for j in 0..simulated.len() {
+            let e = distance(i, j).abs();
+            if e <= tol {
+                edges.push((e, i, j));
+            }
+        }
+    }
+    edges.sort_by(|a, b| a.0.total_cmp(&b.0));
+    let mut sim_of_obs: Vec<Option<usize>> = vec![None; observed_ln_f.len()];
+    let mut obs_of_sim: Vec<Option<usize>> = vec![None; simulated.len()];
+    for &(_, i, j) in &edges {
+        if sim_of_obs[i].is_none() && obs_of_sim[j].is_none() {
+            sim_of_obs[i] = Some(j);
+            obs_of_sim[j] = Some(i);
+        }
+    }
+
+    // Step 3: clusters.
+    let mut members: BTreeMap<usize, Vec<usize>> = BTreeMap::new();
+    for (j, m) in simulated.iter().enumerate() {
+        members.entry(m.cluster).or_default().push(j);
+    }
+    for list in members.values_mut() {
+        list.sort_by(|&a, &b| sim_ln_f[a].total_cmp(&sim_ln_f[b]));
+    }
+    let observed_in = |cluster: &[usize], obs_of_sim: &[Option<usize>]| -> Vec<usize> {
+        cluster.iter().filter_map(|&j| obs_of_sim[j]).collect()
+    };
+    for list in members.values() {
+        let obs = observed_in(list, &obs_of_sim);
+        if obs.len() == 2 && (observed_ln_f[obs[0]] - observed_ln_f[obs[1]]).abs() > settings.max_pair_split {
+            let err = |i: usize| distance(i, sim_of_obs[i].unwrap_or(0)).abs();
+            let drop = if err(obs[0]) > err(obs[1]) { obs[0] } else { obs[1] };
+            if let Some(j) = sim_of_obs[drop].take() {
+                obs_of_sim[j] = None;
+            }
+        }
+    }
+    // Split partners: (observed, cluster) joined in step 3.
+    let mut partner_of_cluster: BTreeMap<usize, usize> = BTreeMap::new();
+    let mut free: Vec<usize> = (0..observed_ln_f.len()).filter(|&i| sim_of_obs[i].is_none()).collect();
+    free.sort_by(|&a, &b| {
+        let da = nearest(&sim_sorted, observed_ln_f[a] - ln_scale).1.abs();
+        let db = nearest(&sim_sorted, observed_ln_f[b] - ln_scale).1.abs();
+        da.total_cmp(&db)
+    });
+    for &i in &free {
+        let mut best: Option<(f64, usize)> = None;
+        for (&cluster, list) in &members {
+            if partner_of_cluster.contains_key(&cluster) {
+                continue;
+            }
+            let obs = observed_in(list, &obs_of_sim);
+            if obs.len() != 1 {
+                continue;
+            }
+            let split = (observed_ln_f[i] - observed_ln_f[obs[0]]).abs();
+            let near = list.iter().map(|&j| distance(i, j).abs()).fold(f64::INFINITY, f64::min);
+            if split <= settings.max_pair_split && near <= tol && best.is_none_or(|b| split < b.0) {
+                best = Some((split, cluster));
+            }
+        }
+        if let Some((_, cluster)) = best {
+            partner_of_cluster.insert(cluster, i);
+        }
+    }
+
+    // Step 4: units.
+    let mut units = Vec::new();
+    let mut unmatched_simulated = Vec::new();
+    for (&cluster, list) in &members {
+        let mut obs = observed_in(list, &obs_of_sim);
+        if let Some(&i) = partner_of_cluster.get(&cluster) {
+            obs.push(i);
+        }
+        obs.sort_by(|&a, &b| observed_ln_f[a].total_cmp(&observed_ln_f[b]));
+        match obs.len() {
+            0 => unmatched_simulated.extend(list.iter().copied()),
+            1 => units.push(Unit {
+                observed: obs[0],
+                role: Role::Single,
+                cluster,
+                slot: 0,
+                represents: list.clone(),
+                frequency_from: list.clone(),
+                drive_factor: 1.0,
+            }),
+            2 => {
+                // Each mode of the pair sits at "its" member: for a one-member cluster both at
+                // that mode; otherwise the lower observed at the lower of the members matched
+                // (or, for a split partner, of the free members), the upper at the upper.
+                let mut own: Vec<usize> = list.iter().copied().filter(|&j| obs_of_sim[j].is_some()).collect();
+                for &j in list {
+                    if own.len() < 2 && !own.contains(&j) {
+                        own.push(j);
+                    }
+                }
+                own.sort_by(|&a, &b| sim_ln_f[a].total_cmp(&sim_ln_f[b]));
+                for (slot, &i) in obs.iter().enumerate() {
+                    let j = own[slot.min(own.len() - 1)];
+                    units.push(Unit {
+                        observed: i,
+                        role: if slot == 0 { Role::SplitLower } else { Role::SplitUpper },
+                        cluster,
+                        slot,
+                        represents: list.clone(),
+                        frequency_from: vec![j],
+                        drive_factor: std::f64::consts::FRAC_1_SQRT_2,
+                    });
+                }
+            }
+            _ => {
+                for (slot, &i) in obs.iter().enumerate() {
+                    let j = sim_of_obs[i].expect("three observed modes in a cluster are all pass-1 matches");
+                    units.push(Unit {
+                        observed: i,
+                        role: Role::Member,
+                        cluster,
+                        slot,
+                        represents: vec![j],
+                        frequency_from: vec![j],
+                        drive_factor: 1.0,
+                    });
+                }
+                unmatched_simulated.extend(list.iter().copied().filter(|&j| obs_of_sim[j].is_none()));
+            }
+        }
+    }
+    units.sort_by_key(|u| u.observed);
+    let matched: Vec<bool> = {
+        let mut m = vec![false; observed_ln_f.len()];
+        for u in &units {
+            m[u.observed] = true;
+        }
+        m
+    };
+    let unmatched_observed = (0..observed_ln_f.len()).filter(|&i| !matched[i]).collect();
+    unmatched_simulated.sort_unstable();
+    Matching {
+        ln_scale,
+        units,
+        unmatched_observed,
+        unmatched_simulated,
+    }
+}

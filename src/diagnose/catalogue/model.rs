@@ -1,0 +1,1144 @@
+//! The modal table (matched modes with their observations and simulated features), the
+//! baseline prediction with the accepted terms on top, and the likelihood fit with profiled
+//! floors (parent module docs, "Baseline model" and "Likelihood").
+
+use std::f64::consts::PI;
+use std::sync::Arc;
+
+use super::lm;
+use super::matching::Matching;
+use super::{ObservedMode, ParamSpec, SimulatedMode, Term};
+
+/// Identifies a matched mode across data sets (fit and held-out): its simulated cluster and
+/// its position among the cluster's observed modes. Terms key per-mode parameters by it.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord, Hash, serde::Serialize, serde::Deserialize)]
+pub struct ModeKey {
+    pub cluster: usize,
+    pub slot: usize,
+}
+
+/// How an observed mode relates to its simulated cluster.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Role {
+    /// The cluster (one mode, or near-degenerate modes not resolved) seen as one mode.
+    Single,
+    /// The lower of two observed modes in one cluster.
+    SplitLower,
+    /// The upper of two observed modes in one cluster.
+    SplitUpper,
+    /// One of three or more observed modes of a cluster, each matched to its own member.
+    Member,
+}
+
+/// One matched observed mode: observations (in logs, with standard deviations) and the
+/// simulated features the model needs.
+#[derive(Clone, Debug, PartialEq)]
+pub struct ModeEntry {
+    /// Index into the observed list it came from.
+    pub observed: usize,
+    pub key: ModeKey,
+    pub role: Role,
+    /// Simulated modes it stands for.
+    pub simulated: Vec<usize>,
+    /// Observed (damped) frequency, Hz.
+    pub frequency_hz: f64,
+    /// ln of the observed undamped frequency f₀ = √(f² + (d/2π)²) and its σ (σ_f / f).
+    pub ln_f: f64,
+    pub sigma_ln_f: f64,
+    /// ln d and σ_d / d, when the mode decays (d > 0).
+    pub ln_d: Option<(f64, f64)>,
+    /// Per channel: ln a and σ_a / a, when the channel saw the mode (a > 0) and the drive is
+    /// non-zero (a mode the model does not excite has no amplitude prediction).
+    pub ln_a: Vec<Option<(f64, f64)>>,
+    /// (f_early − f_late)/f and its σ, when both halves were extracted.
+    pub glide: Option<(f64, f64)>,
+    /// Relative modal energy Q² ∈ [0, 1] from the observed amplitudes: mean over channels of
+    /// a² divided by ω², over its maximum in the table (pitch-glide covariate).
+    pub energy: f64,
+    /// ln of the (drive²-weighted) simulated frequency, Hz.
+    pub ln_f_sim: f64,
+    /// Combined strike drive: √Σ drive² over `simulated`, times 1/√2 for each mode of a split
+    /// pair.
+    pub drive: f64,
+    pub support_weight: f64,
+    pub mass_weight: f64,
+    /// |acoustic transfer| per channel of this table, when known.
+    pub transfer: Option<Vec<f64>>,
+}
+
+/// Two observed modes of one cluster (indices into [`ModeTable::modes`]).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct SplitPair {
+    pub lower: usize,
+    pub upper: usize,
+    pub cluster: usize,
+}
+
+/// The quantities of the likelihood. The first four have a profiled floor τ each (amplitudes
+/// a second one, per mode: [`LEVEL_FLOOR`]); splits have none (parent docs: the common model
+/// error of a pair cancels in its split).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Quantity {
+    LnFrequency,
+    LnDecay,
+    LnAmplitude,
+    Glide,
+    Split,
+}
+
+impl Quantity {
+    /// Index into the floor array ([`N_FLOORS`]), or None for splits.
+    pub fn floor_index(self) -> Option<usize> {
+        match self {
+            Quantity::LnFrequency => Some(0),
+            Quantity::LnDecay => Some(1),
+            Quantity::LnAmplitude => Some(2),
+            Quantity::Glide => Some(4),
+            Quantity::Split => None,
+        }
+    }
+
+    pub fn label(self) -> &'static str {
+        match self {
+            Quantity::LnFrequency => "ln frequency",
+            Quantity::LnDecay => "ln decay rate",
+            Quantity::LnAmplitude => "ln amplitude",
+            Quantity::Glide => "pitch glide",
+            Quantity::Split => "pair split",
+        }
+    }
+}
+
+/// What one likelihood row compares (mode indices into [`ModeTable::modes`]).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum RowKind {
+    LnF(usize),
+    /// Mean ln f of a split pair (lower, upper).
+    PairMean(usize, usize),
+    /// ln f_upper − ln f_lower of a split pair.
+    Split(usize, usize),
+    LnD(usize),
+    /// (mode, channel)
+    LnA(usize, usize),
+    Glide(usize),
+}
+
+impl RowKind {
+    pub fn quantity(self) -> Quantity {
+        match self {
+            RowKind::LnF(_) | RowKind::PairMean(..) => Quantity::LnFrequency,
+            RowKind::Split(..) => Quantity::Split,
+            RowKind::LnD(_) => Quantity::LnDecay,
+            RowKind::LnA(..) => Quantity::LnAmplitude,
+            RowKind::Glide(_) => Quantity::Glide,
+        }
+    }
+
+    /// The modes the row involves.
+    pub fn modes(self) -> (usize, Option<usize>) {
+        match self {
+            RowKind::LnF(k) | RowKind::LnD(k) | RowKind::LnA(k, _) | RowKind::Glide(k) => (k, None),
+            RowKind::PairMean(l, u) | RowKind::Split(l, u) => (l, Some(u)),
+        }
+    }
+
+    fn predict(self, p: &Prediction) -> f64 {
+        match self {
+            RowKind::LnF(k) => p.ln_f[k],
+            RowKind::PairMean(l, u) => 0.5 * (p.ln_f[l] + p.ln_f[u]),
+            RowKind::Split(l, u) => p.ln_f[u] - p.ln_f[l],
+            RowKind::LnD(k) => {
+                if p.decay[k] > 0.0 {
+                    p.decay[k].ln()
+                } else {
+                    f64::NAN
+                }
+            }
+            RowKind::LnA(k, c) => p.ln_a[k * p.channels + c],
+            RowKind::Glide(k) => p.glide[k],
+        }
+    }
+}
+
+/// One observation of the likelihood: value and measurement σ (both in the row's units).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Row {
+    pub kind: RowKind,
+    pub value: f64,
+    pub sigma: f64,
+}
+
+/// The matched modes of one data set (fit or held-out) and their likelihood rows.
+#[derive(Clone, Debug, PartialEq)]
+pub struct ModeTable {
+    pub modes: Vec<ModeEntry>,
+    pub channels: usize,
+    pub pairs: Vec<SplitPair>,
+    pub rows: Vec<Row>,
+    /// Rows that are not amplitudes (indices into `rows`).
+    pub other_rows: Vec<usize>,
+    /// Per mode with amplitudes: (mode, its amplitude rows).
+    pub amplitude_groups: Vec<(usize, Vec<usize>)>,
+}
+
+/// Drive²-weighted mean of `value` over `modes` (plain mean if every drive is zero).
+fn drive_weighted(simulated: &[SimulatedMode], modes: &[usize], value: impl Fn(&SimulatedMode) -> f64) -> f64 {
+    let w: f64 = modes.iter().map(|&j| simulated[j].drive.powi(2)).sum();
+    if w > 0.0 {
+        modes
+            .iter()
+            .map(|&j| simulated[j].drive.powi(2) * value(&simulated[j]))
+            .sum::<f64>()
+            / w
+    } else {
+        modes.iter().map(|&j| value(&simulated[j])).sum::<f64>() / modes.len() as f64
+    }
+}
+
+/// Undamped observed frequency f₀ = √(f² + (d/2π)²) (the convention of
+/// [`crate::audio::chain`]; d ≤ 0 leaves f).
+pub(super) fn undamped_hz(mode: &ObservedMode) -> f64 {
+    if mode.decay_rate > 0.0 {
+        (mode.frequency_hz.powi(2) + (mode.decay_rate / (2.0 * PI)).powi(2)).sqrt()
+    } else {
+        mode.frequency_hz
+    }
+}
+
+impl ModeTable {
+    /// The table of `observed` (validated by the caller) under `matching`. `transfer_offset` is
+    /// where this set's channels start in [`SimulatedMode::transfer`] (0 for the fit set, the
+    /// fit's channel count for held-out data); a transfer too short for that leaves it unknown.
+    pub fn build(
+        observed: &[ObservedMode],
+        simulated: &[SimulatedMode],
+        matching: &Matching,
+        transfer_offset: usize,
+    ) -> ModeTable {
+        let channels = observed.first().map_or(0, |m| m.amplitudes.len());
+        let mut modes = Vec::with_capacity(matching.units.len());
+        for unit in &matching.units {
+            let obs = &observed[unit.observed];
+            let combined: f64 = unit
+                .represents
+                .iter()
+                .map(|&j| simulated[j].drive.powi(2))
+                .sum::<f64>()
+                .sqrt();
+            let drive = combined * unit.drive_factor;
+            let ln_f_sim = drive_weighted(simulated, &unit.frequency_from, |m| m.frequency_hz.ln());
+            let support_weight = drive_weighted(simulated, &unit.represents, |m| m.support_weight);
+            let mass_weight = drive_weighted(simulated, &unit.represents, |m| m.mass_weight);
+            let transfer = if unit.represents.iter().all(|&j| {
+                simulated[j]
+                    .transfer
+                    .as_ref()
+                    .is_some_and(|t| t.len() >= transfer_offset + channels)
+            }) && channels > 0
+            {
+                Some(
+                    (0..channels)
+                        .map(|c| {
+                            drive_weighted(simulated, &unit.represents, |m| {
+                                m.transfer.as_ref().map_or(0.0, |t| t[transfer_offset + c].powi(2))
+                            })
+                            .sqrt()
+                        })
+                        .collect(),
+                )
+            } else {
+                None
+            };
+            let f0 = undamped_hz(obs);
+            let ln_d = (obs.decay_rate > 0.0).then(|| (obs.decay_rate.ln(), obs.sigma_decay_rate / obs.decay_rate));
+            let ln_a = (0..channels)
+                .map(|c| {
+                    let a = obs.amplitudes[c];
+                    (a > 0.0 && drive > 0.0).then(|| (a.ln(), obs.sigma_amplitudes[c] / a))
+                })
+                .collect();
+            let glide = match (obs.early_frequency_hz, obs.late_frequency_hz) {
+                (Some((fe, se)), Some((fl, sl))) => Some(((fe - fl) / f0, (se * se + sl * sl).sqrt() / f0)),
+                _ => None,
+            };
+            let present: Vec<f64> = obs.amplitudes.iter().copied().filter(|&a| a > 0.0).collect();
+            let mean_square = if present.is_empty() {
+                0.0
+            } else {
+                present.iter().map(|a| a * a).sum::<f64>() / present.len() as f64
+            };
+            modes.push(ModeEntry {
+                observed: unit.observed,
+                key: ModeKey {
+                    cluster: unit.cluster,
+                    slot: unit.slot,
+                },
+                role: unit.role,
+                simulated: unit.represents.clone(),
+                frequency_hz: obs.frequency_hz,
+                ln_f: f0.ln(),
+                sigma_ln_f: obs.sigma_frequency_hz / obs.frequency_hz,
+                ln_d,
+                ln_a,
+                glide,
+                energy: mean_square / (2.0 * PI * f0).powi(2),
+                ln_f_sim,
+                drive,
+                support_weight,
+                mass_weight,
+                transfer,
+            });
+        }
+        let max_energy = modes.iter().map(|m| m.energy).fold(0.0, f64::max);
+        if max_energy > 0.0 {
+            for m in &mut modes {
+                m.energy /= max_energy;
+            }
+        }
+        let mut pairs = Vec::new();
+        for (l, m) in modes.iter().enumerate() {
+            if m.role == Role::SplitLower {
+                if let Some(u) = modes
+                    .iter()
+                    .position(|o| o.role == Role::SplitUpper && o.key.cluster == m.key.cluster)
+                {
+                    pairs.push(SplitPair {
+                        lower: l,
+                        upper: u,
+                        cluster: m.key.cluster,
+                    });
+                }
+            }
+        }
+        let mut rows = Vec::new();
+        let in_pair = |k: usize| pairs.iter().any(|p| p.lower == k || p.upper == k);
+        for (k, m) in modes.iter().enumerate() {
+            if !in_pair(k) {
+                rows.push(Row {
+                    kind: RowKind::LnF(k),
+                    value: m.ln_f,
+                    sigma: m.sigma_ln_f,
+                });
+            }
+        }
+        for p in &pairs {
+            let (l, u) = (&modes[p.lower], &modes[p.upper]);
+            let var = l.sigma_ln_f.powi(2) + u.sigma_ln_f.powi(2);
+            rows.push(Row {
+                kind: RowKind::PairMean(p.lower, p.upper),
+                value: 0.5 * (l.ln_f + u.ln_f),
+                sigma: 0.5 * var.sqrt(),
+            });
+            rows.push(Row {
+                kind: RowKind::Split(p.lower, p.upper),
+                value: u.ln_f - l.ln_f,
+                sigma: var.sqrt(),
+            });
+        }
+        for (k, m) in modes.iter().enumerate() {
+            if let Some((v, s)) = m.ln_d {
+                rows.push(Row {
+                    kind: RowKind::LnD(k),
+                    value: v,
+                    sigma: s,
+                });
+            }
+        }
+        for (k, m) in modes.iter().enumerate() {
+            for (c, a) in m.ln_a.iter().enumerate() {
+                if let Some((v, s)) = *a {
+                    rows.push(Row {
+                        kind: RowKind::LnA(k, c),
+                        value: v,
+                        sigma: s,
+                    });
+                }
+            }
+        }
+        for (k, m) in modes.iter().enumerate() {
+            if let Some((v, s)) = m.glide {
+                rows.push(Row {
+                    kind: RowKind::Glide(k),
+                    value: v,
+                    sigma: s,
+                });
+            }
+        }
+        let other_rows = (0..rows.len())
+            .filter(|&i| rows[i].kind.quantity() != Quantity::LnAmplitude)
+            .collect();
+        let mut amplitude_groups: Vec<(usize, Vec<usize>)> = Vec::new();
+        for (i, row) in rows.iter().enumerate() {
+            if let RowKind::LnA(k, _) = row.kind {
+                match amplitude_groups.last_mut() {
+                    Some((last, list)) if *last == k => list.push(i),
+                    _ => amplitude_groups.push((k, vec![i])),
+                }
+            }
+        }
+        ModeTable {
+            modes,
+            channels,
+            pairs,
+            rows,
+            other_rows,
+            amplitude_groups,
+        }
+    }
+
+    /// Length of the whitened residual vector: one per row plus one level per mode with
+    /// amplitudes.
+    pub fn n_residuals(&self) -> usize {
+        self.rows.len() + self.amplitude_groups.len()
+    }
+
+    /// Number of rows per floor index (the level floor's entry stays 0).
+    pub fn rows_per_quantity(&self) -> [usize; N_FLOORS] {
+        let mut n = [0; N_FLOORS];
+        for r in &self.rows {
+            if let Some(q) = r.kind.quantity().floor_index() {
+                n[q] += 1;
+            }
+        }
+        n
+    }
+}
+
+/// The model's prediction for every mode of a table.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Prediction {
+    /// ln f₀ (undamped), per mode.
+    pub ln_f: Vec<f64>,
+    /// Decay rate d, 1/s, per mode.
+    pub decay: Vec<f64>,
+    /// ln a, flattened [mode · channels + channel].
+    pub ln_a: Vec<f64>,
+    /// (f_early − f_late)/f per mode.
+    pub glide: Vec<f64>,
+    pub channels: usize,
+}
+
+impl Prediction {
+    fn zeros(modes: usize, channels: usize) -> Prediction {
+        Prediction {
+            ln_f: vec![0.0; modes],
+            decay: vec![0.0; modes],
+            ln_a: vec![0.0; modes * channels],
+            glide: vec![0.0; modes],
+            channels,
+        }
+    }
+}
+
+/// Parameters of the baseline before the per-channel gains: ln s, α, b (parent docs).
+pub const BASE_PARAMS: usize = 3;
+
+/// Baseline plus accepted terms; the parameter vector is [ln s, α, b, ln g_0 … ln g_{C−1},
+/// the terms' parameters in order].
+#[derive(Clone, Debug)]
+pub struct Model {
+    pub terms: Vec<Arc<dyn Term>>,
+    /// ln f_ref of the β scaling b = β ω_ref² (ω_ref = 2π f_ref, the fit table's mean ln f_sim
+    /// times the starting scale); held-out evaluations reuse the fit's.
+    pub ln_f_ref: f64,
+    pub channels: usize,
+    offsets: Vec<usize>,
+    counts: Vec<usize>,
+}
+
+impl Model {
+    pub fn new(terms: Vec<Arc<dyn Term>>, ln_f_ref: f64, channels: usize) -> Model {
+        let counts: Vec<usize> = terms.iter().map(|t| t.params().len()).collect();
+        let mut offsets = Vec::with_capacity(terms.len());
+        let mut next = BASE_PARAMS + channels;
+        for &n in &counts {
+            offsets.push(next);
+            next += n;
+        }
+        Model {
+            terms,
+            ln_f_ref,
+            channels,
+            offsets,
+            counts,
+        }
+    }
+
+    pub fn with_term(&self, term: Arc<dyn Term>) -> Model {
+        let mut terms = self.terms.clone();
+        terms.push(term);
+        Model::new(terms, self.ln_f_ref, self.channels)
+    }
+
+    pub fn n_params(&self) -> usize {
+        BASE_PARAMS + self.channels + self.counts.iter().sum::<usize>()
+    }
+
+    /// The parameters of term `i` within `x`.
+    pub fn term_params<'a>(&self, i: usize, x: &'a [f64]) -> &'a [f64] {
+        &x[self.offsets[i]..self.offsets[i] + self.counts[i]]
+    }
+
+    pub fn term_offset(&self, i: usize) -> usize {
+        self.offsets[i]
+    }
+
+    pub fn replaces_rayleigh(&self) -> bool {
+        self.terms.iter().any(|t| t.replaces_rayleigh())
+    }
+
+    /// Parameter specifications, baseline first.
+    pub fn specs(&self) -> Vec<ParamSpec> {
+        let mut specs = vec![
+            ParamSpec::new("ln frequency scale ln s", "1", -1.0, 1.0, 1.0),
+            ParamSpec::new("Rayleigh α", "1/s", 0.0, 1e5, 1.0),
+            ParamSpec::new("Rayleigh β ω_ref²", "1/s", 0.0, 1e5, 1.0),
+        ];
+        for c in 0..self.channels {
+            specs.push(ParamSpec::new(
+                format!("ln gain of channel {c}"),
+                "ln(amplitude units)",
+                -300.0,
+                300.0,
+                1.0,
+            ));
+        }
+        for t in &self.terms {
+            specs.extend(t.params());
+        }
+        specs
+    }
+
+    /// Free parameters: all but α and b when a term replaces Rayleigh damping.
+    pub fn free_mask(&self) -> Vec<bool> {
+        let mut free = vec![true; self.n_params()];
+        if self.replaces_rayleigh() {
+            free[1] = false;
+            free[2] = false;
+        }
+        free
+    }
+
+    /// The prediction for every mode of `table` at parameters `x`, in stages: frequencies,
+    /// then decay rates (functions of the predicted frequencies), amplitudes, glides.
+    pub fn predict(&self, table: &ModeTable, x: &[f64], out: &mut Prediction) {
+        let (ln_s, alpha, b) = (x[0], x[1], x[2]);
+        for (k, m) in table.modes.iter().enumerate() {
+            out.ln_f[k] = ln_s + m.ln_f_sim;
+        }
+        for (i, t) in self.terms.iter().enumerate() {
+            t.frequency(table, self.term_params(i, x), &mut out.ln_f);
+        }
+        for k in 0..table.modes.len() {
+            out.decay[k] = 0.5 * (alpha + b * (2.0 * (out.ln_f[k] - self.ln_f_ref)).exp());
+        }
+        for (i, t) in self.terms.iter().enumerate() {
+            t.damping(table, self.term_params(i, x), &out.ln_f, &mut out.decay);
+        }
+        let c_n = table.channels;
+        let ln_two_pi = (2.0 * PI).ln();
+        for (k, m) in table.modes.iter().enumerate() {
+            let base = m.drive.max(1e-300).ln() + ln_two_pi + out.ln_f[k];
+            for c in 0..c_n {
+                out.ln_a[k * c_n + c] = x[BASE_PARAMS + c] + base;
+            }
+        }
+        for (i, t) in self.terms.iter().enumerate() {
+            t.amplitude(table, self.term_params(i, x), &out.ln_f, &mut out.ln_a);
+        }
+        out.glide.iter_mut().for_each(|g| *g = 0.0);
+        for (i, t) in self.terms.iter().enumerate() {
+            t.glide(table, self.term_params(i, x), &mut out.glide);
+        }
+    }
+
+    pub fn prediction(&self, table: &ModeTable, x: &[f64]) -> Prediction {
+        let mut p = Prediction::zeros(table.modes.len(), table.channels);
+        self.predict(table, x, &mut p);
+        p
+    }
+}
+
+/// Number of model-error floors: ln f, ln d, ln a (mix, per row), ln a (level, per mode),
+/// glide.
+pub const N_FLOORS: usize = 5;
+/// Index of the per-mode amplitude level floor τ_A.
+pub const LEVEL_FLOOR: usize = 3;
+
+/// Floors τ² (variances), indexed as [`N_FLOORS`].
+pub type FloorVariances = [f64; N_FLOORS];
+
+/// Total variance σ² + τ² of a row (for amplitude rows: the within-mode part only).
+fn row_variance(row: &Row, tau2: &FloorVariances) -> f64 {
+    row.sigma * row.sigma + row.kind.quantity().floor_index().map_or(0.0, |q| tau2[q])
+}
+
+/// One mode's amplitude rows under the two-level floor (parent docs, "Likelihood"): with
+/// D_c = σ_c² + τ_a², W = Σ 1/D_c and the weighted mean residual m = Σ (r_c/D_c) / W, the
+/// quadratic form of the covariance diag(D) + τ_A² 11ᵀ is Σ (r_c − m)²/D_c + m²/(1/W + τ_A²)
+/// and its log-determinant Σ ln D_c + ln(1 + τ_A² W).
+struct AmplitudeBlock {
+    /// Σ (r_c − m)²/D_c
+    within: f64,
+    m: f64,
+    w: f64,
+    log_det_within: f64,
+}
+
+fn amplitude_block(residuals: impl Iterator<Item = (f64, f64)>, tau2_mix: f64) -> AmplitudeBlock {
+    let (mut w, mut swr, mut swr2, mut log_det) = (0.0, 0.0, 0.0, 0.0);
+    for (r, sigma2) in residuals {
+        let d = sigma2 + tau2_mix;
+        w += 1.0 / d;
+        swr += r / d;
+        swr2 += r * r / d;
+        log_det += d.ln();
+    }
+    let m = if w > 0.0 { swr / w } else { 0.0 };
+    AmplitudeBlock {
+        within: (swr2 - w * m * m).max(0.0),
+        m,
+        w,
+        log_det_within: log_det,
+    }
+}
+
+impl AmplitudeBlock {
+    fn level_variance(&self, tau2_level: f64) -> f64 {
+        1.0 / self.w + tau2_level
+    }
+    /// −2 ln L of the block without the 2π constants.
+    fn objective(&self, tau2_level: f64) -> f64 {
+        self.log_det_within
+            + (1.0 + tau2_level * self.w).ln()
+            + self.within
+            + self.m * self.m / self.level_variance(tau2_level)
+    }
+}
+
+/// Writes the whitened residuals of `table` at prediction `p` into `out` (length
+/// [`ModeTable::n_residuals`]): r/√(σ² + τ²) for every non-amplitude row, then per mode with
+/// amplitudes (r_c − m)/√D_c per channel and m/√(1/W + τ_A²). Their sum of squares is the
+/// quadratic form of −2 ln L.
+fn whiten(table: &ModeTable, p: &Prediction, tau2: &FloorVariances, out: &mut [f64]) {
+    let mut i = 0;
+    for &r in &table.other_rows {
+        let row = &table.rows[r];
+        out[i] = (row.value - row.kind.predict(p)) / row_variance(row, tau2).sqrt();
+        i += 1;
+    }
+    for (_, rows) in &table.amplitude_groups {
+        let block = amplitude_block(
+            rows.iter().map(|&r| {
+                (
+                    table.rows[r].value - table.rows[r].kind.predict(p),
+                    table.rows[r].sigma.powi(2),
+                )
+            }),
+            tau2[2],
+        );
+        for &r in rows {
+            let row = &table.rows[r];
+            out[i] = (row.value - row.kind.predict(p) - block.m) / row_variance(row, tau2).sqrt();
+            i += 1;
+        }
+        out[i] = block.m / block.level_variance(tau2[LEVEL_FLOOR]).sqrt();
+        i += 1;
+    }
+}
+
+/// −2 ln L (parent docs) of the rows at prediction `p`; ∞ if not finite.
+fn minus_two_log_likelihood(table: &ModeTable, p: &Prediction, tau2: &FloorVariances) -> f64 {
+    let ln_two_pi = (2.0 * PI).ln();
+    let mut sum = 0.0;
+    for &r in &table.other_rows {
+        let row = &table.rows[r];
+        let v = row_variance(row, tau2);
+        let res = row.value - row.kind.predict(p);
+        sum += ln_two_pi + v.ln() + res * res / v;
+    }
+    for (_, rows) in &table.amplitude_groups {
+        let block = amplitude_block(
+            rows.iter().map(|&r| {
+                (
+                    table.rows[r].value - table.rows[r].kind.predict(p),
+                    table.rows[r].sigma.powi(2),
+                )
+            }),
+            tau2[2],
+        );
+        sum += rows.len() as f64 * ln_two_pi + block.objective(tau2[LEVEL_FLOOR]);
+    }
+    if sum.is_finite() {
+        sum
+    } else {
+        f64::INFINITY
+    }
+}
+
+/// Floors τ² maximising the likelihood at prediction `p`, using only the modes for which
+/// `keep(mode)` holds (leave-one-out uses this). ln f, ln d and glide by the 1-D profile; the
+/// two amplitude floors by coordinate descent on the exact block likelihood (at most 6
+/// sweeps, until both settle to 10⁻⁶).
+fn profile_floors_where(table: &ModeTable, p: &Prediction, keep: impl Fn(usize) -> bool) -> FloorVariances {
+    let mut tau2 = [0.0; N_FLOORS];
+    let keeps = |row: &Row| {
+        let (a, b) = row.kind.modes();
+        keep(a) && b.is_none_or(&keep)
+    };
+    for q in [0, 1, 4] {
+        let (r, v): (Vec<f64>, Vec<f64>) = table
+            .other_rows
+            .iter()
+            .map(|&i| &table.rows[i])
+            .filter(|row| row.kind.quantity().floor_index() == Some(q) && keeps(row))
+            .map(|row| (row.value - row.kind.predict(p), row.sigma * row.sigma))
+            .unzip();
+        if r.iter().all(|r| r.is_finite()) {
+            tau2[q] = lm::profile_floor(&r, &v);
+        }
+    }
+    let groups: Vec<Vec<(f64, f64)>> = table
+        .amplitude_groups
+        .iter()
+        .filter(|(k, _)| keep(*k))
+        .map(|(_, rows)| {
+            rows.iter()
+                .map(|&r| {
+                    (
+                        table.rows[r].value - table.rows[r].kind.predict(p),
+                        table.rows[r].sigma.powi(2),
+                    )
+                })
+                .collect()
+        })
+        .collect();
+    if groups.is_empty() || groups.iter().flatten().any(|(r, _)| !r.is_finite()) {
+        return tau2;
+    }
+    let s_min = groups
+        .iter()
+        .flatten()
+        .map(|g| g.1)
+        .fold(f64::INFINITY, f64::min)
+        .max(1e-300);
+    let s_max = groups.iter().flatten().map(|g| g.1).fold(0.0, f64::max);
+    let r_max = groups.iter().flatten().map(|g| g.0 * g.0).fold(0.0, f64::max);
+    let (lo, hi) = (1e-4 * s_min, 10.0 * r_max + s_max);
+    let objective = |mix: f64, level: f64| -> f64 {
+        groups
+            .iter()
+            .map(|g| amplitude_block(g.iter().copied(), mix).objective(level))
+            .sum()
+    };
+    let (mut mix, mut level) = (0.0, 0.0);
+    for _ in 0..6 {
+        let new_mix = lm::minimise_nonnegative(|t| objective(t, level), lo, hi);
+        // At fixed mix the blocks are fixed: only ln(1 + τ_A² W) and the level term vary.
+        let blocks: Vec<AmplitudeBlock> = groups
+            .iter()
+            .map(|g| amplitude_block(g.iter().copied(), new_mix))
+            .collect();
+        let new_level = lm::minimise_nonnegative(|t| blocks.iter().map(|b| b.objective(t)).sum(), lo, hi);
+        let settled =
+            (new_mix - mix).abs() <= 1e-6 * new_mix.max(lo) && (new_level - level).abs() <= 1e-6 * new_level.max(lo);
+        (mix, level) = (new_mix, new_level);
+        if settled {
+            break;
+        }
+    }
+    tau2[2] = mix;
+    tau2[LEVEL_FLOOR] = level;
+    tau2
+}
+
+fn profile_floors(table: &ModeTable, p: &Prediction) -> FloorVariances {
+    profile_floors_where(table, p, |_| true)
+}
+
+/// A fitted model on a table.
+#[derive(Clone, Debug)]
+pub struct Fit {
+    pub model: Model,
+    pub x: Vec<f64>,
+    pub free: Vec<bool>,
+    /// Standard deviation per parameter (0 for held parameters, ∞ if undetermined).
+    pub sigma: Vec<f64>,
+    /// Profiled floors τ² for ln f, ln d, ln a (mix), ln a (level), glide.
+    pub tau2: FloorVariances,
+    pub minus_two_log_likelihood: f64,
+    pub n_rows: usize,
+    /// Free model parameters plus one per profiled floor with data.
+    pub n_parameters: usize,
+    pub prediction: Prediction,
+}
+
+/// Residual and total variance of one mode's quantities under a fit.
+#[derive(Clone, Debug, PartialEq)]
+pub struct ModeResiduals {
+    /// ln f₀ observed − predicted, and σ² + τ_f².
+    pub ln_f: Vec<(f64, f64)>,
+    pub ln_d: Vec<Option<(f64, f64)>>,
+    /// Per mode and channel: residual and its marginal variance σ² + τ_a² + τ_A².
+    pub ln_a: Vec<Vec<Option<(f64, f64)>>>,
+    /// Per mode: the weighted mean amplitude residual m over its channels and its variance
+    /// 1/W + τ_A² (the mode's level).
+    pub ln_a_level: Vec<Option<(f64, f64)>>,
+    pub glide: Vec<Option<(f64, f64)>>,
+}
+
+impl Fit {
+    /// Bayesian information criterion −2 ln L + P ln n.
+    pub fn bic(&self) -> f64 {
+        self.minus_two_log_likelihood + self.n_parameters as f64 * (self.n_rows as f64).ln()
+    }
+
+    /// Per-mode residuals (observed − predicted) with their total variances.
+    pub fn mode_residuals(&self, table: &ModeTable) -> ModeResiduals {
+        residuals_with(table, &self.prediction, &self.tau2)
+    }
+
+    /// Standardised residual of every row of `table` (which must be the table fitted); for
+    /// amplitudes with the marginal variance σ² + τ_a² + τ_A².
+    pub fn row_z(&self, table: &ModeTable) -> Vec<f64> {
+        table
+            .rows
+            .iter()
+            .map(|row| row_z(row, &self.prediction, &self.tau2))
+            .collect()
+    }
+
+    /// Standardised residuals of every row, with the floors re-profiled without the mode(s)
+    /// the row involves (leave-one-out), so that one badly fitted mode cannot hide itself by
+    /// widening a floor.
+    pub fn row_z_leave_one_out(&self, table: &ModeTable) -> Vec<f64> {
+        let p = &self.prediction;
+        let per_mode: Vec<FloorVariances> = (0..table.modes.len())
+            .map(|k| profile_floors_where(table, p, |j| j != k))
+            .collect();
+        table
+            .rows
+            .iter()
+            .map(|row| {
+                let (a, b) = row.kind.modes();
+                let mut tau2 = per_mode[a];
+                if let Some(b) = b {
+                    // A pair row: the floors without either mode (the larger of the two).
+                    for (t, u) in tau2.iter_mut().zip(&per_mode[b]) {
+                        *t = t.max(*u);
+                    }
+                }
+                row_z(row, p, &tau2)
+            })
+            .collect()
+    }
+}
+
+fn row_z(row: &Row, p: &Prediction, tau2: &FloorVariances) -> f64 {
+    let level = if row.kind.quantity() == Quantity::LnAmplitude {
+        tau2[LEVEL_FLOOR]
+    } else {
+        0.0
+    };
+    (row.value - row.kind.predict(p)) / (row_variance(row, tau2) + level).sqrt()
+}
+
+fn residuals_with(table: &ModeTable, p: &Prediction, t: &FloorVariances) -> ModeResiduals {
+    let ln_f = table
+        .modes
+        .iter()
+        .enumerate()
+        .map(|(k, m)| (m.ln_f - p.ln_f[k], m.sigma_ln_f.powi(2) + t[0]))
+        .collect();
+    let ln_d = table
+        .modes
+        .iter()
+        .enumerate()
+        .map(|(k, m)| m.ln_d.map(|(v, s)| (v - p.decay[k].max(1e-300).ln(), s * s + t[1])))
+        .collect();
+    let ln_a: Vec<Vec<Option<(f64, f64)>>> = table
+        .modes
+        .iter()
+        .enumerate()
+        .map(|(k, m)| {
+            m.ln_a
+                .iter()
+                .enumerate()
+                .map(|(c, a)| a.map(|(v, s)| (v - p.ln_a[k * p.channels + c], s * s + t[2] + t[LEVEL_FLOOR])))
+                .collect()
+        })
+        .collect();
+    let ln_a_level = table
+        .modes
+        .iter()
+        .enumerate()
+        .map(|(k, m)| {
+            let present: Vec<(f64, f64)> = m
+                .ln_a
+                .iter()
+                .enumerate()
+                .filter_map(|(c, a)| a.map(|(v, s)| (v - p.ln_a[k * p.channels + c], s * s)))
+                .collect();
+            (!present.is_empty()).then(|| {
+                let block = amplitude_block(present.into_iter(), t[2]);
+                (block.m, block.level_variance(t[LEVEL_FLOOR]))
+            })
+        })
+        .collect();
+    let glide = table
+        .modes
+        .iter()
+        .enumerate()
+        .map(|(k, m)| m.glide.map(|(v, s)| (v - p.glide[k], s * s + t[4])))
+        .collect();
+    ModeResiduals {
+        ln_f,
+        ln_d,
+        ln_a,
+        ln_a_level,
+        glide,
+    }
+}
+
+/// Floors with data: one per floored quantity with rows, plus the level floor when some mode
+/// has amplitudes.
+fn floors_of(table: &ModeTable) -> usize {
+    let n = table.rows_per_quantity();
+    n.iter().filter(|&&n| n > 0).count() + usize::from(!table.amplitude_groups.is_empty())
+}
+
+/// Fits `model` to `table` from `x0`: Levenberg–Marquardt on the parameters at fixed floors,
+/// then the floors at fixed parameters, alternated until −2 ln L changes by less than 10⁻⁶
+/// (each half-step lowers it, so the alternation converges).
+pub fn fit(table: &ModeTable, model: Model, x0: Vec<f64>) -> Fit {
+    let specs = model.specs();
+    let lower: Vec<f64> = specs.iter().map(|s| s.lower).collect();
+    let upper: Vec<f64> = specs.iter().map(|s| s.upper).collect();
+    let scale: Vec<f64> = specs.iter().map(|s| s.scale).collect();
+    let free = model.free_mask();
+    let n_residuals = table.n_residuals();
+    let mut x: Vec<f64> = x0
+        .iter()
+        .zip(lower.iter().zip(&upper))
+        .map(|(&v, (&lo, &hi))| v.clamp(lo, hi))
+        .collect();
+    let mut pred = model.prediction(table, &x);
+    let mut tau2 = profile_floors(table, &pred);
+    let mut previous = f64::INFINITY;
+    let mut scratch = pred.clone();
+    for _ in 0..60 {
+        let residuals = |xs: &[f64], out: &mut [f64]| {
+            model.predict(table, xs, &mut scratch);
+            whiten(table, &scratch, &tau2, out);
+        };
+        let min = lm::minimise(residuals, n_residuals, &x, &free, &lower, &upper, &scale, 200);
+        x = min.x;
+        model.predict(table, &x, &mut pred);
+        tau2 = profile_floors(table, &pred);
+        let m2ll = minus_two_log_likelihood(table, &pred, &tau2);
+        if !m2ll.is_finite() || (previous - m2ll).abs() < 1e-6 {
+            previous = m2ll;
+            break;
+        }
+        previous = m2ll;
+    }
+    // Standard errors from the whitened Jacobian at the optimum.
+    let columns: Vec<usize> = (0..x.len()).filter(|&j| free[j]).collect();
+    let mut residuals = |xs: &[f64], out: &mut [f64]| {
+        model.predict(table, xs, &mut scratch);
+        whiten(table, &scratch, &tau2, out);
+    };
+    let jac = lm::jacobian(&mut residuals, &x, &columns, &lower, &upper, &scale, n_residuals);
+    let mut sigma = vec![0.0; x.len()];
+    for (s, &j) in lm::standard_errors(&jac).into_iter().zip(&columns) {
+        sigma[j] = s;
+    }
+    let n_parameters = columns.len() + floors_of(table);
+    Fit {
+        model,
+        x,
+        free,
+        sigma,
+        tau2,
+        minus_two_log_likelihood: previous,
+        n_rows: table.rows.len(),
+        n_parameters,
+        prediction: pred,
+    }
+}
+
+/// A term with its parameters fixed (a held-out evaluation's physics).
+#[derive(Debug)]
+struct Frozen {
+    inner: Arc<dyn Term>,
+    p: Vec<f64>,
+}
+
+impl Term for Frozen {
+    fn effect(&self) -> &'static str {
+        self.inner.effect()
+    }
+    fn variant(&self) -> &'static str {
+        self.inner.variant()
+    }
+    fn params(&self) -> Vec<ParamSpec> {
+        vec![]
+    }
+    fn replaces_rayleigh(&self) -> bool {
+        self.inner.replaces_rayleigh()
+    }
+    fn frequency(&self, table: &ModeTable, _: &[f64], ln_f: &mut [f64]) {
+        self.inner.frequency(table, &self.p, ln_f)
+    }
+    fn damping(&self, table: &ModeTable, _: &[f64], ln_f: &[f64], decay: &mut [f64]) {
+        self.inner.damping(table, &self.p, ln_f, decay)
+    }
+    fn amplitude(&self, table: &ModeTable, _: &[f64], ln_f: &[f64], ln_a: &mut [f64]) {
+        self.inner.amplitude(table, &self.p, ln_f, ln_a)
+    }
+    fn glide(&self, table: &ModeTable, _: &[f64], glide: &mut [f64]) {
+        self.inner.glide(table, &self.p, glide)
+    }
+}
+
+/// Held-out error of `fit` on `held` (parent docs, "Selection"): the physics (scale,
+/// damping, every term's physical parameters) fixed at the fit's values; only the held-out
+/// set's per-channel parameters (gains, and the nuisance a term declares) are fitted; the
+/// residuals whitened with the floors `tau2` (the yardstick: the same for the models
+/// compared). Returns √(Σ z² / (n − p_nuisance)) over the n held-out rows, or None without rows.
+pub fn held_out_error(fit: &Fit, held: &ModeTable, tau2: &FloorVariances) -> Option<f64> {
+    if held.rows.is_empty() {
+        return None;
+    }
+    let mut terms: Vec<Arc<dyn Term>> = Vec::new();
+    let mut nuisance_init: Vec<f64> = Vec::new();
+    for (i, t) in fit.model.terms.iter().enumerate() {
+        let p = fit.model.term_params(i, &fit.x);
+        match t.held_out_nuisance(p, held) {
+            Some((term, init)) => {
+                terms.push(term);
+                nuisance_init.extend(init);
+            }
+            None => terms.push(Arc::new(Frozen {
+                inner: t.clone(),
+                p: p.to_vec(),
+            })),
+        }
+    }
+    let model = Model::new(terms, fit.model.ln_f_ref, held.channels);
+    let mut x = fit.x[..BASE_PARAMS].to_vec();
+    x.extend(std::iter::repeat_n(0.0, held.channels));
+    x.extend(nuisance_init);
+    let start = model.prediction(held, &x);
+    set_gains_to_mean_residual(held, &start, &mut x);
+    let specs = model.specs();
+    let lower: Vec<f64> = specs.iter().map(|s| s.lower).collect();
+    let upper: Vec<f64> = specs.iter().map(|s| s.upper).collect();
+    let scale: Vec<f64> = specs.iter().map(|s| s.scale).collect();
+    let mut free = vec![false; x.len()];
+    for f in free.iter_mut().skip(BASE_PARAMS) {
+        *f = true;
+    }
+    let mut scratch = start;
+    let residuals = |xs: &[f64], out: &mut [f64]| {
+        model.predict(held, xs, &mut scratch);
+        whiten(held, &scratch, tau2, out);
+    };
+    let min = lm::minimise(residuals, held.n_residuals(), &x, &free, &lower, &upper, &scale, 200);
+    if !min.cost.is_finite() {
+        return None;
+    }
+    // Count only the nuisance parameters the held-out rows can see.
+    let channels_seen = (0..held.channels)
+        .filter(|&c| {
+            held.rows
+                .iter()
+                .any(|r| matches!(r.kind, RowKind::LnA(_, ch) if ch == c))
+        })
+        .count();
+    let nuisance = x.len() - BASE_PARAMS - held.channels + channels_seen;
+    let dof = (held.rows.len() as f64 - nuisance as f64).max(1.0);
+    Some((min.cost / dof).sqrt())
+}
+
+/// Sets each channel's ln gain (x[BASE_PARAMS + c]) to its mean amplitude residual under
+/// prediction `p` (made with those gains at 0).
+fn set_gains_to_mean_residual(table: &ModeTable, p: &Prediction, x: &mut [f64]) {
+    for c in 0..table.channels {
+        let r: Vec<f64> = table
+            .rows
+            .iter()
+            .filter_map(|row| match row.kind {
+                RowKind::LnA(_, ch) if ch == c => Some(row.value - row.kind.predict(p)),
+                _ => None,
+            })
+            .collect();
+        if !r.is_empty() {
+            x[BASE_PARAMS + c] = r.iter().sum::<f64>() / r.len() as f64;
+        }
+    }
+}
+
+/// Starting point of the baseline on `table` at ln s = `ln_scale`: α and b from a weighted
+/// linear fit of d on (1, (ω/ω_ref)²)/2, clamped to α, b ≥ 0 with the other refitted; gains
+/// from the mean amplitude residual per channel.
+pub fn baseline_start(table: &ModeTable, model: &Model, ln_scale: f64) -> Vec<f64> {
+    let mut x = vec![0.0; model.n_params()];
+    x[0] = ln_scale;
+    let points: Vec<(f64, f64, f64)> = table
+        .modes
+        .iter()
+        .filter_map(|m| {
+            m.ln_d.map(|(ln_d, s)| {
+                let u = (2.0 * (ln_scale + m.ln_f_sim - model.ln_f_ref)).exp();
+                let d = ln_d.exp();
+                (u, d, 1.0 / (d * d * (s * s + 0.01)))
+            })
+        })
+        .collect();
+    let solve = |with_alpha: bool, with_b: bool| -> (f64, f64) {
+        let (mut s11, mut s12, mut s22, mut r1, mut r2) = (0.0, 0.0, 0.0, 0.0, 0.0);
+        for &(u, d, w) in &points {
+            let (p, q) = (if with_alpha { 0.5 } else { 0.0 }, if with_b { 0.5 * u } else { 0.0 });
+            s11 += w * p * p;
+            s12 += w * p * q;
+            s22 += w * q * q;
+            r1 += w * p * d;
+            r2 += w * q * d;
+        }
+        match (with_alpha, with_b) {
+            (true, true) => {
+                let det = s11 * s22 - s12 * s12;
+                if det.abs() <= 1e-300 {
+                    (f64::NAN, f64::NAN)
+                } else {
+                    ((r1 * s22 - r2 * s12) / det, (s11 * r2 - s12 * r1) / det)
+                }
+            }
+            (true, false) => (if s11 > 0.0 { r1 / s11 } else { 0.0 }, 0.0),
+            _ => (0.0, if s22 > 0.0 { r2 / s22 } else { 0.0 }),
+        }
+    };
+    let (mut alpha, mut b) = solve(true, true);
+    if !(alpha >= 0.0 && b >= 0.0) {
+        let a_only = solve(true, false);
+        let b_only = solve(false, true);
+        let cost = |(a, bb): (f64, f64)| -> f64 {
+            points
+                .iter()
+                .map(|&(u, d, w)| w * (d - 0.5 * (a + bb * u)).powi(2))
+                .sum()
+        };
+        (alpha, b) = if cost(a_only) <= cost(b_only) { a_only } else { b_only };
+    }
+    x[1] = alpha.max(0.0);
+    x[2] = b.max(0.0);
+    if x[1] + x[2] <= 0.0 {
+        x[1] = 1.0;
+    }
+    let start = model.prediction(table, &x);
+    set_gains_to_mean_residual(table, &start, &mut x);
+    x
+}

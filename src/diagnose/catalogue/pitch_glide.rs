@@ -1,0 +1,102 @@
+//! Nonlinear pitch glide.
+//!
+//! Under a hard strike a thin object vibrates beyond the linear range: geometric stiffening
+//! (a Duffing-like cubic term) raises a mode's frequency with its amplitude, and as the mode
+//! decays the pitch glides down (or up, for softening). For a Duffing oscillator the shift is
+//! Δω/ω ∝ (strain amplitude)², and the strain energy of mode k is ∝ ω_k² q_k² ∝ a_k²/ω_k² (a the
+//! acceleration amplitude, a = ω² q). The observable is the frequency difference between the
+//! first and the second half of the decay, y_k = (f_early − f_late)/f_k
+//! ([`super::ObservedMode::early_frequency_hz`]).
+//!
+//! Model: y_k = g · Q_k², Q_k² = mean_c a_kc² / ω_k² over its maximum in the table (the most
+//! energetic mode has Q² = 1); one parameter g (free sign; g > 0 a downward glide). It
+//! assumes one nonlinear coefficient shared by the modes, which is the simplest model that
+//! lets the glide of several modes be compared; the floor τ_glide takes the mode-to-mode
+//! spread of the true coefficients.
+//!
+//! Detector: the weighted regression (through the origin: no glide without amplitude) of y on
+//! Q²; the candidate goes on if |z| > 2. The baseline predicts y = 0, so the glide rows are in
+//! every model's likelihood and the criterion compares like with like.
+
+use std::sync::Arc;
+
+use super::{Detection, Effect, Fit, ModeTable, ParamSpec, Proposal, Term};
+
+pub struct PitchGlide;
+
+#[derive(Debug)]
+pub struct EnergyGlide;
+
+impl Term for EnergyGlide {
+    fn effect(&self) -> &'static str {
+        "pitch_glide"
+    }
+    fn variant(&self) -> &'static str {
+        "energy_squared"
+    }
+    fn params(&self) -> Vec<ParamSpec> {
+        vec![ParamSpec::new(
+            "relative glide g of the most energetic mode",
+            "1",
+            -0.2,
+            0.2,
+            1e-4,
+        )]
+    }
+    fn glide(&self, table: &ModeTable, p: &[f64], glide: &mut [f64]) {
+        for (y, m) in glide.iter_mut().zip(&table.modes) {
+            *y += p[0] * m.energy;
+        }
+    }
+}
+
+impl Effect for PitchGlide {
+    fn name(&self) -> &'static str {
+        "pitch_glide"
+    }
+    fn signature(&self) -> &'static str {
+        "early part of a decay higher (or lower) in pitch than the late part, most in the loudest modes"
+    }
+    fn detect(&self, table: &ModeTable, current: &Fit) -> Detection {
+        if current.model.terms.iter().any(|t| t.effect() == "pitch_glide") {
+            return Detection::NotEnoughData("glide already in the model".into());
+        }
+        let res = current.mode_residuals(table);
+        let points: Vec<(f64, f64, f64)> = table
+            .modes
+            .iter()
+            .zip(&res.glide)
+            .filter_map(|(m, g)| g.map(|(r, v)| (m.energy, r, 1.0 / v)))
+            .collect();
+        if points.len() < 3 {
+            return Detection::NotEnoughData(format!(
+                "{} modes with early/late frequencies; at least 3 needed",
+                points.len()
+            ));
+        }
+        let sxx: f64 = points.iter().map(|p| p.2 * p.0 * p.0).sum();
+        if !(sxx > 0.0) {
+            return Detection::NotEnoughData(
+                "no mode with an amplitude among those with early/late frequencies".into(),
+            );
+        }
+        let sxy: f64 = points.iter().map(|p| p.2 * p.0 * p.1).sum();
+        let g = sxy / sxx;
+        let z = g * sxx.sqrt();
+        let detail = format!("glide vs relative energy: slope g ≈ {g:.2e} (z = {z:.1})");
+        if z.abs() <= 2.0 {
+            return Detection::Nothing {
+                statistic: z.abs(),
+                detail,
+            };
+        }
+        Detection::Found {
+            statistic: z.abs(),
+            detail,
+            proposals: vec![Proposal {
+                term: Arc::new(EnergyGlide),
+                init: vec![g.clamp(-0.2, 0.2)],
+            }],
+        }
+    }
+}

@@ -1,0 +1,209 @@
+//! The report of [`super::diagnose`] (serde; parent module docs, "Report").
+
+use serde::{Deserialize, Serialize};
+
+use super::{Quantity, Role};
+
+/// A fitted parameter with its standard deviation (from the inverse of JᵀJ of the
+/// standardised residuals).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct FittedParam {
+    pub name: String,
+    pub unit: String,
+    pub value: f64,
+    /// None when the data do not determine it.
+    pub sigma: Option<f64>,
+}
+
+impl FittedParam {
+    pub fn new(name: impl Into<String>, unit: impl Into<String>, value: f64, sigma: f64) -> FittedParam {
+        FittedParam {
+            name: name.into(),
+            unit: unit.into(),
+            value,
+            sigma: sigma.is_finite().then_some(sigma),
+        }
+    }
+}
+
+/// Model-error floors τ (standard deviations, in the units of each quantity).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Floors {
+    pub ln_frequency: f64,
+    pub ln_decay: f64,
+    /// Per mode and channel: the mix between microphones.
+    pub ln_amplitude: f64,
+    /// Per mode, common to its channels: the mode's level.
+    pub ln_amplitude_level: f64,
+    pub glide: f64,
+}
+
+/// One fitted model: parameters, floors, likelihood and criterion.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct ModelSummary {
+    /// "effect (variant)" for every term on top of the baseline.
+    pub effects: Vec<String>,
+    pub params: Vec<FittedParam>,
+    pub floors: Floors,
+    pub minus_two_log_likelihood: f64,
+    pub n_observations: usize,
+    /// Free parameters plus one per profiled floor.
+    pub n_parameters: usize,
+    pub bic: f64,
+    /// Held-out error (RMS standardised residual) with the baseline's floors as the yardstick.
+    pub held_out_error: Option<f64>,
+}
+
+/// An observed ↔ simulated match.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct MatchedPair {
+    pub observed: usize,
+    pub simulated: Vec<usize>,
+    pub role: Role,
+    pub cluster: usize,
+    /// Observed undamped frequency, Hz.
+    pub observed_hz: f64,
+    /// Simulated frequency times the matching scale, Hz.
+    pub simulated_hz: f64,
+}
+
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct MatchingReport {
+    /// Global frequency scale s of the matching (the baseline refits it).
+    pub scale: f64,
+    pub pairs: Vec<MatchedPair>,
+    pub unmatched_observed: Vec<usize>,
+    pub unmatched_simulated: Vec<usize>,
+    /// Held-out modes matched (with the fit's scale), and those left over.
+    pub held_out_matched: Option<usize>,
+    pub held_out_unmatched: Option<Vec<usize>>,
+}
+
+/// An effect the selection accepted.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct AcceptedEffect {
+    pub name: String,
+    pub signature: String,
+    pub variant: String,
+    /// What the detector saw.
+    pub detector: String,
+    /// Greedy step at which it entered (0 = first).
+    pub step: usize,
+    pub n_params: usize,
+    /// Improvement of the criterion when it entered (−2 ln L gain minus n_params · ln n).
+    pub delta_bic: f64,
+    pub held_out_before: Option<f64>,
+    pub held_out_after: Option<f64>,
+    /// Its parameters in the final model (all accepted effects fitted together).
+    pub params: Vec<FittedParam>,
+}
+
+/// Why a candidate was not accepted.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Rejection {
+    /// The data cannot carry the effect (too few modes, channels, no envelopes, …).
+    NotEnoughData,
+    /// The detector's screen saw nothing worth a fit.
+    DetectorFoundNothing,
+    /// The fit did not beat the criterion's threshold.
+    DeltaBicTooSmall,
+    /// ΔBIC passed but the held-out error did not fall.
+    HeldOutDidNotImprove,
+    /// ΔBIC passed but the held-out data cannot test the effect (it changes nothing there).
+    HeldOutCannotTest,
+    /// ΔBIC passed but there is no held-out data and settings require it.
+    NoHeldOutData,
+    /// The fit gave a non-finite likelihood.
+    FitFailed,
+}
+
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct RejectedEffect {
+    pub name: String,
+    pub signature: String,
+    pub reason: Rejection,
+    pub detail: String,
+    /// Detector statistic (its meaning is in `detail`).
+    pub statistic: Option<f64>,
+    pub variant: Option<String>,
+    pub n_params: Option<usize>,
+    pub delta_bic: Option<f64>,
+    pub held_out_before: Option<f64>,
+    pub held_out_after: Option<f64>,
+}
+
+/// A residual nothing in the final model explains.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct UnexplainedMode {
+    /// Index into the fit's observed modes.
+    pub observed: usize,
+    pub frequency_hz: f64,
+    pub quantity: Option<Quantity>,
+    pub channel: Option<usize>,
+    /// Standardised residual with the floor re-profiled without this mode.
+    pub z: Option<f64>,
+    pub reason: String,
+}
+
+/// Standardised residuals of one mode.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct ZScores {
+    pub ln_frequency: f64,
+    pub ln_decay: Option<f64>,
+    pub ln_amplitude: Vec<Option<f64>>,
+    pub glide: Option<f64>,
+}
+
+/// Per matched mode: z-scores under the baseline and under the final model.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct ModeResidualRow {
+    pub observed: usize,
+    pub frequency_hz: f64,
+    pub simulated: Vec<usize>,
+    pub role: Role,
+    pub before: ZScores,
+    pub after: ZScores,
+}
+
+/// Noise floor per band: the pre-roll estimate and the floor fitted to the residual
+/// envelopes (with the reverberant excess removed when that effect was accepted).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct NoiseFloorReport {
+    pub band_edges_hz: Vec<f64>,
+    pub pre_roll: Vec<f64>,
+    pub fitted: Vec<f64>,
+    /// 10 log10(fitted / pre-roll) per band; well above 0 dB is stationary residual energy
+    /// (hum, a missed partial) rather than noise.
+    pub excess_db: Vec<f64>,
+}
+
+impl NoiseFloorReport {
+    pub fn new(band_edges_hz: Vec<f64>, pre_roll: Vec<f64>, fitted: Vec<f64>) -> NoiseFloorReport {
+        let excess_db = fitted
+            .iter()
+            .zip(&pre_roll)
+            .map(|(f, p)| 10.0 * (f / p).log10())
+            .collect();
+        NoiseFloorReport {
+            band_edges_hz,
+            pre_roll,
+            fitted,
+            excess_db,
+        }
+    }
+}
+
+/// Everything [`super::diagnose`] found.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct CatalogueReport {
+    pub delta_bic_threshold: f64,
+    pub matching: MatchingReport,
+    pub baseline: ModelSummary,
+    pub final_model: ModelSummary,
+    pub accepted: Vec<AcceptedEffect>,
+    pub rejected: Vec<RejectedEffect>,
+    pub unexplained: Vec<UnexplainedMode>,
+    pub residuals: Vec<ModeResidualRow>,
+    pub noise: Option<NoiseFloorReport>,
+}

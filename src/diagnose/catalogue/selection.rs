@@ -1,0 +1,465 @@
+//! Greedy forward selection over the catalogue and the report (parent module docs,
+//! "Selection").
+
+use super::matching::{match_modes, Matching};
+use super::model::{
+    baseline_start, fit, held_out_error, undamped_hz, Fit, FloorVariances, ModeTable, Model, BASE_PARAMS, LEVEL_FLOOR,
+};
+use super::report::*;
+use super::{catalogue, CatalogueError, CatalogueSettings, Detection, Effect, Evidence, OwnOutcome, Quantity};
+
+/// One effect's evaluation against the current model.
+enum Outcome {
+    NotEnoughData(String),
+    Nothing { statistic: f64, detail: String },
+    Fitted(Box<Candidate>),
+}
+
+struct Candidate {
+    statistic: f64,
+    detail: String,
+    variant: String,
+    n_params: usize,
+    delta_bic: f64,
+    held_out: Option<(f64, f64)>,
+    /// None = accept.
+    rejection: Option<Rejection>,
+    /// The refit with the effect (None for effects evaluated on their own data).
+    fit: Option<Fit>,
+    params: Vec<FittedParam>,
+}
+
+/// The acceptance rule (parent docs): ΔBIC above the threshold and a lower held-out error.
+fn verdict(delta_bic: f64, held_out: Option<(f64, f64)>, settings: &CatalogueSettings) -> Option<Rejection> {
+    if !delta_bic.is_finite() {
+        return Some(Rejection::FitFailed);
+    }
+    if delta_bic <= settings.delta_bic_threshold {
+        return Some(Rejection::DeltaBicTooSmall);
+    }
+    match held_out {
+        None if settings.require_held_out => Some(Rejection::NoHeldOutData),
+        None => None,
+        Some((before, after)) if (after - before).abs() <= 1e-9 * before.abs().max(1e-300) => {
+            Some(Rejection::HeldOutCannotTest)
+        }
+        Some((before, after)) if after < before => None,
+        Some(_) => Some(Rejection::HeldOutDidNotImprove),
+    }
+}
+
+/// Parameters of term `i` of a fit, named.
+fn term_params(fit: &Fit, i: usize) -> Vec<FittedParam> {
+    let specs = fit.model.terms[i].params();
+    let off = fit.model.term_offset(i);
+    specs
+        .into_iter()
+        .enumerate()
+        .map(|(j, s)| FittedParam::new(s.name, s.unit, fit.x[off + j], fit.sigma[off + j]))
+        .collect()
+}
+
+fn evaluate(
+    effect: &dyn Effect,
+    table: &ModeTable,
+    held: Option<&ModeTable>,
+    current: &Fit,
+    settings: &CatalogueSettings,
+) -> Outcome {
+    let (statistic, detail, proposals) = match effect.detect(table, current) {
+        Detection::NotEnoughData(why) => return Outcome::NotEnoughData(why),
+        Detection::Nothing { statistic, detail } => return Outcome::Nothing { statistic, detail },
+        Detection::Found {
+            statistic,
+            detail,
+            proposals,
+        } => (statistic, detail, proposals),
+    };
+    let mut best: Option<(Fit, f64)> = None;
+    for proposal in proposals {
+        let model = current.model.with_term(proposal.term.clone());
+        let mut x0 = current.x.clone();
+        x0.extend(proposal.init);
+        let candidate = fit(table, model, x0);
+        let delta_bic = current.bic() - candidate.bic();
+        let better = match &best {
+            None => true,
+            Some((_, d)) => delta_bic > *d || (d.is_nan() && !delta_bic.is_nan()),
+        };
+        if better {
+            best = Some((candidate, delta_bic));
+        }
+    }
+    let Some((candidate, delta_bic)) = best else {
+        return Outcome::Nothing { statistic, detail };
+    };
+    let held_out = held.and_then(|h| {
+        let before = held_out_error(current, h, &current.tau2)?;
+        let after = held_out_error(&candidate, h, &current.tau2)?;
+        Some((before, after))
+    });
+    let i = candidate.model.terms.len() - 1;
+    let term = &candidate.model.terms[i];
+    Outcome::Fitted(Box::new(Candidate {
+        statistic,
+        detail,
+        variant: term.variant().to_string(),
+        n_params: candidate.n_parameters.saturating_sub(current.n_parameters),
+        delta_bic,
+        held_out,
+        rejection: verdict(delta_bic, held_out, settings),
+        params: term_params(&candidate, i),
+        fit: Some(candidate),
+    }))
+}
+
+fn floors(tau2: &FloorVariances) -> Floors {
+    Floors {
+        ln_frequency: tau2[0].sqrt(),
+        ln_decay: tau2[1].sqrt(),
+        ln_amplitude: tau2[2].sqrt(),
+        ln_amplitude_level: tau2[LEVEL_FLOOR].sqrt(),
+        glide: tau2[4].sqrt(),
+    }
+}
+
+fn summary(fit: &Fit, held: Option<&ModeTable>, yardstick: &FloorVariances) -> ModelSummary {
+    let omega_ref2 = (2.0 * std::f64::consts::PI * fit.model.ln_f_ref.exp()).powi(2);
+    let scale = fit.x[0].exp();
+    let mut params = vec![FittedParam::new("frequency scale s", "1", scale, scale * fit.sigma[0])];
+    if !fit.model.replaces_rayleigh() {
+        params.push(FittedParam::new("Rayleigh α", "1/s", fit.x[1], fit.sigma[1]));
+        params.push(FittedParam::new(
+            "Rayleigh β",
+            "s",
+            fit.x[2] / omega_ref2,
+            fit.sigma[2] / omega_ref2,
+        ));
+    }
+    for c in 0..fit.model.channels {
+        params.push(FittedParam::new(
+            format!("ln gain of channel {c}"),
+            "ln(amplitude units)",
+            fit.x[BASE_PARAMS + c],
+            fit.sigma[BASE_PARAMS + c],
+        ));
+    }
+    for i in 0..fit.model.terms.len() {
+        params.extend(term_params(fit, i));
+    }
+    ModelSummary {
+        effects: fit
+            .model
+            .terms
+            .iter()
+            .map(|t| format!("{} ({})", t.effect(), t.variant()))
+            .collect(),
+        params,
+        floors: floors(&fit.tau2),
+        minus_two_log_likelihood: fit.minus_two_log_likelihood,
+        n_observations: fit.n_rows,
+        n_parameters: fit.n_parameters,
+        bic: fit.bic(),
+        held_out_error: held.and_then(|h| held_out_error(fit, h, yardstick)),
+    }
+}
+
+fn z_scores(fit: &Fit, table: &ModeTable, k: usize) -> ZScores {
+    let r = fit.mode_residuals(table);
+    let z = |p: (f64, f64)| p.0 / p.1.sqrt();
+    ZScores {
+        ln_frequency: z(r.ln_f[k]),
+        ln_decay: r.ln_d[k].map(z),
+        ln_amplitude: r.ln_a[k].iter().map(|a| a.map(z)).collect(),
+        glide: r.glide[k].map(z),
+    }
+}
+
+fn matching_report(m: &Matching, table: &ModeTable, held: Option<&Matching>) -> MatchingReport {
+    let scale = m.ln_scale.exp();
+    MatchingReport {
+        scale,
+        pairs: table
+            .modes
+            .iter()
+            .map(|e| MatchedPair {
+                observed: e.observed,
+                simulated: e.simulated.clone(),
+                role: e.role,
+                cluster: e.key.cluster,
+                observed_hz: e.ln_f.exp(),
+                simulated_hz: scale * e.ln_f_sim.exp(),
+            })
+            .collect(),
+        unmatched_observed: m.unmatched_observed.clone(),
+        unmatched_simulated: m.unmatched_simulated.clone(),
+        held_out_matched: held.map(|h| h.units.len()),
+        held_out_unmatched: held.map(|h| h.unmatched_observed.clone()),
+    }
+}
+
+/// Runs the whole catalogue on `evidence`: match, fit the baseline, select effects greedily,
+/// report (parent module docs).
+pub fn diagnose(evidence: &Evidence, settings: &CatalogueSettings) -> Result<CatalogueReport, CatalogueError> {
+    diagnose_with(evidence, settings, &catalogue())
+}
+
+/// [`diagnose`] with a chosen list of effects.
+pub fn diagnose_with(
+    evidence: &Evidence,
+    settings: &CatalogueSettings,
+    effects: &[Box<dyn Effect>],
+) -> Result<CatalogueReport, CatalogueError> {
+    settings.validate()?;
+    evidence.validate()?;
+    let fit_ln_f: Vec<f64> = evidence.fit.iter().map(|m| undamped_hz(m).ln()).collect();
+    let matching = match_modes(&fit_ln_f, &evidence.simulated, None, settings);
+    let table = ModeTable::build(&evidence.fit, &evidence.simulated, &matching, 0);
+    let channels = table.channels;
+    const MIN_MATCHED: usize = 3;
+    if table.modes.len() < MIN_MATCHED || table.rows.len() < BASE_PARAMS + channels + 4 {
+        return Err(CatalogueError::TooFewMatches {
+            matched: table.modes.len(),
+            needed: MIN_MATCHED,
+            rows: table.rows.len(),
+            scale: matching.ln_scale.exp(),
+            tolerance: settings.match_tolerance,
+        });
+    }
+    let held = evidence.held_out.as_ref().map(|h| {
+        let ln_f: Vec<f64> = h.iter().map(|m| undamped_hz(m).ln()).collect();
+        let m = match_modes(&ln_f, &evidence.simulated, Some(matching.ln_scale), settings);
+        (ModeTable::build(h, &evidence.simulated, &m, channels), m)
+    });
+    let held_table = held.as_ref().map(|(t, _)| t).filter(|t| !t.rows.is_empty());
+
+    let ln_f_ref = matching.ln_scale + table.modes.iter().map(|m| m.ln_f_sim).sum::<f64>() / table.modes.len() as f64;
+    let base_model = Model::new(vec![], ln_f_ref, channels);
+    let x0 = baseline_start(&table, &base_model, matching.ln_scale);
+    let baseline = fit(&table, base_model, x0);
+    if !baseline.minus_two_log_likelihood.is_finite() {
+        return Err(CatalogueError::BaselineFailed);
+    }
+
+    // Greedy forward selection over the modal effects.
+    let own: Vec<_> = effects.iter().map(|e| e.evaluate_own(evidence, settings)).collect();
+    let mut remaining: Vec<usize> = (0..effects.len()).filter(|&e| own[e].is_none()).collect();
+    let mut last: Vec<Option<Outcome>> = (0..effects.len()).map(|_| None).collect();
+    let mut current = baseline.clone();
+    // (effect index, candidate) in the order accepted.
+    let mut accepted: Vec<(usize, Box<Candidate>)> = Vec::new();
+    loop {
+        let mut best: Option<(usize, f64)> = None;
+        for &e in &remaining {
+            let outcome = evaluate(effects[e].as_ref(), &table, held_table, &current, settings);
+            if let Outcome::Fitted(c) = &outcome {
+                if c.rejection.is_none() && best.is_none_or(|b| c.delta_bic > b.1) {
+                    best = Some((e, c.delta_bic));
+                }
+            }
+            last[e] = Some(outcome);
+        }
+        let Some((e, _)) = best else { break };
+        let Some(Outcome::Fitted(mut c)) = last[e].take() else {
+            unreachable!("best is a fitted outcome")
+        };
+        current = c.fit.take().expect("modal candidates carry their fit");
+        remaining.retain(|&r| r != e);
+        accepted.push((e, c));
+    }
+
+    let mut report_accepted = Vec::new();
+    for (i, (e, c)) in accepted.iter().enumerate() {
+        report_accepted.push(AcceptedEffect {
+            name: effects[*e].name().into(),
+            signature: effects[*e].signature().into(),
+            variant: c.variant.clone(),
+            detector: c.detail.clone(),
+            step: i,
+            n_params: c.n_params,
+            delta_bic: c.delta_bic,
+            held_out_before: c.held_out.map(|h| h.0),
+            held_out_after: c.held_out.map(|h| h.1),
+            params: term_params(&current, i),
+        });
+    }
+    let mut rejected = Vec::new();
+    let reject =
+        |e: usize, reason: Rejection, detail: String, statistic: Option<f64>, c: Option<&Candidate>| RejectedEffect {
+            name: effects[e].name().into(),
+            signature: effects[e].signature().into(),
+            reason,
+            detail,
+            statistic,
+            variant: c.map(|c| c.variant.clone()),
+            n_params: c.map(|c| c.n_params),
+            delta_bic: c.map(|c| c.delta_bic).filter(|d| d.is_finite()),
+            held_out_before: c.and_then(|c| c.held_out.map(|h| h.0)),
+            held_out_after: c.and_then(|c| c.held_out.map(|h| h.1)),
+        };
+    for &e in &remaining {
+        match &last[e] {
+            Some(Outcome::NotEnoughData(why)) => {
+                rejected.push(reject(e, Rejection::NotEnoughData, why.clone(), None, None))
+            }
+            Some(Outcome::Nothing { statistic, detail }) => rejected.push(reject(
+                e,
+                Rejection::DetectorFoundNothing,
+                detail.clone(),
+                Some(*statistic),
+                None,
+            )),
+            Some(Outcome::Fitted(c)) => rejected.push(reject(
+                e,
+                c.rejection.unwrap_or(Rejection::DeltaBicTooSmall),
+                c.detail.clone(),
+                Some(c.statistic),
+                Some(c),
+            )),
+            None => {}
+        }
+    }
+
+    // Effects evaluated on their own data.
+    let mut noise = None;
+    for (e, evaluation) in own.into_iter().enumerate() {
+        let Some(evaluation) = evaluation else { continue };
+        let mut noise_here = evaluation.noise;
+        match evaluation.outcome {
+            OwnOutcome::NotEnoughData(why) => rejected.push(reject(e, Rejection::NotEnoughData, why, None, None)),
+            OwnOutcome::Nothing { statistic, detail } => rejected.push(reject(
+                e,
+                Rejection::DetectorFoundNothing,
+                detail,
+                Some(statistic),
+                None,
+            )),
+            OwnOutcome::Fitted {
+                statistic,
+                detail,
+                variant,
+                n_params,
+                delta_bic,
+                held_out_before,
+                held_out_after,
+                params,
+                floor_if_accepted,
+            } => {
+                let held_out = Some((held_out_before, held_out_after));
+                let c = Candidate {
+                    statistic,
+                    detail,
+                    variant: variant.to_string(),
+                    n_params,
+                    delta_bic,
+                    held_out,
+                    rejection: verdict(delta_bic, held_out, settings),
+                    fit: None,
+                    params,
+                };
+                match c.rejection {
+                    None => {
+                        if let Some(n) = noise_here.as_mut() {
+                            *n = NoiseFloorReport::new(n.band_edges_hz.clone(), n.pre_roll.clone(), floor_if_accepted);
+                        }
+                        report_accepted.push(AcceptedEffect {
+                            name: effects[e].name().into(),
+                            signature: effects[e].signature().into(),
+                            variant: c.variant,
+                            detector: c.detail,
+                            step: report_accepted.len(),
+                            n_params,
+                            delta_bic,
+                            held_out_before: Some(held_out_before),
+                            held_out_after: Some(held_out_after),
+                            params: c.params,
+                        });
+                    }
+                    Some(reason) => {
+                        let detail = c.detail.clone();
+                        rejected.push(reject(e, reason, detail, Some(statistic), Some(&c)));
+                    }
+                }
+            }
+        }
+        if noise.is_none() {
+            noise = noise_here;
+        }
+    }
+
+    // Unexplained: unmatched observed modes, and rows with |z| above the limit after the
+    // final model (floor re-profiled without the mode), worst row per mode and quantity.
+    let mut unexplained: Vec<UnexplainedMode> = matching
+        .unmatched_observed
+        .iter()
+        .map(|&i| UnexplainedMode {
+            observed: i,
+            frequency_hz: evidence.fit[i].frequency_hz,
+            quantity: None,
+            channel: None,
+            z: None,
+            reason: format!(
+                "no simulated mode within ln-frequency tolerance {} after the scale",
+                settings.match_tolerance
+            ),
+        })
+        .collect();
+    let z_loo = current.row_z_leave_one_out(&table);
+    let mut worst: Vec<(usize, Quantity, Option<usize>, f64)> = Vec::new();
+    for (row, &z) in table.rows.iter().zip(&z_loo) {
+        if !(z.abs() > settings.unexplained_z) {
+            continue;
+        }
+        let (k, _) = row.kind.modes();
+        let q = row.kind.quantity();
+        let channel = match row.kind {
+            super::RowKind::LnA(_, c) => Some(c),
+            _ => None,
+        };
+        match worst.iter_mut().find(|w| w.0 == k && w.1 == q) {
+            Some(w) if z.abs() > w.3.abs() => *w = (k, q, channel, z),
+            Some(_) => {}
+            None => worst.push((k, q, channel, z)),
+        }
+    }
+    for (k, q, channel, z) in worst {
+        let m = &table.modes[k];
+        unexplained.push(UnexplainedMode {
+            observed: m.observed,
+            frequency_hz: m.frequency_hz,
+            quantity: Some(q),
+            channel,
+            z: Some(z),
+            reason: format!(
+                "{} residual {z:.1} σ after the final model: the accepted effects do not account for it",
+                q.label()
+            ),
+        });
+    }
+
+    let residuals = (0..table.modes.len())
+        .map(|k| {
+            let m = &table.modes[k];
+            ModeResidualRow {
+                observed: m.observed,
+                frequency_hz: m.frequency_hz,
+                simulated: m.simulated.clone(),
+                role: m.role,
+                before: z_scores(&baseline, &table, k),
+                after: z_scores(&current, &table, k),
+            }
+        })
+        .collect();
+
+    Ok(CatalogueReport {
+        delta_bic_threshold: settings.delta_bic_threshold,
+        matching: matching_report(&matching, &table, held.as_ref().map(|(_, m)| m)),
+        baseline: summary(&baseline, held_table, &baseline.tau2),
+        final_model: summary(&current, held_table, &baseline.tau2),
+        accepted: report_accepted,
+        rejected,
+        unexplained,
+        residuals,
+        noise,
+    })
+}

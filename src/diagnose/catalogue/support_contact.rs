@@ -1,0 +1,120 @@
+//! The object resting on a support.
+//!
+//! A support (a table, a hand, a cushion) touches the object over a small region. Modes that
+//! move there lose energy into it and are stiffened (or, for a soft heavy support, loaded);
+//! modes with a node there are untouched. With w_k ∈ [0, 1] the fraction of mode k's energy at
+//! the candidate support region ([`super::SimulatedMode::support_weight`]), first-order
+//! perturbation theory gives shifts proportional to w_k:
+//!
+//! Δd_k = γ · w_k  \[1/s\],  γ ≥ 0 (a passive support only removes energy),
+//! Δ ln f_k = κ · w_k  (κ > 0 stiffening, κ < 0 mass loading).
+//!
+//! Two variants: damping only (γ) and damping with the frequency shift (γ, κ); the criterion
+//! picks. Detector: weighted regressions of the current decay residuals d_obs − d_pred on w
+//! (slope γ̂, its z) and of the ln f residuals on w (slope κ̂, its z); the candidate goes on if
+//! γ̂ > 0 with z > 1 or |z_κ| > 1.5.
+
+use std::sync::Arc;
+
+use super::{weighted_regression, Detection, Effect, Fit, ModeTable, ParamSpec, Proposal, Term};
+
+pub struct SupportContact;
+
+#[derive(Debug)]
+pub struct SupportTerm {
+    pub with_frequency: bool,
+}
+
+impl Term for SupportTerm {
+    fn effect(&self) -> &'static str {
+        "support_contact"
+    }
+    fn variant(&self) -> &'static str {
+        if self.with_frequency {
+            "damping_and_frequency"
+        } else {
+            "damping_only"
+        }
+    }
+    fn params(&self) -> Vec<ParamSpec> {
+        let mut p = vec![ParamSpec::new("support damping γ", "1/s", 0.0, 1e4, 1.0)];
+        if self.with_frequency {
+            p.push(ParamSpec::new("support frequency shift κ", "1", -0.5, 0.5, 1e-2));
+        }
+        p
+    }
+    fn frequency(&self, table: &ModeTable, p: &[f64], ln_f: &mut [f64]) {
+        if self.with_frequency {
+            for (f, m) in ln_f.iter_mut().zip(&table.modes) {
+                *f += p[1] * m.support_weight;
+            }
+        }
+    }
+    fn damping(&self, table: &ModeTable, p: &[f64], _ln_f: &[f64], decay: &mut [f64]) {
+        for (d, m) in decay.iter_mut().zip(&table.modes) {
+            *d += p[0] * m.support_weight;
+        }
+    }
+}
+
+impl Effect for SupportContact {
+    fn name(&self) -> &'static str {
+        "support_contact"
+    }
+    fn signature(&self) -> &'static str {
+        "modes that move at the support decay faster (and shift) in proportion to their energy there"
+    }
+    fn detect(&self, table: &ModeTable, current: &Fit) -> Detection {
+        let w: Vec<f64> = table.modes.iter().map(|m| m.support_weight).collect();
+        let spread =
+            w.iter().cloned().fold(f64::NEG_INFINITY, f64::max) - w.iter().cloned().fold(f64::INFINITY, f64::min);
+        if !(spread > 0.05) {
+            return Detection::NotEnoughData("support weights do not vary between the matched modes".into());
+        }
+        let res = current.mode_residuals(table);
+        // Decay residuals in 1/s: d_obs − d_pred, variance d² (σ_lnd² + τ_d²).
+        let damping: Vec<(f64, f64, f64)> = table
+            .modes
+            .iter()
+            .enumerate()
+            .filter_map(|(k, m)| {
+                m.ln_d.map(|(ln_d, _)| {
+                    let (_, v) = res.ln_d[k].expect("present with ln_d");
+                    let d = ln_d.exp();
+                    (m.support_weight, d - current.prediction.decay[k], 1.0 / (d * d * v))
+                })
+            })
+            .collect();
+        if damping.len() < 4 {
+            return Detection::NotEnoughData(format!("{} modes with a decay rate; at least 4 needed", damping.len()));
+        }
+        let frequency: Vec<(f64, f64, f64)> = table
+            .modes
+            .iter()
+            .zip(&res.ln_f)
+            .map(|(m, &(r, v))| (m.support_weight, r, 1.0 / v))
+            .collect();
+        let (gamma, z_gamma) = weighted_regression(&damping);
+        let (kappa, z_kappa) = weighted_regression(&frequency);
+        let detail = format!("decay residual vs support weight: slope {gamma:.3} 1/s (z = {z_gamma:.1}); ln f: slope {kappa:.2e} (z = {z_kappa:.1})");
+        let statistic = z_gamma.max(z_kappa.abs());
+        if !(gamma > 0.0 && z_gamma > 1.0) && z_kappa.abs() <= 1.5 {
+            return Detection::Nothing { statistic, detail };
+        }
+        let g0 = gamma.max(0.0);
+        Detection::Found {
+            statistic,
+            detail,
+            proposals: vec![
+                Proposal {
+                    term: Arc::new(SupportTerm { with_frequency: false }),
+                    init: vec![g0],
+                },
+                Proposal {
+                    term: Arc::new(SupportTerm { with_frequency: true }),
+                    init: vec![g0, kappa.clamp(-0.5, 0.5)],
+                },
+            ],
+        }
+    }
+}

@@ -1,0 +1,1207 @@
+//! Tests of the catalogue: kernels against analytic answers, matching, and synthetic evidence
+//! generated from the baseline with effects injected — where natural in a different
+//! functional form than the detector's (power-law damping detected by the 3-knot curve, a
+//! Hertzian sin^1.5 contact detected by the half-sine, directivity patterns detected by the
+//! rank-one factor model, glide from the true energies detected on the observed ones).
+
+use std::f64::consts::PI;
+
+use super::*;
+use crate::testing::Rng;
+
+/// Standard normal (Box–Muller).
+fn normal(rng: &mut Rng) -> f64 {
+    let u1 = 1.0 - rng.next();
+    let u2 = rng.next();
+    (-2.0 * u1.ln()).sqrt() * (2.0 * PI * u2).cos()
+}
+
+const FIT_CHANNELS: usize = 4;
+const HELD_CHANNELS: usize = 3;
+const CLUSTERS: usize = 20;
+/// Clusters that are degenerate pairs in the simulation.
+const DEGENERATE: [usize; 3] = [3, 8, 13];
+
+/// Measurement noise: σ_f = 0.02 Hz + 2·10⁻⁶ f, σ_lnd, σ_lna, and early/late σ = 2 σ_f.
+const SIGMA_LN_D: f64 = 0.04;
+const SIGMA_LN_A: f64 = 0.05;
+fn sigma_f(f: f64) -> f64 {
+    0.02 + 2e-6 * f
+}
+
+/// A synthetic object: clusters of simulated modes and two true directivities per cluster
+/// and microphone (fit channels first, then held-out): lobes |cos m(φ − θ_k)| of random order
+/// and orientation per mode (what the transfer carries), and monopole + dipole along the
+/// strike axis |1 + β_k cos(φ − θ_s)| with a per-mode dipole strength β_k.
+struct Object {
+    sim: Vec<SimulatedMode>,
+    members: Vec<Vec<usize>>,
+    lobes: Vec<Vec<f64>>,
+    axis: Vec<Vec<f64>>,
+}
+
+/// Which directivity the recording has.
+#[derive(Clone, Copy, Debug, PartialEq)]
+enum Pattern {
+    Lobes,
+    Axis,
+}
+
+fn object(rng: &mut Rng) -> Object {
+    let mut sim = Vec::new();
+    let mut members = Vec::new();
+    let mut lobes = Vec::new();
+    let mut axis = Vec::new();
+    let strike_axis = rng.uniform(0.0, 2.0 * PI);
+    let n_mics = FIT_CHANNELS + HELD_CHANNELS;
+    let azimuth: Vec<f64> = (0..n_mics)
+        .map(|c| 2.0 * PI * c as f64 / n_mics as f64 + rng.uniform(-0.2, 0.2))
+        .collect();
+    for i in 0..CLUSTERS {
+        let f = 450.0 * (7000.0f64 / 450.0).powf(i as f64 / (CLUSTERS - 1) as f64) * rng.uniform(0.98, 1.02);
+        let support_weight = rng.next().powi(3);
+        let mass_weight = rng.next().powi(2);
+        let mut list = vec![sim.len()];
+        sim.push(SimulatedMode {
+            frequency_hz: f,
+            drive: rng.uniform(0.3, 1.0),
+            support_weight,
+            mass_weight,
+            cluster: i,
+            transfer: None,
+        });
+        if DEGENERATE.contains(&i) {
+            list.push(sim.len());
+            sim.push(SimulatedMode {
+                frequency_hz: f * (1.0 + 2e-5),
+                drive: rng.uniform(0.3, 1.0),
+                support_weight,
+                mass_weight,
+                cluster: i,
+                transfer: None,
+            });
+        }
+        let order = (rng.next() * 4.0).floor();
+        let orientation = rng.uniform(0.0, PI);
+        let d: Vec<f64> = azimuth
+            .iter()
+            .map(|&phi| 0.35 + (order * (phi - orientation)).cos().abs())
+            .collect();
+        for &j in &list {
+            sim[j].transfer = Some(d.clone());
+        }
+        members.push(list);
+        lobes.push(d);
+        let dipole = rng.uniform(-0.8, 0.8);
+        axis.push(
+            azimuth
+                .iter()
+                .map(|&phi| (1.0 + dipole * (phi - strike_axis).cos()).abs())
+                .collect(),
+        );
+    }
+    Object {
+        sim,
+        members,
+        lobes,
+        axis,
+    }
+}
+
+/// What the synthetic recording contains.
+#[derive(Clone, Debug)]
+struct Truth {
+    ln_s: f64,
+    alpha: f64,
+    beta: f64,
+    /// d = d_1k (f / 1 kHz)^p instead of Rayleigh.
+    power_law: Option<(f64, f64)>,
+    /// (cluster, relative split δ).
+    splits: Vec<(usize, f64)>,
+    /// (γ 1/s, κ).
+    support: Option<(f64, f64)>,
+    /// Hertzian contact of this duration, s.
+    hertz: Option<f64>,
+    radiation: Option<Pattern>,
+    transfer_in_evidence: bool,
+    added_mass: Option<f64>,
+    fluid: Option<f64>,
+    glide: Option<f64>,
+    reverb_t60: Option<f64>,
+    /// Model-error scatter (ln f, ln d, ln a), shared by fit and held-out data.
+    scatter: Option<(f64, f64, f64)>,
+    held_out: bool,
+}
+
+impl Default for Truth {
+    fn default() -> Self {
+        Truth {
+            ln_s: 0.03,
+            alpha: 4.0,
+            beta: 3e-8,
+            power_law: None,
+            splits: vec![],
+            support: None,
+            hertz: None,
+            radiation: None,
+            transfer_in_evidence: false,
+            added_mass: None,
+            fluid: None,
+            glide: None,
+            reverb_t60: None,
+            scatter: None,
+            held_out: true,
+        }
+    }
+}
+
+/// |F(ω)|/F(0) of a Hertzian pulse F(t) ∝ sin^1.5(πt/T) on [0, T], by the midpoint rule.
+fn hertz_spectrum(omega: f64, t: f64) -> f64 {
+    let n = 800;
+    let (mut re, mut im, mut area) = (0.0, 0.0, 0.0);
+    for i in 0..n {
+        let tau = t * (i as f64 + 0.5) / n as f64;
+        let f = (PI * tau / t).sin().powf(1.5);
+        re += f * (omega * tau).cos();
+        im -= f * (omega * tau).sin();
+        area += f;
+    }
+    (re * re + im * im).sqrt() / area
+}
+
+/// One unit of the truth: a mode as the recording has it.
+struct TrueMode {
+    ln_f0: f64,
+    decay: f64,
+    /// ln of the channel-independent amplitude.
+    ln_amp: f64,
+    cluster: usize,
+    glide: f64,
+}
+
+fn true_modes(obj: &Object, truth: &Truth, rng: &mut Rng) -> Vec<TrueMode> {
+    let ln_f1 = obj
+        .sim
+        .iter()
+        .map(|m| m.frequency_hz.ln())
+        .fold(f64::INFINITY, f64::min);
+    let mut out = Vec::new();
+    for (i, list) in obj.members.iter().enumerate() {
+        let w2: f64 = list.iter().map(|&j| obj.sim[j].drive.powi(2)).sum();
+        let ln_f_sim = list
+            .iter()
+            .map(|&j| obj.sim[j].drive.powi(2) * obj.sim[j].frequency_hz.ln())
+            .sum::<f64>()
+            / w2;
+        let m = &obj.sim[list[0]];
+        let (ef, ed, ea) = match truth.scatter {
+            Some((sf, sd, sa)) => (sf * normal(rng), sd * normal(rng), sa * normal(rng)),
+            None => (0.0, 0.0, 0.0),
+        };
+        let mut ln_f = truth.ln_s + ln_f_sim + ef;
+        if let Some((_, kappa)) = truth.support {
+            ln_f += kappa * m.support_weight;
+        }
+        if let Some(mu) = truth.added_mass {
+            ln_f -= 0.5 * (mu * m.mass_weight).ln_1p();
+        }
+        if let Some(mu) = truth.fluid {
+            ln_f -= 0.5 * (mu * (ln_f1 - ln_f_sim).exp()).ln_1p();
+        }
+        let split = truth.splits.iter().find(|s| s.0 == i).map(|s| s.1);
+        let halves: Vec<(f64, f64)> = match split {
+            None => vec![(ln_f, w2.sqrt())],
+            Some(delta) => vec![
+                (ln_f - 0.5 * delta, (0.5 * w2).sqrt()),
+                (ln_f + 0.5 * delta, (0.5 * w2).sqrt()),
+            ],
+        };
+        for (ln_f0, drive) in halves {
+            let omega = 2.0 * PI * ln_f0.exp();
+            let mut decay = match truth.power_law {
+                Some((d1k, p)) => d1k * (ln_f0.exp() / 1000.0).powf(p),
+                None => 0.5 * (truth.alpha + truth.beta * omega * omega),
+            };
+            if let Some((gamma, _)) = truth.support {
+                decay += gamma * m.support_weight;
+            }
+            decay *= ed.exp();
+            let mut ln_amp = drive.ln() + omega.ln() + ea;
+            if let Some(t) = truth.hertz {
+                ln_amp += hertz_spectrum(omega, t).ln();
+            }
+            out.push(TrueMode {
+                ln_f0,
+                decay,
+                ln_amp,
+                cluster: i,
+                glide: 0.0,
+            });
+        }
+    }
+    if let Some(g) = truth.glide {
+        let energy: Vec<f64> = out
+            .iter()
+            .map(|m| (2.0 * m.ln_amp).exp() / (2.0 * PI * m.ln_f0.exp()).powi(2))
+            .collect();
+        let max = energy.iter().cloned().fold(0.0, f64::max);
+        for (m, e) in out.iter_mut().zip(energy) {
+            m.glide = g * e / max;
+        }
+    }
+    out
+}
+
+/// Noisy observations of the true modes on `channels` (indices into the gains/directivity).
+fn observe(
+    obj: &Object,
+    truth: &Truth,
+    modes: &[TrueMode],
+    gains: &[f64],
+    channels: std::ops::Range<usize>,
+    rng: &mut Rng,
+) -> Vec<ObservedMode> {
+    modes
+        .iter()
+        .map(|m| {
+            let f0 = m.ln_f0.exp();
+            let fd = (f0 * f0 - (m.decay / (2.0 * PI)).powi(2)).sqrt();
+            let sf = sigma_f(fd);
+            let d = m.decay * (SIGMA_LN_D * normal(rng)).exp();
+            let amplitudes: Vec<f64> = channels
+                .clone()
+                .map(|c| {
+                    let mut ln_a = gains[c] + m.ln_amp;
+                    match truth.radiation {
+                        Some(Pattern::Lobes) => ln_a += obj.lobes[m.cluster][c].ln(),
+                        Some(Pattern::Axis) => ln_a += obj.axis[m.cluster][c].ln(),
+                        None => {}
+                    }
+                    (ln_a + SIGMA_LN_A * normal(rng)).exp()
+                })
+                .collect();
+            let sigma_amplitudes = amplitudes.iter().map(|a| SIGMA_LN_A * a).collect();
+            ObservedMode {
+                frequency_hz: fd + sf * normal(rng),
+                sigma_frequency_hz: sf,
+                decay_rate: d,
+                sigma_decay_rate: SIGMA_LN_D * d,
+                amplitudes,
+                sigma_amplitudes,
+                early_frequency_hz: Some((fd * (1.0 + 0.5 * m.glide) + 2.0 * sf * normal(rng), 2.0 * sf)),
+                late_frequency_hz: Some((fd * (1.0 - 0.5 * m.glide) + 2.0 * sf * normal(rng), 2.0 * sf)),
+            }
+        })
+        .collect()
+}
+
+/// Residual envelopes: 6 bands × 120 frames of 10 ms; energy = (N_b + reverb) · χ²₃₀/30.
+fn envelopes(truth: &Truth, rng: &mut Rng) -> ResidualEnvelopes {
+    let edges = vec![0.0, 500.0, 1000.0, 2000.0, 4000.0, 8000.0, 16000.0];
+    let times: Vec<f64> = (0..120).map(|j| 0.01 * j as f64).collect();
+    let mut energy = Vec::new();
+    let mut floor = Vec::new();
+    for _ in 0..6 {
+        let n = 10f64.powf(rng.uniform(-7.0, -5.0));
+        let rho = 10f64.powf(rng.uniform(0.5, 1.2));
+        let row = times
+            .iter()
+            .map(|&t| {
+                let mean = n + truth
+                    .reverb_t60
+                    .map_or(0.0, |t60| rho * n * (-13.815510557964274 * t / t60).exp());
+                let chi2: f64 = (0..30).map(|_| normal(rng).powi(2)).sum::<f64>() / 30.0;
+                mean * chi2
+            })
+            .collect();
+        energy.push(row);
+        floor.push(n * (0.1 * normal(rng)).exp());
+    }
+    ResidualEnvelopes {
+        times_s: times,
+        band_edges_hz: edges,
+        energy,
+        noise_floor_estimate: floor,
+    }
+}
+
+fn evidence(truth: &Truth, seed: u64) -> (Evidence, Object) {
+    let mut rng = Rng(seed.wrapping_mul(0x9E37_79B9_7F4A_7C15) | 1);
+    let mut obj = object(&mut rng);
+    if !truth.transfer_in_evidence {
+        for m in &mut obj.sim {
+            m.transfer = None;
+        }
+    }
+    let gains: Vec<f64> = (0..FIT_CHANNELS + HELD_CHANNELS)
+        .map(|_| rng.uniform(-1.0, 1.0) - 3.0)
+        .collect();
+    let modes = true_modes(&obj, truth, &mut rng);
+    let fit = observe(&obj, truth, &modes, &gains, 0..FIT_CHANNELS, &mut rng);
+    let held_out = truth.held_out.then(|| {
+        observe(
+            &obj,
+            truth,
+            &modes,
+            &gains,
+            FIT_CHANNELS..FIT_CHANNELS + HELD_CHANNELS,
+            &mut rng,
+        )
+    });
+    let residual_envelopes = Some(envelopes(truth, &mut rng));
+    (
+        Evidence {
+            fit,
+            held_out,
+            simulated: obj.sim.clone(),
+            residual_envelopes,
+        },
+        obj,
+    )
+}
+
+fn run(truth: &Truth, seed: u64) -> CatalogueReport {
+    let (ev, _) = evidence(truth, seed);
+    diagnose(&ev, &CatalogueSettings::default()).expect("synthetic evidence is valid")
+}
+
+fn accepted<'a>(report: &'a CatalogueReport, name: &str) -> Option<&'a AcceptedEffect> {
+    report.accepted.iter().find(|a| a.name == name)
+}
+
+fn param<'a>(effect: &'a AcceptedEffect, prefix: &str) -> &'a FittedParam {
+    effect
+        .params
+        .iter()
+        .find(|p| p.name.starts_with(prefix))
+        .unwrap_or_else(|| panic!("no parameter {prefix} in {effect:?}"))
+}
+
+fn within_3_sigma(p: &FittedParam, truth: f64) -> bool {
+    (p.value - truth).abs() <= 3.0 * p.sigma.unwrap_or(f64::INFINITY)
+}
+
+/// The accepted effect `name`, its held-out error fallen, or a panic with the report.
+fn expect_accepted<'a>(report: &'a CatalogueReport, name: &str) -> &'a AcceptedEffect {
+    let a = accepted(report, name).unwrap_or_else(|| {
+        panic!(
+            "{name} not accepted: {:#?}",
+            report.rejected.iter().find(|r| r.name == name)
+        )
+    });
+    let (b, f) = (
+        a.held_out_before.expect("held-out data given"),
+        a.held_out_after.expect("held-out data given"),
+    );
+    assert!(f < b, "{name}: held-out error {b} → {f} did not fall");
+    a
+}
+
+// ---------------------------------------------------------------------------------------
+// Kernels.
+
+#[test]
+fn profile_floor_matches_a_brute_force_search() {
+    let mut rng = Rng(3);
+    for case in 0..20 {
+        let n = 5 + case;
+        let v: Vec<f64> = (0..n).map(|_| 10f64.powf(rng.uniform(-4.0, 0.0))).collect();
+        let true_tau2 = if case % 4 == 0 {
+            0.0
+        } else {
+            10f64.powf(rng.uniform(-3.0, 0.0))
+        };
+        let r: Vec<f64> = v.iter().map(|&v| (v + true_tau2).sqrt() * normal(&mut rng)).collect();
+        let t = lm::profile_floor(&r, &v);
+        let h = |t: f64| {
+            r.iter()
+                .zip(&v)
+                .map(|(r, v)| (v + t).ln() + r * r / (v + t))
+                .sum::<f64>()
+        };
+        // Brute force on a fine log grid plus t = 0.
+        let mut best = h(0.0);
+        for i in 0..20000 {
+            best = best.min(h(1e-8 * 1e10f64.powf(i as f64 / 19999.0)));
+        }
+        assert!(
+            h(t) <= best + 1e-6,
+            "case {case}: h({t}) = {} > brute force {best}",
+            h(t)
+        );
+        // Stationarity in the interior.
+        if t > 0.0 {
+            let dh: f64 = r
+                .iter()
+                .zip(&v)
+                .map(|(r, v)| 1.0 / (v + t) - r * r / (v + t).powi(2))
+                .sum();
+            let scale: f64 = v.iter().map(|v| 1.0 / (v + t)).sum();
+            assert!(dh.abs() < 1e-6 * scale, "case {case}: h'({t}) = {dh}");
+        }
+    }
+    assert_eq!(lm::profile_floor(&[], &[]), 0.0);
+    // Residuals smaller than their σ: no floor.
+    assert_eq!(lm::profile_floor(&[0.1, -0.1, 0.05], &[1.0, 1.0, 1.0]), 0.0);
+}
+
+#[test]
+fn levenberg_marquardt_solves_a_bounded_exponential_fit() {
+    // y = A e^(−k t) with A = 2, k = 3 exactly: the minimum is the truth with zero cost.
+    let t: Vec<f64> = (0..30).map(|i| 0.05 * i as f64).collect();
+    let y: Vec<f64> = t.iter().map(|&t| 2.0 * (-3.0 * t).exp()).collect();
+    let f = |x: &[f64], out: &mut [f64]| {
+        for ((o, &t), &y) in out.iter_mut().zip(&t).zip(&y) {
+            *o = y - x[0] * (-x[1] * t).exp();
+        }
+    };
+    let m = lm::minimise(
+        f,
+        t.len(),
+        &[0.5, 0.5],
+        &[true, true],
+        &[0.0, 0.0],
+        &[10.0, 10.0],
+        &[1.0, 1.0],
+        200,
+    );
+    assert!((m.x[0] - 2.0).abs() < 1e-8 && (m.x[1] - 3.0).abs() < 1e-8, "{m:?}");
+    // With k bounded above by 2.5 the answer sits on the bound and A is the best for it.
+    let m = lm::minimise(
+        f,
+        t.len(),
+        &[0.5, 0.5],
+        &[true, true],
+        &[0.0, 0.0],
+        &[10.0, 2.5],
+        &[1.0, 1.0],
+        200,
+    );
+    assert_eq!(m.x[1], 2.5);
+    let best_a = {
+        let e: Vec<f64> = t.iter().map(|&t| (-2.5 * t).exp()).collect();
+        e.iter().zip(&y).map(|(e, y)| e * y).sum::<f64>() / e.iter().map(|e| e * e).sum::<f64>()
+    };
+    assert!((m.x[0] - best_a).abs() < 1e-7, "A = {} vs {best_a}", m.x[0]);
+    // Standard errors of a linear model equal the analytic (XᵀX)⁻¹ diagonal.
+    let jac = nalgebra::DMatrix::from_fn(10, 2, |i, j| if j == 0 { 1.0 } else { i as f64 });
+    let se = lm::standard_errors(&jac);
+    let (n, sx, sxx): (f64, f64, f64) = (10.0, 45.0, 285.0);
+    let det = n * sxx - sx * sx;
+    assert!(
+        (se[0] - (sxx / det).sqrt()).abs() < 1e-12 && (se[1] - (n / det).sqrt()).abs() < 1e-12,
+        "{se:?}"
+    );
+}
+
+#[test]
+fn half_sine_spectrum_matches_the_excitation_module() {
+    use crate::audio::excitation::ContactForce;
+    use rustfft::num_complex::Complex64;
+    let tau = 4e-4;
+    let force = ContactForce::HalfSine { duration_s: tau };
+    for i in 0..200 {
+        let omega = 1.0 + i as f64 * 3.0 * PI / tau / 200.0;
+        let (f, _) = force.laplace(Complex64::new(0.0, omega));
+        let want = f.norm();
+        let got = half_sine_spectrum(omega * tau);
+        assert!(
+            (got - want).abs() < 1e-9 * want.max(1e-3),
+            "ωτ = {}: {got} vs {want}",
+            omega * tau
+        );
+    }
+    assert!((half_sine_spectrum(PI) - PI / 4.0).abs() < 1e-12);
+    assert_eq!(half_sine_spectrum(0.0), 1.0);
+}
+
+#[test]
+fn weighted_regression_is_exact_on_a_line() {
+    let pts: Vec<(f64, f64, f64)> = (0..10)
+        .map(|i| (i as f64, 3.0 - 0.5 * i as f64, 1.0 + i as f64))
+        .collect();
+    let (slope, _) = weighted_regression(&pts);
+    assert!((slope + 0.5).abs() < 1e-12);
+    assert_eq!(weighted_regression(&[(1.0, 2.0, 1.0), (1.0, 3.0, 1.0)]), (0.0, 0.0));
+}
+
+// ---------------------------------------------------------------------------------------
+// Matching.
+
+fn sim(f: f64, cluster: usize) -> SimulatedMode {
+    SimulatedMode {
+        frequency_hz: f,
+        drive: 1.0,
+        support_weight: 0.0,
+        mass_weight: 0.0,
+        cluster,
+        transfer: None,
+    }
+}
+
+#[test]
+fn matching_finds_the_scale_clusters_and_split_partners() {
+    let simulated = vec![
+        sim(500.0, 0),
+        sim(800.0, 1),
+        sim(1200.0, 2),
+        sim(1200.1, 2),
+        sim(2000.0, 3),
+        sim(3100.0, 4),
+        sim(5000.0, 5),
+    ];
+    let s = 1.07;
+    // Observed: 500 and 800 matched; cluster 2 unresolved (one mode); 2000 split in two
+    // (0.4 %); 3100 missing; 5000 present; a spurious 4100 nothing matches.
+    let obs_hz = [
+        500.0 * s,
+        800.0 * s * 1.01,
+        1200.05 * s,
+        2000.0 * s * 0.998,
+        2000.0 * s * 1.002,
+        4100.0,
+        5000.0 * s,
+    ];
+    let ln: Vec<f64> = obs_hz.iter().map(|f: &f64| f.ln()).collect();
+    let m = match_modes(&ln, &simulated, None, &CatalogueSettings::default());
+    assert!((m.ln_scale - s.ln()).abs() < 0.006, "scale {}", m.ln_scale.exp());
+    assert_eq!(m.unmatched_observed, vec![5]);
+    assert_eq!(m.unmatched_simulated, vec![5]);
+    let unit = |i: usize| m.units.iter().find(|u| u.observed == i).expect("matched");
+    assert_eq!(unit(2).role, Role::Single);
+    assert_eq!(unit(2).represents, vec![2, 3]);
+    assert_eq!((unit(3).role, unit(4).role), (Role::SplitLower, Role::SplitUpper));
+    assert_eq!((unit(3).cluster, unit(4).cluster), (3, 3));
+    assert!((unit(3).drive_factor - 0.5f64.sqrt()).abs() < 1e-15);
+    assert_eq!(unit(6).represents, vec![6]);
+    // With a fixed scale the search is skipped.
+    let fixed = match_modes(&ln, &simulated, Some(0.0), &CatalogueSettings::default());
+    assert_eq!(fixed.ln_scale, 0.0);
+}
+
+#[test]
+fn bad_input_is_an_error_not_a_panic() {
+    let (ev, _) = evidence(&Truth::default(), 1);
+    let settings = CatalogueSettings::default();
+    let mut e = ev.clone();
+    e.fit[2].sigma_frequency_hz = 0.0;
+    assert!(matches!(
+        diagnose(&e, &settings),
+        Err(CatalogueError::InvalidObserved {
+            index: 2,
+            field: "sigma_frequency_hz",
+            ..
+        })
+    ));
+    let mut e = ev.clone();
+    e.fit[1].amplitudes.pop();
+    assert!(matches!(
+        diagnose(&e, &settings),
+        Err(CatalogueError::ChannelMismatch { index: 1, .. })
+    ));
+    let mut e = ev.clone();
+    e.simulated[0].support_weight = 1.5;
+    assert!(matches!(
+        diagnose(&e, &settings),
+        Err(CatalogueError::InvalidSimulated { index: 0, .. })
+    ));
+    let mut e = ev.clone();
+    e.simulated[0].transfer = Some(vec![1.0; 5]);
+    assert!(matches!(
+        diagnose(&e, &settings),
+        Err(CatalogueError::TransferLength {
+            found: 5,
+            fit: 4,
+            total: 7,
+            ..
+        })
+    ));
+    let mut e = ev.clone();
+    e.residual_envelopes.as_mut().expect("given").energy[0].pop();
+    assert!(matches!(
+        diagnose(&e, &settings),
+        Err(CatalogueError::InvalidEnvelopes(_))
+    ));
+    // Two simulated modes cannot carry the baseline.
+    let mut e = ev.clone();
+    e.simulated.truncate(2);
+    assert!(matches!(
+        diagnose(&e, &settings),
+        Err(CatalogueError::TooFewMatches { matched: 2, .. })
+    ));
+    let e = Evidence {
+        fit: vec![],
+        ..ev.clone()
+    };
+    assert_eq!(diagnose(&e, &settings).unwrap_err(), CatalogueError::NoObservedModes);
+    let bad = CatalogueSettings {
+        max_pair_split: 0.5,
+        ..CatalogueSettings::default()
+    };
+    assert!(matches!(
+        diagnose(&ev, &bad),
+        Err(CatalogueError::InvalidSetting {
+            name: "max_pair_split",
+            ..
+        })
+    ));
+}
+
+// ---------------------------------------------------------------------------------------
+// Clean evidence.
+
+#[test]
+fn clean_evidence_recovers_the_baseline_and_accepts_nothing() {
+    let truth = Truth::default();
+    let report = run(&truth, 11);
+    assert!(report.accepted.is_empty(), "{:#?}", report.accepted);
+    let p = &report.baseline.params;
+    let get = |name: &str| p.iter().find(|q| q.name == name).expect(name);
+    assert!(
+        within_3_sigma(get("frequency scale s"), truth.ln_s.exp()),
+        "{:?}",
+        get("frequency scale s")
+    );
+    assert!(
+        within_3_sigma(get("Rayleigh α"), truth.alpha),
+        "{:?}",
+        get("Rayleigh α")
+    );
+    assert!(within_3_sigma(get("Rayleigh β"), truth.beta), "{:?}", get("Rayleigh β"));
+    assert_eq!(report.matching.pairs.len(), CLUSTERS);
+    assert!(report.matching.unmatched_observed.is_empty() && report.matching.unmatched_simulated.is_empty());
+    assert!(report.unexplained.is_empty(), "{:#?}", report.unexplained);
+    // The report is plain data.
+    let json = serde_json::to_string(&report).expect("serialises");
+    let back: CatalogueReport = serde_json::from_str(&json).expect("deserialises");
+    assert_eq!(back.accepted.len(), 0);
+    assert_eq!(back.residuals.len(), report.residuals.len());
+}
+
+// ---------------------------------------------------------------------------------------
+// One effect at a time, at a realistic strength: accepted, held-out error down, parameters
+// within 3σ of the truth.
+
+#[test]
+fn non_rayleigh_power_law_is_found_by_the_three_knot_curve() {
+    // d ∝ f^0.7 (a near-constant loss factor), 5 1/s at 1 kHz.
+    let truth = Truth {
+        power_law: Some((5.0, 0.7)),
+        ..Truth::default()
+    };
+    let report = run(&truth, 21);
+    let a = expect_accepted(&report, "non_rayleigh_damping");
+    for p in &a.params {
+        let f: f64 = p
+            .name
+            .trim_start_matches("decay rate at ")
+            .trim_end_matches(" Hz")
+            .parse()
+            .expect("knot frequency in the name");
+        // The knot sits at the observed (rounded in the name) frequency; compare at the
+        // knot's own frequency through the power law.
+        let want = 5.0 * (f / 1000.0).powf(0.7);
+        assert!(
+            (p.value - want).abs() <= 3.0 * p.sigma.expect("determined") + 5e-4 * want,
+            "{p:?} vs {want}"
+        );
+    }
+    assert_eq!(report.accepted.len(), 1, "{:#?}", report.accepted);
+}
+
+#[test]
+fn beating_pairs_are_found_and_their_splits_recovered() {
+    // A single simulated mode split by 0.4 % and a degenerate pair split by 0.2 %.
+    let truth = Truth {
+        splits: vec![(5, 0.004), (8, 0.002)],
+        ..Truth::default()
+    };
+    let report = run(&truth, 22);
+    let a = expect_accepted(&report, "beating_pair");
+    assert_eq!(a.params.len(), 2, "{a:?}");
+    for (cluster, delta) in [(5, 0.004), (8, 0.002)] {
+        let p = param(a, &format!("relative split δf/f of cluster {cluster} "));
+        assert!(within_3_sigma(p, delta), "{p:?} vs {delta}");
+    }
+    assert_eq!(report.accepted.len(), 1, "{:#?}", report.accepted);
+}
+
+#[test]
+fn support_contact_damping_and_stiffening_are_recovered() {
+    let truth = Truth {
+        support: Some((6.0, 0.008)),
+        ..Truth::default()
+    };
+    let report = run(&truth, 23);
+    let a = expect_accepted(&report, "support_contact");
+    assert_eq!(a.variant, "damping_and_frequency");
+    assert!(within_3_sigma(param(a, "support damping γ"), 6.0), "{a:?}");
+    assert!(within_3_sigma(param(a, "support frequency shift κ"), 0.008), "{a:?}");
+    assert_eq!(report.accepted.len(), 1, "{:#?}", report.accepted);
+}
+
+/// The half-sine duration whose spectrum best matches a Hertzian pulse of duration `t_h` on
+/// the modes' frequencies (up to a constant, which the gains absorb): the pseudo-true value
+/// the misspecified fit converges to.
+fn pseudo_true_half_sine(t_h: f64, omegas: &[f64]) -> f64 {
+    let cost = |t: f64| {
+        let d: Vec<f64> = omegas
+            .iter()
+            .map(|&w| hertz_spectrum(w, t_h).ln() - half_sine_spectrum(w * t).ln())
+            .collect();
+        let mean = d.iter().sum::<f64>() / d.len() as f64;
+        d.iter().map(|x| (x - mean).powi(2)).sum::<f64>()
+    };
+    let (mut a, mut b) = (0.2 * t_h, 1.5 * t_h);
+    for _ in 0..100 {
+        let (c, d) = (a + 0.382 * (b - a), a + 0.618 * (b - a));
+        if cost(c) < cost(d) {
+            b = d;
+        } else {
+            a = c;
+        }
+    }
+    0.5 * (a + b)
+}
+
+#[test]
+fn hertzian_contact_is_found_by_the_half_sine_model() {
+    // A hard mallet: the Hertzian pulse puts the top mode (7 kHz) ~10 dB down.
+    let t_h = 1.6e-4;
+    let truth = Truth {
+        hertz: Some(t_h),
+        ..Truth::default()
+    };
+    let (ev, _) = evidence(&truth, 24);
+    let report = diagnose(&ev, &CatalogueSettings::default()).expect("valid");
+    let a = expect_accepted(&report, "contact_duration");
+    let omegas: Vec<f64> = report.matching.pairs.iter().map(|p| 2.0 * PI * p.observed_hz).collect();
+    let t_star = pseudo_true_half_sine(t_h, &omegas);
+    let p = param(a, "contact duration T");
+    assert!(within_3_sigma(p, t_star), "{p:?} vs pseudo-true {t_star} (Hertz {t_h})");
+    assert_eq!(report.accepted.len(), 1, "{:#?}", report.accepted);
+}
+
+#[test]
+fn room_reverberation_is_found_in_the_residual_envelopes() {
+    let truth = Truth {
+        reverb_t60: Some(0.4),
+        ..Truth::default()
+    };
+    let report = run(&truth, 25);
+    let a = expect_accepted(&report, "reverb_noise");
+    assert!(within_3_sigma(param(a, "reverberation time T60"), 0.4), "{a:?}");
+    let noise = report.noise.as_ref().expect("envelopes given");
+    // The floor fitted under the reverberant model is the true floor, which the pre-roll
+    // estimates within its 10 % scatter.
+    assert!(noise.excess_db.iter().all(|e| e.abs() < 1.5), "{noise:?}");
+    assert_eq!(report.accepted.len(), 1, "{:#?}", report.accepted);
+}
+
+#[test]
+fn radiation_with_known_transfer_recovers_unit_exponent() {
+    let truth = Truth {
+        radiation: Some(Pattern::Lobes),
+        transfer_in_evidence: true,
+        ..Truth::default()
+    };
+    let report = run(&truth, 26);
+    let a = expect_accepted(&report, "radiation");
+    assert_eq!(a.variant, "transfer");
+    assert!(within_3_sigma(param(a, "transfer exponent η"), 1.0), "{a:?}");
+    assert_eq!(report.accepted.len(), 1, "{:#?}", report.accepted);
+}
+
+#[test]
+fn radiation_without_positions_is_a_microphone_dependent_finding() {
+    // Monopole + dipole along the strike axis, ln|1 + β_k cos(φ − θ)|: not rank one in ln a
+    // (the factor model's form), but dominated by one pattern across the microphones.
+    let truth = Truth {
+        radiation: Some(Pattern::Axis),
+        ..Truth::default()
+    };
+    let report = run(&truth, 27);
+    let a = expect_accepted(&report, "radiation");
+    assert_eq!(a.variant, "factor");
+    assert!(a.params.len() >= CLUSTERS, "{a:?}");
+}
+
+#[test]
+fn added_mass_and_fluid_loading_are_told_apart() {
+    let truth = Truth {
+        added_mass: Some(0.06),
+        ..Truth::default()
+    };
+    let report = run(&truth, 28);
+    let a = expect_accepted(&report, "added_mass");
+    assert_eq!(a.variant, "added_mass");
+    assert!(within_3_sigma(param(a, "added-mass ratio μ"), 0.06), "{a:?}");
+    assert_eq!(report.accepted.len(), 1, "{:#?}", report.accepted);
+
+    let truth = Truth {
+        fluid: Some(0.08),
+        ..Truth::default()
+    };
+    let report = run(&truth, 29);
+    let a = expect_accepted(&report, "added_mass");
+    assert_eq!(a.variant, "fluid_loading");
+    assert!(within_3_sigma(param(a, "fluid added-mass ratio μ_f"), 0.08), "{a:?}");
+    assert_eq!(report.accepted.len(), 1, "{:#?}", report.accepted);
+}
+
+#[test]
+fn pitch_glide_is_found_and_its_coefficient_recovered() {
+    // 0.1 % downward glide of the most energetic mode, from the true (noise-free) energies.
+    let truth = Truth {
+        glide: Some(1e-3),
+        ..Truth::default()
+    };
+    let report = run(&truth, 30);
+    let a = expect_accepted(&report, "pitch_glide");
+    assert!(within_3_sigma(param(a, "relative glide g"), 1e-3), "{a:?}");
+    assert_eq!(report.accepted.len(), 1, "{:#?}", report.accepted);
+}
+
+#[test]
+fn two_effects_together_are_both_found() {
+    let truth = Truth {
+        power_law: Some((5.0, 0.7)),
+        added_mass: Some(0.06),
+        ..Truth::default()
+    };
+    let report = run(&truth, 31);
+    expect_accepted(&report, "non_rayleigh_damping");
+    let a = expect_accepted(&report, "added_mass");
+    assert!(within_3_sigma(param(a, "added-mass ratio μ"), 0.06), "{a:?}");
+    let truth = Truth {
+        hertz: Some(1.6e-4),
+        splits: vec![(11, 0.003)],
+        ..Truth::default()
+    };
+    let report = run(&truth, 32);
+    expect_accepted(&report, "contact_duration");
+    expect_accepted(&report, "beating_pair");
+    assert!(
+        report.final_model.held_out_error < report.baseline.held_out_error,
+        "{:?} vs {:?}",
+        report.final_model,
+        report.baseline
+    );
+}
+
+#[test]
+fn a_lone_off_mode_is_unexplained_and_a_spurious_mode_unmatched() {
+    let (mut ev, _) = evidence(&Truth::default(), 33);
+    // Mode 9 off by 1.5 % in frequency: no catalogue effect makes one mode alone move.
+    ev.fit[9].frequency_hz *= 1.015;
+    if let Some(h) = ev.held_out.as_mut() {
+        h[9].frequency_hz *= 1.015;
+    }
+    // A mode at a frequency the simulation does not have (between clusters 15 and 16).
+    let mut spurious = ev.fit[15].clone();
+    spurious.frequency_hz *= 1.075;
+    ev.fit.push(spurious);
+    let report = diagnose(&ev, &CatalogueSettings::default()).expect("valid");
+    assert!(
+        report
+            .unexplained
+            .iter()
+            .any(|u| u.observed == 9 && u.quantity == Some(Quantity::LnFrequency)),
+        "{:#?}",
+        report.unexplained
+    );
+    let last = ev.fit.len() - 1;
+    assert!(
+        report
+            .unexplained
+            .iter()
+            .any(|u| u.observed == last && u.quantity.is_none()),
+        "{:#?}",
+        report.unexplained
+    );
+    assert!(report.matching.unmatched_observed.contains(&last));
+}
+
+#[test]
+fn without_held_out_data_effects_are_not_confirmed() {
+    let truth = Truth {
+        added_mass: Some(0.06),
+        held_out: false,
+        ..Truth::default()
+    };
+    let (ev, _) = evidence(&truth, 34);
+    let report = diagnose(&ev, &CatalogueSettings::default()).expect("valid");
+    let r = report
+        .rejected
+        .iter()
+        .find(|r| r.name == "added_mass")
+        .expect("rejected");
+    assert_eq!(r.reason, Rejection::NoHeldOutData);
+    assert!(r.delta_bic.expect("fitted") > DEFAULT_DELTA_BIC_THRESHOLD);
+    let relaxed = CatalogueSettings {
+        require_held_out: false,
+        ..CatalogueSettings::default()
+    };
+    let report = diagnose(&ev, &relaxed).expect("valid");
+    assert!(accepted(&report, "added_mass").is_some(), "{:#?}", report.rejected);
+}
+
+// ---------------------------------------------------------------------------------------
+// Calibration and false alarms.
+
+const EFFECTS: [&str; 8] = [
+    "non_rayleigh_damping",
+    "beating_pair",
+    "support_contact",
+    "contact_duration",
+    "reverb_noise",
+    "radiation",
+    "added_mass",
+    "pitch_glide",
+];
+
+/// Per draw and effect: its ΔBIC (None if the detector did not send it to a fit) and whether
+/// it was accepted.
+fn clean_draws(truth: &Truth, seeds: std::ops::Range<u64>) -> Vec<[(Option<f64>, bool); 8]> {
+    seeds
+        .map(|seed| {
+            let report = run(truth, seed);
+            let mut out = [(None, false); 8];
+            for (i, name) in EFFECTS.iter().enumerate() {
+                if let Some(a) = accepted(&report, name) {
+                    out[i] = (Some(a.delta_bic), true);
+                } else if let Some(r) = report.rejected.iter().find(|r| r.name == *name) {
+                    out[i] = (r.delta_bic, false);
+                }
+            }
+            out
+        })
+        .collect()
+}
+
+#[test]
+fn calibration_false_alarms_at_most_two_percent() {
+    // Clean evidence from the baseline with the stated σ's, 240 draws. For each candidate
+    // threshold c the false-alarm rate of an effect is the fraction of draws with ΔBIC > c
+    // (a draw the detector did not send to a fit counts as no alarm). The calibrated
+    // threshold is the smallest c in {0, 1, …, 10} with a rate ≤ 2 % for every effect; the
+    // shipped default must not be below it. Acceptances (which also need the held-out error to
+    // fall) must stay ≤ 5 % per effect.
+    let draws = clean_draws(&Truth::default(), 1000..1240);
+    let n = draws.len() as f64;
+    let rate = |i: usize, c: f64| draws.iter().filter(|d| d[i].0.is_some_and(|x| x > c)).count() as f64 / n;
+    let calibrated = (0..=10)
+        .map(f64::from)
+        .find(|&c| (0..EFFECTS.len()).all(|i| rate(i, c) <= 0.02));
+    for (i, name) in EFFECTS.iter().enumerate() {
+        let fitted = draws.iter().filter(|d| d[i].0.is_some()).count();
+        let max = draws.iter().filter_map(|d| d[i].0).fold(f64::NEG_INFINITY, f64::max);
+        let accepted = draws.iter().filter(|d| d[i].1).count();
+        println!(
+            "{name:22} fitted {fitted:3}/{n} max ΔBIC {max:8.2} rate at ΔBIC > 0: {:.3}, > 2: {:.3}, > {DEFAULT_DELTA_BIC_THRESHOLD}: {:.3}; accepted {accepted}",
+            rate(i, 0.0),
+            rate(i, 2.0),
+            rate(i, DEFAULT_DELTA_BIC_THRESHOLD)
+        );
+        assert!(
+            rate(i, DEFAULT_DELTA_BIC_THRESHOLD) <= 0.02,
+            "{name}: false-alarm rate {} above 2 %",
+            rate(i, DEFAULT_DELTA_BIC_THRESHOLD)
+        );
+        assert!(
+            accepted as f64 <= 0.05 * n,
+            "{name}: accepted on {accepted} of {n} clean draws"
+        );
+    }
+    println!("calibrated threshold {calibrated:?}, shipped {DEFAULT_DELTA_BIC_THRESHOLD}");
+    let calibrated = calibrated.expect("some threshold up to 10 keeps every effect at ≤ 2 %");
+    assert!(DEFAULT_DELTA_BIC_THRESHOLD >= calibrated);
+}
+
+#[test]
+fn false_alarms_with_model_error_scatter_at_most_five_percent() {
+    // Clean physics but a finite-element model off by 0.4 % in frequency, 10 % in decay and
+    // 15 % in level from mode to mode (shared by fit and held-out data): the floors must take
+    // it, not an effect.
+    let truth = Truth {
+        scatter: Some((0.004, 0.1, 0.15)),
+        ..Truth::default()
+    };
+    let draws = clean_draws(&truth, 2000..2100);
+    let n = draws.len() as f64;
+    for (i, name) in EFFECTS.iter().enumerate() {
+        let accepted = draws.iter().filter(|d| d[i].1).count();
+        println!("{name:22} accepted {accepted} of {n}");
+        assert!(
+            accepted as f64 <= 0.05 * n,
+            "{name}: accepted on {accepted} of {n} draws with model-error scatter"
+        );
+    }
+}
+
+#[test]
+fn missing_observations_are_skipped_not_fatal() {
+    // Zero amplitudes on some channels, a mode that does not decay, modes without early/late
+    // frequencies: those rows are left out and an injected effect is still found.
+    let truth = Truth {
+        added_mass: Some(0.06),
+        ..Truth::default()
+    };
+    let (mut ev, _) = evidence(&truth, 35);
+    ev.fit[2].amplitudes[1] = 0.0;
+    ev.fit[7].amplitudes = vec![0.0; FIT_CHANNELS];
+    ev.fit[4].decay_rate = 0.0;
+    for m in ev.fit.iter_mut().step_by(3) {
+        m.early_frequency_hz = None;
+    }
+    let report = diagnose(&ev, &CatalogueSettings::default()).expect("valid");
+    expect_accepted(&report, "added_mass");
+    let row = report.residuals.iter().find(|r| r.observed == 4).expect("matched");
+    assert!(row.before.ln_decay.is_none() && row.after.ln_decay.is_none());
+    let row = report.residuals.iter().find(|r| r.observed == 2).expect("matched");
+    assert!(row.before.ln_amplitude[1].is_none() && row.before.ln_amplitude[0].is_some());
+
+    // No amplitudes at all (zero channels): amplitude effects have no data, the rest works.
+    for m in ev.fit.iter_mut() {
+        m.amplitudes.clear();
+        m.sigma_amplitudes.clear();
+    }
+    ev.held_out = ev.held_out.map(|h| {
+        h.into_iter()
+            .map(|mut m| {
+                m.amplitudes.clear();
+                m.sigma_amplitudes.clear();
+                m
+            })
+            .collect()
+    });
+    let report = diagnose(&ev, &CatalogueSettings::default()).expect("valid");
+    expect_accepted(&report, "added_mass");
+    for name in ["radiation", "contact_duration", "pitch_glide"] {
+        let r = report.rejected.iter().find(|r| r.name == name).expect("rejected");
+        assert_eq!(r.reason, Rejection::NotEnoughData, "{r:?}");
+    }
+}
+
+/// Detection rate over 20 draws per effect at the strengths of the tests above, with the
+/// model-error scatter of the false-alarm test (the realistic case): ≥ 18 of 20 detected with
+/// the right variant (where the scatter lets the variants be told apart), and at most 5 % of
+/// the 200 draws with some other effect accepted as well. About 5 s in release mode, ignored
+/// by default to keep the suite short (`cargo test --release --lib catalogue -- --ignored`).
+#[test]
+#[ignore]
+fn detection_power_at_realistic_strengths() {
+    let scatter = Some((0.004, 0.1, 0.15));
+    let cases: Vec<(&str, &str, Truth)> = vec![
+        (
+            "non_rayleigh_damping",
+            "three_knot_log_log",
+            Truth {
+                power_law: Some((5.0, 0.7)),
+                ..Truth::default()
+            },
+        ),
+        (
+            "beating_pair",
+            "split_per_cluster",
+            Truth {
+                splits: vec![(5, 0.004), (8, 0.002)],
+                ..Truth::default()
+            },
+        ),
+        // κ = 0.008 at w = 1 is within the 0.4 % frequency scatter: either variant counts.
+        (
+            "support_contact",
+            "",
+            Truth {
+                support: Some((6.0, 0.008)),
+                ..Truth::default()
+            },
+        ),
+        (
+            "contact_duration",
+            "half_sine",
+            Truth {
+                hertz: Some(1.6e-4),
+                ..Truth::default()
+            },
+        ),
+        (
+            "reverb_noise",
+            "shared_t60",
+            Truth {
+                reverb_t60: Some(0.4),
+                ..Truth::default()
+            },
+        ),
+        (
+            "radiation",
+            "transfer",
+            Truth {
+                radiation: Some(Pattern::Lobes),
+                transfer_in_evidence: true,
+                ..Truth::default()
+            },
+        ),
+        (
+            "radiation",
+            "factor",
+            Truth {
+                radiation: Some(Pattern::Axis),
+                ..Truth::default()
+            },
+        ),
+        (
+            "added_mass",
+            "added_mass",
+            Truth {
+                added_mass: Some(0.06),
+                ..Truth::default()
+            },
+        ),
+        (
+            "added_mass",
+            "fluid_loading",
+            Truth {
+                fluid: Some(0.08),
+                ..Truth::default()
+            },
+        ),
+        (
+            "pitch_glide",
+            "energy_squared",
+            Truth {
+                glide: Some(1e-3),
+                ..Truth::default()
+            },
+        ),
+    ];
+    let mut others = 0;
+    for (case, (name, variant, truth)) in cases.iter().enumerate() {
+        let truth = Truth {
+            scatter,
+            ..truth.clone()
+        };
+        let mut hit = 0;
+        for seed in 0..20 {
+            let r = run(&truth, 5000 + 100 * case as u64 + seed);
+            if accepted(&r, name).is_some_and(|a| variant.is_empty() || a.variant == *variant) {
+                hit += 1;
+            }
+            let spurious: Vec<String> = r
+                .accepted
+                .iter()
+                .filter(|a| a.name != *name)
+                .map(|a| format!("{} (ΔBIC {:.1})", a.name, a.delta_bic))
+                .collect();
+            if !spurious.is_empty() {
+                println!("  {name} injected, also accepted: {}", spurious.join(", "));
+                others += 1;
+            }
+        }
+        println!("{name:22} {variant:22} detected {hit}/20");
+        assert!(hit >= 18, "{name} ({variant}): detected in {hit} of 20 draws");
+    }
+    println!("draws with an effect accepted that was not injected: {others} of 200");
+    assert!(others <= 10, "{others} of 200 draws accepted an effect not injected");
+}

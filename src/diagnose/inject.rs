@@ -1,0 +1,1234 @@
+//! Hidden effects for the mismatch-diagnosis benchmark (issue 6, section 5): the serial, pure
+//! parts of the generator `examples/diagnose_generate.rs`, and the scorer.
+//!
+//! # The clean case (what the detector's model assumes)
+//!
+//! P2 FEM modes λ_k = ω_k² [rad²/s²] of the free body with mass-normalised shapes φ_k
+//! [kg^(−½)]; Rayleigh decay d_k = (α + β ω_k²)/2 [1/s]; a unit impulse J = 1 N·s at a surface
+//! vertex along the inward normal n, so c_k = J |φ_k(x)·n| (the sign of a mode shape is
+//! arbitrary, so the generator takes the magnitude); acceleration response, i.e. the
+//! complex amplitude z_k = c_k s_k²/ω_d,k with s_k = −d_k + iω_d,k
+//! ([`crate::audio::excitation`]); every microphone c hears g_c z_k (one real gain per
+//! microphone); white or pink noise. The sound of channel c is
+//!
+//! x_c(t) = Σ_k Im( g_c z_k e^(s_k t) ),   t ≥ 0 (the strike),
+//!
+//! rendered by [`crate::audio::synth`] after a noise-only pre-roll.
+//!
+//! # The effects (labels are the snake_case names)
+//!
+//! Each effect is injected with a physically more faithful (or simply different) model than
+//! the one the detectors of [`crate::diagnose`] fit, so that finding it is not circular. Its
+//! strength u ∈ [0, 1] is drawn uniformly and mapped onto a documented realistic range of one
+//! parameter ([`Effect::strength_scale`]: log-linear unless stated), so that recall can be
+//! plotted against u; the other parameters are drawn independently.
+//!
+//! | effect | injected model | strength → parameter | other parameters |
+//! |---|---|---|---|
+//! | `non_rayleigh_damping` | d(f) = π f (η + Δ x/(1+x²)), x = f/f_c: a constant loss factor η plus a Zener (thermoelastic-like) relaxation peak of strength Δ at f_c ([`ZenerDamping`]) | Δ/η ∈ [0.5, 5] | f_c log-uniform over the modes' band; η such that d equals the Rayleigh decay at the band's geometric centre |
+//! | `beating_pair` | an inhomogeneous material: in an azimuthal sector about the vertical axis through the centroid the density is scaled by 1 + ε and Young's modulus by 1 + qε (FEM re-solve: M + ερM₁ˢ, K + qε(λK_λˢ + μK_μˢ) with the sector's matrices), so near-degenerate pairs split as the physics splits them ([`sector_mesh`] says why a sector, not a half-space) | ε ∈ [0.2, 2] % | q ~ U[−1, 1]; sector start uniform, width U[40°, 80°]; the axis is the support axis z, the usual symmetry axis of a body resting on its base |
+//! | `support_contact` | springs k_n (along z) and k_t = r k_n (in x, y) at the lowest surface vertices (within 1 % of the height of the lowest point, at least 3: [`support_nodes`]; FEM re-solve) and dashpots c = k·2ζ_s/ω_s: Δd_k = ½ Σ_i (c_n φ_iz² + c_t (φ_ix² + φ_iy²)) ([`support_damping`]) | bounce frequency f_s = √(k_total/m)/2π ∈ [20, 150] Hz | ζ_s ∈ [0.05, 0.3], r ∈ [0.1, 0.5]; the six low support modes (f < ½ f_1) are not rendered |
+//! | `contact_duration` | Hertz contact force F(t) ∝ sin^(3/2)(πt/T) on [0, T], its Laplace transform at each damped pole by quadrature ([`HertzPulse`]) | T ∈ [0.05, 0.6] ms | – |
+//! | `reverb` | direct path + exponentially decaying Gaussian tail after a pre-delay, a new tail per microphone ([`RoomResponse`]) | direct-to-reverberant ratio 15 → 0 dB (linear in dB) | T60 log-uniform in [0.2, 1.0] s, pre-delay in [1, 8] ms |
+//! | `radiation` | each mode at each microphone scaled by its acoustic transfer p_k(x_c) from [`crate::audio::radiation`] (multipole fit of the surface normal velocity) instead of a common amplitude: displacement response × conj(p_k(x_c)) (the transfer carries the ρω² of the acceleration and is conjugated from its e^(−iωt) convention into the synthesiser's) | *measured*: RMS of the dB-level residual after the best per-mode + per-microphone (rank-1) fit, energy-weighted ([`rank_one_level_misfit_db`]), 0 → 10 dB (linear) | microphone sphere radius 0.3–0.6 m |
+//! | `added_mass` | a lumped mass added to M at a few neighbouring surface vertices (FEM re-solve) | mass / body mass ∈ [1, 10] % | 3–8 vertices around a random surface vertex |
+//! | `pitch_glide` | f(t) = f₀ (1 + g (a(t)/a₀)²) = f₀ (1 + g e^(−2dt)) per mode (the same g for every mode, each gliding with its own decay), phase integrated exactly ([`glide_phase`]) | g ∈ [0.05, 0.5] % | – |
+//!
+//! # Formulas and units
+//!
+//! * **Zener damping.** A standard linear solid has loss factor η(f) = Δ x/(1 + x²), x = f/f_c
+//!   (peak Δ/2 at f_c); with a frequency-independent part η the decay rate is
+//!   d(f) = ω η_total/2 = π f (η + Δ x/(1 + x²)) [1/s] (f in Hz). Equivalently
+//!   d = π η f + A f²/(1 + (f/f_c)²) with A = πΔ/f_c [s]: linear in f, plus a term that grows
+//!   as f² below f_c and levels off at πΔ f_c above it. Neither a power law nor α + βω² follows
+//!   it.
+//! * **Hertz pulse.** F(t) = sin^(3/2)(πt/T) / (T C) on [0, T], C = ∫₀¹ sin^(3/2)(πu) du =
+//!   Γ(5/4)/(√π Γ(7/4)) ≈ 0.556418, so ∫F = 1 [1/s]. F̃(s) = ∫₀ᵀ F(t) e^(−st) dt is computed by
+//!   Gauss–Legendre quadrature after the substitution t = T(3u² − 2u³): the integrand becomes
+//!   analytic at both ends (sin^(3/2) behaves like t^(3/2) there, and t^(3/2) ∝ u³), so the rule
+//!   converges geometrically; the number of panels grows with |s|T. The mode's complex amplitude
+//!   is multiplied by F̃(s_k) (exact after the contact ends, as in
+//!   [`crate::audio::excitation`]). The detector uses the half-sine instead.
+//! * **Room response.** h[0] = 1 (direct sound), h[n] = σ w[n] e^(−3 ln(10) n/(f_s T60)) for
+//!   n ≥ n₀ (pre-delay n₀), w[n] standard normal; σ is set on the realised tail so that
+//!   10 log₁₀(1 / Σ_{n≥n₀} h[n]²) = DRR exactly. The energy decays by 60 dB in T60 seconds.
+//!   The tail is cut at 1.5 T60 (−90 dB) and the convolution at the recording's end.
+//! * **Pitch glide.** With amplitude a(t) = a₀ e^(−dt), f(t) = f₀ (1 + g e^(−2dt)) and the
+//!   phase θ(t) = 2π ∫₀ᵗ f = 2π f₀ (t + g (1 − e^(−2dt))/(2d)) (→ 2π f₀ (1 + g) t as d → 0),
+//!   evaluated in closed form with `expm1`; x(t) = Im(z e^(iθ(t))) e^(−dt).
+//! * **Noise.** White: independent N(0, σ²) samples. Pink: white noise shaped in the DFT
+//!   domain by 1/√max(f, 20 Hz) (power ∝ 1/f, −10 dB per decade), DC removed. The SNR is
+//!   10 log₁₀(P_s/σ²) with P_s the signal power over the strike window (after the onset),
+//!   averaged over the microphones; one noise level for all microphones.
+//!
+//! # Case mix and the scorer
+//!
+//! [`schedule_effects`] gives about 30 % clean cases, 40 % with one effect and 30 % with two
+//! different effects, drawing effects from a shuffled deck so that each appears about equally
+//! often. [`score`] compares sealed labels with detections: precision, recall and F1 per
+//! effect (F1 = 2TP/(2TP + FP + FN)), the macro F1, the false-positive rate on clean cases
+//! (fraction of clean cases with any detection) and recall per strength bin.
+
+use std::f64::consts::PI;
+
+use rustfft::num_complex::Complex64;
+use serde::{Deserialize, Serialize};
+
+use crate::audio::synth::{render_samples, ModalBank};
+use crate::mesh::TetMesh;
+
+/// Everything that can be wrong with the input of this module.
+#[derive(Debug, thiserror::Error, Clone, PartialEq)]
+pub enum InjectError {
+    #[error("unknown effect {0:?}; known effects: non_rayleigh_damping, beating_pair, support_contact, contact_duration, reverb, radiation, added_mass, pitch_glide")]
+    UnknownEffect(String),
+    #[error("{what} must be {requirement}, got {value}")]
+    BadParameter { what: &'static str, requirement: &'static str, value: f64 },
+    #[error("{what}: {got} values, expected {expected}")]
+    LengthMismatch { what: &'static str, got: usize, expected: usize },
+    #[error("{0}")]
+    Empty(&'static str),
+}
+
+fn require(ok: bool, what: &'static str, requirement: &'static str, value: f64) -> Result<(), InjectError> {
+    if ok && value.is_finite() {
+        Ok(())
+    } else {
+        Err(InjectError::BadParameter { what, requirement, value })
+    }
+}
+
+// ---------------------------------------------------------------------------------------------
+// Randomness
+// ---------------------------------------------------------------------------------------------
+
+/// splitmix64's increment γ = 2⁶⁴/φ (odd).
+const GOLDEN_GAMMA: u64 = 0x9E37_79B9_7F4A_7C15;
+
+/// splitmix64's finaliser (Stafford's "Mix13").
+fn mix64(mut z: u64) -> u64 {
+    z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+    z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+    z ^ (z >> 31)
+}
+
+/// splitmix64 (Steele, Lea & Flood 2014): a small, well-mixed, seedable generator. Every draw
+/// of the generator goes through it, so a case is reproducible from (seed, case index).
+#[derive(Clone, Debug)]
+pub struct SplitMix64 {
+    state: u64,
+}
+
+impl SplitMix64 {
+    pub fn new(seed: u64) -> Self {
+        SplitMix64 { state: seed }
+    }
+
+    /// An independent stream for `(seed, stream)`: its state is output number `stream + 1` of
+    /// the generator whose state is mix(seed + γ) (the finaliser applied to the seed), i.e.
+    /// mix(mix(seed + γ) + (stream + 1)γ). Consecutive outputs of splitmix64 are what it is
+    /// designed to decorrelate; merely XOR-ing a hash of the stream id into the seed left the
+    /// first draws of neighbouring streams visibly alike (seed 7, streams 0–5: 0.76–0.85).
+    pub fn stream(seed: u64, stream: u64) -> Self {
+        let base = mix64(seed.wrapping_add(GOLDEN_GAMMA));
+        SplitMix64::new(mix64(base.wrapping_add(stream.wrapping_add(1).wrapping_mul(GOLDEN_GAMMA))))
+    }
+
+    pub fn next_u64(&mut self) -> u64 {
+        self.state = self.state.wrapping_add(GOLDEN_GAMMA);
+        mix64(self.state)
+    }
+
+    /// Uniform in [0, 1).
+    pub fn unit(&mut self) -> f64 {
+        (self.next_u64() >> 11) as f64 / (1u64 << 53) as f64
+    }
+
+    pub fn uniform(&mut self, lo: f64, hi: f64) -> f64 {
+        lo + (hi - lo) * self.unit()
+    }
+
+    /// Log-uniform in [lo, hi] (both > 0).
+    pub fn log_uniform(&mut self, lo: f64, hi: f64) -> f64 {
+        (lo.ln() + (hi.ln() - lo.ln()) * self.unit()).exp()
+    }
+
+    /// Standard normal (Box–Muller; the second value is discarded).
+    pub fn normal(&mut self) -> f64 {
+        let u = 1.0 - self.unit(); // (0, 1]
+        let v = self.unit();
+        (-2.0 * u.ln()).sqrt() * (2.0 * PI * v).cos()
+    }
+
+    /// Uniform integer in 0..n (n > 0).
+    pub fn below(&mut self, n: usize) -> usize {
+        ((self.unit() * n as f64) as usize).min(n.saturating_sub(1))
+    }
+
+    /// Fisher–Yates shuffle.
+    pub fn shuffle<T>(&mut self, items: &mut [T]) {
+        for i in (1..items.len()).rev() {
+            let j = self.below(i + 1);
+            items.swap(i, j);
+        }
+    }
+}
+
+// ---------------------------------------------------------------------------------------------
+// The catalogue
+// ---------------------------------------------------------------------------------------------
+
+/// An effect the generator can hide; serialised as its label (module docs).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Effect {
+    NonRayleighDamping,
+    BeatingPair,
+    SupportContact,
+    ContactDuration,
+    Reverb,
+    Radiation,
+    AddedMass,
+    PitchGlide,
+}
+
+/// How an effect's strength u ∈ [0, 1] maps onto its main parameter.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
+pub struct StrengthScale {
+    pub parameter: &'static str,
+    pub unit: &'static str,
+    /// The parameter at u = 0 (weakest realistic) and u = 1 (strongest).
+    pub weakest: f64,
+    pub strongest: f64,
+    /// Interpolate ln(parameter) (true) or the parameter itself.
+    pub logarithmic: bool,
+    /// The strength is measured from the case (not drawn): see [`Effect::Radiation`].
+    pub measured: bool,
+}
+
+impl StrengthScale {
+    /// The parameter at strength `u` (clamped to [0, 1]).
+    pub fn value(&self, u: f64) -> f64 {
+        let u = u.clamp(0.0, 1.0);
+        if self.logarithmic {
+            (self.weakest.ln() + u * (self.strongest.ln() - self.weakest.ln())).exp()
+        } else {
+            self.weakest + u * (self.strongest - self.weakest)
+        }
+    }
+
+    /// The strength of a parameter value (inverse of [`Self::value`], clamped to [0, 1]).
+    pub fn strength_of(&self, value: f64) -> f64 {
+        let u = if self.logarithmic {
+            (value.ln() - self.weakest.ln()) / (self.strongest.ln() - self.weakest.ln())
+        } else {
+            (value - self.weakest) / (self.strongest - self.weakest)
+        };
+        if u.is_nan() {
+            0.0
+        } else {
+            u.clamp(0.0, 1.0)
+        }
+    }
+}
+
+impl Effect {
+    pub const ALL: [Effect; 8] = [
+        Effect::NonRayleighDamping,
+        Effect::BeatingPair,
+        Effect::SupportContact,
+        Effect::ContactDuration,
+        Effect::Reverb,
+        Effect::Radiation,
+        Effect::AddedMass,
+        Effect::PitchGlide,
+    ];
+
+    /// The label.
+    pub fn name(self) -> &'static str {
+        match self {
+            Effect::NonRayleighDamping => "non_rayleigh_damping",
+            Effect::BeatingPair => "beating_pair",
+            Effect::SupportContact => "support_contact",
+            Effect::ContactDuration => "contact_duration",
+            Effect::Reverb => "reverb",
+            Effect::Radiation => "radiation",
+            Effect::AddedMass => "added_mass",
+            Effect::PitchGlide => "pitch_glide",
+        }
+    }
+
+    pub fn from_name(name: &str) -> Result<Effect, InjectError> {
+        let name = name.trim();
+        Effect::ALL.into_iter().find(|e| e.name() == name).ok_or_else(|| InjectError::UnknownEffect(name.to_string()))
+    }
+
+    /// Effects that change K or M, so the modes must be solved again.
+    pub fn changes_fem(self) -> bool {
+        matches!(self, Effect::BeatingPair | Effect::SupportContact | Effect::AddedMass)
+    }
+
+    /// The realistic range of the effect's main parameter (module docs).
+    pub fn strength_scale(self) -> StrengthScale {
+        let s = |parameter, unit, weakest, strongest, logarithmic| StrengthScale { parameter, unit, weakest, strongest, logarithmic, measured: false };
+        match self {
+            Effect::NonRayleighDamping => s("relaxation_strength / loss_factor", "-", 0.5, 5.0, true),
+            Effect::BeatingPair => s("density_increase", "-", 0.002, 0.02, true),
+            Effect::SupportContact => s("bounce_frequency", "Hz", 20.0, 150.0, true),
+            Effect::ContactDuration => s("contact_duration", "s", 0.05e-3, 0.6e-3, true),
+            Effect::Reverb => s("direct_to_reverberant_ratio", "dB", 15.0, 0.0, false),
+            Effect::Radiation => StrengthScale { measured: true, ..s("rank_one_level_misfit", "dB", 0.0, 10.0, false) },
+            Effect::AddedMass => s("mass_fraction", "-", 0.01, 0.10, true),
+            Effect::PitchGlide => s("glide", "-", 0.0005, 0.005, true),
+        }
+    }
+}
+
+impl std::fmt::Display for Effect {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(self.name())
+    }
+}
+
+/// Parses a comma-separated list of effect names (`all` for the whole catalogue).
+pub fn parse_effect_list(list: &str) -> Result<Vec<Effect>, InjectError> {
+    if list.trim() == "all" {
+        return Ok(Effect::ALL.to_vec());
+    }
+    let mut out = Vec::new();
+    for name in list.split(',').filter(|s| !s.trim().is_empty()) {
+        let e = Effect::from_name(name)?;
+        if !out.contains(&e) {
+            out.push(e);
+        }
+    }
+    if out.is_empty() {
+        return Err(InjectError::Empty("the effect list is empty"));
+    }
+    Ok(out)
+}
+
+/// The effects of each of `n_cases` cases: round(0.3 n) clean, round(0.3 n) with two different
+/// effects (none if the pool has fewer than two), the rest with one; the case order is
+/// shuffled and the effects come from a shuffled deck of `pool`, refilled when empty, so every
+/// effect appears about equally often. Each case's list is sorted.
+pub fn schedule_effects(n_cases: usize, pool: &[Effect], rng: &mut SplitMix64) -> Vec<Vec<Effect>> {
+    if pool.is_empty() {
+        return vec![Vec::new(); n_cases];
+    }
+    let n_clean = (0.3 * n_cases as f64).round() as usize;
+    let n_two = if pool.len() >= 2 { ((0.3 * n_cases as f64).round() as usize).min(n_cases - n_clean) } else { 0 };
+    let mut sizes: Vec<usize> = std::iter::repeat_n(0, n_clean).chain(std::iter::repeat_n(2, n_two)).collect();
+    sizes.resize(n_cases, 1);
+    rng.shuffle(&mut sizes);
+    let mut deck: Vec<Effect> = Vec::new();
+    let mut draw = |rng: &mut SplitMix64, avoid: Option<Effect>| -> Effect {
+        loop {
+            if deck.is_empty() {
+                deck = pool.to_vec();
+                rng.shuffle(&mut deck);
+            }
+            // Take the first card that differs from `avoid` (there is one unless the deck
+            // holds only `avoid`, in which case it is refilled).
+            match deck.iter().position(|&e| Some(e) != avoid) {
+                Some(i) => return deck.remove(i),
+                None => deck.clear(),
+            }
+        }
+    };
+    sizes
+        .into_iter()
+        .map(|size| {
+            let mut effects = Vec::with_capacity(size);
+            for _ in 0..size {
+                let e = draw(rng, effects.first().copied());
+                effects.push(e);
+            }
+            effects.sort();
+            effects
+        })
+        .collect()
+}
+
+// ---------------------------------------------------------------------------------------------
+// Damping
+// ---------------------------------------------------------------------------------------------
+
+/// d(f) = π f (η + Δ x/(1 + x²)), x = f/f_c: a constant loss factor plus a Zener relaxation
+/// peak (module docs).
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct ZenerDamping {
+    /// η, the frequency-independent loss factor.
+    pub loss_factor: f64,
+    /// Δ, the relaxation strength (the loss-factor peak is Δ/2 at f_c).
+    pub relaxation_strength: f64,
+    /// f_c [Hz].
+    pub corner_hz: f64,
+}
+
+impl ZenerDamping {
+    /// The decay rate [1/s] at undamped frequency `f` [Hz].
+    pub fn decay(&self, f: f64) -> f64 {
+        let x = f / self.corner_hz;
+        PI * f * (self.loss_factor + self.relaxation_strength * x / (1.0 + x * x))
+    }
+
+    /// The law with Δ = `ratio`·η and corner `corner_hz` whose decay at `reference_hz` equals
+    /// `reference_decay` [1/s].
+    pub fn matched(reference_hz: f64, reference_decay: f64, ratio: f64, corner_hz: f64) -> Result<ZenerDamping, InjectError> {
+        require(reference_hz > 0.0, "reference frequency", "positive (Hz)", reference_hz)?;
+        require(reference_decay > 0.0, "reference decay rate", "positive (1/s)", reference_decay)?;
+        require(ratio >= 0.0, "relaxation strength / loss factor", "≥ 0", ratio)?;
+        require(corner_hz > 0.0, "corner frequency", "positive (Hz)", corner_hz)?;
+        let x = reference_hz / corner_hz;
+        let loss_factor = reference_decay / (PI * reference_hz * (1.0 + ratio * x / (1.0 + x * x)));
+        Ok(ZenerDamping { loss_factor, relaxation_strength: ratio * loss_factor, corner_hz })
+    }
+}
+
+/// The best Rayleigh law for decays `decays` [1/s] at undamped frequencies `frequencies_hz`:
+/// (α [1/s], β [s], RMS of ln(d_fit/d)). Minimises Σ ((α + βω²)/2 − d)²/d² (relative error)
+/// over α, β ≥ 0 (the 2 × 2 normal equations, then each bound if violated).
+pub fn rayleigh_fit(frequencies_hz: &[f64], decays: &[f64]) -> Result<(f64, f64, f64), InjectError> {
+    if frequencies_hz.len() != decays.len() {
+        return Err(InjectError::LengthMismatch { what: "decay rates", got: decays.len(), expected: frequencies_hz.len() });
+    }
+    if frequencies_hz.is_empty() {
+        return Err(InjectError::Empty("no modes to fit a Rayleigh law to"));
+    }
+    for (&f, &d) in frequencies_hz.iter().zip(decays) {
+        require(f > 0.0, "frequency", "positive (Hz)", f)?;
+        require(d > 0.0, "decay rate", "positive (1/s)", d)?;
+    }
+    // Rows (½/d, ½ω²/(d ω_r²)) against 1, with ω_r² the mean ω² so that both columns are of
+    // one scale (the second unknown is β ω_r²).
+    let omega_r2 = frequencies_hz.iter().map(|f| (2.0 * PI * f).powi(2)).sum::<f64>() / frequencies_hz.len() as f64;
+    let rows: Vec<(f64, f64)> = frequencies_hz.iter().zip(decays).map(|(&f, &d)| (0.5 / d, 0.5 * (2.0 * PI * f).powi(2) / (d * omega_r2))).collect();
+    let (mut s11, mut s12, mut s22, mut b1, mut b2) = (0.0, 0.0, 0.0, 0.0, 0.0);
+    for &(a, b) in &rows {
+        s11 += a * a;
+        s12 += a * b;
+        s22 += b * b;
+        b1 += a;
+        b2 += b;
+    }
+    let det = s11 * s22 - s12 * s12;
+    let mut candidates = Vec::new();
+    if det > 1e-12 * s11 * s22 {
+        candidates.push(((b1 * s22 - b2 * s12) / det, (s11 * b2 - s12 * b1) / det));
+    }
+    candidates.push((b1 / s11, 0.0));
+    candidates.push((0.0, b2 / s22));
+    let misfit = |alpha: f64, beta: f64| rows.iter().map(|&(a, b)| (alpha * a + beta * b - 1.0).powi(2)).sum::<f64>();
+    let (alpha, beta_scaled) = candidates
+        .into_iter()
+        .filter(|&(a, b)| a >= 0.0 && b >= 0.0)
+        .min_by(|x, y| misfit(x.0, x.1).total_cmp(&misfit(y.0, y.1)))
+        .expect("the single-parameter fits are non-negative");
+    let beta = beta_scaled / omega_r2;
+    let log_rms = (frequencies_hz
+        .iter()
+        .zip(decays)
+        .map(|(&f, &d)| (0.5 * (alpha + beta * (2.0 * PI * f).powi(2)) / d).ln().powi(2))
+        .sum::<f64>()
+        / decays.len() as f64)
+        .sqrt();
+    Ok((alpha, beta, log_rms))
+}
+
+// ---------------------------------------------------------------------------------------------
+// Hertz contact
+// ---------------------------------------------------------------------------------------------
+
+/// ∫₀¹ sin^(3/2)(πu) du = Γ(5/4)/(√π Γ(7/4)).
+pub const HERTZ_SHAPE_AREA: f64 = 0.556_417_894_449_382_2;
+
+/// The Hertz contact force F(t) = sin^(3/2)(πt/T)/(T C) on [0, T] (unit area; module docs).
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct HertzPulse {
+    /// T [s].
+    pub duration_s: f64,
+}
+
+impl HertzPulse {
+    pub fn new(duration_s: f64) -> Result<HertzPulse, InjectError> {
+        require(duration_s > 0.0 && duration_s <= 0.1, "contact duration", "in (0, 0.1] s", duration_s)?;
+        Ok(HertzPulse { duration_s })
+    }
+
+    /// F(t) [1/s].
+    pub fn force(&self, t: f64) -> f64 {
+        if !(0.0..=self.duration_s).contains(&t) {
+            return 0.0;
+        }
+        (PI * t / self.duration_s).sin().max(0.0).powf(1.5) / (self.duration_s * HERTZ_SHAPE_AREA)
+    }
+
+    /// F̃(s) = ∫₀ᵀ F(t) e^(−st) dt for complex s [1/s] (module docs: quadrature after
+    /// t = T(3u² − 2u³)). F̃(0) = 1 to rounding.
+    pub fn laplace(&self, s: Complex64) -> Complex64 {
+        let tau = self.duration_s;
+        // In the middle dt/du = 1.5 T, so one panel of width 1/P spans 1.5|s|T/P radians of
+        // oscillation; two radians per 16-point panel resolve it to rounding.
+        let panels = ((1.5 * s.norm() * tau / 2.0).ceil() as usize).clamp(4, 4000);
+        let (nodes, weights) = crate::fem::quadrature::gauss_legendre_01(16);
+        let mut sum = Complex64::new(0.0, 0.0);
+        let h = 1.0 / panels as f64;
+        for p in 0..panels {
+            for (x, w) in nodes.iter().zip(&weights) {
+                let u = (p as f64 + x) * h;
+                let t = tau * u * u * (3.0 - 2.0 * u);
+                let dt_du = 6.0 * tau * u * (1.0 - u);
+                let shape = (PI * t / tau).sin().max(0.0).powf(1.5);
+                sum += (-s * t).exp() * (shape * dt_du * w * h);
+            }
+        }
+        sum / (tau * HERTZ_SHAPE_AREA)
+    }
+}
+
+// ---------------------------------------------------------------------------------------------
+// Rendering (with or without pitch glide)
+// ---------------------------------------------------------------------------------------------
+
+/// One mode as heard by every channel: x_c(t) = Im(z_c e^(iθ(t))) e^(−dt), θ = 2πf t without
+/// glide ([`glide_phase`] with it).
+#[derive(Clone, Debug, PartialEq)]
+pub struct ModeTrack {
+    /// f₀ [Hz], the damped (small-amplitude) frequency.
+    pub frequency_hz: f64,
+    /// d [1/s].
+    pub decay_rate: f64,
+    /// z_c = a_c e^(iφ_c) per channel (output units).
+    pub amplitudes: Vec<Complex64>,
+}
+
+/// θ(t) = 2π f₀ (t + g (1 − e^(−2dt))/(2d)) [rad]: the exact phase of f(t) = f₀(1 + g e^(−2dt)).
+pub fn glide_phase(f0: f64, decay: f64, glide: f64, t: f64) -> f64 {
+    let x = 2.0 * decay * t;
+    // (1 − e^(−x))/(2d) = t·(−expm1(−x)/x), which → t as d → 0.
+    let integral = if x.abs() < 1e-300 { t } else { t * (-(-x).exp_m1() / x) };
+    2.0 * PI * f0 * (t + glide * integral)
+}
+
+/// Renders `n_channels` channels of `n_samples` samples at `sample_rate` [Hz] from `tracks`,
+/// with relative pitch glide g (`glide`, module docs) or without (then each channel is a
+/// [`crate::audio::synth`] bank). Modes whose highest frequency f₀(1 + g) is not strictly
+/// between 0 and the Nyquist frequency are skipped, as the synthesiser does.
+pub fn render_tracks(tracks: &[ModeTrack], n_channels: usize, sample_rate: f64, n_samples: usize, glide: Option<f64>) -> Result<Vec<Vec<f64>>, InjectError> {
+    require(sample_rate > 0.0, "sample rate", "positive (Hz)", sample_rate)?;
+    for t in tracks {
+        if t.amplitudes.len() != n_channels {
+            return Err(InjectError::LengthMismatch { what: "mode amplitudes per channel", got: t.amplitudes.len(), expected: n_channels });
+        }
+        require(t.decay_rate >= 0.0, "decay rate", "finite and ≥ 0 (1/s)", t.decay_rate)?;
+        require(t.frequency_hz.is_finite(), "mode frequency", "finite (Hz)", t.frequency_hz)?;
+    }
+    let glide = match glide {
+        None => {
+            return Ok((0..n_channels)
+                .map(|c| {
+                    let bank = ModalBank {
+                        frequencies_hz: tracks.iter().map(|t| t.frequency_hz).collect(),
+                        decay_rates: tracks.iter().map(|t| t.decay_rate).collect(),
+                        amplitudes: tracks.iter().map(|t| t.amplitudes[c].norm()).collect(),
+                        phases: tracks.iter().map(|t| t.amplitudes[c].arg()).collect(),
+                    };
+                    render_samples(&bank, sample_rate, n_samples)
+                })
+                .collect());
+        }
+        Some(g) => g,
+    };
+    require(glide > -1.0, "pitch glide", "finite and > −1", glide)?;
+    let mut out = vec![vec![0.0; n_samples]; n_channels];
+    for t in tracks {
+        let top = t.frequency_hz * (1.0 + glide.max(0.0));
+        if !(t.frequency_hz > 0.0 && top < 0.5 * sample_rate) {
+            continue;
+        }
+        for n in 0..n_samples {
+            let time = n as f64 / sample_rate;
+            let envelope = (-t.decay_rate * time).exp();
+            let (sin, cos) = glide_phase(t.frequency_hz, t.decay_rate, glide, time).sin_cos();
+            // Im(z e^(iθ)) = Re z sin θ + Im z cos θ.
+            for (channel, z) in out.iter_mut().zip(&t.amplitudes) {
+                channel[n] += envelope * (z.re * sin + z.im * cos);
+            }
+        }
+    }
+    Ok(out)
+}
+
+// ---------------------------------------------------------------------------------------------
+// Room and noise
+// ---------------------------------------------------------------------------------------------
+
+/// A synthetic room impulse response (module docs).
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct RoomResponse {
+    /// T60 [s]: time for the tail's energy to fall by 60 dB.
+    pub t60_s: f64,
+    /// Direct-to-reverberant energy ratio [dB].
+    pub direct_to_reverberant_db: f64,
+    /// Delay of the tail after the direct sound [s].
+    pub predelay_s: f64,
+}
+
+impl RoomResponse {
+    /// One realisation at `sample_rate` [Hz], at most `max_len` samples (and at most the
+    /// pre-delay + 1.5 T60).
+    pub fn impulse_response(&self, sample_rate: f64, max_len: usize, rng: &mut SplitMix64) -> Result<Vec<f64>, InjectError> {
+        require(sample_rate > 0.0, "sample rate", "positive (Hz)", sample_rate)?;
+        require(self.t60_s > 0.0, "T60", "positive (s)", self.t60_s)?;
+        require(self.predelay_s >= 0.0, "pre-delay", "≥ 0 (s)", self.predelay_s)?;
+        require(true, "direct-to-reverberant ratio", "finite (dB)", self.direct_to_reverberant_db)?;
+        let start = ((self.predelay_s * sample_rate).round() as usize).max(1);
+        let len = (start + (1.5 * self.t60_s * sample_rate).ceil() as usize).min(max_len);
+        if len <= start {
+            return Err(InjectError::BadParameter { what: "room response length", requirement: "longer than the pre-delay", value: max_len as f64 });
+        }
+        let rate = 3.0 * 10f64.ln() / (self.t60_s * sample_rate); // amplitude decay per sample
+        let mut h = vec![0.0; len];
+        h[0] = 1.0;
+        for (n, v) in h.iter_mut().enumerate().skip(start) {
+            *v = rng.normal() * (-rate * n as f64).exp();
+        }
+        let tail: f64 = h[start..].iter().map(|v| v * v).sum();
+        let scale = (10f64.powf(-self.direct_to_reverberant_db / 10.0) / tail).sqrt();
+        h[start..].iter_mut().for_each(|v| *v *= scale);
+        Ok(h)
+    }
+}
+
+/// y = x * h (linear convolution by FFT), cut to the length of x.
+pub fn convolve_truncated(x: &[f64], h: &[f64]) -> Vec<f64> {
+    if x.is_empty() || h.is_empty() {
+        return vec![0.0; x.len()];
+    }
+    let n = (x.len() + h.len() - 1).next_power_of_two();
+    let mut planner = rustfft::FftPlanner::<f64>::new();
+    let forward = planner.plan_fft_forward(n);
+    let inverse = planner.plan_fft_inverse(n);
+    let pad = |v: &[f64]| -> Vec<Complex64> {
+        let mut out: Vec<Complex64> = v.iter().map(|&r| Complex64::new(r, 0.0)).collect();
+        out.resize(n, Complex64::new(0.0, 0.0));
+        out
+    };
+    let (mut a, mut b) = (pad(x), pad(h));
+    forward.process(&mut a);
+    forward.process(&mut b);
+    a.iter_mut().zip(&b).for_each(|(p, q)| *p *= q);
+    inverse.process(&mut a);
+    a[..x.len()].iter().map(|v| v.re / n as f64).collect()
+}
+
+/// T60 [s] of an impulse response from the slope of its Schroeder energy decay curve
+/// EDC(n) = Σ_{m≥n} h[m]² (from `start`), fitted by least squares between `from_db` and
+/// `to_db` below its start (e.g. −5 and −35: T30) and extrapolated to −60 dB.
+pub fn schroeder_t60(h: &[f64], sample_rate: f64, start: usize, from_db: f64, to_db: f64) -> Result<f64, InjectError> {
+    if start >= h.len() {
+        return Err(InjectError::Empty("no samples after the start of the decay"));
+    }
+    let mut edc = vec![0.0; h.len() - start];
+    let mut acc = 0.0;
+    for (i, v) in h[start..].iter().enumerate().rev() {
+        acc += v * v;
+        edc[i] = acc;
+    }
+    let total = edc[0];
+    if total <= 0.0 {
+        return Err(InjectError::Empty("the impulse response has no energy"));
+    }
+    let (mut sx, mut sy, mut sxx, mut sxy, mut count) = (0.0, 0.0, 0.0, 0.0, 0.0);
+    for (i, &e) in edc.iter().enumerate() {
+        let db = 10.0 * (e / total).log10();
+        if db <= from_db && db >= to_db {
+            let t = i as f64 / sample_rate;
+            sx += t;
+            sy += db;
+            sxx += t * t;
+            sxy += t * db;
+            count += 1.0;
+        }
+    }
+    if count < 2.0 {
+        return Err(InjectError::Empty("the decay curve does not span the fitting range"));
+    }
+    let slope = (count * sxy - sx * sy) / (count * sxx - sx * sx); // dB/s
+    Ok(-60.0 / slope)
+}
+
+/// The spectral colour of the background noise.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum NoiseColour {
+    White,
+    Pink,
+}
+
+/// Lower corner of the pink shaping [Hz]: below it the spectrum is flat.
+pub const PINK_FLOOR_HZ: f64 = 20.0;
+
+/// `n` samples of zero-mean noise of unit RMS (module docs).
+pub fn coloured_noise(n: usize, colour: NoiseColour, sample_rate: f64, rng: &mut SplitMix64) -> Vec<f64> {
+    let mut x: Vec<f64> = (0..n).map(|_| rng.normal()).collect();
+    if colour == NoiseColour::Pink && n > 1 {
+        let mut planner = rustfft::FftPlanner::<f64>::new();
+        let mut spec: Vec<Complex64> = x.iter().map(|&v| Complex64::new(v, 0.0)).collect();
+        planner.plan_fft_forward(n).process(&mut spec);
+        for (k, v) in spec.iter_mut().enumerate() {
+            let f = k.min(n - k) as f64 * sample_rate / n as f64;
+            *v *= if k == 0 { 0.0 } else { 1.0 / f.max(PINK_FLOOR_HZ).sqrt() };
+        }
+        planner.plan_fft_inverse(n).process(&mut spec);
+        x = spec.iter().map(|v| v.re).collect();
+    }
+    let rms = crate::audio::rms(&x);
+    if rms > 0.0 {
+        x.iter_mut().for_each(|v| *v /= rms);
+    }
+    x
+}
+
+/// Adds independent noise of one level to every channel so that the mean signal power over
+/// `signal` (sample range, averaged over channels) is `snr_db` above the noise power. Returns
+/// the noise RMS.
+pub fn add_noise(channels: &mut [Vec<f64>], signal: std::ops::Range<usize>, snr_db: f64, colour: NoiseColour, sample_rate: f64, rng: &mut SplitMix64) -> Result<f64, InjectError> {
+    require(true, "SNR", "finite (dB)", snr_db)?;
+    if channels.is_empty() {
+        return Err(InjectError::Empty("no channels to add noise to"));
+    }
+    let len = channels[0].len();
+    if let Some(c) = channels.iter().find(|c| c.len() != len) {
+        return Err(InjectError::LengthMismatch { what: "channel samples", got: c.len(), expected: len });
+    }
+    if signal.start >= signal.end || signal.end > len {
+        return Err(InjectError::Empty("the signal window is empty or outside the channels"));
+    }
+    let power = channels.iter().map(|c| c[signal.clone()].iter().map(|v| v * v).sum::<f64>() / signal.len() as f64).sum::<f64>() / channels.len() as f64;
+    require(power > 0.0, "signal power", "positive", power)?;
+    let noise_rms = (power / 10f64.powf(snr_db / 10.0)).sqrt();
+    for c in channels.iter_mut() {
+        let noise = coloured_noise(len, colour, sample_rate, rng);
+        c.iter_mut().zip(&noise).for_each(|(v, n)| *v += noise_rms * n);
+    }
+    Ok(noise_rms)
+}
+
+// ---------------------------------------------------------------------------------------------
+// Geometry: strike, support, added mass, stiffened sector
+// ---------------------------------------------------------------------------------------------
+
+fn dot(a: [f64; 3], b: [f64; 3]) -> f64 {
+    a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
+}
+
+fn unit(a: [f64; 3]) -> [f64; 3] {
+    let n = dot(a, a).sqrt();
+    [a[0] / n, a[1] / n, a[2] / n]
+}
+
+/// Heights of the corner nodes above the lowest one along −`down` [m], and the body's extent.
+fn heights(mesh: &TetMesh, down: [f64; 3]) -> (Vec<f64>, f64) {
+    let up = unit(down).map(|c| -c);
+    let h: Vec<f64> = mesh.nodes.iter().map(|x| dot(*x, up)).collect();
+    let lo = h.iter().copied().fold(f64::INFINITY, f64::min);
+    let hi = h.iter().copied().fold(f64::NEG_INFINITY, f64::max);
+    (h.into_iter().map(|v| v - lo).collect(), hi - lo)
+}
+
+/// Surface vertices a mallet can reach on an object resting on its lowest side: outward
+/// normal not pointing more than 60° downwards (n·down < 0.5) and higher than
+/// `clearance`·(extent) above the lowest point. (vertex, outward unit normal).
+pub fn strike_candidates(mesh: &TetMesh, down: [f64; 3], clearance: f64) -> Vec<(usize, [f64; 3])> {
+    let (h, extent) = heights(mesh, down);
+    let down = unit(down);
+    mesh.vertex_normals().into_iter().filter(|&(v, n)| dot(n, down) < 0.5 && h[v] > clearance * extent).collect()
+}
+
+/// The contact points of an object resting on a support below it: the surface vertices within
+/// `band`·(extent) of the lowest point along `down`, at least `min_nodes` (the lowest ones).
+pub fn support_nodes(mesh: &TetMesh, down: [f64; 3], band: f64, min_nodes: usize) -> Vec<usize> {
+    let (h, extent) = heights(mesh, down);
+    let mut surface = mesh.surface_vertices();
+    surface.sort_by(|&a, &b| h[a].total_cmp(&h[b]).then(a.cmp(&b)));
+    let within = surface.iter().take_while(|&&v| h[v] <= band * extent).count();
+    surface.truncate(within.max(min_nodes).min(surface.len()));
+    surface.sort_unstable();
+    surface
+}
+
+/// The `n` surface vertices nearest to vertex `centre` (itself included), sorted.
+pub fn nearest_surface_vertices(mesh: &TetMesh, centre: usize, n: usize) -> Vec<usize> {
+    let c = mesh.nodes[centre];
+    let d2 = |v: usize| {
+        let x = mesh.nodes[v];
+        (x[0] - c[0]).powi(2) + (x[1] - c[1]).powi(2) + (x[2] - c[2]).powi(2)
+    };
+    let mut surface = mesh.surface_vertices();
+    surface.sort_by(|&a, &b| d2(a).total_cmp(&d2(b)).then(a.cmp(&b)));
+    surface.truncate(n);
+    surface.sort_unstable();
+    surface
+}
+
+/// The mesh with the same nodes and only the tets whose corner centroid lies in the wedge
+/// (sector) start ≤ ψ < start + width [rad] of azimuth ψ about the axis through `point` along
+/// `axis`. ψ is measured from the projection of x̂ (of ŷ if the axis is along x) onto the plane
+/// normal to the axis, counter-clockwise seen from +axis. Assembling it gives the stiffness of
+/// that sector in the same node numbering.
+///
+/// Why a sector and not a half-space: on a body of revolution, the two modes of a pair vary as
+/// cos nψ and sin nψ, and a stiffness change δ(ψ) splits them at first order in proportion to
+/// its Fourier coefficient at 2n. A half-space through the axis is a square wave in ψ, which
+/// has odd harmonics only, so it shifts both modes alike and splits nothing; a sector of width
+/// w has 2n-th coefficient ∝ sin(n w)/n, non-zero for every n when w/π is not a simple
+/// fraction. The density matters as much as the stiffness: on the bowl
+/// (`examples/bowl`) stiffening a sector by 1.5 % left its lowest pair's split at 3.49 Hz (the
+/// strain energy of those bending modes is nearly even in ψ), while the kinetic energy, mostly
+/// radial motion ∝ cos² nψ, is not.
+pub fn sector_mesh(mesh: &TetMesh, point: [f64; 3], axis: [f64; 3], start: f64, width: f64) -> TetMesh {
+    let a = unit(axis);
+    let reference = if a[0].abs() < 0.9 { [1.0, 0.0, 0.0] } else { [0.0, 1.0, 0.0] };
+    let along = dot(reference, a);
+    let e1 = unit([reference[0] - along * a[0], reference[1] - along * a[1], reference[2] - along * a[2]]);
+    let e2 = [a[1] * e1[2] - a[2] * e1[1], a[2] * e1[0] - a[0] * e1[2], a[0] * e1[1] - a[1] * e1[0]];
+    let npt = mesh.nodes_per_tet();
+    let mut connectivity = Vec::new();
+    for e in 0..mesh.n_tets() {
+        let corners = mesh.corner_coords(e);
+        let r = [0, 1, 2].map(|d| 0.25 * corners.iter().map(|x| x[d]).sum::<f64>() - point[d]);
+        let psi = dot(r, e2).atan2(dot(r, e1));
+        if (psi - start).rem_euclid(2.0 * PI) < width {
+            connectivity.extend_from_slice(&mesh.connectivity[e * npt..(e + 1) * npt]);
+        }
+    }
+    TetMesh { nodes: mesh.nodes.clone(), connectivity, order: mesh.order }
+}
+
+/// Δd = ½ Σ_i (c_n (φ_i·v)² + c_t (|φ_i|² − (φ_i·v)²)) [1/s] for one mass-normalised mode with
+/// displacement `values` [kg^(−½)] at the support nodes, normal dashpot `c_normal` and
+/// tangential `c_tangential` per node [N·s/m], v the unit support direction.
+pub fn support_damping(values: &[[f64; 3]], c_normal: f64, c_tangential: f64, down: [f64; 3]) -> f64 {
+    let v = unit(down);
+    0.5 * values
+        .iter()
+        .map(|phi| {
+            let n2 = dot(*phi, v).powi(2);
+            c_normal * n2 + c_tangential * (dot(*phi, *phi) - n2)
+        })
+        .sum::<f64>()
+}
+
+/// RMS [dB] of the residual of 20 log₁₀|H_kc| after the best additive fit a_k + b_c (a level per
+/// mode, a gain per channel: what a rank-1 amplitude model can explain), with weights w_k per
+/// mode (e.g. the mode's share of the energy). |H| below 1e-300 is floored. Alternating
+/// weighted least squares (converges in a few sweeps for this two-way layout).
+pub fn rank_one_level_misfit_db(levels: &[Vec<f64>], weights: &[f64]) -> Result<f64, InjectError> {
+    if levels.len() != weights.len() {
+        return Err(InjectError::LengthMismatch { what: "mode weights", got: weights.len(), expected: levels.len() });
+    }
+    let n_c = levels.first().map_or(0, Vec::len);
+    if n_c == 0 {
+        return Err(InjectError::Empty("no modes or no channels"));
+    }
+    if let Some(row) = levels.iter().find(|r| r.len() != n_c) {
+        return Err(InjectError::LengthMismatch { what: "channel levels", got: row.len(), expected: n_c });
+    }
+    let total_w: f64 = weights.iter().sum();
+    require(total_w > 0.0, "total mode weight", "positive", total_w)?;
+    let db: Vec<Vec<f64>> = levels.iter().map(|r| r.iter().map(|&h| 20.0 * h.abs().max(1e-300).log10()).collect()).collect();
+    let mut a = vec![0.0; levels.len()];
+    let mut b = vec![0.0; n_c];
+    for _ in 0..50 {
+        for (k, row) in db.iter().enumerate() {
+            a[k] = row.iter().zip(&b).map(|(y, bc)| y - bc).sum::<f64>() / n_c as f64;
+        }
+        for c in 0..n_c {
+            b[c] = db.iter().zip(&a).zip(weights).map(|((row, ak), w)| w * (row[c] - ak)).sum::<f64>() / total_w;
+        }
+    }
+    let ss: f64 = db.iter().zip(&a).zip(weights).map(|((row, ak), w)| w * row.iter().zip(&b).map(|(y, bc)| (y - ak - bc).powi(2)).sum::<f64>()).sum();
+    Ok((ss / (total_w * n_c as f64)).sqrt())
+}
+
+// ---------------------------------------------------------------------------------------------
+// Labels and scoring
+// ---------------------------------------------------------------------------------------------
+
+/// One hidden effect of a case, as written to the sealed labels.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct EffectLabel {
+    pub effect: Effect,
+    /// u ∈ [0, 1] (module docs).
+    pub strength: f64,
+    /// The injected parameters (names and units in the generator's docs).
+    pub parameters: serde_json::Value,
+}
+
+/// The part of a sealed label file the scorer needs (the files hold more: material, modes,
+/// noise, …; unknown fields are ignored).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct CaseTruth {
+    pub case: String,
+    pub effects: Vec<EffectLabel>,
+}
+
+/// Scores of one effect.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct EffectScore {
+    pub effect: Effect,
+    pub true_positives: usize,
+    pub false_positives: usize,
+    pub false_negatives: usize,
+    /// TP/(TP + FP); `None` without detections.
+    pub precision: Option<f64>,
+    /// TP/(TP + FN); `None` without cases that hold the effect.
+    pub recall: Option<f64>,
+    /// 2TP/(2TP + FP + FN); `None` when the effect is neither present nor detected.
+    pub f1: Option<f64>,
+    /// (strength from, to, detected, present) per bin of equal width on [0, 1].
+    pub recall_by_strength: Vec<(f64, f64, usize, usize)>,
+}
+
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Score {
+    pub per_effect: Vec<EffectScore>,
+    /// Mean F1 over the effects that have one.
+    pub macro_f1: Option<f64>,
+    pub clean_cases: usize,
+    /// Fraction of clean cases with at least one detection; `None` without clean cases.
+    pub clean_false_positive_rate: Option<f64>,
+}
+
+/// Scores `detected` effects per case against the sealed `truth` (same order), with recall in
+/// `strength_bins` bins.
+pub fn score(truth: &[CaseTruth], detected: &[Vec<Effect>], strength_bins: usize) -> Result<Score, InjectError> {
+    if truth.len() != detected.len() {
+        return Err(InjectError::LengthMismatch { what: "detections (one list per case)", got: detected.len(), expected: truth.len() });
+    }
+    let bins = strength_bins.max(1);
+    let mut per_effect = Vec::new();
+    for effect in Effect::ALL {
+        let (mut tp, mut fp, mut fn_) = (0, 0, 0);
+        let mut by_bin = vec![(0usize, 0usize); bins];
+        for (t, d) in truth.iter().zip(detected) {
+            let present = t.effects.iter().find(|l| l.effect == effect);
+            let found = d.contains(&effect);
+            match (present, found) {
+                (Some(_), true) => tp += 1,
+                (Some(_), false) => fn_ += 1,
+                (None, true) => fp += 1,
+                (None, false) => {}
+            }
+            if let Some(l) = present {
+                let bin = ((l.strength.clamp(0.0, 1.0) * bins as f64) as usize).min(bins - 1);
+                by_bin[bin].1 += 1;
+                if found {
+                    by_bin[bin].0 += 1;
+                }
+            }
+        }
+        let ratio = |num: usize, den: usize| (den > 0).then(|| num as f64 / den as f64);
+        per_effect.push(EffectScore {
+            effect,
+            true_positives: tp,
+            false_positives: fp,
+            false_negatives: fn_,
+            precision: ratio(tp, tp + fp),
+            recall: ratio(tp, tp + fn_),
+            f1: ratio(2 * tp, 2 * tp + fp + fn_),
+            recall_by_strength: by_bin.iter().enumerate().map(|(i, &(hit, n))| (i as f64 / bins as f64, (i + 1) as f64 / bins as f64, hit, n)).collect(),
+        });
+    }
+    let f1s: Vec<f64> = per_effect.iter().filter_map(|s| s.f1).collect();
+    let clean: Vec<usize> = truth.iter().enumerate().filter(|(_, t)| t.effects.is_empty()).map(|(i, _)| i).collect();
+    let alarms = clean.iter().filter(|&&i| !detected[i].is_empty()).count();
+    Ok(Score {
+        per_effect,
+        macro_f1: (!f1s.is_empty()).then(|| f1s.iter().sum::<f64>() / f1s.len() as f64),
+        clean_cases: clean.len(),
+        clean_false_positive_rate: (!clean.is_empty()).then(|| alarms as f64 / clean.len() as f64),
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::mesh::box_mesh;
+
+    #[test]
+    fn hertz_spectrum_matches_the_fft_of_the_sampled_pulse() {
+        for tau in [0.05e-3, 0.3e-3, 0.6e-3] {
+            let pulse = HertzPulse::new(tau).unwrap();
+            // Unit area (F̃(0) = 1) and the closed-form shape area.
+            assert!((pulse.laplace(Complex64::new(0.0, 0.0)).re - 1.0).abs() < 1e-12);
+            let (nodes, weights) = crate::fem::quadrature::gauss_legendre_01(40);
+            let plain: f64 = nodes.iter().zip(&weights).map(|(u, w)| w * (PI * u).sin().powf(1.5)).sum();
+            assert!((plain - HERTZ_SHAPE_AREA).abs() < 2e-5, "plain Gauss–Legendre {plain}");
+            // The pulse sampled at 4096 points over T and zero-padded to N: X[k]·dt ≈ F̃(iω_k),
+            // a Riemann sum accurate to ~5e-10 here (the sampled
+            // function vanishes smoothly, like t^(3/2), at both ends).
+            let n_pulse = 4096;
+            let dt = tau / n_pulse as f64;
+            let n = 1 << 18;
+            let mut buf: Vec<Complex64> = (0..n).map(|i| Complex64::new(if i <= n_pulse { pulse.force(i as f64 * dt) } else { 0.0 }, 0.0)).collect();
+            rustfft::FftPlanner::<f64>::new().plan_fft_forward(n).process(&mut buf);
+            for f in [100.0, 1000.0, 3000.0, 7000.0, 12000.0, 20000.0] {
+                let k = (f * n as f64 * dt).round() as usize;
+                let omega = 2.0 * PI * k as f64 / (n as f64 * dt);
+                let fft = buf[k] * dt;
+                let quad = pulse.laplace(Complex64::new(0.0, omega));
+                assert!((fft - quad).norm() < 1e-8, "T {tau} f {f}: fft {fft} quad {quad}");
+            }
+            // Damped poles: against a fine midpoint sum of the same integral.
+            let s = Complex64::new(-40.0, 2.0 * PI * 5000.0);
+            let m = 200_000;
+            let mid: Complex64 = (0..m).map(|i| (i as f64 + 0.5) * tau / m as f64).map(|t| (-s * t).exp() * pulse.force(t)).sum::<Complex64>() * (tau / m as f64);
+            assert!((mid - pulse.laplace(s)).norm() < 1e-8, "{mid} vs {}", pulse.laplace(s));
+        }
+        // A low pass: longer contacts suppress a high mode more.
+        let short = HertzPulse::new(0.05e-3).unwrap().laplace(Complex64::new(0.0, 2.0 * PI * 8000.0)).norm();
+        let long = HertzPulse::new(0.6e-3).unwrap().laplace(Complex64::new(0.0, 2.0 * PI * 8000.0)).norm();
+        assert!(short > 0.8 && short < 1.0 && long < 0.05, "{short} {long}");
+        assert!(HertzPulse::new(0.0).is_err() && HertzPulse::new(f64::NAN).is_err());
+    }
+
+    #[test]
+    fn glide_render_matches_a_reference_integration_and_reduces_to_the_synthesiser() {
+        let fs = 48_000.0;
+        let n = 9600;
+        let tracks = vec![
+            ModeTrack { frequency_hz: 1234.5, decay_rate: 6.0, amplitudes: vec![Complex64::new(0.3, -0.2), Complex64::new(-0.1, 0.05)] },
+            ModeTrack { frequency_hz: 7010.0, decay_rate: 40.0, amplitudes: vec![Complex64::new(0.0, 0.5), Complex64::new(0.2, 0.2)] },
+        ];
+        // g = 0 is the synthesiser's bank.
+        let plain = render_tracks(&tracks, 2, fs, n, None).unwrap();
+        let zero = render_tracks(&tracks, 2, fs, n, Some(0.0)).unwrap();
+        for c in 0..2 {
+            let err = plain[c].iter().zip(&zero[c]).map(|(a, b)| (a - b).abs()).fold(0.0, f64::max);
+            assert!(err < 1e-9, "channel {c}: {err}");
+        }
+        // Small g: the phase from a fine trapezoid integration of 2π f(t) (64 sub-steps per
+        // sample), against the closed form.
+        let g = 0.002;
+        let glided = render_tracks(&tracks, 2, fs, n, Some(g)).unwrap();
+        let sub = 64;
+        let h = 1.0 / (fs * sub as f64);
+        let mut reference = vec![vec![0.0; n]; 2];
+        for t in &tracks {
+            let freq = |time: f64| t.frequency_hz * (1.0 + g * (-2.0 * t.decay_rate * time).exp());
+            let mut theta = 0.0;
+            for i in 0..n {
+                let time = i as f64 / fs;
+                let env = (-t.decay_rate * time).exp();
+                for (ch, z) in reference.iter_mut().zip(&t.amplitudes) {
+                    ch[i] += env * (z * Complex64::new(0.0, theta).exp()).im;
+                }
+                for j in 0..sub {
+                    let t0 = time + j as f64 * h;
+                    theta += PI * h * (freq(t0) + freq(t0 + h));
+                }
+            }
+        }
+        for c in 0..2 {
+            let err = glided[c].iter().zip(&reference[c]).map(|(a, b)| (a - b).abs()).fold(0.0, f64::max);
+            let diff = glided[c].iter().zip(&plain[c]).map(|(a, b)| (a - b).abs()).fold(0.0, f64::max);
+            assert!(err < 1e-6, "channel {c}: closed form vs integration {err}");
+            assert!(diff > 1e-3, "channel {c}: the glide must change the sound ({diff})");
+        }
+        // The instantaneous frequency of the phase: f₀(1 + g) at the start, f₀ late.
+        let (f0, d) = (1000.0, 5.0);
+        let dphi = |t: f64| (glide_phase(f0, d, g, t + 1e-6) - glide_phase(f0, d, g, t - 1e-6)) / (2e-6 * 2.0 * PI);
+        assert!((dphi(1e-6) / f0 - 1.0 - g).abs() < 1e-6 && (dphi(2.0) / f0 - 1.0).abs() < 1e-6);
+        assert!((glide_phase(f0, 0.0, g, 0.5) - 2.0 * PI * f0 * (1.0 + g) * 0.5).abs() < 1e-9);
+        assert!(render_tracks(&tracks, 3, fs, n, Some(g)).is_err());
+    }
+
+    #[test]
+    fn room_response_has_the_requested_decay_and_direct_to_reverberant_ratio() {
+        let fs = 48_000.0;
+        for (i, &(t60, drr)) in [(0.2, 0.0), (0.5, 7.0), (1.0, 15.0)].iter().enumerate() {
+            let room = RoomResponse { t60_s: t60, direct_to_reverberant_db: drr, predelay_s: 0.004 };
+            let h = room.impulse_response(fs, 10 * fs as usize, &mut SplitMix64::new(40 + i as u64)).unwrap();
+            let start = (0.004 * fs) as usize;
+            assert_eq!(h[1..start].iter().filter(|v| **v != 0.0).count(), 0);
+            let tail: f64 = h[start..].iter().map(|v| v * v).sum();
+            assert!((10.0 * (1.0 / tail).log10() - drr).abs() < 1e-9);
+            let measured = schroeder_t60(&h, fs, start, -5.0, -35.0).unwrap();
+            assert!((measured / t60 - 1.0).abs() < 0.05, "T60 {t60}: measured {measured}");
+        }
+        // Convolution: a delayed impulse shifts, the tail is cut at the signal's length.
+        let x: Vec<f64> = (0..100).map(|i| (i as f64 * 0.1).sin()).collect();
+        let y = convolve_truncated(&x, &[0.0, 0.0, 2.0]);
+        assert_eq!(y.len(), 100);
+        assert!(y.iter().enumerate().all(|(i, v)| (v - if i >= 2 { 2.0 * x[i - 2] } else { 0.0 }).abs() < 1e-12));
+        assert!(RoomResponse { t60_s: 0.0, direct_to_reverberant_db: 3.0, predelay_s: 0.0 }.impulse_response(fs, 1000, &mut SplitMix64::new(1)).is_err());
+    }
+
+    #[test]
+    fn zener_damping_is_a_loss_factor_with_a_relaxation_peak_that_rayleigh_cannot_follow() {
+        let law = ZenerDamping::matched(3000.0, 8.0, 3.0, 2000.0).unwrap();
+        assert!((law.decay(3000.0) - 8.0).abs() < 1e-12);
+        assert!((law.relaxation_strength / law.loss_factor - 3.0).abs() < 1e-12);
+        // Loss factor η(f) = 2d/ω: η + Δ/2 at the corner; η far below and far above it.
+        let eta = |f: f64| law.decay(f) / (PI * f);
+        assert!((eta(2000.0) - law.loss_factor - 0.5 * law.relaxation_strength).abs() < 1e-15);
+        assert!((eta(2.0) - law.loss_factor) / law.loss_factor < 0.01 && (eta(2e6) - law.loss_factor) / law.loss_factor < 0.01);
+        // The other form of the module docs: π η f + A f²/(1 + (f/f_c)²), A = πΔ/f_c.
+        let a = PI * law.relaxation_strength / law.corner_hz;
+        let f = 4321.0;
+        assert!((law.decay(f) - (PI * law.loss_factor * f + a * f * f / (1.0 + (f / law.corner_hz).powi(2)))).abs() < 1e-12);
+        // A Rayleigh law is fitted exactly, the Zener law is not.
+        let freqs: Vec<f64> = (0..20).map(|i| 800.0 * 1.15f64.powi(i)).collect();
+        let rayleigh: Vec<f64> = freqs.iter().map(|f| 0.5 * (5.0 + 3e-8 * (2.0 * PI * f).powi(2))).collect();
+        let (alpha, beta, misfit) = rayleigh_fit(&freqs, &rayleigh).unwrap();
+        assert!((alpha - 5.0).abs() < 1e-9 && (beta / 3e-8 - 1.0).abs() < 1e-9 && misfit < 1e-9);
+        let zener: Vec<f64> = freqs.iter().map(|&f| law.decay(f)).collect();
+        let (_, _, misfit) = rayleigh_fit(&freqs, &zener).unwrap();
+        assert!(misfit > 0.1, "Rayleigh should miss the Zener law by > 10 %: {misfit}");
+        assert!(ZenerDamping::matched(0.0, 1.0, 1.0, 1.0).is_err() && rayleigh_fit(&[1.0], &[]).is_err());
+    }
+
+    #[test]
+    fn noise_has_the_requested_level_and_colour() {
+        let fs = 48_000.0;
+        let mut rng = SplitMix64::new(3);
+        let n = 1 << 16;
+        let signal: Vec<f64> = (0..n).map(|i| if i >= n / 4 { (i as f64 * 0.05).sin() } else { 0.0 }).collect();
+        let mut channels = vec![signal.clone(), signal.iter().map(|v| 2.0 * v).collect()];
+        // Mean power over the window, averaged over the channels (the second is 4× the first).
+        let power = 2.5 * signal[n / 4..].iter().map(|v| v * v).sum::<f64>() / (n - n / 4) as f64;
+        let rms = add_noise(&mut channels, n / 4..n, 60.0, NoiseColour::White, fs, &mut rng).unwrap();
+        assert!((20.0 * (power.sqrt() / rms).log10() - 60.0).abs() < 1e-9);
+        let measured = crate::audio::rms(&channels[0][..n / 4]);
+        assert!((measured / rms - 1.0).abs() < 0.03, "pre-roll noise RMS {measured} vs {rms}");
+        // Pink: band powers fall by 10 dB per decade (octave bands from 100 Hz to 12.8 kHz).
+        let np = 1 << 18;
+        let pink = coloured_noise(np, NoiseColour::Pink, fs, &mut rng);
+        assert!((crate::audio::rms(&pink) - 1.0).abs() < 1e-12);
+        let mut spec: Vec<Complex64> = pink.iter().map(|&v| Complex64::new(v, 0.0)).collect();
+        rustfft::FftPlanner::<f64>::new().plan_fft_forward(np).process(&mut spec);
+        let band = |lo: f64| {
+            let (a, b) = ((lo * np as f64 / fs) as usize, (2.0 * lo * np as f64 / fs) as usize);
+            spec[a..b].iter().map(|v| v.norm_sqr()).sum::<f64>()
+        };
+        // Octave bands of 1/f noise hold equal power; per-Hz density falls 3 dB per octave.
+        for lo in [100.0, 400.0, 1600.0, 6400.0] {
+            let ratio_db = 10.0 * (band(2.0 * lo) / band(lo)).log10();
+            assert!(ratio_db.abs() < 1.0, "octave {lo} Hz: {ratio_db} dB");
+        }
+        let white = coloured_noise(n, NoiseColour::White, fs, &mut rng);
+        let mut spec_w: Vec<Complex64> = white.iter().map(|&v| Complex64::new(v, 0.0)).collect();
+        rustfft::FftPlanner::<f64>::new().plan_fft_forward(n).process(&mut spec_w);
+        let band_w = |lo: f64| spec_w[(lo * n as f64 / fs) as usize..(2.0 * lo * n as f64 / fs) as usize].iter().map(|v| v.norm_sqr()).sum::<f64>();
+        assert!((10.0 * (band_w(3200.0) / band_w(1600.0)).log10() - 3.01).abs() < 0.5);
+        assert!(add_noise(&mut channels, 10..5, 60.0, NoiseColour::White, fs, &mut rng).is_err());
+    }
+
+    #[test]
+    fn streams_start_independently() {
+        // First draws of 4000 neighbouring streams: uniform mean ½, mean |u_i − u_(i+1)| = ⅓
+        // and no lag-1 correlation, for several seeds (standard errors ≈ 0.005).
+        for seed in [0u64, 1, 7, 12345, u64::MAX] {
+            let u: Vec<f64> = (0..4000).map(|i| SplitMix64::stream(seed, i).unit()).collect();
+            let n = u.len() as f64;
+            let mean = u.iter().sum::<f64>() / n;
+            let step = u.windows(2).map(|w| (w[0] - w[1]).abs()).sum::<f64>() / (n - 1.0);
+            let corr = u.windows(2).map(|w| (w[0] - mean) * (w[1] - mean)).sum::<f64>() / u.iter().map(|v| (v - mean).powi(2)).sum::<f64>();
+            assert!((mean - 0.5).abs() < 0.025 && (step - 1.0 / 3.0).abs() < 0.02 && corr.abs() < 0.06, "seed {seed}: mean {mean} step {step} corr {corr}");
+        }
+        let mut rng = SplitMix64::new(5);
+        let z: Vec<f64> = (0..20000).map(|_| rng.normal()).collect();
+        let (m, v) = (z.iter().sum::<f64>() / 2e4, z.iter().map(|x| x * x).sum::<f64>() / 2e4);
+        assert!(m.abs() < 0.03 && (v - 1.0).abs() < 0.04, "normal: mean {m} variance {v}");
+    }
+
+    #[test]
+    fn schedule_mixes_clean_single_and_double_cases_and_balances_effects() {
+        let mut rng = SplitMix64::new(11);
+        let plan = schedule_effects(100, &Effect::ALL, &mut rng);
+        let count = |k: usize| plan.iter().filter(|p| p.len() == k).count();
+        assert_eq!((count(0), count(1), count(2)), (30, 40, 30));
+        assert!(plan.iter().all(|p| p.len() < 2 || p[0] != p[1]), "two different effects");
+        for e in Effect::ALL {
+            let n = plan.iter().filter(|p| p.contains(&e)).count();
+            assert!((11..=13).contains(&n), "{e}: {n} cases"); // 100 effects over 8
+        }
+        let small = schedule_effects(3, &[Effect::SupportContact, Effect::AddedMass], &mut rng);
+        assert_eq!(small.iter().map(Vec::len).sum::<usize>(), 3);
+        assert!(small.iter().any(|p| p == &vec![Effect::SupportContact, Effect::AddedMass]));
+        assert!(schedule_effects(4, &[Effect::Reverb], &mut rng).iter().all(|p| p.len() <= 1));
+        assert_eq!(parse_effect_list("reverb, added_mass,reverb").unwrap(), vec![Effect::Reverb, Effect::AddedMass]);
+        assert!(parse_effect_list("reverb,echo").is_err());
+        // The strength scales run through their documented ranges.
+        let s = Effect::ContactDuration.strength_scale();
+        assert!((s.value(0.0) - 0.05e-3).abs() < 1e-15 && (s.value(1.0) - 0.6e-3).abs() < 1e-15);
+        assert!((s.strength_of(s.value(0.37)) - 0.37).abs() < 1e-12);
+        assert_eq!(Effect::Reverb.strength_scale().value(1.0), 0.0);
+        let json = serde_json::to_string(&Effect::NonRayleighDamping).unwrap();
+        assert_eq!(json, "\"non_rayleigh_damping\"");
+    }
+
+    #[test]
+    fn geometry_helpers_pick_the_bottom_the_top_and_a_neighbourhood() {
+        let mesh = box_mesh([4, 3, 2], [0.4, 0.3, 0.1]);
+        let down = [0.0, 0.0, -1.0];
+        let bottom = support_nodes(&mesh, down, 0.01, 3);
+        assert_eq!(bottom.len(), 5 * 4);
+        assert!(bottom.iter().all(|&v| mesh.nodes[v][2] == 0.0));
+        let strike = strike_candidates(&mesh, down, 0.05);
+        assert!(!strike.is_empty() && strike.iter().all(|&(v, n)| mesh.nodes[v][2] > 0.004 && n[2] > -0.5));
+        let corner = mesh.nodes.iter().position(|x| *x == [0.4, 0.3, 0.1]).unwrap();
+        let near = nearest_surface_vertices(&mesh, corner, 4);
+        assert!(near.contains(&corner) && near.len() == 4);
+        // On a square plate, the quadrant x > 0.2, y > 0.2 about the vertical axis through the
+        // centre holds a quarter of the tets (cell faces lie on the quadrant's edges); the
+        // sector [π/2, 3π/2) is the half x < 0.2; a sector through ψ = 0 wraps around.
+        let plate = box_mesh([4, 4, 2], [0.4, 0.4, 0.1]);
+        let (centre, up) = ([0.2, 0.2, 0.05], [0.0, 0.0, 1.0]);
+        let quadrant = sector_mesh(&plate, centre, up, 0.0, 0.5 * PI);
+        assert_eq!(quadrant.n_tets() * 4, plate.n_tets());
+        assert_eq!(quadrant.n_nodes(), plate.n_nodes());
+        assert!((0..quadrant.n_tets()).all(|e| quadrant.corner_coords(e).iter().all(|x| x[0] >= 0.2 && x[1] >= 0.2)));
+        let left = sector_mesh(&plate, centre, up, 0.5 * PI, PI);
+        assert_eq!(left.n_tets() * 2, plate.n_tets());
+        assert!((0..left.n_tets()).all(|e| left.corner_coords(e).iter().all(|x| x[0] <= 0.2)));
+        let wrap = sector_mesh(&plate, centre, up, 1.5 * PI, PI);
+        assert!(wrap.n_tets() * 2 == plate.n_tets() && (0..wrap.n_tets()).all(|e| wrap.corner_coords(e).iter().all(|x| x[0] >= 0.2)));
+        // Dashpot damping: ½ c_n for a unit normal motion at one node, ½ c_t for a tangential one.
+        assert!((support_damping(&[[0.0, 0.0, 1.0]], 4.0, 1.0, down) - 2.0).abs() < 1e-15);
+        assert!((support_damping(&[[1.0, 0.0, 0.0], [0.0, 2.0, 0.0]], 4.0, 1.0, down) - 2.5).abs() < 1e-15);
+        // Level misfit: exactly rank-1 levels give 0; one deviating entry gives > 0.
+        let levels: Vec<Vec<f64>> = (0..5).map(|k| (0..4).map(|c| (k as f64 + 1.0) * (1.0 + c as f64)).collect()).collect();
+        assert!(rank_one_level_misfit_db(&levels, &[1.0; 5]).unwrap() < 1e-9);
+        let mut off = levels.clone();
+        off[2][1] *= 10.0;
+        assert!(rank_one_level_misfit_db(&off, &[1.0; 5]).unwrap() > 1.0);
+    }
+
+    #[test]
+    fn scorer_counts_hits_false_alarms_and_recall_by_strength() {
+        let label = |e: Effect, s: f64| EffectLabel { effect: e, strength: s, parameters: serde_json::Value::Null };
+        let truth = vec![
+            CaseTruth { case: "a".into(), effects: vec![] },
+            CaseTruth { case: "b".into(), effects: vec![label(Effect::Reverb, 0.9)] },
+            CaseTruth { case: "c".into(), effects: vec![label(Effect::Reverb, 0.1), label(Effect::AddedMass, 0.5)] },
+            CaseTruth { case: "d".into(), effects: vec![] },
+        ];
+        let detected = vec![vec![Effect::PitchGlide], vec![Effect::Reverb], vec![Effect::AddedMass], vec![]];
+        let s = score(&truth, &detected, 2).unwrap();
+        let reverb = s.per_effect.iter().find(|e| e.effect == Effect::Reverb).unwrap();
+        assert_eq!((reverb.true_positives, reverb.false_positives, reverb.false_negatives), (1, 0, 1));
+        assert_eq!((reverb.precision, reverb.recall), (Some(1.0), Some(0.5)));
+        assert_eq!(reverb.recall_by_strength, vec![(0.0, 0.5, 0, 1), (0.5, 1.0, 1, 1)]);
+        let glide = s.per_effect.iter().find(|e| e.effect == Effect::PitchGlide).unwrap();
+        assert_eq!((glide.precision, glide.recall, glide.f1), (Some(0.0), None, Some(0.0)));
+        assert_eq!(s.clean_cases, 2);
+        assert_eq!(s.clean_false_positive_rate, Some(0.5));
+        // F1: reverb 2/3, added mass 1, pitch glide 0; the others have none.
+        assert!((s.macro_f1.unwrap() - (2.0 / 3.0 + 1.0) / 3.0).abs() < 1e-12);
+        assert!(score(&truth, &detected[..2], 2).is_err());
+    }
+}
