@@ -31,6 +31,7 @@ use diffsound::audio::chain::{DampingModel, ModalChain, Strike};
 use diffsound::audio::synth::render_samples;
 use diffsound::eigen::reduced::PoissonBasis;
 use diffsound::audio::stft::spectrogram_error;
+use diffsound::diagnose::inject::SplitMix64;
 use diffsound::inverse::estimate::{estimate_modes, EstimateOptions};
 use diffsound::inverse::material::{rms_matched_log_gains, fit_material, render_channels, FitStep, MaterialFitSettings, MaterialProblem};
 use diffsound::mesh;
@@ -46,32 +47,12 @@ const N_SAMPLES: usize = 24000;
 const BASIS_SAMPLES: [f64; 4] = [0.05, 0.2, 0.35, 0.45];
 const BASIS_MARGIN: usize = 8;
 
-/// splitmix64: a tiny seeded generator.
-struct SplitMix(u64);
-
-impl SplitMix {
-    fn next_u64(&mut self) -> u64 {
-        self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
-        let mut z = self.0;
-        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
-        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
-        z ^ (z >> 31)
-    }
-    /// Uniform in [0, 1).
-    fn unit(&mut self) -> f64 {
-        (self.next_u64() >> 11) as f64 / (1u64 << 53) as f64
-    }
-    fn uniform(&mut self, lo: f64, hi: f64) -> f64 {
-        lo + (hi - lo) * self.unit()
-    }
-}
-
 fn fnv1a(s: &str) -> u64 {
     s.bytes().fold(0xcbf2_9ce4_8422_2325, |h, b| (h ^ b as u64).wrapping_mul(0x100_0000_01b3))
 }
 
 fn object_seed(seed: u64, mesh_name: &str) -> u64 {
-    SplitMix(seed ^ fnv1a(mesh_name)).next_u64()
+    SplitMix64::new(seed ^ fnv1a(mesh_name)).next_u64()
 }
 
 #[derive(Clone, Copy, PartialEq)]
@@ -188,7 +169,7 @@ fn main() {
         eprintln!("[{name}] {} tets, {} P1 / {} P2 nodes, size {:.3} m, strike vertex {vertex}, assembly {:.2} s", linear.n_tets(), models[0].n_nodes, models[1].n_nodes, size, t_asm.elapsed().as_secs_f64());
         for &seed in &args.seeds {
             let oseed = object_seed(seed, &name);
-            let mut rng = SplitMix(oseed);
+            let mut rng = SplitMix64::new(oseed);
             let e_true = rng.uniform(1e10, 1e11);
             let nu_true = rng.uniform(0.1, 0.4);
             let factor = if rng.unit() < 0.5 { 1.0 / 3.0 } else { 3.0 };

@@ -8,6 +8,7 @@
 //!
 //! Material: ceramic preset (E, ν, ρ known; only t is fitted). Surfaces are scaled to a 0.1 m
 //! bounding-box diagonal so every shape has the same frequency range.
+use diffsound::diagnose::inject::SplitMix64;
 use diffsound::fem::Material;
 use diffsound::inverse::shape::{fit_thickness, shape_spectrum, ThicknessFitSettings};
 use diffsound::mesh::{self, BackgroundGrid, MarchingOptions, SignedDistance, TriangleSurface};
@@ -41,18 +42,8 @@ fn parse_args() -> Args {
     a
 }
 
-/// splitmix64 → uniform [0, 1).
-fn uniform(state: &mut u64) -> f64 {
-    *state = state.wrapping_add(0x9E37_79B9_7F4A_7C15);
-    let mut z = *state;
-    z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
-    z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
-    ((z ^ (z >> 31)) >> 11) as f64 / (1u64 << 53) as f64
-}
-
-/// The surface scaled to a 0.1 m diagonal and centred, its field on a grid of `cells`.
-fn field(surface: &TriangleSurface, cells: usize) -> (BackgroundGrid, Vec<f64>) {
-    let sdf = SignedDistance::new(surface).expect("signed distance");
+/// The field of `sdf` (the scaled surface's signed distance) on a grid of `cells` over its box.
+fn field(sdf: &SignedDistance, surface: &TriangleSurface, cells: usize) -> (BackgroundGrid, Vec<f64>) {
     let (lo, hi) = surface.bounding_box();
     let grid = BackgroundGrid::covering(lo, hi, cells, 1.0).expect("grid");
     let values = sdf.evaluate(&grid.vertex_positions());
@@ -67,7 +58,7 @@ fn main() {
     let material = Material::preset("ceramic").unwrap();
     let options = MarchingOptions::default();
     let settings = ThicknessFitSettings { modes: args.modes, ..Default::default() };
-    let mut state = args.seed;
+    let mut rng = SplitMix64::new(args.seed);
     if root {
         println!("## Thickness benchmark\n\nseed {}, {} modes, fit grid {} cells, target grid {} cells (longest axis), {} rank(s), ceramic, surfaces scaled to a 0.1 m diagonal.\n", args.seed, args.modes, args.fit_cells, args.target_cells, petsc.size());
         println!("| shape | t* | t₀ | t fit | abs err | iterations | evals | tets (fit) | mesh s/step | assembly s/step | solve s/step | gradient s/step | total s |");
@@ -86,13 +77,14 @@ fn main() {
                 v[d] = (v[d] - centre[d]) * 0.1 / diag;
             }
         }
-        let (fine_grid, fine) = field(&surface, args.target_cells);
-        let (grid, coarse) = field(&surface, args.fit_cells);
+        let sdf = SignedDistance::new(&surface).expect("signed distance");
+        let (fine_grid, fine) = field(&sdf, &surface, args.target_cells);
+        let (grid, coarse) = field(&sdf, &surface, args.fit_cells);
         let mut errors = Vec::new();
         for &t_true in &args.thickness {
             let shell = mesh::shell(&fine, t_true).unwrap();
             let target = shape_spectrum(&petsc, &fine_grid, &shell.values, &options, &material, args.modes, false).unwrap();
-            let t0 = 0.3 + 0.4 * uniform(&mut state);
+            let t0 = rng.uniform(0.3, 0.7);
             let clock = Instant::now();
             let fit = fit_thickness(&petsc, &grid, &coarse, &target.eigenvalues, t0, &options, &material, &settings, |s| {
                 if root {

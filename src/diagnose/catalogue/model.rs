@@ -622,6 +622,12 @@ impl AmplitudeBlock {
 /// [`ModeTable::n_residuals`]): r/√(σ² + τ²) for every non-amplitude row, then per mode with
 /// amplitudes (r_c − m)/√D_c per channel and m/√(1/W + τ_A²). Their sum of squares is the
 /// quadratic form of −2 ln L.
+/// The amplitude block of one mode's rows (residuals at `p` with their σ²) under the
+/// per-row mix floor.
+fn group_block(table: &ModeTable, rows: &[usize], p: &Prediction, tau2: &FloorVariances) -> AmplitudeBlock {
+    amplitude_block(rows.iter().map(|&r| (table.rows[r].value - table.rows[r].kind.predict(p), table.rows[r].sigma.powi(2))), tau2[2])
+}
+
 fn whiten(table: &ModeTable, p: &Prediction, tau2: &FloorVariances, out: &mut [f64]) {
     let mut i = 0;
     for &r in &table.other_rows {
@@ -630,15 +636,7 @@ fn whiten(table: &ModeTable, p: &Prediction, tau2: &FloorVariances, out: &mut [f
         i += 1;
     }
     for (_, rows) in &table.amplitude_groups {
-        let block = amplitude_block(
-            rows.iter().map(|&r| {
-                (
-                    table.rows[r].value - table.rows[r].kind.predict(p),
-                    table.rows[r].sigma.powi(2),
-                )
-            }),
-            tau2[2],
-        );
+        let block = group_block(table, rows, p, tau2);
         for &r in rows {
             let row = &table.rows[r];
             out[i] = (row.value - row.kind.predict(p) - block.m) / row_variance(row, tau2).sqrt();
@@ -660,15 +658,7 @@ fn minus_two_log_likelihood(table: &ModeTable, p: &Prediction, tau2: &FloorVaria
         sum += ln_two_pi + v.ln() + res * res / v;
     }
     for (_, rows) in &table.amplitude_groups {
-        let block = amplitude_block(
-            rows.iter().map(|&r| {
-                (
-                    table.rows[r].value - table.rows[r].kind.predict(p),
-                    table.rows[r].sigma.powi(2),
-                )
-            }),
-            tau2[2],
-        );
+        let block = group_block(table, rows, p, tau2);
         sum += rows.len() as f64 * ln_two_pi + block.objective(tau2[LEVEL_FLOOR]);
     }
     if sum.is_finite() {

@@ -155,40 +155,9 @@ fn fit_reverb(frames: &[Frames], t_lo: f64, t_hi: f64) -> (Vec<f64>, Vec<f64>, f
             })
             .collect()
     };
-    let mut var: Vec<f64> = rss_of(&x)
-        .iter()
-        .zip(&counts)
-        .map(|(r, &n)| (r / n as f64).max(1e-300))
-        .collect();
-    let mut previous = f64::INFINITY;
-    for _ in 0..40 {
-        let residuals = |xs: &[f64], out: &mut [f64]| {
-            let mut i = 0;
-            for (b, f) in frames.iter().enumerate() {
-                let s = var[b].sqrt();
-                for &(t, y) in f {
-                    out[i] = (y - xs[b] - reverb_log(t, xs[b_n + b], xs[2 * b_n])) / s;
-                    i += 1;
-                }
-            }
-        };
-        x = lm::minimise(residuals, n_rows, &x, &free, &lower, &upper, &scale, 200).x;
-        let rss = rss_of(&x);
-        var = rss
-            .iter()
-            .zip(&counts)
-            .map(|(r, &n)| (r / n as f64).max(1e-300))
-            .collect();
-        let m2ll = profiled_m2ll(&rss, &counts);
-        if (previous - m2ll).abs() < 1e-6 {
-            previous = m2ll;
-            break;
-        }
-        previous = m2ll;
-    }
-    // Standard errors at the optimum.
-    let columns: Vec<usize> = (0..x.len()).collect();
-    let mut residuals = |xs: &[f64], out: &mut [f64]| {
+    // Per-band residual variances (ML, floored) and the residuals they standardise.
+    let variances = |rss: &[f64]| -> Vec<f64> { rss.iter().zip(&counts).map(|(r, &n)| (r / n as f64).max(1e-300)).collect() };
+    let standardised = |var: &[f64], xs: &[f64], out: &mut [f64]| {
         let mut i = 0;
         for (b, f) in frames.iter().enumerate() {
             let s = var[b].sqrt();
@@ -198,6 +167,22 @@ fn fit_reverb(frames: &[Frames], t_lo: f64, t_hi: f64) -> (Vec<f64>, Vec<f64>, f
             }
         }
     };
+    let mut var = variances(&rss_of(&x));
+    let mut previous = f64::INFINITY;
+    for _ in 0..40 {
+        x = lm::minimise(|xs: &[f64], out: &mut [f64]| standardised(&var, xs, out), n_rows, &x, &free, &lower, &upper, &scale, 200).x;
+        let rss = rss_of(&x);
+        var = variances(&rss);
+        let m2ll = profiled_m2ll(&rss, &counts);
+        if (previous - m2ll).abs() < 1e-6 {
+            previous = m2ll;
+            break;
+        }
+        previous = m2ll;
+    }
+    // Standard errors at the optimum.
+    let columns: Vec<usize> = (0..x.len()).collect();
+    let mut residuals = |xs: &[f64], out: &mut [f64]| standardised(&var, xs, out);
     let jac = lm::jacobian(&mut residuals, &x, &columns, &lower, &upper, &scale, n_rows);
     let sigma = lm::standard_errors(&jac);
     (x, sigma, previous)

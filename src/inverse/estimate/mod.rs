@@ -445,12 +445,9 @@ pub(crate) fn estimate_with_bands(
         let log_z: Vec<C64> = candidates.iter().map(|c| c.log_z).collect();
         let coeffs = lsq::fit_full_rate(signals, &log_z)
             .ok_or(EstimateError::SingularFit { modes: log_z.len() })?;
-        let snr: Vec<f64> = candidates
-            .iter()
-            .zip(&coeffs)
-            .map(|(cand, ck)| snr_db(&energies(cand.log_z, ck, n), band_noise[cand.band]))
-            .collect();
-        let total_energy: Vec<f64> = candidates.iter().zip(&coeffs).map(|(cand, ck)| energies(cand.log_z, ck, n).iter().sum()).collect();
+        let mode_energies: Vec<Vec<f64>> = candidates.iter().zip(&coeffs).map(|(cand, ck)| energies(cand.log_z, ck, n)).collect();
+        let snr: Vec<f64> = candidates.iter().zip(&mode_energies).map(|(cand, e)| snr_db(e, band_noise[cand.band])).collect();
+        let total_energy: Vec<f64> = mode_energies.iter().map(|e| e.iter().sum()).collect();
         let strongest = total_energy.iter().fold(0.0_f64, |m, e| m.max(*e));
         let level_floor = strongest * 10f64.powf(opts.min_level_db / 10.0);
         let full_power: Vec<f64> = coeffs.iter().map(|ck| ck.iter().map(|c| c.norm_sqr()).sum::<f64>()).collect();

@@ -476,6 +476,20 @@ fn bad_input_gives_clear_errors() {
     );
     bad(
         EstimateOptions {
+            min_level_db: 3.0,
+            ..opts.clone()
+        },
+        "min_level_db",
+    );
+    bad(
+        EstimateOptions {
+            min_level_db: f64::NAN,
+            ..opts.clone()
+        },
+        "min_level_db",
+    );
+    bad(
+        EstimateOptions {
             max_modes_per_band: 0,
             ..opts.clone()
         },
