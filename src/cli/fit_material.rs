@@ -349,7 +349,7 @@ fn agree_on_fit(petsc: &Petsc, fit: MaterialFit, progress: &Progress) -> Result<
 }
 
 /// Broadcasts a value from rank 0 as JSON (a length, then the bytes).
-fn broadcast_json<T: serde::Serialize + serde::de::DeserializeOwned>(petsc: &Petsc, value: Option<T>) -> Result<T, String> {
+pub(super) fn broadcast_json<T: serde::Serialize + serde::de::DeserializeOwned>(petsc: &Petsc, value: Option<T>) -> Result<T, String> {
     let root = petsc.world().process_at_rank(0);
     let mut bytes = match &value {
         Some(v) => serde_json::to_vec(v).map_err(|e| e.to_string())?,

@@ -12,6 +12,7 @@
 //! so a job never hangs waiting for a rank that gave up; a panic does the same.
 
 pub mod config;
+pub mod diagnose;
 pub mod fit_material;
 mod modes;
 pub mod render;
@@ -38,6 +39,9 @@ pub enum Command {
     Spectrogram(spectrogram::SpectrogramArgs),
     /// Fit damping, Young's modulus and Poisson's ratio to recordings of a strike.
     FitMaterial(fit_material::FitMaterialArgs),
+    /// Where simulation and recording differ, which physics the model left out, and how much
+    /// the fit improves with it (report, HDF5, plots).
+    Diagnose(diagnose::DiagnoseArgs),
     /// List the material presets with their values.
     Materials,
 }
@@ -161,6 +165,7 @@ pub fn main() {
         Command::Materials => print_materials(),
         Command::Modes(args) => run_under_mpi(|universe| modes::run(universe, args)),
         Command::FitMaterial(args) => run_under_mpi(|universe| fit_material::run(universe, args)),
+        Command::Diagnose(args) => run_under_mpi(|universe| diagnose::run(universe, args)),
         Command::Render(args) => run_serial(render::run(args)),
         Command::Spectrogram(args) => run_serial(spectrogram::run(args)),
     }

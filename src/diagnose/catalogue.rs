@@ -273,6 +273,11 @@ pub struct CatalogueSettings {
     /// Without held-out data, reject effects that pass ΔBIC (true) or accept them on ΔBIC
     /// alone (false).
     pub require_held_out: bool,
+    /// Parameters charged (× ln n in ΔBIC) to the added-mass point variant when its candidate
+    /// region was chosen from the same data (the `diagnose` job picks the surface region that
+    /// best explains the baseline's frequency residuals: a 2-D location, so 2); 0 when the
+    /// region was given in advance.
+    pub mass_region_search_params: usize,
 }
 
 impl Default for CatalogueSettings {
@@ -285,6 +290,7 @@ impl Default for CatalogueSettings {
             delta_bic_threshold: DEFAULT_DELTA_BIC_THRESHOLD,
             unexplained_z: 4.0,
             require_held_out: true,
+            mass_region_search_params: 0,
         }
     }
 }

@@ -68,6 +68,81 @@
 //! often. [`score`] compares sealed labels with detections: precision, recall and F1 per
 //! effect (F1 = 2TP/(2TP + FP + FN)), the macro F1, the false-positive rate on clean cases
 //! (fraction of clean cases with any detection) and recall per strength bin.
+//!
+//! # Comparing parameters (the scorer)
+//!
+//! [`compare_parameters`] sets an accepted effect's fitted parameters (the catalogue's
+//! [`crate::diagnose::catalogue::AcceptedEffect`]; names and units in its effect modules) next
+//! to what they should read given the sealed labels, where both measure one physical quantity.
+//! The catalogue names effects as here, except `reverb_noise` for `reverb`
+//! ([`Effect::from_catalogue_name`]). The error is detected/expected − 1.
+//!
+//! * **`non_rayleigh_damping`**: the detector's d at its three knots ("decay rate at F Hz",
+//!   1/s) against the injected Zener law d(F); one error per case, the RMS over the knots of
+//!   d/d_Zener − 1 ([`zener_knot_rms_error`]).
+//! * **`beating_pair`**: the detector's relative split δ_c = ln f_u − ln f_l ≈ δf/f of a cluster
+//!   ("relative split δf/f of cluster c (F Hz)", F the observed pair's centre) against the
+//!   labels' split of the re-solved cluster over its centre, split_hz/f_centre (the total split,
+//!   mesh asymmetry included, as the detector's δ replaces the simulated split). Clusters are
+//!   paired one to one by centre frequency within [`SPLIT_PAIRING_TOLERANCE`]
+//!   ([`pair_by_frequency`]); one error per pair; unpaired detected splits are reported.
+//! * **`support_contact`**: not compared. The detector's Δd_k = γ w_k with w_k the fraction of
+//!   mode k's energy at the *CLI's* candidate region, which the report does not carry; the
+//!   labels hold the true Δd_k = ½ Σ_i (c_n φ_iz² + c_t(φ_ix² + φ_iy²)) per mode, so only γ
+//!   (Δd at w = 1) and the largest true Δd are listed side by side.
+//! * **`contact_duration`**: the shapes differ. The generator's Hertz force sin^(3/2)(πt/T_H)
+//!   and the detector's half-sine sin(πt/T) are both sin^ν(πt/T) pulses, whose spectrum is
+//!   F(x)/F(0) = Γ(1 + ν/2)² / (Γ(1 + (ν + b)/2) Γ(1 + (ν − b)/2)), b = x/π, x = ωT (up to the
+//!   phase e^(−ix/2)): first zero at x = (ν + 2)π (3π for the half-sine, 3.5π for Hertz), and
+//!   at low frequency |F| ≈ 1 − x²σ²/2 with σ² = ψ′(1 + ν/2)/(2π²) the pulse's variance in
+//!   units of T² (ψ′ the trigamma function: 1/4 − 2/π² = 0.04736 for ν = 1,
+//!   (π² − 8G − 16/9)/(2π²) = 0.03871 for ν = 3/2, G Catalan's constant). A half-sine matches
+//!   a Hertz pulse of duration T_H at low frequency when T/T_H = σ_H/σ_1 = 0.9041, at the
+//!   −3 dB frequency when T/T_H = 3.7352/4.1464 = 0.9008, at the first zero when
+//!   T/T_H = 3/3.5 = 6/7 ([`contact_shape_ratios`]). So a constant ratio ≈ 0.90 is expected
+//!   while the modes lie in the main lobe, but not beyond it: the detector bounds T by
+//!   2.9π/ω_max (ω_max its highest matched mode) and cannot follow the Hertz side lobes. The
+//!   expected T is therefore fitted per case exactly as the detector's model would fit it
+//!   without noise: the half-sine low-pass plus a constant against the labels' Hertz
+//!   attenuation of each mode the detector matched ([`equivalent_half_sine_duration`]). The
+//!   raw ratio T/T_H is reported beside it.
+//! * **`reverb`**: the detector's T60 of the excess residual energy e^(−13.8 t/T60) against the
+//!   room tail's T60: the same definition (60 dB of energy). (The residual's excess also holds
+//!   the modes' own reverberated tails; when a mode decays more slowly than the room, the
+//!   excess follows it.)
+//! * **`radiation`**: not compared. The labels' strength is the energy-weighted RMS of what a
+//!   per-mode + per-microphone dB model leaves of the multipole transfers; the detector's η
+//!   (an exponent on its own |transfer|) or u_k v_c (an unweighted rank-one factor on the fit
+//!   channels) is a different quantity.
+//! * **`added_mass`**: the detector's μ is *not* the mass fraction. In its model
+//!   Δ ln f_k = −½ ln(1 + μ w_k) with w_k = |φ_k|² at its candidate region over the largest
+//!   over the modes: μ = Δm |φ|²_max, the added modal mass of the most affected mode relative
+//!   to its own (mass-normalised φ), which depends on where the mass sits in the mode shapes.
+//!   The same quantity follows from the labels mode by mode: Δm|φ_k(x)|² = (f_base,k/f_k)² − 1
+//!   ([`modal_mass_loading`]; the k-th sorted frequency only falls, so base and loaded lists
+//!   compare index by index). Expected μ: its largest value over the rendered modes; for the
+//!   `fluid_loading` variant (Δ ln f_k = −½ ln(1 + μ_f f_1/f_k)) μ_f is the lowest mode's
+//!   loading, so the lowest mode's. Only when no other FEM effect (`beating_pair`,
+//!   `support_contact`) moved the frequencies of the case; the mass fraction is listed as the
+//!   labels' truth.
+//! * **`pitch_glide`**: the generator's g is the relative offset at t = 0 of every mode,
+//!   f(t) = f₀(1 + g e^(−2dt)); the detector's g is the early-minus-late frequency
+//!   difference y = (f_early − f_late)/f of its most energetic mode (largest mean_c a_c²/ω²),
+//!   with f_early, f_late fitted on the two halves of the analysis span L after the onset. A
+//!   least-squares frequency of a decaying tone with a slowly varying phase θ(t) is, to first
+//!   order, the slope of the regression of θ on t weighted by the amplitude² w = e^(−2dt).
+//!   With θ = 2πf₀(t + g Φ), Φ(t) = (1 − e^(−2dt))/(2d), the half [a, a + L/2] gives
+//!   f/f₀ = 1 + g e^(−2da) E(L/2), E(h) the w-weighted regression slope of Φ on [0, h], so
+//!   y = g (1 − e^(−dL)) E(L/2) ([`glide_half_contrast`]: 0 without decay, → ¼ for dL ≫ 1).
+//!   Expected detector g: y of the labels' most energetic mode among those matched. The
+//!   detector's model y_k = g Q_k² is itself misspecified for this law (the injected y_k
+//!   depends on d_k, not on the energy), so only its reference mode is like for like. This
+//!   is a first-order reference, exact for one least-squares tone per half: measured with
+//!   [`crate::diagnose::extract_modes`] on each half of 1 s of three gliding modes
+//!   (g = 0.3 %, d = 4, 12, 27 1/s, about 60 dB SNR), each half of a mode came out as about
+//!   four poles spread over a few Hz, and the loudest pole's y/g was 0.37, 0.22, (late half
+//!   lost) against 0.31, 0.25, 0.25 here. What the diagnosis reports as early and late
+//!   frequencies (which pole, or a merge) sets the true factor.
 
 use std::f64::consts::PI;
 
@@ -75,6 +150,7 @@ use rustfft::num_complex::Complex64;
 use serde::{Deserialize, Serialize};
 
 use crate::audio::synth::{render_samples, ModalBank};
+use crate::diagnose::catalogue::{AcceptedEffect, FittedParam};
 use crate::mesh::TetMesh;
 
 /// Everything that can be wrong with the input of this module.
@@ -88,6 +164,10 @@ pub enum InjectError {
     LengthMismatch { what: &'static str, got: usize, expected: usize },
     #[error("{0}")]
     Empty(&'static str),
+    #[error("labels: {0}")]
+    Label(String),
+    #[error("diagnosis report: {0}")]
+    Report(String),
 }
 
 fn require(ok: bool, what: &'static str, requirement: &'static str, value: f64) -> Result<(), InjectError> {
@@ -953,6 +1033,597 @@ pub fn score(truth: &[CaseTruth], detected: &[Vec<Effect>], strength_bins: usize
     })
 }
 
+// ---------------------------------------------------------------------------------------------
+// Parameters: what the detector's numbers should read, derived from the labels
+// ---------------------------------------------------------------------------------------------
+
+impl Effect {
+    /// The effect named by the catalogue of [`crate::diagnose::catalogue`]: the same names,
+    /// except `reverb_noise` for [`Effect::Reverb`].
+    pub fn from_catalogue_name(name: &str) -> Result<Effect, InjectError> {
+        match name.trim() {
+            "reverb_noise" => Ok(Effect::Reverb),
+            other => Effect::from_name(other),
+        }
+    }
+}
+
+/// Bisection for a sign change of `f` in [lo, hi] (f(lo) and f(hi) of opposite signs).
+fn bisect(f: impl Fn(f64) -> f64, mut lo: f64, mut hi: f64) -> f64 {
+    let f_lo = f(lo);
+    for _ in 0..200 {
+        let mid = 0.5 * (lo + hi);
+        if (f(mid) > 0.0) == (f_lo > 0.0) {
+            lo = mid;
+        } else {
+            hi = mid;
+        }
+        if hi - lo <= 1e-15 * hi.abs() {
+            break;
+        }
+    }
+    0.5 * (lo + hi)
+}
+
+/// σ²/T² of the pulse shape sin^p(πt/T) on [0, T]: ∫₀¹ s(u)(u − ½)² du / ∫₀¹ s(u) du, the
+/// spread of the force about its centre (module docs, "Comparing parameters"). Gauss–Legendre
+/// after u = 3v² − 2v³ as in [`HertzPulse::laplace`], so that the t^(p) ends are smooth.
+pub fn sine_power_pulse_variance(power: f64) -> f64 {
+    let (nodes, weights) = crate::fem::quadrature::gauss_legendre_01(16);
+    let panels = 32;
+    let (mut m0, mut m2) = (0.0, 0.0);
+    for p in 0..panels {
+        for (x, w) in nodes.iter().zip(&weights) {
+            let v = (p as f64 + x) / panels as f64;
+            let u = v * v * (3.0 - 2.0 * v);
+            let s = (PI * u).sin().max(0.0).powf(power) * 6.0 * v * (1.0 - v) * w / panels as f64;
+            m0 += s;
+            m2 += s * (u - 0.5).powi(2);
+        }
+    }
+    m2 / m0
+}
+
+/// The Hertz pulse's spectrum at x = ωT as a real amplitude: F̃(iω) e^(iωT/2) (the pulse is
+/// symmetric about T/2, so this is real and changes sign at the spectrum's zeros).
+fn hertz_amplitude(x: f64) -> f64 {
+    let tau = 1e-3;
+    let pulse = HertzPulse { duration_s: tau };
+    (pulse.laplace(Complex64::new(0.0, x / tau)) * Complex64::new(0.0, 0.5 * x).exp()).re
+}
+
+/// How long a half-sine contact must last to look like a Hertz contact of duration T_H
+/// (module docs, "Comparing parameters"): the x = ωT of the features of both spectra and the
+/// ratios T_half-sine / T_Hertz that match them.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
+pub struct ContactShapeRatios {
+    /// x = ωT where |F(x)/F(0)| = 1/√2, half-sine and Hertz.
+    pub half_sine_minus_3db_x: f64,
+    pub hertz_minus_3db_x: f64,
+    /// x = ωT of the first zero (3π for the half-sine).
+    pub half_sine_first_zero_x: f64,
+    pub hertz_first_zero_x: f64,
+    /// σ/T of the two force shapes ([`sine_power_pulse_variance`]).
+    pub half_sine_spread: f64,
+    pub hertz_spread: f64,
+    /// T_half-sine / T_Hertz for the same low-frequency roll-off |F| ≈ 1 − ω²σ²/2 (equal σ).
+    pub ratio_low_frequency: f64,
+    /// … for the same −3 dB frequency.
+    pub ratio_minus_3db: f64,
+    /// … for the same first zero.
+    pub ratio_first_zero: f64,
+}
+
+/// [`ContactShapeRatios`], computed (bisection on the closed-form half-sine spectrum of
+/// [`crate::diagnose::catalogue::half_sine_spectrum`] and on [`HertzPulse::laplace`]).
+pub fn contact_shape_ratios() -> ContactShapeRatios {
+    use crate::diagnose::catalogue::half_sine_spectrum;
+    let target = std::f64::consts::FRAC_1_SQRT_2;
+    // Both magnitudes fall monotonically from 1 to 0 over their main lobes; |F| = π/4 > 1/√2
+    // at x = π for the half-sine, so its −3 dB point lies in (π, 3π).
+    let half_sine_minus_3db_x = bisect(|x| half_sine_spectrum(x) - target, PI, 3.0 * PI);
+    // The Hertz shape is more peaked in time, so its main lobe is wider: scan for the first
+    // sign change of its real amplitude.
+    let mut hertz_first_zero_x = f64::NAN;
+    let step = 0.05 * PI;
+    let mut x = PI;
+    while x < 12.0 * PI {
+        if hertz_amplitude(x + step) <= 0.0 {
+            hertz_first_zero_x = bisect(hertz_amplitude, x, x + step);
+            break;
+        }
+        x += step;
+    }
+    let hertz_minus_3db_x = bisect(|x| hertz_amplitude(x) - target, 1e-6, hertz_first_zero_x);
+    let half_sine_spread = sine_power_pulse_variance(1.0).sqrt();
+    let hertz_spread = sine_power_pulse_variance(1.5).sqrt();
+    ContactShapeRatios {
+        half_sine_minus_3db_x,
+        hertz_minus_3db_x,
+        half_sine_first_zero_x: 3.0 * PI,
+        hertz_first_zero_x,
+        half_sine_spread,
+        hertz_spread,
+        ratio_low_frequency: hertz_spread / half_sine_spread,
+        ratio_minus_3db: half_sine_minus_3db_x / hertz_minus_3db_x,
+        ratio_first_zero: 3.0 * PI / hertz_first_zero_x,
+    }
+}
+
+/// The half-sine duration T [s] the detector's model fits to mode levels attenuated by
+/// `attenuation_db` [dB] (20 log₁₀|F̃|, e.g. the Hertz pulse's) at `frequencies_hz`: the
+/// minimiser of Σ_k (y_k − ln|F(ω_k T)/F(0)| − c)² over T ∈ (0, 2.9π/ω_max] and a constant c
+/// (the channel gains absorb constants), y_k = attenuation_k ln 10 / 20, unweighted. Grid
+/// of 400 log-spaced T over [10⁻⁴ T_max, T_max], then golden section between the best point's
+/// neighbours.
+pub fn equivalent_half_sine_duration(frequencies_hz: &[f64], attenuation_db: &[f64]) -> Result<f64, InjectError> {
+    use crate::diagnose::catalogue::half_sine_spectrum;
+    if frequencies_hz.len() != attenuation_db.len() {
+        return Err(InjectError::LengthMismatch { what: "mode attenuations", got: attenuation_db.len(), expected: frequencies_hz.len() });
+    }
+    if frequencies_hz.len() < 2 {
+        return Err(InjectError::Empty("at least two modes are needed to fit a contact duration"));
+    }
+    for (&f, &a) in frequencies_hz.iter().zip(attenuation_db) {
+        require(f > 0.0, "mode frequency", "positive (Hz)", f)?;
+        require(true, "mode attenuation", "finite (dB)", a)?;
+    }
+    let omega: Vec<f64> = frequencies_hz.iter().map(|f| 2.0 * PI * f).collect();
+    let y: Vec<f64> = attenuation_db.iter().map(|a| a * 10f64.ln() / 20.0).collect();
+    let cost = |ln_t: f64| {
+        let t = ln_t.exp();
+        let r: Vec<f64> = omega.iter().zip(&y).map(|(w, yk)| yk - half_sine_spectrum(w * t).max(1e-15).ln()).collect();
+        let mean = r.iter().sum::<f64>() / r.len() as f64;
+        r.iter().map(|v| (v - mean).powi(2)).sum::<f64>()
+    };
+    let t_max = 2.9 * PI / omega.iter().copied().fold(0.0, f64::max);
+    let n = 400;
+    let grid: Vec<f64> = (0..n).map(|i| (t_max * 1e-4).ln() + (i as f64 / (n - 1) as f64) * 1e4f64.ln()).collect();
+    let best = (0..n).min_by(|&a, &b| cost(grid[a]).total_cmp(&cost(grid[b]))).expect("grid is not empty");
+    let (mut lo, mut hi) = (grid[best.saturating_sub(1)], grid[(best + 1).min(n - 1)]);
+    let phi = 0.5 * (5f64.sqrt() - 1.0);
+    let (mut a, mut b) = (hi - phi * (hi - lo), lo + phi * (hi - lo));
+    let (mut ca, mut cb) = (cost(a), cost(b));
+    for _ in 0..100 {
+        if ca < cb {
+            hi = b;
+            b = a;
+            cb = ca;
+            a = hi - phi * (hi - lo);
+            ca = cost(a);
+        } else {
+            lo = a;
+            a = b;
+            ca = cb;
+            b = lo + phi * (hi - lo);
+            cb = cost(b);
+        }
+    }
+    Ok((0.5 * (lo + hi)).exp())
+}
+
+/// E(h) = ∫₀ʰ w (τ − τ̄) Φ dτ / ∫₀ʰ w (τ − τ̄)² dτ with w = e^(−2dτ), τ̄ the w-weighted mean
+/// time and Φ(τ) = (1 − e^(−2dτ))/(2d): the slope of the w-weighted regression of Φ on τ
+/// (module docs, "Comparing parameters"). Gauss–Legendre, 32 panels of 32 points over
+/// [0, min(h, 20/d)] (beyond, w < e^(−40)).
+fn glide_regression_mean(decay: f64, h: f64) -> f64 {
+    let (nodes, weights) = crate::fem::quadrature::gauss_legendre_01(32);
+    let span = if decay > 0.0 { h.min(20.0 / decay) } else { h };
+    let panels = 32;
+    let mut points = Vec::with_capacity(panels * nodes.len());
+    for p in 0..panels {
+        for (x, w) in nodes.iter().zip(&weights) {
+            let tau = span * (p as f64 + x) / panels as f64;
+            let two_d_tau = 2.0 * decay * tau;
+            let phi = if two_d_tau.abs() < 1e-300 { tau } else { tau * (-(-two_d_tau).exp_m1() / two_d_tau) };
+            points.push((tau, phi, (-two_d_tau).exp() * w * span / panels as f64));
+        }
+    }
+    let m0: f64 = points.iter().map(|p| p.2).sum();
+    let mean = points.iter().map(|p| p.2 * p.0).sum::<f64>() / m0;
+    let sxy: f64 = points.iter().map(|p| p.2 * (p.0 - mean) * p.1).sum();
+    let sxx: f64 = points.iter().map(|p| p.2 * (p.0 - mean).powi(2)).sum();
+    sxy / sxx
+}
+
+/// (f_early − f_late)/(g f₀) for a mode of decay rate `decay` [1/s] gliding as
+/// f(t) = f₀(1 + g e^(−2dt)), when f_early and f_late are least-squares frequencies of the
+/// first and second halves of [0, `span_s`] after the onset: (1 − e^(−d span)) E(span/2)
+/// (module docs, "Comparing parameters"). 0 without decay (the glide is then constant).
+pub fn glide_half_contrast(decay: f64, span_s: f64) -> Result<f64, InjectError> {
+    require(decay >= 0.0, "decay rate", "finite and ≥ 0 (1/s)", decay)?;
+    require(span_s > 0.0, "analysis span", "positive (s)", span_s)?;
+    Ok(-(-decay * span_s).exp_m1() * glide_regression_mean(decay, 0.5 * span_s))
+}
+
+/// (f_base/f)² − 1: the added modal mass of a mode relative to its own, from its frequency
+/// before (`base_hz`) and after (`loaded_hz`) the mass was added (Rayleigh quotient with an
+/// unchanged shape: λ = λ_base/(1 + Δm/m)).
+pub fn modal_mass_loading(base_hz: f64, loaded_hz: f64) -> f64 {
+    (base_hz / loaded_hz).powi(2) - 1.0
+}
+
+/// RMS over the knots (f [Hz], d [1/s]) of d/d_Zener(f) − 1.
+pub fn zener_knot_rms_error(law: &ZenerDamping, knots: &[(f64, f64)]) -> Result<f64, InjectError> {
+    if knots.is_empty() {
+        return Err(InjectError::Empty("no damping-curve knots to compare"));
+    }
+    let mut sum = 0.0;
+    for &(f, d) in knots {
+        require(f > 0.0, "knot frequency", "positive (Hz)", f)?;
+        require(d.is_finite(), "knot decay rate", "finite (1/s)", d)?;
+        sum += (d / law.decay(f) - 1.0).powi(2);
+    }
+    Ok((sum / knots.len() as f64).sqrt())
+}
+
+/// One-to-one pairs (truth index, detected index) of frequencies within `tolerance` in
+/// |ln(f_detected/f_truth)|, nearest first; sorted by the detected index.
+pub fn pair_by_frequency(truth_hz: &[f64], detected_hz: &[f64], tolerance: f64) -> Vec<(usize, usize)> {
+    let mut candidates: Vec<(f64, usize, usize)> = Vec::new();
+    for (i, &t) in truth_hz.iter().enumerate() {
+        for (j, &d) in detected_hz.iter().enumerate() {
+            let distance = (d / t).ln().abs();
+            if distance <= tolerance {
+                candidates.push((distance, i, j));
+            }
+        }
+    }
+    candidates.sort_by(|a, b| a.0.total_cmp(&b.0));
+    let (mut used_t, mut used_d) = (vec![false; truth_hz.len()], vec![false; detected_hz.len()]);
+    let mut pairs = Vec::new();
+    for (_, i, j) in candidates {
+        if !used_t[i] && !used_d[j] {
+            used_t[i] = true;
+            used_d[j] = true;
+            pairs.push((i, j));
+        }
+    }
+    pairs.sort_by_key(|p| p.1);
+    pairs
+}
+
+/// The frequency a catalogue parameter's name carries: the number just before its last
+/// "Hz" ("decay rate at 1234 Hz" → 1234, "relative split δf/f of cluster 3 (1662.5 Hz)" →
+/// 1662.5).
+pub fn frequency_in_name(name: &str) -> Option<f64> {
+    let head = name[..name.rfind("Hz")?].trim_end();
+    let start = head.rfind(|c: char| !(c.is_ascii_digit() || c == '.' || c == 'e' || c == 'E' || c == '+' || c == '-')).map_or(0, |i| i + head[i..].chars().next().map_or(1, char::len_utf8));
+    let value: f64 = head[start..].parse().ok()?;
+    (value > 0.0 && value.is_finite()).then_some(value)
+}
+
+/// The median (mean of the two middle values for an even count); `None` if empty.
+pub fn median(values: &[f64]) -> Option<f64> {
+    let mut v: Vec<f64> = values.to_vec();
+    if v.is_empty() {
+        return None;
+    }
+    v.sort_by(f64::total_cmp);
+    let n = v.len();
+    Some(if n % 2 == 1 { v[n / 2] } else { 0.5 * (v[n / 2 - 1] + v[n / 2]) })
+}
+
+/// Relative errors of one parameter over the cases.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct ErrorSummary {
+    pub n: usize,
+    /// Median and largest |error|.
+    pub median_abs: f64,
+    pub max_abs: f64,
+    /// Median signed error (the bias).
+    pub median: f64,
+}
+
+impl ErrorSummary {
+    /// The summary of the finite `errors`; `None` if there are none.
+    pub fn of(errors: &[f64]) -> Option<ErrorSummary> {
+        let finite: Vec<f64> = errors.iter().copied().filter(|e| e.is_finite()).collect();
+        let abs: Vec<f64> = finite.iter().map(|e| e.abs()).collect();
+        Some(ErrorSummary { n: finite.len(), median_abs: median(&abs)?, max_abs: abs.iter().copied().fold(0.0, f64::max), median: median(&finite)? })
+    }
+}
+
+/// Held-out error before and after the accepted effects, over the cases.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct HeldOutSummary {
+    pub cases: usize,
+    /// after < before.
+    pub dropped: usize,
+    pub not_dropped: usize,
+    /// Pairs with a non-finite value or before ≤ 0 (counted in neither).
+    pub invalid: usize,
+    /// Median of (before − after)/before over the valid pairs.
+    pub median_relative_drop: Option<f64>,
+}
+
+impl HeldOutSummary {
+    pub fn of(before_after: &[(f64, f64)]) -> HeldOutSummary {
+        let valid: Vec<(f64, f64)> = before_after.iter().copied().filter(|&(b, a)| b > 0.0 && b.is_finite() && a.is_finite()).collect();
+        let dropped = valid.iter().filter(|(b, a)| a < b).count();
+        let drops: Vec<f64> = valid.iter().map(|(b, a)| (b - a) / b).collect();
+        HeldOutSummary {
+            cases: before_after.len(),
+            dropped,
+            not_dropped: valid.len() - dropped,
+            invalid: before_after.len() - valid.len(),
+            median_relative_drop: median(&drops),
+        }
+    }
+}
+
+/// One detected number next to what it should read.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct ComparedValue {
+    pub quantity: String,
+    pub unit: String,
+    /// The injected parameter as labelled.
+    pub truth: Option<f64>,
+    /// What the detector's parameter should read, derived from the labels (module docs).
+    pub expected: Option<f64>,
+    pub detected: Option<f64>,
+    /// detected/expected − 1, where the two measure the same quantity.
+    pub relative_error: Option<f64>,
+}
+
+impl ComparedValue {
+    fn new(quantity: impl Into<String>, unit: &str, truth: Option<f64>, expected: Option<f64>, detected: Option<f64>) -> ComparedValue {
+        let relative_error = match (expected, detected) {
+            (Some(e), Some(d)) if e != 0.0 => Some(d / e - 1.0),
+            _ => None,
+        };
+        ComparedValue { quantity: quantity.into(), unit: unit.to_string(), truth, expected, detected, relative_error }
+    }
+}
+
+/// The parameters of one accepted effect against the labels of its case.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct ParameterComparison {
+    pub effect: Effect,
+    pub variant: String,
+    pub values: Vec<ComparedValue>,
+    /// The errors that enter the effect's summary: one per case (the RMS over the knots for
+    /// the damping curve), one per paired cluster for beating pairs.
+    pub errors: Vec<f64>,
+    /// Why nothing, or not everything, is compared.
+    pub not_comparable: Option<String>,
+}
+
+/// What the scorer knows about a case besides its labels.
+#[derive(Clone, Debug, PartialEq, Default)]
+pub struct ScoringContext {
+    /// Seconds after the onset whose halves give the early and late frequencies (pitch glide).
+    pub glide_span_s: Option<f64>,
+    /// Undamped frequencies [Hz] of the observed modes the catalogue matched (its report's
+    /// `matching.pairs[].observed_hz`): the contact fit and the glide's reference mode use
+    /// the rendered modes within [`MATCHED_MODE_TOLERANCE`] of one of them, as the detector
+    /// saw only those. Empty: every rendered mode.
+    pub matched_hz: Vec<f64>,
+}
+
+/// Largest |ln(f_rendered/f_matched)| at which a rendered mode counts as seen by the detector.
+pub const MATCHED_MODE_TOLERANCE: f64 = 0.01;
+
+impl ScoringContext {
+    /// Whether a rendered mode at `undamped_hz` is one the detector matched.
+    fn seen(&self, undamped_hz: f64) -> bool {
+        self.matched_hz.is_empty() || self.matched_hz.iter().any(|&f| (undamped_hz / f).ln().abs() <= MATCHED_MODE_TOLERANCE)
+    }
+}
+
+/// Largest |ln(f_detected/f_true)| at which a detected split cluster is paired with a labelled
+/// one (the centres are both the pair's mean frequency; the bowl's closest clusters are ~0.3 %
+/// apart above 10 kHz).
+pub const SPLIT_PAIRING_TOLERANCE: f64 = 0.002;
+
+/// A rendered mode of the labels.
+struct LabelMode {
+    index: usize,
+    undamped_hz: f64,
+    frequency_hz: f64,
+    decay_rate: f64,
+    amplitudes: Vec<f64>,
+}
+
+fn label_err(what: impl Into<String>) -> InjectError {
+    InjectError::Label(what.into())
+}
+
+fn label_f64(v: &serde_json::Value, key: &str) -> Result<f64, InjectError> {
+    v.get(key).and_then(serde_json::Value::as_f64).ok_or_else(|| label_err(format!("no number {key:?}")))
+}
+
+fn label_f64_list(v: &serde_json::Value, key: &str) -> Result<Vec<f64>, InjectError> {
+    v.get(key)
+        .and_then(serde_json::Value::as_array)
+        .and_then(|a| a.iter().map(serde_json::Value::as_f64).collect::<Option<Vec<f64>>>())
+        .ok_or_else(|| label_err(format!("no list of numbers {key:?}")))
+}
+
+fn label_modes(labels: &serde_json::Value) -> Result<Vec<LabelMode>, InjectError> {
+    let modes = labels.get("modes").and_then(serde_json::Value::as_array).ok_or_else(|| label_err("no \"modes\" list"))?;
+    modes
+        .iter()
+        .enumerate()
+        .map(|(i, m)| {
+            let index = m.get("index").and_then(serde_json::Value::as_u64).ok_or_else(|| label_err(format!("mode {i}: no \"index\"")))? as usize;
+            Ok(LabelMode {
+                index,
+                undamped_hz: label_f64(m, "undamped_hz")?,
+                frequency_hz: label_f64(m, "frequency_hz")?,
+                decay_rate: label_f64(m, "decay_rate")?,
+                amplitudes: label_f64_list(m, "amplitudes")?,
+            })
+        })
+        .collect()
+}
+
+fn label_effects(labels: &serde_json::Value) -> Result<Vec<EffectLabel>, InjectError> {
+    let effects = labels.get("effects").ok_or_else(|| label_err("no \"effects\""))?;
+    serde_json::from_value(effects.clone()).map_err(|e| label_err(format!("effects: {e}")))
+}
+
+/// The accepted effect's parameter whose name starts with `prefix`.
+fn detected_param<'a>(accepted: &'a AcceptedEffect, prefix: &str) -> Result<&'a FittedParam, InjectError> {
+    accepted.params.iter().find(|p| p.name.starts_with(prefix)).ok_or_else(|| {
+        let names: Vec<&str> = accepted.params.iter().map(|p| p.name.as_str()).collect();
+        InjectError::Report(format!("{}: no parameter named {prefix:?}… (has {names:?})", accepted.name))
+    })
+}
+
+/// Compares the parameters of an `accepted` effect of the catalogue with the sealed `labels`
+/// (the whole label file of the case, as written by `examples/diagnose_generate.rs`) of a case
+/// that holds the effect. The mapping of each effect is in the module docs ("Comparing
+/// parameters"). Fails if the effect is not in the labels, a label field is missing, or the
+/// report lacks the parameter the mapping reads.
+pub fn compare_parameters(labels: &serde_json::Value, accepted: &AcceptedEffect, context: &ScoringContext) -> Result<ParameterComparison, InjectError> {
+    let effect = Effect::from_catalogue_name(&accepted.name)?;
+    let effects = label_effects(labels)?;
+    let label = effects.iter().find(|l| l.effect == effect).ok_or_else(|| label_err(format!("the case does not hold {effect}")))?;
+    let p = &label.parameters;
+    let mut out = ParameterComparison { effect, variant: accepted.variant.clone(), values: Vec::new(), errors: Vec::new(), not_comparable: None };
+    match effect {
+        Effect::NonRayleighDamping => {
+            let law = ZenerDamping { loss_factor: label_f64(p, "loss_factor")?, relaxation_strength: label_f64(p, "relaxation_strength")?, corner_hz: label_f64(p, "corner_hz")? };
+            let mut knots = Vec::new();
+            for q in accepted.params.iter().filter(|q| q.name.starts_with("decay rate at")) {
+                let f = frequency_in_name(&q.name).ok_or_else(|| InjectError::Report(format!("cannot read a frequency in {:?}", q.name)))?;
+                knots.push((f, q.value));
+                out.values.push(ComparedValue::new(format!("decay rate at {f:.0} Hz (Zener law)"), "1/s", Some(law.decay(f)), Some(law.decay(f)), Some(q.value)));
+            }
+            if knots.is_empty() {
+                return Err(InjectError::Report(format!("{}: no \"decay rate at … Hz\" knots", accepted.name)));
+            }
+            out.errors.push(zener_knot_rms_error(&law, &knots)?);
+        }
+        Effect::BeatingPair => {
+            let modes = label_modes(labels)?;
+            let base = label_f64_list(labels, "base_undamped_hz")?;
+            let clusters = p.get("clusters").and_then(serde_json::Value::as_array).ok_or_else(|| label_err("beating_pair: no \"clusters\""))?;
+            // (centre Hz, relative split, split Hz) of every labelled cluster.
+            let mut truth = Vec::new();
+            for c in clusters {
+                let ends: Vec<usize> = c.get("modes").and_then(serde_json::Value::as_array).map(|a| a.iter().filter_map(|v| v.as_u64().map(|u| u as usize)).collect()).unwrap_or_default();
+                if ends.len() != 2 {
+                    return Err(label_err("beating_pair: a cluster without its two end modes"));
+                }
+                let split = label_f64(c, "split_hz")?;
+                let at = |i: usize| modes.iter().find(|m| m.index == i).map(|m| m.undamped_hz).or_else(|| base.get(i).copied());
+                let (lo, hi) = (at(ends[0]).ok_or_else(|| label_err(format!("no frequency of mode {}", ends[0])))?, at(ends[1]).ok_or_else(|| label_err(format!("no frequency of mode {}", ends[1])))?);
+                let centre = 0.5 * (lo + hi);
+                truth.push((centre, split / centre, split));
+            }
+            let detected: Vec<(f64, f64)> = accepted
+                .params
+                .iter()
+                .filter(|q| q.name.starts_with("relative split"))
+                .map(|q| frequency_in_name(&q.name).map(|f| (f, q.value)).ok_or_else(|| InjectError::Report(format!("cannot read a frequency in {:?}", q.name))))
+                .collect::<Result<_, _>>()?;
+            let pairs = pair_by_frequency(&truth.iter().map(|t| t.0).collect::<Vec<_>>(), &detected.iter().map(|d| d.0).collect::<Vec<_>>(), SPLIT_PAIRING_TOLERANCE);
+            for &(i, j) in &pairs {
+                let v = ComparedValue::new(format!("relative split δf/f of the cluster at {:.1} Hz (true split {:.2} Hz)", truth[i].0, truth[i].2), "1", Some(truth[i].1), Some(truth[i].1), Some(detected[j].1));
+                out.errors.extend(v.relative_error);
+                out.values.push(v);
+            }
+            let unpaired: Vec<String> = (0..detected.len()).filter(|j| !pairs.iter().any(|p| p.1 == *j)).map(|j| format!("{:.1} Hz", detected[j].0)).collect();
+            if !unpaired.is_empty() {
+                out.not_comparable = Some(format!("detected split(s) at {} match no labelled cluster within {:.1} %", unpaired.join(", "), 100.0 * SPLIT_PAIRING_TOLERANCE));
+            }
+        }
+        Effect::SupportContact => {
+            let gamma = detected_param(accepted, "support damping")?.value;
+            out.values.push(ComparedValue::new("support damping γ (Δd at support weight w = 1)", "1/s", None, None, Some(gamma)));
+            let extra = label_f64_list(p, "added_decay_per_mode")?;
+            let modes = label_modes(labels)?;
+            let rendered: Vec<f64> = modes.iter().filter_map(|m| extra.get(m.index).copied()).collect();
+            let largest = rendered.iter().copied().fold(f64::NAN, f64::max);
+            out.values.push(ComparedValue::new("largest injected Δd over the rendered modes", "1/s", Some(largest), None, None));
+            out.not_comparable = Some(
+                "the detector's Δd_k = γ w_k needs the support weights w_k of the simulated modes the CLI gave the catalogue, which the report does not carry; γ (Δd at w = 1) and the labels' Δd_k = ½Σ c φ² are listed side by side".into(),
+            );
+        }
+        Effect::ContactDuration => {
+            let t_hertz = label_f64(p, "duration_s")?;
+            let attenuation = label_f64_list(p, "mode_attenuation_db")?;
+            let modes = label_modes(labels)?;
+            if attenuation.len() != modes.len() {
+                return Err(InjectError::LengthMismatch { what: "contact_duration mode_attenuation_db (one per rendered mode)", got: attenuation.len(), expected: modes.len() });
+            }
+            let (mut freqs, mut att): (Vec<f64>, Vec<f64>) = modes.iter().zip(&attenuation).filter(|(m, _)| context.seen(m.undamped_hz)).map(|(m, a)| (m.frequency_hz, *a)).unzip();
+            if freqs.len() < 2 {
+                (freqs, att) = (modes.iter().map(|m| m.frequency_hz).collect(), attenuation.clone());
+            }
+            let expected = equivalent_half_sine_duration(&freqs, &att)?;
+            let t = detected_param(accepted, "contact duration")?.value;
+            let v = ComparedValue::new("contact duration T (half-sine fitted to the case's Hertz attenuations)", "s", Some(t_hertz), Some(expected), Some(t));
+            out.errors.extend(v.relative_error);
+            out.values.push(v);
+            out.values.push(ComparedValue::new("T_half-sine / T_Hertz", "1", None, Some(expected / t_hertz), Some(t / t_hertz)));
+        }
+        Effect::Reverb => {
+            let t60 = label_f64(p, "t60_s")?;
+            let v = ComparedValue::new("reverberation time T60", "s", Some(t60), Some(t60), Some(detected_param(accepted, "reverberation time")?.value));
+            out.errors.extend(v.relative_error);
+            out.values.push(v);
+        }
+        Effect::Radiation => {
+            out.not_comparable = Some(
+                "the labels' strength is the energy-weighted RMS dB misfit of a per-mode + per-microphone level model to the multipole transfers; the detector's η (an exponent on its own |transfer|) or u_k v_c (an unweighted factor on the fit channels) is not that quantity".into(),
+            );
+        }
+        Effect::AddedMass => {
+            let fraction = label_f64(p, "mass_fraction")?;
+            let mu = accepted.params.first().ok_or_else(|| InjectError::Report("added_mass: no parameter".into()))?.value;
+            let others: Vec<&str> = effects.iter().filter(|l| l.effect != effect && l.effect.changes_fem()).map(|l| l.effect.name()).collect();
+            if !others.is_empty() {
+                out.values.push(ComparedValue::new("added-mass ratio", "1", Some(fraction), None, Some(mu)));
+                out.not_comparable = Some(format!("{} also moved the frequencies, so the labels' frequency drops are not the mass's alone", others.join(", ")));
+                return Ok(out);
+            }
+            let base = label_f64_list(labels, "base_undamped_hz")?;
+            let loads: Vec<(f64, f64)> = label_modes(labels)?.iter().filter(|m| m.index < base.len()).map(|m| (m.undamped_hz, modal_mass_loading(base[m.index], m.undamped_hz))).collect();
+            if loads.is_empty() {
+                return Err(label_err("added_mass: no rendered mode with a base frequency"));
+            }
+            let (quantity, expected) = if accepted.variant == "fluid_loading" {
+                let lowest = loads.iter().min_by(|a, b| a.0.total_cmp(&b.0)).expect("not empty");
+                (format!("fluid added-mass ratio μ_f (true loading of the lowest mode, {:.0} Hz)", lowest.0), lowest.1)
+            } else {
+                ("added-mass ratio μ (largest true loading (f_base/f)² − 1 over the modes)".to_string(), loads.iter().map(|l| l.1).fold(f64::NEG_INFINITY, f64::max))
+            };
+            let v = ComparedValue::new(quantity, "1", Some(fraction), Some(expected), Some(mu));
+            out.errors.extend(v.relative_error);
+            out.values.push(v);
+        }
+        Effect::PitchGlide => {
+            let g = label_f64(p, "glide")?;
+            let detected = detected_param(accepted, "relative glide")?.value;
+            let Some(span) = context.glide_span_s else {
+                out.values.push(ComparedValue::new("relative glide g", "1", Some(g), None, Some(detected)));
+                out.not_comparable = Some("no analysis span known for the early/late halves".into());
+                return Ok(out);
+            };
+            // The detector's reference: the mode with the largest mean_c a² / ω².
+            let modes = label_modes(labels)?;
+            let energy = |m: &LabelMode| m.amplitudes.iter().map(|a| a * a).sum::<f64>() / (m.amplitudes.len().max(1) as f64 * (2.0 * PI * m.frequency_hz).powi(2));
+            let seen: Vec<&LabelMode> = modes.iter().filter(|m| context.seen(m.undamped_hz)).collect();
+            let pool = if seen.is_empty() { modes.iter().collect() } else { seen };
+            let reference = *pool.iter().max_by(|a, b| energy(a).total_cmp(&energy(b))).ok_or_else(|| label_err("no rendered modes"))?;
+            let expected = g * glide_half_contrast(reference.decay_rate, span)?;
+            let v = ComparedValue::new(
+                format!("relative glide (f_early − f_late)/f of the most energetic mode ({:.0} Hz, d = {:.1} 1/s, halves of {span} s)", reference.frequency_hz, reference.decay_rate),
+                "1",
+                Some(g),
+                Some(expected),
+                Some(detected),
+            );
+            out.errors.extend(v.relative_error);
+            out.values.push(v);
+        }
+    }
+    Ok(out)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -1230,5 +1901,208 @@ mod tests {
         // F1: reverb 2/3, added mass 1, pitch glide 0; the others have none.
         assert!((s.macro_f1.unwrap() - (2.0 / 3.0 + 1.0) / 3.0).abs() < 1e-12);
         assert!(score(&truth, &detected[..2], 2).is_err());
+    }
+
+    #[test]
+    fn contact_shapes_match_the_closed_forms_of_sine_power_pulses() {
+        // σ² = ψ′(1 + ν/2)/(2π²): 1/4 − 2/π² for ν = 1, (π² − 8G − 16/9)/(2π²) for ν = 3/2.
+        let catalan = 0.915_965_594_177_219;
+        assert!((sine_power_pulse_variance(1.0) - (0.25 - 2.0 / (PI * PI))).abs() < 1e-12);
+        let hertz = (PI * PI - 8.0 * catalan - 16.0 / 9.0) / (2.0 * PI * PI);
+        assert!((sine_power_pulse_variance(1.5) - hertz).abs() < 1e-10, "{} vs {hertz}", sine_power_pulse_variance(1.5));
+        let r = contact_shape_ratios();
+        // First zeros at (ν + 2)π.
+        assert!((r.hertz_first_zero_x - 3.5 * PI).abs() < 1e-9, "{}", r.hertz_first_zero_x);
+        assert!((r.ratio_first_zero - 6.0 / 7.0).abs() < 1e-9);
+        // The −3 dB points are −3 dB points, and the half-sine's lies where its closed form says.
+        let half = crate::diagnose::catalogue::half_sine_spectrum(r.half_sine_minus_3db_x);
+        assert!((half - std::f64::consts::FRAC_1_SQRT_2).abs() < 1e-12);
+        assert!((hertz_amplitude(r.hertz_minus_3db_x) - std::f64::consts::FRAC_1_SQRT_2).abs() < 1e-9);
+        let t = 1e-3;
+        let magnitude = HertzPulse::new(t).unwrap().laplace(Complex64::new(0.0, r.hertz_minus_3db_x / t)).norm();
+        assert!((magnitude - std::f64::consts::FRAC_1_SQRT_2).abs() < 1e-9);
+        assert!((r.ratio_low_frequency - (hertz / (0.25 - 2.0 / (PI * PI))).sqrt()).abs() < 1e-9);
+        assert!((r.ratio_minus_3db - 0.9008).abs() < 1e-4 && (r.ratio_low_frequency - 0.9041).abs() < 1e-4, "{r:?}");
+    }
+
+    #[test]
+    fn equivalent_half_sine_recovers_a_half_sine_and_follows_the_detectors_bound() {
+        use crate::diagnose::catalogue::half_sine_spectrum;
+        let freqs: Vec<f64> = (0..12).map(|i| 1500.0 * 1.2f64.powi(i)).collect();
+        // A half-sine low-pass with a gain offset of 3 dB: its own T back.
+        for t0 in [0.02e-3, 0.08e-3] {
+            let att: Vec<f64> = freqs.iter().map(|f| 3.0 + 20.0 * half_sine_spectrum(2.0 * PI * f * t0).log10()).collect();
+            let t = equivalent_half_sine_duration(&freqs, &att).unwrap();
+            assert!((t / t0 - 1.0).abs() < 1e-6, "T {t0}: {t}");
+        }
+        // A short Hertz pulse (modes in its main lobe): the low-frequency ratio.
+        let ratios = contact_shape_ratios();
+        let hertz_att = |t_h: f64| -> Vec<f64> {
+            let pulse = HertzPulse::new(t_h).unwrap();
+            freqs.iter().map(|f| 20.0 * pulse.laplace(Complex64::new(-5.0, 2.0 * PI * f)).norm().log10()).collect()
+        };
+        let t = equivalent_half_sine_duration(&freqs, &hertz_att(0.03e-3)).unwrap();
+        assert!((t / 0.03e-3 / ratios.ratio_low_frequency - 1.0).abs() < 0.005, "ratio {}", t / 0.03e-3);
+        // A long one (the high modes beyond its first zero): the detector's bound 2.9π/ω_max.
+        let t = equivalent_half_sine_duration(&freqs, &hertz_att(0.6e-3)).unwrap();
+        let bound = 2.9 * PI / (2.0 * PI * freqs[11]);
+        assert!((t / bound - 1.0).abs() < 1e-3, "{t} vs bound {bound}");
+        assert!(equivalent_half_sine_duration(&freqs, &[0.0; 3]).is_err());
+        assert!(equivalent_half_sine_duration(&[1000.0], &[0.0]).is_err());
+    }
+
+    #[test]
+    fn glide_contrast_matches_a_discrete_phase_regression() {
+        // Early and late frequencies as amplitude²-weighted regressions of the exact glide phase
+        // on the samples of each half of 1 s at 48 kHz (trapezoid weights: the plain sum is off
+        // by ~d/fs at the fast-decaying start).
+        let (fs, f0, g, span) = (48_000.0, 1000.0, 0.003, 1.0);
+        let slope = |d: f64, from: usize, to: usize| {
+            let end = |n: usize| if n == from || n == to { 0.5 } else { 1.0 };
+            let pts: Vec<(f64, f64, f64)> = (from..=to).map(|n| (n as f64 / fs, end(n))).map(|(t, e)| (t, glide_phase(f0, d, g, t), e * (-2.0 * d * t).exp())).collect();
+            let sw: f64 = pts.iter().map(|p| p.2).sum();
+            let mt = pts.iter().map(|p| p.2 * p.0).sum::<f64>() / sw;
+            let my = pts.iter().map(|p| p.2 * p.1).sum::<f64>() / sw;
+            let sxy: f64 = pts.iter().map(|p| p.2 * (p.0 - mt) * (p.1 - my)).sum();
+            let sxx: f64 = pts.iter().map(|p| p.2 * (p.0 - mt).powi(2)).sum();
+            sxy / sxx / (2.0 * PI * f0)
+        };
+        let n = (span * fs) as usize;
+        for d in [0.5, 5.0, 30.0] {
+            let discrete = (slope(d, 0, n / 2) - slope(d, n / 2, n)) / g;
+            let contrast = glide_half_contrast(d, span).unwrap();
+            assert!((discrete - contrast).abs() < 1e-5 * contrast, "d {d}: discrete {discrete} vs {contrast}");
+        }
+        // Limits: no decay, no contrast; fast decay, ¼ (module docs).
+        assert_eq!(glide_half_contrast(0.0, 1.0).unwrap(), 0.0);
+        assert!((glide_half_contrast(500.0, 1.0).unwrap() - 0.25).abs() < 1e-9);
+        assert!(glide_half_contrast(1.0, 0.0).is_err() && glide_half_contrast(-1.0, 1.0).is_err());
+    }
+
+    #[test]
+    fn scorer_helpers_read_names_pair_clusters_and_summarise() {
+        assert_eq!(frequency_in_name("decay rate at 1234 Hz"), Some(1234.0));
+        assert_eq!(frequency_in_name("relative split δf/f of cluster 3 (1662.5 Hz)"), Some(1662.5));
+        assert_eq!(frequency_in_name("reverberant excess ρ = R/N at t = 0, band 250–500 Hz"), Some(500.0));
+        assert_eq!(frequency_in_name("contact duration T"), None);
+        assert_eq!(frequency_in_name("at Hz"), None);
+        // Nearest first, one to one, beyond the tolerance unpaired.
+        let pairs = pair_by_frequency(&[1000.0, 1003.0, 5000.0], &[1002.5, 1000.5, 7000.0], 0.002);
+        assert_eq!(pairs, vec![(1, 0), (0, 1)]);
+        assert_eq!(median(&[3.0, 1.0, 2.0]), Some(2.0));
+        assert_eq!(median(&[4.0, 1.0, 2.0, 3.0]), Some(2.5));
+        assert_eq!(median(&[]), None);
+        let e = ErrorSummary::of(&[0.1, -0.3, 0.2, f64::NAN]).unwrap();
+        assert_eq!((e.n, e.max_abs), (3, 0.3));
+        assert!((e.median_abs - 0.2).abs() < 1e-15 && (e.median - 0.1).abs() < 1e-15);
+        assert!(ErrorSummary::of(&[f64::NAN]).is_none());
+        let h = HeldOutSummary::of(&[(2.0, 1.0), (1.0, 1.5), (1.0, 1.0), (f64::NAN, 1.0), (4.0, 3.0)]);
+        assert_eq!((h.cases, h.dropped, h.not_dropped, h.invalid), (5, 2, 2, 1));
+        // Drops 0.5, −0.5, 0, 0.25: median 0.125.
+        assert!((h.median_relative_drop.unwrap() - 0.125).abs() < 1e-15);
+        assert!((modal_mass_loading(1000.0, 950.0) - (1000.0f64 / 950.0).powi(2) + 1.0).abs() < 1e-15);
+        let law = ZenerDamping { loss_factor: 1e-3, relaxation_strength: 2e-3, corner_hz: 3000.0 };
+        assert!(zener_knot_rms_error(&law, &[(1000.0, law.decay(1000.0)), (5000.0, law.decay(5000.0))]).unwrap() < 1e-15);
+        let off = zener_knot_rms_error(&law, &[(1000.0, 1.1 * law.decay(1000.0)), (5000.0, 0.7 * law.decay(5000.0))]).unwrap();
+        assert!((off - (0.5f64 * (0.01 + 0.09)).sqrt()).abs() < 1e-12);
+        assert!(zener_knot_rms_error(&law, &[]).is_err());
+        assert_eq!(Effect::from_catalogue_name("reverb_noise").unwrap(), Effect::Reverb);
+        assert_eq!(Effect::from_catalogue_name("added_mass").unwrap(), Effect::AddedMass);
+        assert!(Effect::from_catalogue_name("echo").is_err());
+    }
+
+    /// A catalogue acceptance with the given parameters (name, value).
+    fn accepted(name: &str, variant: &str, params: &[(&str, f64)]) -> AcceptedEffect {
+        AcceptedEffect {
+            name: name.into(),
+            signature: String::new(),
+            variant: variant.into(),
+            detector: String::new(),
+            step: 0,
+            n_params: params.len(),
+            delta_bic: 10.0,
+            held_out_before: Some(2.0),
+            held_out_after: Some(1.5),
+            params: params.iter().map(|(n, v)| FittedParam::new(*n, "", *v, 0.0)).collect(),
+        }
+    }
+
+    #[test]
+    fn compare_parameters_maps_each_effect_onto_the_detectors_quantity() {
+        use crate::diagnose::catalogue::half_sine_spectrum;
+        let law = ZenerDamping { loss_factor: 1e-3, relaxation_strength: 2e-3, corner_hz: 3000.0 };
+        let t_contact = 0.05e-3;
+        let modes = [(0, 950.0, 3.0), (1, 1001.0, 4.0), (2, 1003.0, 4.0), (3, 1990.0, 8.0)];
+        let att: Vec<f64> = modes.iter().map(|m| 20.0 * half_sine_spectrum(2.0 * PI * m.1 * t_contact).log10()).collect();
+        let labels = |effects: serde_json::Value| {
+            serde_json::json!({
+                "case": "x", "effects": effects, "base_undamped_hz": [1000.0, 1001.0, 1003.0, 2000.0],
+                "modes": modes.iter().map(|&(i, f, d)| serde_json::json!({"index": i, "undamped_hz": f, "frequency_hz": f, "decay_rate": d,
+                    "amplitudes": if i == 0 { [1.0, 1.0] } else { [0.1, 0.1] }})).collect::<Vec<_>>(),
+            })
+        };
+        let all = labels(serde_json::json!([
+            {"effect": "reverb", "strength": 0.5, "parameters": {"t60_s": 0.5}},
+            {"effect": "added_mass", "strength": 0.5, "parameters": {"mass_fraction": 0.03}},
+            {"effect": "pitch_glide", "strength": 0.5, "parameters": {"glide": 0.002}},
+            {"effect": "non_rayleigh_damping", "strength": 0.5, "parameters": {"loss_factor": 1e-3, "relaxation_strength": 2e-3, "corner_hz": 3000.0}},
+            {"effect": "beating_pair", "strength": 0.5, "parameters": {"clusters": [{"modes": [1, 2], "split_hz": 2.0}]}},
+            {"effect": "contact_duration", "strength": 0.5, "parameters": {"duration_s": t_contact, "mode_attenuation_db": att}},
+            {"effect": "support_contact", "strength": 0.5, "parameters": {"added_decay_per_mode": [0.5, 0.1, 0.2, 0.0]}},
+            {"effect": "radiation", "strength": 0.5, "parameters": {}},
+        ]));
+        let ctx = ScoringContext { glide_span_s: Some(1.0), matched_hz: vec![] };
+        let only_error = |c: &ParameterComparison| {
+            assert_eq!(c.errors.len(), 1, "{c:?}");
+            c.errors[0]
+        };
+        let c = compare_parameters(&all, &accepted("reverb_noise", "shared_t60", &[("reverberation time T60", 0.55), ("reverberant excess ρ", 3.0)]), &ctx).unwrap();
+        assert_eq!(c.effect, Effect::Reverb);
+        assert!((only_error(&c) - 0.1).abs() < 1e-12);
+        // Largest loading: mode 0, (1000/950)² − 1; the fluid variant takes the lowest mode (the same here).
+        let mu = (1000.0f64 / 950.0).powi(2) - 1.0;
+        let mass_only = labels(serde_json::json!([{"effect": "added_mass", "strength": 0.5, "parameters": {"mass_fraction": 0.03}}]));
+        for variant in ["added_mass", "fluid_loading"] {
+            let c = compare_parameters(&mass_only, &accepted("added_mass", variant, &[("added-mass ratio μ", 1.2 * mu)]), &ctx).unwrap();
+            assert!((only_error(&c) - 0.2).abs() < 1e-12 && c.not_comparable.is_none());
+        }
+        // Glide: the most energetic mode is mode 0 (d = 3).
+        let expected = 0.002 * glide_half_contrast(3.0, 1.0).unwrap();
+        let c = compare_parameters(&all, &accepted("pitch_glide", "energy_squared", &[("relative glide g of the most energetic mode", 2.0 * expected)]), &ctx).unwrap();
+        assert!((only_error(&c) - 1.0).abs() < 1e-12);
+        // … and mode 1 (equal amplitudes: the lowest of the rest, d = 4) when the detector
+        // matched only modes 1–3.
+        let matched = ScoringContext { glide_span_s: Some(1.0), matched_hz: vec![1001.0, 1003.0, 1995.0] };
+        let expected1 = 0.002 * glide_half_contrast(4.0, 1.0).unwrap();
+        let c = compare_parameters(&all, &accepted("pitch_glide", "energy_squared", &[("relative glide g of the most energetic mode", expected1)]), &matched).unwrap();
+        assert!(only_error(&c).abs() < 1e-12, "{c:?}");
+        let c = compare_parameters(&all, &accepted("pitch_glide", "energy_squared", &[("relative glide g", 1e-3)]), &ScoringContext::default()).unwrap();
+        assert!(c.errors.is_empty() && c.not_comparable.is_some());
+        // Damping knots 10 % high at 1000 Hz, exact at 2000 Hz: RMS √(0.01/2).
+        let knots = [("decay rate at 1000 Hz", 1.1 * law.decay(1000.0)), ("decay rate at 2000 Hz", law.decay(2000.0))];
+        let c = compare_parameters(&all, &accepted("non_rayleigh_damping", "three_knot_log_log", &knots), &ctx).unwrap();
+        assert!((only_error(&c) - 0.005f64.sqrt()).abs() < 1e-12);
+        // Split of 2 Hz at 1002 Hz seen 10 % small; a second detected split pairs with nothing.
+        let c = compare_parameters(&all, &accepted("beating_pair", "split_per_cluster", &[("relative split δf/f of cluster 4 (1002.1 Hz)", 0.9 * 2.0 / 1002.0), ("relative split δf/f of cluster 9 (3000.0 Hz)", 1e-3)]), &ctx).unwrap();
+        assert!((only_error(&c) + 0.1).abs() < 1e-12 && c.not_comparable.as_deref().unwrap().contains("3000.0 Hz"));
+        // Contact: attenuations of a half-sine give back its duration.
+        let c = compare_parameters(&all, &accepted("contact_duration", "half_sine", &[("contact duration T", t_contact)]), &ctx).unwrap();
+        assert!(only_error(&c).abs() < 1e-6, "{c:?}");
+        // Not comparable: support (the weights are the CLI's), radiation.
+        let c = compare_parameters(&all, &accepted("support_contact", "damping_only", &[("support damping γ", 2.0)]), &ctx).unwrap();
+        assert!(c.errors.is_empty() && c.not_comparable.is_some() && c.values[1].truth == Some(0.5));
+        let c = compare_parameters(&all, &accepted("radiation", "transfer", &[("transfer exponent η", 1.0)]), &ctx).unwrap();
+        assert!(c.errors.is_empty() && c.not_comparable.is_some());
+        // Added mass next to another FEM effect: the frequency drops are not the mass's alone.
+        let mixed = labels(serde_json::json!([
+            {"effect": "added_mass", "strength": 0.5, "parameters": {"mass_fraction": 0.03}},
+            {"effect": "beating_pair", "strength": 0.5, "parameters": {"clusters": []}},
+        ]));
+        let c = compare_parameters(&mixed, &accepted("added_mass", "added_mass", &[("added-mass ratio μ", 0.1)]), &ctx).unwrap();
+        assert!(c.errors.is_empty() && c.not_comparable.unwrap().contains("beating_pair"));
+        // Errors: an effect the case does not hold, a parameter the report lacks, bad labels.
+        assert!(matches!(compare_parameters(&mixed, &accepted("reverb_noise", "shared_t60", &[("reverberation time T60", 0.5)]), &ctx), Err(InjectError::Label(_))));
+        assert!(matches!(compare_parameters(&all, &accepted("reverb_noise", "shared_t60", &[("T60", 0.5)]), &ctx), Err(InjectError::Report(_))));
+        assert!(compare_parameters(&serde_json::json!({"effects": 3}), &accepted("reverb_noise", "", &[]), &ctx).is_err());
     }
 }

@@ -164,6 +164,20 @@ pub struct ModeResidualRow {
     pub role: Role,
     pub before: ZScores,
     pub after: ZScores,
+    /// What the baseline and the final model predict for this mode.
+    pub predicted_before: PredictedMode,
+    pub predicted_after: PredictedMode,
+}
+
+/// A model's prediction of one matched mode, in the observation's units.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct PredictedMode {
+    /// Undamped frequency f₀, Hz.
+    pub frequency_hz: f64,
+    /// Decay rate d, 1/s.
+    pub decay_rate: f64,
+    /// Amplitude per fit channel (0 where the model predicts none), units of the recording.
+    pub amplitudes: Vec<f64>,
 }
 
 /// Noise floor per band: the pre-roll estimate and the floor fitted to the residual

@@ -81,7 +81,14 @@ fn evaluate(
         let mut x0 = current.x.clone();
         x0.extend(proposal.init);
         let candidate = fit(table, model, x0);
-        let delta_bic = current.bic() - candidate.bic();
+        // A candidate region the caller chose from these data costs parameters of its own
+        // (parent docs, `mass_region_search_params`).
+        let searched = if proposal.term.effect() == "added_mass" && proposal.term.variant() == "added_mass" {
+            settings.mass_region_search_params as f64
+        } else {
+            0.0
+        };
+        let delta_bic = current.bic() - candidate.bic() - searched * (table.n_residuals() as f64).ln();
         let better = match &best {
             None => true,
             Some((_, d)) => delta_bic > *d || (d.is_nan() && !delta_bic.is_nan()),
@@ -437,6 +444,15 @@ pub fn diagnose_with(
         });
     }
 
+    let predicted = |k: usize, p: &super::Prediction| PredictedMode {
+        frequency_hz: p.ln_f[k].exp(),
+        decay_rate: p.decay[k],
+        amplitudes: (0..p.channels)
+            .map(|c| if table.modes[k].drive > 0.0 { p.ln_a[k * p.channels + c].exp() } else { 0.0 })
+            .collect(),
+    };
+    let p_before = baseline.model.prediction(&table, &baseline.x);
+    let p_after = current.model.prediction(&table, &current.x);
     let residuals = (0..table.modes.len())
         .map(|k| {
             let m = &table.modes[k];
@@ -447,6 +463,8 @@ pub fn diagnose_with(
                 role: m.role,
                 before: z_scores(&baseline, &table, k),
                 after: z_scores(&current, &table, k),
+                predicted_before: predicted(k, &p_before),
+                predicted_after: predicted(k, &p_after),
             }
         })
         .collect();
