@@ -6,17 +6,9 @@
 
 mod common;
 use common::*;
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::process::Command;
 use std::time::Duration;
-
-fn generator() -> PathBuf {
-    let exe = std::env::current_exe().expect("test binary path");
-    let profile_dir = exe.parent().and_then(Path::parent).expect("target/<profile>/deps/<test>");
-    let path = profile_dir.join("examples").join("diagnose_generate");
-    assert!(path.is_file(), "{} is missing: build it with `cargo build --release --example diagnose_generate` (cargo test builds it too)", path.display());
-    path
-}
 
 fn accepted(report: &serde_json::Value) -> Vec<String> {
     report["catalogue"]["accepted"].as_array().expect("accepted list").iter().map(|a| a["name"].as_str().expect("name").to_string()).collect()

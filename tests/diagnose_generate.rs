@@ -11,22 +11,12 @@ mod common;
 use common::*;
 use diffsound::diagnose::inject::{CaseTruth, Effect};
 use rustfft::num_complex::Complex64;
-use std::path::{Path, PathBuf};
 use std::process::Command;
 use std::time::Duration;
 
 const FS: f64 = 48_000.0;
 const PRE_ROLL: f64 = 0.25;
 const DURATION: f64 = 1.0;
-
-/// The example is built next to the test binaries by `cargo test` (target/<profile>/examples).
-fn generator() -> PathBuf {
-    let exe = std::env::current_exe().expect("test binary path");
-    let profile_dir = exe.parent().and_then(Path::parent).expect("target/<profile>/deps/<test>");
-    let path = profile_dir.join("examples").join("diagnose_generate");
-    assert!(path.is_file(), "{} is missing: build it with `cargo build --release --example diagnose_generate` (cargo test builds it too)", path.display());
-    path
-}
 
 /// Magnitude spectrum of `x` (Hann window, zero-padded 8×) and its bin width [Hz].
 fn spectrum(x: &[f64]) -> (Vec<f64>, f64) {

@@ -58,6 +58,7 @@
 //!   and of recording − modal resynthesis, fit channel 0), `_envelopes.png` (residual energy
 //!   per band over time against the pre-roll floor).
 
+use super::fit_material::plot_path;
 use super::{fail, Progress};
 use crate::assembly;
 use crate::audio::chain::{DampingModel, Strike};
@@ -77,7 +78,7 @@ use crate::io::plot::{line_plot_png, spectrogram_png, AxisScale, LineFigure, Mar
 use crate::io::results::{read_attribute, AttrValue, ResultsFile};
 use crate::io::{write_modes, ModesFile, MaterialRecord, NodeField};
 use crate::mesh::{self, ReadOptions, TetMesh};
-use crate::petsc::{Petsc, PetscInt};
+use crate::petsc::Petsc;
 use clap::Args;
 use mpi::environment::Universe;
 use serde::{Deserialize, Serialize};
@@ -532,9 +533,6 @@ fn features(job: &Job, mesh: &TetMesh, eigenvalues: &[f64], shapes: &[Vec<f64>],
                 Some(d) => d,
                 None => normals.get(&v).map(|n| n.map(|c| -c)).ok_or_else(|| format!("strike vertex {v} is not a surface vertex of the mesh"))?,
             };
-            if v >= mesh.n_nodes() {
-                return Err(format!("strike vertex {v} does not exist ({} nodes)", mesh.n_nodes()));
-            }
             (shapes.iter().map(|s| along(s, v, n).abs()).collect(), format!("vertex {v}"))
         }
         None => {
@@ -647,14 +645,7 @@ fn compute(petsc: &Petsc, job: &Job) -> Result<(), String> {
                 None => mesh_model.default_strike_point().ok_or("the mesh has no surface")?,
             };
             let normal = job.strike_direction.map(|d| d.map(|c| -c)).unwrap_or(point.normal);
-            let weights = mesh_model.shape_weights(point.barycentric);
-            let (mut dofs, mut w) = (Vec::new(), Vec::new());
-            for (a, &node) in mesh_model.tet(point.tet).iter().enumerate() {
-                for c in 0..3 {
-                    dofs.push(assembled.layout.global_dof(node, c) as PetscInt);
-                    w.push(weights[a] * normal[c]);
-                }
-            }
+            let (dofs, w) = super::fit_material::probe_along(&mesh_model, &point, normal, &assembled.layout);
             // Enough modes to cover the recorded band; spurious weak poles (a reverberant tail) must
             // not inflate the solves, so the count is capped.
             let n_modes = (measured.fit.len() + 8).min(48);
@@ -899,12 +890,6 @@ fn write_map(job: &Job, mesh: &TetMesh, eigenvalues: &[f64], shapes: &[Vec<f64>]
     write_modes(&job.map, &file).map_err(|e| e.to_string())?;
     println!("wrote {} and its .xdmf sidecar (ParaView: colour by mass_region_z)", job.map.display());
     Ok(())
-}
-
-fn plot_path(prefix: &Path, suffix: &str) -> PathBuf {
-    let mut s = prefix.as_os_str().to_owned();
-    s.push(suffix);
-    PathBuf::from(s)
 }
 
 fn write_plots(job: &Job, measured: &Measured, report: &CatalogueReport) -> Result<(), String> {

@@ -436,17 +436,23 @@ fn strike_probe(mesh: &TetMesh, job: &Job, layout: &assembly::DofLayout) -> Resu
         (None, Some(p)) => mesh.closest_surface_point(p).ok_or("the mesh has no surface")?,
         (None, None) => mesh.default_strike_point().ok_or("the mesh has no surface")?,
     };
+    let (dofs, w) = probe_along(mesh, &point, point.normal, layout);
+    Ok((point, dofs, w))
+}
+
+/// The PETSc dofs of the tet holding `point` and the weights that read φ(x)·`direction` from
+/// them (shape functions at the point times the direction's components).
+pub(super) fn probe_along(mesh: &TetMesh, point: &SurfacePoint, direction: [f64; 3], layout: &assembly::DofLayout) -> (Vec<PetscInt>, Vec<f64>) {
     let weights = mesh.shape_weights(point.barycentric);
-    let tet = mesh.tet(point.tet);
     let mut dofs = Vec::new();
     let mut w = Vec::new();
-    for (a, &node) in tet.iter().enumerate() {
+    for (a, &node) in mesh.tet(point.tet).iter().enumerate() {
         for c in 0..3 {
             dofs.push(layout.global_dof(node, c) as PetscInt);
-            w.push(weights[a] * point.normal[c]);
+            w.push(weights[a] * direction[c]);
         }
     }
-    Ok((point, dofs, w))
+    (dofs, w)
 }
 
 /// Recorded modes paired one-to-one with simulated ones, closest (relative) pairs first.
@@ -694,7 +700,7 @@ fn damped_partials(eigenvalues: &[f64], damping: &DampingModel) -> Result<(Vec<f
     Ok((bank.frequencies_hz, bank.decay_rates))
 }
 
-fn plot_path(prefix: &Path, suffix: &str) -> PathBuf {
+pub(super) fn plot_path(prefix: &Path, suffix: &str) -> PathBuf {
     let mut s = prefix.as_os_str().to_owned();
     s.push(suffix);
     PathBuf::from(s)

@@ -43,7 +43,7 @@
 
 use crate::audio::stft::StftPlan;
 use crate::audio::synth::render_samples;
-use crate::diagnose::catalogue::{ObservedMode, ResidualEnvelopes, SimulatedMode};
+use crate::diagnose::catalogue::{weighted_regression, ObservedMode, ResidualEnvelopes, SimulatedMode};
 use crate::diagnose::extract::ModalExtraction;
 
 /// Everything that can be wrong with the input of this module.
@@ -214,23 +214,31 @@ pub fn residual_envelopes(post: &[Vec<f64>], pre: &[Vec<f64>], extraction: &Moda
     Ok(ResidualEnvelopes { times_s: centres.iter().map(|&s| s as f64 / fs).collect(), band_edges_hz: edges, energy, noise_floor_estimate })
 }
 
-/// Clusters of near-degenerate modes: ids such that neighbours (in sorted frequency) within
-/// `rtol` share one; ids count up from 0 in frequency order.
-pub fn cluster_ids(frequencies_hz: &[f64], rtol: f64) -> Vec<usize> {
+/// Cluster ids in frequency order: walking the modes by increasing frequency, mode k joins its
+/// lower neighbour j's cluster when `joins(j, k)`, else opens the next id.
+fn chain_clusters(frequencies_hz: &[f64], joins: impl Fn(usize, usize) -> bool) -> Vec<usize> {
     let mut order: Vec<usize> = (0..frequencies_hz.len()).collect();
     order.sort_by(|&a, &b| frequencies_hz[a].total_cmp(&frequencies_hz[b]));
     let mut ids = vec![0; frequencies_hz.len()];
     let mut id = 0;
     for (pos, &k) in order.iter().enumerate() {
-        if pos > 0 {
-            let prev = frequencies_hz[order[pos - 1]];
-            if (frequencies_hz[k] - prev).abs() > rtol * frequencies_hz[k].abs().max(prev.abs()) {
-                id += 1;
-            }
+        if pos > 0 && !joins(order[pos - 1], k) {
+            id += 1;
         }
         ids[k] = id;
     }
     ids
+}
+
+/// Whether two frequencies lie within `rtol` (relative to the larger).
+fn within(a: f64, b: f64, rtol: f64) -> bool {
+    (a - b).abs() <= rtol * a.abs().max(b.abs())
+}
+
+/// Clusters of near-degenerate modes: ids such that neighbours (in sorted frequency) within
+/// `rtol` share one; ids count up from 0 in frequency order.
+pub fn cluster_ids(frequencies_hz: &[f64], rtol: f64) -> Vec<usize> {
+    chain_clusters(frequencies_hz, |j, k| within(frequencies_hz[j], frequencies_hz[k], rtol))
 }
 
 /// Where a mode moves, in a frame that a rotation about `axis` (through `centre`) leaves
@@ -253,8 +261,7 @@ pub fn axial_profile(shape: &[f64], nodes: &[[f64; 3]], centre: [f64; 3], axis: 
     let cell = |v: f64, lo: f64, hi: f64| (((v - lo) / (hi - lo).max(1e-300) * bins as f64) as usize).min(bins - 1);
     let mut out = vec![0.0; bins * bins];
     for (i, &(h, rho)) in coords.iter().enumerate() {
-        let e = shape[3 * i] * shape[3 * i] + shape[3 * i + 1] * shape[3 * i + 1] + shape[3 * i + 2] * shape[3 * i + 2];
-        out[cell(h, h_lo, h_hi) * bins + cell(rho, 0.0, r_hi)] += e;
+        out[cell(h, h_lo, h_hi) * bins + cell(rho, 0.0, r_hi)] += node_energy(shape, i);
     }
     let total: f64 = out.iter().sum();
     if total > 0.0 {
@@ -267,27 +274,19 @@ pub fn axial_profile(shape: &[f64], nodes: &[[f64; 3]], centre: [f64; 3], axis: 
 /// whose [`axial_profile`]s differ by at most `max_profile_distance` in L1 (out of 2) are
 /// chained into one cluster; ids count up from 0 in frequency order.
 pub fn symmetric_cluster_ids(frequencies_hz: &[f64], profiles: &[Vec<f64>], rtol: f64, max_profile_distance: f64) -> Vec<usize> {
-    let mut order: Vec<usize> = (0..frequencies_hz.len()).collect();
-    order.sort_by(|&a, &b| frequencies_hz[a].total_cmp(&frequencies_hz[b]));
-    let mut ids = vec![0; frequencies_hz.len()];
-    let mut id = 0;
-    for (pos, &k) in order.iter().enumerate() {
-        if pos > 0 {
-            let j = order[pos - 1];
-            let close = (frequencies_hz[k] - frequencies_hz[j]).abs() <= rtol * frequencies_hz[k].abs().max(frequencies_hz[j].abs());
-            let alike = profiles[k].iter().zip(&profiles[j]).map(|(a, b)| (a - b).abs()).sum::<f64>() <= max_profile_distance;
-            if !(close && alike) {
-                id += 1;
-            }
-        }
-        ids[k] = id;
-    }
-    ids
+    chain_clusters(frequencies_hz, |j, k| {
+        within(frequencies_hz[j], frequencies_hz[k], rtol) && profiles[k].iter().zip(&profiles[j]).map(|(a, b)| (a - b).abs()).sum::<f64>() <= max_profile_distance
+    })
+}
+
+/// |φ(x_i)|² of a mode shape (node-major x, y, z) at node i.
+fn node_energy(shape: &[f64], i: usize) -> f64 {
+    shape[3 * i..3 * i + 3].iter().map(|v| v * v).sum()
 }
 
 /// Squared motion Σ_{i ∈ nodes} |φ(x_i)|² of a mode shape (node-major x, y, z).
 pub fn region_energy(shape: &[f64], nodes: &[usize]) -> f64 {
-    nodes.iter().map(|&i| shape[3 * i] * shape[3 * i] + shape[3 * i + 1] * shape[3 * i + 1] + shape[3 * i + 2] * shape[3 * i + 2]).sum()
+    nodes.iter().map(|&i| node_energy(shape, i)).sum()
 }
 
 /// Region energies of the simulated modes with every near-degenerate cluster turned to the
@@ -359,24 +358,6 @@ pub fn simulated_modes(frequencies_hz: &[f64], drive: &[f64], support_energy: &[
         .collect())
 }
 
-/// Weighted least-squares line y = a + b x through (x, y, weight) points: (b, z of b).
-fn slope_z(points: &[(f64, f64, f64)]) -> (f64, f64) {
-    let w: f64 = points.iter().map(|p| p.2).sum();
-    if points.len() < 3 || w <= 0.0 {
-        return (0.0, 0.0);
-    }
-    let mx = points.iter().map(|p| p.2 * p.0).sum::<f64>() / w;
-    let my = points.iter().map(|p| p.2 * p.1).sum::<f64>() / w;
-    let sxx: f64 = points.iter().map(|p| p.2 * (p.0 - mx).powi(2)).sum();
-    if sxx <= 1e-300 {
-        return (0.0, 0.0);
-    }
-    let sxy: f64 = points.iter().map(|p| p.2 * (p.0 - mx) * (p.1 - my)).sum();
-    let b = sxy / sxx;
-    // Standardised residuals have unit variance: σ(b) = 1/√Sxx.
-    (b, b * sxx.sqrt())
-}
-
 /// The map ζ(v) over candidate vertices (module docs): `vertex_energy[v][k]` = |φ_k(v)|² for
 /// the simulated modes, `residuals` = (simulated mode indices sharing the observation, z of its
 /// ln f residual). Returns (μ̂(v), ζ(v)) per vertex.
@@ -396,7 +377,12 @@ pub fn localise_frequency_residuals(vertex_energy: &[Vec<f64>], residuals: &[(Ve
                     (-0.5 * w, *z, 1.0)
                 })
                 .collect();
-            slope_z(&points)
+            // Standardised residuals have unit variance, so the regression's z is μ̂ / σ(μ̂).
+            if points.len() < 3 {
+                (0.0, 0.0)
+            } else {
+                weighted_regression(&points)
+            }
         })
         .collect()
 }

@@ -120,3 +120,13 @@ pub fn gmsh_mesh(geo: &Path, h: f64, order: u32, out: &Path) {
     let r = run_with_limit(cmd, Duration::from_secs(120));
     assert!(r.success() && out.exists(), "gmsh failed (is gmsh installed? run scripts/install-deps.sh):\n{}", r.describe());
 }
+
+/// The benchmark generator example, built next to the test binaries by `cargo test`
+/// (target/<profile>/examples).
+pub fn generator() -> PathBuf {
+    let exe = std::env::current_exe().expect("test binary path");
+    let profile_dir = exe.parent().and_then(Path::parent).expect("target/<profile>/deps/<test>");
+    let path = profile_dir.join("examples").join("diagnose_generate");
+    assert!(path.is_file(), "{} is missing: build it with `cargo build --release --example diagnose_generate` (cargo test builds it too)", path.display());
+    path
+}
