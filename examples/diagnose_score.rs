@@ -61,9 +61,9 @@
 //!      the generator's g is the offset at t = 0 of f₀(1 + g e^(−2dt)). Expected:
 //!      g (1 − e^(−dL)) E(L/2) for the labels' most energetic matched mode, **assuming** the
 //!      early and late frequencies are least-squares fits to the two halves of the L seconds
-//!      after the onset (L = `--glide-span`, else the case's `duration_after_onset_s`). If the
-//!      CLI splits the decay differently, pass its span; a different split (not halves) would
-//!      need `inject::glide_half_contrast` generalised. It is a first-order reference: the
+//!      after the onset (L = `--glide-span`, else the case's `duration_after_onset_s`), unless
+//!      the report gives its windows (`glide_windows_s`: early [0, T₁], late [T₁, T₂]; then
+//!      `inject::glide_window_contrast`, and `--glide-span` overrides them with halves). It is a first-order reference: the
 //!      library's extractor resolves each half of a gliding mode into several poles (measured
 //!      in the `inject` docs), and which of them the CLI reports sets the true factor.
 //!
@@ -149,6 +149,9 @@ struct Diagnosis {
     catalogue: CatalogueReport,
     #[serde(default)]
     held_out_audio: Option<BeforeAfter>,
+    /// Ends of the early and late pitch-glide windows after the onset [s] (older reports: halves).
+    #[serde(default)]
+    glide_windows_s: Option<(f64, f64)>,
 }
 
 #[derive(Deserialize)]
@@ -218,7 +221,8 @@ fn load(args: &Args) -> Result<Vec<Case>, String> {
             Ok(d) => d.catalogue.matching.pairs.iter().map(|p| p.observed_hz).collect(),
             Err(_) => Vec::new(),
         };
-        let context = ScoringContext { glide_span_s: args.glide_span.or_else(|| analysis_span(&directory)), matched_hz };
+        let glide_windows_s = report.as_ref().ok().and_then(|d| d.glide_windows_s).filter(|_| args.glide_span.is_none());
+        let context = ScoringContext { glide_span_s: args.glide_span.or_else(|| analysis_span(&directory)), glide_windows_s, matched_hz };
         cases.push(Case { name, truth, labels, context, report });
     }
     Ok(cases)

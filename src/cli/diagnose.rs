@@ -15,8 +15,8 @@
 //!    second one), so that every accepted effect must also improve the fit of microphones it
 //!    never saw.
 //! 2. **Modes of the recording** ([`crate::diagnose::extract`], rank 0): the fit set's modes
-//!    with standard deviations, again on the first and on the second half of the span (pitch
-//!    glide), the held-out set's separately; the residual recording − modal resynthesis per
+//!    with standard deviations, again on an early window (0.15 s after the onset) and on the
+//!    0.3 s after it (pitch glide), the held-out set's separately; the residual recording − modal resynthesis per
 //!    band and frame, and the pre-roll's floor ([`crate::diagnose::evidence`]).
 //! 3. **Material.** E, ν (ρ given) from a `fit-material` result (`material = "fit.h5"`), from
 //!    the configuration, or, with neither, from the line-spectrum match of the recorded mode
@@ -458,6 +458,8 @@ struct Measured {
     /// Fit channel 0 after the onset and its residual (for the plots).
     plot_signal: Vec<f64>,
     plot_residual: Vec<f64>,
+    /// Ends of the early and the late pitch-glide windows after the onset [s].
+    glide_windows_s: (f64, f64),
     seconds: f64,
 }
 
@@ -485,9 +487,14 @@ fn measure(job: &Job, progress: &Progress) -> Result<Measured, String> {
     };
     let fit_post = pick(&post, &job.fit_channels);
     let full = extract(&fit_post, "fit microphones")?;
-    let half = n / 2;
-    let early = extract(&fit_post.iter().map(|c| c[..half].to_vec()).collect::<Vec<_>>(), "first half")?;
-    let late = extract(&fit_post.iter().map(|c| c[half..].to_vec()).collect::<Vec<_>>(), "second half")?;
+    // Glide windows: a glide lives while the mode is loud (a Duffing shift ∝ its energy,
+    // e^(−2dt)), so the halves of a 1 s span compare a glide with nothing in most modes and
+    // leave the fast-decaying modes out of the late half entirely. An early window of
+    // GLIDE_WINDOW_S and a late one of twice that right after it keep most modes in both.
+    let split = ((GLIDE_WINDOW_S * fs) as usize).min(n / 3);
+    let end = (3 * split).min(n);
+    let early = extract(&fit_post.iter().map(|c| c[..split].to_vec()).collect::<Vec<_>>(), "early window")?;
+    let late = extract(&fit_post.iter().map(|c| c[split..end].to_vec()).collect::<Vec<_>>(), "late window")?;
     let in_band = |mut modes: Vec<ObservedMode>| {
         modes.retain(|m| m.frequency_hz <= job.max_frequency_hz);
         modes
@@ -508,7 +515,7 @@ fn measure(job: &Job, progress: &Progress) -> Result<Measured, String> {
     };
     let model0 = render_samples(&full.bank(0), fs, n);
     let plot_residual = fit_post[0].iter().zip(&model0).map(|(a, b)| a - b).collect();
-    Ok(Measured { names: rec.names, onset_s: rec.onset_s, fit, held_out, envelopes, extraction_fit: full, extraction_held, plot_signal: fit_post[0].clone(), plot_residual, seconds: t.elapsed().as_secs_f64() })
+    Ok(Measured { names: rec.names, onset_s: rec.onset_s, fit, held_out, envelopes, extraction_fit: full, extraction_held, plot_signal: fit_post[0].clone(), plot_residual, glide_windows_s: (split as f64 / fs, end as f64 / fs), seconds: t.elapsed().as_secs_f64() })
 }
 
 /// Per-mode features on rank 0 from the full shapes (original node order).
@@ -593,6 +600,10 @@ const CLUSTER_RTOL: f64 = 0.005;
 /// cluster: 8 × 8 cells, L1 distance at most 0.2 (of 2).
 const PROFILE_BINS: usize = 8;
 const CLUSTER_PROFILE_DISTANCE: f64 = 0.2;
+
+/// Length of the early window for the pitch-glide frequencies [s]; the late window follows
+/// it and is twice as long.
+const GLIDE_WINDOW_S: f64 = 0.15;
 
 /// Nodes of the candidate added-mass region around the best vertex.
 const MASS_REGION_VERTICES: usize = 5;
@@ -770,6 +781,7 @@ fn write_json(job: &Job, measured: &Measured, report: &CatalogueReport, youngs: 
         "fit_microphones": job.fit_channels,
         "held_out_microphones": job.held_channels,
         "onset_s": measured.onset_s,
+        "glide_windows_s": [measured.glide_windows_s.0, measured.glide_windows_s.1],
         "material": {"youngs_modulus": youngs, "poisson_ratio": poisson, "density": job.density, "source": job.material_source, "line_spectrum_start": line_start},
         "strike": feats.strike_note,
         "observed": {"fit": measured.fit, "held_out": measured.held_out},

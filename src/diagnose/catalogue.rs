@@ -2,8 +2,8 @@
 //! the model left out, whether adding it is worth its parameters.
 //!
 //! Input ([`Evidence`]): modes extracted from a recording (frequency, decay rate, amplitude
-//! per channel, each with its standard deviation; optionally the frequency of the first and
-//! second half of each decay), the same for held-out data (other microphones or another time
+//! per channel, each with its standard deviation; optionally the frequency of an early and a
+//! late stretch of each decay), the same for held-out data (other microphones or another time
 //! span of the same strike), the simulated modes at the fitted material with a few features
 //! per mode (strike drive, energy at a candidate support region, |φ|² at a candidate
 //! added-mass region, near-degenerate cluster id, optionally |acoustic transfer| per
@@ -81,13 +81,13 @@
 //! | effect | signature | detector (screen) | model | parameters |
 //! |---|---|---|---|---|
 //! | [`NonRayleighDamping`] | ln d residuals bend with ln f | 3 hat functions in ln f fitted to the ln d residuals, Δχ² > 1 | ln d piecewise linear in ln f through 3 knots, replacing α, β | d at 3 knots \[1/s\] (+1 net) |
-//! | [`BeatingPair`] | a cluster seen as two modes split beyond σ | \|split − predicted split\| > 3σ | pair at centre ∓ δ/2 in ln f | δ_c per split cluster \[1\] |
+//! | [`BeatingPair`] | a degenerate cluster seen as two modes split beyond σ (and 10 % of the simulated split) | \|split − predicted split\| > 3σ | pair at centre ∓ δ/2 in ln f | δ_c per split cluster \[1\] |
 //! | [`SupportContact`] | modes moving at the support decay faster (and shift) | regressions of d and ln f residuals on the support weight w | Δd = γw, Δ ln f = κw | γ ≥ 0 \[1/s\] (, κ \[1\]) |
 //! | [`ContactDuration`] | high modes weaker than their drive says | grid over T of the half-sine low-pass on the per-mode level residuals | ln a += ln \|cos(ωT/2)/(1 − (ωT/π)²)\| | T \[s\] |
 //! | [`ReverbNoise`] | residual energy decaying after the strike above the floor | early vs late mean ln E per band, z > 2 | ln E = ln(N_b + ρ_b N_b e^(−13.8t/T60)) vs ln N_b | T60 \[s\], ρ_b \[1\] per band |
 //! | [`Radiation`] | the mode mix changes between microphones | top singular value of the double-centred ln a residuals vs the noise edge; correlation with ln transfer | ln a += η ln T_kc, or += u_k v_c (Σv = 0) | η \[1\]; or u_k, v_c \[1\] (K + C − 2) |
-//! | [`AddedMass`] | frequencies low where the mass sits / toward low modes | regression of ln f residuals on −½w or −½f_1/f | Δ ln f = −½ ln(1 + μw) or −½ ln(1 + μ_f f_1/f) | μ ≥ 0 \[1\] |
-//! | [`PitchGlide`] | early part of a decay higher in pitch, most in loud modes | regression of the glide on the relative energy Q², \|z\| > 2 | (f_e − f_l)/f = g Q² | g \[1\] |
+//! | [`AddedMass`] | frequencies low where the mass sits / toward low modes | regression of ln f residuals on −½w or −½f_1/f; differential shift ≥ 5·10⁻⁴ | Δ ln f = −½ ln(1 + μw) or −½ ln(1 + μ_f f_1/f) | μ ≥ 0 \[1\] |
+//! | [`PitchGlide`] | early part of a decay higher in pitch (most in loud modes) | regression of the glide on the relative energy Q², or its mean, \|z\| > 2 | (f_e − f_l)/f = g Q², or = g | g \[1\] |
 //!
 //! Each effect is an [`Effect`] (name, signature, detector) that proposes one or more
 //! [`Term`]s (model variants with their parameters and starting values); the physics, units
@@ -201,8 +201,9 @@ pub struct ObservedMode {
     /// Amplitude per channel (≥ 0; 0 = not seen on that channel) and its standard deviation.
     pub amplitudes: Vec<f64>,
     pub sigma_amplitudes: Vec<f64>,
-    /// (frequency, σ) in Hz from the first and the second half of the decay extracted
-    /// separately (pitch glide); None when not available.
+    /// (frequency, σ) in Hz from an early and a late stretch of the decay extracted
+    /// separately (pitch glide; the CLI uses 0–0.15 s and 0.15–0.45 s after the onset); None
+    /// when not available.
     #[serde(default)]
     pub early_frequency_hz: Option<(f64, f64)>,
     #[serde(default)]

@@ -6,8 +6,8 @@
 //! [`observed_modes`] turns an extraction ([`crate::diagnose::extract`]) into
 //! [`ObservedMode`]s: frequency f [Hz], decay rate d [1/s] and per-channel amplitude a_c, each with
 //! its standard deviation, keeping the modes at or above `min_snr_db`. For the pitch-glide
-//! signature the same channels are extracted again on the first and on the second half of the
-//! span (`early`, `late`); a mode takes the early (late) frequency of the early (late) mode that
+//! signature the same channels are extracted again on an early and a late stretch of the span
+//! (`early`, `late`); a mode takes the early (late) frequency of the early (late) mode that
 //! is its *mutual* nearest neighbour in frequency within `glide_match` (relative; default 1 %).
 //! A σ-based gate would reject exactly the glides it is meant to find (σ_f / f ~ 10⁻⁵, glides
 //! 10⁻³), and mutual nearness keeps a close pair from swapping its halves.

@@ -1236,6 +1236,17 @@ pub fn glide_half_contrast(decay: f64, span_s: f64) -> Result<f64, InjectError> 
     Ok(-(-decay * span_s).exp_m1() * glide_regression_mean(decay, 0.5 * span_s))
 }
 
+/// (f_early − f_late)/(g f₀) as [`glide_half_contrast`], for an early window [0, `early_end_s`]
+/// and a late window [`early_end_s`, `late_end_s`] after the onset: a window [a, a + h] gives
+/// f/f₀ = 1 + g e^(−2da) E(h), so the contrast is E(T₁) − e^(−2dT₁) E(T₂ − T₁) (the halves of L
+/// are T₁ = L/2, T₂ = L).
+pub fn glide_window_contrast(decay: f64, early_end_s: f64, late_end_s: f64) -> Result<f64, InjectError> {
+    require(decay >= 0.0, "decay rate", "finite and ≥ 0 (1/s)", decay)?;
+    require(early_end_s > 0.0, "end of the early window", "positive (s)", early_end_s)?;
+    require(late_end_s > early_end_s, "end of the late window", "after the early window's end (s)", late_end_s)?;
+    Ok(glide_regression_mean(decay, early_end_s) - (-2.0 * decay * early_end_s).exp() * glide_regression_mean(decay, late_end_s - early_end_s))
+}
+
 /// (f_base/f)² − 1: the added modal mass of a mode relative to its own, from its frequency
 /// before (`base_hz`) and after (`loaded_hz`) the mass was added (Rayleigh quotient with an
 /// unchanged shape: λ = λ_base/(1 + Δm/m)).
@@ -1394,6 +1405,9 @@ pub struct ParameterComparison {
 pub struct ScoringContext {
     /// Seconds after the onset whose halves give the early and late frequencies (pitch glide).
     pub glide_span_s: Option<f64>,
+    /// Ends of the early and the late glide windows after the onset [s], when the report gives
+    /// them; they take precedence over the halves of `glide_span_s`.
+    pub glide_windows_s: Option<(f64, f64)>,
     /// Undamped frequencies [Hz] of the observed modes the catalogue matched (its report's
     /// `matching.pairs[].observed_hz`): the contact fit and the glide's reference mode use
     /// the rendered modes within [`MATCHED_MODE_TOLERANCE`] of one of them, as the detector
@@ -1598,10 +1612,15 @@ pub fn compare_parameters(labels: &serde_json::Value, accepted: &AcceptedEffect,
         Effect::PitchGlide => {
             let g = label_f64(p, "glide")?;
             let detected = detected_param(accepted, "relative glide")?.value;
-            let Some(span) = context.glide_span_s else {
-                out.values.push(ComparedValue::new("relative glide g", "1", Some(g), None, Some(detected)));
-                out.not_comparable = Some("no analysis span known for the early/late halves".into());
-                return Ok(out);
+            // The early/late windows the CLI used: given by the report, else the halves of the span.
+            let (t1, t2) = match (context.glide_windows_s, context.glide_span_s) {
+                (Some(w), _) => w,
+                (None, Some(span)) => (0.5 * span, span),
+                (None, None) => {
+                    out.values.push(ComparedValue::new("relative glide g", "1", Some(g), None, Some(detected)));
+                    out.not_comparable = Some("no analysis span known for the early/late halves".into());
+                    return Ok(out);
+                }
             };
             // The detector's reference: the mode with the largest mean_c a² / ω².
             let modes = label_modes(labels)?;
@@ -1609,9 +1628,9 @@ pub fn compare_parameters(labels: &serde_json::Value, accepted: &AcceptedEffect,
             let seen: Vec<&LabelMode> = modes.iter().filter(|m| context.seen(m.undamped_hz)).collect();
             let pool = if seen.is_empty() { modes.iter().collect() } else { seen };
             let reference = *pool.iter().max_by(|a, b| energy(a).total_cmp(&energy(b))).ok_or_else(|| label_err("no rendered modes"))?;
-            let expected = g * glide_half_contrast(reference.decay_rate, span)?;
+            let expected = g * glide_window_contrast(reference.decay_rate, t1, t2)?;
             let v = ComparedValue::new(
-                format!("relative glide (f_early − f_late)/f of the most energetic mode ({:.0} Hz, d = {:.1} 1/s, halves of {span} s)", reference.frequency_hz, reference.decay_rate),
+                format!("relative glide (f_early − f_late)/f of the most energetic mode ({:.0} Hz, d = {:.1} 1/s, windows 0–{t1} s and {t1}–{t2} s)", reference.frequency_hz, reference.decay_rate),
                 "1",
                 Some(g),
                 Some(expected),
@@ -1975,6 +1994,11 @@ mod tests {
         }
         // Limits: no decay, no contrast; fast decay, ¼ (module docs).
         assert_eq!(glide_half_contrast(0.0, 1.0).unwrap(), 0.0);
+        for d in [0.5, 3.0, 20.0] {
+            let halves = glide_half_contrast(d, 1.0).unwrap();
+            assert!((glide_window_contrast(d, 0.5, 1.0).unwrap() - halves).abs() < 1e-9 * halves.max(1e-12), "{d}");
+        }
+        assert!(glide_window_contrast(3.0, 0.2, 0.2).is_err());
         assert!((glide_half_contrast(500.0, 1.0).unwrap() - 0.25).abs() < 1e-9);
         assert!(glide_half_contrast(1.0, 0.0).is_err() && glide_half_contrast(-1.0, 1.0).is_err());
     }
@@ -2051,7 +2075,7 @@ mod tests {
             {"effect": "support_contact", "strength": 0.5, "parameters": {"added_decay_per_mode": [0.5, 0.1, 0.2, 0.0]}},
             {"effect": "radiation", "strength": 0.5, "parameters": {}},
         ]));
-        let ctx = ScoringContext { glide_span_s: Some(1.0), matched_hz: vec![] };
+        let ctx = ScoringContext { glide_span_s: Some(1.0), glide_windows_s: None, matched_hz: vec![] };
         let only_error = |c: &ParameterComparison| {
             assert_eq!(c.errors.len(), 1, "{c:?}");
             c.errors[0]
@@ -2072,7 +2096,7 @@ mod tests {
         assert!((only_error(&c) - 1.0).abs() < 1e-12);
         // … and mode 1 (equal amplitudes: the lowest of the rest, d = 4) when the detector
         // matched only modes 1–3.
-        let matched = ScoringContext { glide_span_s: Some(1.0), matched_hz: vec![1001.0, 1003.0, 1995.0] };
+        let matched = ScoringContext { glide_span_s: Some(1.0), glide_windows_s: None, matched_hz: vec![1001.0, 1003.0, 1995.0] };
         let expected1 = 0.002 * glide_half_contrast(4.0, 1.0).unwrap();
         let c = compare_parameters(&all, &accepted("pitch_glide", "energy_squared", &[("relative glide g of the most energetic mode", expected1)]), &matched).unwrap();
         assert!(only_error(&c).abs() < 1e-12, "{c:?}");
