@@ -1,6 +1,7 @@
 //! PNG figures for people to look at: spectrograms (recording against
-//! rendering, several microphones) and line/scatter plots (damping curves,
-//! decay rates, loss histories, frequency errors).
+//! rendering, several microphones), line/scatter plots (damping curves,
+//! decay rates, loss histories, frequency errors) and shaded 3-D surfaces
+//! (a scalar map over an object, shapes side by side).
 //!
 //! Self-contained: the raster ([`Canvas`]), the 5×7 bitmap font, tick
 //! placement and the colour map are all here; only the `png` crate is used,
@@ -29,6 +30,18 @@
 //!   from [`PALETTE`] in order unless set, legend in the emptiest corner
 //!   unless placed. A point that is not finite (or not > 0 on a log axis) is
 //!   skipped and breaks a line. `width`/`height` are the whole image.
+//! - [`surface_png`] with a [`SurfaceFigure`]: triangle surfaces
+//!   ([`SurfacePanel`]: vertices, triangles, optionally one value per vertex,
+//!   and [`SurfaceMarker`]s) in a grid, one column per panel and one row per
+//!   [`View`] (azimuth and elevation in degrees, z up), orthographic with a
+//!   depth buffer and Lambert shading from a light near the viewer; back
+//!   faces are drawn too. All panels share one scale (the largest bounding
+//!   sphere fits its cell), each centred on its own bounding box. Values are
+//!   coloured on one shared scale (default: the finite min..max of all
+//!   panels; non-finite values grey) shown as a bar labelled `value_label`;
+//!   a panel without values is plain grey. Markers are filled circles with a
+//!   dark outline and a label, hollow when the surface hides them.
+//!   `panel_size` is the side of each square cell; margins are added.
 //! - [`Canvas`] for anything else: fill, rectangles, anti-aliased lines and
 //!   markers, text (aligned, optionally rotated 90°), a clip rectangle, and
 //!   [`Canvas::write_png`].
@@ -58,6 +71,7 @@ mod colormap;
 mod font;
 mod line;
 mod spectrogram;
+mod surface;
 mod ticks;
 
 use std::path::{Path, PathBuf};
@@ -66,6 +80,7 @@ pub use canvas::{text_size, Canvas, HAlign, Marker, PixelRect, Rgb, TextStyle, V
 pub use colormap::colormap;
 pub use line::{line_plot_png, LegendPlacement, LineFigure, Series, SeriesStyle, PALETTE};
 pub use spectrogram::{spectrogram_png, Resampling, SpectrogramFigure, SpectrogramPanel};
+pub use surface::{surface_png, SurfaceFigure, SurfaceMarker, SurfacePanel, View};
 pub use ticks::{
     axis_ticks, format_log_ticks, format_ticks, linear_ticks, log_ticks, nice_ticks, AxisMap,
     AxisScale, Tick,
