@@ -271,14 +271,14 @@ fn unit_vector(v: [f64; 3], what: &str) -> Result<[f64; 3], String> {
     Ok(v.map(|c| c / n))
 }
 
-fn with_suffix(path: &Path, suffix: &str) -> PathBuf {
+pub(super) fn with_suffix(path: &Path, suffix: &str) -> PathBuf {
     let mut s = path.with_extension("").into_os_string();
     s.push(suffix);
     PathBuf::from(s)
 }
 
 /// Reads E, ν, ρ from a fit-material result.
-fn read_fit_material(path: &Path) -> Result<(f64, f64, f64), String> {
+pub(super) fn read_fit_material(path: &Path) -> Result<(f64, f64, f64), String> {
     let number = |key: &str| -> Result<f64, String> {
         match read_attribute(path, "/material", key).map_err(|e| format!("{}: {e}", path.display()))? {
             AttrValue::Number(v) => Ok(v),

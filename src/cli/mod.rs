@@ -14,6 +14,7 @@
 pub mod config;
 pub mod diagnose;
 pub mod fit_material;
+pub mod impact;
 mod modes;
 pub mod render;
 pub mod spectrogram;
@@ -42,6 +43,9 @@ pub enum Command {
     /// Where simulation and recording differ, which physics the model left out, and how much
     /// the fit improves with it (report, HDF5, plots).
     Diagnose(diagnose::DiagnoseArgs),
+    /// Where was the object struck, and how hard: a likelihood map over its surface from the
+    /// mode amplitudes of a recording (HDF5 + XDMF, PNG, JSON).
+    LocateImpact(impact::ImpactArgs),
     /// List the material presets with their values.
     Materials,
 }
@@ -166,6 +170,7 @@ pub fn main() {
         Command::Modes(args) => run_under_mpi(|universe| modes::run(universe, args)),
         Command::FitMaterial(args) => run_under_mpi(|universe| fit_material::run(universe, args)),
         Command::Diagnose(args) => run_under_mpi(|universe| diagnose::run(universe, args)),
+        Command::LocateImpact(args) => run_under_mpi(|universe| impact::run(universe, args)),
         Command::Render(args) => run_serial(render::run(args)),
         Command::Spectrogram(args) => run_serial(spectrogram::run(args)),
     }

@@ -8,9 +8,11 @@
 //! | [`optim`]    | Adam with bounds, the optimiser the fits share |
 //! | [`material`] | stage 2 of the material fit: E and ν by the hybrid transport→spectral schedule |
 //! | [`shape`]    | shape from sound: spectrum of the body inside an implicit field, its gradient to the field, the thickness fit |
+//! | [`impact`]   | where the object was struck: mode amplitudes with known poles, forward amplitudes per surface vertex, likelihood map over the surface, strength, top candidates, geodesics and symmetry orbits |
 
 pub mod damping;
 pub mod estimate;
+pub mod impact;
 pub mod material;
 pub mod optim;
 pub mod shape;

@@ -61,13 +61,32 @@ pub(crate) fn envelope_energy(log_z: C64, n: usize) -> f64 {
 /// singular to working precision (duplicate poles).
 pub(crate) fn fit_full_rate(signals: &[&[f64]], log_z: &[C64]) -> Option<Vec<Vec<C64>>> {
     let k_modes = log_z.len();
-    let n = signals.first().map_or(0, |s| s.len());
     let channels = signals.len();
     if k_modes == 0 {
         return Some(vec![]);
     }
-    // Unknowns per mode: (Re c, Im c), with basis functions Im zⁿ and Re zⁿ
-    // (Im(c zⁿ) = Re c · Im zⁿ + Im c · Re zⁿ).
+    let (gram, rhs) = normal_equations(signals, log_z);
+    let x = solve_spd(gram, rhs)?;
+    Some(
+        (0..k_modes)
+            .map(|k| {
+                (0..channels)
+                    .map(|c| C64::new(x[(2 * k, c)], x[(2 * k + 1, c)]))
+                    .collect()
+            })
+            .collect(),
+    )
+}
+
+/// The normal equations of the full-rate fit: the real unknowns are (Re c_k, Im c_k) at rows
+/// 2k, 2k + 1, with basis functions Im zⁿ and Re zⁿ (Im(c zⁿ) = Re c · Im zⁿ + Im c · Re zⁿ).
+/// Returns the 2K × 2K Gram matrix, in closed form from geometric sums (no pass over the
+/// samples), and the 2K × C right-hand sides Σ_n s_c[n] (Im zⁿ, Re zⁿ), one pass over zⁿ per
+/// mode for all channels.
+pub(crate) fn normal_equations(signals: &[&[f64]], log_z: &[C64]) -> (DMatrix<f64>, DMatrix<f64>) {
+    let k_modes = log_z.len();
+    let n = signals.first().map_or(0, |s| s.len());
+    let channels = signals.len();
     let dim = 2 * k_modes;
     let mut gram = DMatrix::<f64>::zeros(dim, dim);
     for j in 0..k_modes {
@@ -91,7 +110,6 @@ pub(crate) fn fit_full_rate(signals: &[&[f64]], log_z: &[C64]) -> Option<Vec<Vec
             gram[(b + 1, a + 1)] = re_re;
         }
     }
-    // Right-hand sides Σ_n s_c[n] (Im zⁿ, Re zⁿ), all channels in one pass over zⁿ.
     let mut rhs = DMatrix::<f64>::zeros(dim, channels);
     let mut acc = vec![[0.0f64; 2]; channels];
     for (k, &lz) in log_z.iter().enumerate() {
@@ -107,16 +125,7 @@ pub(crate) fn fit_full_rate(signals: &[&[f64]], log_z: &[C64]) -> Option<Vec<Vec
             rhs[(2 * k + 1, c)] = a[1];
         }
     }
-    let x = solve_spd(gram, rhs)?;
-    Some(
-        (0..k_modes)
-            .map(|k| {
-                (0..channels)
-                    .map(|c| C64::new(x[(2 * k, c)], x[(2 * k + 1, c)]))
-                    .collect()
-            })
-            .collect(),
-    )
+    (gram, rhs)
 }
 
 /// Solves G X = B for symmetric positive semi-definite G: symmetric (Jacobi) scaling to a unit
