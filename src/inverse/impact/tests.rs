@@ -148,42 +148,9 @@ fn invalid_fit_input_is_an_error() {
 // Test geometry and modes
 // ---------------------------------------------------------------------------------------------
 
-/// An icosphere of radius `r` [m] (12 vertices refined `levels` times: 642 vertices at 3),
-/// outward-ordered triangles.
+/// An icosphere of radius `r` [m] (642 vertices at 3 levels; [`crate::testing::icosphere`]).
 fn icosphere(levels: usize, r: f64) -> (Vec<[f64; 3]>, Vec<[usize; 3]>) {
-    let t = (1.0 + 5f64.sqrt()) / 2.0;
-    let mut points: Vec<[f64; 3]> = vec![
-        [-1.0, t, 0.0], [1.0, t, 0.0], [-1.0, -t, 0.0], [1.0, -t, 0.0],
-        [0.0, -1.0, t], [0.0, 1.0, t], [0.0, -1.0, -t], [0.0, 1.0, -t],
-        [t, 0.0, -1.0], [t, 0.0, 1.0], [-t, 0.0, -1.0], [-t, 0.0, 1.0],
-    ];
-    let mut tris: Vec<[usize; 3]> = vec![
-        [0, 11, 5], [0, 5, 1], [0, 1, 7], [0, 7, 10], [0, 10, 11], [1, 5, 9], [5, 11, 4], [11, 10, 2], [10, 7, 6], [7, 1, 8],
-        [3, 9, 4], [3, 4, 2], [3, 2, 6], [3, 6, 8], [3, 8, 9], [4, 9, 5], [2, 4, 11], [6, 2, 10], [8, 6, 7], [9, 8, 1],
-    ];
-    let unit = |p: [f64; 3]| {
-        let n = norm(p);
-        p.map(|c| c / n)
-    };
-    points.iter_mut().for_each(|p| *p = unit(*p));
-    for _ in 0..levels {
-        let mut mid: HashMap<(usize, usize), usize> = HashMap::new();
-        let mut next = Vec::with_capacity(4 * tris.len());
-        for tri in &tris {
-            let mut m = [0; 3];
-            for (slot, (a, b)) in [(tri[0], tri[1]), (tri[1], tri[2]), (tri[2], tri[0])].into_iter().enumerate() {
-                let key = (a.min(b), a.max(b));
-                m[slot] = *mid.entry(key).or_insert_with(|| {
-                    let (pa, pb) = (points[a], points[b]);
-                    points.push(unit([pa[0] + pb[0], pa[1] + pb[1], pa[2] + pb[2]]));
-                    points.len() - 1
-                });
-            }
-            next.extend([[tri[0], m[0], m[2]], [tri[1], m[1], m[0]], [tri[2], m[2], m[1]], [m[0], m[1], m[2]]]);
-        }
-        tris = next;
-    }
-    (points.into_iter().map(|p| p.map(|c| c * r)).collect(), tris)
+    crate::testing::icosphere(r, levels)
 }
 
 /// Smooth random mode shapes on `points` (scale `r`): each component a sum of three plane

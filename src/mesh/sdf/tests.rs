@@ -8,65 +8,9 @@ use crate::mesh::surface::read_obj;
 use crate::mesh::tests::shared_file;
 use crate::testing::Rng;
 
-/// An icosahedron subdivided `levels` times with its vertices pushed onto the sphere of
-/// radius `r`; outward triangles.
+/// The shared icosphere ([`crate::testing::icosphere`]) as a surface.
 pub(crate) fn icosphere(r: f64, levels: usize) -> TriangleSurface {
-    let g = (1.0 + 5f64.sqrt()) / 2.0;
-    let mut vertices: Vec<[f64; 3]> = vec![
-        [-1.0, g, 0.0],
-        [1.0, g, 0.0],
-        [-1.0, -g, 0.0],
-        [1.0, -g, 0.0],
-        [0.0, -1.0, g],
-        [0.0, 1.0, g],
-        [0.0, -1.0, -g],
-        [0.0, 1.0, -g],
-        [g, 0.0, -1.0],
-        [g, 0.0, 1.0],
-        [-g, 0.0, -1.0],
-        [-g, 0.0, 1.0],
-    ];
-    let mut triangles: Vec<[usize; 3]> = vec![
-        [0, 11, 5],
-        [0, 5, 1],
-        [0, 1, 7],
-        [0, 7, 10],
-        [0, 10, 11],
-        [1, 5, 9],
-        [5, 11, 4],
-        [11, 10, 2],
-        [10, 7, 6],
-        [7, 1, 8],
-        [3, 9, 4],
-        [3, 4, 2],
-        [3, 2, 6],
-        [3, 6, 8],
-        [3, 8, 9],
-        [4, 9, 5],
-        [2, 4, 11],
-        [6, 2, 10],
-        [8, 6, 7],
-        [9, 8, 1],
-    ];
-    for _ in 0..levels {
-        let mut midpoint: std::collections::HashMap<(usize, usize), usize> = Default::default();
-        let mut next = Vec::with_capacity(4 * triangles.len());
-        for &[a, b, c] in &triangles {
-            let mut mid = |i: usize, j: usize| {
-                *midpoint.entry((i.min(j), i.max(j))).or_insert_with(|| {
-                    vertices.push([0, 1, 2].map(|k| 0.5 * (vertices[i][k] + vertices[j][k])));
-                    vertices.len() - 1
-                })
-            };
-            let (ab, bc, ca) = (mid(a, b), mid(b, c), mid(c, a));
-            next.extend([[a, ab, ca], [b, bc, ab], [c, ca, bc], [ab, bc, ca]]);
-        }
-        triangles = next;
-    }
-    for v in &mut vertices {
-        let n = norm(*v);
-        *v = v.map(|c| r * c / n);
-    }
+    let (vertices, triangles) = crate::testing::icosphere(r, levels);
     TriangleSurface::new(vertices, triangles).unwrap()
 }
 

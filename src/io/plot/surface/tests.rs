@@ -1,4 +1,3 @@
-use std::collections::HashMap;
 use std::path::{Path, PathBuf};
 
 use super::*;
@@ -8,75 +7,10 @@ use crate::io::test_support::TempDir;
 
 // ---------------------------------------------------------------- helpers
 
-/// A unit sphere: an icosahedron subdivided `level` times (20·4^level
-/// triangles, counter-clockwise seen from outside), vertices pushed onto the
-/// sphere.
+/// A unit sphere ([`crate::testing::icosphere`], 20·4^level triangles, counter-clockwise seen
+/// from outside).
 fn icosphere(level: usize) -> (Vec<[f64; 3]>, Vec<[usize; 3]>) {
-    let t = (1.0 + 5f64.sqrt()) / 2.0;
-    let mut v: Vec<[f64; 3]> = [
-        [-1.0, t, 0.0],
-        [1.0, t, 0.0],
-        [-1.0, -t, 0.0],
-        [1.0, -t, 0.0],
-        [0.0, -1.0, t],
-        [0.0, 1.0, t],
-        [0.0, -1.0, -t],
-        [0.0, 1.0, -t],
-        [t, 0.0, -1.0],
-        [t, 0.0, 1.0],
-        [-t, 0.0, -1.0],
-        [-t, 0.0, 1.0],
-    ]
-    .to_vec();
-    let unit = |p: [f64; 3]| {
-        let n = norm(p);
-        p.map(|c| c / n)
-    };
-    v = v.into_iter().map(unit).collect();
-    let mut f: Vec<[usize; 3]> = vec![
-        [0, 11, 5],
-        [0, 5, 1],
-        [0, 1, 7],
-        [0, 7, 10],
-        [0, 10, 11],
-        [1, 5, 9],
-        [5, 11, 4],
-        [11, 10, 2],
-        [10, 7, 6],
-        [7, 1, 8],
-        [3, 9, 4],
-        [3, 4, 2],
-        [3, 2, 6],
-        [3, 6, 8],
-        [3, 8, 9],
-        [4, 9, 5],
-        [2, 4, 11],
-        [6, 2, 10],
-        [8, 6, 7],
-        [9, 8, 1],
-    ];
-    for _ in 0..level {
-        let mut mid: HashMap<(usize, usize), usize> = HashMap::new();
-        let mut half = |a: usize, b: usize, v: &mut Vec<[f64; 3]>| {
-            *mid.entry((a.min(b), a.max(b))).or_insert_with(|| {
-                v.push(unit([0, 1, 2].map(|k| v[a][k] + v[b][k])));
-                v.len() - 1
-            })
-        };
-        let mut next = Vec::with_capacity(4 * f.len());
-        for [a, b, c] in f {
-            let (ab, bc, ca) = (half(a, b, &mut v), half(b, c, &mut v), half(c, a, &mut v));
-            next.extend([[a, ab, ca], [b, bc, ab], [c, ca, bc], [ab, bc, ca]]);
-        }
-        f = next;
-    }
-    // Outward orientation: the signed volume is positive.
-    let vol: f64 = f
-        .iter()
-        .map(|t| dot(v[t[0]], cross(v[t[1]], v[t[2]])) / 6.0)
-        .sum();
-    assert!(vol > 4.0, "icosphere volume {vol}");
-    (v, f)
+    crate::testing::icosphere(1.0, level)
 }
 
 /// A closed tetrahedron of edge ~`size` around `c`, outward.
