@@ -9,7 +9,7 @@
 //! | assembly   | [`assembly`] | node partition, exact preallocation, distributed PETSc matrices |
 //! | eigen      | [`eigen`]    | SLEPc shift-invert Krylov–Schur, rigid-mode removal, spectrum slicing |
 //! | audio      | [`audio`]    | damped-sinusoid synthesis and WAV I/O |
-//! | inverse    | [`inverse`]  | modal estimates, damping and material fits from recordings |
+//! | inverse    | [`inverse`]  | modal estimates, damping and material fits from recordings; shape (thickness, morph) from eigenvalues |
 //! | diagnose   | [`diagnose`] | simulation–recording mismatch: modal parameters with uncertainties |
 //! | io         | [`io`]       | HDF5 results with an XDMF sidecar, written atomically |
 //!

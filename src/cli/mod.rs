@@ -14,6 +14,7 @@
 pub mod config;
 pub mod diagnose;
 pub mod fit_material;
+pub mod fit_shape;
 pub mod impact;
 mod modes;
 pub mod render;
@@ -40,6 +41,10 @@ pub enum Command {
     Spectrogram(spectrogram::SpectrogramArgs),
     /// Fit damping, Young's modulus and Poisson's ratio to recordings of a strike.
     FitMaterial(fit_material::FitMaterialArgs),
+    /// Relative thickness of a hollow body from target eigenvalues (shape from sound, issue 7).
+    FitThickness(fit_shape::FitThicknessArgs),
+    /// Weight c of a morph c·A + (1 − c)·B of two shapes from target eigenvalues (issue 7).
+    FitMorph(fit_shape::FitMorphArgs),
     /// Where simulation and recording differ, which physics the model left out, and how much
     /// the fit improves with it (report, HDF5, plots).
     Diagnose(diagnose::DiagnoseArgs),
@@ -171,6 +176,8 @@ pub fn main() {
         Command::FitMaterial(args) => run_under_mpi(|universe| fit_material::run(universe, args)),
         Command::Diagnose(args) => run_under_mpi(|universe| diagnose::run(universe, args)),
         Command::LocateImpact(args) => run_under_mpi(|universe| impact::run(universe, args)),
+        Command::FitThickness(args) => run_under_mpi(|universe| fit_shape::run_thickness(universe, args)),
+        Command::FitMorph(args) => run_under_mpi(|universe| fit_shape::run_morph(universe, args)),
         Command::Render(args) => run_serial(render::run(args)),
         Command::Spectrogram(args) => run_serial(spectrogram::run(args)),
     }

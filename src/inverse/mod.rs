@@ -7,8 +7,8 @@
 //! | [`damping`]  | stage 1 of the material fit: many free modes + filtered noise fitted to a recording, real modes → damping curve d(f) and Rayleigh α, β |
 //! | [`optim`]    | Adam with bounds, the optimiser the fits share |
 //! | [`material`] | stage 2 of the material fit: E and ν by the hybrid transport→spectral schedule |
-//! | [`shape`]    | shape from sound: spectrum of the body inside an implicit field, its gradient to the field, the thickness fit |
 //! | [`impact`]   | where the object was struck: mode amplitudes with known poles, forward amplitudes per surface vertex, likelihood map over the surface, strength, top candidates, geodesics and symmetry orbits |
+//! | [`shape`]    | shape from sound: spectrum of the body inside an implicit field, its gradient to the field, the thickness and morph fits (scan, safeguarded Gauss–Newton per grid level, extrapolation in the grid spacing) |
 
 pub mod damping;
 pub mod estimate;

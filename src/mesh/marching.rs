@@ -131,6 +131,9 @@
 //!   product: ∂g_v/∂s_v = 1 where s_v ≤ t S − s_v (ties take this branch) and −1 elsewhere;
 //!   on the second branch ∂g_v/∂t = S and ∂g_v/∂S = t, and S is differentiated through its
 //!   argmax (the lowest index among equal maxima), ∂S/∂s_v = [v = argmax].
+//!   [`shell_of_depth`] takes S from the caller instead (the deepest point of the continuous
+//!   signed distance: the largest *sample* falls short of it by up to ~h√3/2, which on a
+//!   coarse grid changed t·S by 20 % on spot), and then S is a constant.
 //! * [`morph`]: m = c·A + (1 − c)·B, ∂m/∂A = c, ∂m/∂B = 1 − c, ∂m/∂c = A − B.
 
 use std::collections::HashMap;
@@ -989,6 +992,8 @@ pub struct Shell {
     pub argmax: usize,
     /// Per vertex: g = t·S − s (true) or g = s (false).
     inner_branch: Vec<bool>,
+    /// S was given ([`shell_of_depth`]) rather than taken from the values: a constant then.
+    given_max: bool,
 }
 
 /// dL/ds and dL/dt of [`Shell`].
@@ -1033,7 +1038,28 @@ pub fn shell(values: &[f64], thickness: f64) -> Result<Shell, MarchingError> {
         max_value,
         argmax,
         inner_branch,
+        given_max: false,
     })
+}
+
+/// The shell of relative thickness `thickness` with a given reference depth S = `max_value`
+/// (> 0) instead of the largest value: g = min(s, t·S − s). For a field sampled from a
+/// continuous one whose maximum is known (the deepest point of a signed distance,
+/// [`super::SignedDistance::deepest_point`]), so that t means the same on every grid. S is a
+/// constant here: [`Shell::vjp`] has no argmax term. `argmax` is still the largest sample.
+pub fn shell_of_depth(values: &[f64], thickness: f64, max_value: f64) -> Result<Shell, MarchingError> {
+    if !(max_value.is_finite() && max_value > 0.0) {
+        return Err(MarchingError::BadOption { message: format!("shell reference depth {max_value} must be finite and positive") });
+    }
+    let mut sh = shell(values, thickness)?;
+    let depth = thickness * max_value;
+    for (v, (&s, inner)) in values.iter().zip(sh.inner_branch.iter_mut()).enumerate() {
+        *inner = s > depth - s;
+        sh.values[v] = if *inner { depth - s } else { s };
+    }
+    sh.max_value = max_value;
+    sh.given_max = true;
+    Ok(sh)
 }
 
 impl Shell {
@@ -1051,7 +1077,9 @@ impl Shell {
                 d_values[v] += gbar;
             }
         }
-        d_values[self.argmax] += d_max;
+        if !self.given_max {
+            d_values[self.argmax] += d_max;
+        }
         Ok(ShellGradient {
             values: d_values,
             thickness: d_thickness,

@@ -83,7 +83,7 @@ pub use locate::SurfacePoint;
 pub use gmsh::{read_mesh, read_mesh_from_bytes};
 pub use lift::{lift_to_quadratic, linear_node_gradient, to_linear, LiftError};
 pub use marching::{
-    march, morph, morph_vjp, shell, BackgroundGrid, MarchedMesh, MarchingError, MarchingGradient,
+    march, morph, morph_vjp, shell, shell_of_depth, BackgroundGrid, MarchedMesh, MarchingError, MarchingGradient,
     MarchingOptions, MarchingReport, MorphGradient, Shell, ShellGradient, VertexOrigin,
 };
 pub use sdf::SignedDistance;

@@ -59,6 +59,18 @@
 //! 0.01 with β = 4 and 2e-4 with β = 8 ([`SignedDistance::with_far_field_ratio`]); the sign
 //! only asks whether w > ½. [`SignedDistance::winding_number_exact`] is the O(n) brute
 //! force. A grid of 65 × 38 × 65 points around spot (4588 triangles) takes about a second.
+//!
+//! # Deepest point
+//!
+//! [`SignedDistance::deepest_point`] maximises s (the radius of the largest inscribed ball,
+//! the reference depth of a hollow body, [`super::marching::shell_of_depth`]) by a pattern
+//! search: from each start, try steps of length h along 52 directions (the 26 of the lattice
+//! {−1, 0, 1}³ and the same set turned by a fixed rotation), move to the best trial if it
+//! beats the current value, else halve h, until h falls below the tolerance. s is 1-Lipschitz
+//! and its maximum lies on the medial axis, where s is a ridge that rises only inside a cone
+//! around the ridge line; the second set of directions keeps a narrow cone from being missed.
+//! The largest grid sample is not good enough: it misses S by up to h√3/2 (on spot at 14
+//! cells per axis, 11.42 mm against S = 14.217 mm).
 
 use std::f64::consts::PI;
 
@@ -228,6 +240,59 @@ impl SignedDistance {
             out.push(if self.winding_number(q) > 0.5 { d } else { -d });
         }
         out
+    }
+
+    /// The deepest inside point: a maximum of s found by pattern search from each of `starts`
+    /// (module docs, *Deepest point*). Returns the best point and S = s there; S ≤ 0 if no
+    /// start leads inside. `step` is the first trial step, `tolerance` the step at which a
+    /// search stops (both in the surface's length unit, > 0).
+    pub fn deepest_point(&self, starts: &[[f64; 3]], step: f64, tolerance: f64) -> ([f64; 3], f64) {
+        // The 26 lattice directions {−1, 0, 1}³ \ 0, normalised, and 26 more turned by a fixed
+        // irrational rotation: a ridge of s (two nearest surface points) only rises inside a
+        // narrow cone, which one fixed set can miss.
+        let mut directions: Vec<[f64; 3]> = Vec::with_capacity(52);
+        for code in 0..27usize {
+            let d = [(code % 3) as f64 - 1.0, ((code / 3) % 3) as f64 - 1.0, (code / 9) as f64 - 1.0];
+            if code != 13 {
+                let n = norm(d);
+                directions.push(d.map(|x| x / n));
+            }
+        }
+        let (a, b) = (0.5_f64.sqrt().sqrt(), 0.37_f64);
+        let (ca, sa, cb, sb) = (a.cos(), a.sin(), b.cos(), b.sin());
+        let turned: Vec<[f64; 3]> = directions
+            .iter()
+            .map(|d| {
+                // Rotation about z by a, then about x by b.
+                let x = [ca * d[0] - sa * d[1], sa * d[0] + ca * d[1], d[2]];
+                [x[0], cb * x[1] - sb * x[2], sb * x[1] + cb * x[2]]
+            })
+            .collect();
+        directions.extend(turned);
+        let mut best = ([0.0; 3], f64::NEG_INFINITY);
+        for &start in starts {
+            let (mut x, mut value) = (start, self.signed_distance(start));
+            let mut h = step;
+            while h > tolerance {
+                let trial = directions
+                    .iter()
+                    .map(|d| {
+                        let y = [0, 1, 2].map(|k| x[k] + h * d[k]);
+                        (y, self.signed_distance(y))
+                    })
+                    .max_by(|p, q| p.1.total_cmp(&q.1))
+                    .expect("52 directions");
+                if trial.1 > value {
+                    (x, value) = trial;
+                } else {
+                    h *= 0.5;
+                }
+            }
+            if value > best.1 {
+                best = (x, value);
+            }
+        }
+        best
     }
 
     /// Squared distance to the nearest triangle, given an upper bound on the distance (not

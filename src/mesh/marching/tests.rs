@@ -1017,3 +1017,43 @@ fn bad_inputs_are_errors() {
     assert!((m.mesh.volume() - 1.25 * 0.75 * 0.5).abs() < 1e-12);
     assert_eq!(check_valid(&m), 2);
 }
+
+#[test]
+fn shell_of_given_depth_uses_that_depth_and_has_no_argmax_term() {
+    let grid = BackgroundGrid::covering([-0.5; 3], [0.5; 3], 12, 1.0).unwrap();
+    let sphere: Vec<f64> = grid
+        .vertex_positions()
+        .iter()
+        .map(|x| 0.47 - norm3(sub3(*x, [0.031, -0.017, 0.011])))
+        .collect();
+    // The continuous maximum (0.47) exceeds every sample: t means t·0.47, not t·max(samples).
+    let depth = 0.47;
+    let thickness = 0.5;
+    let given = shell_of_depth(&sphere, thickness, depth).unwrap();
+    let sampled = shell(&sphere, thickness).unwrap();
+    assert!(sampled.max_value < depth);
+    assert_eq!(given.max_value, depth);
+    for (g, s) in given.values.iter().zip(&sphere) {
+        assert_eq!(*g, s.min(thickness * depth - s));
+    }
+    // dL/dt through the marched mesh against central differences; dL/ds has no argmax term.
+    let options = MarchingOptions::default();
+    let base = march(&grid, &given.values, None, &options).unwrap();
+    let (_, d_x) = &losses(&base.mesh)[1];
+    let d_g = base.vjp(d_x).unwrap().values;
+    let d = given.vjp(&d_g).unwrap();
+    let f_t = |t: &[f64]| {
+        let m = march(&grid, &shell_of_depth(&sphere, t[0], depth).unwrap().values, None, &options).unwrap();
+        let l = losses(&m.mesh)[1].0;
+        (m, l)
+    };
+    let fd = central_difference(&[thickness], 0, 1e-7, &base, &f_t).expect("stable topology");
+    assert!((fd - d.thickness).abs() < 1e-6 * d.thickness.abs(), "{fd} vs {}", d.thickness);
+    let with_argmax = sampled.vjp(&d_g).unwrap();
+    let expected: Vec<f64> = d_g.iter().zip(&given.values).zip(&sphere).map(|((g, _), s)| if *s > thickness * depth - s { -g } else { *g }).collect();
+    assert_eq!(d.values, expected);
+    assert_ne!(with_argmax.values[sampled.argmax], d.values[sampled.argmax], "the sampled shell's maximum moves its wall");
+    for bad in [0.0, -1.0, f64::NAN] {
+        assert!(matches!(shell_of_depth(&sphere, thickness, bad), Err(MarchingError::BadOption { .. })));
+    }
+}

@@ -291,3 +291,26 @@ fn far_field_expansion_is_third_order() {
         );
     }
 }
+
+#[test]
+fn deepest_point_of_a_ball_and_a_box() {
+    // A ball of radius 0.7 faceted by 1280 triangles: the deepest point is its centre, at
+    // the distance of the nearest face plane, which lies between r cos(θ) (θ the largest
+    // angle from a face centre to its corners) and r.
+    let ball = icosphere(0.7, 3);
+    let sdf = SignedDistance::new(&ball).unwrap();
+    let centre_depth = sdf.unsigned_distance([0.0; 3]);
+    let (p, s) = sdf.deepest_point(&[[0.31, -0.2, 0.15]], 0.1, 1e-9);
+    assert!(norm(p) < 1e-3, "deepest point {p:?}");
+    assert!((s - centre_depth).abs() < 1e-6 && s > 0.69 * 0.98, "S = {s}, centre {centre_depth}");
+    // A box 0.06 × 0.04 × 0.02: s = distance to the nearest face, largest (0.01) on the
+    // rectangle z = 0, |x| ≤ 0.02, |y| ≤ 0.01; from a start off that ridge.
+    let mesh = box_mesh([3, 2, 1], [0.06, 0.04, 0.02]);
+    let surface = TriangleSurface::from_mesh_boundary(&mesh);
+    let sdf = SignedDistance::new(&surface).unwrap();
+    let (p, s) = sdf.deepest_point(&[[0.004, 0.035, 0.003]], 0.005, 1e-10);
+    assert!((s - 0.01).abs() < 1e-8, "box: S = {s} at {p:?}");
+    // Several starts: the best result wins; a start outside climbs in.
+    let (_, s2) = sdf.deepest_point(&[[0.1, 0.1, 0.1], [0.03, 0.02, 0.01]], 0.01, 1e-10);
+    assert!((s2 - 0.01).abs() < 1e-8, "{s2}");
+}

@@ -1,0 +1,236 @@
+//! Shape from eigenvalues (issue 7), tasks 1 and 2: for each shape (or pair) and each true
+//! parameter, a target spectrum is rendered on a finer grid than the fit's, then the parameter is
+//! fitted back ([`diffsound::inverse::shape`]). Prints markdown tables (per target: the answer,
+//! its absolute error, the per-level answers, evaluations, time per evaluation split into
+//! meshing / assembly / solve / gradient at each level, total seconds) and a per-shape summary;
+//! `--json FILE` writes every fit with its history.
+//!
+//!   mpirun -np 2 target/release/examples/shape_benchmark thickness [--levels 20,28]
+//!       [--target-cells 40] [--modes 8] [--seed 1] [--values 0.3,0.4,0.5,0.6,0.7]
+//!       [--no-extrapolate] [--json FILE] SURFACE...
+//!   mpirun -np 2 target/release/examples/shape_benchmark morph [--levels 16,22]
+//!       [--target-cells 32] [--values 0,0.2,0.4,0.6,0.8,1] A.obj:B.obj...
+//!
+//! Shapes are centred and scaled to a 0.1 m bounding-box diagonal ([`normalise_surface`]);
+//! ceramic (E, ν, ρ known). The seed draws, per target, a random shift of the target grid by up
+//! to half a cell along each axis, so that the target's grid is never nested in a fit grid (20
+//! and 40 cells over the same box would share every coarse vertex). The fit knows the target's
+//! grid spacing (the extrapolation in h needs it; for a measured object it is 0) but not the
+//! true parameter. The thickness reference S (deepest point of the surface) is computed once
+//! per surface and used by target and fit alike.
+use diffsound::diagnose::inject::SplitMix64;
+use diffsound::fem::Material;
+use diffsound::inverse::shape::{fit_morph, fit_thickness, normalise_surface, read_surface, reference_depth, shape_spectrum, union_box, FitEvaluation, SampledField, ShapeFamily, ShapeFit, ShapeFitSettings, SpectrumTarget};
+use diffsound::mesh::{BackgroundGrid, MarchingOptions, SignedDistance, TriangleSurface};
+use diffsound::petsc::Petsc;
+use std::time::Instant;
+
+struct Args {
+    task: String,
+    levels: Vec<usize>,
+    target_cells: usize,
+    modes: usize,
+    seed: u64,
+    values: Vec<f64>,
+    extrapolate: bool,
+    json: Option<String>,
+    inputs: Vec<String>,
+}
+
+fn usage() -> ! {
+    eprintln!("usage: shape_benchmark thickness|morph [--levels N,N] [--target-cells N] [--modes N] [--seed S] [--values a,b,..] [--no-extrapolate] [--json FILE] SURFACE... | A:B...");
+    std::process::exit(2)
+}
+
+fn parse_args() -> Args {
+    let mut it = std::env::args().skip(1);
+    let task = it.next().unwrap_or_else(|| usage());
+    let morph = match task.as_str() {
+        "thickness" => false,
+        "morph" => true,
+        _ => usage(),
+    };
+    let mut a = Args {
+        task,
+        levels: if morph { vec![16, 22] } else { vec![20, 28] },
+        target_cells: if morph { 32 } else { 40 },
+        modes: 8,
+        seed: 1,
+        values: if morph { vec![0.0, 0.2, 0.4, 0.6, 0.8, 1.0] } else { vec![0.3, 0.4, 0.5, 0.6, 0.7] },
+        extrapolate: true,
+        json: None,
+        inputs: Vec::new(),
+    };
+    let list = |s: String| -> Vec<f64> { s.split(',').map(|v| v.parse().unwrap_or_else(|_| usage())).collect() };
+    while let Some(x) = it.next() {
+        let mut value = || it.next().unwrap_or_else(|| usage());
+        match x.as_str() {
+            "--levels" => a.levels = list(value()).into_iter().map(|v| v as usize).collect(),
+            "--target-cells" => a.target_cells = value().parse().unwrap_or_else(|_| usage()),
+            "--modes" => a.modes = value().parse().unwrap_or_else(|_| usage()),
+            "--seed" => a.seed = value().parse().unwrap_or_else(|_| usage()),
+            "--values" => a.values = list(value()),
+            "--no-extrapolate" => a.extrapolate = false,
+            "--json" => a.json = Some(value()),
+            _ if x.starts_with("--") => usage(),
+            _ => a.inputs.push(x),
+        }
+    }
+    if a.inputs.is_empty() || a.levels.is_empty() || a.levels.iter().any(|&l| l >= a.target_cells) {
+        eprintln!("need inputs, and every fit level coarser than --target-cells");
+        usage();
+    }
+    a
+}
+
+fn load(path: &str) -> (String, TriangleSurface, SignedDistance) {
+    let name = std::path::Path::new(path).file_stem().map(|s| s.to_string_lossy().trim_end_matches("_surf").to_string()).unwrap_or_default();
+    let (mut surface, _) = read_surface(std::path::Path::new(path)).unwrap_or_else(|e| panic!("{path}: {e}"));
+    normalise_surface(&mut surface, 0.1).unwrap_or_else(|e| panic!("{path}: {e}"));
+    let sdf = SignedDistance::new(&surface).unwrap_or_else(|e| panic!("{path}: {e}"));
+    (name, surface, sdf)
+}
+
+/// The target's grid: `cells` along the longest axis of [lo, hi] with one cell of margin,
+/// shifted by a random fraction (up to ±½) of a cell along each axis.
+fn shifted_grid(lo: [f64; 3], hi: [f64; 3], cells: usize, rng: &mut SplitMix64) -> BackgroundGrid {
+    let base = BackgroundGrid::covering(lo, hi, cells, 1.0).expect("grid");
+    let h = base.spacing();
+    let origin = [0, 1, 2].map(|d| base.origin()[d] + rng.uniform(-0.5, 0.5) * h[d]);
+    BackgroundGrid::new(origin, h, base.cells()).expect("grid")
+}
+
+fn main() {
+    let args = parse_args();
+    let universe = mpi::initialize().expect("MPI");
+    let petsc = Petsc::initialize(universe, "shape_benchmark", &[]).expect("PETSc");
+    let root = petsc.rank() == 0;
+    let material = Material::preset("ceramic").expect("preset");
+    let options = MarchingOptions::default();
+    let morph = args.task == "morph";
+    let mut settings = if morph { ShapeFitSettings::morph() } else { ShapeFitSettings::default() };
+    settings.modes = args.modes;
+    settings.extrapolate = args.extrapolate;
+    let name_p = if morph { "c" } else { "t" };
+    if root {
+        println!(
+            "## {} benchmark\n\nseed {}, {} modes, fit levels {:?} cells, target grid {} cells (randomly shifted), {} rank(s), ceramic, shapes scaled to a 0.1 m diagonal, extrapolation in h {}.\n",
+            if morph { "Morph" } else { "Thickness" },
+            args.seed,
+            args.modes,
+            args.levels,
+            args.target_cells,
+            petsc.size(),
+            if args.extrapolate { "on" } else { "off" }
+        );
+        let per_level: String = args.levels.iter().map(|l| format!(" {name_p} @{l} |")).collect();
+        let timing: String = args.levels.iter().map(|l| format!(" s/eval @{l} (mesh/asm/solve/grad) | evals @{l} |")).collect();
+        println!("| shape | {name_p}* | {name_p} fit | abs err |{per_level} final-level abs err |{timing} target s | fit s |");
+        println!("|---|---|---|---|{}---|{}---|---|", "---|".repeat(args.levels.len()), "---|---|".repeat(args.levels.len()));
+    }
+    let mut rng = SplitMix64::new(args.seed);
+    let mut records = Vec::new();
+    let mut summary: Vec<(String, Vec<f64>, Vec<f64>, Vec<f64>)> = Vec::new();
+    for input in &args.inputs {
+        // One shape (thickness) or a pair A:B (morph) on common grids.
+        let (name, family_at, lo, hi): (String, Box<dyn Fn(&SampledField, Option<&SampledField>) -> ShapeFamily>, [f64; 3], [f64; 3]);
+        let sampled: Vec<(SampledField, Option<SampledField>)>;
+        let sdfs: Vec<SignedDistance>;
+        if morph {
+            let (pa, pb) = input.split_once(':').unwrap_or_else(|| panic!("morph inputs are A.obj:B.obj, got {input}"));
+            let (na, sa, da) = load(pa);
+            let (nb, sb, db) = load(pb);
+            (lo, hi) = union_box(&[&sa, &sb]);
+            name = format!("{na}/{nb}");
+            sampled = args.levels.iter().map(|&n| (SampledField::of_sdf(&da, lo, hi, n).expect("field"), Some(SampledField::of_sdf(&db, lo, hi, n).expect("field")))).collect();
+            family_at = Box::new(|a, b| ShapeFamily::Morph { a: a.values.clone(), b: b.expect("pair").values.clone() });
+            sdfs = vec![da, db];
+        } else {
+            let (n, s, d) = load(input);
+            (lo, hi) = s.bounding_box();
+            let depth = reference_depth(&d, &s).expect("reference depth");
+            if root {
+                eprintln!("{n}: reference depth S = {:.5} mm", 1e3 * depth);
+            }
+            name = n;
+            sampled = args.levels.iter().map(|&c| (SampledField::of_sdf(&d, lo, hi, c).expect("field"), None)).collect();
+            family_at = Box::new(move |a, _| ShapeFamily::Thickness { solid: a.values.clone(), depth });
+            sdfs = vec![d];
+        }
+        let (mut errors, mut finest_errors, mut seconds) = (Vec::new(), Vec::new(), Vec::new());
+        for &truth in &args.values {
+            // The target: the true parameter on a finer, randomly shifted grid.
+            let clock = Instant::now();
+            let grid = shifted_grid(lo, hi, args.target_cells, &mut rng);
+            let positions = grid.vertex_positions();
+            let fields: Vec<SampledField> = sdfs.iter().map(|d| SampledField { grid: grid.clone(), values: d.evaluate(&positions) }).collect();
+            let family = family_at(&fields[0], fields.get(1));
+            let target_spectrum = family.field(truth).and_then(|v| shape_spectrum(&petsc, &grid, &v, &options, &material, args.modes, false));
+            let target_seconds = clock.elapsed().as_secs_f64();
+            let target = match target_spectrum.and_then(|t| SpectrumTarget::new(t.eigenvalues, settings.cluster_rtol)) {
+                Ok(t) => t,
+                Err(e) => {
+                    if root {
+                        println!("| {name} | {truth} | target failed: {e} |");
+                    }
+                    continue;
+                }
+            };
+            let on_eval = |e: &FitEvaluation| {
+                if root {
+                    match &e.failure {
+                        None => eprintln!("[{name} {name_p}*={truth}] level {} ({} cells) {:?} {name_p} {:.5} loss {:.4e} dL/d{name_p} {:+.3e} ({} tets, {:.1} s)", e.level, e.cells, e.phase, e.parameter, e.loss, e.gradient, e.tets, e.timings.total()),
+                        Some(f) => eprintln!("[{name} {name_p}*={truth}] level {} ({} cells) {:?} {name_p} {:.5} failed: {f}", e.level, e.cells, e.phase, e.parameter),
+                    }
+                }
+            };
+            let h_target = grid.spacing()[0];
+            let fit: Result<ShapeFit, _> = if morph {
+                let pairs: Vec<(SampledField, SampledField)> = sampled.iter().map(|(a, b)| (a.clone(), b.clone().expect("pair"))).collect();
+                fit_morph(&petsc, &pairs, &target, &options, &material, &settings, Some(h_target), on_eval)
+            } else {
+                let solids: Vec<SampledField> = sampled.iter().map(|(a, _)| a.clone()).collect();
+                let ShapeFamily::Thickness { depth, .. } = family_at(&solids[0], None) else { unreachable!() };
+                fit_thickness(&petsc, &solids, depth, &target, &options, &material, &settings, Some(h_target), on_eval)
+            };
+            let fit = match fit {
+                Ok(f) => f,
+                Err(e) => {
+                    if root {
+                        println!("| {name} | {truth} | fit failed: {e} |");
+                    }
+                    continue;
+                }
+            };
+            let err = (fit.parameter - truth).abs();
+            let finest = (fit.levels.last().expect("levels").parameter - truth).abs();
+            errors.push(err);
+            finest_errors.push(finest);
+            seconds.push(fit.seconds);
+            if root {
+                let per_level: String = fit.levels.iter().map(|l| format!(" {:.4} |", l.parameter)).collect();
+                let timing: String = (0..fit.levels.len())
+                    .map(|i| {
+                        let t = fit.mean_timings(i);
+                        format!(" {:.1} ({:.2}/{:.2}/{:.1}/{:.2}) | {} |", t.total(), t.meshing, t.assembly, t.solve, t.gradient, fit.levels[i].evaluations)
+                    })
+                    .collect();
+                println!("| {name} | {truth} | {:.4} | {err:.4} |{per_level} {finest:.4} |{timing} {target_seconds:.0} | {:.0} |", fit.parameter, fit.seconds);
+            }
+            records.push(serde_json::json!({ "shape": name, "truth": truth, "target_spacing": h_target, "target_eigenvalues": target.eigenvalues, "fit": fit }));
+        }
+        summary.push((name, errors, finest_errors, seconds));
+    }
+    if root {
+        println!("\n| shape | mean abs error | max abs error | mean abs error, finest level alone | mean fit s | max fit s |\n|---|---|---|---|---|---|");
+        for (name, e, f, s) in &summary {
+            let mean = |v: &[f64]| v.iter().sum::<f64>() / v.len().max(1) as f64;
+            let max = |v: &[f64]| v.iter().cloned().fold(0.0, f64::max);
+            println!("| {name} | {:.4} | {:.4} | {:.4} | {:.0} | {:.0} |", mean(e), max(e), mean(f), mean(s), max(s));
+        }
+        if let Some(path) = &args.json {
+            std::fs::write(path, serde_json::to_string_pretty(&records).expect("json")).unwrap_or_else(|e| panic!("{path}: {e}"));
+            eprintln!("wrote {path}");
+        }
+    }
+}

@@ -1,0 +1,137 @@
+//! End-to-end runs of `diffsound fit-thickness` and `fit-morph` (issue 7) on small grids:
+//! boxes written as OBJ files here, synthesised targets on a finer shifted grid, the result
+//! files and the ParaView sidecar checked, and bad input failing with a message and no output.
+
+mod common;
+use common::*;
+use diffsound::io::results::{read_attribute, read_dataset, AttrValue};
+use std::path::{Path, PathBuf};
+use std::time::Duration;
+
+const LIMIT: Duration = Duration::from_secs(300);
+
+fn s(p: &Path) -> &str {
+    p.to_str().unwrap()
+}
+
+/// A closed box surface [0, a] × [0, b] × [0, c] (mm), outward triangles.
+fn box_obj(dir: &Path, name: &str, [a, b, c]: [f64; 3]) -> PathBuf {
+    let mut text = String::from("# box\n");
+    for k in 0..8 {
+        text.push_str(&format!("v {} {} {}\n", if k & 1 == 1 { a } else { 0.0 }, if k & 2 == 2 { b } else { 0.0 }, if k & 4 == 4 { c } else { 0.0 }));
+    }
+    // Faces as quads (1-based corners), counter-clockwise seen from outside.
+    for [p, q, r, t] in [[1, 3, 4, 2], [5, 6, 8, 7], [1, 2, 6, 5], [3, 7, 8, 4], [1, 5, 7, 3], [2, 4, 8, 6]] {
+        text.push_str(&format!("f {p} {q} {r}\nf {p} {r} {t}\n"));
+    }
+    let path = dir.join(name);
+    std::fs::write(&path, text).unwrap();
+    path
+}
+
+fn number(path: &Path, group: &str, key: &str) -> f64 {
+    match read_attribute(path, group, key).unwrap() {
+        AttrValue::Number(v) => v,
+        other => panic!("{group}/{key} is not a number: {other:?}"),
+    }
+}
+
+const SMALL: [&str; 10] = ["--units", "mm", "--cells", "12,14", "--modes", "4", "--scan-points", "5", "--max-refinements", "3"];
+
+#[test]
+fn thickness_and_morph_fits_write_results_and_a_paraview_mesh() {
+    let dir = scratch("cli_fit_shape");
+    let solid = box_obj(&dir, "box.obj", [60.0, 40.0, 30.0]);
+    let out = dir.join("thickness.h5");
+    let mut args = vec!["fit-thickness", "--surface", s(&solid), "--target-thickness", "0.5", "--target-cells", "18", "--out", s(&out), "-v"];
+    args.extend(SMALL);
+    let run = mpirun(2, &args, LIMIT);
+    assert!(run.success(), "{}", run.describe());
+    assert!(run.stderr.contains("level 0 (12 cells) scan"), "progress per evaluation on stderr:\n{}", run.stderr);
+    // Grids this coarse (the wall is 1–2 cells) only get near; the benchmark measures accuracy.
+    let t = number(&out, "/fit", "parameter");
+    assert!((t - 0.5).abs() < 0.1, "thickness {t}");
+    let finest = number(&out, "/fit", "finest_level_parameter");
+    assert!((finest - 0.5).abs() < 0.06, "finest-level thickness {finest}");
+    assert_eq!(number(&out, "/fit", "true_parameter"), 0.5);
+    assert!((number(&out, "/fit", "abs_error") - (t - 0.5).abs()).abs() < 1e-12);
+    // S of a 60 × 40 × 30 mm box is half its smallest side.
+    assert!((number(&out, "/shape", "reference_depth") - 0.015).abs() < 1e-9);
+    let (levels, _) = read_dataset(&out, "/fit/levels/parameter").unwrap();
+    assert_eq!(levels.len(), 2);
+    let (loss, _) = read_dataset(&out, "/fit/history/loss").unwrap();
+    let n = loss.len();
+    assert!(n >= 7, "5 scan points and refinements, got {n}");
+    for column in ["level", "phase", "parameter", "gradient", "tets", "meshing_s", "assembly_s", "solve_s", "gradient_s", "failed"] {
+        let (v, _) = read_dataset(&out, &format!("/fit/history/{column}")).unwrap();
+        assert_eq!(v.len(), n, "{column}");
+    }
+    let (solve, _) = read_dataset(&out, "/fit/history/solve_s").unwrap();
+    assert!(solve.iter().all(|s| s.is_finite() && *s >= 0.0));
+    let (target, _) = read_dataset(&out, "/modes/target_frequency_hz").unwrap();
+    let (fitted, _) = read_dataset(&out, "/modes/fitted_frequency_hz").unwrap();
+    assert_eq!((target.len(), fitted.len()), (4, 4));
+    assert!(target.iter().zip(&fitted).all(|(a, b)| (a / b - 1.0).abs() < 0.05), "{target:?} vs {fitted:?}");
+    // The fitted body for ParaView: P2 mesh with its modes and the XDMF sidecar.
+    let mesh = dir.join("thickness_mesh.h5");
+    let summary = diffsound::io::read_modes(&mesh).unwrap();
+    assert_eq!(summary.nodes_per_tet, 10);
+    assert!(summary.n_modes >= 4 && summary.n_tets > 100);
+    let xdmf = std::fs::read_to_string(dir.join("thickness_mesh.xdmf")).unwrap();
+    assert!(xdmf.contains("Tetrahedron_10") && xdmf.contains("thickness_mesh.h5:/mesh/nodes"));
+
+    // A morph between two boxes of different proportions, from a target file in Hz.
+    let a = box_obj(&dir, "a.obj", [60.0, 40.0, 30.0]);
+    let b = box_obj(&dir, "b.obj", [45.0, 45.0, 40.0]);
+    let morph = dir.join("morph.h5");
+    let mut args = vec!["fit-morph", "--shape-a", s(&a), "--shape-b", s(&b), "--target-weight", "0.3", "--target-cells", "18", "--out", s(&morph)];
+    args.extend(SMALL);
+    let run = mpirun(1, &args, LIMIT);
+    assert!(run.success(), "{}", run.describe());
+    let c = number(&morph, "/fit", "parameter");
+    assert!((c - 0.3).abs() < 0.1, "morph weight {c}");
+    assert!(dir.join("morph_mesh.xdmf").is_file());
+    // The same target as a file of frequencies: the fit does not need to know where it came from.
+    let (hz, _) = read_dataset(&morph, "/modes/target_frequency_hz").unwrap();
+    let file = dir.join("target.txt");
+    std::fs::write(&file, format!("# target, Hz\n{}\n", hz.iter().map(|f| f.to_string()).collect::<Vec<_>>().join(", "))).unwrap();
+    let from_file = dir.join("morph_file.h5");
+    let mut args = vec!["fit-morph", "--shape-a", s(&a), "--shape-b", s(&b), "--target", s(&file), "--target-spacing", "0.003", "--out", s(&from_file)];
+    args.extend(SMALL);
+    let run = mpirun(1, &args, LIMIT);
+    assert!(run.success(), "{}", run.describe());
+    let c_file = number(&from_file, "/fit", "finest_level_parameter");
+    assert!((c_file - number(&morph, "/fit", "finest_level_parameter")).abs() < 1e-9, "same target, same finest-level answer");
+}
+
+#[test]
+fn bad_input_fails_cleanly_without_output() {
+    let dir = scratch("cli_fit_shape_bad");
+    let solid = box_obj(&dir, "box.obj", [60.0, 40.0, 30.0]);
+    let out = dir.join("never.h5");
+    let garbage = dir.join("garbage.obj");
+    std::fs::write(&garbage, "v 0 0 0\nf 1 2 3\n").unwrap();
+    let bad_target = dir.join("bad.txt");
+    std::fs::write(&bad_target, "100 two 300\n").unwrap();
+    let missing = dir.join("missing.obj");
+    let config = dir.join("typo.toml");
+    std::fs::write(&config, "[fit]\nmodse = 8\n").unwrap();
+    let cases: Vec<(Vec<&str>, &str)> = vec![
+        (vec!["fit-thickness", "--surface", s(&missing), "--target-thickness", "0.5"], "does not exist"),
+        (vec!["fit-thickness", "--surface", s(&solid)], "no target"),
+        (vec!["fit-thickness", "--surface", s(&solid), "--target-thickness", "1.5"], "outside the bounds"),
+        (vec!["fit-thickness", "--surface", s(&solid), "--target-thickness", "0.5", "--cells", "12,14", "--target-cells", "14"], "--target-cells must exceed"),
+        (vec!["fit-thickness", "--surface", s(&solid), "--target", s(&bad_target)], "\"two\" is not a number"),
+        (vec!["fit-thickness", "--surface", s(&garbage), "--target-thickness", "0.5"], "garbage.obj"),
+        (vec!["fit-thickness", "--config", s(&config), "--surface", s(&solid), "--target-thickness", "0.5"], "modse"),
+        (vec!["fit-morph", "--shape-a", s(&solid), "--target-weight", "0.5"], "no shape B"),
+        (vec!["fit-morph", "--shape-a", s(&solid), "--shape-b", s(&solid), "--target-weight", "0.5", "--cells", "14,12"], "must increase"),
+    ];
+    for (mut args, expected) in cases {
+        args.extend(["--out", s(&out)]);
+        let run = mpirun(2, &args, LIMIT);
+        assert!(!run.success(), "{args:?} should fail");
+        assert!(run.stderr.contains(expected), "{args:?}: expected {expected:?} in\n{}", run.describe());
+        assert!(!out.exists() && !dir.join("never_mesh.h5").exists(), "{args:?} left output");
+    }
+}
