@@ -7,7 +7,7 @@
 //!
 //!   mpirun -np 2 target/release/examples/shape_benchmark thickness [--levels 20,28]
 //!       [--target-cells 40] [--modes 8] [--seed 1] [--values 0.3,0.4,0.5,0.6,0.7]
-//!       [--no-extrapolate] [--json FILE] SURFACE...
+//!       [--no-extrapolate] [--free-scale] [--json FILE] SURFACE...
 //!   mpirun -np 2 target/release/examples/shape_benchmark morph [--levels 16,22]
 //!       [--target-cells 32] [--values 0,0.2,0.4,0.6,0.8,1] A.obj:B.obj...
 //!
@@ -33,12 +33,13 @@ struct Args {
     seed: u64,
     values: Vec<f64>,
     extrapolate: bool,
+    free_scale: bool,
     json: Option<String>,
     inputs: Vec<String>,
 }
 
 fn usage() -> ! {
-    eprintln!("usage: shape_benchmark thickness|morph [--levels N,N] [--target-cells N] [--modes N] [--seed S] [--values a,b,..] [--no-extrapolate] [--json FILE] SURFACE... | A:B...");
+    eprintln!("usage: shape_benchmark thickness|morph [--levels N,N] [--target-cells N] [--modes N] [--seed S] [--values a,b,..] [--no-extrapolate] [--free-scale] [--json FILE] SURFACE... | A:B...");
     std::process::exit(2)
 }
 
@@ -58,6 +59,7 @@ fn parse_args() -> Args {
         seed: 1,
         values: if morph { vec![0.0, 0.2, 0.4, 0.6, 0.8, 1.0] } else { vec![0.3, 0.4, 0.5, 0.6, 0.7] },
         extrapolate: true,
+        free_scale: false,
         json: None,
         inputs: Vec::new(),
     };
@@ -71,6 +73,7 @@ fn parse_args() -> Args {
             "--seed" => a.seed = value().parse().unwrap_or_else(|_| usage()),
             "--values" => a.values = list(value()),
             "--no-extrapolate" => a.extrapolate = false,
+            "--free-scale" => a.free_scale = true,
             "--json" => a.json = Some(value()),
             _ if x.starts_with("--") => usage(),
             _ => a.inputs.push(x),
@@ -111,17 +114,19 @@ fn main() {
     let mut settings = if morph { ShapeFitSettings::morph() } else { ShapeFitSettings::default() };
     settings.modes = args.modes;
     settings.extrapolate = args.extrapolate;
+    settings.free_scale = args.free_scale;
     let name_p = if morph { "c" } else { "t" };
     if root {
         println!(
-            "## {} benchmark\n\nseed {}, {} modes, fit levels {:?} cells, target grid {} cells (randomly shifted), {} rank(s), ceramic, shapes scaled to a 0.1 m diagonal, extrapolation in h {}.\n",
+            "## {} benchmark\n\nseed {}, {} modes, fit levels {:?} cells, target grid {} cells (randomly shifted), {} rank(s), ceramic, shapes scaled to a 0.1 m diagonal, extrapolation in h {}, free stiffness scale {}.\n",
             if morph { "Morph" } else { "Thickness" },
             args.seed,
             args.modes,
             args.levels,
             args.target_cells,
             petsc.size(),
-            if args.extrapolate { "on" } else { "off" }
+            if args.extrapolate { "on" } else { "off" },
+            if args.free_scale { "on" } else { "off" }
         );
         let per_level: String = args.levels.iter().map(|l| format!(" {name_p} @{l} |")).collect();
         let timing: String = args.levels.iter().map(|l| format!(" s/eval @{l} (mesh/asm/solve/grad) | evals @{l} |")).collect();

@@ -35,7 +35,7 @@
 //! | path | contents |
 //! |------|----------|
 //! | `/fit` attrs | `parameter` (the answer), `finest_level_parameter`, `extrapolated` (if any), `target_spacing` [m], `loss` (finest level), `evaluations`, `seconds`; synthesised targets add `true_parameter`, `abs_error`, `target_cells` |
-//! | `/fit/levels/{cells,spacing,parameter,loss,evaluations,seconds}` | per level, coarse to fine; spacing in m |
+//! | `/fit/levels/{cells,spacing,parameter,loss,log_stiffness_scale,evaluations,seconds}` | per level, coarse to fine; spacing in m; log_stiffness_scale the profiled ln factor with `--free-scale` (else 0) |
 //! | `/fit/history/{level,cells,phase,parameter,loss,gradient,step,tets,p2_nodes,meshing_s,assembly_s,solve_s,gradient_s,failed}` | every evaluation (phase 0 = scan, 1 = refine; failed 1 where no body could be meshed or solved, loss NaN) |
 //! | `/modes/{target_frequency_hz,fitted_frequency_hz,target_eigenvalues,fitted_eigenvalues,relative_frequency_error}` | the compared modes: target vs the finest level's best fit (the model on that grid) |
 //! | `/modes/answer_frequency_hz` | the body at the answer (extrapolated) parameter on the finest grid: the mesh file's modes |
@@ -98,6 +98,10 @@ pub struct ShapeArgs {
     /// Answer with the finest level instead of the extrapolation to the target spacing.
     #[arg(long)]
     pub no_extrapolate: bool,
+    /// Profile a stiffness factor common to every mode out of the loss (the spectrum's shape,
+    /// not its level, decides; see "Free stiffness scale" in src/inverse/shape.rs).
+    #[arg(long)]
+    pub free_scale: bool,
     /// Evaluations of the scan on the coarsest level (default 9 for thickness, 6 for morph).
     #[arg(long)]
     pub scan_points: Option<usize>,
@@ -171,7 +175,7 @@ pub struct FitMorphArgs {
 /// [material]
 /// preset = "ceramic"            # youngs_modulus, poisson_ratio, density
 /// [fit]                         # ShapeFitSettings: modes, bounds, scan_points, max_refinements,
-/// modes = 8                     # tolerance, refine_window, cluster_rtol, extrapolate
+/// modes = 8                     # tolerance, refine_window, cluster_rtol, extrapolate, free_scale
 /// [solver]
 /// petsc_options = []
 /// ```
@@ -336,6 +340,9 @@ fn resolve(task: Task, synthetic_value: Option<f64>, bounds: Option<(f64, f64)>,
     }
     if common.no_extrapolate {
         settings.extrapolate = false;
+    }
+    if common.free_scale {
+        settings.free_scale = true;
     }
     settings.validate().map_err(|e| e.to_string())?;
     let (lo, hi) = settings.bounds;
@@ -612,6 +619,7 @@ fn write_results(job: &Job, shapes: &[Shape], fit: &ShapeFit, target: &SpectrumT
         .column("/fit/levels/spacing", l.iter().map(|l| l.spacing).collect(), "m")
         .column("/fit/levels/parameter", l.iter().map(|l| l.parameter).collect(), "1")
         .column("/fit/levels/loss", l.iter().map(|l| l.loss).collect(), "1")
+        .column("/fit/levels/log_stiffness_scale", l.iter().map(|l| l.log_scale).collect(), "1")
         .column("/fit/levels/evaluations", l.iter().map(|l| l.evaluations as f64).collect(), "")
         .column("/fit/levels/seconds", l.iter().map(|l| l.seconds).collect(), "s");
     let h = &fit.history;

@@ -36,7 +36,7 @@ fn loss_gradient_matches_finite_differences_and_gauss_newton_is_exact_on_log_lin
     let truth = 0.42;
     let loss_at = |p: f64| {
         let (l, d) = model(p, truth, &target.eigenvalues, &a, &b);
-        spectrum_loss(&l, &d, &target).unwrap()
+        spectrum_loss(&l, &d, &target, false).unwrap()
     };
     for p in [0.2, 0.35, 0.5, 0.8] {
         let h = 1e-6;
@@ -49,10 +49,45 @@ fn loss_gradient_matches_finite_differences_and_gauss_newton_is_exact_on_log_lin
     let zero = [0.0; 6];
     for p in [0.1, 0.7] {
         let (l, d) = model(p, truth, &target.eigenvalues, &a, &zero);
-        let step = spectrum_loss(&l, &d, &target).unwrap().step;
+        let step = spectrum_loss(&l, &d, &target, false).unwrap().step;
         assert!((p + step - truth).abs() < 1e-12, "from {p}: step to {}", p + step);
     }
-    assert!(spectrum_loss(&[1.0], &[1.0], &target).is_err());
+    assert!(spectrum_loss(&[1.0], &[1.0], &target, false).is_err());
+}
+
+#[test]
+fn free_scale_loss_ignores_a_common_stiffness_factor_and_its_gradient_is_exact() {
+    let target = SpectrumTarget::new(vec![1.0e8, 1.003e8, 3.0e8, 5.0e8, 5.02e8, 7.0e8], 1e-2).unwrap();
+    let a = [0.3, 0.5, 1.2, 2.0, 1.8, 0.9];
+    let b = [0.4, -0.2, 0.7, 0.1, 0.3, -0.5];
+    let truth = 0.42;
+    // The model stiffened by 3 % everywhere, as a coarse grid does.
+    let stiffening = 1.03;
+    let loss_at = |p: f64, free: bool, curvature: &[f64; 6]| {
+        let (mut l, d) = model(p, truth, &target.eigenvalues, &a, curvature);
+        let d: Vec<f64> = d.iter().map(|v| v * stiffening).collect();
+        l.iter_mut().for_each(|v| *v *= stiffening);
+        spectrum_loss(&l, &d, &target, free).unwrap()
+    };
+    let at_truth = loss_at(truth, true, &b);
+    assert!(at_truth.loss < 1e-26, "free-scale loss at the truth {}", at_truth.loss);
+    assert!((at_truth.log_scale - stiffening.ln()).abs() < 1e-12, "profiled scale {}", at_truth.log_scale);
+    assert!(loss_at(truth, false, &b).loss > 1e-4, "the plain loss sees the factor");
+    for p in [0.2, 0.35, 0.5, 0.8] {
+        let h = 1e-6;
+        let fd = (loss_at(p + h, true, &b).loss - loss_at(p - h, true, &b).loss) / (2.0 * h);
+        let exact = loss_at(p, true, &b).gradient;
+        assert!((fd - exact).abs() <= 1e-6 * exact.abs().max(1e-8), "p {p}: dL/dp {exact} vs FD {fd}");
+    }
+    let zero = [0.0; 6];
+    for p in [0.1, 0.7] {
+        let step = loss_at(p, true, &zero).step;
+        assert!((p + step - truth).abs() < 1e-12, "from {p}: step to {}", p + step);
+    }
+    // A spectrum that only scales with p carries no information once the scale is free.
+    let (l, _) = model(0.3, truth, &target.eigenvalues, &[1.0; 6], &zero);
+    let uniform = spectrum_loss(&l, &l, &target, true).unwrap();
+    assert!(uniform.loss < 1e-26 && uniform.step == 0.0, "{uniform:?}");
 }
 
 /// A synthetic level: the log-linear model with curvature, plus jumps of the loss (topology
@@ -71,7 +106,7 @@ fn synthetic(truth: f64, jumps: f64, hole_below: f64) -> impl Fn(f64) -> Option<
         for (k, v) in l.iter_mut().enumerate() {
             *v *= 1.0 + jumps * ((cell * 7.0 + k as f64 * 3.0).sin());
         }
-        let loss = spectrum_loss(&l, &d, &target).ok()?;
+        let loss = spectrum_loss(&l, &d, &target, false).ok()?;
         Some(Point { p, loss, data: () })
     }
 }
