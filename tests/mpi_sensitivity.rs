@@ -503,6 +503,92 @@ fn check_morph_chain(petsc: &Petsc, c: &mut Checker) {
     );
 }
 
+/// Neural-field chain (issue 7, task 3): θ → s(x_i; θ) at the grid vertices (the MLP of
+/// `inverse::neural_sdf`) → marching → P2 → SLEPc → dλ/ds → the network's backpropagation.
+/// The network (2 octaves, 12 × 12 softplus units) is pre-fitted for 200 updates to 8³ voxels of
+/// the ellipsoid of the shell check (semi-axes 50, 40, 30 mm), built here from the analytic
+/// field, so it encloses one smooth body; 12×10×8-cell grid, 6 modes, ceramic. For three seeded
+/// random directions v in θ, scaled so that the field moves by at most one grid cell per unit
+/// of ε at any vertex, the exact dλ_k/dε = (J_θᵀ dλ_k/ds) · v is compared with central
+/// differences of re-meshed, re-solved spectra at ε = ±1e-5 (crossings move by 1e-5 cells).
+/// The chain is exact only between topology changes of the marching (shape module docs), so the
+/// check demands an unchanged tet count and snap count at ±ε and reports it; then the
+/// difference errs by O(ε²) and the eigenvalues' rounding noise over ε (~1e-13/1e-5 relative),
+/// and the bar is 1e-4 relative to λ_k (as for the morph weight, also a unit-order parameter).
+/// Cluster members are compared as cluster means.
+fn check_neural_chain(petsc: &Petsc, c: &mut Checker) {
+    use diffsound::inverse::geometry::{prefit, PrefitSettings, Voxels};
+    use diffsound::inverse::neural_sdf::{NeuralSdf, NeuralSdfConfig};
+    use diffsound::inverse::shape::shape_spectrum;
+    let axes = [0.05, 0.04, 0.03];
+    let inside = |p: [f64; 3]| (p[0] / axes[0]).powi(2) + (p[1] / axes[1]).powi(2) + (p[2] / axes[2]).powi(2) < 1.0;
+    let n = 8;
+    let size = [0, 1, 2].map(|d| 2.0 * axes[d] / n as f64);
+    let origin = [0, 1, 2].map(|d| -axes[d] - size[d]);
+    let m = n + 2;
+    let mut voxels = Voxels { origin, size, resolution: n, inside: vec![false; m * m * m] };
+    for v in 0..voxels.len() {
+        voxels.inside[v] = inside(voxels.centre(v));
+    }
+    let (lo, hi) = voxels.padded_box();
+    let mut net = NeuralSdf::new(NeuralSdfConfig::for_box(lo, hi, 2, vec![12, 12]).expect("config"), 3).expect("network");
+    prefit(&mut net, &voxels, &PrefitSettings { steps: 200, batch: 256, eikonal_batch: 64, learning_rate: 1e-2, final_learning_rate: 2e-3, ..Default::default() }).expect("pre-fit");
+    let grid = mesh::BackgroundGrid::covering([-0.05, -0.04, -0.03], [0.05, 0.04, 0.03], 12, 1.0).expect("grid");
+    let points = grid.vertex_positions();
+    let options = mesh::MarchingOptions::default();
+    let material = Material::preset("ceramic").expect("preset");
+    let modes = 6;
+    let theta0 = net.parameters().to_vec();
+    let base = shape_spectrum(petsc, &grid, &net.values(&points), &options, &material, modes, true).expect("spectrum");
+    let gradient = base.gradient.as_ref().expect("gradient");
+    let per_mode: Vec<Vec<f64>> = gradient.iter().map(|g| net.vjp(&points, g).expect("vjp")).collect();
+    let at = |theta: &[f64]| {
+        let mut moved = net.clone();
+        moved.set_parameters(theta).expect("θ");
+        let sp = shape_spectrum(petsc, &grid, &moved.values(&points), &options, &material, modes, false).expect("spectrum");
+        (sp.eigenvalues, sp.tets, sp.report.snapped_vertices, moved.values(&points))
+    };
+    let cell = grid.spacing()[0];
+    let mut state = 0x9e37_79b9_7f4a_7c15u64;
+    let mut uniform = || {
+        state ^= state << 13;
+        state ^= state >> 7;
+        state ^= state << 17;
+        (state >> 11) as f64 / (1u64 << 53) as f64 * 2.0 - 1.0
+    };
+    let (mut worst, mut same_topology) = (0.0f64, true);
+    let mut largest = 0.0f64;
+    for _ in 0..3 {
+        let raw: Vec<f64> = (0..theta0.len()).map(|_| uniform()).collect();
+        // Scale v so that max_i |J v|_i = one cell (J v by a small central difference of the
+        // smooth network, used only for the scale).
+        let probe = |t: f64| {
+            let mut moved = net.clone();
+            moved.set_parameters(&theta0.iter().zip(&raw).map(|(a, b)| a + t * b).collect::<Vec<_>>()).expect("θ");
+            moved.values(&points)
+        };
+        let (p, q) = (probe(1e-6), probe(-1e-6));
+        let speed = p.iter().zip(&q).map(|(a, b)| ((a - b) / 2e-6).abs()).fold(0.0, f64::max);
+        let v: Vec<f64> = raw.iter().map(|r| r * cell / speed).collect();
+        let h = 1e-5;
+        let (plus, tets_p, snap_p, _) = at(&theta0.iter().zip(&v).map(|(a, b)| a + h * b).collect::<Vec<_>>());
+        let (minus, tets_m, snap_m, _) = at(&theta0.iter().zip(&v).map(|(a, b)| a - h * b).collect::<Vec<_>>());
+        same_topology &= tets_p == base.tets && tets_m == base.tets && snap_p == base.report.snapped_vertices && snap_m == base.report.snapped_vertices;
+        for k in 0..modes {
+            let group = base.clusters.iter().find(|r| r.contains(&k)).cloned().unwrap_or(k..k + 1);
+            let exact: f64 = per_mode[k].iter().zip(&v).map(|(g, d)| g * d).sum();
+            let fd = group.clone().map(|j| (plus[j] - minus[j]) / (2.0 * h)).sum::<f64>() / group.len() as f64;
+            worst = worst.max((exact - fd).abs() / base.eigenvalues[k]);
+            largest = largest.max(exact.abs() / base.eigenvalues[k]);
+        }
+    }
+    c.check(
+        "neural-field chain dλ/dθ (MLP → grid field → marching → P2 → SLEPc → back → backpropagation), 3 directions",
+        same_topology && worst < 1e-4 && largest > 1e-3,
+        format!("{} tets, {} parameters, largest |dλ/dε|/λ {largest:.2e}, worst relative error {worst:.2e}, topology unchanged by ±ε: {same_topology}", base.tets, theta0.len()),
+    );
+}
+
 fn child() {
     let universe = mpi::initialize().expect("MPI");
     let petsc = Petsc::initialize(universe, "mpi_sensitivity", &[]).expect("PETSc");
@@ -514,5 +600,6 @@ fn child() {
     check_mesh(&petsc, &mut c, "bowl", &load("examples/bowl/bowl.msh"), 10);
     check_shape_chain(&petsc, &mut c);
     check_morph_chain(&petsc, &mut c);
+    check_neural_chain(&petsc, &mut c);
     let _ = c.failures;
 }

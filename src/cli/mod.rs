@@ -13,6 +13,7 @@
 
 pub mod config;
 pub mod diagnose;
+pub mod fit_geometry;
 pub mod fit_material;
 pub mod fit_shape;
 pub mod impact;
@@ -43,6 +44,9 @@ pub enum Command {
     FitMaterial(fit_material::FitMaterialArgs),
     /// Relative thickness of a hollow body from target eigenvalues (shape from sound, issue 7).
     FitThickness(fit_shape::FitThicknessArgs),
+    /// Geometry from a coarse voxel constraint: an MLP signed distance pre-fitted to voxels and
+    /// refined by target eigenvalues (issue 7).
+    FitGeometry(fit_geometry::FitGeometryArgs),
     /// Weight c of a morph c·A + (1 − c)·B of two shapes from target eigenvalues (issue 7).
     FitMorph(fit_shape::FitMorphArgs),
     /// Where simulation and recording differ, which physics the model left out, and how much
@@ -178,6 +182,7 @@ pub fn main() {
         Command::LocateImpact(args) => run_under_mpi(|universe| impact::run(universe, args)),
         Command::FitThickness(args) => run_under_mpi(|universe| fit_shape::run_thickness(universe, args)),
         Command::FitMorph(args) => run_under_mpi(|universe| fit_shape::run_morph(universe, args)),
+        Command::FitGeometry(args) => run_under_mpi(|universe| fit_geometry::run(universe, args)),
         Command::Render(args) => run_serial(render::run(args)),
         Command::Spectrogram(args) => run_serial(spectrogram::run(args)),
     }

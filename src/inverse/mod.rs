@@ -8,11 +8,15 @@
 //! | [`optim`]    | Adam with bounds, the optimiser the fits share |
 //! | [`material`] | stage 2 of the material fit: E and ν by the hybrid transport→spectral schedule |
 //! | [`impact`]   | where the object was struck: mode amplitudes with known poles, forward amplitudes per surface vertex, likelihood map over the surface, strength, top candidates, geodesics and symmetry orbits |
+//! | [`neural_sdf`] | a small MLP signed-distance field with positional encoding and hand-written backpropagation |
+//! | [`geometry`] | geometry from a coarse voxel constraint: voxelisation, MLP pre-fit, refinement by eigenvalues |
 //! | [`shape`]    | shape from sound: spectrum of the body inside an implicit field, its gradient to the field, the thickness and morph fits (scan, safeguarded Gauss–Newton per grid level, extrapolation in the grid spacing) |
 
 pub mod damping;
 pub mod estimate;
+pub mod geometry;
 pub mod impact;
 pub mod material;
+pub mod neural_sdf;
 pub mod optim;
 pub mod shape;

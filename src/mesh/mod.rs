@@ -65,6 +65,7 @@
 use std::fmt;
 use std::path::PathBuf;
 
+pub mod distance;
 mod generate;
 mod gmsh;
 mod lift;
@@ -78,6 +79,7 @@ mod write;
 mod tests;
 
 mod locate;
+pub use distance::{compare_shapes, sample_surface, surface_distance, volume_iou, DistanceError, ShapeComparison, SurfaceDistance};
 pub use generate::box_mesh;
 pub use locate::SurfacePoint;
 pub use gmsh::{read_mesh, read_mesh_from_bytes};
