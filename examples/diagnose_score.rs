@@ -57,7 +57,10 @@
 //!      relative to its own, not the mass fraction; the labels give that per mode as
 //!      (f_base/f)² − 1, so expected μ = its largest value (the lowest mode's for the
 //!      `fluid_loading` variant). n/a when another FEM effect moved the frequencies too.
-//!    * `pitch_glide`: the detector's g is (f_early − f_late)/f of its most energetic mode;
+//!    * `pitch_glide`: reports with `glide_observable = "offset_at_onset"` (the chirp fit of
+//!      `diagnose::extract::glide`) detect the generator's own g, the offset at t = 0 of
+//!      f₀(1 + g e^(−2dt)): expected = the labels' g. In older reports
+//!      the detector's g is (f_early − f_late)/f of its most energetic mode;
 //!      the generator's g is the offset at t = 0 of f₀(1 + g e^(−2dt)). Expected:
 //!      g (1 − e^(−dL)) E(L/2) for the labels' most energetic matched mode, **assuming** the
 //!      early and late frequencies are least-squares fits to the two halves of the L seconds
@@ -152,6 +155,9 @@ struct Diagnosis {
     /// Ends of the early and late pitch-glide windows after the onset [s] (older reports: halves).
     #[serde(default)]
     glide_windows_s: Option<(f64, f64)>,
+    /// "offset_at_onset": the glide rows are the chirp fit's g at t = 0 (newer reports).
+    #[serde(default)]
+    glide_observable: Option<String>,
 }
 
 #[derive(Deserialize)]
@@ -222,7 +228,8 @@ fn load(args: &Args) -> Result<Vec<Case>, String> {
             Err(_) => Vec::new(),
         };
         let glide_windows_s = report.as_ref().ok().and_then(|d| d.glide_windows_s).filter(|_| args.glide_span.is_none());
-        let context = ScoringContext { glide_span_s: args.glide_span.or_else(|| analysis_span(&directory)), glide_windows_s, matched_hz };
+        let glide_offset_at_onset = report.as_ref().ok().and_then(|d| d.glide_observable.as_deref()) == Some("offset_at_onset");
+        let context = ScoringContext { glide_span_s: args.glide_span.or_else(|| analysis_span(&directory)), glide_windows_s, glide_offset_at_onset, matched_hz };
         cases.push(Case { name, truth, labels, context, report });
     }
     Ok(cases)

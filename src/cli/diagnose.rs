@@ -15,9 +15,12 @@
 //!    second one), so that every accepted effect must also improve the fit of microphones it
 //!    never saw.
 //! 2. **Modes of the recording** ([`crate::diagnose::extract`], rank 0): the fit set's modes
-//!    with standard deviations, again on an early window (0.15 s after the onset) and on the
-//!    0.3 s after it (pitch glide), the held-out set's separately; the residual recording − modal resynthesis per
-//!    band and frame, and the pre-roll's floor ([`crate::diagnose::evidence`]).
+//!    with standard deviations, then the chirp-aware stage ([`crate::diagnose::extract::glide`]:
+//!    each mode, or each cluster of poles within 0.4 %, fitted as one gliding mode
+//!    f(t) = f₀(1 + g e^(−2dt)) and kept as such where the BIC prefers it, with g ± σ_g per
+//!    mode for the pitch-glide rows); the held-out set's the same way, separately; the
+//!    residual recording − modal resynthesis (gliding modes gliding) per band and frame, and
+//!    the pre-roll's floor ([`crate::diagnose::evidence`]).
 //! 3. **Material.** E, ν (ρ given) from a `fit-material` result (`material = "fit.h5"`), from
 //!    the configuration, or, with neither, from the line-spectrum match of the recorded mode
 //!    frequencies against a reduced basis in ν ([`crate::inverse::material::line_spectrum_start`];
@@ -65,10 +68,9 @@ use crate::audio::chain::{DampingModel, Strike};
 use crate::audio::radiation::{fit_multipoles, MultipoleSettings, SurfaceQuadrature};
 use crate::audio::recording::{load_recording, GainPolicy, RecordingOptions};
 use crate::audio::stft::StftPlan;
-use crate::audio::synth::render_samples;
 use crate::diagnose::catalogue::{self, CatalogueReport, CatalogueSettings, Evidence, ObservedMode, ResidualEnvelopes};
 use crate::diagnose::evidence::{self, EnvelopeOptions, ObservedOptions};
-use crate::diagnose::extract::{extract_modes, ExtractOptions, ModalExtraction};
+use crate::diagnose::extract::{extract_modes, fit_glides, ExtractOptions, GlideOptions, ModalExtraction};
 use crate::diagnose::inject;
 use crate::eigen::reduced::PoissonBasis;
 use crate::eigen::{self, EigenConfig, ModeRequest};
@@ -163,6 +165,9 @@ pub struct DiagnoseFileConfig {
     pub observed: ObservedOptions,
     #[serde(default)]
     pub extract: ExtractOptions,
+    /// The chirp-aware stage after the extraction.
+    #[serde(default)]
+    pub glide: GlideOptions,
     #[serde(default)]
     pub envelopes: EnvelopeOptions,
     #[serde(default)]
@@ -253,6 +258,7 @@ pub struct Job {
     pub microphones: Option<Vec<[f64; 3]>>,
     pub observed: ObservedOptions,
     pub extract: ExtractOptions,
+    pub glide: GlideOptions,
     pub envelopes: EnvelopeOptions,
     pub catalogue: CatalogueSettings,
     pub out: PathBuf,
@@ -426,6 +432,7 @@ pub fn resolve(args: &DiagnoseArgs) -> Result<Job, String> {
         microphones,
         observed: file.observed.clone(),
         extract: file.extract.clone(),
+        glide: file.glide.clone(),
         envelopes: file.envelopes.clone(),
         catalogue: file.catalogue.clone(),
         out,
@@ -458,8 +465,6 @@ struct Measured {
     /// Fit channel 0 after the onset and its residual (for the plots).
     plot_signal: Vec<f64>,
     plot_residual: Vec<f64>,
-    /// Ends of the early and the late pitch-glide windows after the onset [s].
-    glide_windows_s: (f64, f64),
     seconds: f64,
 }
 
@@ -479,27 +484,30 @@ fn measure(job: &Job, progress: &Progress) -> Result<Measured, String> {
         return Err(format!("only {:.3} s of recording after the onset at {:.3} s", n as f64 / fs, rec.onset_s));
     }
     progress.say(format!("{} channel(s) at {} Hz, onset at {:.4} s, {:.3} s pre-roll, {:.3} s after; fit microphones {:?}, held out {:?}", rec.channels.len(), rec.sample_rate, rec.onset_s, onset as f64 / fs, n as f64 / fs, job.fit_channels, job.held_channels));
+    // Extraction, then the chirp-aware stage: a gliding mode comes out as one mode with its
+    // glide instead of a cluster of constant poles (which would read as a split pair).
     let extract = |channels: &[Vec<f64>], what: &str| -> Result<ModalExtraction, String> {
         let t = Instant::now();
         let ex = extract_modes(channels, fs, &job.extract).map_err(|e| format!("mode extraction ({what}): {e}"))?;
-        progress.say(format!("extraction ({what}): {} modes in {:.1} s", ex.modes.len(), t.elapsed().as_secs_f64()));
-        Ok(ex)
+        let stage = fit_glides(channels, &ex, &job.glide).map_err(|e| format!("glide stage ({what}): {e}"))?;
+        let selected: Vec<_> = stage.decisions.iter().filter(|d| d.selected).collect();
+        let merged: usize = selected.iter().map(|d| d.poles_hz.len()).sum();
+        let gliding: usize = selected.iter().map(|d| d.f0_hz.len()).sum();
+        progress.say(format!("extraction ({what}): {} modes, {} after the glide stage ({} groups tried, {} gliding modes from {} poles) in {:.1} s", ex.modes.len(), stage.extraction.modes.len(), stage.decisions.len(), gliding, merged, t.elapsed().as_secs_f64()));
+        for d in &selected {
+            let round = |v: &[f64]| v.iter().map(|f| (f * 100.0).round() / 100.0).collect::<Vec<_>>();
+            let glides: Vec<String> = d.glide.iter().zip(&d.glide_sd).map(|(g, s)| format!("{g:.3e} ± {s:.1e}")).collect();
+            progress.say(format!("    glide: poles {:?} Hz → f₀ = {:?} Hz, d = {:?} 1/s, g = [{}] (ΔBIC {:.1})", round(&d.poles_hz), round(&d.f0_hz), round(&d.decay_rate), glides.join(", "), d.delta_bic));
+        }
+        Ok(stage.extraction)
     };
     let fit_post = pick(&post, &job.fit_channels);
     let full = extract(&fit_post, "fit microphones")?;
-    // Glide windows: a glide lives while the mode is loud (a Duffing shift ∝ its energy,
-    // e^(−2dt)), so the halves of a 1 s span compare a glide with nothing in most modes and
-    // leave the fast-decaying modes out of the late half entirely. An early window of
-    // GLIDE_WINDOW_S and a late one of twice that right after it keep most modes in both.
-    let split = ((GLIDE_WINDOW_S * fs) as usize).min(n / 3);
-    let end = (3 * split).min(n);
-    let early = extract(&fit_post.iter().map(|c| c[..split].to_vec()).collect::<Vec<_>>(), "early window")?;
-    let late = extract(&fit_post.iter().map(|c| c[split..end].to_vec()).collect::<Vec<_>>(), "late window")?;
     let in_band = |mut modes: Vec<ObservedMode>| {
         modes.retain(|m| m.frequency_hz <= job.max_frequency_hz);
         modes
     };
-    let fit = in_band(evidence::observed_modes(&full, Some(&early), Some(&late), &job.observed));
+    let fit = in_band(evidence::observed_modes(&full, None, None, &job.observed));
     let (held_out, extraction_held) = if job.held_channels.is_empty() {
         (Vec::new(), None)
     } else {
@@ -513,9 +521,9 @@ fn measure(job: &Job, progress: &Progress) -> Result<Measured, String> {
             None
         }
     };
-    let model0 = render_samples(&full.bank(0), fs, n);
+    let model0 = full.render_channel(0, n);
     let plot_residual = fit_post[0].iter().zip(&model0).map(|(a, b)| a - b).collect();
-    Ok(Measured { names: rec.names, onset_s: rec.onset_s, fit, held_out, envelopes, extraction_fit: full, extraction_held, plot_signal: fit_post[0].clone(), plot_residual, glide_windows_s: (split as f64 / fs, end as f64 / fs), seconds: t.elapsed().as_secs_f64() })
+    Ok(Measured { names: rec.names, onset_s: rec.onset_s, fit, held_out, envelopes, extraction_fit: full, extraction_held, plot_signal: fit_post[0].clone(), plot_residual, seconds: t.elapsed().as_secs_f64() })
 }
 
 /// Per-mode features on rank 0 from the full shapes (original node order).
@@ -600,10 +608,6 @@ const CLUSTER_RTOL: f64 = 0.005;
 /// cluster: 8 × 8 cells, L1 distance at most 0.2 (of 2).
 const PROFILE_BINS: usize = 8;
 const CLUSTER_PROFILE_DISTANCE: f64 = 0.2;
-
-/// Length of the early window for the pitch-glide frequencies [s]; the late window follows
-/// it and is twice as long.
-const GLIDE_WINDOW_S: f64 = 0.15;
 
 /// Nodes of the candidate added-mass region around the best vertex.
 const MASS_REGION_VERTICES: usize = 5;
@@ -781,7 +785,9 @@ fn write_json(job: &Job, measured: &Measured, report: &CatalogueReport, youngs: 
         "fit_microphones": job.fit_channels,
         "held_out_microphones": job.held_channels,
         "onset_s": measured.onset_s,
-        "glide_windows_s": [measured.glide_windows_s.0, measured.glide_windows_s.1],
+        // The pitch-glide rows are the chirp fit's g per mode (relative offset at the onset),
+        // not an early-minus-late frequency difference: the scorer compares accordingly.
+        "glide_observable": "offset_at_onset",
         "material": {"youngs_modulus": youngs, "poisson_ratio": poisson, "density": job.density, "source": job.material_source, "line_spectrum_start": line_start},
         "strike": feats.strike_note,
         "observed": {"fit": measured.fit, "held_out": measured.held_out},

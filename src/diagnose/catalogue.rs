@@ -87,7 +87,7 @@
 //! | [`ReverbNoise`] | residual energy decaying after the strike above the floor | early vs late mean ln E per band, z > 2 | ln E = ln(N_b + ρ_b N_b e^(−13.8t/T60)) vs ln N_b | T60 \[s\], ρ_b \[1\] per band |
 //! | [`Radiation`] | the mode mix changes between microphones | top singular value of the double-centred ln a residuals vs the noise edge; correlation with ln transfer | ln a += η ln T_kc, or += u_k v_c (Σv = 0) | η \[1\]; or u_k, v_c \[1\] (K + C − 2) |
 //! | [`AddedMass`] | frequencies low where the mass sits / toward low modes | regression of ln f residuals on −½w or −½f_1/f; differential shift ≥ 5·10⁻⁴ | Δ ln f = −½ ln(1 + μw) or −½ ln(1 + μ_f f_1/f) | μ ≥ 0 \[1\] |
-//! | [`PitchGlide`] | early part of a decay higher in pitch (most in loud modes) | regression of the glide on the relative energy Q², or its mean, \|z\| > 2 | (f_e − f_l)/f = g Q², or = g | g \[1\] |
+//! | [`PitchGlide`] | early part of a decay higher in pitch (most in loud modes) | regression of the per-mode glide (the chirp fit's offset at the onset g_k, else (f_e − f_l)/f) on the relative energy Q², or its mean, \|z\| > 2 | g_k = g Q², or = g | g \[1\] |
 //!
 //! Each effect is an [`Effect`] (name, signature, detector) that proposes one or more
 //! [`Term`]s (model variants with their parameters and starting values); the physics, units
@@ -208,6 +208,11 @@ pub struct ObservedMode {
     pub early_frequency_hz: Option<(f64, f64)>,
     #[serde(default)]
     pub late_frequency_hz: Option<(f64, f64)>,
+    /// Relative glide at the onset g and its σ [1] from the chirp fit of
+    /// [`crate::diagnose::extract::glide`] (f(t) = f (1 + g e^(−2dt))); when present it is the
+    /// mode's pitch-glide observable instead of the early/late difference.
+    #[serde(default)]
+    pub glide: Option<(f64, f64)>,
 }
 
 /// A simulated mode at the fitted material.

@@ -11,6 +11,10 @@
 //! is its *mutual* nearest neighbour in frequency within `glide_match` (relative; default 1 %).
 //! A σ-based gate would reject exactly the glides it is meant to find (σ_f / f ~ 10⁻⁵, glides
 //! 10⁻³), and mutual nearness keeps a close pair from swapping its halves.
+//! When the extraction went through the chirp-aware stage ([`crate::diagnose::extract::glide`]),
+//! every mode that came out as one component carries its fitted relative glide at the onset,
+//! g ± σ_g ([`ObservedMode::glide`]); the catalogue then uses that instead of early and late
+//! frequencies (the CLI no longer extracts the two windows).
 //!
 //! # Residual envelopes
 //!
@@ -42,7 +46,6 @@
 //! `mass_region_search_params`).
 
 use crate::audio::stft::StftPlan;
-use crate::audio::synth::render_samples;
 use crate::diagnose::catalogue::{weighted_regression, ObservedMode, ResidualEnvelopes, SimulatedMode};
 use crate::diagnose::extract::ModalExtraction;
 
@@ -129,6 +132,7 @@ pub fn observed_modes(full: &ModalExtraction, early: Option<&ModalExtraction>, l
             sigma_amplitudes: m.amplitude_sds.clone(),
             early_frequency_hz: e[i],
             late_frequency_hz: l[i],
+            glide: m.glide.as_ref().map(|g| (g.glide, g.glide_sd)),
         })
         .collect()
 }
@@ -197,7 +201,9 @@ pub fn residual_envelopes(post: &[Vec<f64>], pre: &[Vec<f64>], extraction: &Moda
         .iter()
         .enumerate()
         .map(|(c, x)| {
-            let model = render_samples(&extraction.bank(c), fs, n);
+            // Gliding modes glide ([`ModalExtraction::render_channel`]): a glide left in the
+            // residual would read as early excess energy (reverb).
+            let model = extraction.render_channel(c, n);
             x.iter().zip(&model).map(|(a, b)| a - b).collect()
         })
         .collect();
@@ -390,6 +396,7 @@ pub fn localise_frequency_residuals(vertex_energy: &[Vec<f64>], residuals: &[(Ve
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::audio::synth::render_samples;
     use crate::audio::synth::ModalBank;
     use crate::diagnose::extract::{extract_modes, ExtractOptions};
     use crate::diagnose::inject::SplitMix64;

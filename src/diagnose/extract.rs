@@ -166,6 +166,14 @@
 //!   residual of the modes as reported is higher (1.01–2.0), from strongly damped poles fitted in
 //!   two bands and from cancelling pairs of a mode and a nuisance pole.
 //!
+//! # Gliding modes
+//!
+//! A mode whose pitch glides is not a damped exponential; this extraction breaks it into
+//! constant poles a few Hz apart. [`glide::fit_glides`], run on the result, refits each mode or
+//! cluster of poles as gliding modes and keeps them where the BIC prefers them (model,
+//! criterion and measured accuracy in [`glide`]'s docs); [`ModalExtraction::render_channel`]
+//! resynthesises gliding modes gliding.
+//!
 //! # Residuals
 //!
 //! [`ModalExtraction::residual_rms_esprit`] is the estimate's full-rate residual (ESPRIT poles,
@@ -181,8 +189,11 @@ use crate::inverse::estimate::{
     self, lsq, BandData, BandReport, Decimator, EstimateError, EstimateOptions, EstimatedMode, C64,
 };
 
+pub mod glide;
 #[cfg(test)]
 mod tests;
+
+pub use glide::{fit_glides, GlideDecision, GlideOptions, GlideStage, ModeGlide};
 
 /// A trial pole may grow by at most e^50 over the band's samples (it overflows long before
 /// mattering otherwise); steps beyond are rejected.
@@ -266,6 +277,11 @@ pub struct ExtractedMode {
     pub moved: bool,
     /// The refined frequency left the band's (widened) centre region.
     pub left_band: bool,
+    /// The chirp-aware stage's glide ([`glide`]): `None` from [`extract_modes`] and for the
+    /// poles of a group that stays split; with `selected` the mode glides,
+    /// f(t) = f (1 + g e^(−2dt)), and `frequency_hz` is its small-amplitude frequency f₀.
+    #[serde(default)]
+    pub glide: Option<ModeGlide>,
 }
 
 impl ExtractedMode {
@@ -343,6 +359,28 @@ impl ModalExtraction {
             amplitudes: self.modes.iter().map(|m| m.amplitudes[channel]).collect(),
             phases: self.modes.iter().map(|m| m.phases[channel]).collect(),
         }
+    }
+
+    /// `n` samples of one channel's resynthesis: the modes of [`Self::bank`], those with a
+    /// selected glide ([`ModeGlide::selected`]) with the glide phase of [`glide::glide_phase`].
+    ///
+    /// # Panics
+    /// If `channel` is not a channel of the extraction.
+    pub fn render_channel(&self, channel: usize, n: usize) -> Vec<f64> {
+        let gliding = |m: &ExtractedMode| m.glide.as_ref().is_some_and(|g| g.selected);
+        let steady: Vec<&ExtractedMode> = self.modes.iter().filter(|m| !gliding(m)).collect();
+        let bank = ModalBank {
+            frequencies_hz: steady.iter().map(|m| m.frequency_hz).collect(),
+            decay_rates: steady.iter().map(|m| m.decay_rate).collect(),
+            amplitudes: steady.iter().map(|m| m.amplitudes[channel]).collect(),
+            phases: steady.iter().map(|m| m.phases[channel]).collect(),
+        };
+        let mut out = crate::audio::synth::render_samples(&bank, self.sample_rate, n);
+        for m in self.modes.iter().filter(|m| gliding(m)) {
+            let g = m.glide.as_ref().map_or(0.0, |g| g.glide);
+            glide::add_gliding_mode(&mut out, self.sample_rate, m.frequency_hz, m.decay_rate, g, m.amplitudes[channel], m.phases[channel]);
+        }
+        out
     }
 }
 
@@ -662,6 +700,7 @@ fn map_to_full_rate(
         // An undefined shift (0/0) is flagged too.
         moved: shift_sigma.is_nan() || shift_sigma > setup.options.shift_flag_sigma,
         left_band: !in_band,
+        glide: None,
     };
     (mode, coeffs, log_z)
 }

@@ -126,7 +126,10 @@
 //!   `support_contact`) moved the frequencies of the case; the mass fraction is listed as the
 //!   labels' truth.
 //! * **`pitch_glide`**: the generator's g is the relative offset at t = 0 of every mode,
-//!   f(t) = f₀(1 + g e^(−2dt)); the detector's g is the early-minus-late frequency
+//!   f(t) = f₀(1 + g e^(−2dt)). Reports whose glide observable is the chirp fit's offset at the
+//!   onset (`glide_observable = "offset_at_onset"`, the CLI since the chirp-aware stage of
+//!   [`crate::diagnose::extract::glide`]) detect that same g: expected = the labels' g. For
+//!   older reports the detector's g is the early-minus-late frequency
 //!   difference y = (f_early − f_late)/f of its most energetic mode (largest mean_c a_c²/ω²),
 //!   with f_early, f_late fitted on the two halves of the analysis span L after the onset. A
 //!   least-squares frequency of a decaying tone with a slowly varying phase θ(t) is, to first
@@ -1408,6 +1411,10 @@ pub struct ScoringContext {
     /// Ends of the early and the late glide windows after the onset [s], when the report gives
     /// them; they take precedence over the halves of `glide_span_s`.
     pub glide_windows_s: Option<(f64, f64)>,
+    /// The report's glide observable is the chirp fit's relative offset at the onset
+    /// (`glide_observable = "offset_at_onset"`): then the detected g compares with the labels'
+    /// g directly, and the windows above are not used.
+    pub glide_offset_at_onset: bool,
     /// Undamped frequencies [Hz] of the observed modes the catalogue matched (its report's
     /// `matching.pairs[].observed_hz`): the contact fit and the glide's reference mode use
     /// the rendered modes within [`MATCHED_MODE_TOLERANCE`] of one of them, as the detector
@@ -1612,6 +1619,14 @@ pub fn compare_parameters(labels: &serde_json::Value, accepted: &AcceptedEffect,
         Effect::PitchGlide => {
             let g = label_f64(p, "glide")?;
             let detected = detected_param(accepted, "relative glide")?.value;
+            if context.glide_offset_at_onset {
+                // Same quantity on both sides: the offset at t = 0 of f₀(1 + g e^(−2dt)), the
+                // same for every mode in the generator (so for the detector's reference mode).
+                let v = ComparedValue::new("relative glide g at the onset, f(t) = f₀(1 + g e^(−2dt))", "1", Some(g), Some(g), Some(detected));
+                out.errors.extend(v.relative_error);
+                out.values.push(v);
+                return Ok(out);
+            }
             // The early/late windows the CLI used: given by the report, else the halves of the span.
             let (t1, t2) = match (context.glide_windows_s, context.glide_span_s) {
                 (Some(w), _) => w,
@@ -2075,7 +2090,7 @@ mod tests {
             {"effect": "support_contact", "strength": 0.5, "parameters": {"added_decay_per_mode": [0.5, 0.1, 0.2, 0.0]}},
             {"effect": "radiation", "strength": 0.5, "parameters": {}},
         ]));
-        let ctx = ScoringContext { glide_span_s: Some(1.0), glide_windows_s: None, matched_hz: vec![] };
+        let ctx = ScoringContext { glide_span_s: Some(1.0), glide_windows_s: None, glide_offset_at_onset: false, matched_hz: vec![] };
         let only_error = |c: &ParameterComparison| {
             assert_eq!(c.errors.len(), 1, "{c:?}");
             c.errors[0]
@@ -2096,12 +2111,16 @@ mod tests {
         assert!((only_error(&c) - 1.0).abs() < 1e-12);
         // … and mode 1 (equal amplitudes: the lowest of the rest, d = 4) when the detector
         // matched only modes 1–3.
-        let matched = ScoringContext { glide_span_s: Some(1.0), glide_windows_s: None, matched_hz: vec![1001.0, 1003.0, 1995.0] };
+        let matched = ScoringContext { glide_span_s: Some(1.0), glide_windows_s: None, glide_offset_at_onset: false, matched_hz: vec![1001.0, 1003.0, 1995.0] };
         let expected1 = 0.002 * glide_half_contrast(4.0, 1.0).unwrap();
         let c = compare_parameters(&all, &accepted("pitch_glide", "energy_squared", &[("relative glide g of the most energetic mode", expected1)]), &matched).unwrap();
         assert!(only_error(&c).abs() < 1e-12, "{c:?}");
         let c = compare_parameters(&all, &accepted("pitch_glide", "energy_squared", &[("relative glide g", 1e-3)]), &ScoringContext::default()).unwrap();
         assert!(c.errors.is_empty() && c.not_comparable.is_some());
+        // A chirp-fit report detects the labels' g itself, whatever the windows or the span.
+        let onset = ScoringContext { glide_offset_at_onset: true, ..ctx.clone() };
+        let c = compare_parameters(&all, &accepted("pitch_glide", "uniform", &[("relative glide g (offset at the onset) of every mode", 0.0022)]), &onset).unwrap();
+        assert!((only_error(&c) - 0.1).abs() < 1e-9 && c.not_comparable.is_none(), "{c:?}");
         // Damping knots 10 % high at 1000 Hz, exact at 2000 Hz: RMS √(0.01/2).
         let knots = [("decay rate at 1000 Hz", 1.1 * law.decay(1000.0)), ("decay rate at 2000 Hz", law.decay(2000.0))];
         let c = compare_parameters(&all, &accepted("non_rayleigh_damping", "three_knot_log_log", &knots), &ctx).unwrap();

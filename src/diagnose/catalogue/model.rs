@@ -51,7 +51,8 @@ pub struct ModeEntry {
     /// Per channel: ln a and σ_a / a, when the channel saw the mode (a > 0) and the drive is
     /// non-zero (a mode the model does not excite has no amplitude prediction).
     pub ln_a: Vec<Option<(f64, f64)>>,
-    /// (f_early − f_late)/f and its σ, when both halves were extracted.
+    /// The mode's glide observable and its σ: the chirp fit's relative offset at the onset g
+    /// ([`ObservedMode::glide`]), else (f_early − f_late)/f when both halves were extracted.
     pub glide: Option<(f64, f64)>,
     /// Relative modal energy Q² ∈ [0, 1] from the observed amplitudes: mean over channels of
     /// a² divided by ω², over its maximum in the table (pitch-glide covariate).
@@ -260,8 +261,11 @@ impl ModeTable {
                     (a > 0.0 && drive > 0.0).then(|| (a.ln(), obs.sigma_amplitudes[c] / a))
                 })
                 .collect();
-            let glide = match (obs.early_frequency_hz, obs.late_frequency_hz) {
-                (Some((fe, se)), Some((fl, sl))) => Some(((fe - fl) / f0, (se * se + sl * sl).sqrt() / f0)),
+            // The chirp fit's g (relative offset at the onset) when there is one, else the
+            // early-minus-late difference.
+            let glide = match (obs.glide, obs.early_frequency_hz, obs.late_frequency_hz) {
+                (Some((g, sg)), _, _) => Some((g, sg)),
+                (None, Some((fe, se)), Some((fl, sl))) => Some(((fe - fl) / f0, (se * se + sl * sl).sqrt() / f0)),
                 _ => None,
             };
             let present: Vec<f64> = obs.amplitudes.iter().copied().filter(|&a| a > 0.0).collect();

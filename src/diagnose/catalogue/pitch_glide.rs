@@ -4,9 +4,13 @@
 //! (a Duffing-like cubic term) raises a mode's frequency with its amplitude, and as the mode
 //! decays the pitch glides down (or up, for softening). For a Duffing oscillator the shift is
 //! Δω/ω ∝ (strain amplitude)², and the strain energy of mode k is ∝ ω_k² q_k² ∝ a_k²/ω_k² (a the
-//! acceleration amplitude, a = ω² q). The observable is the frequency difference between the
-//! first and the second half of the decay, y_k = (f_early − f_late)/f_k
-//! ([`super::ObservedMode::early_frequency_hz`]).
+//! acceleration amplitude, a = ω² q). The observable y_k is the relative glide at the onset
+//! g_k ± σ_g of the chirp fit f(t) = f_k (1 + g_k e^(−2 d_k t)) ([`super::ObservedMode::glide`],
+//! from [`crate::diagnose::extract::glide`]; one gliding mode, not the constant poles a glide
+//! used to be broken into); without it, the frequency difference of an early and a late
+//! stretch of the decay, y_k = (f_early − f_late)/f_k ([`super::ObservedMode::early_frequency_hz`]).
+//! With the chirp fit a constant mode gives y_k = 0 ± σ_g, so modes that do not glide still
+//! count, as evidence against a glide.
 //!
 //! Model: y_k = g · Q_k², Q_k² = mean_c a_kc² / ω_k² over its maximum in the table (the most
 //! energetic mode has Q² = 1); one parameter g (free sign; g > 0 a downward glide). It
@@ -39,7 +43,7 @@ impl Term for EnergyGlide {
     }
     fn params(&self) -> Vec<ParamSpec> {
         vec![ParamSpec::new(
-            "relative glide g of the most energetic mode",
+            "relative glide g (offset at the onset) of the most energetic mode",
             "1",
             -0.2,
             0.2,
@@ -54,10 +58,9 @@ impl Term for EnergyGlide {
 }
 
 /// The same relative glide for every mode: y_k = g. An object whose stiffness relaxes after
-/// the strike as a whole (a global, amplitude-independent nonlinearity, or a mode's own
-/// Duffing shift when each mode's early window sees the same fraction of its energy decay:
-/// with f(t) = f₀(1 + g e^(−2dt)) and windows of a few decay times, the energy-weighted means
-/// of e^(−2dt) over the early and the late window differ by ≈ ½ for every d).
+/// the strike as a whole (a global, amplitude-independent nonlinearity), or each mode's own
+/// Duffing shift with the same offset at the onset, f_k(t) = f_k (1 + g e^(−2 d_k t)): the
+/// chirp fit's g_k is then g for every mode, whatever its decay rate.
 #[derive(Debug)]
 pub struct UniformGlide;
 
@@ -69,7 +72,7 @@ impl Term for UniformGlide {
         "uniform"
     }
     fn params(&self) -> Vec<ParamSpec> {
-        vec![ParamSpec::new("relative glide g of every mode", "1", -0.2, 0.2, 1e-4)]
+        vec![ParamSpec::new("relative glide g (offset at the onset) of every mode", "1", -0.2, 0.2, 1e-4)]
     }
     fn glide(&self, _table: &ModeTable, p: &[f64], glide: &mut [f64]) {
         for y in glide.iter_mut() {
@@ -98,7 +101,7 @@ impl Effect for PitchGlide {
             .collect();
         if points.len() < 3 {
             return Detection::NotEnoughData(format!(
-                "{} modes with early/late frequencies; at least 3 needed",
+                "{} modes with a glide measurement (chirp fit, or early/late frequencies); at least 3 needed",
                 points.len()
             ));
         }

@@ -290,6 +290,7 @@ fn observe(
                 sigma_amplitudes,
                 early_frequency_hz: Some((fd * (1.0 + 0.5 * m.glide) + 2.0 * sf * normal(rng), 2.0 * sf)),
                 late_frequency_hz: Some((fd * (1.0 - 0.5 * m.glide) + 2.0 * sf * normal(rng), 2.0 * sf)),
+                glide: None,
             }
         })
         .collect()
