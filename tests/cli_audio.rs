@@ -7,16 +7,12 @@ use common::*;
 use diffsound::audio::chain::{DampingModel, ModalChain, Strike};
 use diffsound::audio::excitation::{ContactForce, Response};
 use diffsound::mesh::{ElementOrder, TetMesh};
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 use std::process::Command;
 use std::sync::OnceLock;
 use std::time::Duration;
 
 const LIMIT: Duration = Duration::from_secs(240);
-
-fn s(p: &Path) -> &str {
-    p.to_str().unwrap()
-}
 
 /// Modes of the small cube fixture, computed once for all tests here.
 fn cube_modes() -> PathBuf {

@@ -6,36 +6,10 @@
 
 mod common;
 use common::*;
-use diffsound::io::results::{read_attribute, read_dataset, AttrValue};
-use std::path::{Path, PathBuf};
+use diffsound::io::results::read_dataset;
 use std::time::Duration;
 
 const LIMIT: Duration = Duration::from_secs(120);
-
-fn s(p: &Path) -> &str {
-    p.to_str().unwrap()
-}
-
-/// A closed box surface [0, a] × [0, b] × [0, c] (mm), outward triangles.
-fn box_obj(dir: &Path, name: &str, [a, b, c]: [f64; 3]) -> PathBuf {
-    let mut text = String::from("# box\n");
-    for k in 0..8 {
-        text.push_str(&format!("v {} {} {}\n", if k & 1 == 1 { a } else { 0.0 }, if k & 2 == 2 { b } else { 0.0 }, if k & 4 == 4 { c } else { 0.0 }));
-    }
-    for [p, q, r, t] in [[1, 3, 4, 2], [5, 6, 8, 7], [1, 2, 6, 5], [3, 7, 8, 4], [1, 5, 7, 3], [2, 4, 8, 6]] {
-        text.push_str(&format!("f {p} {q} {r}\nf {p} {r} {t}\n"));
-    }
-    let path = dir.join(name);
-    std::fs::write(&path, text).unwrap();
-    path
-}
-
-fn number(path: &Path, group: &str, key: &str) -> f64 {
-    match read_attribute(path, group, key).unwrap() {
-        AttrValue::Number(v) => v,
-        other => panic!("{group}/{key} is not a number: {other:?}"),
-    }
-}
 
 const TINY: [&str; 18] = ["--units", "mm", "--voxels", "6", "--cells", "10", "--target-cells", "14", "--modes", "4", "--steps", "3", "--prefit-steps", "300", "--hidden", "16,16", "--octaves", "2"];
 
@@ -52,22 +26,22 @@ fn a_tiny_box_is_prefitted_refined_and_written() {
     // The box is 60 × 40 × 30 mm: every distance is a fraction of it, the IoU close to 1.
     for group in ["voxels", "before", "after", "floor"] {
         let g = format!("/metrics/{group}");
-        let (c, h, iou) = (number(&out, &g, "chamfer"), number(&out, &g, "hausdorff"), number(&out, &g, "iou"));
+        let (c, h, iou) = (number_attribute(&out, &g, "chamfer"), number_attribute(&out, &g, "hausdorff"), number_attribute(&out, &g, "iou"));
         assert!(c.is_finite() && c >= 0.0 && c < 0.01, "{group}: Chamfer {c} m");
         assert!(h >= c && h < 0.03, "{group}: Hausdorff {h} m");
         assert!(iou > 0.6 && iou <= 1.0, "{group}: IoU {iou}");
     }
     // Six voxels across a box put the centres of the outer layer inside it: the staircase is
     // the box itself.
-    assert!(number(&out, "/metrics/voxels", "iou") > 0.99);
+    assert!(number_attribute(&out, "/metrics/voxels", "iou") > 0.99);
     for group in ["before", "after", "floor"] {
-        let e = number(&out, &format!("/metrics/{group}"), "rms_frequency_error");
+        let e = number_attribute(&out, &format!("/metrics/{group}"), "rms_frequency_error");
         assert!(e.is_finite() && e < 0.5, "{group}: rms frequency error {e}");
     }
     // Best of the evaluations: never worse than the pre-fit.
     let (loss, _) = read_dataset(&out, "/refine/history/loss").unwrap();
     assert_eq!(loss.len(), 4, "the pre-fit and three updates");
-    let best = number(&out, "/refine", "best_step") as usize;
+    let best = number_attribute(&out, "/refine", "best_step") as usize;
     assert!(loss[best] <= loss[0]);
     for column in ["eigen_loss", "voxel_loss", "eikonal_loss", "tets", "meshing_s", "assembly_s", "solve_s", "gradient_s", "network_s", "failed"] {
         let (v, _) = read_dataset(&out, &format!("/refine/history/{column}")).unwrap();
@@ -85,8 +59,8 @@ fn a_tiny_box_is_prefitted_refined_and_written() {
     assert_eq!(theta.len(), 15 * 16 + 16 + 16 * 16 + 16 + 16 + 1);
     let (prefit, _) = read_dataset(&out, "/prefit/loss").unwrap();
     assert_eq!(prefit.len(), 300);
-    assert!(number(&out, "/prefit", "centre_accuracy") > 0.9);
-    assert!(number(&out, "/timings", "total") > 0.0);
+    assert!(number_attribute(&out, "/prefit", "centre_accuracy") > 0.9);
+    assert!(number_attribute(&out, "/timings", "total") > 0.0);
     // The refined body for ParaView, and the picture.
     let summary = diffsound::io::read_modes(&dir.join("geometry_mesh.h5")).unwrap();
     assert_eq!(summary.nodes_per_tet, 10);

@@ -5,7 +5,7 @@
 
 mod common;
 use common::*;
-use diffsound::io::results::{read_attribute, read_dataset, AttrValue};
+use diffsound::io::results::read_dataset;
 use std::path::{Path, PathBuf};
 use std::process::Command;
 use std::sync::OnceLock;
@@ -74,13 +74,6 @@ fn fit(np: usize, out: &Path) -> Run {
     )
 }
 
-fn number(path: &Path, group: &str, key: &str) -> f64 {
-    match read_attribute(path, group, key).unwrap() {
-        AttrValue::Number(v) => v,
-        other => panic!("{group}/{key} is not a number: {other:?}"),
-    }
-}
-
 #[test]
 fn recovers_the_material_on_one_and_two_ranks() {
     let dir = scratch("cli_fit_material_fit");
@@ -88,13 +81,13 @@ fn recovers_the_material_on_one_and_two_ranks() {
     for (np, out) in [1, 2].into_iter().zip(&outs) {
         let run = fit(np, out);
         assert!(run.success(), "{}", run.describe());
-        let e = number(out, "/material", "youngs_modulus");
-        let nu = number(out, "/material", "poisson_ratio");
+        let e = number_attribute(out, "/material", "youngs_modulus");
+        let nu = number_attribute(out, "/material", "poisson_ratio");
         assert!((e - TRUE_YOUNGS).abs() < 0.005 * TRUE_YOUNGS, "np {np}: E = {e:e}, true {TRUE_YOUNGS:e}");
         assert!((nu - TRUE_POISSON).abs() < 0.015, "np {np}: ν = {nu}, true {TRUE_POISSON}");
         // The documented layout, and checks that mean something.
-        assert!(number(out, "/errors", "spectrogram_fit") < number(out, "/errors", "spectrogram_start"));
-        assert!(number(out, "/errors", "max_relative_eigenvalue_difference") < 1e-4);
+        assert!(number_attribute(out, "/errors", "spectrogram_fit") < number_attribute(out, "/errors", "spectrogram_start"));
+        assert!(number_attribute(out, "/errors", "max_relative_eigenvalue_difference") < 1e-4);
         let (curve, _) = read_dataset(out, "/damping/curve/decay_rates").unwrap();
         assert!(!curve.is_empty() && curve.iter().all(|d| d.is_finite() && *d > 0.0));
         let (loss, _) = read_dataset(out, "/fit/history/loss").unwrap();
@@ -107,8 +100,8 @@ fn recovers_the_material_on_one_and_two_ranks() {
         }
     }
     // The same answer on 1 and 2 ranks (the distributed solves differ only by rounding).
-    let e: Vec<f64> = outs.iter().map(|o| number(o, "/material", "youngs_modulus")).collect();
-    let nu: Vec<f64> = outs.iter().map(|o| number(o, "/material", "poisson_ratio")).collect();
+    let e: Vec<f64> = outs.iter().map(|o| number_attribute(o, "/material", "youngs_modulus")).collect();
+    let nu: Vec<f64> = outs.iter().map(|o| number_attribute(o, "/material", "poisson_ratio")).collect();
     assert!((e[0] - e[1]).abs() < 1e-6 * e[0], "E on 1 and 2 ranks: {e:?}");
     assert!((nu[0] - nu[1]).abs() < 1e-6, "ν on 1 and 2 ranks: {nu:?}");
 }

@@ -4,37 +4,10 @@
 
 mod common;
 use common::*;
-use diffsound::io::results::{read_attribute, read_dataset, AttrValue};
-use std::path::{Path, PathBuf};
+use diffsound::io::results::read_dataset;
 use std::time::Duration;
 
 const LIMIT: Duration = Duration::from_secs(300);
-
-fn s(p: &Path) -> &str {
-    p.to_str().unwrap()
-}
-
-/// A closed box surface [0, a] × [0, b] × [0, c] (mm), outward triangles.
-fn box_obj(dir: &Path, name: &str, [a, b, c]: [f64; 3]) -> PathBuf {
-    let mut text = String::from("# box\n");
-    for k in 0..8 {
-        text.push_str(&format!("v {} {} {}\n", if k & 1 == 1 { a } else { 0.0 }, if k & 2 == 2 { b } else { 0.0 }, if k & 4 == 4 { c } else { 0.0 }));
-    }
-    // Faces as quads (1-based corners), counter-clockwise seen from outside.
-    for [p, q, r, t] in [[1, 3, 4, 2], [5, 6, 8, 7], [1, 2, 6, 5], [3, 7, 8, 4], [1, 5, 7, 3], [2, 4, 8, 6]] {
-        text.push_str(&format!("f {p} {q} {r}\nf {p} {r} {t}\n"));
-    }
-    let path = dir.join(name);
-    std::fs::write(&path, text).unwrap();
-    path
-}
-
-fn number(path: &Path, group: &str, key: &str) -> f64 {
-    match read_attribute(path, group, key).unwrap() {
-        AttrValue::Number(v) => v,
-        other => panic!("{group}/{key} is not a number: {other:?}"),
-    }
-}
 
 const SMALL: [&str; 10] = ["--units", "mm", "--cells", "12,14", "--modes", "4", "--scan-points", "5", "--max-refinements", "3"];
 
@@ -49,14 +22,14 @@ fn thickness_and_morph_fits_write_results_and_a_paraview_mesh() {
     assert!(run.success(), "{}", run.describe());
     assert!(run.stderr.contains("level 0 (12 cells) scan"), "progress per evaluation on stderr:\n{}", run.stderr);
     // Grids this coarse (the wall is 1–2 cells) only get near; the benchmark measures accuracy.
-    let t = number(&out, "/fit", "parameter");
+    let t = number_attribute(&out, "/fit", "parameter");
     assert!((t - 0.5).abs() < 0.1, "thickness {t}");
-    let finest = number(&out, "/fit", "finest_level_parameter");
+    let finest = number_attribute(&out, "/fit", "finest_level_parameter");
     assert!((finest - 0.5).abs() < 0.06, "finest-level thickness {finest}");
-    assert_eq!(number(&out, "/fit", "true_parameter"), 0.5);
-    assert!((number(&out, "/fit", "abs_error") - (t - 0.5).abs()).abs() < 1e-12);
+    assert_eq!(number_attribute(&out, "/fit", "true_parameter"), 0.5);
+    assert!((number_attribute(&out, "/fit", "abs_error") - (t - 0.5).abs()).abs() < 1e-12);
     // S of a 60 × 40 × 30 mm box is half its smallest side.
-    assert!((number(&out, "/shape", "reference_depth") - 0.015).abs() < 1e-9);
+    assert!((number_attribute(&out, "/shape", "reference_depth") - 0.015).abs() < 1e-9);
     let (levels, _) = read_dataset(&out, "/fit/levels/parameter").unwrap();
     assert_eq!(levels.len(), 2);
     let (loss, _) = read_dataset(&out, "/fit/history/loss").unwrap();
@@ -88,7 +61,7 @@ fn thickness_and_morph_fits_write_results_and_a_paraview_mesh() {
     args.extend(SMALL);
     let run = mpirun(1, &args, LIMIT);
     assert!(run.success(), "{}", run.describe());
-    let c = number(&morph, "/fit", "parameter");
+    let c = number_attribute(&morph, "/fit", "parameter");
     assert!((c - 0.3).abs() < 0.1, "morph weight {c}");
     assert!(dir.join("morph_mesh.xdmf").is_file());
     // The same target as a file of frequencies: the fit does not need to know where it came from.
@@ -100,8 +73,8 @@ fn thickness_and_morph_fits_write_results_and_a_paraview_mesh() {
     args.extend(SMALL);
     let run = mpirun(1, &args, LIMIT);
     assert!(run.success(), "{}", run.describe());
-    let c_file = number(&from_file, "/fit", "finest_level_parameter");
-    assert!((c_file - number(&morph, "/fit", "finest_level_parameter")).abs() < 1e-9, "same target, same finest-level answer");
+    let c_file = number_attribute(&from_file, "/fit", "finest_level_parameter");
+    assert!((c_file - number_attribute(&morph, "/fit", "finest_level_parameter")).abs() < 1e-9, "same target, same finest-level answer");
 }
 
 #[test]

@@ -7,10 +7,6 @@ use std::time::Duration;
 
 const LIMIT: Duration = Duration::from_secs(240);
 
-fn s(p: &std::path::Path) -> &str {
-    p.to_str().unwrap()
-}
-
 #[test]
 fn one_and_two_ranks_give_the_same_bowl_eigenvalues() {
     let dir = scratch("ranks");

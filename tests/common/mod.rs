@@ -6,6 +6,35 @@ use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
+/// A path as the &str a command-line argument wants.
+pub fn s(p: &Path) -> &str {
+    p.to_str().unwrap()
+}
+
+/// A numeric attribute of an HDF5 result file (panics with the path if it is not a number).
+pub fn number_attribute(path: &Path, group: &str, key: &str) -> f64 {
+    match diffsound::io::results::read_attribute(path, group, key).unwrap() {
+        diffsound::io::results::AttrValue::Number(v) => v,
+        other => panic!("{group}/{key} is not a number: {other:?}"),
+    }
+}
+
+/// A closed box surface [0, a] × [0, b] × [0, c] (in the file's units), outward triangles,
+/// written as `dir/name` (OBJ).
+pub fn box_obj(dir: &Path, name: &str, [a, b, c]: [f64; 3]) -> PathBuf {
+    let mut text = String::from("# box\n");
+    for k in 0..8 {
+        text.push_str(&format!("v {} {} {}\n", if k & 1 == 1 { a } else { 0.0 }, if k & 2 == 2 { b } else { 0.0 }, if k & 4 == 4 { c } else { 0.0 }));
+    }
+    // Faces as quads (1-based corners), counter-clockwise seen from outside.
+    for [p, q, r, t] in [[1, 3, 4, 2], [5, 6, 8, 7], [1, 2, 6, 5], [3, 7, 8, 4], [1, 5, 7, 3], [2, 4, 8, 6]] {
+        text.push_str(&format!("f {p} {q} {r}\nf {p} {r} {t}\n"));
+    }
+    let path = dir.join(name);
+    std::fs::write(&path, text).unwrap();
+    path
+}
+
 pub fn binary() -> PathBuf {
     PathBuf::from(env!("CARGO_BIN_EXE_diffsound"))
 }
