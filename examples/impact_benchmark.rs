@@ -44,7 +44,8 @@ use diffsound::audio::excitation::{ContactForce, Response};
 use diffsound::audio::radiation::{fit_multipoles, MultipoleSettings, SurfaceQuadrature};
 use diffsound::audio::synth::{render_samples, ModalBank};
 use diffsound::diagnose::evidence::cluster_ids;
-use diffsound::diagnose::inject::{strike_candidates, SplitMix64};
+use diffsound::diagnose::inject::strike_candidates;
+use diffsound::random::SplitMix64;
 use diffsound::eigen::{self, EigenConfig, ModeRequest};
 use diffsound::fem::Material;
 use diffsound::inverse::impact::{

@@ -31,7 +31,7 @@ use diffsound::audio::chain::{DampingModel, ModalChain, Strike};
 use diffsound::audio::synth::render_samples;
 use diffsound::eigen::reduced::PoissonBasis;
 use diffsound::audio::stft::spectrogram_error;
-use diffsound::diagnose::inject::SplitMix64;
+use diffsound::random::SplitMix64;
 use diffsound::inverse::estimate::{estimate_modes, EstimateOptions};
 use diffsound::inverse::material::{rms_matched_log_gains, fit_material, render_channels, FitStep, MaterialFitSettings, MaterialProblem};
 use diffsound::mesh;

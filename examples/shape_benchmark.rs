@@ -18,7 +18,7 @@
 //! grid spacing (the extrapolation in h needs it; for a measured object it is 0) but not the
 //! true parameter. The thickness reference S (deepest point of the surface) is computed once
 //! per surface and used by target and fit alike.
-use diffsound::diagnose::inject::SplitMix64;
+use diffsound::random::SplitMix64;
 use diffsound::fem::Material;
 use diffsound::inverse::shape::{fit_morph, fit_thickness, normalise_surface, read_surface, reference_depth, shape_spectrum, union_box, FitEvaluation, SampledField, ShapeFamily, ShapeFit, ShapeFitSettings, SpectrumTarget};
 use diffsound::mesh::{BackgroundGrid, MarchingOptions, SignedDistance, TriangleSurface};

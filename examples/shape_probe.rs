@@ -127,7 +127,7 @@ fn main() {
     let (lo, hi) = surface.bounding_box();
     let sdf = SignedDistance::new(&surface).unwrap();
     let mut fields = Vec::new();
-    let mut rng = diffsound::diagnose::inject::SplitMix64::new(7);
+    let mut rng = diffsound::random::SplitMix64::new(7);
     let mut grids = Vec::new();
     for &n in &cells {
         let base = BackgroundGrid::covering(lo, hi, n, 1.0).unwrap();

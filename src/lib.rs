@@ -14,7 +14,7 @@
 //! | io         | [`io`]       | HDF5 results with an XDMF sidecar, written atomically |
 //!
 //! [`petsc`] is the one thin unsafe boundary: raw bindgen bindings under safe RAII handles.
-//! [`cli`] is the `diffsound` command line.
+//! [`cli`] is the `diffsound` command line; [`random`] the seeded generator every stage shares.
 
 pub mod assembly;
 pub mod audio;
@@ -26,5 +26,6 @@ pub mod inverse;
 pub mod io;
 pub mod mesh;
 pub mod petsc;
+pub mod random;
 #[cfg(test)]
 mod testing;

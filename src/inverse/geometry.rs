@@ -113,7 +113,7 @@
 use super::neural_sdf::{NeuralSdf, NeuralSdfConfig, NeuralSdfError};
 use super::optim::Adam;
 use super::shape::{shape_spectrum, shifted_covering, ShapeError, SpectrumTarget, StepTimings};
-use crate::diagnose::inject::SplitMix64;
+use crate::random::SplitMix64;
 use crate::fem::Material;
 use crate::mesh::{self, BackgroundGrid, MarchingOptions, ShapeComparison, SignedDistance, TriangleSurface};
 use crate::petsc::Petsc;

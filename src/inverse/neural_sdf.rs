@@ -57,7 +57,7 @@
 //! serialisable [`NeuralSdfConfig`]. The seeded initialisation ([`NeuralSdf::new`]) draws every
 //! weight uniformly in ±√(6/(n_in + n_out)) (Glorot) from splitmix64 and sets the biases to 0.
 
-use crate::diagnose::inject::SplitMix64;
+use crate::random::SplitMix64;
 use std::f64::consts::PI;
 
 /// Why a network could not be built or evaluated.

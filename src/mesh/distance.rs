@@ -36,7 +36,7 @@
 use super::sdf::SignedDistance;
 use super::surface::{SurfaceError, TriangleSurface};
 use super::{cross, norm, sub};
-use crate::diagnose::inject::SplitMix64;
+use crate::random::SplitMix64;
 
 /// Why two surfaces could not be compared.
 #[derive(Debug, thiserror::Error)]

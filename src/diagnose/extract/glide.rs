@@ -195,13 +195,17 @@ pub fn glide_phase(f0: f64, decay: f64, glide: f64, t: f64) -> f64 {
 /// Φ(t) = (1 − e^(−2dt))/(2d) [s] and ∂Φ/∂d [s²].
 fn phi_integral(d: f64, t: f64) -> (f64, f64) {
     let x = 2.0 * d * t;
-    if x.abs() < SERIES_BELOW {
-        // Φ = t (1 − x/2 + x²/6), ∂Φ/∂d = 2t² h'(x), h(x) = (1 − e^(−x))/x, h' = −½ + x/3 − x²/8.
-        (t * (1.0 - x / 2.0 + x * x / 6.0), 2.0 * t * t * (-0.5 + x / 3.0 - x * x / 8.0))
+    // Φ = t·(−expm1(−x)/x) is exact down to x → 0 (where Φ → t); the generator renders its
+    // glides with this same function (`inject::glide_phase`).
+    let phi = if x.abs() < 1e-300 { t } else { t * (-(-x).exp_m1() / x) };
+    let d_phi = if x.abs() < SERIES_BELOW {
+        // (t e^(−x) − Φ)/d cancels for small x: ∂Φ/∂d = 2t² h'(x), h(x) = (1 − e^(−x))/x,
+        // h' = −½ + x/3 − x²/8.
+        2.0 * t * t * (-0.5 + x / 3.0 - x * x / 8.0)
     } else {
-        let phi = t * (-(-x).exp_m1() / x);
-        (phi, (t * (-x).exp() - phi) / d)
-    }
+        (t * (-x).exp() - phi) / d
+    };
+    (phi, d_phi)
 }
 
 /// Renders a_c e^(−dt) sin(θ(t) + φ) with the glide phase into `out` (added), N samples at f_s.

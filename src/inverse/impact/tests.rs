@@ -2,7 +2,7 @@ use super::*;
 use crate::audio::chain::{DampingModel, ModalChain};
 use crate::audio::excitation::{ContactForce, Response};
 use crate::audio::synth::{render_samples, ModalBank};
-use crate::diagnose::inject::SplitMix64;
+use crate::random::SplitMix64;
 
 const TWO_PI: f64 = 2.0 * std::f64::consts::PI;
 
