@@ -35,6 +35,7 @@
 //! node_gradients = false            # dλ/dx per node and mode, as ParaView fields (implies the above)
 //! ```
 
+use crate::fem::Material;
 use serde::Deserialize;
 use std::path::PathBuf;
 
@@ -62,6 +63,45 @@ pub struct MaterialConfig {
     pub density: Option<f64>,
     pub rayleigh_alpha: Option<f64>,
     pub rayleigh_beta: Option<f64>,
+}
+
+/// Material values given on the command line; each overrides the file's, which overrides the
+/// preset's.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct MaterialFlags {
+    /// E [Pa].
+    pub youngs_modulus: Option<f64>,
+    pub poisson_ratio: Option<f64>,
+    /// ρ [kg/m³].
+    pub density: Option<f64>,
+    /// Rayleigh α [1/s].
+    pub rayleigh_alpha: Option<f64>,
+    /// Rayleigh β [s].
+    pub rayleigh_beta: Option<f64>,
+}
+
+impl MaterialConfig {
+    /// The preset (`preset_flag`, else the file's, else ceramic) with every value the flags or
+    /// the file set, validated. Returns the material and its name (the preset's, with
+    /// " (modified)" when any value was overridden).
+    pub fn resolve(&self, preset_flag: Option<&str>, flags: MaterialFlags) -> Result<(Material, String), String> {
+        let name = preset_flag.map(str::to_owned).or_else(|| self.preset.clone()).unwrap_or_else(|| "ceramic".into());
+        let mut material = Material::preset(&name).ok_or_else(|| format!("unknown material preset '{name}'; known: {}", Material::preset_names().join(", ")))?;
+        let mut modified = false;
+        let mut set = |field: &mut f64, flag: Option<f64>, file: Option<f64>| {
+            if let Some(v) = flag.or(file) {
+                *field = v;
+                modified = true;
+            }
+        };
+        set(&mut material.youngs_modulus, flags.youngs_modulus, self.youngs_modulus);
+        set(&mut material.poisson_ratio, flags.poisson_ratio, self.poisson_ratio);
+        set(&mut material.density, flags.density, self.density);
+        set(&mut material.rayleigh_alpha, flags.rayleigh_alpha, self.rayleigh_alpha);
+        set(&mut material.rayleigh_beta, flags.rayleigh_beta, self.rayleigh_beta);
+        material.validate().map_err(|e| format!("material: {e}"))?;
+        Ok((material, if modified { format!("{name} (modified)") } else { name }))
+    }
 }
 
 #[derive(Clone, Debug, Default, Deserialize)]

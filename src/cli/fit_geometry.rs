@@ -42,6 +42,7 @@
 //! the pre-fitted body, the refined body and the true surface side by side, from two views, at
 //! one scale. Progress per step on stderr (with `-v`, or on a terminal); only rank 0 writes.
 
+use super::config::MaterialFlags;
 use super::fit_shape::{MaterialConfig, SolverConfig};
 use super::{fail, Progress};
 use crate::fem::Material;
@@ -252,18 +253,8 @@ pub fn resolve(args: &FitGeometryArgs) -> Result<Job, String> {
     }
     s.validate().map_err(|e| e.to_string())?;
 
-    let preset = args.material.clone().or(file.material.preset.clone()).unwrap_or_else(|| "ceramic".into());
-    let mut material = Material::preset(&preset).ok_or_else(|| format!("unknown material preset '{preset}'; known: {}", Material::preset_names().join(", ")))?;
-    if let Some(v) = args.youngs.or(file.material.youngs_modulus) {
-        material.youngs_modulus = v;
-    }
-    if let Some(v) = args.poisson.or(file.material.poisson_ratio) {
-        material.poisson_ratio = v;
-    }
-    if let Some(v) = args.density.or(file.material.density) {
-        material.density = v;
-    }
-    material.validate().map_err(|e| format!("material: {e}"))?;
+    let flags = MaterialFlags { youngs_modulus: args.youngs, poisson_ratio: args.poisson, density: args.density, ..Default::default() };
+    let material = file.material.resolve(args.material.as_deref(), flags)?;
 
     let out = args.out.clone().or(file.out.clone()).unwrap_or_else(|| PathBuf::from("fit_geometry.h5"));
     super::modes::check_output_dir(&out)?;

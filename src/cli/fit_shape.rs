@@ -47,8 +47,9 @@
 //! its modes ([`crate::io::write_modes`] layout). Progress on stderr per evaluation (with
 //! `-v`, or on a terminal); only rank 0 writes.
 
+use super::config::MaterialFlags;
 use super::{fail, Progress};
-use crate::diagnose::inject::SplitMix64;
+use crate::random::SplitMix64;
 use crate::fem::Material;
 use crate::inverse::shape::{fit_shape, normalise_surface, read_surface, reference_depth, shape_modes, shape_spectrum, shifted_covering, union_box, FitEvaluation, SearchPhase, ShapeFamily, ShapeFit, ShapeFitSettings, ShapeLevel, SpectrumTarget};
 use crate::io::results::ResultsFile;
@@ -219,6 +220,15 @@ pub struct MaterialConfig {
     pub density: Option<f64>,
 }
 
+impl MaterialConfig {
+    /// The preset with the flags' and then the file's E, ν, ρ, validated: the shared
+    /// resolution of [`super::config::MaterialConfig::resolve`] (shape fits take no damping).
+    pub fn resolve(&self, preset_flag: Option<&str>, flags: MaterialFlags) -> Result<Material, String> {
+        let shared = super::config::MaterialConfig { preset: self.preset.clone(), youngs_modulus: self.youngs_modulus, poisson_ratio: self.poisson_ratio, density: self.density, ..Default::default() };
+        shared.resolve(preset_flag, flags).map(|(material, _)| material)
+    }
+}
+
 #[derive(Clone, Debug, Default, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct SolverConfig {
@@ -263,6 +273,14 @@ impl Task {
         match self {
             Task::Thickness { .. } => "thickness",
             Task::Morph { .. } => "morph",
+        }
+    }
+
+    /// The fitted parameter's name, as [`ShapeFamily::parameter_name`] says it.
+    fn parameter_name(&self) -> &'static str {
+        match self {
+            Task::Thickness { .. } => "thickness",
+            Task::Morph { .. } => "morph weight c",
         }
     }
 }
@@ -389,18 +407,8 @@ fn resolve(task: Task, synthetic_value: Option<f64>, bounds: Option<(f64, f64)>,
         }
     };
 
-    let preset = common.material.clone().or(file.material.preset.clone()).unwrap_or_else(|| "ceramic".into());
-    let mut material = Material::preset(&preset).ok_or_else(|| format!("unknown material preset '{preset}'; known: {}", Material::preset_names().join(", ")))?;
-    if let Some(v) = common.youngs.or(file.material.youngs_modulus) {
-        material.youngs_modulus = v;
-    }
-    if let Some(v) = common.poisson.or(file.material.poisson_ratio) {
-        material.poisson_ratio = v;
-    }
-    if let Some(v) = common.density.or(file.material.density) {
-        material.density = v;
-    }
-    material.validate().map_err(|e| format!("material: {e}"))?;
+    let flags = MaterialFlags { youngs_modulus: common.youngs, poisson_ratio: common.poisson, density: common.density, ..Default::default() };
+    let material = file.material.resolve(common.material.as_deref(), flags)?;
 
     let out = common.out.clone().or(file.out.clone()).unwrap_or_else(|| PathBuf::from(format!("fit_{}.h5", task.name())));
     super::modes::check_output_dir(&out)?;
@@ -511,10 +519,7 @@ fn compute(petsc: &Petsc, job: &Job, shapes: Vec<Shape>) -> Result<(), String> {
         Task::Thickness { .. } => reference_depth(&shapes[0].sdf, &shapes[0].surface).map_err(|e| format!("{}: {e}", shapes[0].path.display()))?,
         Task::Morph { .. } => f64::NAN,
     };
-    let parameter_name = match job.task {
-        Task::Thickness { .. } => "thickness",
-        Task::Morph { .. } => "morph weight c",
-    };
+    let parameter_name = job.task.parameter_name();
     if matches!(job.task, Task::Thickness { .. }) {
         progress.say(format!("{}: reference depth S = {:.4} mm (deepest point of the solid)", shapes[0].path.display(), 1e3 * depth));
     }
@@ -593,10 +598,7 @@ fn write_results(job: &Job, shapes: &[Shape], fit: &ShapeFit, target: &SpectrumT
     let hz = |v: &[f64]| v.iter().map(|&l| crate::eigen::frequency_hz(l)).collect::<Vec<f64>>();
     let mut file = ResultsFile::new("diffsound.fit_shape", 1);
     file.text("/", "task", job.task.name())
-        .text("/", "parameter_name", match job.task {
-            Task::Thickness { .. } => "thickness",
-            Task::Morph { .. } => "morph weight c",
-        })
+        .text("/", "parameter_name", job.task.parameter_name())
         .text("/", "surfaces", &shapes.iter().map(|s| s.path.display().to_string()).collect::<Vec<_>>().join(", "))
         .text("/", "command", &std::env::args().collect::<Vec<_>>().join(" "))
         .text("/", "version", env!("CARGO_PKG_VERSION"))

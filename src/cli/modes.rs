@@ -1,6 +1,6 @@
 //! The `modes` job: mesh → P2 → assembly → SLEPc → HDF5/XDMF (+ WAV strike).
 
-use super::config::FileConfig;
+use super::config::{FileConfig, MaterialFlags};
 use super::{fail, ModesArgs, Progress};
 use crate::assembly;
 use crate::audio::{self, ModalBank, WavFormat};
@@ -47,23 +47,8 @@ pub fn resolve(args: &ModesArgs) -> Result<Job, String> {
         None => FileConfig::default(),
     };
     let MeshChoice { mesh, units, unit_scale, order } = resolve_mesh(&args.mesh, &file.mesh, &args.units, &file.units, args.order.or(file.order))?;
-    let material_name = args.material.clone().or(file.material.preset.clone()).unwrap_or_else(|| "ceramic".into());
-    let mut material = Material::preset(&material_name)
-        .ok_or_else(|| format!("unknown material preset '{material_name}'; known: {}", Material::preset_names().join(", ")))?;
-    let mut custom = false;
-    let mut set = |field: &mut f64, flag: Option<f64>, file: Option<f64>| {
-        if let Some(v) = flag.or(file) {
-            *field = v;
-            custom = true;
-        }
-    };
-    set(&mut material.youngs_modulus, args.youngs, file.material.youngs_modulus);
-    set(&mut material.poisson_ratio, args.poisson, file.material.poisson_ratio);
-    set(&mut material.density, args.density, file.material.density);
-    set(&mut material.rayleigh_alpha, args.alpha, file.material.rayleigh_alpha);
-    set(&mut material.rayleigh_beta, args.beta, file.material.rayleigh_beta);
-    material.validate().map_err(|e| format!("material: {e}"))?;
-    let material_name = if custom { format!("{material_name} (modified)") } else { material_name };
+    let flags = MaterialFlags { youngs_modulus: args.youngs, poisson_ratio: args.poisson, density: args.density, rayleigh_alpha: args.alpha, rayleigh_beta: args.beta };
+    let (material, material_name) = file.material.resolve(args.material.as_deref(), flags)?;
 
     let fmax = args.fmax.or(if args.modes.is_some() { None } else { file.solver.fmax });
     let request = match (args.modes.or(if args.fmax.is_some() { None } else { file.solver.modes }), fmax) {
