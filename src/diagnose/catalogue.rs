@@ -651,6 +651,9 @@ pub enum OwnOutcome {
         params: Vec<FittedParam>,
         /// The noise floor per band if the effect is accepted.
         floor_if_accepted: Vec<f64>,
+        /// Why the fitted effect lacks its physical signature (None: it has it); such a fit is
+        /// rejected whatever its ΔBIC ([`Rejection::SignatureMissing`]).
+        signature_missing: Option<String>,
     },
 }
 

@@ -116,6 +116,9 @@ pub enum Rejection {
     NoHeldOutData,
     /// The fit gave a non-finite likelihood.
     FitFailed,
+    /// The fit improves the likelihood, but the fitted effect lacks a property its physics
+    /// requires (e.g. a "reverberant" excess confined to a single band); the detail says which.
+    SignatureMissing,
 }
 
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]

@@ -351,8 +351,13 @@ pub fn diagnose_with(
                 held_out_after,
                 params,
                 floor_if_accepted,
+                signature_missing,
             } => {
                 let held_out = Some((held_out_before, held_out_after));
+                let (rejection, detail) = match signature_missing {
+                    Some(why) => (Some(Rejection::SignatureMissing), format!("{detail}; {why}")),
+                    None => (verdict(delta_bic, held_out, settings), detail),
+                };
                 let c = Candidate {
                     statistic,
                     detail,
@@ -360,7 +365,7 @@ pub fn diagnose_with(
                     n_params,
                     delta_bic,
                     held_out,
-                    rejection: verdict(delta_bic, held_out, settings),
+                    rejection,
                     fit: None,
                     params,
                 };

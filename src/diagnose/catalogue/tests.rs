@@ -742,6 +742,30 @@ fn beating_pairs_are_found_and_their_splits_recovered() {
 }
 
 #[test]
+fn a_pair_with_unlike_decay_rates_is_not_a_beating_pair() {
+    let truth = Truth {
+        splits: vec![(3, 0.004), (8, 0.002)],
+        ..Truth::default()
+    };
+    let (mut ev, _) = evidence(&truth, 22);
+    let first = diagnose(&ev, &CatalogueSettings::default()).expect("valid");
+    let upper = first
+        .matching
+        .pairs
+        .iter()
+        .find(|p| p.cluster == 3 && p.role == Role::SplitUpper)
+        .expect("cluster 3 is seen split")
+        .observed;
+    // The upper pole of cluster 3 now decays 1.5 × faster than its partner: a reverberant
+    // tail or part of a glide, not the other half of a split degenerate mode.
+    ev.fit[upper].decay_rate *= 1.5;
+    let report = diagnose(&ev, &CatalogueSettings::default()).expect("valid");
+    let a = expect_accepted(&report, "beating_pair");
+    assert!(a.params.iter().all(|p| !p.name.contains("cluster 3 ")), "{a:?}");
+    assert!(within_3_sigma(param(a, "relative split δf/f of cluster 8 "), 0.002), "{a:?}");
+}
+
+#[test]
 fn support_contact_damping_and_stiffening_are_recovered() {
     let truth = Truth {
         support: Some((6.0, 0.008)),
@@ -814,6 +838,38 @@ fn room_reverberation_is_found_in_the_residual_envelopes() {
 }
 
 #[test]
+fn an_excess_in_one_band_is_a_local_misfit_not_a_room() {
+    // The same strike, its residual clean in every band but the top one, which carries a
+    // reverberant-looking excess: one band is not a room.
+    let (mut ev, _) = evidence(&Truth::default(), 25);
+    let env = ev.residual_envelopes.as_mut().expect("envelopes");
+    let top = env.energy.len() - 1;
+    let times = env.times_s.clone();
+    for (e, t) in env.energy[top].iter_mut().zip(times) {
+        *e *= 1.0 + 30.0 * (-13.815510557964274 * t / 0.4).exp();
+    }
+    let report = diagnose(&ev, &CatalogueSettings::default()).expect("valid");
+    let r = report.rejected.iter().find(|r| r.name == "reverb_noise").expect("reverb rejected");
+    assert_eq!(r.reason, Rejection::SignatureMissing, "{r:?}");
+    assert!(r.delta_bic.expect("fitted") > 2.0, "the likelihood alone would have taken it: {r:?}");
+}
+
+#[test]
+fn a_smooth_misfit_band_does_not_capture_the_rooms_decay() {
+    // A room (T60 = 0.4 s) plus one band holding a mode the extraction left in, at a constant,
+    // slowly rising level 60 dB over the floor: with its tiny profiled σ that band alone would
+    // set the shared T60 (module docs); floored at the median band's σ it does not.
+    let (mut ev, _) = evidence(&Truth { reverb_t60: Some(0.4), ..Truth::default() }, 25);
+    let env = ev.residual_envelopes.as_mut().expect("envelopes");
+    let top = env.energy.len() - 1;
+    let floor = env.noise_floor_estimate[top];
+    env.energy[top] = env.times_s.iter().map(|&t| 1e6 * floor * (1.0 + 0.3 * t)).collect();
+    let report = diagnose(&ev, &CatalogueSettings::default()).expect("valid");
+    let a = expect_accepted(&report, "reverb_noise");
+    assert!(within_3_sigma(param(a, "reverberation time T60"), 0.4), "{a:?}");
+}
+
+#[test]
 fn radiation_with_known_transfer_recovers_unit_exponent() {
     let truth = Truth {
         radiation: Some(Pattern::Lobes),
@@ -875,6 +931,26 @@ fn pitch_glide_is_found_and_its_coefficient_recovered() {
     let a = expect_accepted(&report, "pitch_glide");
     assert!(within_3_sigma(param(a, "relative glide g"), 1e-3), "{a:?}");
     assert_eq!(report.accepted.len(), 1, "{:#?}", report.accepted);
+}
+
+#[test]
+fn a_glide_below_the_physical_minimum_is_not_named() {
+    // Every mode measured gliding by g ± σ_g (the chirp fit's observable), the same in fit and
+    // held-out data.
+    let with_glide = |g: f64| {
+        let (mut ev, _) = evidence(&Truth::default(), 30);
+        for m in ev.fit.iter_mut().chain(ev.held_out.iter_mut().flatten()) {
+            m.glide = Some((g, 0.1 * g));
+        }
+        diagnose(&ev, &CatalogueSettings::default()).expect("valid")
+    };
+    // 5·10⁻⁵ at 10 σ per mode: significant, but below MIN_GLIDE.
+    let report = with_glide(0.5 * pitch_glide::MIN_GLIDE);
+    let r = report.rejected.iter().find(|r| r.name == "pitch_glide").expect("rejected");
+    assert_eq!(r.reason, Rejection::DetectorFoundNothing, "{r:?}");
+    let report = with_glide(5.0 * pitch_glide::MIN_GLIDE);
+    let a = expect_accepted(&report, "pitch_glide");
+    assert!(within_3_sigma(param(a, "relative glide g"), 5.0 * pitch_glide::MIN_GLIDE), "{a:?}");
 }
 
 #[test]

@@ -89,6 +89,14 @@
 //! stay constant carry those of the K' = K fit (nested: an unbiased measurement, about 0 ± σ_g
 //! for a mode that does not glide).
 //!
+//! A gliding hypothesis must also be *identified* to replace the poles
+//! ([`glide_identified`]): every component's |g| at least [`GlideOptions::min_glide_z`] σ_g
+//! and short of the ±`max_glide` bound, its decay rate within a factor 4 of the group's
+//! poles'. A component whose fit ran to the bound or to d → 0 (where f₀ and g trade off and
+//! σ_g explodes) is the model absorbing something else (a neighbour's leakage, a reverberant
+//! tail, noise), not a measured glide; on the real bowl the unguarded stage marked 42 of 80
+//! poles as gliding, several at the bound.
+//!
 //! Groups of more than [`GlideOptions::max_group`] poles are left alone. Groups are processed
 //! loudest first; once one is decided for glides, they replace the extraction's poles in the
 //! residual that later groups see.
@@ -162,11 +170,14 @@ pub struct GlideOptions {
     pub max_glide: f64,
     /// ΔBIC = BIC(constant poles) − BIC(glide) above which the glide is selected (default 0).
     pub bic_margin: f64,
+    /// A gliding component must have |g| ≥ this many σ_g to be selected (default 3; module
+    /// docs, identification).
+    pub min_glide_z: f64,
 }
 
 impl Default for GlideOptions {
     fn default() -> Self {
-        GlideOptions { min_snr_db: 20.0, group_rtol: 0.004, max_group: 6, max_band_hz: 80.0, max_iterations: 30, step_tolerance: 1e-3, max_glide: 0.05, bic_margin: 0.0 }
+        GlideOptions { min_snr_db: 20.0, group_rtol: 0.004, max_group: 6, max_band_hz: 80.0, max_iterations: 30, step_tolerance: 1e-3, max_glide: 0.05, bic_margin: 0.0, min_glide_z: 3.0 }
     }
 }
 
@@ -742,11 +753,12 @@ pub fn fit_glides(channels: &[Vec<f64>], extraction: &ModalExtraction, options: 
             continue;
         };
         let delta_bic = const_fit.bic - glide_fit.bic;
-        let selected = delta_bic > options.bic_margin;
         let g_sd = |fit: &BandFitResult, q: usize| {
             let offset: usize = fit.comps[..q].iter().map(|c| c.n_params()).sum();
             fit.cov[(offset + 2, offset + 2)].max(0.0).sqrt()
         };
+        let identified = (0..glide_fit.comps.len()).all(|q| glide_identified(&glide_fit.comps[q], g_sd(glide_fit, q), (d_min, d_max), options));
+        let selected = delta_bic > options.bic_margin && identified;
         decisions.push(GlideDecision {
             poles_hz: members.iter().map(|m| m.frequency_hz).collect(),
             f0_hz: glide_fit.comps.iter().map(|c| c.f).collect(),
@@ -792,6 +804,21 @@ pub fn fit_glides(channels: &[Vec<f64>], extraction: &ModalExtraction, options: 
     Ok(GlideStage { extraction, decisions })
 }
 
+/// Decay rates of a gliding component further than this factor from the group's poles' range
+/// mean the fit ran away (module docs, identification).
+const DECAY_RANGE_FACTOR: f64 = 4.0;
+
+/// Whether a fitted gliding component is a measured glide (module docs): |g| ≥ `min_glide_z` σ_g,
+/// |g| < 0.98 `max_glide`, and d within [`DECAY_RANGE_FACTOR`] of the poles' range `decays`.
+fn glide_identified(comp: &Component, glide_sd: f64, decays: (f64, f64), options: &GlideOptions) -> bool {
+    let (d_min, d_max) = decays;
+    comp.g.abs() >= options.min_glide_z * glide_sd
+        && glide_sd.is_finite()
+        && comp.g.abs() < 0.98 * options.max_glide
+        && comp.d >= d_min / DECAY_RANGE_FACTOR
+        && comp.d <= d_max * DECAY_RANGE_FACTOR
+}
+
 fn check_options(options: &GlideOptions) -> Result<(), ExtractError> {
     let invalid = |name, value, reason| Err(ExtractError::InvalidOption { name, value, reason });
     if !(options.group_rtol >= 0.0 && options.group_rtol < 0.1) {
@@ -814,6 +841,9 @@ fn check_options(options: &GlideOptions) -> Result<(), ExtractError> {
     }
     if options.bic_margin.is_nan() {
         return invalid("glide.bic_margin", options.bic_margin, "must be a number");
+    }
+    if !(options.min_glide_z >= 0.0) {
+        return invalid("glide.min_glide_z", options.min_glide_z, "must be ≥ 0");
     }
     Ok(())
 }
