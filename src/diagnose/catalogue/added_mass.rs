@@ -96,7 +96,9 @@ impl Effect for AddedMass {
             w.iter().cloned().fold(f64::NEG_INFINITY, f64::max) - w.iter().cloned().fold(f64::INFINITY, f64::min);
         for fluid in [None, Some(ln_f1)] {
             let term = MassLoading { fluid_ln_f1: fluid };
-            if fluid.is_none() && !(spread > 0.05) {
+            // Relative to the largest matched weight (see the support entry).
+            let top = w.iter().cloned().fold(0.0f64, f64::max);
+            if fluid.is_none() && !(top > 0.0 && spread > 0.05 * top) {
                 details.push("mass weights do not vary".to_string());
                 continue;
             }
