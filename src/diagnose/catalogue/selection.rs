@@ -107,6 +107,12 @@ fn evaluate(
     });
     let i = candidate.model.terms.len() - 1;
     let term = &candidate.model.terms[i];
+    let off = candidate.model.term_offset(i);
+    let n_term = term.params().len();
+    let (rejection, detail) = match term.signature_missing(table, &candidate.x[off..off + n_term], &candidate.sigma[off..off + n_term]) {
+        Some(why) => (Some(Rejection::SignatureMissing), format!("{detail}; {why}")),
+        None => (verdict(delta_bic, held_out, settings), detail),
+    };
     Outcome::Fitted(Box::new(Candidate {
         statistic,
         detail,
@@ -114,7 +120,7 @@ fn evaluate(
         n_params: candidate.n_parameters.saturating_sub(current.n_parameters),
         delta_bic,
         held_out,
-        rejection: verdict(delta_bic, held_out, settings),
+        rejection,
         params: term_params(&candidate, i),
         fit: Some(candidate),
     }))

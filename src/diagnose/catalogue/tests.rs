@@ -779,6 +779,20 @@ fn support_contact_damping_and_stiffening_are_recovered() {
     assert_eq!(report.accepted.len(), 1, "{:#?}", report.accepted);
 }
 
+#[test]
+fn a_support_that_neither_damps_nor_shifts_measurably_is_not_named() {
+    // No damping and a stiffening of 10⁻⁴ at w = 1: far below what a finite-element model is
+    // trusted to, though the synthetic frequencies resolve it.
+    let truth = Truth {
+        support: Some((0.0, 1e-4)),
+        ..Truth::default()
+    };
+    let report = run(&truth, 23);
+    assert!(accepted(&report, "support_contact").is_none(), "{:#?}", report.accepted);
+    let r = report.rejected.iter().find(|r| r.name == "support_contact").expect("rejected");
+    assert_eq!(r.reason, Rejection::SignatureMissing, "{r:?}");
+}
+
 /// The half-sine duration whose spectrum best matches a Hertzian pulse of duration `t_h` on
 /// the modes' frequencies (up to a constant, which the gains absorb): the pseudo-true value
 /// the misspecified fit converges to.
