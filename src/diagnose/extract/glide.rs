@@ -89,11 +89,12 @@
 //! stay constant carry those of the K' = K fit (nested: an unbiased measurement, about 0 ± σ_g
 //! for a mode that does not glide).
 //!
-//! A gliding hypothesis must also be *identified* to replace the poles
-//! ([`glide_identified`]): every component's |g| at least [`GlideOptions::min_glide_z`] σ_g
-//! and short of the ±`max_glide` bound, its decay rate within a factor 4 of the group's
-//! poles'. A component whose fit ran to the bound or to d → 0 (where f₀ and g trade off and
-//! σ_g explodes) is the model absorbing something else (a neighbour's leakage, a reverberant
+//! A gliding hypothesis must also be *identified* to replace the poles: no component broken
+//! ([`glide_component_sound`]: |g| short of the ±`max_glide` bound, σ_g finite, the decay rate
+//! within a factor 4 of the group's poles'), and at least one component's |g| at least
+//! [`GlideOptions::min_glide_z`] σ_g (weak partners of a gliding group may carry a loose g).
+//! A component whose fit ran to the bound or to d → 0 (where f₀ and g trade off and σ_g
+//! explodes) is the model absorbing something else (a neighbour's leakage, a reverberant
 //! tail, noise), not a measured glide; on the real bowl the unguarded stage marked 42 of 80
 //! poles as gliding, several at the bound.
 //!
@@ -170,8 +171,8 @@ pub struct GlideOptions {
     pub max_glide: f64,
     /// ΔBIC = BIC(constant poles) − BIC(glide) above which the glide is selected (default 0).
     pub bic_margin: f64,
-    /// A gliding component must have |g| ≥ this many σ_g to be selected (default 3; module
-    /// docs, identification).
+    /// At least one gliding component must have |g| ≥ this many σ_g for the glide to be
+    /// selected (default 3; module docs, identification).
     pub min_glide_z: f64,
 }
 
@@ -757,7 +758,9 @@ pub fn fit_glides(channels: &[Vec<f64>], extraction: &ModalExtraction, options: 
             let offset: usize = fit.comps[..q].iter().map(|c| c.n_params()).sum();
             fit.cov[(offset + 2, offset + 2)].max(0.0).sqrt()
         };
-        let identified = (0..glide_fit.comps.len()).all(|q| glide_identified(&glide_fit.comps[q], g_sd(glide_fit, q), (d_min, d_max), options));
+        let comps = 0..glide_fit.comps.len();
+        let identified = comps.clone().all(|q| glide_component_sound(&glide_fit.comps[q], g_sd(glide_fit, q), (d_min, d_max), options))
+            && comps.into_iter().any(|q| glide_fit.comps[q].g.abs() >= options.min_glide_z * g_sd(glide_fit, q));
         let selected = delta_bic > options.bic_margin && identified;
         decisions.push(GlideDecision {
             poles_hz: members.iter().map(|m| m.frequency_hz).collect(),
@@ -808,12 +811,11 @@ pub fn fit_glides(channels: &[Vec<f64>], extraction: &ModalExtraction, options: 
 /// mean the fit ran away (module docs, identification).
 const DECAY_RANGE_FACTOR: f64 = 4.0;
 
-/// Whether a fitted gliding component is a measured glide (module docs): |g| ≥ `min_glide_z` σ_g,
-/// |g| < 0.98 `max_glide`, and d within [`DECAY_RANGE_FACTOR`] of the poles' range `decays`.
-fn glide_identified(comp: &Component, glide_sd: f64, decays: (f64, f64), options: &GlideOptions) -> bool {
+/// Whether a fitted gliding component is not broken (module docs): σ_g finite, |g| < 0.98
+/// `max_glide`, and d within [`DECAY_RANGE_FACTOR`] of the poles' range `decays`.
+fn glide_component_sound(comp: &Component, glide_sd: f64, decays: (f64, f64), options: &GlideOptions) -> bool {
     let (d_min, d_max) = decays;
-    comp.g.abs() >= options.min_glide_z * glide_sd
-        && glide_sd.is_finite()
+    glide_sd.is_finite()
         && comp.g.abs() < 0.98 * options.max_glide
         && comp.d >= d_min / DECAY_RANGE_FACTOR
         && comp.d <= d_max * DECAY_RANGE_FACTOR

@@ -234,15 +234,16 @@ fn bad_input_is_an_error_not_a_panic() {
 }
 
 #[test]
-fn only_an_identified_glide_counts() {
+fn a_broken_glide_component_is_refused() {
     let options = GlideOptions::default();
     let comp = |g: f64, d: f64| Component { f: 2000.0, d, g, glide_free: true };
     let poles = (6.0, 9.0);
-    assert!(glide_identified(&comp(3e-3, 8.0), 2e-4, poles, &options));
-    // Not significant, at the bound, with σ undefined, or run away to d → 0 or far above the poles.
-    assert!(!glide_identified(&comp(3e-4, 8.0), 2e-4, poles, &options));
-    assert!(!glide_identified(&comp(0.0499, 8.0), 1e-4, poles, &options));
-    assert!(!glide_identified(&comp(3e-3, 8.0), f64::NAN, poles, &options));
-    assert!(!glide_identified(&comp(3e-3, 0.02), 2e-4, poles, &options));
-    assert!(!glide_identified(&comp(3e-3, 40.0), 2e-4, poles, &options));
+    assert!(glide_component_sound(&comp(3e-3, 8.0), 2e-4, poles, &options));
+    // A loose g is not broken (a weak partner); one at the bound, with σ undefined, or run away
+    // to d → 0 or far above the poles is.
+    assert!(glide_component_sound(&comp(3e-4, 8.0), 2e-4, poles, &options));
+    assert!(!glide_component_sound(&comp(0.0499, 8.0), 1e-4, poles, &options));
+    assert!(!glide_component_sound(&comp(3e-3, 8.0), f64::NAN, poles, &options));
+    assert!(!glide_component_sound(&comp(3e-3, 0.02), 2e-4, poles, &options));
+    assert!(!glide_component_sound(&comp(3e-3, 40.0), 2e-4, poles, &options));
 }
