@@ -2,7 +2,7 @@
 # The main job on the bundled example: installs what is missing, builds, computes the bowl's
 # modes on 2 MPI ranks (HDF5 + XDMF + a rendered strike in out/), then fits the bowl's damping
 # and material to its eight recordings (out/bowl_fit.h5 and plots; about 3–4 minutes) and
-# diagnoses what the model still misses (out/bowl_diagnosis.*; about 4 minutes) and maps where
+# diagnoses what the model still misses (out/bowl_diagnosis.*; about 1 minute) and maps where
 # the bowl was struck (out/bowl_impact.*; about 1 minute).
 # FIT=0 skips the fit. Extra arguments go to the modes job.
 set -euo pipefail
