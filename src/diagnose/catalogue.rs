@@ -700,6 +700,19 @@ pub fn catalogue() -> Vec<Box<dyn Effect>> {
     ]
 }
 
+/// (smallest, largest) of per-mode weights; (∞, −∞) for none.
+pub(crate) fn weight_range(weights: impl Iterator<Item = f64>) -> (f64, f64) {
+    weights.fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), w| (lo.min(w), hi.max(w)))
+}
+
+/// Whether per-mode region weights (≥ 0) vary between the matched modes: by at least 5 % of
+/// the largest, relative because the weights are normalised over every simulated mode and the
+/// modes a recording shows can all sit far below the one that moves most in the region.
+pub(crate) fn weights_vary(weights: impl Iterator<Item = f64>) -> bool {
+    let (lo, hi) = weight_range(weights);
+    hi > 0.0 && hi - lo > 0.05 * hi
+}
+
 /// Weighted least-squares line through points (x, y, w) with an intercept: the slope and its
 /// z = slope / σ_slope (σ from the weights alone). (0, 0) when x does not vary.
 pub(crate) fn weighted_regression(points: &[(f64, f64, f64)]) -> (f64, f64) {

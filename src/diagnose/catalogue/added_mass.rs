@@ -23,7 +23,7 @@
 
 use std::sync::Arc;
 
-use super::{weighted_regression, Detection, Effect, Fit, ModeTable, ParamSpec, Proposal, Term};
+use super::{weighted_regression, weights_vary, Detection, Effect, Fit, ModeTable, ParamSpec, Proposal, Term};
 
 pub struct AddedMass;
 
@@ -91,14 +91,10 @@ impl Effect for AddedMass {
         let mut details = Vec::new();
         let mut proposals = Vec::new();
         let mut statistic = f64::NEG_INFINITY;
-        let w: Vec<f64> = table.modes.iter().map(|m| m.mass_weight).collect();
-        let spread =
-            w.iter().cloned().fold(f64::NEG_INFINITY, f64::max) - w.iter().cloned().fold(f64::INFINITY, f64::min);
+        let mass_weights_vary = weights_vary(table.modes.iter().map(|m| m.mass_weight));
         for fluid in [None, Some(ln_f1)] {
             let term = MassLoading { fluid_ln_f1: fluid };
-            // Relative to the largest matched weight (see the support entry).
-            let top = w.iter().cloned().fold(0.0f64, f64::max);
-            if fluid.is_none() && !(top > 0.0 && spread > 0.05 * top) {
+            if fluid.is_none() && !mass_weights_vary {
                 details.push("mass weights do not vary".to_string());
                 continue;
             }

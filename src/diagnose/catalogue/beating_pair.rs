@@ -27,7 +27,7 @@
 
 use std::sync::Arc;
 
-use super::model::SPLIT_MODEL_FLOOR;
+use super::model::split_sigma;
 use super::{Detection, Effect, Fit, ModeTable, ParamSpec, Proposal, Term};
 
 pub struct BeatingPair;
@@ -117,9 +117,7 @@ impl Effect for BeatingPair {
             }
             let observed = u.ln_f - l.ln_f;
             let predicted = p.ln_f[pair.upper] - p.ln_f[pair.lower];
-            let simulated_split = SPLIT_MODEL_FLOOR * (u.ln_f_sim - l.ln_f_sim).abs();
-            let sigma = (l.sigma_ln_f.powi(2) + u.sigma_ln_f.powi(2) + simulated_split.powi(2)).sqrt();
-            let z = (observed - predicted) / sigma;
+            let z = (observed - predicted) / split_sigma(l, u);
             worst = worst.max(z.abs());
             if z.abs() > 3.0 {
                 clusters.push(pair.cluster);

@@ -336,13 +336,10 @@ impl ModeTable {
                 value: 0.5 * (l.ln_f + u.ln_f),
                 sigma: 0.5 * var.sqrt(),
             });
-            // The simulated split is itself a model quantity (the mesh's accidental asymmetry at
-            // the fitted material), trusted to SPLIT_MODEL_FLOOR of its size.
-            let simulated_split = SPLIT_MODEL_FLOOR * (u.ln_f_sim - l.ln_f_sim).abs();
             rows.push(Row {
                 kind: RowKind::Split(p.lower, p.upper),
                 value: u.ln_f - l.ln_f,
-                sigma: (var + simulated_split.powi(2)).sqrt(),
+                sigma: split_sigma(l, u),
             });
         }
         for (k, m) in modes.iter().enumerate() {
@@ -581,6 +578,14 @@ pub const N_FLOORS: usize = 5;
 /// 0.03–10 % (σ of the split alone ~10⁻⁸ relative), while the injected asymmetries changed
 /// splits by 13 % to a factor 40.
 pub const SPLIT_MODEL_FLOOR: f64 = 0.1;
+
+/// σ of the split ln f_u − ln f_l of a pair: both measurements and the simulated split, which
+/// is itself a model quantity (the mesh's accidental asymmetry at the fitted material) trusted
+/// to [`SPLIT_MODEL_FLOOR`] of its size.
+pub fn split_sigma(lower: &ModeEntry, upper: &ModeEntry) -> f64 {
+    let simulated_split = SPLIT_MODEL_FLOOR * (upper.ln_f_sim - lower.ln_f_sim).abs();
+    (lower.sigma_ln_f.powi(2) + upper.sigma_ln_f.powi(2) + simulated_split.powi(2)).sqrt()
+}
 /// Index of the per-mode amplitude level floor τ_A.
 pub const LEVEL_FLOOR: usize = 3;
 

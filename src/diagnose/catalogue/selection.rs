@@ -48,6 +48,15 @@ fn verdict(delta_bic: f64, held_out: Option<(f64, f64)>, settings: &CatalogueSet
     }
 }
 
+/// The verdict with the signature check first: a fit that lacks its effect's signature is
+/// rejected whatever its ΔBIC, the reason appended to the detector's `detail`.
+fn verdict_with_signature(signature_missing: Option<String>, detail: String, delta_bic: f64, held_out: Option<(f64, f64)>, settings: &CatalogueSettings) -> (Option<Rejection>, String) {
+    match signature_missing {
+        Some(why) => (Some(Rejection::SignatureMissing), format!("{detail}; {why}")),
+        None => (verdict(delta_bic, held_out, settings), detail),
+    }
+}
+
 /// Parameters of term `i` of a fit, named.
 fn term_params(fit: &Fit, i: usize) -> Vec<FittedParam> {
     let specs = fit.model.terms[i].params();
@@ -109,10 +118,8 @@ fn evaluate(
     let term = &candidate.model.terms[i];
     let off = candidate.model.term_offset(i);
     let n_term = term.params().len();
-    let (rejection, detail) = match term.signature_missing(table, &candidate.x[off..off + n_term], &candidate.sigma[off..off + n_term]) {
-        Some(why) => (Some(Rejection::SignatureMissing), format!("{detail}; {why}")),
-        None => (verdict(delta_bic, held_out, settings), detail),
-    };
+    let signature_missing = term.signature_missing(table, &candidate.x[off..off + n_term], &candidate.sigma[off..off + n_term]);
+    let (rejection, detail) = verdict_with_signature(signature_missing, detail, delta_bic, held_out, settings);
     Outcome::Fitted(Box::new(Candidate {
         statistic,
         detail,
@@ -360,10 +367,7 @@ pub fn diagnose_with(
                 signature_missing,
             } => {
                 let held_out = Some((held_out_before, held_out_after));
-                let (rejection, detail) = match signature_missing {
-                    Some(why) => (Some(Rejection::SignatureMissing), format!("{detail}; {why}")),
-                    None => (verdict(delta_bic, held_out, settings), detail),
-                };
+                let (rejection, detail) = verdict_with_signature(signature_missing, detail, delta_bic, held_out, settings);
                 let c = Candidate {
                     statistic,
                     detail,

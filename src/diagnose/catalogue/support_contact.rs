@@ -24,7 +24,7 @@
 use std::sync::Arc;
 
 use super::added_mass::MIN_DIFFERENTIAL_SHIFT;
-use super::{weighted_regression, Detection, Effect, Fit, ModeTable, ParamSpec, Proposal, Term};
+use super::{weight_range, weighted_regression, weights_vary, Detection, Effect, Fit, ModeTable, ParamSpec, Proposal, Term};
 
 pub struct SupportContact;
 
@@ -65,7 +65,7 @@ impl Term for SupportTerm {
     }
     fn signature_missing(&self, table: &ModeTable, p: &[f64], sigma: &[f64]) -> Option<String> {
         let damps = p[0] > 2.0 * sigma[0];
-        let (lo, hi) = table.modes.iter().fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), m| (a.min(m.support_weight), b.max(m.support_weight)));
+        let (lo, hi) = weight_range(table.modes.iter().map(|m| m.support_weight));
         let shift = if self.with_frequency { p[1].abs() * (hi - lo) } else { 0.0 };
         (!damps && !(shift >= MIN_DIFFERENTIAL_SHIFT)).then(|| {
             format!(
@@ -84,13 +84,7 @@ impl Effect for SupportContact {
         "modes that move at the support decay faster (and shift) in proportion to their energy there"
     }
     fn detect(&self, table: &ModeTable, current: &Fit) -> Detection {
-        let w: Vec<f64> = table.modes.iter().map(|m| m.support_weight).collect();
-        let spread =
-            w.iter().cloned().fold(f64::NEG_INFINITY, f64::max) - w.iter().cloned().fold(f64::INFINITY, f64::min);
-        // Relative to the largest: the weights are normalised over every simulated mode, and the
-        // modes the recording shows can all sit far below the one that moves most at the support.
-        let top = w.iter().cloned().fold(0.0f64, f64::max);
-        if !(top > 0.0 && spread > 0.05 * top) {
+        if !weights_vary(table.modes.iter().map(|m| m.support_weight)) {
             return Detection::NotEnoughData("support weights do not vary between the matched modes".into());
         }
         let res = current.mode_residuals(table);
