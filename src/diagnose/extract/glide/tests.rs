@@ -226,8 +226,10 @@ fn bad_input_is_an_error_not_a_panic() {
     let ex = stand_in(&[(1000.0, 5.0, 1.0)], 2, 0.01);
     assert!(fit_glides(&[vec![0.0; N]], &ex, &GlideOptions::default()).is_err());
     assert!(fit_glides(&[vec![0.0; N], vec![0.0; N - 1]], &ex, &GlideOptions::default()).is_err());
-    let bad = GlideOptions { group_rtol: -1.0, ..Default::default() };
-    assert!(fit_glides(&[vec![0.0; N], vec![0.0; N]], &ex, &bad).is_err());
+    for bad in [GlideOptions { group_rtol: -1.0, ..Default::default() }, GlideOptions { min_glide_z: -1.0, ..Default::default() }, GlideOptions { min_glide_z: f64::NAN, ..Default::default() }] {
+        let err = fit_glides(&[vec![0.0; N], vec![0.0; N]], &ex, &bad).unwrap_err();
+        assert!(matches!(err, ExtractError::InvalidOption { .. }), "{err}");
+    }
     // Silence: nothing to fit, the mode is kept as it was or given an uninformative glide.
     let stage = fit_glides(&[vec![0.0; N], vec![0.0; N]], &ex, &GlideOptions::default()).unwrap();
     assert_eq!(stage.extraction.modes.len(), 1);
