@@ -739,13 +739,14 @@ fn print_report(job: &Job, measured: &Measured, report: &CatalogueReport, youngs
     println!("  recording: {} modes on {} fit microphones, {} on {} held-out, below {} Hz", measured.fit.len(), job.fit_channels.len(), measured.held_out.len(), job.held_channels.len(), job.max_frequency_hz);
     println!("  matching: scale {:.5}, {} pairs, {} observed and {} simulated modes unmatched", report.matching.scale, report.matching.pairs.len(), report.matching.unmatched_observed.len(), report.matching.unmatched_simulated.len());
     let ho = |v: Option<f64>| v.map_or("n/a".to_string(), |v| format!("{v:.3}"));
+    let gain = |g: Option<f64>| g.map_or(String::new(), |g| format!(" (Σz² gain {g:.1})"));
     println!("  held-out error (RMS standardised residual): baseline {} → final {}", ho(report.baseline.held_out_error), ho(report.final_model.held_out_error));
     println!("  floors (baseline → final): ln f {:.2e} → {:.2e}, ln d {:.3} → {:.3}, ln a {:.3} → {:.3}", report.baseline.floors.ln_frequency, report.final_model.floors.ln_frequency, report.baseline.floors.ln_decay, report.final_model.floors.ln_decay, report.baseline.floors.ln_amplitude, report.final_model.floors.ln_amplitude);
     if report.accepted.is_empty() {
         println!("  accepted effects: none");
     }
     for a in &report.accepted {
-        println!("  ACCEPTED {} ({}): ΔBIC {:.1}, held-out {} → {}", a.name, a.variant, a.delta_bic, ho(a.held_out_before), ho(a.held_out_after));
+        println!("  ACCEPTED {} ({}): ΔBIC {:.1}, held-out {} → {}{}", a.name, a.variant, a.delta_bic, ho(a.held_out_before), ho(a.held_out_after), gain(a.held_out_gain));
         println!("      evidence: {}", a.detector);
         for p in &a.params {
             println!("      {}", fmt_param(p));
@@ -753,7 +754,7 @@ fn print_report(job: &Job, measured: &Measured, report: &CatalogueReport, youngs
     }
     for r in &report.rejected {
         let extra = match (r.delta_bic, r.held_out_before, r.held_out_after) {
-            (Some(d), Some(b), Some(a)) => format!(" (ΔBIC {d:.1}, held-out {b:.3} → {a:.3})"),
+            (Some(d), Some(b), Some(a)) => format!(" (ΔBIC {d:.1}, held-out {b:.3} → {a:.3}{})", gain(r.held_out_gain)),
             (Some(d), _, _) => format!(" (ΔBIC {d:.1})"),
             _ => String::new(),
         };

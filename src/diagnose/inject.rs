@@ -1988,6 +1988,7 @@ mod tests {
             delta_bic: 10.0,
             held_out_before: Some(2.0),
             held_out_after: Some(1.5),
+            held_out_gain: Some(20.0),
             params: params.iter().map(|(n, v)| FittedParam::new(*n, "", *v, 0.0)).collect(),
         }
     }

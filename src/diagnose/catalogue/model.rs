@@ -1021,6 +1021,26 @@ impl Term for Frozen {
 /// residuals whitened with the floors `tau2` (the yardstick: the same for the models
 /// compared). Returns √(Σ z² / (n − p_nuisance)) over the n held-out rows, or None without rows.
 pub fn held_out_error(fit: &Fit, held: &ModeTable, tau2: &FloorVariances) -> Option<f64> {
+    held_out_chi2(fit, held, tau2).map(|h| h.rms())
+}
+
+/// Σ z² of the held-out rows and its degrees of freedom (n − p_nuisance), as
+/// [`held_out_error`] computes them.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct HeldOutChi2 {
+    pub chi2: f64,
+    pub dof: f64,
+}
+
+impl HeldOutChi2 {
+    /// √(Σ z² / dof): the held-out error.
+    pub fn rms(&self) -> f64 {
+        (self.chi2 / self.dof).sqrt()
+    }
+}
+
+/// The sum of squares behind [`held_out_error`].
+pub fn held_out_chi2(fit: &Fit, held: &ModeTable, tau2: &FloorVariances) -> Option<HeldOutChi2> {
     if held.rows.is_empty() {
         return None;
     }
@@ -1072,7 +1092,7 @@ pub fn held_out_error(fit: &Fit, held: &ModeTable, tau2: &FloorVariances) -> Opt
         .count();
     let nuisance = x.len() - BASE_PARAMS - held.channels + channels_seen;
     let dof = (held.rows.len() as f64 - nuisance as f64).max(1.0);
-    Some((min.cost / dof).sqrt())
+    Some(HeldOutChi2 { chi2: min.cost, dof })
 }
 
 /// Sets each channel's ln gain (x[BASE_PARAMS + c]) to its mean amplitude residual under

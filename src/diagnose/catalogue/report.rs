@@ -94,6 +94,10 @@ pub struct AcceptedEffect {
     pub delta_bic: f64,
     pub held_out_before: Option<f64>,
     pub held_out_after: Option<f64>,
+    /// Held-out Σz² before minus after: the held-out likelihood gain × 2 (parent docs,
+    /// "Selection"; must exceed `min_held_out_gain`).
+    #[serde(default)]
+    pub held_out_gain: Option<f64>,
     /// Its parameters in the final model (all accepted effects fitted together).
     pub params: Vec<FittedParam>,
 }
@@ -134,6 +138,8 @@ pub struct RejectedEffect {
     pub delta_bic: Option<f64>,
     pub held_out_before: Option<f64>,
     pub held_out_after: Option<f64>,
+    #[serde(default)]
+    pub held_out_gain: Option<f64>,
 }
 
 /// A residual nothing in the final model explains.

@@ -354,6 +354,7 @@ impl ReverbNoise {
                 delta_bic,
                 held_out_before,
                 held_out_after,
+                held_out_gain: before - after,
                 params,
                 floor_if_accepted: with_reverb,
                 signature_missing,
