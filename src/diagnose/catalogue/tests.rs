@@ -1313,3 +1313,45 @@ fn detection_power_at_realistic_strengths() {
     println!("draws with an effect accepted that was not injected: {others} of 200");
     assert!(others <= 10, "{others} of 200 draws accepted an effect not injected");
 }
+
+/// Each observed mode of a split pair takes its own member's support and mass weights (a
+/// point mass moves one member of a degenerate pair and leaves the other), a single unit the
+/// drive-weighted weights of every member it stands for.
+#[test]
+fn split_pair_modes_take_their_own_members_weights() {
+    let sim_mode = |f: f64, mass_weight: f64, support_weight: f64, cluster: usize| SimulatedMode {
+        frequency_hz: f,
+        drive: 1.0,
+        support_weight,
+        mass_weight,
+        cluster,
+        transfer: None,
+    };
+    // A degenerate pair (cluster 0) whose lower member moves at the region, then a single mode.
+    let simulated = vec![sim_mode(1000.0, 1.0, 0.0, 0), sim_mode(1000.5, 0.0, 0.8, 0), sim_mode(2500.0, 0.4, 0.3, 1)];
+    let obs = |f: f64| ObservedMode {
+        frequency_hz: f,
+        sigma_frequency_hz: 0.01,
+        decay_rate: 3.0,
+        sigma_decay_rate: 0.1,
+        amplitudes: vec![1.0],
+        sigma_amplitudes: vec![0.05],
+        early_frequency_hz: None,
+        late_frequency_hz: None,
+        glide: None,
+    };
+    // The pair recorded split by 0.8 %: the lower member lowered, the upper left.
+    let observed = vec![obs(992.0), obs(1000.5), obs(2500.0)];
+    let ln_f: Vec<f64> = observed.iter().map(|m| model::undamped_hz(m).ln()).collect();
+    let matching = match_modes(&ln_f, &simulated, None, &CatalogueSettings::default());
+    let table = ModeTable::build(&observed, &simulated, &matching, 0);
+    let by_observed = |i: usize| table.modes.iter().find(|m| m.observed == i).expect("matched");
+    let (lower, upper, single) = (by_observed(0), by_observed(1), by_observed(2));
+    assert_eq!((lower.role, upper.role), (Role::SplitLower, Role::SplitUpper));
+    assert_eq!((lower.own.clone(), upper.own.clone()), (vec![0], vec![1]));
+    assert_eq!((lower.mass_weight, upper.mass_weight), (1.0, 0.0));
+    assert_eq!((lower.support_weight, upper.support_weight), (0.0, 0.8));
+    assert_eq!((single.mass_weight, single.support_weight), (0.4, 0.3));
+    // Both still stand for the whole cluster (drive and transfer).
+    assert_eq!(lower.simulated, vec![0, 1]);
+}
