@@ -615,15 +615,7 @@ const MASS_REGION_VERTICES: usize = 5;
 const MASS_REGION_Z: f64 = 2.0;
 
 fn localise(report: &CatalogueReport, feats: &Features, mesh: &TetMesh) -> Localised {
-    // Each observed mode of a split pair is regressed on its own member's weight (the cluster's
-    // energies are turned to the candidate region's principal directions): a point mass moves one
-    // member of a degenerate pair and leaves the other.
-    let residuals: Vec<(Vec<usize>, f64)> = report
-        .residuals
-        .iter()
-        .filter(|r| r.before.ln_frequency.is_finite())
-        .map(|r| (if r.own_simulated.is_empty() { r.simulated.clone() } else { r.own_simulated.clone() }, r.before.ln_frequency))
-        .collect();
+    let residuals: Vec<(Vec<usize>, f64)> = report.residuals.iter().filter(|r| r.before.ln_frequency.is_finite()).map(|r| (r.simulated.clone(), r.before.ln_frequency)).collect();
     let map = evidence::localise_frequency_residuals(&feats.surface_energy, &residuals);
     let best = map.iter().enumerate().filter(|(_, m)| m.1.is_finite()).max_by(|a, b| a.1 .1.total_cmp(&b.1 .1)).map(|(i, m)| (feats.surface[i], m.1));
     let region = match best {

@@ -41,12 +41,6 @@ pub struct ModeEntry {
     pub role: Role,
     /// Simulated modes it stands for.
     pub simulated: Vec<usize>,
-    /// Simulated modes it is predicted at, whose support and mass weights it takes: its own
-    /// member for one mode of a split pair, else `simulated`. A localised support or mass
-    /// splits a degenerate cluster along the principal directions of its region (the member
-    /// weights of [`crate::diagnose::evidence::cluster_region_energies`]), so each observed
-    /// mode of the pair moves by its own member's weight; their mean would move both alike.
-    pub own: Vec<usize>,
     /// Observed (damped) frequency, Hz.
     pub frequency_hz: f64,
     /// ln of the observed undamped frequency f₀ = √(f² + (d/2π)²) and its σ (σ_f / f).
@@ -237,12 +231,8 @@ impl ModeTable {
                 .sqrt();
             let drive = combined * unit.drive_factor;
             let ln_f_sim = drive_weighted(simulated, &unit.frequency_from, |m| m.frequency_hz.ln());
-            let own = match unit.role {
-                Role::SplitLower | Role::SplitUpper => unit.frequency_from.clone(),
-                Role::Single | Role::Member => unit.represents.clone(),
-            };
-            let support_weight = drive_weighted(simulated, &own, |m| m.support_weight);
-            let mass_weight = drive_weighted(simulated, &own, |m| m.mass_weight);
+            let support_weight = drive_weighted(simulated, &unit.represents, |m| m.support_weight);
+            let mass_weight = drive_weighted(simulated, &unit.represents, |m| m.mass_weight);
             let transfer = if unit.represents.iter().all(|&j| {
                 simulated[j]
                     .transfer
@@ -292,7 +282,6 @@ impl ModeTable {
                 },
                 role: unit.role,
                 simulated: unit.represents.clone(),
-                own,
                 frequency_hz: obs.frequency_hz,
                 ln_f: f0.ln(),
                 sigma_ln_f: obs.sigma_frequency_hz / obs.frequency_hz,

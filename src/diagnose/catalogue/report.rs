@@ -170,10 +170,6 @@ pub struct ModeResidualRow {
     pub observed: usize,
     pub frequency_hz: f64,
     pub simulated: Vec<usize>,
-    /// The simulated mode(s) it is predicted at and whose support and mass weights it takes:
-    /// its own member for one mode of a split pair, else `simulated`.
-    #[serde(default)]
-    pub own_simulated: Vec<usize>,
     pub role: Role,
     pub before: ZScores,
     pub after: ZScores,

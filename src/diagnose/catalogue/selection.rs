@@ -496,7 +496,6 @@ pub fn diagnose_with(
                 observed: m.observed,
                 frequency_hz: m.frequency_hz,
                 simulated: m.simulated.clone(),
-                own_simulated: m.own.clone(),
                 role: m.role,
                 before: z_scores(&baseline, &table, k),
                 after: z_scores(&current, &table, k),
