@@ -11,7 +11,7 @@
 
 use std::io::Read;
 
-use diffsound::diagnose::catalogue::{CatalogueSettings, Effect, Evidence, OwnOutcome, ResidualEnvelopes, ReverbNoise};
+use diffsound::diagnose::catalogue::{acceptance, CatalogueSettings, Effect, Evidence, OwnOutcome, ResidualEnvelopes, ReverbNoise};
 
 #[derive(serde::Deserialize)]
 struct Case {
@@ -32,8 +32,9 @@ fn main() {
         let line = match eval.outcome {
             OwnOutcome::NotEnoughData(why) => format!("not enough data: {why}"),
             OwnOutcome::Nothing { statistic, .. } => format!("nothing (z = {statistic:.1})"),
-            OwnOutcome::Fitted { statistic, delta_bic, held_out_before, held_out_after, params, detail, signature_missing, .. } => {
-                let accepted = signature_missing.is_none() && delta_bic > settings.delta_bic_threshold && held_out_after < held_out_before;
+            OwnOutcome::Fitted { statistic, delta_bic, held_out, params, detail, signature_missing, .. } => {
+                let accepted = signature_missing.is_none() && acceptance(delta_bic, Some(held_out), &settings).is_none();
+                let (held_out_before, held_out_after) = (held_out.before, held_out.after);
                 let rho: Vec<String> = params[1..].iter().map(|p| format!("{:.1}", p.value / p.sigma.unwrap_or(f64::NAN).max(1e-300))).collect();
                 format!(
                     "{} z = {statistic:.1} ΔBIC {delta_bic:.1} held {held_out_before:.3} → {held_out_after:.3} T60 {:.3} ρ/σ [{}] | {detail} {}",

@@ -199,7 +199,7 @@ pub use pitch_glide::{EnergyGlide, PitchGlide};
 pub use radiation::{FactorDirectivity, Radiation, TransferDirectivity};
 pub use report::*;
 pub use reverb_noise::ReverbNoise;
-pub use selection::{diagnose, diagnose_with};
+pub use selection::{acceptance, diagnose, diagnose_with};
 pub use support_contact::{SupportContact, SupportTerm};
 
 /// A mode extracted from the recording.
@@ -662,6 +662,16 @@ pub enum Detection {
     },
 }
 
+/// What adding an effect does on held-out data (module docs, "Selection").
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct HeldOutChange {
+    /// Held-out error (RMS standardised residual) without and with the effect.
+    pub before: f64,
+    pub after: f64,
+    /// Held-out Σz² without minus with the effect.
+    pub gain: f64,
+}
+
 /// The outcome of an effect that evaluates itself on its own data ([`Effect::evaluate_own`]).
 #[derive(Clone, Debug)]
 pub enum OwnOutcome {
@@ -676,10 +686,7 @@ pub enum OwnOutcome {
         variant: &'static str,
         n_params: usize,
         delta_bic: f64,
-        held_out_before: f64,
-        held_out_after: f64,
-        /// Held-out Σz² before minus after.
-        held_out_gain: f64,
+        held_out: HeldOutChange,
         params: Vec<FittedParam>,
         /// The noise floor per band if the effect is accepted.
         floor_if_accepted: Vec<f64>,

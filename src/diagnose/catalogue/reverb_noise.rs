@@ -47,7 +47,7 @@
 
 use super::lm;
 use super::report::{FittedParam, NoiseFloorReport};
-use super::{CatalogueSettings, Effect, Evidence, OwnEvaluation, OwnOutcome, ResidualEnvelopes};
+use super::{CatalogueSettings, Effect, Evidence, HeldOutChange, OwnEvaluation, OwnOutcome, ResidualEnvelopes};
 
 /// ln(10⁶): energy decays by 60 dB in T60.
 const SIXTY_DB: f64 = 13.815510557964274;
@@ -306,8 +306,7 @@ impl ReverbNoise {
                 count += 1;
             }
         }
-        let held_out_before = (before / count as f64).sqrt();
-        let held_out_after = (after / count as f64).sqrt();
+        let held_out = HeldOutChange { before: (before / count as f64).sqrt(), after: (after / count as f64).sqrt(), gain: before - after };
 
         let mut params = vec![FittedParam::new(
             "reverberation time T60",
@@ -352,9 +351,7 @@ impl ReverbNoise {
                 variant: "shared_t60",
                 n_params,
                 delta_bic,
-                held_out_before,
-                held_out_after,
-                held_out_gain: before - after,
+                held_out,
                 params,
                 floor_if_accepted: with_reverb,
                 signature_missing,

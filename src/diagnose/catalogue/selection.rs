@@ -6,7 +6,7 @@ use super::model::{
     baseline_start, fit, held_out_chi2, held_out_error, undamped_hz, Fit, FloorVariances, ModeTable, Model, BASE_PARAMS, LEVEL_FLOOR,
 };
 use super::report::*;
-use super::{catalogue, CatalogueError, CatalogueSettings, Detection, Effect, Evidence, OwnOutcome, Quantity};
+use super::{catalogue, CatalogueError, CatalogueSettings, Detection, Effect, Evidence, HeldOutChange, OwnOutcome, Quantity};
 
 /// One effect's evaluation against the current model.
 enum Outcome {
@@ -21,9 +21,7 @@ struct Candidate {
     variant: String,
     n_params: usize,
     delta_bic: f64,
-    held_out: Option<(f64, f64)>,
-    /// Held-out Σz² before minus after (parent docs, "Selection").
-    held_out_gain: Option<f64>,
+    held_out: Option<HeldOutChange>,
     /// None = accept.
     rejection: Option<Rejection>,
     /// The refit with the effect (None for effects evaluated on their own data).
@@ -32,9 +30,8 @@ struct Candidate {
 }
 
 /// The acceptance rule (parent docs): ΔBIC above the threshold and a held-out Σz² that falls
-/// by more than `min_held_out_gain`. `held_out` = (error before, error after),
-/// `held_out_gain` = Σz² before − after.
-fn verdict(delta_bic: f64, held_out: Option<(f64, f64)>, held_out_gain: Option<f64>, settings: &CatalogueSettings) -> Option<Rejection> {
+/// by more than `min_held_out_gain`. None: accepted.
+pub fn acceptance(delta_bic: f64, held_out: Option<HeldOutChange>, settings: &CatalogueSettings) -> Option<Rejection> {
     if !delta_bic.is_finite() {
         return Some(Rejection::FitFailed);
     }
@@ -44,29 +41,18 @@ fn verdict(delta_bic: f64, held_out: Option<(f64, f64)>, held_out_gain: Option<f
     match held_out {
         None if settings.require_held_out => Some(Rejection::NoHeldOutData),
         None => None,
-        Some((before, after)) if (after - before).abs() <= 1e-9 * before.abs().max(1e-300) => {
-            Some(Rejection::HeldOutCannotTest)
-        }
-        Some((before, after)) => {
-            let improved = match held_out_gain {
-                Some(gain) => gain > settings.min_held_out_gain,
-                None => after < before,
-            };
-            if improved {
-                None
-            } else {
-                Some(Rejection::HeldOutDidNotImprove)
-            }
-        }
+        Some(h) if (h.after - h.before).abs() <= 1e-9 * h.before.abs().max(1e-300) => Some(Rejection::HeldOutCannotTest),
+        Some(h) if h.gain > settings.min_held_out_gain => None,
+        Some(_) => Some(Rejection::HeldOutDidNotImprove),
     }
 }
 
 /// The verdict with the signature check first: a fit that lacks its effect's signature is
 /// rejected whatever its ΔBIC, the reason appended to the detector's `detail`.
-fn verdict_with_signature(signature_missing: Option<String>, detail: String, delta_bic: f64, held_out: Option<(f64, f64)>, held_out_gain: Option<f64>, settings: &CatalogueSettings) -> (Option<Rejection>, String) {
+fn verdict_with_signature(signature_missing: Option<String>, detail: String, delta_bic: f64, held_out: Option<HeldOutChange>, settings: &CatalogueSettings) -> (Option<Rejection>, String) {
     match signature_missing {
         Some(why) => (Some(Rejection::SignatureMissing), format!("{detail}; {why}")),
-        None => (verdict(delta_bic, held_out, held_out_gain, settings), detail),
+        None => (acceptance(delta_bic, held_out, settings), detail),
     }
 }
 
@@ -122,19 +108,17 @@ fn evaluate(
     let Some((candidate, delta_bic)) = best else {
         return Outcome::Nothing { statistic, detail };
     };
-    let held_scores = held.and_then(|h| {
+    let held_out = held.and_then(|h| {
         let before = held_out_chi2(current, h, &current.tau2)?;
         let after = held_out_chi2(&candidate, h, &current.tau2)?;
-        Some((before, after))
+        Some(HeldOutChange { before: before.rms(), after: after.rms(), gain: before.chi2 - after.chi2 })
     });
-    let held_out = held_scores.map(|(b, a)| (b.rms(), a.rms()));
-    let held_out_gain = held_scores.map(|(b, a)| b.chi2 - a.chi2);
     let i = candidate.model.terms.len() - 1;
     let term = &candidate.model.terms[i];
     let off = candidate.model.term_offset(i);
     let n_term = term.params().len();
     let signature_missing = term.signature_missing(table, &candidate.x[off..off + n_term], &candidate.sigma[off..off + n_term]);
-    let (rejection, detail) = verdict_with_signature(signature_missing, detail, delta_bic, held_out, held_out_gain, settings);
+    let (rejection, detail) = verdict_with_signature(signature_missing, detail, delta_bic, held_out, settings);
     Outcome::Fitted(Box::new(Candidate {
         statistic,
         detail,
@@ -142,7 +126,6 @@ fn evaluate(
         n_params: candidate.n_parameters.saturating_sub(current.n_parameters),
         delta_bic,
         held_out,
-        held_out_gain,
         rejection,
         params: term_params(&candidate, i),
         fit: Some(candidate),
@@ -314,9 +297,9 @@ pub fn diagnose_with(
             step: i,
             n_params: c.n_params,
             delta_bic: c.delta_bic,
-            held_out_before: c.held_out.map(|h| h.0),
-            held_out_after: c.held_out.map(|h| h.1),
-            held_out_gain: c.held_out_gain,
+            held_out_before: c.held_out.map(|h| h.before),
+            held_out_after: c.held_out.map(|h| h.after),
+            held_out_gain: c.held_out.map(|h| h.gain),
             params: term_params(&current, i),
         });
     }
@@ -331,9 +314,9 @@ pub fn diagnose_with(
             variant: c.map(|c| c.variant.clone()),
             n_params: c.map(|c| c.n_params),
             delta_bic: c.map(|c| c.delta_bic).filter(|d| d.is_finite()),
-            held_out_before: c.and_then(|c| c.held_out.map(|h| h.0)),
-            held_out_after: c.and_then(|c| c.held_out.map(|h| h.1)),
-            held_out_gain: c.and_then(|c| c.held_out_gain),
+            held_out_before: c.and_then(|c| c.held_out.map(|h| h.before)),
+            held_out_after: c.and_then(|c| c.held_out.map(|h| h.after)),
+            held_out_gain: c.and_then(|c| c.held_out.map(|h| h.gain)),
         };
     for &e in &remaining {
         match &last[e] {
@@ -378,23 +361,19 @@ pub fn diagnose_with(
                 variant,
                 n_params,
                 delta_bic,
-                held_out_before,
-                held_out_after,
-                held_out_gain,
+                held_out,
                 params,
                 floor_if_accepted,
                 signature_missing,
             } => {
-                let held_out = Some((held_out_before, held_out_after));
-                let (rejection, detail) = verdict_with_signature(signature_missing, detail, delta_bic, held_out, Some(held_out_gain), settings);
+                let (rejection, detail) = verdict_with_signature(signature_missing, detail, delta_bic, Some(held_out), settings);
                 let c = Candidate {
                     statistic,
                     detail,
                     variant: variant.to_string(),
                     n_params,
                     delta_bic,
-                    held_out,
-                    held_out_gain: Some(held_out_gain),
+                    held_out: Some(held_out),
                     rejection,
                     fit: None,
                     params,
@@ -412,9 +391,9 @@ pub fn diagnose_with(
                             step: report_accepted.len(),
                             n_params,
                             delta_bic,
-                            held_out_before: Some(held_out_before),
-                            held_out_after: Some(held_out_after),
-                            held_out_gain: Some(held_out_gain),
+                            held_out_before: Some(held_out.before),
+                            held_out_after: Some(held_out.after),
+                            held_out_gain: Some(held_out.gain),
                             params: c.params,
                         });
                     }
@@ -527,17 +506,16 @@ mod tests {
     fn held_out_gain_must_exceed_the_minimum() {
         let settings = CatalogueSettings::default();
         assert_eq!(settings.min_held_out_gain, 2.0);
-        let fell = Some((1.0, 0.99));
-        assert_eq!(verdict(10.0, fell, Some(1.9), &settings), Some(Rejection::HeldOutDidNotImprove));
-        assert_eq!(verdict(10.0, fell, Some(2.1), &settings), None);
-        // Without a gain (no Σz² available) a plain fall still counts.
-        assert_eq!(verdict(10.0, fell, None, &settings), None);
-        assert_eq!(verdict(10.0, Some((1.0, 1.01)), None, &settings), Some(Rejection::HeldOutDidNotImprove));
+        let fell = |gain: f64| Some(HeldOutChange { before: 1.0, after: 0.99, gain });
+        assert_eq!(acceptance(10.0, fell(1.9), &settings), Some(Rejection::HeldOutDidNotImprove));
+        assert_eq!(acceptance(10.0, fell(2.1), &settings), None);
+        // A rise is never an improvement.
+        assert_eq!(acceptance(10.0, Some(HeldOutChange { before: 1.0, after: 1.01, gain: -0.5 }), &settings), Some(Rejection::HeldOutDidNotImprove));
         // ΔBIC first, and an unchanged held-out error cannot test the effect.
-        assert_eq!(verdict(1.0, fell, Some(50.0), &settings), Some(Rejection::DeltaBicTooSmall));
-        assert_eq!(verdict(10.0, Some((1.0, 1.0)), Some(0.0), &settings), Some(Rejection::HeldOutCannotTest));
+        assert_eq!(acceptance(1.0, fell(50.0), &settings), Some(Rejection::DeltaBicTooSmall));
+        assert_eq!(acceptance(10.0, Some(HeldOutChange { before: 1.0, after: 1.0, gain: 0.0 }), &settings), Some(Rejection::HeldOutCannotTest));
         let relaxed = CatalogueSettings { min_held_out_gain: 0.0, ..CatalogueSettings::default() };
-        assert_eq!(verdict(10.0, fell, Some(0.1), &relaxed), None);
+        assert_eq!(acceptance(10.0, fell(0.1), &relaxed), None);
     }
 
     #[test]
