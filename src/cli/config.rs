@@ -65,27 +65,12 @@ pub struct MaterialConfig {
     pub rayleigh_beta: Option<f64>,
 }
 
-/// Material values given on the command line; each overrides the file's, which overrides the
-/// preset's.
-#[derive(Clone, Copy, Debug, Default)]
-pub struct MaterialFlags {
-    /// E [Pa].
-    pub youngs_modulus: Option<f64>,
-    pub poisson_ratio: Option<f64>,
-    /// ρ [kg/m³].
-    pub density: Option<f64>,
-    /// Rayleigh α [1/s].
-    pub rayleigh_alpha: Option<f64>,
-    /// Rayleigh β [s].
-    pub rayleigh_beta: Option<f64>,
-}
-
 impl MaterialConfig {
-    /// The preset (`preset_flag`, else the file's, else ceramic) with every value the flags or
-    /// the file set, validated. Returns the material and its name (the preset's, with
-    /// " (modified)" when any value was overridden).
-    pub fn resolve(&self, preset_flag: Option<&str>, flags: MaterialFlags) -> Result<(Material, String), String> {
-        let name = preset_flag.map(str::to_owned).or_else(|| self.preset.clone()).unwrap_or_else(|| "ceramic".into());
+    /// The preset (the command line's `flags`, else the file's, else ceramic) with every value
+    /// the flags or the file set (a flag overrides the file), validated. Returns the material and
+    /// its name (the preset's, with " (modified)" when any value was overridden).
+    pub fn resolve(&self, flags: &MaterialConfig) -> Result<(Material, String), String> {
+        let name = flags.preset.clone().or_else(|| self.preset.clone()).unwrap_or_else(|| "ceramic".into());
         let mut material = Material::preset(&name).ok_or_else(|| format!("unknown material preset '{name}'; known: {}", Material::preset_names().join(", ")))?;
         let mut modified = false;
         let mut set = |field: &mut f64, flag: Option<f64>, file: Option<f64>| {

@@ -42,7 +42,6 @@
 //! the pre-fitted body, the refined body and the true surface side by side, from two views, at
 //! one scale. Progress per step on stderr (with `-v`, or on a terminal); only rank 0 writes.
 
-use super::config::MaterialFlags;
 use super::fit_shape::{MaterialConfig, SolverConfig};
 use super::{fail, Progress};
 use crate::fem::Material;
@@ -253,8 +252,8 @@ pub fn resolve(args: &FitGeometryArgs) -> Result<Job, String> {
     }
     s.validate().map_err(|e| e.to_string())?;
 
-    let flags = MaterialFlags { youngs_modulus: args.youngs, poisson_ratio: args.poisson, density: args.density, ..Default::default() };
-    let material = file.material.resolve(args.material.as_deref(), flags)?;
+    let flags = super::config::MaterialConfig { preset: args.material.clone(), youngs_modulus: args.youngs, poisson_ratio: args.poisson, density: args.density, ..Default::default() };
+    let material = file.material.resolve(&flags)?;
 
     let out = args.out.clone().or(file.out.clone()).unwrap_or_else(|| PathBuf::from("fit_geometry.h5"));
     super::modes::check_output_dir(&out)?;

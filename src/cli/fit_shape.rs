@@ -47,7 +47,6 @@
 //! its modes ([`crate::io::write_modes`] layout). Progress on stderr per evaluation (with
 //! `-v`, or on a terminal); only rank 0 writes.
 
-use super::config::MaterialFlags;
 use super::{fail, Progress};
 use crate::random::SplitMix64;
 use crate::fem::Material;
@@ -223,9 +222,9 @@ pub struct MaterialConfig {
 impl MaterialConfig {
     /// The preset with the flags' and then the file's E, ν, ρ, validated: the shared
     /// resolution of [`super::config::MaterialConfig::resolve`] (shape fits take no damping).
-    pub fn resolve(&self, preset_flag: Option<&str>, flags: MaterialFlags) -> Result<Material, String> {
+    pub fn resolve(&self, flags: &super::config::MaterialConfig) -> Result<Material, String> {
         let shared = super::config::MaterialConfig { preset: self.preset.clone(), youngs_modulus: self.youngs_modulus, poisson_ratio: self.poisson_ratio, density: self.density, ..Default::default() };
-        shared.resolve(preset_flag, flags).map(|(material, _)| material)
+        shared.resolve(flags).map(|(material, _)| material)
     }
 }
 
@@ -407,8 +406,8 @@ fn resolve(task: Task, synthetic_value: Option<f64>, bounds: Option<(f64, f64)>,
         }
     };
 
-    let flags = MaterialFlags { youngs_modulus: common.youngs, poisson_ratio: common.poisson, density: common.density, ..Default::default() };
-    let material = file.material.resolve(common.material.as_deref(), flags)?;
+    let flags = super::config::MaterialConfig { preset: common.material.clone(), youngs_modulus: common.youngs, poisson_ratio: common.poisson, density: common.density, ..Default::default() };
+    let material = file.material.resolve(&flags)?;
 
     let out = common.out.clone().or(file.out.clone()).unwrap_or_else(|| PathBuf::from(format!("fit_{}.h5", task.name())));
     super::modes::check_output_dir(&out)?;

@@ -1,6 +1,6 @@
 //! The `modes` job: mesh → P2 → assembly → SLEPc → HDF5/XDMF (+ WAV strike).
 
-use super::config::{FileConfig, MaterialFlags};
+use super::config::{FileConfig, MaterialConfig};
 use super::{fail, ModesArgs, Progress};
 use crate::assembly;
 use crate::audio::{self, ModalBank, WavFormat};
@@ -47,8 +47,8 @@ pub fn resolve(args: &ModesArgs) -> Result<Job, String> {
         None => FileConfig::default(),
     };
     let MeshChoice { mesh, units, unit_scale, order } = resolve_mesh(&args.mesh, &file.mesh, &args.units, &file.units, args.order.or(file.order))?;
-    let flags = MaterialFlags { youngs_modulus: args.youngs, poisson_ratio: args.poisson, density: args.density, rayleigh_alpha: args.alpha, rayleigh_beta: args.beta };
-    let (material, material_name) = file.material.resolve(args.material.as_deref(), flags)?;
+    let flags = MaterialConfig { preset: args.material.clone(), youngs_modulus: args.youngs, poisson_ratio: args.poisson, density: args.density, rayleigh_alpha: args.alpha, rayleigh_beta: args.beta };
+    let (material, material_name) = file.material.resolve(&flags)?;
 
     let fmax = args.fmax.or(if args.modes.is_some() { None } else { file.solver.fmax });
     let request = match (args.modes.or(if args.fmax.is_some() { None } else { file.solver.modes }), fmax) {
