@@ -114,7 +114,8 @@
 //! channels' v of the radiation factor model, are refitted on it: they are properties of
 //! those microphones, p_h of them), whitened as in the likelihood with the current model's
 //! floors as the yardstick for both models. "Falls" means that the held-out Σz² drops by more
-//! than `min_held_out_gain` (default [`DEFAULT_MIN_HELD_OUT_GAIN`] = 2: a held-out likelihood
+//! than `min_held_out_gain` (Σz² with the effect taken at the degrees of freedom without it,
+//! [`HeldOutChange`], so that held-out nuisance parameters do not count as a gain) (default [`DEFAULT_MIN_HELD_OUT_GAIN`] = 2: a held-out likelihood
 //! ratio above e), not merely that it drops. Why: under the null an effect of k parameters
 //! fitted on independent data changes the held-out Σz² by about 2 z₁·z₂ − z₂² per parameter
 //! (z₂ its estimation error, z₁ the held-out data's own projection, both N(0, 1)); among null
@@ -669,8 +670,21 @@ pub struct HeldOutChange {
     /// Held-out error (RMS standardised residual) without and with the effect.
     pub before: f64,
     pub after: f64,
-    /// Held-out Σz² without minus with the effect.
+    /// Held-out Σz² without minus with the effect, the latter at the former's degrees of
+    /// freedom: d_b (e_b² − e_a²).
     pub gain: f64,
+}
+
+impl HeldOutChange {
+    /// From Σz² and the degrees of freedom (rows minus the nuisance parameters fitted on the
+    /// held-out rows) without (`chi2_before`, `dof_before`) and with the effect. The gain
+    /// compares the two at the same degrees of freedom, so a nuisance parameter the effect fits
+    /// on the held-out data (the radiation factor model's v per held-out channel) earns nothing
+    /// by itself: it lowers Σz² by about its share e² while the error e is unchanged.
+    pub fn new(chi2_before: f64, dof_before: f64, chi2_after: f64, dof_after: f64) -> HeldOutChange {
+        let (e2_before, e2_after) = (chi2_before / dof_before, chi2_after / dof_after);
+        HeldOutChange { before: e2_before.sqrt(), after: e2_after.sqrt(), gain: dof_before * (e2_before - e2_after) }
+    }
 }
 
 /// The outcome of an effect that evaluates itself on its own data ([`Effect::evaluate_own`]).

@@ -306,7 +306,7 @@ impl ReverbNoise {
                 count += 1;
             }
         }
-        let held_out = HeldOutChange { before: (before / count as f64).sqrt(), after: (after / count as f64).sqrt(), gain: before - after };
+        let held_out = HeldOutChange::new(before, count as f64, after, count as f64);
 
         let mut params = vec![FittedParam::new(
             "reverberation time T60",

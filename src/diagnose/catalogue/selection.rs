@@ -111,7 +111,7 @@ fn evaluate(
     let held_out = held.and_then(|h| {
         let before = held_out_chi2(current, h, &current.tau2)?;
         let after = held_out_chi2(&candidate, h, &current.tau2)?;
-        Some(HeldOutChange { before: before.rms(), after: after.rms(), gain: before.chi2 - after.chi2 })
+        Some(HeldOutChange::new(before.chi2, before.dof, after.chi2, after.dof))
     });
     let i = candidate.model.terms.len() - 1;
     let term = &candidate.model.terms[i];
@@ -516,6 +516,22 @@ mod tests {
         assert_eq!(acceptance(10.0, Some(HeldOutChange { before: 1.0, after: 1.0, gain: 0.0 }), &settings), Some(Rejection::HeldOutCannotTest));
         let relaxed = CatalogueSettings { min_held_out_gain: 0.0, ..CatalogueSettings::default() };
         assert_eq!(acceptance(10.0, fell(0.1), &relaxed), None);
+    }
+
+    /// The gain compares Σz² at the same degrees of freedom: a held-out nuisance parameter
+    /// that lowers Σz² only by its share leaves the error and the gain where they were, and a
+    /// rising error is a negative gain however Σz² moved.
+    #[test]
+    fn held_out_gain_is_taken_at_equal_degrees_of_freedom() {
+        let same_dof = HeldOutChange::new(100.0, 50.0, 90.0, 50.0);
+        assert!((same_dof.gain - 10.0).abs() < 1e-12);
+        assert!((same_dof.before - 2f64.sqrt()).abs() < 1e-12);
+        let nuisance_only = HeldOutChange::new(100.0, 50.0, 98.0, 49.0);
+        assert!(nuisance_only.gain.abs() < 1e-12, "{nuisance_only:?}");
+        let rose = HeldOutChange::new(100.0, 50.0, 97.0, 47.0);
+        assert!(rose.after > rose.before && rose.gain < 0.0, "{rose:?}");
+        let settings = CatalogueSettings { min_held_out_gain: 0.0, ..CatalogueSettings::default() };
+        assert_eq!(acceptance(10.0, Some(rose), &settings), Some(Rejection::HeldOutDidNotImprove));
     }
 
     #[test]
