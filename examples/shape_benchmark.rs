@@ -79,8 +79,10 @@ fn parse_args() -> Args {
             _ => a.inputs.push(x),
         }
     }
-    if a.inputs.is_empty() || a.levels.is_empty() || a.levels.iter().any(|&l| l >= a.target_cells) {
-        eprintln!("need inputs, and every fit level coarser than --target-cells");
+    // A level as fine as the target is allowed: on its unshifted grid it measures the floor
+    // that the target grid's alignment alone sets (same spacing, different vertices).
+    if a.inputs.is_empty() || a.levels.is_empty() || a.levels.iter().any(|&l| l > a.target_cells) {
+        eprintln!("need inputs, and no fit level finer than --target-cells");
         usage();
     }
     a

@@ -53,7 +53,9 @@
 //!   `accepted`, `rejected` (names), `held_out_before`, `held_out_after`;
 //!   `/localisation/{vertex,mu,z}` over the surface vertices.
 //! * `<out stem>.json`: the whole report (the catalogue's [`CatalogueReport`] under
-//!   `catalogue`, with material, channels, settings, timings).
+//!   `catalogue`; the [`Evidence`] and [`CatalogueSettings`] of its final pass under
+//!   `catalogue_input`, so that `examples/catalogue_replay` can re-run it; material, channels,
+//!   timings).
 //! * `<out stem>_map.h5` + `.xdmf` (ParaView): the simulated modes and the node field
 //!   `mass_region_z` (ζ(v) in every component) of the localisation.
 //! * Plots (prefix `plots`): `_residuals.png` (standardised residuals of ln f, ln d and ln a per
@@ -707,20 +709,21 @@ fn compute(petsc: &Petsc, job: &Job) -> Result<(), String> {
     let mut evidence = Evidence { fit: measured.fit.clone(), held_out: (!measured.held_out.is_empty()).then(|| measured.held_out.clone()), simulated, residual_envelopes: measured.envelopes.clone() };
     let first = catalogue::diagnose(&evidence, &job.catalogue).map_err(|e| format!("catalogue: {e}"))?;
     let localised = localise(&first, &feats, &mesh_model);
+    let mut final_settings = job.catalogue.clone();
     let report = if localised.region.is_empty() {
         first
     } else {
         let mass_energy = evidence::cluster_region_energies(&shapes, &feats.frequencies_hz, &feats.clusters, &localised.region, true);
         evidence.simulated = evidence::simulated_modes(&feats.frequencies_hz, &feats.drive, &feats.support_energy, Some(&mass_energy), feats.transfer.as_deref(), &feats.clusters).map_err(|e| e.to_string())?;
-        let settings = CatalogueSettings { mass_region_search_params: 2, ..job.catalogue.clone() };
+        final_settings.mass_region_search_params = 2;
         progress.say(format!("frequency residuals point at surface vertex {} (z = {:.1}); catalogue again with it as the candidate added-mass region", localised.best.map_or(0, |b| b.0), localised.best.map_or(0.0, |b| b.1)));
-        catalogue::diagnose(&evidence, &settings).map_err(|e| format!("catalogue: {e}"))?
+        catalogue::diagnose(&evidence, &final_settings).map_err(|e| format!("catalogue: {e}"))?
     };
     let diagnose_seconds = t_diag.elapsed().as_secs_f64();
 
     print_report(job, &measured, &report, youngs, poisson, &feats, &localised);
     let timings = [("measure", measured.seconds), ("material", material_seconds), ("solve", solve_seconds), ("catalogue", diagnose_seconds), ("total", total.elapsed().as_secs_f64())];
-    write_json(job, &measured, &report, youngs, poisson, line_start, &feats, &localised, &timings)?;
+    write_json(job, &measured, &report, youngs, poisson, line_start, &feats, &localised, &timings, (&evidence, &final_settings))?;
     write_hdf5(job, petsc.size(), &measured, &evidence, &report, youngs, poisson, &localised, &feats, &timings)?;
     write_map(job, &mesh_model, &modes.eigenvalues, &shapes, &modes.rigid_eigenvalues, youngs, poisson, &feats, &localised)?;
     write_plots(job, &measured, &report)?;
@@ -775,7 +778,8 @@ fn print_report(job: &Job, measured: &Measured, report: &CatalogueReport, youngs
 }
 
 #[allow(clippy::too_many_arguments)]
-fn write_json(job: &Job, measured: &Measured, report: &CatalogueReport, youngs: f64, poisson: f64, line_start: Option<crate::inverse::material::LineSpectrumStart>, feats: &Features, localised: &Localised, timings: &[(&str, f64)]) -> Result<(), String> {
+#[allow(clippy::too_many_arguments)]
+fn write_json(job: &Job, measured: &Measured, report: &CatalogueReport, youngs: f64, poisson: f64, line_start: Option<crate::inverse::material::LineSpectrumStart>, feats: &Features, localised: &Localised, timings: &[(&str, f64)], catalogue_input: (&Evidence, &CatalogueSettings)) -> Result<(), String> {
     let value = serde_json::json!({
         "format": "diffsound.diagnose",
         "format_version": 1,
@@ -794,6 +798,9 @@ fn write_json(job: &Job, measured: &Measured, report: &CatalogueReport, youngs: 
         "observed": {"fit": measured.fit, "held_out": measured.held_out},
         "localisation": {"best_vertex": localised.best.map(|b| b.0), "best_z": localised.best.map(|b| b.1), "offered_region": localised.region},
         "catalogue": report,
+        // What the final catalogue pass saw, so that it can be replayed without the audio,
+        // the mesh or the solver (examples/catalogue_replay).
+        "catalogue_input": {"evidence": catalogue_input.0, "settings": catalogue_input.1},
         "timings_s": timings.iter().map(|(k, v)| (k.to_string(), *v)).collect::<std::collections::BTreeMap<_, _>>(),
     });
     let text = serde_json::to_string_pretty(&value).map_err(|e| e.to_string())?;

@@ -303,6 +303,9 @@ pub struct CatalogueSettings {
     /// Smallest fall of the held-out Σz² (twice the held-out log-likelihood gain) that counts
     /// as an improvement on held-out data (module docs, "Selection").
     pub min_held_out_gain: f64,
+    /// Divide the held-out gain by the robust over-dispersion ĉ of the held-out rows before
+    /// the effect (quasi-likelihood; module docs, "Selection").
+    pub held_out_dispersion: bool,
 }
 
 impl Default for CatalogueSettings {
@@ -317,6 +320,7 @@ impl Default for CatalogueSettings {
             require_held_out: true,
             mass_region_search_params: 0,
             min_held_out_gain: DEFAULT_MIN_HELD_OUT_GAIN,
+            held_out_dispersion: false,
         }
     }
 }
@@ -682,8 +686,15 @@ impl HeldOutChange {
     /// on the held-out data (the radiation factor model's v per held-out channel) earns nothing
     /// by itself: it lowers Σz² by about its share e² while the error e is unchanged.
     pub fn new(chi2_before: f64, dof_before: f64, chi2_after: f64, dof_after: f64) -> HeldOutChange {
+        HeldOutChange::with_dispersion(chi2_before, dof_before, chi2_after, dof_after, 1.0)
+    }
+
+    /// [`HeldOutChange::new`] with the gain divided by the over-dispersion ĉ ≥ 1 of the
+    /// held-out rows before the effect ([`model::HeldOutChi2::dispersion`]; module docs,
+    /// "Selection"): the quasi-likelihood form of the same test.
+    pub fn with_dispersion(chi2_before: f64, dof_before: f64, chi2_after: f64, dof_after: f64, dispersion: f64) -> HeldOutChange {
         let (e2_before, e2_after) = (chi2_before / dof_before, chi2_after / dof_after);
-        HeldOutChange { before: e2_before.sqrt(), after: e2_after.sqrt(), gain: dof_before * (e2_before - e2_after) }
+        HeldOutChange { before: e2_before.sqrt(), after: e2_after.sqrt(), gain: dof_before * (e2_before - e2_after) / dispersion.max(1.0) }
     }
 }
 

@@ -1030,6 +1030,26 @@ pub fn held_out_error(fit: &Fit, held: &ModeTable, tau2: &FloorVariances) -> Opt
 pub struct HeldOutChi2 {
     pub chi2: f64,
     pub dof: f64,
+    /// Robust over-dispersion of the rows, ĉ = max(1, median z² / 0.4549): how much larger
+    /// than 1 the typical z² is (0.4549 is the median of χ²₁). A median, so that one
+    /// grossly misfitting row (a wrong match) does not inflate it; at least 1, so that a model
+    /// that fits its held-out rows well is never credited more than Σz² says.
+    pub dispersion: f64,
+}
+
+/// Median of the χ² distribution with one degree of freedom.
+const MEDIAN_CHI2_1: f64 = 0.454_936_423_119_572_8;
+
+/// ĉ of [`HeldOutChi2::dispersion`] from whitened residuals.
+pub fn robust_dispersion(z: &[f64]) -> f64 {
+    let mut z2: Vec<f64> = z.iter().filter(|v| v.is_finite()).map(|v| v * v).collect();
+    if z2.is_empty() {
+        return 1.0;
+    }
+    z2.sort_by(f64::total_cmp);
+    let n = z2.len();
+    let median = if n % 2 == 1 { z2[n / 2] } else { 0.5 * (z2[n / 2 - 1] + z2[n / 2]) };
+    (median / MEDIAN_CHI2_1).max(1.0)
 }
 
 impl HeldOutChi2 {
@@ -1074,14 +1094,16 @@ pub fn held_out_chi2(fit: &Fit, held: &ModeTable, tau2: &FloorVariances) -> Opti
         *f = true;
     }
     let mut scratch = start;
-    let residuals = |xs: &[f64], out: &mut [f64]| {
+    let mut residuals = |xs: &[f64], out: &mut [f64]| {
         model.predict(held, xs, &mut scratch);
         whiten(held, &scratch, tau2, out);
     };
-    let min = lm::minimise(residuals, held.n_residuals(), &x, &free, &lower, &upper, &scale, 200);
+    let min = lm::minimise(&mut residuals, held.n_residuals(), &x, &free, &lower, &upper, &scale, 200);
     if !min.cost.is_finite() {
         return None;
     }
+    let mut z = vec![0.0; held.n_residuals()];
+    residuals(&min.x, &mut z);
     // Count only the nuisance parameters the held-out rows can see.
     let channels_seen = (0..held.channels)
         .filter(|&c| {
@@ -1092,7 +1114,7 @@ pub fn held_out_chi2(fit: &Fit, held: &ModeTable, tau2: &FloorVariances) -> Opti
         .count();
     let nuisance = x.len() - BASE_PARAMS - held.channels + channels_seen;
     let dof = (held.rows.len() as f64 - nuisance as f64).max(1.0);
-    Some(HeldOutChi2 { chi2: min.cost, dof })
+    Some(HeldOutChi2 { chi2: min.cost, dof, dispersion: robust_dispersion(&z) })
 }
 
 /// Sets each channel's ln gain (x[BASE_PARAMS + c]) to its mean amplitude residual under

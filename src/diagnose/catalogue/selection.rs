@@ -111,7 +111,8 @@ fn evaluate(
     let held_out = held.and_then(|h| {
         let before = held_out_chi2(current, h, &current.tau2)?;
         let after = held_out_chi2(&candidate, h, &current.tau2)?;
-        Some(HeldOutChange::new(before.chi2, before.dof, after.chi2, after.dof))
+        let dispersion = if settings.held_out_dispersion { before.dispersion } else { 1.0 };
+        Some(HeldOutChange::with_dispersion(before.chi2, before.dof, after.chi2, after.dof, dispersion))
     });
     let i = candidate.model.terms.len() - 1;
     let term = &candidate.model.terms[i];
@@ -532,6 +533,29 @@ mod tests {
         assert!(rose.after > rose.before && rose.gain < 0.0, "{rose:?}");
         let settings = CatalogueSettings { min_held_out_gain: 0.0, ..CatalogueSettings::default() };
         assert_eq!(acceptance(10.0, Some(rose), &settings), Some(Rejection::HeldOutDidNotImprove));
+    }
+
+    /// The quasi-likelihood form: the gain shrinks by ĉ, a ĉ below 1 changes nothing, and ĉ is
+    /// robust: a held-out set whose every row misfits by a factor 5 has ĉ ≈ 25, one with a single
+    /// gross outlier among unit residuals keeps ĉ = 1.
+    #[test]
+    fn held_out_gain_divides_by_a_robust_dispersion() {
+        let plain = HeldOutChange::new(1000.0, 50.0, 900.0, 50.0);
+        let scaled = HeldOutChange::with_dispersion(1000.0, 50.0, 900.0, 50.0, 20.0);
+        assert!((scaled.gain - plain.gain / 20.0).abs() < 1e-9 && scaled.before == plain.before && scaled.after == plain.after);
+        assert_eq!(HeldOutChange::with_dispersion(1000.0, 50.0, 900.0, 50.0, 0.3), plain);
+
+        let mut rng = crate::random::SplitMix64::new(7);
+        let unit: Vec<f64> = (0..2001).map(|_| rng.normal()).collect();
+        let c_unit = super::super::model::robust_dispersion(&unit);
+        assert!((1.0..1.15).contains(&c_unit), "{c_unit}");
+        let wide: Vec<f64> = unit.iter().map(|z| 5.0 * z).collect();
+        let c_wide = super::super::model::robust_dispersion(&wide);
+        assert!((c_wide / 25.0 - 1.0).abs() < 0.15, "{c_wide}");
+        let mut outlier = unit.clone();
+        outlier[3] = 1e4;
+        assert!(super::super::model::robust_dispersion(&outlier) < 1.15);
+        assert_eq!(super::super::model::robust_dispersion(&[]), 1.0);
     }
 
     #[test]
