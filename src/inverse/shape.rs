@@ -144,6 +144,17 @@
 //! in the range where the answers move steadily with h: on a 60 × 40 × 30 mm box at 12 and 14
 //! cells (a wall of one to two cells) the line overshoots by 0.045.
 //!
+//! **The floor the target's own grid sets.** A fit on the target's own spacing (40 cells,
+//! the centred grid) against a 40-cell target on a randomly shifted grid differs from it in
+//! nothing but the grid's alignment. On spot (2 ranks, `shape_benchmark thickness --levels
+//! 20,40 --target-cells 40 --no-extrapolate`, seeds 1 and 2) it gave t = 0.4959 and 0.4968
+//! for t* = 0.5, 0.6910 and 0.7014 for t* = 0.7: errors 0.0041, 0.0032, 0.0090, 0.0014, mean
+//! 0.0044. That is the difference of two independent alignments, so one 40-cell target
+//! carries about 1/√2 of it, 0.002–0.006 in t, by itself — the size of the 0.005 goal — and
+//! no fit can average away the alignment of the one target it is given. The fit's levels add
+//! their own alignment noise, which the line through them carries to h* amplified (for 28/32/36
+//! cells to 40, about 1.3 × a level's).
+//!
 //! E, ν and ρ are known here (the material fit is a separate problem). Every rank runs the same
 //! search on the same numbers (eigenvalues and gradients are broadcast from rank 0), so the
 //! decisions agree across ranks.
