@@ -20,6 +20,7 @@
 //! ```
 
 use diffsound::diagnose::catalogue::{self, CatalogueSettings, Evidence};
+use diffsound::io::{write_atomically, IoError};
 use std::path::{Path, PathBuf};
 
 struct Args {
@@ -69,8 +70,8 @@ fn replay(path: &Path, out: &Path, args: &Args) -> Result<Vec<String>, String> {
     for (k, v) in &args.overrides {
         settings.as_object_mut().ok_or("settings are not a JSON object")?.insert(k.clone(), v.clone());
     }
+    // catalogue::diagnose validates the settings.
     let settings: CatalogueSettings = serde_json::from_value(settings).map_err(|e| format!("settings: {e}"))?;
-    settings.validate().map_err(|e| format!("settings: {e}"))?;
     let result = catalogue::diagnose(&evidence, &settings).map_err(|e| format!("catalogue: {e}"))?;
     let accepted = result.accepted.iter().map(|a| a.name.clone()).collect();
     report["catalogue"] = serde_json::to_value(&result).map_err(|e| e.to_string())?;
@@ -80,7 +81,8 @@ fn replay(path: &Path, out: &Path, args: &Args) -> Result<Vec<String>, String> {
         "settings": settings,
     });
     let text = serde_json::to_string_pretty(&report).map_err(|e| e.to_string())?;
-    std::fs::write(out, text).map_err(|e| format!("{}: {e}", out.display()))?;
+    // Atomic, as diagnose writes its reports: an interrupted replay leaves no half-written file.
+    write_atomically(out, |tmp| std::fs::write(tmp, &text).map_err(|source| IoError::Fs { path: tmp.to_path_buf(), context: "writing the replayed report".into(), source })).map_err(|e| e.to_string())?;
     Ok(accepted)
 }
 

@@ -778,7 +778,6 @@ fn print_report(job: &Job, measured: &Measured, report: &CatalogueReport, youngs
 }
 
 #[allow(clippy::too_many_arguments)]
-#[allow(clippy::too_many_arguments)]
 fn write_json(job: &Job, measured: &Measured, report: &CatalogueReport, youngs: f64, poisson: f64, line_start: Option<crate::inverse::material::LineSpectrumStart>, feats: &Features, localised: &Localised, timings: &[(&str, f64)], catalogue_input: (&Evidence, &CatalogueSettings)) -> Result<(), String> {
     let value = serde_json::json!({
         "format": "diffsound.diagnose",

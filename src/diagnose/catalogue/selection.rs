@@ -540,6 +540,7 @@ mod tests {
     /// gross outlier among unit residuals keeps ĉ = 1.
     #[test]
     fn held_out_gain_divides_by_a_robust_dispersion() {
+        use super::super::model::robust_dispersion;
         let plain = HeldOutChange::new(1000.0, 50.0, 900.0, 50.0);
         let scaled = HeldOutChange::with_dispersion(1000.0, 50.0, 900.0, 50.0, 20.0);
         assert!((scaled.gain - plain.gain / 20.0).abs() < 1e-9 && scaled.before == plain.before && scaled.after == plain.after);
@@ -547,15 +548,15 @@ mod tests {
 
         let mut rng = crate::random::SplitMix64::new(7);
         let unit: Vec<f64> = (0..2001).map(|_| rng.normal()).collect();
-        let c_unit = super::super::model::robust_dispersion(&unit);
+        let c_unit = robust_dispersion(&unit);
         assert!((1.0..1.15).contains(&c_unit), "{c_unit}");
         let wide: Vec<f64> = unit.iter().map(|z| 5.0 * z).collect();
-        let c_wide = super::super::model::robust_dispersion(&wide);
+        let c_wide = robust_dispersion(&wide);
         assert!((c_wide / 25.0 - 1.0).abs() < 0.15, "{c_wide}");
         let mut outlier = unit.clone();
         outlier[3] = 1e4;
-        assert!(super::super::model::robust_dispersion(&outlier) < 1.15);
-        assert_eq!(super::super::model::robust_dispersion(&[]), 1.0);
+        assert!(robust_dispersion(&outlier) < 1.15);
+        assert_eq!(robust_dispersion(&[]), 1.0);
     }
 
     #[test]
