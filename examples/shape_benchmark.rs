@@ -7,7 +7,7 @@
 //!
 //!   mpirun -np 2 target/release/examples/shape_benchmark thickness [--levels 20,28]
 //!       [--target-cells 40] [--modes 8] [--seed 1] [--values 0.3,0.4,0.5,0.6,0.7]
-//!       [--no-extrapolate] [--free-scale] [--json FILE] SURFACE...
+//!       [--replicas K] [--no-extrapolate] [--free-scale] [--json FILE] SURFACE...
 //!   mpirun -np 2 target/release/examples/shape_benchmark morph [--levels 16,22]
 //!       [--target-cells 32] [--values 0,0.2,0.4,0.6,0.8,1] A.obj:B.obj...
 //!
@@ -18,9 +18,15 @@
 //! grid spacing (the extrapolation in h needs it; for a measured object it is 0) but not the
 //! true parameter. The thickness reference S (deepest point of the surface) is computed once
 //! per surface and used by target and fit alike.
+//!
+//! `--replicas K` fits every level after the first on K grids of its spacing, moved by r/K of
+//! a cell along the diagonal (r = 0 … K−1, [`replica_shift`]), each replica a level of its own
+//! (starting from the previous one's answer), and the line in h goes through the finest
+//! 3·K answers: the grids' alignment noise averages over the replicas instead of riding on one
+//! alignment per spacing (module docs of `diffsound::inverse::shape`, "Grid bias").
 use diffsound::random::SplitMix64;
 use diffsound::fem::Material;
-use diffsound::inverse::shape::{fit_morph, fit_thickness, normalise_surface, read_surface, reference_depth, shape_spectrum, union_box, FitEvaluation, SampledField, ShapeFamily, ShapeFit, ShapeFitSettings, SpectrumTarget};
+use diffsound::inverse::shape::{fit_morph, fit_thickness, normalise_surface, replica_shift, read_surface, reference_depth, shape_spectrum, union_box, FitEvaluation, SampledField, ShapeFamily, ShapeFit, ShapeFitSettings, SpectrumTarget};
 use diffsound::mesh::{BackgroundGrid, MarchingOptions, SignedDistance, TriangleSurface};
 use diffsound::petsc::Petsc;
 use std::time::Instant;
@@ -28,6 +34,7 @@ use std::time::Instant;
 struct Args {
     task: String,
     levels: Vec<usize>,
+    replicas: usize,
     target_cells: usize,
     modes: usize,
     seed: u64,
@@ -39,7 +46,7 @@ struct Args {
 }
 
 fn usage() -> ! {
-    eprintln!("usage: shape_benchmark thickness|morph [--levels N,N] [--target-cells N] [--modes N] [--seed S] [--values a,b,..] [--no-extrapolate] [--free-scale] [--json FILE] SURFACE... | A:B...");
+    eprintln!("usage: shape_benchmark thickness|morph [--levels N,N] [--target-cells N] [--modes N] [--seed S] [--values a,b,..] [--replicas K] [--no-extrapolate] [--free-scale] [--json FILE] SURFACE... | A:B...");
     std::process::exit(2)
 }
 
@@ -54,6 +61,7 @@ fn parse_args() -> Args {
     let mut a = Args {
         task,
         levels: if morph { vec![16, 22] } else { vec![20, 28] },
+        replicas: 1,
         target_cells: if morph { 32 } else { 40 },
         modes: 8,
         seed: 1,
@@ -72,6 +80,7 @@ fn parse_args() -> Args {
             "--modes" => a.modes = value().parse().unwrap_or_else(|_| usage()),
             "--seed" => a.seed = value().parse().unwrap_or_else(|_| usage()),
             "--values" => a.values = list(value()),
+            "--replicas" => a.replicas = value().parse().ok().filter(|&k| (1..=4).contains(&k)).unwrap_or_else(|| usage()),
             "--no-extrapolate" => a.extrapolate = false,
             "--free-scale" => a.free_scale = true,
             "--json" => a.json = Some(value()),
@@ -117,23 +126,28 @@ fn main() {
     settings.modes = args.modes;
     settings.extrapolate = args.extrapolate;
     settings.free_scale = args.free_scale;
+    // Every level after the first on `replicas` grids: (cells, replica).
+    let fit_levels: Vec<(usize, usize)> = args.levels.iter().enumerate().flat_map(|(i, &c)| (0..if i == 0 { 1 } else { args.replicas }).map(move |r| (c, r))).collect();
+    settings.extrapolation_levels *= args.replicas;
+    let level_name = |&(c, r): &(usize, usize)| if r == 0 { format!("@{c}") } else { format!("@{c}~{r}") };
     let name_p = if morph { "c" } else { "t" };
     if root {
         println!(
-            "## {} benchmark\n\nseed {}, {} modes, fit levels {:?} cells, target grid {} cells (randomly shifted), {} rank(s), ceramic, shapes scaled to a 0.1 m diagonal, extrapolation in h {}, free stiffness scale {}.\n",
+            "## {} benchmark\n\nseed {}, {} modes, fit levels {:?} cells ({} grid replica(s) per level after the first), target grid {} cells (randomly shifted), {} rank(s), ceramic, shapes scaled to a 0.1 m diagonal, extrapolation in h {}, free stiffness scale {}.\n",
             if morph { "Morph" } else { "Thickness" },
             args.seed,
             args.modes,
             args.levels,
+            args.replicas,
             args.target_cells,
             petsc.size(),
             if args.extrapolate { "on" } else { "off" },
             if args.free_scale { "on" } else { "off" }
         );
-        let per_level: String = args.levels.iter().map(|l| format!(" {name_p} @{l} |")).collect();
-        let timing: String = args.levels.iter().map(|l| format!(" s/eval @{l} (mesh/asm/solve/grad) | evals @{l} |")).collect();
+        let per_level: String = fit_levels.iter().map(|l| format!(" {name_p} {} |", level_name(l))).collect();
+        let timing: String = fit_levels.iter().map(|l| format!(" s/eval {0} (mesh/asm/solve/grad) | evals {0} |", level_name(l))).collect();
         println!("| shape | {name_p}* | {name_p} fit | abs err |{per_level} final-level abs err |{timing} target s | fit s |");
-        println!("|---|---|---|---|{}---|{}---|---|", "---|".repeat(args.levels.len()), "---|---|".repeat(args.levels.len()));
+        println!("|---|---|---|---|{}---|{}---|---|", "---|".repeat(fit_levels.len()), "---|---|".repeat(fit_levels.len()));
     }
     let mut rng = SplitMix64::new(args.seed);
     let mut records = Vec::new();
@@ -149,7 +163,7 @@ fn main() {
             let (nb, sb, db) = load(pb);
             (lo, hi) = union_box(&[&sa, &sb]);
             name = format!("{na}/{nb}");
-            sampled = args.levels.iter().map(|&n| (SampledField::of_sdf(&da, lo, hi, n).expect("field"), Some(SampledField::of_sdf(&db, lo, hi, n).expect("field")))).collect();
+            sampled = fit_levels.iter().map(|&(n, r)| (SampledField::of_sdf_shifted(&da, lo, hi, n, replica_shift(r, args.replicas)).expect("field"), Some(SampledField::of_sdf_shifted(&db, lo, hi, n, replica_shift(r, args.replicas)).expect("field")))).collect();
             family_at = Box::new(|a, b| ShapeFamily::Morph { a: a.values.clone(), b: b.expect("pair").values.clone() });
             sdfs = vec![da, db];
         } else {
@@ -160,7 +174,7 @@ fn main() {
                 eprintln!("{n}: reference depth S = {:.5} mm", 1e3 * depth);
             }
             name = n;
-            sampled = args.levels.iter().map(|&c| (SampledField::of_sdf(&d, lo, hi, c).expect("field"), None)).collect();
+            sampled = fit_levels.iter().map(|&(c, r)| (SampledField::of_sdf_shifted(&d, lo, hi, c, replica_shift(r, args.replicas)).expect("field"), None)).collect();
             family_at = Box::new(move |a, _| ShapeFamily::Thickness { solid: a.values.clone(), depth });
             sdfs = vec![d];
         }

@@ -475,6 +475,21 @@ impl SampledField {
         Ok(SampledField { grid, values })
     }
 
+    /// [`SampledField::of_sdf`] on the grid moved by `shift` cells along the axes
+    /// ([`shifted_covering`]): the same spacing, another alignment of the vertices with the
+    /// surface (a replica level, module docs "Grid bias and its extrapolation").
+    pub fn of_sdf_shifted(sdf: &SignedDistance, lo: [f64; 3], hi: [f64; 3], cells: usize, shift: [f64; 3]) -> Result<SampledField, ShapeError> {
+        if cells < 4 {
+            return Err(ShapeError::Invalid(format!("a grid needs at least 4 cells along its longest axis, got {cells}")));
+        }
+        let grid = shifted_covering(lo, hi, cells, shift)?;
+        let values = sdf.evaluate(&grid.vertex_positions());
+        if !values.iter().any(|&v| v > 0.0) {
+            return Err(ShapeError::Invalid(format!("no vertex of the shifted {cells}-cell grid lies inside the surface: is it closed?")));
+        }
+        Ok(SampledField { grid, values })
+    }
+
     /// Cell size h [m] (cubic cells).
     pub fn spacing(&self) -> f64 {
         self.grid.spacing()[0]
@@ -484,6 +499,18 @@ impl SampledField {
     pub fn cells(&self) -> usize {
         self.grid.cells().into_iter().max().unwrap_or(0)
     }
+}
+
+/// Shift of replica `r` of `replicas` grids of one spacing, in cells: r/K along every axis,
+/// wrapped into [−½, ½) (K = 2: the centred grid and the one moved by half a cell along the
+/// diagonal, whose vertices sit at the centred grid's cell centres).
+pub fn replica_shift(r: usize, replicas: usize) -> [f64; 3] {
+    let k = replicas.max(1) as f64;
+    let mut s = (r % replicas.max(1)) as f64 / k;
+    if s >= 0.5 {
+        s -= 1.0;
+    }
+    [s; 3]
 }
 
 /// [`BackgroundGrid::covering`] with one cell of margin, moved by `shift` cells along the axes

@@ -202,6 +202,36 @@ fn surfaces_are_centred_and_scaled_to_the_diagonal() {
     assert!(normalise_surface(&mut point, 0.1).is_err());
 }
 
+/// Replica shifts stay inside the half-cell band, replica 0 is the centred grid, and a
+/// shifted field samples the same distance at vertices moved by exactly the shift.
+#[test]
+fn replica_grids_are_shifted_copies_of_the_centred_grid() {
+    assert_eq!(replica_shift(0, 1), [0.0; 3]);
+    assert_eq!(replica_shift(0, 3), [0.0; 3]);
+    assert_eq!(replica_shift(1, 2), [-0.5; 3]);
+    let s3: Vec<f64> = (0..3).map(|r| replica_shift(r, 3)[0]).collect();
+    assert!((s3[1] - 1.0 / 3.0).abs() < 1e-15 && (s3[2] + 1.0 / 3.0).abs() < 1e-15, "{s3:?}");
+    for k in 1..=4 {
+        for r in 0..k {
+            assert!(replica_shift(r, k).iter().all(|v| v.abs() <= 0.5));
+        }
+    }
+    let mut s = TriangleSurface::new(vec![[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]], vec![[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]]).unwrap();
+    normalise_surface(&mut s, 0.1).unwrap();
+    let sdf = SignedDistance::new(&s).unwrap();
+    let (lo, hi) = s.bounding_box();
+    let centred = SampledField::of_sdf(&sdf, lo, hi, 8).unwrap();
+    assert_eq!(SampledField::of_sdf_shifted(&sdf, lo, hi, 8, [0.0; 3]).unwrap().values, centred.values);
+    let moved = SampledField::of_sdf_shifted(&sdf, lo, hi, 8, replica_shift(1, 2)).unwrap();
+    assert_eq!(moved.grid.cells(), centred.grid.cells());
+    let h = centred.spacing();
+    for d in 0..3 {
+        assert!((moved.grid.origin()[d] - (centred.grid.origin()[d] - 0.5 * h)).abs() < 1e-15);
+    }
+    assert_ne!(moved.values, centred.values);
+    assert!(SampledField::of_sdf_shifted(&sdf, lo, hi, 8, [0.6, 0.0, 0.0]).is_err());
+}
+
 #[test]
 fn settings_are_validated() {
     assert!(ShapeFitSettings::default().validate().is_ok());
