@@ -765,6 +765,29 @@ fn a_pair_with_unlike_decay_rates_is_not_a_beating_pair() {
     assert!(within_3_sigma(param(a, "relative split δf/f of cluster 8 "), 0.002), "{a:?}");
 }
 
+/// Two poles centred far from their cluster (3 % below it, while every other match sits on
+/// its model frequency) are not identified with it: not a beating pair, whatever their split.
+#[test]
+fn a_pair_centred_far_from_its_cluster_is_not_a_beating_pair() {
+    let truth = Truth {
+        splits: vec![(3, 0.004), (8, 0.002)],
+        ..Truth::default()
+    };
+    let (mut ev, _) = evidence(&truth, 22);
+    let first = diagnose(&ev, &CatalogueSettings::default()).expect("valid");
+    let members: Vec<usize> = first.matching.pairs.iter().filter(|p| p.cluster == 3 && p.role != Role::Single).map(|p| p.observed).collect();
+    assert_eq!(members.len(), 2, "cluster 3 is seen split");
+    for &i in &members {
+        ev.fit[i].frequency_hz *= 0.97;
+    }
+    let report = diagnose(&ev, &CatalogueSettings::default()).expect("valid");
+    assert!(report.matching.pairs.iter().filter(|p| p.cluster == 3 && p.role != Role::Single).count() == 2, "still matched as a pair: {:#?}", report.matching.pairs);
+    let a = expect_accepted(&report, "beating_pair");
+    assert!(a.params.iter().all(|p| !p.name.contains("cluster 3 ")), "{a:?}");
+    assert!(within_3_sigma(param(a, "relative split δf/f of cluster 8 "), 0.002), "{a:?}");
+    assert!(report.unexplained.iter().any(|u| members.contains(&u.observed) && u.quantity == Some(Quantity::LnFrequency)), "{:#?}", report.unexplained);
+}
+
 #[test]
 fn support_contact_damping_and_stiffening_are_recovered() {
     let truth = Truth {
