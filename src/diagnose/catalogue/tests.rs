@@ -788,6 +788,32 @@ fn a_pair_centred_far_from_its_cluster_is_not_a_beating_pair() {
     assert!(report.unexplained.iter().any(|u| members.contains(&u.observed) && u.quantity == Some(Quantity::LnFrequency)), "{:#?}", report.unexplained);
 }
 
+/// A split narrower than the pair's own measured glide lies inside the range the mode sweeps:
+/// not a beating pair. The same split with a glide narrower than it still is.
+#[test]
+fn a_split_inside_its_glide_sweep_is_not_a_beating_pair() {
+    let truth = Truth {
+        splits: vec![(3, 0.004), (8, 0.002)],
+        ..Truth::default()
+    };
+    let (ev, _) = evidence(&truth, 22);
+    let first = diagnose(&ev, &CatalogueSettings::default()).expect("valid");
+    let members: Vec<usize> = first.matching.pairs.iter().filter(|p| p.cluster == 3 && p.role != Role::Single).map(|p| p.observed).collect();
+    assert_eq!(members.len(), 2, "cluster 3 is seen split");
+    let with_glide = |g: f64| {
+        let mut ev = ev.clone();
+        ev.fit[members[1]].glide = Some((g, 0.05 * g));
+        diagnose(&ev, &CatalogueSettings::default()).expect("valid")
+    };
+    let report = with_glide(0.006);
+    let a = expect_accepted(&report, "beating_pair");
+    assert!(a.params.iter().all(|p| !p.name.contains("cluster 3 ")), "{a:?}");
+    assert!(within_3_sigma(param(a, "relative split δf/f of cluster 8 "), 0.002), "{a:?}");
+    let report = with_glide(0.002);
+    let a = expect_accepted(&report, "beating_pair");
+    assert!(within_3_sigma(param(a, "relative split δf/f of cluster 3 "), 0.004), "{a:?}");
+}
+
 #[test]
 fn support_contact_damping_and_stiffening_are_recovered() {
     let truth = Truth {
