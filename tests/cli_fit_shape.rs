@@ -75,6 +75,19 @@ fn thickness_and_morph_fits_write_results_and_a_paraview_mesh() {
     assert!(run.success(), "{}", run.describe());
     let c_file = number_attribute(&from_file, "/fit", "finest_level_parameter");
     assert!((c_file - number_attribute(&morph, "/fit", "finest_level_parameter")).abs() < 1e-9, "same target, same finest-level answer");
+
+    // Two grid replicas of the finer level: one more level of the same spacing, half a cell off.
+    let replicas = dir.join("morph_replicas.h5");
+    let mut args = vec!["fit-morph", "--shape-a", s(&a), "--shape-b", s(&b), "--target", s(&file), "--target-spacing", "0.003", "--replicas", "2", "--out", s(&replicas)];
+    args.extend(SMALL);
+    let run = mpirun(1, &args, LIMIT);
+    assert!(run.success(), "{}", run.describe());
+    let (cells, _) = read_dataset(&replicas, "/fit/levels/cells").unwrap();
+    assert_eq!(cells, vec![12.0, 14.0, 14.0]);
+    let (spacing, _) = read_dataset(&replicas, "/fit/levels/spacing").unwrap();
+    assert!((spacing[1] - spacing[2]).abs() < 1e-15, "{spacing:?}");
+    let c_replicas = number_attribute(&replicas, "/fit", "parameter");
+    assert!((c_replicas - 0.3).abs() < 0.1, "morph weight with replicas {c_replicas}");
 }
 
 #[test]
@@ -98,6 +111,7 @@ fn bad_input_fails_cleanly_without_output() {
         (vec!["fit-thickness", "--surface", s(&garbage), "--target-thickness", "0.5"], "garbage.obj"),
         (vec!["fit-thickness", "--config", s(&config), "--surface", s(&solid), "--target-thickness", "0.5"], "modse"),
         (vec!["fit-morph", "--shape-a", s(&solid), "--target-weight", "0.5"], "no shape B"),
+        (vec!["fit-thickness", "--surface", s(&solid), "--target-thickness", "0.5", "--replicas", "5"], "--replicas must lie in 1..=4"),
         (vec!["fit-morph", "--shape-a", s(&solid), "--shape-b", s(&solid), "--target-weight", "0.5", "--cells", "14,12"], "must increase"),
     ];
     for (mut args, expected) in cases {

@@ -23,7 +23,11 @@
 //!   scanned, every level refined; with two or more levels the answer is extrapolated linearly
 //!   in the grid spacing to the target's spacing (`target_spacing`, default 0 for a file
 //!   target, the target grid's for a synthesised one; `--no-extrapolate` answers with the
-//!   finest level).
+//!   finest level). `replicas` K (default 1) fits every level after the first on K grids of
+//!   its spacing, moved by r/K of a cell along the diagonal, and the line goes through all of
+//!   them: the grids' alignment noise averages instead of riding on one alignment per spacing
+//!   (src/inverse/shape.rs, "Grid bias and its extrapolation"), at K times the cost of those
+//!   levels.
 //! * **Material**: a preset and overrides (E, ν, ρ are known; only the shape is fitted).
 //!
 //! # Outputs
@@ -35,7 +39,7 @@
 //! | path | contents |
 //! |------|----------|
 //! | `/fit` attrs | `parameter` (the answer), `finest_level_parameter`, `extrapolated` (if any), `target_spacing` [m], `loss` (finest level), `evaluations`, `seconds`; synthesised targets add `true_parameter`, `abs_error`, `target_cells` |
-//! | `/fit/levels/{cells,spacing,parameter,loss,log_stiffness_scale,evaluations,seconds}` | per level, coarse to fine; spacing in m; log_stiffness_scale the profiled ln factor with `--free-scale` (else 0) |
+//! | `/fit/levels/{cells,spacing,parameter,loss,log_stiffness_scale,evaluations,seconds}` | per level, coarse to fine (replicas of a spacing are consecutive entries with equal cells); spacing in m; log_stiffness_scale the profiled ln factor with `--free-scale` (else 0) |
 //! | `/fit/history/{level,cells,phase,parameter,loss,gradient,step,tets,p2_nodes,meshing_s,assembly_s,solve_s,gradient_s,failed}` | every evaluation (phase 0 = scan, 1 = refine; failed 1 where no body could be meshed or solved, loss NaN) |
 //! | `/modes/{target_frequency_hz,fitted_frequency_hz,target_eigenvalues,fitted_eigenvalues,relative_frequency_error}` | the compared modes: target vs the finest level's best fit (the model on that grid) |
 //! | `/modes/answer_frequency_hz` | the body at the answer (extrapolated) parameter on the finest grid: the mesh file's modes |
@@ -50,7 +54,7 @@
 use super::{fail, Progress};
 use crate::random::SplitMix64;
 use crate::fem::Material;
-use crate::inverse::shape::{fit_shape, normalise_surface, read_surface, reference_depth, shape_modes, shape_spectrum, shifted_covering, union_box, FitEvaluation, SearchPhase, ShapeFamily, ShapeFit, ShapeFitSettings, ShapeLevel, SpectrumTarget};
+use crate::inverse::shape::{fit_shape, normalise_surface, read_surface, reference_depth, shape_modes, replica_shift, shape_spectrum, shifted_covering, union_box, FitEvaluation, SearchPhase, ShapeFamily, ShapeFit, ShapeFitSettings, ShapeLevel, SpectrumTarget};
 use crate::io::results::ResultsFile;
 use crate::io::{write_modes, MaterialRecord, ModesFile};
 use crate::mesh::{self, MarchingOptions, SignedDistance, TriangleSurface};
@@ -76,6 +80,10 @@ pub struct ShapeArgs {
     /// Grid levels, coarse to fine: cells along the longest axis (default 20,28).
     #[arg(long, value_delimiter = ',')]
     pub cells: Vec<usize>,
+    /// Grids per level after the first, each moved by r/K of a cell along the diagonal; the
+    /// extrapolation goes through all of them (1–4, default 1).
+    #[arg(long)]
+    pub replicas: Option<usize>,
     /// Modes compared (default 8).
     #[arg(long)]
     pub modes: Option<usize>,
@@ -167,6 +175,7 @@ pub struct FitMorphArgs {
 /// units = "m"
 /// diagonal = 0.1
 /// cells = [20, 28]
+/// replicas = 1                  # grids per level after the first (1–4)
 /// out = "out/spot_thickness.h5"
 /// [target]
 /// file = "modes.txt"            # or: thickness = 0.5 (fit-morph: weight = 0.4), cells = 40, seed = 1
@@ -188,6 +197,7 @@ pub struct ShapeFileConfig {
     pub units: Option<String>,
     pub diagonal: Option<f64>,
     pub cells: Option<Vec<usize>>,
+    pub replicas: Option<usize>,
     pub out: Option<PathBuf>,
     #[serde(default)]
     pub target: TargetConfig,
@@ -258,6 +268,8 @@ pub struct Job {
     pub unit_scale: f64,
     pub diagonal: Option<f64>,
     pub cells: Vec<usize>,
+    /// Grids per level after the first ([`crate::inverse::shape::replica_shift`]).
+    pub replicas: usize,
     pub target: TargetSource,
     pub material: Material,
     pub settings: ShapeFitSettings,
@@ -339,6 +351,10 @@ fn resolve(task: Task, synthetic_value: Option<f64>, bounds: Option<(f64, f64)>,
     if cells.windows(2).any(|w| w[0] >= w[1]) {
         return Err(format!("--cells must increase from coarse to fine, got {cells:?}"));
     }
+    let replicas = common.replicas.or(file.replicas).unwrap_or(1);
+    if !(1..=4).contains(&replicas) {
+        return Err(format!("--replicas must lie in 1..=4, got {replicas}"));
+    }
     let mut settings = file.fit.clone().unwrap_or_else(|| match task {
         Task::Thickness { .. } => ShapeFitSettings::default(),
         Task::Morph { .. } => ShapeFitSettings::morph(),
@@ -362,6 +378,8 @@ fn resolve(task: Task, synthetic_value: Option<f64>, bounds: Option<(f64, f64)>,
         settings.free_scale = true;
     }
     settings.validate().map_err(|e| e.to_string())?;
+    // The line goes through the same number of spacings, each with all its replicas.
+    settings.extrapolation_levels *= replicas;
     let (lo, hi) = settings.bounds;
     match task {
         Task::Thickness { .. } if !(lo > 0.0 && hi <= 1.0) => return Err(format!("thickness bounds ({lo}, {hi}) must lie in (0, 1]")),
@@ -414,7 +432,7 @@ fn resolve(task: Task, synthetic_value: Option<f64>, bounds: Option<(f64, f64)>,
     let mesh_out = super::fit_material::plot_path(&out.with_extension(""), "_mesh.h5");
     let mut petsc_options = file.solver.petsc_options.clone();
     petsc_options.extend(common.petsc_options.iter().cloned());
-    Ok(Job { task, unit_scale, diagonal, cells, target, material, settings, out, mesh_out, petsc_options, verbose: common.verbose })
+    Ok(Job { task, unit_scale, diagonal, cells, replicas, target, material, settings, out, mesh_out, petsc_options, verbose: common.verbose })
 }
 
 pub fn resolve_thickness(args: &FitThicknessArgs) -> Result<Job, String> {
@@ -523,9 +541,12 @@ fn compute(petsc: &Petsc, job: &Job, shapes: Vec<Shape>) -> Result<(), String> {
         progress.say(format!("{}: reference depth S = {:.4} mm (deepest point of the solid)", shapes[0].path.display(), 1e3 * depth));
     }
     let mut levels = Vec::new();
-    for &cells in &job.cells {
-        let grid = mesh::BackgroundGrid::covering(lo, hi, cells, 1.0).map_err(|e| e.to_string())?;
-        levels.push(ShapeLevel { family: family_on(job, &shapes, &grid, depth), grid });
+    for (i, &cells) in job.cells.iter().enumerate() {
+        let replicas = if i == 0 { 1 } else { job.replicas };
+        for r in 0..replicas {
+            let grid = shifted_covering(lo, hi, cells, replica_shift(r, replicas)).map_err(|e| e.to_string())?;
+            levels.push(ShapeLevel { family: family_on(job, &shapes, &grid, depth), grid });
+        }
     }
     let setup_seconds = total.elapsed().as_secs_f64();
 
