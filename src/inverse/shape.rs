@@ -476,15 +476,7 @@ impl SampledField {
     /// Samples `sdf` on the grid of cubic cells with `cells` along the longest axis of the box
     /// [lo, hi] plus one cell of margin ([`BackgroundGrid::covering`]).
     pub fn of_sdf(sdf: &SignedDistance, lo: [f64; 3], hi: [f64; 3], cells: usize) -> Result<SampledField, ShapeError> {
-        if cells < 4 {
-            return Err(ShapeError::Invalid(format!("a grid needs at least 4 cells along its longest axis, got {cells}")));
-        }
-        let grid = BackgroundGrid::covering(lo, hi, cells, 1.0)?;
-        let values = sdf.evaluate(&grid.vertex_positions());
-        if !values.iter().any(|&v| v > 0.0) {
-            return Err(ShapeError::Invalid(format!("no vertex of the {cells}-cell grid lies inside the surface: is it closed?")));
-        }
-        Ok(SampledField { grid, values })
+        SampledField::of_sdf_shifted(sdf, lo, hi, cells, [0.0; 3])
     }
 
     /// [`SampledField::of_sdf`] on the grid moved by `shift` cells along the axes
@@ -497,7 +489,7 @@ impl SampledField {
         let grid = shifted_covering(lo, hi, cells, shift)?;
         let values = sdf.evaluate(&grid.vertex_positions());
         if !values.iter().any(|&v| v > 0.0) {
-            return Err(ShapeError::Invalid(format!("no vertex of the shifted {cells}-cell grid lies inside the surface: is it closed?")));
+            return Err(ShapeError::Invalid(format!("no vertex of the {cells}-cell grid lies inside the surface: is it closed?")));
         }
         Ok(SampledField { grid, values })
     }
