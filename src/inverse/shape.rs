@@ -165,7 +165,12 @@
 //! 0.0128 over t* = 0.3 … 0.7), and with K = 2 the mean error fell to 0.0030 (max 0.0063), at
 //! 2.6 × the fit time (391 s mean, on a machine shared with builds; 152 s with K = 1). It
 //! cannot remove the target's own alignment (above), nor a bias that is not linear in h (the
-//! turtle at t* = 0.7: levels 0.398/0.482/0.526/0.591, line 0.621).
+//! turtle at t* = 0.7: levels 0.398/0.482/0.526/0.591, line 0.621). On spot, whose bias
+//! curves, it did not pay: on the same two targets (t* = 0.5 and 0.7, seed 1) K = 1 missed by
+//! 0.0046 and 0.0045, K = 2 by 0.0001 and 0.0124 (the shifted 32- and 36-cell grids answered
+//! 0.608 and 0.649 against the centred 0.624 and 0.671 at t* = 0.7, tilting the line). So K
+//! stays 1 by default: it is the remedy for a body whose answers alternate with the grid's
+//! alignment, not for curvature in h.
 //!
 //! E, ν and ρ are known here (the material fit is a separate problem). Every rank runs the same
 //! search on the same numbers (eigenvalues and gradients are broadcast from rank 0), so the
