@@ -26,7 +26,7 @@
 //! alignment per spacing (module docs of `diffsound::inverse::shape`, "Grid bias").
 use diffsound::random::SplitMix64;
 use diffsound::fem::Material;
-use diffsound::inverse::shape::{fit_morph, fit_thickness, normalise_surface, replica_shift, read_surface, reference_depth, shape_spectrum, union_box, FitEvaluation, SampledField, ShapeFamily, ShapeFit, ShapeFitSettings, SpectrumTarget};
+use diffsound::inverse::shape::{fit_morph, fit_thickness, normalise_surface, replica_levels, replica_shift, read_surface, reference_depth, shape_spectrum, union_box, FitEvaluation, SampledField, ShapeFamily, ShapeFit, ShapeFitSettings, SpectrumTarget};
 use diffsound::mesh::{BackgroundGrid, MarchingOptions, SignedDistance, TriangleSurface};
 use diffsound::petsc::Petsc;
 use std::time::Instant;
@@ -127,7 +127,7 @@ fn main() {
     settings.extrapolate = args.extrapolate;
     settings.free_scale = args.free_scale;
     // Every level after the first on `replicas` grids: (cells, replica).
-    let fit_levels: Vec<(usize, usize)> = args.levels.iter().enumerate().flat_map(|(i, &c)| (0..if i == 0 { 1 } else { args.replicas }).map(move |r| (c, r))).collect();
+    let fit_levels = replica_levels(&args.levels, args.replicas);
     settings.extrapolation_levels *= args.replicas;
     let level_name = |&(c, r): &(usize, usize)| if r == 0 { format!("@{c}") } else { format!("@{c}~{r}") };
     let name_p = if morph { "c" } else { "t" };

@@ -54,7 +54,7 @@
 use super::{fail, Progress};
 use crate::random::SplitMix64;
 use crate::fem::Material;
-use crate::inverse::shape::{fit_shape, normalise_surface, read_surface, reference_depth, shape_modes, replica_shift, shape_spectrum, shifted_covering, union_box, FitEvaluation, SearchPhase, ShapeFamily, ShapeFit, ShapeFitSettings, ShapeLevel, SpectrumTarget};
+use crate::inverse::shape::{fit_shape, normalise_surface, read_surface, reference_depth, shape_modes, replica_levels, replica_shift, shape_spectrum, shifted_covering, union_box, FitEvaluation, SearchPhase, ShapeFamily, ShapeFit, ShapeFitSettings, ShapeLevel, SpectrumTarget};
 use crate::io::results::ResultsFile;
 use crate::io::{write_modes, MaterialRecord, ModesFile};
 use crate::mesh::{self, MarchingOptions, SignedDistance, TriangleSurface};
@@ -541,12 +541,9 @@ fn compute(petsc: &Petsc, job: &Job, shapes: Vec<Shape>) -> Result<(), String> {
         progress.say(format!("{}: reference depth S = {:.4} mm (deepest point of the solid)", shapes[0].path.display(), 1e3 * depth));
     }
     let mut levels = Vec::new();
-    for (i, &cells) in job.cells.iter().enumerate() {
-        let replicas = if i == 0 { 1 } else { job.replicas };
-        for r in 0..replicas {
-            let grid = shifted_covering(lo, hi, cells, replica_shift(r, replicas)).map_err(|e| e.to_string())?;
-            levels.push(ShapeLevel { family: family_on(job, &shapes, &grid, depth), grid });
-        }
+    for (cells, r) in replica_levels(&job.cells, job.replicas) {
+        let grid = shifted_covering(lo, hi, cells, replica_shift(r, job.replicas)).map_err(|e| e.to_string())?;
+        levels.push(ShapeLevel { family: family_on(job, &shapes, &grid, depth), grid });
     }
     let setup_seconds = total.elapsed().as_secs_f64();
 

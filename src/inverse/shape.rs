@@ -522,6 +522,13 @@ pub fn replica_shift(r: usize, replicas: usize) -> [f64; 3] {
     [s; 3]
 }
 
+/// The fit levels with `replicas` K grids per spacing: (cells, replica r) coarse to fine, the
+/// first spacing once (it is scanned, and a replica would only repeat the scan's role), every
+/// later one K times in a row; r goes to [`replica_shift`]`(r, K)`.
+pub fn replica_levels(cells: &[usize], replicas: usize) -> Vec<(usize, usize)> {
+    cells.iter().enumerate().flat_map(|(i, &c)| (0..if i == 0 { 1 } else { replicas.max(1) }).map(move |r| (c, r))).collect()
+}
+
 /// [`BackgroundGrid::covering`] with one cell of margin, moved by `shift` cells along the axes
 /// (each in [−½, ½], so the box stays inside): the same spacing, vertices that do not line up
 /// with the centred grid's (a target grid of 40 cells would otherwise contain every vertex of a

@@ -230,6 +230,8 @@ fn replica_grids_are_shifted_copies_of_the_centred_grid() {
     }
     assert_ne!(moved.values, centred.values);
     assert!(SampledField::of_sdf_shifted(&sdf, lo, hi, 8, [0.6, 0.0, 0.0]).is_err());
+    assert_eq!(replica_levels(&[20, 28, 32], 2), vec![(20, 0), (28, 0), (28, 1), (32, 0), (32, 1)]);
+    assert_eq!(replica_levels(&[20, 28], 1), vec![(20, 0), (28, 0)]);
 }
 
 #[test]
