@@ -99,11 +99,29 @@ fn recovers_the_material_on_one_and_two_ranks() {
             assert!(std::fs::metadata(&png).map(|m| m.len() > 1000).unwrap_or(false), "{} missing", png.display());
         }
     }
-    // The same answer on 1 and 2 ranks (the distributed solves differ only by rounding).
+    // The same answer on 1 and 2 ranks. The distributed solves differ only by rounding, but this
+    // fit stops at --max-steps while the descent still creeps (about 1e-6 per step in ln E), so
+    // rounding can leave the two paths apart by up to what the last `WINDOW` steps still moved:
+    // on one CI machine E differed by 4e-6 (relative) with a window spread of 2e-5. The bound is
+    // that spread, never less than 1e-6.
+    const WINDOW: usize = 20;
     let e: Vec<f64> = outs.iter().map(|o| number_attribute(o, "/material", "youngs_modulus")).collect();
     let nu: Vec<f64> = outs.iter().map(|o| number_attribute(o, "/material", "poisson_ratio")).collect();
-    assert!((e[0] - e[1]).abs() < 1e-6 * e[0], "E on 1 and 2 ranks: {e:?}");
-    assert!((nu[0] - nu[1]).abs() < 1e-6, "ν on 1 and 2 ranks: {nu:?}");
+    let (mut e_moved, mut nu_moved) = (1e-6_f64, 1e-6_f64);
+    for out in &outs {
+        e_moved = e_moved.max(spread_of_last(out, "/fit/history/youngs_modulus", WINDOW, f64::ln));
+        nu_moved = nu_moved.max(spread_of_last(out, "/fit/history/poisson_ratio", WINDOW, |x| x));
+    }
+    assert!((e[0] / e[1]).ln().abs() <= e_moved, "E on 1 and 2 ranks: {e:?}, the last {WINDOW} steps moved ln E by {e_moved:e}");
+    assert!((nu[0] - nu[1]).abs() <= nu_moved, "ν on 1 and 2 ranks: {nu:?}, the last {WINDOW} steps moved ν by {nu_moved:e}");
+}
+
+/// max − min of `map(x)` over the last `window` entries of a fit-history dataset.
+fn spread_of_last(out: &Path, dataset: &str, window: usize, map: fn(f64) -> f64) -> f64 {
+    let (history, _) = read_dataset(out, dataset).unwrap();
+    assert!(history.len() >= window, "{dataset} has {} entries", history.len());
+    let tail: Vec<f64> = history[history.len() - window..].iter().map(|&x| map(x)).collect();
+    tail.iter().cloned().fold(f64::MIN, f64::max) - tail.iter().cloned().fold(f64::MAX, f64::min)
 }
 
 #[test]
