@@ -110,10 +110,11 @@
 //!   room tail's T60: the same definition (60 dB of energy). (The residual's excess also holds
 //!   the modes' own reverberated tails; when a mode decays more slowly than the room, the
 //!   excess follows it.)
-//! * **`radiation`**: not compared. The labels' strength is the energy-weighted RMS of what a
-//!   per-mode + per-microphone dB model leaves of the multipole transfers; the detector's η
-//!   (an exponent on its own |transfer|) or u_k v_c (an unweighted rank-one factor on the fit
-//!   channels) is a different quantity.
+//! * **`radiation`**: the transfer variant's η against 1: the generator radiates through the
+//!   same multipole transfer the CLI computes, so a right model finds η = 1. The factor
+//!   variant is not compared: the labels' strength is the energy-weighted RMS of what a
+//!   per-mode + per-microphone dB model leaves of the multipole transfers, and u_k v_c (an
+//!   unweighted rank-one factor on the fit channels) is a different quantity.
 //! * **`added_mass`**: the detector's μ is *not* the mass fraction. In its model
 //!   Δ ln f_k = −½ ln(1 + μ w_k) with w_k = |φ_k|² at its candidate region over the largest
 //!   over the modes: μ = Δm |φ|²_max, the added modal mass of the most affected mode relative
@@ -1513,9 +1514,16 @@ pub fn compare_parameters(labels: &serde_json::Value, accepted: &AcceptedEffect,
             out.errors.extend(v.relative_error);
             out.values.push(v);
         }
+        Effect::Radiation if accepted.variant == "transfer" => {
+            // The generator radiates through the same multipole transfer the CLI computes.
+            let eta = detected_param(accepted, "transfer exponent")?.value;
+            let v = ComparedValue::new("transfer exponent η (the generator radiates through the multipole transfer itself)", "1", Some(1.0), Some(1.0), Some(eta));
+            out.errors.extend(v.relative_error);
+            out.values.push(v);
+        }
         Effect::Radiation => {
             out.not_comparable = Some(
-                "the labels' strength is the energy-weighted RMS dB misfit of a per-mode + per-microphone level model to the multipole transfers; the detector's η (an exponent on its own |transfer|) or u_k v_c (an unweighted factor on the fit channels) is not that quantity".into(),
+                "the labels' strength is the energy-weighted RMS dB misfit of a per-mode + per-microphone level model to the multipole transfers; the factor variant's u_k v_c (an unweighted factor on the fit channels, without microphone positions) is not that quantity".into(),
             );
         }
         Effect::AddedMass => {
@@ -2058,10 +2066,12 @@ mod tests {
         // Contact: attenuations of a half-sine give back its duration.
         let c = compare_parameters(&all, &accepted("contact_duration", "half_sine", &[("contact duration T", t_contact)]), &ctx).unwrap();
         assert!(only_error(&c).abs() < 1e-6, "{c:?}");
-        // Not comparable: support (the weights are the CLI's), radiation.
+        // Not comparable: support (the weights are the CLI's), radiation's factor variant.
         let c = compare_parameters(&all, &accepted("support_contact", "damping_only", &[("support damping γ", 2.0)]), &ctx).unwrap();
         assert!(c.errors.is_empty() && c.not_comparable.is_some() && c.values[1].truth == Some(0.5));
-        let c = compare_parameters(&all, &accepted("radiation", "transfer", &[("transfer exponent η", 1.0)]), &ctx).unwrap();
+        let c = compare_parameters(&all, &accepted("radiation", "transfer", &[("transfer exponent η", 0.98)]), &ctx).unwrap();
+        assert!((only_error(&c) + 0.02).abs() < 1e-12, "{c:?}");
+        let c = compare_parameters(&all, &accepted("radiation", "factor", &[("directivity u of cluster 0 slot 0", 1.0)]), &ctx).unwrap();
         assert!(c.errors.is_empty() && c.not_comparable.is_some());
         // Added mass next to another FEM effect: the frequency drops are not the mass's alone.
         let mixed = labels(serde_json::json!([

@@ -9,8 +9,15 @@
 //!
 //! * **transfer** — when the simulation gives |acoustic transfer| T_kc per mode and channel
 //!   ([`super::SimulatedMode::transfer`], e.g. from [`crate::audio::radiation`]):
-//!   ln a_kc += η ln T_kc, one parameter η ∈ [0, 3] (1 when the transfer model is right; a
-//!   fitted η well below 1 says the computed directivity is only partly real).
+//!   ln a_kc += η (ln T_kc − ln ω_k²), one parameter η ∈ [0, 3] (1 when the transfer model is
+//!   right; a fitted η well below 1 says the computed directivity is only partly real).
+//!   T_kc is pressure per unit modal displacement [Pa/(kg^½·m)], so it carries the ρω² of
+//!   the surface acceleration; the baseline's amplitude, drive·ω (the impulse response's
+//!   displacement drive/ω times ω² for "pressure ∝ acceleration"), already holds that ω²,
+//!   and the transfer replaces it rather than multiplying it. With η ln T_kc alone the
+//!   variant fought a spurious −2η ln ω_k trend in every mode's level: on the blind
+//!   benchmark's radiation cases the level floor τ_A² rose from 0.6 to 2.9 at η = 1, so the
+//!   fit settled at η ≈ 0.4–0.5 or failed the held-out check.
 //! * **factor** — without microphone positions: a rank-one interaction
 //!   ln a_kc += u_k v_c with Σ_c v_c = 0 (it changes the mix between microphones, not the
 //!   per-mode level) and v fixed to 1 at the channel where the starting v is largest (the
@@ -49,13 +56,17 @@ impl Term for TransferDirectivity {
     fn params(&self) -> Vec<ParamSpec> {
         vec![ParamSpec::new("transfer exponent η", "1", 0.0, 3.0, 1.0)]
     }
-    fn amplitude(&self, table: &ModeTable, p: &[f64], _ln_f: &[f64], ln_a: &mut [f64]) {
+    fn amplitude(&self, table: &ModeTable, p: &[f64], ln_f: &[f64], ln_a: &mut [f64]) {
         let c_n = table.channels;
+        let ln_two_pi = (2.0 * std::f64::consts::PI).ln();
         for (k, m) in table.modes.iter().enumerate() {
             if let Some(t) = &m.transfer {
+                // The baseline already carries the ω² of "pressure ∝ surface acceleration";
+                // the transfer replaces it (module docs).
+                let ln_omega_squared = 2.0 * (ln_two_pi + ln_f[k]);
                 for c in 0..c_n {
                     if t[c] > 0.0 {
-                        ln_a[k * c_n + c] += p[0] * t[c].ln();
+                        ln_a[k * c_n + c] += p[0] * (t[c].ln() - ln_omega_squared);
                     }
                 }
             }

@@ -234,7 +234,7 @@ pub fn diagnose_with(
     evidence.validate()?;
     let fit_ln_f: Vec<f64> = evidence.fit.iter().map(|m| undamped_hz(m).ln()).collect();
     let matching = match_modes(&fit_ln_f, &evidence.simulated, None, settings);
-    let table = ModeTable::build(&evidence.fit, &evidence.simulated, &matching, 0);
+    let table = ModeTable::build(&evidence.fit, &evidence.simulated, &matching, 0, settings.own_member_split_z);
     let channels = table.channels;
     const MIN_MATCHED: usize = 3;
     if table.modes.len() < MIN_MATCHED || table.rows.len() < BASE_PARAMS + channels + 4 {
@@ -249,7 +249,7 @@ pub fn diagnose_with(
     let held = evidence.held_out.as_ref().map(|h| {
         let ln_f: Vec<f64> = h.iter().map(|m| undamped_hz(m).ln()).collect();
         let m = match_modes(&ln_f, &evidence.simulated, Some(matching.ln_scale), settings);
-        (ModeTable::build(h, &evidence.simulated, &m, channels), m)
+        (ModeTable::build(h, &evidence.simulated, &m, channels, settings.own_member_split_z), m)
     });
     let held_table = held.as_ref().map(|(t, _)| t).filter(|t| !t.rows.is_empty());
 

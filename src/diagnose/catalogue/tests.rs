@@ -31,7 +31,8 @@ fn sigma_f(f: f64) -> f64 {
 
 /// A synthetic object: clusters of simulated modes and two true directivities per cluster
 /// and microphone (fit channels first, then held-out): lobes |cos m(φ − θ_k)| of random order
-/// and orientation per mode (what the transfer carries), and monopole + dipole along the
+/// and orientation per mode (what the transfer carries, times ρ_air ω² as
+/// [`crate::audio::radiation`]'s pressure per unit displacement does), and monopole + dipole along the
 /// strike axis |1 + β_k cos(φ − θ_s)| with a per-mode dipole strength β_k.
 struct Object {
     sim: Vec<SimulatedMode>,
@@ -87,8 +88,10 @@ fn object(rng: &mut Rng) -> Object {
             .iter()
             .map(|&phi| 0.35 + (order * (phi - orientation)).cos().abs())
             .collect();
+        // The transfer is pressure per unit modal displacement: ρ_air ω² times the lobes.
         for &j in &list {
-            sim[j].transfer = Some(d.clone());
+            let omega = 2.0 * PI * sim[j].frequency_hz;
+            sim[j].transfer = Some(d.iter().map(|x| 1.225 * omega * omega * x).collect());
         }
         members.push(list);
         lobes.push(d);
@@ -578,6 +581,65 @@ fn matching_finds_the_scale_clusters_and_split_partners() {
     // With a fixed scale the search is skipped.
     let fixed = match_modes(&ln, &simulated, Some(0.0), &CatalogueSettings::default());
     assert_eq!(fixed.ln_scale, 0.0);
+}
+
+fn observed_at(f: f64) -> ObservedMode {
+    ObservedMode {
+        frequency_hz: f,
+        sigma_frequency_hz: 1e-3,
+        decay_rate: 0.0,
+        sigma_decay_rate: 0.0,
+        amplitudes: vec![1.0, 1.0],
+        sigma_amplitudes: vec![0.01, 0.01],
+        early_frequency_hz: None,
+        late_frequency_hz: None,
+        glide: None,
+    }
+}
+
+#[test]
+fn a_pair_split_as_the_mesh_splits_it_stands_for_its_own_members() {
+    // Cluster 1: members at 1000 and 1002 Hz (split 2·10⁻³) with unlike drives and transfers.
+    let mut simulated = vec![sim(500.0, 0), sim(1000.0, 1), sim(1002.0, 1), sim(2000.0, 2)];
+    (simulated[1].drive, simulated[2].drive) = (1.0, 0.2);
+    (simulated[1].mass_weight, simulated[2].mass_weight) = (1.0, 0.0);
+    for m in simulated.iter_mut() {
+        m.transfer = Some(vec![1.0, 1.0]);
+    }
+    simulated[1].transfer = Some(vec![4.0, 1.0]);
+    simulated[2].transfer = Some(vec![1.0, 4.0]);
+    let settings = CatalogueSettings::default();
+    let table_for = |upper_hz: f64, z: f64| {
+        let observed: Vec<ObservedMode> = [500.0, 1000.0, upper_hz, 2000.0].iter().map(|&f| observed_at(f)).collect();
+        let ln: Vec<f64> = observed.iter().map(|m| m.frequency_hz.ln()).collect();
+        let matching = match_modes(&ln, &simulated, Some(0.0), &settings);
+        ModeTable::build(&observed, &simulated, &matching, 0, z)
+    };
+    let pair = |t: &ModeTable| -> (ModeEntry, ModeEntry) {
+        let find = |role: Role| t.modes.iter().find(|m| m.role == role).expect("split pair matched").clone();
+        (find(Role::SplitLower), find(Role::SplitUpper))
+    };
+    // The observed split equals the simulated one: each observed mode is its own member.
+    let (lower, upper) = pair(&table_for(1002.0, DEFAULT_OWN_MEMBER_SPLIT_Z));
+    assert_eq!((lower.simulated.clone(), upper.simulated.clone()), (vec![1], vec![2]));
+    assert!((lower.drive - 1.0).abs() < 1e-12 && (upper.drive - 0.2).abs() < 1e-12, "{lower:?} {upper:?}");
+    assert_eq!((lower.mass_weight, upper.mass_weight), (1.0, 0.0));
+    assert_eq!((lower.transfer.clone().unwrap(), upper.transfer.clone().unwrap()), (vec![4.0, 1.0], vec![1.0, 4.0]));
+    // Split 3× the simulated one (a beating pair): the orientation is unknown, both pooled.
+    let pooled_drive = (1.0f64 + 0.04).sqrt() * 0.5f64.sqrt();
+    for (t, why) in [(table_for(1006.0, DEFAULT_OWN_MEMBER_SPLIT_Z), "split 3× the simulated"), (table_for(1002.0, 0.0), "own_member_split_z = 0")] {
+        let (lower, upper) = pair(&t);
+        assert_eq!((lower.simulated.clone(), upper.simulated.clone()), (vec![1, 2], vec![1, 2]), "{why}");
+        assert!((lower.drive - pooled_drive).abs() < 1e-12 && (upper.drive - pooled_drive).abs() < 1e-12, "{why}");
+    }
+    // The helper on its own: singles never have an own member.
+    let observed: Vec<ObservedMode> = [500.0, 1000.0, 1002.0, 2000.0].iter().map(|&f| observed_at(f)).collect();
+    let ln: Vec<f64> = observed.iter().map(|m| m.frequency_hz.ln()).collect();
+    let matching = match_modes(&ln, &simulated, Some(0.0), &settings);
+    let own = own_members(&observed, &simulated, &matching, 3.0);
+    for (u, o) in matching.units.iter().zip(&own) {
+        assert_eq!(o.is_some(), u.role != Role::Single, "{u:?}");
+    }
 }
 
 #[test]
