@@ -708,6 +708,12 @@ fn bad_input_is_an_error_not_a_panic() {
             ..
         })
     ));
+    for z in [-1.0, f64::NAN, f64::INFINITY] {
+        let bad = CatalogueSettings { own_member_split_z: z, ..CatalogueSettings::default() };
+        let err = diagnose(&ev, &bad).unwrap_err();
+        assert!(matches!(err, CatalogueError::InvalidSetting { name: "own_member_split_z", .. }), "{z}: {err:?}");
+        assert!(err.to_string().contains("must be finite and ≥ 0"), "{err}");
+    }
 }
 
 // ---------------------------------------------------------------------------------------
