@@ -248,7 +248,7 @@ pub fn own_members(observed: &[ObservedMode], simulated: &[SimulatedMode], match
         }
         let simulated_split = simulated[ju].frequency_hz.ln() - simulated[jl].frequency_hz.ln();
         let observed_split = ln_f0(upper.observed) - ln_f0(lower.observed);
-        let s = (sigma(lower.observed).powi(2) + sigma(upper.observed).powi(2) + (SPLIT_MODEL_FLOOR * simulated_split).powi(2)).sqrt();
+        let s = split_sigma_of(sigma(lower.observed), sigma(upper.observed), simulated_split);
         if simulated_split > 0.0 && (observed_split - simulated_split).abs() <= z * s {
             own[l] = Some(jl);
             own[u] = Some(ju);
@@ -637,8 +637,12 @@ pub const SPLIT_MODEL_FLOOR: f64 = 0.1;
 /// is itself a model quantity (the mesh's accidental asymmetry at the fitted material) trusted
 /// to [`SPLIT_MODEL_FLOOR`] of its size.
 pub fn split_sigma(lower: &ModeEntry, upper: &ModeEntry) -> f64 {
-    let simulated_split = SPLIT_MODEL_FLOOR * (upper.ln_f_sim - lower.ln_f_sim).abs();
-    (lower.sigma_ln_f.powi(2) + upper.sigma_ln_f.powi(2) + simulated_split.powi(2)).sqrt()
+    split_sigma_of(lower.sigma_ln_f, upper.sigma_ln_f, upper.ln_f_sim - lower.ln_f_sim)
+}
+
+/// [`split_sigma`] from the two σ(ln f) and the simulated split ln f_u − ln f_l.
+fn split_sigma_of(sigma_lower: f64, sigma_upper: f64, simulated_split: f64) -> f64 {
+    (sigma_lower.powi(2) + sigma_upper.powi(2) + (SPLIT_MODEL_FLOOR * simulated_split).powi(2)).sqrt()
 }
 /// Index of the per-mode amplitude level floor τ_A.
 pub const LEVEL_FLOOR: usize = 3;
