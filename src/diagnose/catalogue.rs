@@ -261,6 +261,19 @@ pub struct SimulatedMode {
     /// fit channel, optionally followed by one per held-out channel.
     #[serde(default)]
     pub transfer: Option<Vec<f64>>,
+    /// The frequency [Hz] the matching pairs this mode by, when the simulation carried a
+    /// candidate loading that the baseline leaves out (the `diagnose` job's loaded line match:
+    /// the modes solved with the candidate mass, `frequency_hz` their frequency with the mass
+    /// taken out again, [`AddedMass`] the mass). `None`: `frequency_hz`.
+    #[serde(default)]
+    pub match_frequency_hz: Option<f64>,
+}
+
+impl SimulatedMode {
+    /// ln of the frequency matching uses ([`Self::match_frequency_hz`] or `frequency_hz`).
+    pub fn match_ln_f(&self) -> f64 {
+        self.match_frequency_hz.unwrap_or(self.frequency_hz).ln()
+    }
 }
 
 /// Energy envelopes of the residual (recording − modal resynthesis).
@@ -547,6 +560,11 @@ impl Evidence {
             };
             if !(m.frequency_hz > 0.0 && m.frequency_hz.is_finite()) {
                 return bad("frequency_hz", m.frequency_hz, "must be positive and finite");
+            }
+            if let Some(f) = m.match_frequency_hz {
+                if !(f > 0.0 && f.is_finite()) {
+                    return bad("match_frequency_hz", f, "must be positive and finite");
+                }
             }
             if !(m.drive >= 0.0 && m.drive.is_finite()) {
                 return bad("drive", m.drive, "must be ≥ 0 and finite");

@@ -360,6 +360,7 @@ pub fn simulated_modes(frequencies_hz: &[f64], drive: &[f64], support_energy: &[
             mass_weight: mass[i],
             cluster: clusters[i],
             transfer: transfer.map(|t| t[i].clone()),
+            match_frequency_hz: None,
         })
         .collect())
 }

@@ -292,6 +292,15 @@ impl<'p> PoissonBasis<'p> {
         (0..self.probe_values.ncols()).map(|c| self.probe_values.column(c).dot(&coeff)).collect()
     }
 
+    /// Every mode's values at the probe DOFs: probes × modes (mass-normalised for ρ = 1).
+    pub fn probe_all(&self, modes: &ReducedModes) -> DMatrix<f64> {
+        let mut z = DMatrix::zeros(self.whitening.ncols(), modes.coefficients.len());
+        for (k, c) in modes.coefficients.iter().enumerate() {
+            z.set_column(k, c);
+        }
+        self.probe_values.transpose() * (&self.whitening * z)
+    }
+
     /// Relative residual of each Ritz pair (module docs). Collective.
     pub fn residuals(&self, assembled: &Assembled<'p>, modes: &ReducedModes) -> Result<Vec<f64>, ReducedError> {
         let (a, b) = lame_unit(modes.poisson_ratio);

@@ -264,7 +264,7 @@ pub struct LineSpectrumStart {
 
 /// Mean over `from` of min(cap, distance in ln f to the nearest of `to` shifted by `shift`);
 /// both sorted ascending.
-fn capped_nearest(from: &[f64], to: &[f64], shift: f64, cap: f64) -> f64 {
+pub(crate) fn capped_nearest(from: &[f64], to: &[f64], shift: f64, cap: f64) -> f64 {
     if from.is_empty() {
         return 0.0;
     }

@@ -128,7 +128,7 @@ pub fn match_modes(
     fixed_ln_scale: Option<f64>,
     settings: &CatalogueSettings,
 ) -> Matching {
-    let sim_ln_f: Vec<f64> = simulated.iter().map(|m| m.frequency_hz.ln()).collect();
+    let sim_ln_f: Vec<f64> = simulated.iter().map(SimulatedMode::match_ln_f).collect();
     let mut sim_sorted = sim_ln_f.clone();
     sim_sorted.sort_by(f64::total_cmp);
     let ln_scale = if observed_ln_f.is_empty() || simulated.is_empty() {
@@ -172,7 +172,16 @@ pub fn match_modes(
     };
     for list in members.values() {
         let obs = observed_in(list, &obs_of_sim);
-        if obs.len() == 2 && (observed_ln_f[obs[0]] - observed_ln_f[obs[1]]).abs() > settings.max_pair_split {
+        // A loaded simulation (match frequencies) may split the cluster itself; the observed
+        // split is then judged against the split of the two members they matched.
+        let allowance = match obs.as_slice() {
+            &[a, b] => match (sim_of_obs[a], sim_of_obs[b]) {
+                (Some(ja), Some(jb)) if simulated[ja].match_frequency_hz.is_some() && simulated[jb].match_frequency_hz.is_some() => (sim_ln_f[ja] - sim_ln_f[jb]).abs(),
+                _ => 0.0,
+            },
+            _ => 0.0,
+        };
+        if obs.len() == 2 && (observed_ln_f[obs[0]] - observed_ln_f[obs[1]]).abs() > settings.max_pair_split + allowance {
             let err = |i: usize| distance(i, sim_of_obs[i].unwrap_or(0)).abs();
             let drop = if err(obs[0]) > err(obs[1]) { obs[0] } else { obs[1] };
             if let Some(j) = sim_of_obs[drop].take() {

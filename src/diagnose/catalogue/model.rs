@@ -246,7 +246,7 @@ pub fn own_members(observed: &[ObservedMode], simulated: &[SimulatedMode], match
         if jl == ju {
             continue;
         }
-        let simulated_split = simulated[ju].frequency_hz.ln() - simulated[jl].frequency_hz.ln();
+        let simulated_split = simulated[ju].match_ln_f() - simulated[jl].match_ln_f();
         let observed_split = ln_f0(upper.observed) - ln_f0(lower.observed);
         let s = split_sigma_of(sigma(lower.observed), sigma(upper.observed), simulated_split);
         if simulated_split > 0.0 && (observed_split - simulated_split).abs() <= z * s {

@@ -70,6 +70,7 @@ fn object(rng: &mut Rng) -> Object {
             mass_weight,
             cluster: i,
             transfer: None,
+            match_frequency_hz: None,
         });
         if DEGENERATE.contains(&i) {
             list.push(sim.len());
@@ -80,6 +81,7 @@ fn object(rng: &mut Rng) -> Object {
                 mass_weight,
                 cluster: i,
                 transfer: None,
+                match_frequency_hz: None,
             });
         }
         let order = (rng.next() * 4.0).floor();
@@ -540,6 +542,7 @@ fn sim(f: f64, cluster: usize) -> SimulatedMode {
         mass_weight: 0.0,
         cluster,
         transfer: None,
+        match_frequency_hz: None,
     }
 }
 
@@ -640,6 +643,43 @@ fn a_pair_split_as_the_mesh_splits_it_stands_for_its_own_members() {
     for (u, o) in matching.units.iter().zip(&own) {
         assert_eq!(o.is_some(), u.role != Role::Single, "{u:?}");
     }
+}
+
+#[test]
+fn a_loaded_simulation_is_matched_by_its_loaded_frequencies() {
+    // A degenerate pair at 1000 Hz (baseline, the mass taken out) whose loaded members lie at
+    // 970 and 1000 Hz: the observed pair splits by 3 %, twice `max_pair_split`. Matched by the
+    // loaded frequencies, each observed mode finds its own member and stands for it (its mass
+    // weight), so an added mass reproduces the split; the baseline frequency stays the
+    // unloaded one.
+    let mut simulated = vec![sim(500.0, 0), sim(1000.0, 1), sim(1000.0, 1), sim(2000.0, 2)];
+    let loaded_hz = [500.0, 970.0, 1000.0, 2000.0];
+    for (m, &f) in simulated.iter_mut().zip(&loaded_hz) {
+        m.match_frequency_hz = Some(f);
+    }
+    (simulated[1].mass_weight, simulated[2].mass_weight) = (1.0, 0.0);
+    let settings = CatalogueSettings::default();
+    let observed: Vec<ObservedMode> = loaded_hz.iter().map(|&f| observed_at(f)).collect();
+    let ln: Vec<f64> = observed.iter().map(|m| m.frequency_hz.ln()).collect();
+    let matching = match_modes(&ln, &simulated, Some(0.0), &settings);
+    let table = ModeTable::build(&observed, &simulated, &matching, 0, DEFAULT_OWN_MEMBER_SPLIT_Z);
+    let find = |role: Role| table.modes.iter().find(|m| m.role == role).expect("split pair matched").clone();
+    let (lower, upper) = (find(Role::SplitLower), find(Role::SplitUpper));
+    assert_eq!((lower.simulated.clone(), upper.simulated.clone()), (vec![1], vec![2]));
+    assert_eq!((lower.mass_weight, upper.mass_weight), (1.0, 0.0));
+    assert!((lower.ln_f_sim - 1000f64.ln()).abs() < 1e-12, "baseline is the unloaded frequency: {lower:?}");
+    // Without the loaded frequencies the same observations overflow max_pair_split: one of the
+    // pair is dropped from the cluster.
+    let unloaded: Vec<SimulatedMode> = simulated.iter().cloned().map(|mut m| {
+        m.match_frequency_hz = None;
+        m
+    }).collect();
+    let plain = match_modes(&ln, &unloaded, Some(0.0), &settings);
+    assert!(!plain.units.iter().any(|u| u.role == Role::SplitLower), "{plain:?}");
+    // A bad match frequency is an input error.
+    let (mut ev, _) = evidence(&Truth::default(), 1);
+    ev.simulated[0].match_frequency_hz = Some(-1.0);
+    assert!(matches!(diagnose(&ev, &settings), Err(CatalogueError::InvalidSimulated { field: "match_frequency_hz", .. })));
 }
 
 #[test]
