@@ -776,7 +776,7 @@ fn compute(petsc: &Petsc, job: &Job) -> Result<(), String> {
             let (mut dofs, w) = super::fit_material::probe_along(&mesh_model, &point, normal, &assembled.layout);
             // The basis also carries every surface vertex's values, for the loaded match.
             let strike_dofs = dofs.len();
-            let surface = mesh_model.surface_vertices();
+            let surface = if job.loaded_mass_match { mesh_model.surface_vertices() } else { Vec::new() };
             dofs.extend(surface.iter().flat_map(|&v| (0..3).map(move |c| (v, c))).map(|(v, c)| assembled.layout.global_dof(v, c) as PetscInt));
             // Enough modes to cover the recorded band; spurious weak poles (a reverberant tail) must
             // not inflate the solves, so the count is capped.
