@@ -359,20 +359,6 @@ fn node_dofs(asm: &Assembled<'_>, nodes: &[usize]) -> Vec<PetscInt> {
     nodes.iter().flat_map(|&n| (0..3).map(move |c| asm.layout.global_dof(n, c) as PetscInt)).collect()
 }
 
-/// Adds `values[i]` to the three diagonal entries of node `nodes[i]` (rank 0 inserts, every
-/// rank assembles).
-fn add_nodal_diagonal(petsc: &Petsc, mat: &mut Mat<'_>, asm: &Assembled<'_>, nodes: &[usize], values: [f64; 3]) -> Result<(), String> {
-    if petsc.rank() == 0 {
-        for &n in nodes {
-            for (c, &v) in values.iter().enumerate() {
-                let dof = asm.layout.global_dof(n, c) as PetscInt;
-                mat.add_values(&[dof], &[dof], &[v]).map_err(|e| e.to_string())?;
-            }
-        }
-    }
-    mat.assemble().map_err(|e| e.to_string())
-}
-
 fn frequency(lambda: f64) -> f64 {
     eigen::frequency_hz(lambda)
 }
@@ -620,11 +606,11 @@ fn generate_case<'p>(
                 "sector": "azimuth psi about the axis, from the projection of +x, counter-clockwise seen from +axis (inject::sector_mesh)"}));
         }
         if support {
-            add_nodal_diagonal(petsc, &mut k2, asm, &body.support_nodes, [spring_t, spring_t, spring_n])?;
+            assembly::add_nodal_diagonal(petsc, &mut k2, &asm.layout, &body.support_nodes, [spring_t, spring_t, spring_n]).map_err(|e| e.to_string())?;
         }
         if plan.has(Effect::AddedMass) {
             let per_node = plan.mass_fraction * body.mass / plan.mass_nodes.len() as f64;
-            add_nodal_diagonal(petsc, &mut m2, asm, &plan.mass_nodes, [per_node; 3])?;
+            assembly::add_nodal_diagonal(petsc, &mut m2, &asm.layout, &plan.mass_nodes, [per_node; 3]).map_err(|e| e.to_string())?;
         }
         k2.set_symmetric().map_err(|e| e.to_string())?;
         m2.set_symmetric().map_err(|e| e.to_string())?;

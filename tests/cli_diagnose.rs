@@ -99,7 +99,12 @@ fn diagnose_rejects_bad_input_clearly() {
     let (wav, mesh) = (wav.to_str().unwrap(), mesh.to_str().unwrap());
     let out = dir.join("d.h5");
     let out = out.to_str().unwrap();
-    let cases: [(&[&str], &str); 5] = [
+    // `[model] loaded_mass_match` must be a boolean.
+    let config = dir.join("bad_loaded.toml");
+    std::fs::write(&config, "[model]\nloaded_mass_match = \"yes\"\n").unwrap();
+    let config = config.to_str().unwrap();
+    let cases: [(&[&str], &str); 6] = [
+        (&["diagnose", "--config", config, "--mesh", mesh, "--recording", wav, "--recording", wav, "--out", out], "loaded_mass_match"),
         (&["diagnose", "--mesh", mesh, "--recording", "/nonexistent.wav", "--recording", wav, "--out", out], "does not exist"),
         (&["diagnose", "--mesh", mesh, "--recording", wav, "--out", out], "held-out"),
         (&["diagnose", "--mesh", mesh, "--recording", wav, "--recording", wav, "--held-out", "5", "--out", out], "held-out microphone 5 does not exist"),

@@ -129,6 +129,21 @@ impl<'p> Assembled<'p> {
     }
 }
 
+/// Adds `values[c]` to diagonal entry (3n + c) of every node n of `nodes` (original numbering)
+/// and assembles: lumped point masses on M, point springs on K. Rank 0 inserts (each entry
+/// once), every rank assembles (collective). The diagonal is in every P2 pattern.
+pub fn add_nodal_diagonal(petsc: &Petsc, mat: &mut Mat<'_>, layout: &DofLayout, nodes: &[usize], values: [f64; 3]) -> Result<(), PetscError> {
+    if petsc.rank() == 0 {
+        for &n in nodes {
+            for (c, &v) in values.iter().enumerate() {
+                let dof = layout.global_dof(n, c) as PetscInt;
+                mat.add_values(&[dof], &[dof], &[v])?;
+            }
+        }
+    }
+    mat.assemble()
+}
+
 /// The one rank that owns element `e` for element-wise sums that must count each element once
 /// (e.g. shape gradients): the owner of its first corner node.
 pub fn element_owner(mesh: &TetMesh, partition: &NodePartition, e: usize) -> usize {

@@ -95,7 +95,7 @@ use crate::eigen::reduced::PoissonBasis;
 use crate::eigen::{self, EigenConfig, ModeRequest};
 use crate::fem::Material;
 use crate::inverse::loaded_match::{loaded_line_match, LoadedMatch, LoadedMatchProblem, LoadedMatchSettings, ModesAtPoisson};
-use crate::inverse::material::{line_spectrum_start, LineSpectrumStart, MaterialFitSettings, MaterialProblem};
+use crate::inverse::material::{line_match_targets, line_spectrum_start, LineSpectrumStart, MaterialFitSettings, MaterialProblem};
 use crate::io::plot::{line_plot_png, spectrogram_png, AxisScale, LineFigure, Marker, Series, SpectrogramFigure, SpectrogramPanel};
 use crate::io::results::{read_attribute, AttrValue, ResultsFile};
 use crate::io::{write_modes, ModesFile, MaterialRecord, NodeField};
@@ -680,19 +680,6 @@ struct LoadedMass {
     used: bool,
 }
 
-/// Indices of the `n` points nearest to `points[i]` (itself first).
-fn nearest_points(points: &[[f64; 3]], i: usize, n: usize) -> Vec<usize> {
-    let c = points[i];
-    let mut order: Vec<(f64, usize)> = points.iter().enumerate().map(|(j, x)| ((0..3).map(|d| (x[d] - c[d]).powi(2)).sum::<f64>(), j)).collect();
-    let n = n.min(order.len());
-    if n < order.len() {
-        order.select_nth_unstable_by(n, |a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
-    }
-    order.truncate(n);
-    order.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
-    order.into_iter().map(|p| p.1).collect()
-}
-
 /// `n` farthest-point samples of `points`, from the first.
 fn farthest_points(points: &[[f64; 3]], n: usize) -> Vec<usize> {
     let d2 = |a: [f64; 3], b: [f64; 3]| (0..3).map(|d| (a[d] - b[d]).powi(2)).sum::<f64>();
@@ -715,15 +702,10 @@ fn farthest_points(points: &[[f64; 3]], n: usize) -> Vec<usize> {
 #[allow(clippy::too_many_arguments)]
 fn loaded_match(basis: &PoissonBasis, mesh: &TetMesh, surface: &[usize], strike_dofs: usize, problem: &MaterialProblem, start: &LineSpectrumStart, settings: &MaterialFitSettings, density: f64) -> Result<LoadedMass, String> {
     let points: Vec<[f64; 3]> = surface.iter().map(|&v| mesh.nodes[v]).collect();
-    let regions: Vec<Vec<usize>> = (0..points.len()).map(|i| nearest_points(&points, i, MASS_REGION_VERTICES)).collect();
+    let regions: Vec<Vec<usize>> = points.iter().map(|&c| inject::nearest_points(&points, c, MASS_REGION_VERTICES)).collect();
     let coarse = farthest_points(&points, LOADED_MATCH_COARSE_SITES);
-    let neighbours = |r: usize| nearest_points(&points, r, LOADED_MATCH_FINE_SITES);
-    let mut target: Vec<f64> = problem.target_modes_hz.iter().filter(|f| f.is_finite() && **f > 0.0).map(|f| f.ln()).collect();
-    target.sort_by(f64::total_cmp);
-    let mut ceiling = target.last().copied().unwrap_or(0.0) + 0.02_f64.ln_1p();
-    if let Some(fm) = problem.max_frequency_hz {
-        ceiling = ceiling.min(fm.ln());
-    }
+    let neighbours = |r: usize| inject::nearest_points(&points, points[r], LOADED_MATCH_FINE_SITES);
+    let (target, ceiling) = line_match_targets(problem)?;
     let volume = mesh.volume();
     let modes_at = |nu: f64| {
         let modes = basis.solve(nu);
@@ -821,17 +803,9 @@ fn compute(petsc: &Petsc, job: &Job) -> Result<(), String> {
     let (k, mut m) = assembled.operators(&material).map_err(|e| e.to_string())?;
     let carried = loaded.as_ref().filter(|l| l.used);
     if let Some(l) = carried {
-        // The candidate mass, lumped evenly on the region's vertices (rank 0 inserts).
+        // The candidate mass, lumped evenly on the region's vertices.
         let per_vertex = l.matched.mass_kg / l.region.len() as f64;
-        if rank == 0 {
-            for &v in &l.region {
-                for c in 0..3 {
-                    let dof = assembled.layout.global_dof(v, c) as PetscInt;
-                    m.add_values(&[dof], &[dof], &[per_vertex]).map_err(|e| e.to_string())?;
-                }
-            }
-        }
-        m.assemble().map_err(|e| e.to_string())?;
+        assembly::add_nodal_diagonal(petsc, &mut m, &assembled.layout, &l.region, [per_vertex; 3]).map_err(|e| e.to_string())?;
         m.set_symmetric().map_err(|e| e.to_string())?;
     }
     let cfg = EigenConfig::new(ModeRequest::UpTo { f_max_hz: 1.15 * top_observed.max(1.0) }, eigen::spectrum_scale(material.lame_mu(), job.density, diagonal));
@@ -860,7 +834,7 @@ fn compute(petsc: &Petsc, job: &Job) -> Result<(), String> {
     // the mass, λ/(1 − q_k)), and the added-mass weight r_k = q_k/(1 − q_k) (module docs).
     let unloading = carried.map(|l| {
         let per_vertex = l.matched.mass_kg / l.region.len() as f64;
-        shapes.iter().map(|s| (per_vertex * l.region.iter().map(|&v| (0..3).map(|c| s[3 * v + c].powi(2)).sum::<f64>()).sum::<f64>()).min(0.95)).collect::<Vec<f64>>()
+        shapes.iter().map(|s| (per_vertex * evidence::region_energy(s, &l.region)).min(0.95)).collect::<Vec<f64>>()
     });
     let eigenvalues: Vec<f64> = match &unloading {
         Some(q) => modes.eigenvalues.iter().zip(q).map(|(l, q)| l / (1.0 - q)).collect(),
@@ -950,7 +924,6 @@ fn print_report(job: &Job, measured: &Measured, report: &CatalogueReport, youngs
     }
 }
 
-#[allow(clippy::too_many_arguments)]
 #[allow(clippy::too_many_arguments)]
 fn write_json(job: &Job, measured: &Measured, report: &CatalogueReport, youngs: f64, poisson: f64, line_start: Option<LineSpectrumStart>, loaded: Option<&LoadedMass>, feats: &Features, localised: &Localised, timings: &[(&str, f64)], catalogue_input: (&Evidence, &CatalogueSettings)) -> Result<(), String> {
     let value = serde_json::json!({

@@ -771,16 +771,26 @@ pub fn support_nodes(mesh: &TetMesh, down: [f64; 3], band: f64, min_nodes: usize
 
 /// The `n` surface vertices nearest to vertex `centre` (itself included), sorted.
 pub fn nearest_surface_vertices(mesh: &TetMesh, centre: usize, n: usize) -> Vec<usize> {
-    let c = mesh.nodes[centre];
-    let d2 = |v: usize| {
-        let x = mesh.nodes[v];
-        (x[0] - c[0]).powi(2) + (x[1] - c[1]).powi(2) + (x[2] - c[2]).powi(2)
-    };
-    let mut surface = mesh.surface_vertices();
-    surface.sort_by(|&a, &b| d2(a).total_cmp(&d2(b)).then(a.cmp(&b)));
-    surface.truncate(n);
-    surface.sort_unstable();
-    surface
+    let surface = mesh.surface_vertices();
+    let points: Vec<[f64; 3]> = surface.iter().map(|&v| mesh.nodes[v]).collect();
+    // `surface` is ascending, so ties at equal distance go to the lower node, as before.
+    let mut near: Vec<usize> = nearest_points(&points, mesh.nodes[centre], n).into_iter().map(|i| surface[i]).collect();
+    near.sort_unstable();
+    near
+}
+
+/// Indices of the `n` of `points` nearest to `centre`, nearest first (ties: lower index).
+pub fn nearest_points(points: &[[f64; 3]], centre: [f64; 3], n: usize) -> Vec<usize> {
+    let d2 = |x: &[f64; 3]| (x[0] - centre[0]).powi(2) + (x[1] - centre[1]).powi(2) + (x[2] - centre[2]).powi(2);
+    let mut order: Vec<(f64, usize)> = points.iter().map(d2).zip(0..).collect();
+    let n = n.min(order.len());
+    let by_distance = |a: &(f64, usize), b: &(f64, usize)| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1));
+    if n < order.len() {
+        order.select_nth_unstable_by(n, by_distance);
+        order.truncate(n);
+    }
+    order.sort_by(by_distance);
+    order.into_iter().map(|p| p.1).collect()
 }
 
 /// The mesh with the same nodes and only the tets whose corner centroid lies in the wedge

@@ -31,6 +31,8 @@
 
 use nalgebra::{DMatrix, DVector, SymmetricEigen};
 
+use super::material::line_distance;
+#[cfg(test)]
 use super::material::capped_nearest;
 
 /// The unloaded Ritz modes at one ν, as the search needs them.
@@ -167,10 +169,7 @@ pub fn loaded_line_match(problem: &LoadedMatchProblem, modes_at: &dyn Fn(f64) ->
     let c_plain = 0.5 * (problem.plain_youngs / problem.density).ln() - two_pi_ln;
     let cap = settings.cap;
     let ceiling = problem.ceiling_ln_f;
-    let distance = |u: &[f64], c: f64| -> f64 {
-        let in_band: Vec<f64> = u.iter().copied().filter(|x| x + c <= ceiling).collect();
-        capped_nearest(&target, u, c, cap) + capped_nearest(&in_band, &target, -c, cap)
-    };
+    let distance = |u: &[f64], c: f64| line_distance(&target, u, c, ceiling, cap);
     let pattern = |loaded: &[(f64, f64)]| -> Vec<f64> {
         let loudest = loaded.iter().fold(0.0_f64, |m, p| m.max(p.1));
         let mut u: Vec<f64> = loaded.iter().filter(|p| p.0 > 0.0 && p.1 >= settings.audible * loudest).map(|p| 0.5 * p.0.ln()).collect();

@@ -287,6 +287,30 @@ pub(crate) fn capped_nearest(from: &[f64], to: &[f64], shift: f64, cap: f64) -> 
     total / from.len() as f64
 }
 
+/// The line match's targets: ln of the target's mode frequencies (finite and positive ones),
+/// ascending, and the ceiling (ln Hz) above which simulated partials are not compared: 1.02 ×
+/// the highest target mode, or the band limit if lower.
+pub(crate) fn line_match_targets(problem: &MaterialProblem) -> Result<(Vec<f64>, f64), String> {
+    let mut target: Vec<f64> = problem.target_modes_hz.iter().filter(|f| f.is_finite() && **f > 0.0).map(|f| f.ln()).collect();
+    if target.is_empty() {
+        return Err("the line-spectrum start needs the target's mode frequencies".into());
+    }
+    target.sort_by(f64::total_cmp);
+    let mut ceiling = target[target.len() - 1] + 0.02_f64.ln_1p();
+    if let Some(fm) = problem.max_frequency_hz {
+        ceiling = ceiling.min(fm.ln());
+    }
+    Ok((target, ceiling))
+}
+
+/// The line match's symmetric distance between the sorted `target` and the sorted pattern `u`
+/// (½ ln θ) shifted by `shift`: the capped nearest distance of every target line, plus that of
+/// every shifted pattern line at or below `ceiling` (module docs of [`line_spectrum_start`]).
+pub(crate) fn line_distance(target: &[f64], u: &[f64], shift: f64, ceiling: f64, cap: f64) -> f64 {
+    let in_band: Vec<f64> = u.iter().copied().filter(|x| x + shift <= ceiling).collect();
+    capped_nearest(target, u, shift, cap) + capped_nearest(&in_band, target, -shift, cap)
+}
+
 /// The line-spectrum start: the (E, ν) whose audible simulated partials best match the
 /// target's modes. For each ν on a grid the pattern u_k = ½ ln θ_k(ν) is fixed and E only
 /// shifts it (ln f_k = u_k + ½ ln(E/ρ) − ln 2π), so the search is over that shift on a grid
@@ -298,15 +322,7 @@ pub(crate) fn capped_nearest(from: &[f64], to: &[f64], shift: f64, cap: f64) -> 
 /// audible when its driving-point weight (φ_k·n)² is at least 10⁻³ of the largest. The cap
 /// (`line_match_cap`, ln f) keeps a missing or extra mode from outweighing the rest.
 pub fn line_spectrum_start(basis: &PoissonBasis, problem: &MaterialProblem, start: (f64, f64), settings: &MaterialFitSettings) -> Result<LineSpectrumStart, String> {
-    let mut target: Vec<f64> = problem.target_modes_hz.iter().filter(|f| f.is_finite() && **f > 0.0).map(|f| f.ln()).collect();
-    if target.is_empty() {
-        return Err("the line-spectrum start needs the target's mode frequencies".into());
-    }
-    target.sort_by(f64::total_cmp);
-    let mut ceiling = target[target.len() - 1] + 0.02_f64.ln_1p();
-    if let Some(fm) = problem.max_frequency_hz {
-        ceiling = ceiling.min(fm.ln());
-    }
+    let (target, ceiling) = line_match_targets(problem)?;
     let (lo, hi) = settings.poisson_bounds;
     let nus: Vec<f64> = if settings.learn_poisson {
         let n = ((hi - lo) / 0.0025).ceil().max(1.0) as usize;
@@ -328,10 +344,7 @@ pub fn line_spectrum_start(basis: &PoissonBasis, problem: &MaterialProblem, star
         u.sort_by(f64::total_cmp);
         u
     };
-    let distance = |u: &[f64], c: f64| -> f64 {
-        let in_band: Vec<f64> = u.iter().copied().filter(|x| x + c <= ceiling).collect();
-        capped_nearest(&target, u, c, cap) + capped_nearest(&in_band, &target, -c, cap)
-    };
+    let distance = |u: &[f64], c: f64| line_distance(&target, u, c, ceiling, cap);
     let mut evaluations = 0;
     let mut best = (f64::INFINITY, c_lo, nus[0]);
     let coarse = 5e-4;
