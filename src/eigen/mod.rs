@@ -331,7 +331,7 @@ fn solve_nearest<'p>(petsc: &'p Petsc, k: &Mat<'p>, m: &Mat<'p>, shift: f64, nev
     eps.solve()?;
     // The user may have changed nev with -eps_nev; hold SLEPc to what is in force.
     let wanted = eps.dimensions()?.0;
-    collect(&eps, k, wanted)
+    collect(&eps, k, m, wanted)
 }
 
 fn solve_interval<'p>(petsc: &'p Petsc, k: &Mat<'p>, m: &Mat<'p>, lower: f64, upper: f64, cfg: &EigenConfig) -> Result<RawPairs<'p>, EigenError> {
@@ -345,10 +345,15 @@ fn solve_interval<'p>(petsc: &'p Petsc, k: &Mat<'p>, m: &Mat<'p>, lower: f64, up
     eps.set_interval(lower, upper)?;
     eps.set_from_options()?;
     eps.solve()?;
-    collect(&eps, k, 0)
+    collect(&eps, k, m, 0)
 }
 
-fn collect<'p>(eps: &Eps<'p>, k: &Mat<'p>, wanted: usize) -> Result<RawPairs<'p>, EigenError> {
+/// The converged pairs and their relative residuals ‖Kx − λMx‖₂/(|λ|‖x‖₂) (absolute for
+/// λ = 0), SLEPc's EPS_ERROR_RELATIVE measure. We form the residuals ourselves instead of
+/// calling EPSComputeError: after a spectrum-slicing solve on 2 ranks (SLEPc 3.18, Debian 12)
+/// that call desynchronised the ranks for some pairs (one rank in its MatMult, the other already
+/// in its VecNorm), and the job hung in stage 4 of `diagnose` on a 34-mode interval.
+fn collect<'p>(eps: &Eps<'p>, k: &Mat<'p>, m: &Mat<'p>, wanted: usize) -> Result<RawPairs<'p>, EigenError> {
     let n = eps.converged()?;
     if n < wanted {
         return Err(EigenError::NotConverged { converged: n, wanted, reason: eps.converged_reason()? });
@@ -356,11 +361,19 @@ fn collect<'p>(eps: &Eps<'p>, k: &Mat<'p>, wanted: usize) -> Result<RawPairs<'p>
     let mut values = Vec::with_capacity(n);
     let mut vectors = Vec::with_capacity(n);
     let mut residuals = Vec::with_capacity(n);
+    let mut kx = k.create_vector()?;
+    let mut mx = k.create_vector()?;
     for i in 0..n {
         let mut x = k.create_vector()?;
-        values.push(eps.eigenpair(i, &mut x)?);
+        let lambda = eps.eigenpair(i, &mut x)?;
+        k.mult(&x, &mut kx)?;
+        m.mult(&x, &mut mx)?;
+        kx.axpy(-lambda, &mx)?;
+        let norm = x.norm2()?;
+        let residual = kx.norm2()? / (if lambda != 0.0 { lambda.abs() } else { 1.0 } * norm);
+        values.push(lambda);
         vectors.push(x);
-        residuals.push(eps.relative_error(i)?);
+        residuals.push(residual);
     }
     Ok(RawPairs { values, vectors, residuals, settings: describe(eps)? })
 }

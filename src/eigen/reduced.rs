@@ -79,6 +79,48 @@ impl ReducedModes {
     pub fn eigenvalues(&self, youngs: f64, density: f64) -> Vec<f64> {
         self.theta.iter().map(|t| youngs / density * t).collect()
     }
+
+    /// The modes' whitened coordinates z_k as columns (reduced dimension × modes): with
+    /// [`AttachmentProjections`] they give the coupling Φᵀ K A = Zᵀ C.
+    pub fn coefficient_matrix(&self) -> DMatrix<f64> {
+        let rows = self.coefficients.first().map_or(0, |z| z.len());
+        let mut z = DMatrix::zeros(rows, self.coefficients.len());
+        for (k, c) in self.coefficients.iter().enumerate() {
+            z.set_column(k, c);
+        }
+        z
+    }
+}
+
+/// Static (attachment) responses to loads, A = P (a K_λ + b K_μ + σ M₁)⁻¹ F at one ν, with
+/// the rigid-body motions P projected out and each column M₁-normalised, projected for a Ritz
+/// enrichment of the basis (see [`crate::inverse::loaded_match`]): the modal truncation of a
+/// concentrated mass misses the local flexibility under it, which these vectors carry.
+#[derive(Clone, Debug)]
+pub struct AttachmentProjections {
+    /// C_• = Wᵀ Vᵀ K_• A (reduced dimension × attachments), for K_λ, K_μ and M₁.
+    pub cross_lambda: DMatrix<f64>,
+    pub cross_mu: DMatrix<f64>,
+    pub cross_mass: DMatrix<f64>,
+    /// Aᵀ K_• A (attachments × attachments).
+    pub self_lambda: DMatrix<f64>,
+    pub self_mu: DMatrix<f64>,
+    pub self_mass: DMatrix<f64>,
+    /// Values at the basis's probe DOFs (probes × attachments).
+    pub probe_values: DMatrix<f64>,
+}
+
+/// The factored operator a(ν)K_λ + b(ν)K_μ + σM₁ and the M₁-orthonormal rigid-body motions,
+/// for [`PoissonBasis::attachments`].
+pub struct AttachmentSolver<'p> {
+    solver: crate::petsc::CholeskySolver<'p>,
+    _operator: Mat<'p>,
+    rigid: Vec<Vector<'p>>,
+    /// M₁ times each rigid motion.
+    rigid_mass: Vec<Vector<'p>>,
+    /// This rank's entries of every basis vector (the projections are local dot products
+    /// summed in one reduction).
+    local_basis: Vec<Vec<f64>>,
 }
 
 /// The basis, its projections, and the probe values of its vectors.
@@ -299,6 +341,160 @@ impl<'p> PoissonBasis<'p> {
             z.set_column(k, c);
         }
         self.probe_values.transpose() * (&self.whitening * z)
+    }
+
+    /// Factors a(ν)K_λ + b(ν)K_μ + σM₁ (σ > 0 makes the free body's operator definite) and
+    /// builds the six rigid-body motions of `nodes` (original order), M₁-orthonormalised.
+    /// Collective.
+    pub fn attachment_solver(&self, petsc: &'p Petsc, assembled: &Assembled<'p>, nodes: &[[f64; 3]], nu: f64, shift: f64) -> Result<AttachmentSolver<'p>, ReducedError> {
+        if !(shift > 0.0) || nodes.len() != assembled.layout.n_nodes() {
+            return Err(ReducedError::Invalid(format!("attachment solver: shift {shift} must be positive and {} nodes given for {}", nodes.len(), assembled.layout.n_nodes())));
+        }
+        let (a, b) = lame_unit(nu);
+        let mut operator = assembled.k_lambda.duplicate()?;
+        operator.scale(a)?;
+        operator.axpy(b, &assembled.k_mu, crate::petsc::NonzeroPattern::Same)?;
+        operator.axpy(shift, &assembled.mass_unit, crate::petsc::NonzeroPattern::Subset)?;
+        operator.set_symmetric()?;
+        let solver = crate::petsc::CholeskySolver::factor(petsc, &operator)?;
+        let n = nodes.len();
+        let centre = nodes.iter().fold([0.0; 3], |acc, x| [acc[0] + x[0] / n as f64, acc[1] + x[1] / n as f64, acc[2] + x[2] / n as f64]);
+        let mut rigid: Vec<Vector<'p>> = Vec::with_capacity(6);
+        let mut mx = self.vectors[0].duplicate()?;
+        for motion in 0..6 {
+            let mut full = vec![0.0; 3 * n];
+            for (i, x) in nodes.iter().enumerate() {
+                let r = [x[0] - centre[0], x[1] - centre[1], x[2] - centre[2]];
+                let u = match motion {
+                    0 => [1.0, 0.0, 0.0],
+                    1 => [0.0, 1.0, 0.0],
+                    2 => [0.0, 0.0, 1.0],
+                    // e_d × r
+                    3 => [0.0, -r[2], r[1]],
+                    4 => [r[2], 0.0, -r[0]],
+                    _ => [-r[1], r[0], 0.0],
+                };
+                full[3 * i..3 * i + 3].copy_from_slice(&u);
+            }
+            let mut v = self.vectors[0].duplicate()?;
+            v.set_local_values(&assembled.layout.local_part_of(&full))?;
+            // Modified Gram–Schmidt in the M₁ inner product.
+            for q in &rigid {
+                assembled.mass_unit.mult(q, &mut mx)?;
+                let c = v.dot(&mx)?;
+                v.axpy(-c, q)?;
+            }
+            assembled.mass_unit.mult(&v, &mut mx)?;
+            let norm = v.dot(&mx)?.sqrt();
+            v.scale(1.0 / norm)?;
+            rigid.push(v);
+        }
+        let mut rigid_mass = Vec::with_capacity(6);
+        for q in &rigid {
+            let mut m = q.duplicate()?;
+            assembled.mass_unit.mult(q, &mut m)?;
+            rigid_mass.push(m);
+        }
+        let local_basis = self.vectors.iter().map(|v| v.local_values()).collect::<Result<_, _>>()?;
+        Ok(AttachmentSolver { solver, _operator: operator, rigid, rigid_mass, local_basis })
+    }
+
+    /// The six rigid-body motions (M₁-orthonormal, ρ = 1) at the probe DOFs (probes × 6).
+    /// Collective.
+    pub fn rigid_probe_values(&self, solver: &AttachmentSolver<'p>) -> Result<DMatrix<f64>, ReducedError> {
+        let mut out = DMatrix::zeros(self.probe_dofs.len(), solver.rigid.len());
+        for (j, q) in solver.rigid.iter().enumerate() {
+            for (c, x) in q.gather_indices(&self.probe_dofs)?.into_iter().enumerate() {
+                out[(c, j)] = x;
+            }
+        }
+        Ok(out)
+    }
+
+    /// The attachment vectors of `loads` (each a list of (PETSc DOF, value); a rank uses the
+    /// entries it owns) and their projections. With `blocks` > 1, each further block is the
+    /// next Krylov term (K + σM₁)⁻¹ M₁ x of the previous one (the inertia of the static
+    /// response), treated the same way. Collective: every rank passes the same loads.
+    pub fn attachments(&self, petsc: &'p Petsc, assembled: &Assembled<'p>, solver: &AttachmentSolver<'p>, loads: &[Vec<(PetscInt, f64)>], blocks: usize) -> Result<AttachmentProjections, ReducedError> {
+        let (lo, hi) = self.vectors[0].ownership_range()?;
+        let mut columns: Vec<Vector<'p>> = Vec::with_capacity(blocks.max(1) * loads.len());
+        let mut mx = self.vectors[0].duplicate()?;
+        let mut rhs_list: Vec<Vector<'p>> = Vec::with_capacity(loads.len());
+        for load in loads {
+            let mut f = vec![0.0; hi - lo];
+            for &(dof, value) in load {
+                let dof = dof as usize;
+                if (lo..hi).contains(&dof) {
+                    f[dof - lo] += value;
+                }
+            }
+            let mut rhs = self.vectors[0].duplicate()?;
+            rhs.set_local_values(&f)?;
+            rhs_list.push(rhs);
+        }
+        for block in 0..blocks.max(1) {
+            let mut next = Vec::with_capacity(rhs_list.len());
+            for rhs in &rhs_list {
+                let mut x = rhs.duplicate()?;
+                solver.solver.solve(rhs, &mut x)?;
+                // The free body's response holds rigid motion at 1/σ: project it out (twice, for
+                // rounding), then normalise.
+                for _ in 0..2 {
+                    for (q, mq) in solver.rigid.iter().zip(&solver.rigid_mass) {
+                        let c = x.dot(mq)?;
+                        x.axpy(-c, q)?;
+                    }
+                }
+                assembled.mass_unit.mult(&x, &mut mx)?;
+                let norm = x.dot(&mx)?.sqrt();
+                if !(norm > 0.0 && norm.is_finite()) {
+                    return Err(ReducedError::Invalid("an attachment vector vanished (a load on no DOF?)".into()));
+                }
+                x.scale(1.0 / norm)?;
+                if block + 1 < blocks {
+                    let mut m = x.duplicate()?;
+                    assembled.mass_unit.mult(&x, &mut m)?;
+                    next.push(m);
+                }
+                columns.push(x);
+            }
+            rhs_list = next;
+        }
+        let na = columns.len();
+        let nb = self.vectors.len();
+        let mut work = self.vectors[0].duplicate()?;
+        let local_columns: Vec<Vec<f64>> = columns.iter().map(|v| v.local_values()).collect::<Result<_, _>>()?;
+        let dot = |x: &[f64], y: &[f64]| x.iter().zip(y).map(|(a, b)| a * b).sum::<f64>();
+        let mut project = |mat: &Mat<'p>| -> Result<(DMatrix<f64>, DMatrix<f64>), ReducedError> {
+            // Local sums, then one reduction: (nb + na) × na entries, column-major.
+            let mut local = vec![0.0; (nb + na) * na];
+            for (j, a) in columns.iter().enumerate() {
+                mat.mult(a, &mut work)?;
+                let w = work.local_values()?;
+                for (i, v) in solver.local_basis.iter().enumerate() {
+                    local[j * (nb + na) + i] = dot(v, &w);
+                }
+                for (i, b) in local_columns.iter().enumerate() {
+                    local[j * (nb + na) + nb + i] = dot(b, &w);
+                }
+            }
+            let mut global = vec![0.0; local.len()];
+            petsc.world().all_reduce_into(&local[..], &mut global[..], SystemOperation::sum());
+            let all = DMatrix::from_column_slice(nb + na, na, &global);
+            let cross = all.rows(0, nb).into_owned();
+            let own = all.rows(nb, na).into_owned();
+            Ok((self.whitening.transpose() * cross, (&own + own.transpose()) * 0.5))
+        };
+        let (cross_lambda, self_lambda) = project(&assembled.k_lambda)?;
+        let (cross_mu, self_mu) = project(&assembled.k_mu)?;
+        let (cross_mass, self_mass) = project(&assembled.mass_unit)?;
+        let mut probe_values = DMatrix::zeros(self.probe_dofs.len(), na);
+        for (j, a) in columns.iter().enumerate() {
+            for (c, x) in a.gather_indices(&self.probe_dofs)?.into_iter().enumerate() {
+                probe_values[(c, j)] = x;
+            }
+        }
+        Ok(AttachmentProjections { cross_lambda, cross_mu, cross_mass, self_lambda, self_mu, self_mass, probe_values })
     }
 
     /// Relative residual of each Ritz pair (module docs). Collective.

@@ -17,19 +17,40 @@
 //!
 //! (Φ_v the 3 × n values of the modes at vertex v). Its eigenvalues θ'_k (with E/ρ = 1) give
 //! the loaded frequencies ln f'_k = ½ ln θ'_k + ½ ln(E/ρ) − ln 2π, and the loaded drive at the
-//! strike is (Σ_j y_jk s_j)² with s_j = φ_j(x_s)·n. The Ritz values are upper bounds: with a
-//! basis of the band's modes a concentrated mass shifts a little less than it would in the
-//! full model, so the fitted mass is, if anything, a little high.
+//! strike is (Σ_j y_jk s_j)² with s_j = φ_j(x_s)·n.
 //!
-//! The search minimises the plain match's distance (mean capped nearest-line distance, both
-//! ways, over the audible partials) over ν, the site, the mass and the scale (E):
-//! a coarse pass over ν (step 0.01), a subset of candidate sites and a ladder of mass
-//! fractions (0.5–16 % of the body's mass), with E searched in a window around the plain
-//! match's; then a fine pass around the best (ν ± 0.01 by 0.001, the sites next to the best,
-//! the mass ± 15 %). The caller decides whether the loaded match is good enough to believe
-//! (the `diagnose` job: at most half the plain distance).
+//! **The Ritz basis.** Two things the band's modes alone get wrong, both measured on the bowl
+//! (set2 case 012 of the diagnosis benchmark, 9.6 % of the body's mass on three vertices,
+//! against the full solve with that mass):
+//! * *Rigid recoil.* A mass moves the body's centre of mass, so each loaded elastic mode
+//!   carries some rigid motion. Elastic modes alone forbid it, which is a constraint and no
+//!   Ritz bound: the first loaded mode came out 1157 Hz against the full 1203.5 Hz. The
+//!   basis therefore holds the six rigid motions R (M₁-orthonormal, K R = 0); their loaded
+//!   values are 0 and are dropped.
+//! * *Local flexibility.* The band's modes lack the deformation right under a concentrated
+//!   mass: with R, the modes alone gave 3048 Hz for 2870, 8723 for 7457 (+17 %). The
+//!   [`Enrichment`] adds the region's attachment vectors, static responses to unit loads there
+//!   and their next Krylov terms (two blocks of three): errors 0.05 % at the first mode,
+//!   ≤ 0.7 % to 7.5 kHz, ≤ 1.2 % at 10 kHz.
+//!
+//! With R (and A) in the basis the loaded Ritz values are upper bounds of the full solve's.
+//!
+//! **The search** minimises the plain match's distance (mean capped nearest-line distance,
+//! both ways, over the audible partials) over ν, the site, the mass and the scale (E): a
+//! coarse pass over ν, a subset of candidate regions and a ladder of mass fractions (0.5–16 %
+//! of the body's mass), with E searched in a window around the plain match's; then
+//! ([`loaded_line_candidates`]) the best coarse regions at distinct sites, each refined by a
+//! fine pass (ν ± 0.01 by 0.001, the regions next to it, the mass ± 15 %). The Ritz model's
+//! error grows with the mass and away from the ν of the attachment vectors, and a search over
+//! ~10⁵ configurations finds the places where it errs in its favour (case 012: Ritz distance
+//! 9.4·10⁻³ at 13.7 % and ν = 0.08, 1.8·10⁻² by the full solve), so the caller checks each
+//! candidate with a full solve ([`scale_fit`]) and believes only that (the `diagnose` job:
+//! at most half the plain distance).
 
 use nalgebra::{DMatrix, DVector, SymmetricEigen};
+use std::rc::Rc;
+
+use crate::eigen::reduced::AttachmentProjections;
 
 use super::material::line_distance;
 #[cfg(test)]
@@ -45,38 +66,149 @@ pub struct ModesAtPoisson {
     /// Mode values at the candidate vertices: row 3i + c is component c at candidate vertex i,
     /// column k mode k (ρ = 1 mass-normalisation).
     pub values: DMatrix<f64>,
+    /// For an [`Enrichment`]: the Lamé factors (a(ν), b(ν)) of
+    /// [`crate::eigen::reduced::lame_unit`] and the modes' whitened coordinates Z (reduced
+    /// dimension × modes). Unused (may be empty) without one.
+    pub lame: (f64, f64),
+    pub coefficients: DMatrix<f64>,
+    /// The six rigid-body motions, M₁-orthonormal (ρ = 1), at the candidate vertices (rows as
+    /// `values`) and their drive at the strike; may have no columns. The Ritz basis must hold
+    /// them: a mass moves the body's centre of mass, so the loaded elastic modes carry rigid
+    /// recoil, and a basis of elastic modes alone forbids it. That is a constraint, not a
+    /// Ritz bound on the elastic values: on the bowl a 9.6 % mass on three vertices then came
+    /// out 5 % *below* the full solve at the first mode (the recoil raises it).
+    pub rigid: DMatrix<f64>,
+    pub rigid_strike: Vec<f64>,
+}
+
+/// Extra Ritz vectors for one candidate region: the static responses A to unit loads at the
+/// region (one per direction), whose local flexibility the band's modes lack. Without them a
+/// mass of a few per cent on five vertices shifts the upper modes 1.5–5 % too little (the
+/// diagnosis benchmark, against full solves), and the search buys the missing shift with a
+/// mass several times too large at the wrong site. With them the Ritz basis is [Φ(ν), A] and
+///
+/// K_r = [diag θ, Zᵀ(aC_λ + bC_μ); ·, aS_λ + bS_μ],  M_r = [I, ZᵀC_M; ·, S_M] + α U_Rᵀ U_R
+///
+/// (C_• = Wᵀ Vᵀ K_• A and S_• = Aᵀ K_• A from [`AttachmentProjections`], U_R = [Φ_R, A_R] the
+/// values at the region's vertices); the lowest n Ritz values are kept.
+#[derive(Clone, Debug)]
+pub struct Enrichment {
+    pub projections: AttachmentProjections,
+    /// Values of the extra vectors at the region's vertices, rows 3i + c in the order of the
+    /// region's list (attachments as columns).
+    pub region_values: DMatrix<f64>,
+    /// Their drive at the strike (weighted as [`ModesAtPoisson::strike`]).
+    pub strike: Vec<f64>,
+}
+
+/// The reduced loaded problem K y = θ' (M + αG) y for one ν and one region.
+struct RegionProblem {
+    stiffness: DMatrix<f64>,
+    mass: DMatrix<f64>,
+    gram: DMatrix<f64>,
+    strike: DVector<f64>,
+    /// Ritz values kept (the unloaded basis's count).
+    keep: usize,
+}
+
+impl RegionProblem {
+    /// The basis [Φ(ν), A, R]: the modes, the region's attachment vectors if given, and the
+    /// rigid-body motions (K R = 0; R M₁-orthogonal to Φ and A, M₁-orthonormal). `None` if
+    /// the pieces do not fit together.
+    fn new(modes: &ModesAtPoisson, region: &[usize], extra: Option<&Enrichment>) -> Option<Self> {
+        let n = modes.theta.len();
+        let na = extra.map_or(0, |e| e.projections.self_mass.ncols());
+        let nr = modes.rigid.ncols();
+        if modes.strike.len() != n || modes.values.ncols() != n || (nr > 0 && (modes.rigid.nrows() != modes.values.nrows() || modes.rigid_strike.len() != nr)) {
+            return None;
+        }
+        let size = n + na + nr;
+        let mut stiffness = DMatrix::zeros(size, size);
+        let mut mass = DMatrix::identity(size, size);
+        for k in 0..n {
+            stiffness[(k, k)] = modes.theta[k];
+        }
+        let mut at_region = DMatrix::zeros(3 * region.len(), size);
+        for (i, &v) in region.iter().enumerate() {
+            for c in 0..3 {
+                at_region.view_mut((3 * i + c, 0), (1, n)).copy_from(&modes.values.row(3 * v + c));
+                if nr > 0 {
+                    at_region.view_mut((3 * i + c, n + na), (1, nr)).copy_from(&modes.rigid.row(3 * v + c));
+                }
+            }
+        }
+        let mut strike: Vec<f64> = modes.strike.clone();
+        if let Some(extra) = extra {
+            let p = &extra.projections;
+            let z = &modes.coefficients;
+            if z.ncols() != n || z.nrows() != p.cross_mass.nrows() || extra.region_values.nrows() != 3 * region.len() || extra.region_values.ncols() != na || extra.strike.len() != na {
+                return None;
+            }
+            let (a, b) = modes.lame;
+            let cross_k = z.transpose() * (&p.cross_lambda * a + &p.cross_mu * b);
+            let cross_m = z.transpose() * &p.cross_mass;
+            stiffness.view_mut((0, n), (n, na)).copy_from(&cross_k);
+            stiffness.view_mut((n, 0), (na, n)).copy_from(&cross_k.transpose());
+            stiffness.view_mut((n, n), (na, na)).copy_from(&(&p.self_lambda * a + &p.self_mu * b));
+            mass.view_mut((0, n), (n, na)).copy_from(&cross_m);
+            mass.view_mut((n, 0), (na, n)).copy_from(&cross_m.transpose());
+            mass.view_mut((n, n), (na, na)).copy_from(&p.self_mass);
+            at_region.view_mut((0, n), (3 * region.len(), na)).copy_from(&extra.region_values);
+            strike.extend_from_slice(&extra.strike);
+        }
+        strike.extend_from_slice(&modes.rigid_strike[..nr]);
+        let gram = at_region.transpose() * &at_region;
+        Some(RegionProblem { stiffness, mass, gram, strike: DVector::from_vec(strike), keep: n })
+    }
+
+    /// The lowest `keep` loaded Ritz values θ' ascending with their drives (Σ_j y_j s_j)²;
+    /// empty if M + αG is not positive definite.
+    fn solve(&self, alpha: f64) -> Vec<(f64, f64)> {
+        let mass = &self.mass + &self.gram * alpha;
+        // M = LLᵀ; L⁻¹ K L⁻ᵀ has the same eigenvalues, and y = L⁻ᵀ v.
+        let Some(chol) = mass.cholesky() else {
+            return Vec::new();
+        };
+        let l = chol.l();
+        let Some(left) = l.solve_lower_triangular(&self.stiffness) else {
+            return Vec::new();
+        };
+        let Some(a) = l.solve_lower_triangular(&left.transpose()) else {
+            return Vec::new();
+        };
+        let eig = SymmetricEigen::new((&a + a.transpose()) * 0.5);
+        let lt = l.transpose();
+        // Rigid-body traces the extra vectors might still carry would sit near 0, far below any
+        // elastic loaded value (a mass of 16 % lowers none by more than a few times): drop
+        // values under 10⁻⁶ of the largest diagonal entry of K.
+        let floor = 1e-6 * self.stiffness.diagonal().iter().fold(0.0_f64, |m, v| m.max(*v));
+        let mut out: Vec<(f64, f64)> = (0..eig.eigenvalues.len())
+            .filter(|&k| eig.eigenvalues[k] > floor)
+            .map(|k| {
+                let v = eig.eigenvectors.column(k).into_owned();
+                let y = lt.solve_upper_triangular(&v).unwrap_or(v);
+                let drive = self.strike.dot(&y);
+                (eig.eigenvalues[k], drive * drive)
+            })
+            .collect();
+        out.sort_by(|p, q| p.0.total_cmp(&q.0));
+        out.truncate(self.keep);
+        out
+    }
 }
 
 /// Loaded Ritz values θ'_k ascending and their drive weights (Σ_j y_jk s_j)², for a lumped
 /// mass α = m_v/ρ [m³] on each vertex of `region` (indices into the candidate vertices).
-/// `gram` is G_R ([`region_gram`]).
-pub fn loaded_modes(modes: &ModesAtPoisson, gram: &DMatrix<f64>, alpha: f64) -> Vec<(f64, f64)> {
-    let n = modes.theta.len();
-    let mass = DMatrix::identity(n, n) + gram * alpha;
-    // I + αG is symmetric positive definite for α ≥ 0; Cholesky M = LLᵀ, then
-    // A = L⁻¹ diag(θ) L⁻ᵀ has the same eigenvalues and y = L⁻ᵀ v.
-    let Some(chol) = mass.cholesky() else {
-        return Vec::new();
-    };
-    let l = chol.l();
-    let sqrt_theta = DMatrix::from_diagonal(&DVector::from_iterator(n, modes.theta.iter().map(|t| t.max(0.0).sqrt())));
-    let Some(b) = l.solve_lower_triangular(&sqrt_theta) else {
-        return Vec::new();
-    };
-    let a = &b * b.transpose();
-    let eig = SymmetricEigen::new((&a + a.transpose()) * 0.5);
-    let lt = l.transpose();
-    let strike = DVector::from_column_slice(&modes.strike);
-    let mut out: Vec<(f64, f64)> = (0..n)
-        .map(|k| {
-            let v = eig.eigenvectors.column(k).into_owned();
-            let y = lt.solve_upper_triangular(&v).unwrap_or(v);
-            let drive = strike.dot(&y);
-            (eig.eigenvalues[k], drive * drive)
-        })
-        .collect();
-    out.sort_by(|p, q| p.0.total_cmp(&q.0));
-    out
+/// The modes (and the rigid motions, if `modes` has them) form the basis. Empty if `modes` is
+/// inconsistent.
+pub fn loaded_modes(modes: &ModesAtPoisson, region: &[usize], alpha: f64) -> Vec<(f64, f64)> {
+    RegionProblem::new(modes, region, None).map(|p| p.solve(alpha)).unwrap_or_default()
+}
+
+/// As [`loaded_modes`], in the basis enriched by the region's attachment vectors
+/// ([`Enrichment`]); `None` if the enrichment does not fit the modes.
+pub fn loaded_modes_enriched(modes: &ModesAtPoisson, region: &[usize], extra: &Enrichment, alpha: f64) -> Option<Vec<(f64, f64)>> {
+    RegionProblem::new(modes, region, Some(extra)).map(|p| p.solve(alpha))
 }
 
 /// G_R = Σ_{v∈R} Φ_vᵀΦ_v over the candidate vertices `region`.
@@ -97,8 +229,9 @@ pub fn region_gram(modes: &ModesAtPoisson, region: &[usize]) -> DMatrix<f64> {
 pub struct LoadedMatchSettings {
     /// Mass fractions of the body tried in the coarse pass.
     pub mass_fractions: Vec<f64>,
-    /// ν range.
+    /// ν range, and the coarse pass's step in it.
     pub poisson_bounds: (f64, f64),
+    pub coarse_poisson_step: f64,
     /// Window of the scale c = ½ ln(E/ρ) − ln 2π around the plain match's, (below, above): a
     /// mass only lowers frequencies, so E is found higher than the plain match put it.
     pub shift_window: (f64, f64),
@@ -113,6 +246,7 @@ impl Default for LoadedMatchSettings {
         LoadedMatchSettings {
             mass_fractions: vec![0.005, 0.0075, 0.01, 0.015, 0.02, 0.03, 0.04, 0.05, 0.065, 0.08, 0.10, 0.13, 0.16],
             poisson_bounds: (0.0, 0.49),
+            coarse_poisson_step: 0.01,
             shift_window: (0.05, 0.15),
             cap: 0.02,
             audible: 1e-3,
@@ -150,10 +284,22 @@ pub struct LoadedMatchProblem<'a> {
     pub neighbours: &'a dyn Fn(usize) -> Vec<usize>,
     /// E of the plain match [Pa]: the centre of the scale window.
     pub plain_youngs: f64,
+    /// The attachment enrichment of region r ([`Enrichment`]), if the caller has one; without
+    /// it (or where it gives `None`) the region's problem uses the modes alone.
+    pub enrichment: Option<&'a dyn Fn(usize) -> Option<Rc<Enrichment>>>,
 }
 
 /// Runs the search (module docs). `modes_at(ν)` gives the unloaded Ritz modes.
 pub fn loaded_line_match(problem: &LoadedMatchProblem, modes_at: &dyn Fn(f64) -> ModesAtPoisson, settings: &LoadedMatchSettings) -> Result<LoadedMatch, String> {
+    loaded_line_candidates(problem, modes_at, settings, 1)?.into_iter().next().ok_or_else(|| "the loaded line match found no candidate".to_string())
+}
+
+/// The search's `candidates` best answers at distinct sites, best first: the best coarse
+/// regions, each outside the fine neighbourhood of a better one, each refined by its own fine
+/// pass. A caller that can afford full solves checks them ([`scale_fit`]): the Ritz model's
+/// error grows with the mass and away from the attachment vectors' ν, and a search over
+/// thousands of configurations finds the places where it errs in its favour.
+pub fn loaded_line_candidates(problem: &LoadedMatchProblem, modes_at: &dyn Fn(f64) -> ModesAtPoisson, settings: &LoadedMatchSettings, candidates: usize) -> Result<Vec<LoadedMatch>, String> {
     let mut target: Vec<f64> = problem.target_ln_f.iter().copied().filter(|x| x.is_finite()).collect();
     if target.is_empty() {
         return Err("the loaded line match needs the target's mode frequencies".into());
@@ -203,48 +349,104 @@ pub fn loaded_line_match(problem: &LoadedMatchProblem, modes_at: &dyn Fn(f64) ->
     };
     let body_mass = problem.density * problem.volume;
     let alpha_of = |fraction: f64, region: usize| fraction * problem.volume / problem.regions[region].len().max(1) as f64;
+    let region_problem = |modes: &ModesAtPoisson, r: usize| -> Option<RegionProblem> {
+        let region = &problem.regions[r];
+        let extra = problem.enrichment.and_then(|enrich| enrich(r));
+        extra.and_then(|extra| RegionProblem::new(modes, region, Some(&extra))).or_else(|| RegionProblem::new(modes, region, None))
+    };
 
     // (distance, c, ν, region, fraction)
     let mut best = (f64::INFINITY, c_plain, settings.poisson_bounds.0, problem.coarse[0], 0.0);
+    // The best of each coarse region, for the candidates.
+    let mut per_region: Vec<(f64, f64, f64, usize, f64)> = problem.coarse.iter().map(|&r| (f64::INFINITY, c_plain, settings.poisson_bounds.0, r, 0.0)).collect();
     let mut evaluations = 0;
     let (lo, hi) = settings.poisson_bounds;
-    let n_nu = ((hi - lo) / 0.01).ceil().max(1.0) as usize;
+    let n_nu = ((hi - lo) / settings.coarse_poisson_step.max(1e-4)).ceil().max(1.0) as usize;
     for i in 0..=n_nu {
         let nu = lo + (hi - lo) * i as f64 / n_nu as f64;
         let modes = modes_at(nu);
-        for &r in problem.coarse {
-            let gram = region_gram(&modes, &problem.regions[r]);
+        for (slot, &r) in problem.coarse.iter().enumerate() {
+            let Some(reduced) = region_problem(&modes, r) else { continue };
             for &fraction in &settings.mass_fractions {
-                let u = pattern(&loaded_modes(&modes, &gram, alpha_of(fraction, r)));
+                let u = pattern(&reduced.solve(alpha_of(fraction, r)));
                 let (d, c, e) = best_shift(&u, c_plain, settings.shift_window.0, settings.shift_window.1, 1e-3);
                 evaluations += e;
+                if d < per_region[slot].0 {
+                    per_region[slot] = (d, c, nu, r, fraction);
+                }
                 if d < best.0 {
                     best = (d, c, nu, r, fraction);
                 }
             }
         }
     }
-    // Fine pass around the best.
-    let (_, c0, nu0, r0, fraction0) = best;
-    let regions = (problem.neighbours)(r0);
-    for j in -10..=10 {
-        let nu = (nu0 + j as f64 * 0.001).clamp(lo, hi);
-        let modes = modes_at(nu);
-        for &r in &regions {
-            let gram = region_gram(&modes, &problem.regions[r]);
-            for s in -3..=3 {
-                let fraction = fraction0 * (1.0 + 0.05 * s as f64);
-                let u = pattern(&loaded_modes(&modes, &gram, alpha_of(fraction, r)));
-                let (d, c, e) = best_shift(&u, c0, 0.005, 0.005, 2e-4);
-                evaluations += e;
-                if d < best.0 {
-                    best = (d, c, nu, r, fraction);
+    // Candidates: the best coarse regions, each outside the fine neighbourhoods of those
+    // already taken; a fine pass around each (ν ± 0.01 by 0.001, the neighbouring regions,
+    // the mass ± 15 %).
+    per_region.sort_by(|a, b| a.0.total_cmp(&b.0));
+    let mut seeds: Vec<(f64, f64, f64, usize, f64)> = Vec::new();
+    let mut covered: Vec<usize> = Vec::new();
+    for cand in per_region.iter().filter(|c| c.0.is_finite()) {
+        if seeds.len() >= candidates.max(1) {
+            break;
+        }
+        if covered.contains(&cand.3) {
+            continue;
+        }
+        covered.extend((problem.neighbours)(cand.3));
+        seeds.push(*cand);
+    }
+    let mut out = Vec::with_capacity(seeds.len());
+    for seed in seeds {
+        let mut best = seed;
+        let (_, c0, nu0, r0, fraction0) = seed;
+        let regions = (problem.neighbours)(r0);
+        for j in -10..=10 {
+            let nu = (nu0 + j as f64 * 0.001).clamp(lo, hi);
+            let modes = modes_at(nu);
+            for &r in &regions {
+                let Some(reduced) = region_problem(&modes, r) else { continue };
+                for s in -3..=3 {
+                    let fraction = fraction0 * (1.0 + 0.05 * s as f64);
+                    let u = pattern(&reduced.solve(alpha_of(fraction, r)));
+                    let (d, c, e) = best_shift(&u, c0, 0.005, 0.005, 2e-4);
+                    evaluations += e;
+                    if d < best.0 {
+                        best = (d, c, nu, r, fraction);
+                    }
                 }
             }
         }
+        let (d, c, nu, r, fraction) = best;
+        out.push(LoadedMatch { youngs: problem.density * (2.0 * (c + two_pi_ln)).exp(), poisson: nu, mass_kg: fraction * body_mass, region: r, distance: d, evaluations });
     }
-    let (d, c, nu, r, fraction) = best;
-    Ok(LoadedMatch { youngs: problem.density * (2.0 * (c + two_pi_ln)).exp(), poisson: nu, mass_kg: fraction * body_mass, region: r, distance: d, evaluations })
+    out.sort_by(|a, b| a.distance.total_cmp(&b.distance));
+    Ok(out)
+}
+
+/// The line match of a given loaded spectrum (θ'_k for E/ρ = 1 with their drives, e.g. from a
+/// full solve): its distance and E at the best scale within `window` (ln f, below and above)
+/// of `youngs_centre`, with the search's cap and audibility.
+pub fn scale_fit(target_ln_f: &[f64], ceiling_ln_f: f64, loaded: &[(f64, f64)], density: f64, youngs_centre: f64, window: f64, settings: &LoadedMatchSettings) -> (f64, f64) {
+    let mut target: Vec<f64> = target_ln_f.iter().copied().filter(|x| x.is_finite()).collect();
+    target.sort_by(f64::total_cmp);
+    let loudest = loaded.iter().fold(0.0_f64, |m, p| m.max(p.1));
+    let mut u: Vec<f64> = loaded.iter().filter(|p| p.0 > 0.0 && p.1 >= settings.audible * loudest).map(|p| 0.5 * p.0.ln()).collect();
+    u.sort_by(f64::total_cmp);
+    let two_pi_ln = (2.0 * std::f64::consts::PI).ln();
+    let centre = 0.5 * (youngs_centre / density).ln() - two_pi_ln;
+    let mut best = (f64::INFINITY, centre);
+    for step in [1e-3, 1e-4] {
+        let (lo, n) = if step > 5e-4 { (centre - window, (2.0 * window / step).ceil() as i64) } else { (best.1 - 1e-3, 20) };
+        for i in 0..=n {
+            let c = lo + i as f64 * step;
+            let d = line_distance(&target, &u, c, ceiling_ln_f, settings.cap);
+            if d < best.0 {
+                best = (d, c);
+            }
+        }
+    }
+    (best.0, density * (2.0 * (best.1 + two_pi_ln)).exp())
 }
 
 #[cfg(test)]
@@ -257,22 +459,21 @@ mod tests {
         let mut values = DMatrix::zeros(6, 3);
         values[(0, 0)] = 2.0; // vertex 0, x: mode 0
         values[(4, 2)] = 1.0; // vertex 1, y: mode 2
-        ModesAtPoisson { theta: vec![1.0, 1.0, 4.0], strike: vec![1.0, 1.0, 1.0], values }
+        ModesAtPoisson { theta: vec![1.0, 1.0, 4.0], strike: vec![1.0, 1.0, 1.0], values, lame: (0.0, 0.0), coefficients: DMatrix::zeros(0, 3), rigid: DMatrix::zeros(0, 0), rigid_strike: Vec::new() }
     }
 
     #[test]
     fn a_lumped_mass_lowers_only_the_mode_that_moves_there() {
         let modes = toy();
-        let gram = region_gram(&modes, &[0]);
         let alpha = 0.1;
-        let loaded = loaded_modes(&modes, &gram, alpha);
+        let loaded = loaded_modes(&modes, &[0], alpha);
         // Mode 0: θ/(1 + α·4) exactly (the mass couples nothing else); modes 1 and 2 unchanged.
         let expected = [1.0 / (1.0 + alpha * 4.0), 1.0, 4.0];
         for (got, want) in loaded.iter().zip(expected) {
             assert!((got.0 - want).abs() < 1e-12, "{loaded:?}");
         }
         // Without mass the values are θ.
-        let none = loaded_modes(&modes, &gram, 0.0);
+        let none = loaded_modes(&modes, &[0], 0.0);
         assert!(none.iter().zip([1.0, 1.0, 4.0]).all(|(g, w)| (g.0 - w).abs() < 1e-12));
     }
 
@@ -284,10 +485,10 @@ mod tests {
         for (i, x) in values.iter_mut().enumerate() {
             *x = ((i * 37 % 11) as f64 - 5.0) / 7.0;
         }
-        let modes = ModesAtPoisson { theta: vec![1.0, 1.3, 2.0, 2.2, 3.5], strike: vec![0.3, -0.2, 0.5, 0.1, 0.4], values };
+        let modes = ModesAtPoisson { theta: vec![1.0, 1.3, 2.0, 2.2, 3.5], strike: vec![0.3, -0.2, 0.5, 0.1, 0.4], values, lame: (0.0, 0.0), coefficients: DMatrix::zeros(0, n), rigid: DMatrix::zeros(0, 0), rigid_strike: Vec::new() };
         let gram = region_gram(&modes, &[0, 1]);
         let alpha = 0.07;
-        let loaded = loaded_modes(&modes, &gram, alpha);
+        let loaded = loaded_modes(&modes, &[0, 1], alpha);
         let m = DMatrix::identity(n, n) + &gram * alpha;
         let k = DMatrix::from_diagonal(&DVector::from_vec(modes.theta.clone()));
         for (theta, _) in &loaded {
@@ -302,6 +503,115 @@ mod tests {
         }
     }
 
+    /// Lowest `n` eigenvalues of K x = θ M x (M SPD) densely.
+    fn dense_generalised(k: &DMatrix<f64>, m: &DMatrix<f64>, n: usize) -> Vec<f64> {
+        let l = m.clone().cholesky().unwrap().l();
+        let li = l.clone().try_inverse().unwrap();
+        let a = &li * k * li.transpose();
+        let mut v: Vec<f64> = SymmetricEigen::new((&a + a.transpose()) * 0.5).eigenvalues.iter().copied().collect();
+        v.sort_by(f64::total_cmp);
+        v.truncate(n);
+        v
+    }
+
+    #[test]
+    fn the_rigid_motion_and_attachment_vectors_bring_the_loaded_ritz_values_to_the_full_solve() {
+        // A free "body": a chain of 60 masses and springs with two moduli, K(ν) = a K_λ + b K_μ,
+        // M₁ diagonal, one rigid motion (translation). The reduced basis is its first 6 elastic
+        // modes at ν, the candidate region DOFs 30..33 ("vertex" 10), a heavy mass there, the
+        // strike at DOF 59.
+        let size = 60;
+        let mut k_lambda = DMatrix::zeros(size, size);
+        let mut k_mu = DMatrix::zeros(size, size);
+        for i in 0..size - 1 {
+            let (kl, km) = (1.0 + 0.3 * ((i * 7 % 5) as f64), 2.0 + 0.5 * ((i * 3 % 4) as f64));
+            for (mat, k) in [(&mut k_lambda, kl), (&mut k_mu, km)] {
+                mat[(i, i)] += k;
+                mat[(i + 1, i + 1)] += k;
+                mat[(i, i + 1)] -= k;
+                mat[(i + 1, i)] -= k;
+            }
+        }
+        let mass1 = DMatrix::from_diagonal(&DVector::from_iterator(size, (0..size).map(|i| 1.0 + 0.2 * ((i % 3) as f64))));
+        let (a, b) = crate::eigen::reduced::lame_unit(0.3);
+        let k = &k_lambda * a + &k_mu * b;
+        let l = mass1.clone().cholesky().unwrap().l();
+        let li = l.clone().try_inverse().unwrap();
+        let eig = SymmetricEigen::new({
+            let x = &li * &k * li.transpose();
+            (&x + x.transpose()) * 0.5
+        });
+        let mut order: Vec<usize> = (0..size).collect();
+        order.sort_by(|&i, &j| eig.eigenvalues[i].total_cmp(&eig.eigenvalues[j]));
+        // order[0] is the rigid translation (θ = 0); the basis is the next 6, M₁-orthonormal.
+        let n = 6;
+        let basis = DMatrix::from_columns(&order[1..=n].iter().map(|&i| li.transpose() * eig.eigenvectors.column(i)).collect::<Vec<_>>());
+        let theta: Vec<f64> = order[1..=n].iter().map(|&i| eig.eigenvalues[i]).collect();
+        let total: f64 = mass1.diagonal().sum();
+        let rigid = DMatrix::from_element(size, 1, 1.0 / total.sqrt());
+        let values = basis.clone();
+        let with_rigid = ModesAtPoisson { theta, strike: basis.row(size - 1).iter().copied().collect(), values, lame: (a, b), coefficients: DMatrix::identity(n, n), rigid: rigid.clone(), rigid_strike: vec![rigid[(size - 1, 0)]] };
+        let without_rigid = ModesAtPoisson { rigid: DMatrix::zeros(0, 0), rigid_strike: Vec::new(), ..with_rigid.clone() };
+        let region = [10usize];
+        // Attachment vectors: static responses to unit loads on the region's DOFs, the rigid
+        // translation projected out.
+        let mut loads = DMatrix::zeros(size, 3);
+        for c in 0..3 {
+            loads[(30 + c, c)] = 1.0;
+        }
+        let mut attach = (&k + &mass1 * 1e-3).lu().solve(&loads).unwrap();
+        for j in 0..3 {
+            let along = (rigid.transpose() * &mass1 * attach.column(j))[(0, 0)];
+            let column = attach.column(j) - &rigid * along;
+            attach.set_column(j, &column);
+            let norm = (attach.column(j).transpose() * &mass1 * attach.column(j))[(0, 0)].sqrt();
+            attach.column_mut(j).scale_mut(1.0 / norm);
+        }
+        let projections = AttachmentProjections {
+            cross_lambda: basis.transpose() * &k_lambda * &attach,
+            cross_mu: basis.transpose() * &k_mu * &attach,
+            cross_mass: basis.transpose() * &mass1 * &attach,
+            self_lambda: attach.transpose() * &k_lambda * &attach,
+            self_mu: attach.transpose() * &k_mu * &attach,
+            self_mass: attach.transpose() * &mass1 * &attach,
+            probe_values: DMatrix::zeros(0, 3),
+        };
+        let extra = Enrichment { projections, region_values: attach.rows(30, 3).into_owned(), strike: attach.row(size - 1).iter().copied().collect() };
+        let alpha = 8.0;
+        let enriched = loaded_modes_enriched(&with_rigid, &region, &extra, alpha).unwrap();
+        let modal = loaded_modes(&with_rigid, &region, alpha);
+        let anchored = loaded_modes(&without_rigid, &region, alpha);
+        // The full loaded model's elastic values (its rigid translation dropped).
+        let mut loaded_mass = mass1.clone();
+        for c in 0..3 {
+            loaded_mass[(30 + c, 30 + c)] += alpha;
+        }
+        let full: Vec<f64> = dense_generalised(&k, &loaded_mass, n + 1)[1..].to_vec();
+        // The enriched values equal the dense projection on [Φ, A, R] (its rigid value dropped) …
+        let u = DMatrix::from_fn(size, n + 4, |r, c| if c < n { basis[(r, c)] } else if c < n + 3 { attach[(r, c - n)] } else { rigid[(r, 0)] });
+        let projected = dense_generalised(&(u.transpose() * &k * &u), &(u.transpose() * &loaded_mass * &u), n + 1)[1..].to_vec();
+        assert_eq!(enriched.len(), n);
+        for (e, p) in enriched.iter().zip(&projected) {
+            assert!((e.0 / p - 1.0).abs() < 1e-9, "enriched {enriched:?} against projected {projected:?}");
+        }
+        // … bound the full values from above, below the modal values, and are several times
+        // closer to the full solve.
+        let (mut modal_error, mut enriched_error) = (0.0_f64, 0.0_f64);
+        for ((e, m), f) in enriched.iter().zip(&modal).zip(&full) {
+            assert!(e.0 >= f * (1.0 - 1e-9) && e.0 <= m.0 * (1.0 + 1e-9), "full {f}, enriched {}, modal {}", e.0, m.0);
+            modal_error = modal_error.max(m.0 / f - 1.0);
+            enriched_error = enriched_error.max(e.0 / f - 1.0);
+        }
+        assert!(modal_error > 1e-2, "the test case must be hard for the modes alone: {modal_error}");
+        assert!(enriched_error < 0.2 * modal_error, "enriched error {enriched_error} against modal {modal_error}");
+        // Without the rigid motion the basis anchors the body: the first value falls below
+        // the full solve's (no bound), which is why the basis carries it.
+        assert!(anchored[0].0 < full[0] * (1.0 - 1e-3), "anchored {} against full {}", anchored[0].0, full[0]);
+        // A mismatched enrichment is refused, not misused.
+        let wrong = Enrichment { strike: vec![0.0; 2], ..extra };
+        assert!(loaded_modes_enriched(&with_rigid, &region, &wrong, alpha).is_none());
+    }
+
     #[test]
     fn the_search_recovers_a_planted_mass_and_scale() {
         // Modes independent of ν; candidate vertex 0 moves modes 0 and 2, vertex 1 mode 1.
@@ -313,16 +623,15 @@ mod tests {
         values[(4, 1)] = 120.0;
         values[(3, 4)] = 50.0;
         let theta: Vec<f64> = [1.0_f64, 1.0, 2.6, 2.6, 5.1, 7.3].iter().map(|t| t * 1e7).collect();
-        let modes = ModesAtPoisson { theta, strike: vec![1.0; n], values };
+        let modes = ModesAtPoisson { theta, strike: vec![1.0; n], values, lame: (0.0, 0.0), coefficients: DMatrix::zeros(0, n), rigid: DMatrix::zeros(0, 0), rigid_strike: Vec::new() };
         let (density, volume) = (2700.0_f64, 1e-4);
         let truth_youngs = 7e10_f64;
         let regions = vec![vec![0], vec![1]];
         let alpha = 0.04 * volume;
-        let gram = region_gram(&modes, &regions[0]);
         let two_pi_ln = (2.0 * std::f64::consts::PI).ln();
-        let target: Vec<f64> = loaded_modes(&modes, &gram, alpha).iter().map(|p| 0.5 * p.0.ln() + 0.5 * (truth_youngs / density).ln() - two_pi_ln).collect();
+        let target: Vec<f64> = loaded_modes(&modes, &regions[0], alpha).iter().map(|p| 0.5 * p.0.ln() + 0.5 * (truth_youngs / density).ln() - two_pi_ln).collect();
         let neighbours = |_r: usize| vec![0, 1];
-        let problem = LoadedMatchProblem { target_ln_f: &target, ceiling_ln_f: f64::INFINITY, density, volume, regions: &regions, coarse: &[0, 1], neighbours: &neighbours, plain_youngs: 0.9 * truth_youngs };
+        let problem = LoadedMatchProblem { target_ln_f: &target, ceiling_ln_f: f64::INFINITY, density, volume, regions: &regions, coarse: &[0, 1], neighbours: &neighbours, plain_youngs: 0.9 * truth_youngs, enrichment: None };
         let settings = LoadedMatchSettings { poisson_bounds: (0.2, 0.3), ..Default::default() };
         let found = loaded_line_match(&problem, &|_nu| modes.clone(), &settings).unwrap();
         assert_eq!(found.region, 0, "{found:?}");
@@ -340,7 +649,7 @@ mod tests {
         let modes = toy();
         let regions = vec![vec![0]];
         let neighbours = |_r: usize| vec![0];
-        let problem = LoadedMatchProblem { target_ln_f: &[], ceiling_ln_f: 10.0, density: 2700.0, volume: 1e-4, regions: &regions, coarse: &[0], neighbours: &neighbours, plain_youngs: 7e10 };
+        let problem = LoadedMatchProblem { target_ln_f: &[], ceiling_ln_f: 10.0, density: 2700.0, volume: 1e-4, regions: &regions, coarse: &[0], neighbours: &neighbours, plain_youngs: 7e10, enrichment: None };
         assert!(loaded_line_match(&problem, &|_nu| modes.clone(), &LoadedMatchSettings::default()).is_err());
         let problem = LoadedMatchProblem { target_ln_f: &[7.0], coarse: &[], ..problem };
         assert!(loaded_line_match(&problem, &|_nu| modes.clone(), &LoadedMatchSettings::default()).is_err());

@@ -1,7 +1,8 @@
-//! A stand-alone linear solver, used here to factor `A` and read its inertia.
+//! A stand-alone linear solver: factor `A` and read its inertia ([`inertia`]), or factor a
+//! symmetric positive definite `A` once and solve with it many times ([`CholeskySolver`]).
 
 use super::error::{check, Result};
-use super::{sys, Mat, Petsc};
+use super::{sys, Mat, Petsc, PetscError, Vector};
 use std::marker::PhantomData;
 
 pub struct Ksp<'p> {
@@ -28,6 +29,46 @@ impl Drop for Ksp<'_> {
         unsafe {
             sys::KSPDestroy(&mut self.raw);
         }
+    }
+}
+
+/// A symmetric positive definite matrix factored once by MUMPS Cholesky (KSPPREONLY + PCCHOLESKY):
+/// each [`CholeskySolver::solve`] is two triangular solves. Collective.
+pub struct CholeskySolver<'p> {
+    ksp: Ksp<'p>,
+}
+
+impl<'p> CholeskySolver<'p> {
+    /// Factors `a` (which must stay assembled and unchanged while the solver lives; PETSc keeps
+    /// its own reference). A zero or negative pivot is an error with MUMPS's message.
+    pub fn factor(petsc: &'p Petsc, a: &Mat<'p>) -> Result<Self> {
+        let ksp = Ksp::new(petsc)?;
+        // SAFETY: handles created here, destroyed by `ksp`'s Drop; PETSc references `a`.
+        unsafe {
+            check(sys::KSPSetOperators(ksp.raw, a.raw(), a.raw()), "KSPSetOperators")?;
+            check(sys::KSPSetType(ksp.raw, sys::KSPPREONLY.as_ptr() as _), "KSPSetType")?;
+            // Factorisation failures become KSPSolve errors instead of a silent NaN solution.
+            check(sys::KSPSetErrorIfNotConverged(ksp.raw, sys::PetscBool_PETSC_TRUE), "KSPSetErrorIfNotConverged")?;
+            let mut pc: sys::PC = std::ptr::null_mut();
+            check(sys::KSPGetPC(ksp.raw, &mut pc), "KSPGetPC")?;
+            check(sys::PCSetType(pc, sys::PCCHOLESKY.as_ptr() as _), "PCSetType")?;
+            check(sys::PCFactorSetMatSolverType(pc, sys::MATSOLVERMUMPS.as_ptr() as _), "PCFactorSetMatSolverType")?;
+            check(sys::KSPSetUp(ksp.raw), "KSPSetUp")?;
+        }
+        Ok(CholeskySolver { ksp })
+    }
+
+    /// x = A⁻¹ b.
+    pub fn solve(&self, b: &Vector<'p>, x: &mut Vector<'p>) -> Result<()> {
+        // SAFETY: vectors with the operator's layout; PETSc checks the sizes.
+        unsafe { check(sys::KSPSolve(self.ksp.raw, b.raw(), x.raw()), "KSPSolve")? };
+        let mut reason: sys::KSPConvergedReason = 0;
+        // SAFETY: query only.
+        unsafe { check(sys::KSPGetConvergedReason(self.ksp.raw, &mut reason), "KSPGetConvergedReason")? };
+        if reason < 0 {
+            return Err(PetscError::other(format!("the Cholesky solve failed (KSPConvergedReason {reason})")));
+        }
+        Ok(())
     }
 }
 

@@ -18,7 +18,7 @@ mod vector;
 
 pub use eps::{Eps, EpsWhich, Pc, St};
 pub use error::{PetscError, Result};
-pub use ksp::{inertia, Inertia, Ksp};
+pub use ksp::{inertia, CholeskySolver, Inertia, Ksp};
 pub use mat::{Mat, NonzeroPattern};
 pub use runtime::Petsc;
 pub use vector::Vector;
