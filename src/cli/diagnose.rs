@@ -737,11 +737,12 @@ fn farthest_points(points: &[[f64; 3]], n: usize) -> Vec<usize> {
 /// The loaded line match on the basis whose probes are the strike DOFs (`strike_dofs` of them,
 /// weighted by `problem.direction_weights`) followed by the three DOFs of each vertex of
 /// `surface`. Candidate regions: each surface vertex with its nearest surface vertices
-/// ([`MASS_REGION_VERTICES`] in all, as the localisation's region). Each region's Ritz problem
-/// is enriched by its three attachment vectors ([`crate::inverse::loaded_match::Enrichment`]),
-/// solved with one Cholesky factorisation at the plain match's ν; a region whose enrichment
-/// fails falls back to the modes alone (counted in the report). Collective: every rank runs the
-/// same search.
+/// ([`LOADED_MATCH_REGION_SIZES`] in all). Each region's Ritz problem is enriched by its
+/// [`ATTACHMENT_BLOCKS`] blocks of three attachment vectors
+/// ([`crate::inverse::loaded_match::Enrichment`]), solved with one Cholesky factorisation at the
+/// plain match's ν; a region whose enrichment fails falls back to the modes alone (counted in
+/// the report). The [`LOADED_MATCH_CANDIDATES`] best sites are each checked by a full solve.
+/// Collective: every rank runs the same search.
 #[allow(clippy::too_many_arguments)]
 fn loaded_match<'p>(petsc: &'p Petsc, assembled: &assembly::Assembled<'p>, basis: &PoissonBasis<'p>, mesh: &TetMesh, surface: &[usize], strike_petsc_dofs: &[PetscInt], problem: &MaterialProblem, start: &LineSpectrumStart, settings: &MaterialFitSettings, density: f64, progress: &Progress) -> Result<LoadedMass, String> {
     let strike_dofs = strike_petsc_dofs.len();
@@ -754,6 +755,9 @@ fn loaded_match<'p>(petsc: &'p Petsc, assembled: &assembly::Assembled<'p>, basis
     let (target, ceiling) = line_match_targets(problem)?;
     let volume = mesh.volume();
     let weights = &problem.direction_weights;
+    // Drive at the strike of column j of probe values (strike DOFs first), weighted as the
+    // plain match weights them.
+    let strike_drive = |probes: &DMatrix<f64>, j: usize| -> f64 { (0..strike_dofs).map(|d| probes[(d, j)] * weights[d]).sum() };
     // The attachment vectors: static responses at the plain ν, the shift a tenth of the lowest
     // elastic θ (it only makes the free body's operator definite).
     let t = Instant::now();
@@ -762,11 +766,11 @@ fn loaded_match<'p>(petsc: &'p Petsc, assembled: &assembly::Assembled<'p>, basis
     let factor_seconds = t.elapsed().as_secs_f64();
     let rigid_all = basis.rigid_probe_values(&solver).map_err(|e| format!("rigid motions: {e}"))?;
     let rigid = rigid_all.rows(strike_dofs, 3 * surface.len()).into_owned();
-    let rigid_strike: Vec<f64> = (0..rigid_all.ncols()).map(|j| (0..strike_dofs).map(|d| rigid_all[(d, j)] * weights[d]).sum()).collect();
+    let rigid_strike: Vec<f64> = (0..rigid_all.ncols()).map(|j| strike_drive(&rigid_all, j)).collect();
     let modes_at = |nu: f64| {
         let modes = basis.solve(nu);
         let all = basis.probe_all(&modes);
-        let strike = (0..modes.theta.len()).map(|k| (0..strike_dofs).map(|d| all[(d, k)] * weights[d]).sum()).collect();
+        let strike = (0..modes.theta.len()).map(|k| strike_drive(&all, k)).collect();
         ModesAtPoisson { theta: modes.theta.clone(), strike, values: all.rows(strike_dofs, 3 * surface.len()).into_owned(), lame: lame_unit(nu), coefficients: modes.coefficient_matrix(), rigid: rigid.clone(), rigid_strike: rigid_strike.clone() }
     };
     let cache: RefCell<HashMap<usize, Option<Rc<Enrichment>>>> = RefCell::new(HashMap::new());
@@ -781,7 +785,7 @@ fn loaded_match<'p>(petsc: &'p Petsc, assembled: &assembly::Assembled<'p>, basis
                 let p = &projections.probe_values;
                 let na = p.ncols();
                 let region_values = DMatrix::from_fn(3 * regions[r].len(), na, |row, j| p[(strike_dofs + 3 * regions[r][row / 3] + row % 3, j)]);
-                let strike = (0..na).map(|j| (0..strike_dofs).map(|d| p[(d, j)] * weights[d]).sum()).collect();
+                let strike = (0..na).map(|j| strike_drive(p, j)).collect();
                 Some(Rc::new(Enrichment { projections, region_values, strike }))
             }
             Err(_) => {
@@ -798,6 +802,8 @@ fn loaded_match<'p>(petsc: &'p Petsc, assembled: &assembly::Assembled<'p>, basis
     // Each candidate checked by a full solve with its mass: the answer is the best verified
     // one, and its distance is the verified one.
     let top_hz = target.iter().copied().fold(f64::NEG_INFINITY, f64::max).exp();
+    let (lo, hi) = mesh.bounding_box();
+    let diagonal = (0..3).map(|d| (hi[d] - lo[d]).powi(2)).sum::<f64>().sqrt();
     let mut verified: Vec<(f64, f64, LoadedMatch)> = Vec::with_capacity(candidates.len());
     for cand in candidates {
         let material = Material { youngs_modulus: cand.youngs, poisson_ratio: cand.poisson, density, rayleigh_alpha: 0.0, rayleigh_beta: 0.0 };
@@ -805,8 +811,6 @@ fn loaded_match<'p>(petsc: &'p Petsc, assembled: &assembly::Assembled<'p>, basis
         let nodes: Vec<usize> = regions[cand.region].iter().map(|&i| surface[i]).collect();
         assembly::add_nodal_diagonal(petsc, &mut m, &assembled.layout, &nodes, [cand.mass_kg / nodes.len() as f64; 3]).map_err(|e| e.to_string())?;
         m.set_symmetric().map_err(|e| e.to_string())?;
-        let size = mesh.bounding_box();
-        let diagonal = (0..3).map(|d| (size.1[d] - size.0[d]).powi(2)).sum::<f64>().sqrt();
         let cfg = EigenConfig::new(ModeRequest::UpTo { f_max_hz: 1.15 * top_hz }, eigen::spectrum_scale(material.lame_mu(), density, diagonal));
         let full = eigen::solve_modes(petsc, &k, &m, &cfg).map_err(|e| e.to_string())?;
         let mut loaded = Vec::with_capacity(full.eigenvalues.len());

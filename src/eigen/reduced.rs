@@ -360,7 +360,7 @@ impl<'p> PoissonBasis<'p> {
         let n = nodes.len();
         let centre = nodes.iter().fold([0.0; 3], |acc, x| [acc[0] + x[0] / n as f64, acc[1] + x[1] / n as f64, acc[2] + x[2] / n as f64]);
         let mut rigid: Vec<Vector<'p>> = Vec::with_capacity(6);
-        let mut mx = self.vectors[0].duplicate()?;
+        let mut rigid_mass: Vec<Vector<'p>> = Vec::with_capacity(6);
         for motion in 0..6 {
             let mut full = vec![0.0; 3 * n];
             for (i, x) in nodes.iter().enumerate() {
@@ -379,21 +379,17 @@ impl<'p> PoissonBasis<'p> {
             let mut v = self.vectors[0].duplicate()?;
             v.set_local_values(&assembled.layout.local_part_of(&full))?;
             // Modified Gram–Schmidt in the M₁ inner product.
-            for q in &rigid {
-                assembled.mass_unit.mult(q, &mut mx)?;
-                let c = v.dot(&mx)?;
+            for (q, mq) in rigid.iter().zip(&rigid_mass) {
+                let c = v.dot(mq)?;
                 v.axpy(-c, q)?;
             }
-            assembled.mass_unit.mult(&v, &mut mx)?;
-            let norm = v.dot(&mx)?.sqrt();
-            v.scale(1.0 / norm)?;
+            let mut mv = v.duplicate()?;
+            assembled.mass_unit.mult(&v, &mut mv)?;
+            let scale = 1.0 / v.dot(&mv)?.sqrt();
+            v.scale(scale)?;
+            mv.scale(scale)?;
             rigid.push(v);
-        }
-        let mut rigid_mass = Vec::with_capacity(6);
-        for q in &rigid {
-            let mut m = q.duplicate()?;
-            assembled.mass_unit.mult(q, &mut m)?;
-            rigid_mass.push(m);
+            rigid_mass.push(mv);
         }
         let local_basis = self.vectors.iter().map(|v| v.local_values()).collect::<Result<_, _>>()?;
         Ok(AttachmentSolver { solver, _operator: operator, rigid, rigid_mass, local_basis })

@@ -316,12 +316,7 @@ pub fn loaded_line_candidates(problem: &LoadedMatchProblem, modes_at: &dyn Fn(f6
     let cap = settings.cap;
     let ceiling = problem.ceiling_ln_f;
     let distance = |u: &[f64], c: f64| line_distance(&target, u, c, ceiling, cap);
-    let pattern = |loaded: &[(f64, f64)]| -> Vec<f64> {
-        let loudest = loaded.iter().fold(0.0_f64, |m, p| m.max(p.1));
-        let mut u: Vec<f64> = loaded.iter().filter(|p| p.0 > 0.0 && p.1 >= settings.audible * loudest).map(|p| 0.5 * p.0.ln()).collect();
-        u.sort_by(f64::total_cmp);
-        u
-    };
+    let pattern = |loaded: &[(f64, f64)]| audible_pattern(loaded, settings.audible);
     // Best scale for a pattern over c_plain − below … c_plain + above, by `step`, then ten
     // times finer around the best.
     let best_shift = |u: &[f64], centre: f64, below: f64, above: f64, step: f64| -> (f64, f64, usize) {
@@ -355,9 +350,7 @@ pub fn loaded_line_candidates(problem: &LoadedMatchProblem, modes_at: &dyn Fn(f6
         extra.and_then(|extra| RegionProblem::new(modes, region, Some(&extra))).or_else(|| RegionProblem::new(modes, region, None))
     };
 
-    // (distance, c, ν, region, fraction)
-    let mut best = (f64::INFINITY, c_plain, settings.poisson_bounds.0, problem.coarse[0], 0.0);
-    // The best of each coarse region, for the candidates.
+    // The best (distance, c, ν, region, fraction) of each coarse region, for the candidates.
     let mut per_region: Vec<(f64, f64, f64, usize, f64)> = problem.coarse.iter().map(|&r| (f64::INFINITY, c_plain, settings.poisson_bounds.0, r, 0.0)).collect();
     let mut evaluations = 0;
     let (lo, hi) = settings.poisson_bounds;
@@ -373,9 +366,6 @@ pub fn loaded_line_candidates(problem: &LoadedMatchProblem, modes_at: &dyn Fn(f6
                 evaluations += e;
                 if d < per_region[slot].0 {
                     per_region[slot] = (d, c, nu, r, fraction);
-                }
-                if d < best.0 {
-                    best = (d, c, nu, r, fraction);
                 }
             }
         }
@@ -424,15 +414,22 @@ pub fn loaded_line_candidates(problem: &LoadedMatchProblem, modes_at: &dyn Fn(f6
     Ok(out)
 }
 
+/// ½ ln θ' of the audible partials (drive at least `audible` of the loudest), ascending: the
+/// pattern the line distance compares with the target.
+fn audible_pattern(loaded: &[(f64, f64)], audible: f64) -> Vec<f64> {
+    let loudest = loaded.iter().fold(0.0_f64, |m, p| m.max(p.1));
+    let mut u: Vec<f64> = loaded.iter().filter(|p| p.0 > 0.0 && p.1 >= audible * loudest).map(|p| 0.5 * p.0.ln()).collect();
+    u.sort_by(f64::total_cmp);
+    u
+}
+
 /// The line match of a given loaded spectrum (θ'_k for E/ρ = 1 with their drives, e.g. from a
 /// full solve): its distance and E at the best scale within `window` (ln f, below and above)
 /// of `youngs_centre`, with the search's cap and audibility.
 pub fn scale_fit(target_ln_f: &[f64], ceiling_ln_f: f64, loaded: &[(f64, f64)], density: f64, youngs_centre: f64, window: f64, settings: &LoadedMatchSettings) -> (f64, f64) {
     let mut target: Vec<f64> = target_ln_f.iter().copied().filter(|x| x.is_finite()).collect();
     target.sort_by(f64::total_cmp);
-    let loudest = loaded.iter().fold(0.0_f64, |m, p| m.max(p.1));
-    let mut u: Vec<f64> = loaded.iter().filter(|p| p.0 > 0.0 && p.1 >= settings.audible * loudest).map(|p| 0.5 * p.0.ln()).collect();
-    u.sort_by(f64::total_cmp);
+    let u = audible_pattern(loaded, settings.audible);
     let two_pi_ln = (2.0 * std::f64::consts::PI).ln();
     let centre = 0.5 * (youngs_centre / density).ln() - two_pi_ln;
     let mut best = (f64::INFINITY, centre);
