@@ -33,8 +33,12 @@
 //!    surface vertex with its 2, 4 or 7 nearest; 450 farthest-point sites with 3-vertex
 //!    regions, then every size at the 24 sites around each of the 4 best distinct sites) with
 //!    the mass in the model (Ritz in the basis's modes, the rigid motions and the region's
-//!    attachment vectors). Each of the 4 candidates is checked by a full solve with its mass,
-//!    and the best checked one is the answer. If it at most halves the plain distance, the
+//!    attachment vectors). The attachment vectors are solved at the plain match's ν for the
+//!    coarse pass and each candidate's first fine pass, then again at the ν the candidate
+//!    reached, for up to three re-anchored fine passes over ν ± 0.03 at its 8 nearest sites
+//!    (the plain ν can be far off: 0.354 for a true 0.188 on set2 case 012; module docs of
+//!    [`crate::inverse::loaded_match`], "Re-anchoring"). Each of the 4 candidates is checked
+//!    by a full solve with its mass, and the best checked one is the answer. If it at most halves the plain distance, the
 //!    simulation of stage 4 carries that mass: its modes are matched to the
 //!    recording by their loaded frequencies (`SimulatedMode::match_frequency_hz`), while the
 //!    catalogue's baseline is each loaded mode with the mass taken out again,
@@ -94,7 +98,7 @@ use crate::diagnose::catalogue::{self, CatalogueReport, CatalogueSettings, Evide
 use crate::diagnose::evidence::{self, EnvelopeOptions, ObservedOptions};
 use crate::diagnose::extract::{extract_modes, fit_glides, ExtractOptions, GlideOptions, ModalExtraction};
 use crate::diagnose::inject;
-use crate::eigen::reduced::{lame_unit, PoissonBasis};
+use crate::eigen::reduced::{lame_unit, AttachmentSolver, PoissonBasis};
 use crate::eigen::{self, EigenConfig, ModeRequest};
 use crate::fem::Material;
 use crate::inverse::loaded_match::{loaded_line_candidates, loaded_modes, scale_fit, loaded_modes_enriched, Enrichment, LoadedMatch, LoadedMatchProblem, LoadedMatchSettings, ModesAtPoisson};
@@ -710,13 +714,17 @@ struct LoadedMass {
     enrichment: EnrichmentStats,
 }
 
-/// The attachment enrichment of the loaded match: regions enriched, failures (those fell back
-/// to the modes alone), and the factorisation's time.
+/// The attachment enrichment of the loaded match: regions enriched (counted once per anchor ν),
+/// failures (those fell back to the modes alone), and the factorisations (one per anchor) and
+/// their time.
 #[derive(Clone, Debug, Serialize)]
 struct EnrichmentStats {
     regions: usize,
     failures: usize,
+    factorisations: usize,
     factor_seconds: f64,
+    /// Seconds spent forming the regions' attachment vectors (solves and projections).
+    seconds: f64,
 }
 
 /// `n` farthest-point samples of `points`, from the first.
@@ -739,9 +747,9 @@ fn farthest_points(points: &[[f64; 3]], n: usize) -> Vec<usize> {
 /// `surface`. Candidate regions: each surface vertex with its nearest surface vertices
 /// ([`LOADED_MATCH_REGION_SIZES`] in all). Each region's Ritz problem is enriched by its
 /// [`ATTACHMENT_BLOCKS`] blocks of three attachment vectors
-/// ([`crate::inverse::loaded_match::Enrichment`]), solved with one Cholesky factorisation at the
-/// plain match's ν; a region whose enrichment fails falls back to the modes alone (counted in
-/// the report). The [`LOADED_MATCH_CANDIDATES`] best sites are each checked by a full solve.
+/// ([`crate::inverse::loaded_match::Enrichment`]), solved with a Cholesky factorisation at the
+/// anchor ν the search asks for (the plain match's ν first, then each candidate's own); a
+/// region whose enrichment fails falls back to the modes alone (counted in the report). The [`LOADED_MATCH_CANDIDATES`] best sites are each checked by a full solve.
 /// Collective: every rank runs the same search.
 #[allow(clippy::too_many_arguments)]
 fn loaded_match<'p>(petsc: &'p Petsc, assembled: &assembly::Assembled<'p>, basis: &PoissonBasis<'p>, mesh: &TetMesh, surface: &[usize], strike_petsc_dofs: &[PetscInt], problem: &MaterialProblem, start: &LineSpectrumStart, settings: &MaterialFitSettings, density: f64, progress: &Progress) -> Result<LoadedMass, String> {
@@ -762,7 +770,8 @@ fn loaded_match<'p>(petsc: &'p Petsc, assembled: &assembly::Assembled<'p>, basis
     // elastic θ (it only makes the free body's operator definite).
     let t = Instant::now();
     let lowest = basis.solve(start.poisson).theta.first().copied().ok_or("the reduced basis has no modes")?;
-    let solver = basis.attachment_solver(petsc, assembled, &mesh.nodes, start.poisson, 0.1 * lowest).map_err(|e| format!("attachment solver: {e}"))?;
+    let attach_nu = std::env::var("DS_ATTACH_NU").ok().and_then(|v| v.parse::<f64>().ok()).unwrap_or(start.poisson);
+    let solver = basis.attachment_solver(petsc, assembled, &mesh.nodes, attach_nu, 0.1 * lowest).map_err(|e| format!("attachment solver: {e}"))?;
     let factor_seconds = t.elapsed().as_secs_f64();
     let rigid_all = basis.rigid_probe_values(&solver).map_err(|e| format!("rigid motions: {e}"))?;
     let rigid = rigid_all.rows(strike_dofs, 3 * surface.len()).into_owned();
@@ -773,14 +782,40 @@ fn loaded_match<'p>(petsc: &'p Petsc, assembled: &assembly::Assembled<'p>, basis
         let strike = (0..modes.theta.len()).map(|k| strike_drive(&all, k)).collect();
         ModesAtPoisson { theta: modes.theta.clone(), strike, values: all.rows(strike_dofs, 3 * surface.len()).into_owned(), lame: lame_unit(nu), coefficients: modes.coefficient_matrix(), rigid: rigid.clone(), rigid_strike: rigid_strike.clone() }
     };
-    let cache: RefCell<HashMap<usize, Option<Rc<Enrichment>>>> = RefCell::new(HashMap::new());
+    // Enrichments by (region, anchor ν); the solver of the latest anchor other than the plain
+    // one is kept (a re-anchored fine round asks for one anchor many times, then moves on).
+    let cache: RefCell<HashMap<(usize, u64), Option<Rc<Enrichment>>>> = RefCell::new(HashMap::new());
+    let anchored: RefCell<Option<(u64, AttachmentSolver)>> = RefCell::new(None);
     let failures = std::cell::Cell::new(0usize);
-    let enrich = |r: usize| -> Option<Rc<Enrichment>> {
-        if let Some(hit) = cache.borrow().get(&r) {
+    let enrich_seconds = std::cell::Cell::new(0.0f64);
+    let factorisations = std::cell::Cell::new(1usize);
+    let factor_total = std::cell::Cell::new(factor_seconds);
+    let enrich = |r: usize, anchor: f64| -> Option<Rc<Enrichment>> {
+        let key = (r, anchor.to_bits());
+        if let Some(hit) = cache.borrow().get(&key) {
             return hit.clone();
         }
+        let started = Instant::now();
+        let plain = anchor.to_bits() == start.poisson.to_bits();
+        if !plain && anchored.borrow().as_ref().map(|(bits, _)| *bits) != Some(anchor.to_bits()) {
+            // Drop the previous anchor's factors before making the next ones.
+            *anchored.borrow_mut() = None;
+            let t = Instant::now();
+            match basis.attachment_solver(petsc, assembled, &mesh.nodes, anchor, 0.1 * lowest) {
+                Ok(made) => *anchored.borrow_mut() = Some((anchor.to_bits(), made)),
+                Err(_) => {
+                    failures.set(failures.get() + 1);
+                    cache.borrow_mut().insert(key, None);
+                    return None;
+                }
+            }
+            factorisations.set(factorisations.get() + 1);
+            factor_total.set(factor_total.get() + t.elapsed().as_secs_f64());
+        }
         let loads: Vec<Vec<(PetscInt, f64)>> = (0..3).map(|c| regions[r].iter().map(|&i| (assembled.layout.global_dof(surface[i], c) as PetscInt, 1.0)).collect()).collect();
-        let made = match basis.attachments(petsc, assembled, &solver, &loads, ATTACHMENT_BLOCKS) {
+        let held = anchored.borrow();
+        let use_solver = if plain { &solver } else { &held.as_ref().expect("factored above").1 };
+        let made = match basis.attachments(petsc, assembled, use_solver, &loads, ATTACHMENT_BLOCKS) {
             Ok(projections) => {
                 let p = &projections.probe_values;
                 let na = p.ncols();
@@ -793,10 +828,12 @@ fn loaded_match<'p>(petsc: &'p Petsc, assembled: &assembly::Assembled<'p>, basis
                 None
             }
         };
-        cache.borrow_mut().insert(r, made.clone());
+        drop(held);
+        cache.borrow_mut().insert(key, made.clone());
+        enrich_seconds.set(enrich_seconds.get() + started.elapsed().as_secs_f64());
         made
     };
-    let search = LoadedMatchProblem { target_ln_f: &target, ceiling_ln_f: ceiling, density, volume, regions: &regions, coarse: &coarse, neighbours: &neighbours, plain_youngs: start.youngs, enrichment: Some(&enrich) };
+    let search = LoadedMatchProblem { target_ln_f: &target, ceiling_ln_f: ceiling, density, volume, regions: &regions, coarse: &coarse, neighbours: &neighbours, plain_youngs: start.youngs, enrichment: Some(&enrich), anchor_poisson: start.poisson };
     let match_settings = LoadedMatchSettings { poisson_bounds: settings.poisson_bounds, cap: settings.line_match_cap, coarse_poisson_step: LOADED_MATCH_COARSE_POISSON_STEP, ..Default::default() };
     let candidates = loaded_line_candidates(&search, &modes_at, &match_settings, LOADED_MATCH_CANDIDATES)?;
     // Each candidate checked by a full solve with its mass: the answer is the best verified
@@ -821,8 +858,9 @@ fn loaded_match<'p>(petsc: &'p Petsc, assembled: &assembly::Assembled<'p>, basis
         }
         let (distance, youngs) = scale_fit(&target, ceiling, &loaded, density, cand.youngs, 0.02, &match_settings);
         progress.say(format!(
-            "  loaded candidate: ν = {:.4}, {:.2} % of the body at surface vertex {}: Ritz distance {:.2e}, full solve {:.2e} (E = {:.4e} Pa)",
+            "  loaded candidate: ν = {:.4} (attachments at ν = {:.3}), {:.2} % of the body at surface vertex {}: Ritz distance {:.2e}, full solve {:.2e} (E = {:.4e} Pa)",
             cand.poisson,
+            cand.anchor_poisson,
             100.0 * cand.mass_kg / (density * volume),
             surface[regions[cand.region][0]],
             cand.distance,
@@ -838,13 +876,13 @@ fn loaded_match<'p>(petsc: &'p Petsc, assembled: &assembly::Assembled<'p>, basis
     // full solve that carries the mass.
     let modes = modes_at(found.poisson);
     let alpha = found.mass_kg / density / regions[found.region].len() as f64;
-    let loaded = match enrich(found.region) {
+    let loaded = match enrich(found.region, found.anchor_poisson) {
         Some(extra) => loaded_modes_enriched(&modes, &regions[found.region], &extra, alpha).unwrap_or_default(),
         None => loaded_modes(&modes, &regions[found.region], alpha),
     };
     let ritz_hz = loaded.iter().map(|(theta, _)| (found.youngs / density * theta).sqrt() / (2.0 * std::f64::consts::PI)).collect();
     let region: Vec<usize> = regions[found.region].iter().map(|&i| surface[i]).collect();
-    let enrichment = EnrichmentStats { regions: cache.borrow().len(), failures: failures.get(), factor_seconds };
+    let enrichment = EnrichmentStats { regions: cache.borrow().len(), failures: failures.get(), factorisations: factorisations.get(), factor_seconds: factor_total.get(), seconds: enrich_seconds.get() };
     Ok(LoadedMass { mass_fraction: found.mass_kg / (density * volume), centre: surface[regions[found.region][0]], region, plain_distance: start.distance, used: false, matched: found, ritz_distance, ritz_hz, ritz_check: None, enrichment })
 }
 
@@ -906,7 +944,7 @@ fn compute(petsc: &Petsc, job: &Job) -> Result<(), String> {
                 let found = loaded_match(petsc, &assembled, &basis, &mesh_model, &surface, &strike_petsc_dofs, &problem, &start, &settings, job.density, &progress)?;
                 let used = found.matched.distance < LOADED_MATCH_RATIO * start.distance;
                 progress.say(format!(
-                    "loaded line match: E = {:.4e} Pa, ν = {:.4}, {:.2} g ({:.2} % of the body) at surface vertex {} (distance {:.2e} against {:.2e} without; {}) in {:.1} s ({} regions enriched, {} failed, factorisation {:.1} s)",
+                    "loaded line match: E = {:.4e} Pa, ν = {:.4}, {:.2} g ({:.2} % of the body) at surface vertex {} (distance {:.2e} against {:.2e} without; {}) in {:.1} s ({} regions enriched in {:.1} s, {} failed, {} factorisations in {:.1} s)",
                     found.matched.youngs,
                     found.matched.poisson,
                     1e3 * found.matched.mass_kg,
@@ -917,7 +955,9 @@ fn compute(petsc: &Petsc, job: &Job) -> Result<(), String> {
                     if used { "the simulation carries this mass, the catalogue tests it" } else { "not used" },
                     t.elapsed().as_secs_f64(),
                     found.enrichment.regions,
+                    found.enrichment.seconds,
                     found.enrichment.failures,
+                    found.enrichment.factorisations,
                     found.enrichment.factor_seconds
                 ));
                 loaded = Some(LoadedMass { used, ..found });
