@@ -702,8 +702,12 @@ struct LoadedMass {
     centre: usize,
     region: Vec<usize>,
     plain_distance: f64,
-    /// Whether the simulation carried it (distance at most [`LOADED_MATCH_RATIO`] of the plain).
+    /// Whether the simulation carried it (distance at most [`LOADED_MATCH_RATIO`] of the plain)
+    /// in the final model.
     used: bool,
+    /// Why a carried mass was dropped again, the report then being the plain model's (see
+    /// `compute`, stages 4 and 5).
+    rejected: Option<String>,
     /// The answer's distance by the Ritz model (`matched.distance` is the full solve's).
     ritz_distance: f64,
     /// The answer's loaded frequencies by the enriched Ritz model [Hz], ascending.
@@ -784,7 +788,8 @@ fn loaded_match<'p>(petsc: &'p Petsc, assembled: &assembly::Assembled<'p>, basis
     };
     // Enrichments by (region, anchor ν); the solver of the latest anchor other than the plain
     // one is kept (a re-anchored fine round asks for one anchor many times, then moves on).
-    let cache: RefCell<HashMap<(usize, u64), Option<Rc<Enrichment>>>> = RefCell::new(HashMap::new());
+    type EnrichmentCache = HashMap<(usize, u64), Option<Rc<Enrichment>>>;
+    let cache: RefCell<EnrichmentCache> = RefCell::new(HashMap::new());
     let anchored: RefCell<Option<(u64, AttachmentSolver)>> = RefCell::new(None);
     let failures = std::cell::Cell::new(0usize);
     let enrich_seconds = std::cell::Cell::new(0.0f64);
@@ -883,7 +888,7 @@ fn loaded_match<'p>(petsc: &'p Petsc, assembled: &assembly::Assembled<'p>, basis
     let ritz_hz = loaded.iter().map(|(theta, _)| (found.youngs / density * theta).sqrt() / (2.0 * std::f64::consts::PI)).collect();
     let region: Vec<usize> = regions[found.region].iter().map(|&i| surface[i]).collect();
     let enrichment = EnrichmentStats { regions: cache.borrow().len(), failures: failures.get(), factorisations: factorisations.get(), factor_seconds: factor_total.get(), seconds: enrich_seconds.get() };
-    Ok(LoadedMass { mass_fraction: found.mass_kg / (density * volume), centre: surface[regions[found.region][0]], region, plain_distance: start.distance, used: false, matched: found, ritz_distance, ritz_hz, ritz_check: None, enrichment })
+    Ok(LoadedMass { mass_fraction: found.mass_kg / (density * volume), centre: surface[regions[found.region][0]], region, plain_distance: start.distance, used: false, rejected: None, matched: found, ritz_distance, ritz_hz, ritz_check: None, enrichment })
 }
 
 fn compute(petsc: &Petsc, job: &Job) -> Result<(), String> {
@@ -970,89 +975,155 @@ fn compute(petsc: &Petsc, job: &Job) -> Result<(), String> {
     };
     let material_seconds = t_material.elapsed().as_secs_f64();
 
-    // 4: the simulated modes up to above the highest recorded frequency.
-    let t_solve = Instant::now();
-    let material = Material { youngs_modulus: youngs, poisson_ratio: poisson, density: job.density, rayleigh_alpha: 0.0, rayleigh_beta: 0.0 };
-    let (k, mut m) = assembled.operators(&material).map_err(|e| e.to_string())?;
-    let carried = loaded.clone().filter(|l| l.used);
-    if let Some(l) = &carried {
-        // The candidate mass, lumped evenly on the region's vertices.
-        let per_vertex = l.matched.mass_kg / l.region.len() as f64;
-        assembly::add_nodal_diagonal(petsc, &mut m, &assembled.layout, &l.region, [per_vertex; 3]).map_err(|e| e.to_string())?;
-        m.set_symmetric().map_err(|e| e.to_string())?;
-    }
-    let cfg = EigenConfig::new(ModeRequest::UpTo { f_max_hz: 1.15 * top_observed.max(1.0) }, eigen::spectrum_scale(material.lame_mu(), job.density, diagonal));
-    let modes = eigen::solve_modes(petsc, &k, &m, &cfg).map_err(|e| e.to_string())?;
-    let mut shapes = Vec::new();
-    for v in &modes.vectors {
-        if let Some(full) = v.gather_to_root(rank).map_err(|e| e.to_string())? {
-            shapes.push(assembled.layout.to_original_order(&full));
+    // 4 and 5, twice when stage 3 carries a mass: with it, then without it at the plain
+    // match's E and ν. The carried mass has only halved the line distance, and a mass the body
+    // does not carry still splits pairs in the model that the recording does not split, which
+    // other effects then "explain": set2 case 024 of the blind benchmark, a clean case, carried
+    // 0.40 % and the catalogue accepted it and a beating pair (ΔBIC 4256 and 874) against the
+    // loaded model's own unloaded baseline, the circular test the mass was meant to pass. A
+    // loaded line match exists to put every line next to a partner, so the loaded model is kept
+    // only if it matches recorded modes that the plain model leaves unmatched, and the catalogue
+    // accepts the mass; otherwise the plain model's report stands and the JSON says why
+    // (`material.loaded_line_match.rejected`). On set2 the four mass cases left 3–5 recorded
+    // modes unmatched without the mass and none with it; cases 007 and 024 (no mass) left none
+    // either way.
+    let plain_material = (youngs, poisson);
+    let passes: Vec<bool> = if loaded.as_ref().is_some_and(|l| l.used) { vec![true, false] } else { vec![false] };
+    let mut results = Vec::with_capacity(passes.len());
+    let mut solve_seconds_sum = 0.0;
+    for &with_mass in &passes {
+        let carried = loaded.clone().filter(|l| l.used && with_mass);
+        let (youngs, poisson) = match (&carried, line_start) {
+            (Some(l), _) => (l.matched.youngs, l.matched.poisson),
+            (None, Some(plain)) if passes.len() == 2 => (plain.youngs, plain.poisson),
+            _ => plain_material,
+        };
+        // 4: the simulated modes up to above the highest recorded frequency.
+        let t_solve = Instant::now();
+        let material = Material { youngs_modulus: youngs, poisson_ratio: poisson, density: job.density, rayleigh_alpha: 0.0, rayleigh_beta: 0.0 };
+        let (k, mut m) = assembled.operators(&material).map_err(|e| e.to_string())?;
+        if let Some(l) = &carried {
+            // The candidate mass, lumped evenly on the region's vertices.
+            let per_vertex = l.matched.mass_kg / l.region.len() as f64;
+            assembly::add_nodal_diagonal(petsc, &mut m, &assembled.layout, &l.region, [per_vertex; 3]).map_err(|e| e.to_string())?;
+            m.set_symmetric().map_err(|e| e.to_string())?;
         }
-    }
-    let solve_seconds = t_solve.elapsed().as_secs_f64();
-    if let (Some(l), Some(record)) = (&carried, loaded.as_mut()) {
-        // How well the loaded Ritz model predicted the full solve with the mass.
-        let full: Vec<f64> = modes.eigenvalues.iter().map(|&lambda| eigen::frequency_hz(lambda)).collect();
-        let worst = l.ritz_hz.iter().zip(&full).map(|(r, f)| (r / f - 1.0).abs()).fold(0.0_f64, f64::max);
-        record.ritz_check = Some(worst);
-        progress.say(format!("loaded Ritz model against the full solve with the mass: largest frequency error {:.2} % over {} modes", 100.0 * worst, l.ritz_hz.len().min(full.len())));
-    }
-    progress.say(format!("{} simulated modes up to {:.0} Hz at E = {:.4e} Pa, ν = {:.4} in {:.1} s", modes.eigenvalues.len(), 1.15 * top_observed, youngs, poisson, solve_seconds));
-    for w in &modes.warnings {
-        if rank == 0 {
-            eprintln!("warning: {w}");
+        let cfg = EigenConfig::new(ModeRequest::UpTo { f_max_hz: 1.15 * top_observed.max(1.0) }, eigen::spectrum_scale(material.lame_mu(), job.density, diagonal));
+        let modes = eigen::solve_modes(petsc, &k, &m, &cfg).map_err(|e| e.to_string())?;
+        let mut shapes = Vec::new();
+        for v in &modes.vectors {
+            if let Some(full) = v.gather_to_root(rank).map_err(|e| e.to_string())? {
+                shapes.push(assembled.layout.to_original_order(&full));
+            }
+        }
+        let solve_seconds = t_solve.elapsed().as_secs_f64();
+        solve_seconds_sum += solve_seconds;
+        if let (Some(l), Some(record)) = (&carried, loaded.as_mut()) {
+            // How well the loaded Ritz model predicted the full solve with the mass.
+            let full: Vec<f64> = modes.eigenvalues.iter().map(|&lambda| eigen::frequency_hz(lambda)).collect();
+            let worst = l.ritz_hz.iter().zip(&full).map(|(r, f)| (r / f - 1.0).abs()).fold(0.0_f64, f64::max);
+            record.ritz_check = Some(worst);
+            progress.say(format!("loaded Ritz model against the full solve with the mass: largest frequency error {:.2} % over {} modes", 100.0 * worst, l.ritz_hz.len().min(full.len())));
+        }
+        progress.say(format!("{} simulated modes up to {:.0} Hz at E = {:.4e} Pa, ν = {:.4} in {:.1} s", modes.eigenvalues.len(), 1.15 * top_observed, youngs, poisson, solve_seconds));
+        for w in &modes.warnings {
+            if rank == 0 {
+                eprintln!("warning: {w}");
+            }
+        }
+
+        // 5: features, catalogue, localisation (rank 0).
+        let outcome: Option<Result<_, String>> = (rank == 0).then(|| {
+            (|| {
+                let t_diag = Instant::now();
+                // With a carried mass: each mode's loaded modal-mass fraction at the mass q_k, its
+                // eigenvalue with the mass taken out again (Rayleigh quotient of the loaded shape without
+                // the mass, λ/(1 − q_k)), and the added-mass weight r_k = q_k/(1 − q_k) (module docs).
+                let unloading = carried.as_ref().map(|l| {
+                    let per_vertex = l.matched.mass_kg / l.region.len() as f64;
+                    shapes.iter().map(|s| (per_vertex * evidence::region_energy(s, &l.region)).min(0.95)).collect::<Vec<f64>>()
+                });
+                let eigenvalues: Vec<f64> = match &unloading {
+                    Some(q) => modes.eigenvalues.iter().zip(q).map(|(l, q)| l / (1.0 - q)).collect(),
+                    None => modes.eigenvalues.clone(),
+                };
+                let feats = features(job, &mesh_model, &eigenvalues, &shapes, &progress)?;
+                let mass_weights: Option<Vec<f64>> = unloading.as_ref().map(|q| q.iter().map(|q| q / (1.0 - q)).collect());
+                let mut simulated = evidence::simulated_modes(&feats.frequencies_hz, &feats.drive, &feats.support_energy, mass_weights.as_deref(), feats.transfer.as_deref(), &feats.clusters).map_err(|e| e.to_string())?;
+                if unloading.is_some() {
+                    for (sim, &lambda) in simulated.iter_mut().zip(&modes.eigenvalues) {
+                        sim.match_frequency_hz = Some(eigen::frequency_hz(lambda));
+                    }
+                }
+                let mut evidence = Evidence { fit: measured.fit.clone(), held_out: (!measured.held_out.is_empty()).then(|| measured.held_out.clone()), simulated, residual_envelopes: measured.envelopes.clone() };
+                let mut first_settings = job.catalogue.clone();
+                if carried.is_some() {
+                    // The site was chosen from the same data: a 2-D location.
+                    first_settings.mass_region_search_params = 2;
+                }
+                let first = catalogue::diagnose(&evidence, &first_settings).map_err(|e| format!("catalogue: {e}"))?;
+                let localised = localise(&first, &feats, &mesh_model);
+                let mut final_settings = first_settings.clone();
+                let report = if localised.region.is_empty() || carried.is_some() {
+                    first
+                } else {
+                    let mass_energy = evidence::cluster_region_energies(&shapes, &feats.frequencies_hz, &feats.clusters, &localised.region, true);
+                    evidence.simulated = evidence::simulated_modes(&feats.frequencies_hz, &feats.drive, &feats.support_energy, Some(&mass_energy), feats.transfer.as_deref(), &feats.clusters).map_err(|e| e.to_string())?;
+                    final_settings.mass_region_search_params = 2;
+                    progress.say(format!("frequency residuals point at surface vertex {} (z = {:.1}); catalogue again with it as the candidate added-mass region", localised.best.map_or(0, |b| b.0), localised.best.map_or(0.0, |b| b.1)));
+                    catalogue::diagnose(&evidence, &final_settings).map_err(|e| format!("catalogue: {e}"))?
+                };
+                let diagnose_seconds = t_diag.elapsed().as_secs_f64();
+                Ok((report, localised, feats, evidence, final_settings, diagnose_seconds))
+            })()
+        });
+        // Rank 0 keeps each pass's outcome (an error too: every rank must still take part in
+        // the next pass's solve) with what writing it needs.
+        if let Some(outcome) = outcome {
+            results.push((outcome, youngs, poisson, modes.eigenvalues.clone(), modes.rigid_eigenvalues.clone(), shapes));
         }
     }
     if rank != 0 {
         return Ok(());
     }
-
-    // 5: features, catalogue, localisation (rank 0).
-    let t_diag = Instant::now();
-    // With a carried mass: each mode's loaded modal-mass fraction at the mass q_k, its
-    // eigenvalue with the mass taken out again (Rayleigh quotient of the loaded shape without
-    // the mass, λ/(1 − q_k)), and the added-mass weight r_k = q_k/(1 − q_k) (module docs).
-    let unloading = carried.as_ref().map(|l| {
-        let per_vertex = l.matched.mass_kg / l.region.len() as f64;
-        shapes.iter().map(|s| (per_vertex * evidence::region_energy(s, &l.region)).min(0.95)).collect::<Vec<f64>>()
-    });
-    let eigenvalues: Vec<f64> = match &unloading {
-        Some(q) => modes.eigenvalues.iter().zip(q).map(|(l, q)| l / (1.0 - q)).collect(),
-        None => modes.eigenvalues.clone(),
-    };
-    let feats = features(job, &mesh_model, &eigenvalues, &shapes, &progress)?;
-    let mass_weights: Option<Vec<f64>> = unloading.as_ref().map(|q| q.iter().map(|q| q / (1.0 - q)).collect());
-    let mut simulated = evidence::simulated_modes(&feats.frequencies_hz, &feats.drive, &feats.support_energy, mass_weights.as_deref(), feats.transfer.as_deref(), &feats.clusters).map_err(|e| e.to_string())?;
-    if unloading.is_some() {
-        for (sim, &lambda) in simulated.iter_mut().zip(&modes.eigenvalues) {
-            sim.match_frequency_hz = Some(eigen::frequency_hz(lambda));
+    let unmatched = |r: &CatalogueReport| r.matching.unmatched_observed.len();
+    let mut results = results.into_iter();
+    let first = results.next().ok_or("no simulated model")?;
+    let chosen = match results.next() {
+        None => first,
+        Some(plain) => {
+            let (first_report, plain_report) = (first.0.as_ref().map_err(|e| e.clone())?, plain.0.as_ref().map_err(|e| e.clone())?);
+            let accepted = first_report.0.accepted.iter().any(|a| a.name == "added_mass");
+            let (with, without) = (unmatched(&first_report.0), unmatched(&plain_report.0));
+            let keep = accepted && with < without;
+            let why = if !accepted {
+                "the catalogue rejected the carried mass".to_string()
+            } else if !keep {
+                format!("the carried mass matches no recorded mode the plain model leaves unmatched ({with} unmatched with it, {without} without)")
+            } else {
+                String::new()
+            };
+            if keep {
+                progress.say(format!("the carried mass stands: accepted by the catalogue, {with} recorded modes unmatched with it against {without} without"));
+                first
+            } else {
+                progress.say(format!("{why}: the report is the plain model's (E = {:.4e} Pa, ν = {:.4})", plain.1, plain.2));
+                if let Some(record) = loaded.as_mut() {
+                    record.used = false;
+                    record.rejected = Some(why);
+                }
+                plain
+            }
         }
-    }
-    let mut evidence = Evidence { fit: measured.fit.clone(), held_out: (!measured.held_out.is_empty()).then(|| measured.held_out.clone()), simulated, residual_envelopes: measured.envelopes.clone() };
-    let mut first_settings = job.catalogue.clone();
-    if carried.is_some() {
-        // The site was chosen from the same data: a 2-D location.
-        first_settings.mass_region_search_params = 2;
-    }
-    let first = catalogue::diagnose(&evidence, &first_settings).map_err(|e| format!("catalogue: {e}"))?;
-    let localised = localise(&first, &feats, &mesh_model);
-    let mut final_settings = first_settings.clone();
-    let report = if localised.region.is_empty() || carried.is_some() {
-        first
-    } else {
-        let mass_energy = evidence::cluster_region_energies(&shapes, &feats.frequencies_hz, &feats.clusters, &localised.region, true);
-        evidence.simulated = evidence::simulated_modes(&feats.frequencies_hz, &feats.drive, &feats.support_energy, Some(&mass_energy), feats.transfer.as_deref(), &feats.clusters).map_err(|e| e.to_string())?;
-        final_settings.mass_region_search_params = 2;
-        progress.say(format!("frequency residuals point at surface vertex {} (z = {:.1}); catalogue again with it as the candidate added-mass region", localised.best.map_or(0, |b| b.0), localised.best.map_or(0.0, |b| b.1)));
-        catalogue::diagnose(&evidence, &final_settings).map_err(|e| format!("catalogue: {e}"))?
     };
-    let diagnose_seconds = t_diag.elapsed().as_secs_f64();
-
+    let (outcome, youngs, poisson, eigenvalues, rigid_eigenvalues, shapes) = chosen;
+    let (report, localised, feats, evidence, final_settings, diagnose_seconds) = outcome?;
+    let solve_seconds = solve_seconds_sum;
     print_report(job, &measured, &report, youngs, poisson, &feats, &localised);
     let timings = [("measure", measured.seconds), ("material", material_seconds), ("solve", solve_seconds), ("catalogue", diagnose_seconds), ("total", total.elapsed().as_secs_f64())];
     write_json(job, &measured, &report, youngs, poisson, line_start, loaded.as_ref(), &feats, &localised, &timings, (&evidence, &final_settings))?;
     write_hdf5(job, petsc.size(), &measured, &evidence, &report, youngs, poisson, &localised, &feats, &timings)?;
-    write_map(job, &mesh_model, &modes.eigenvalues, &shapes, &modes.rigid_eigenvalues, youngs, poisson, &feats, &localised)?;
+    write_map(job, &mesh_model, &eigenvalues, &shapes, &rigid_eigenvalues, youngs, poisson, &feats, &localised)?;
     write_plots(job, &measured, &report)?;
     Ok(())
 }
