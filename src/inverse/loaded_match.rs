@@ -568,17 +568,13 @@ mod tests {
         v
     }
 
-    #[test]
-    fn the_rigid_motion_and_attachment_vectors_bring_the_loaded_ritz_values_to_the_full_solve() {
-        // A free "body": a chain of 60 masses and springs with two moduli, K(ν) = a K_λ + b K_μ,
-        // M₁ diagonal, one rigid motion (translation). The reduced basis is its first 6 elastic
-        // modes at ν, the candidate region DOFs 30..33 ("vertex" 10), a heavy mass there, the
-        // strike at DOF 59.
-        let size = 60;
+    /// A free chain of `size` DOFs: spring i has moduli (λ_i, μ_i) = `moduli(i)` in K_λ and
+    /// K_μ, and the diagonal M₁ = 1 + 0.2 (i mod 3). Returns (K_λ, K_μ, M₁).
+    fn chain(size: usize, moduli: impl Fn(usize) -> (f64, f64)) -> (DMatrix<f64>, DMatrix<f64>, DMatrix<f64>) {
         let mut k_lambda = DMatrix::zeros(size, size);
         let mut k_mu = DMatrix::zeros(size, size);
         for i in 0..size - 1 {
-            let (kl, km) = (1.0 + 0.3 * ((i * 7 % 5) as f64), 2.0 + 0.5 * ((i * 3 % 4) as f64));
+            let (kl, km) = moduli(i);
             for (mat, k) in [(&mut k_lambda, kl), (&mut k_mu, km)] {
                 mat[(i, i)] += k;
                 mat[(i + 1, i + 1)] += k;
@@ -587,6 +583,34 @@ mod tests {
             }
         }
         let mass1 = DMatrix::from_diagonal(&DVector::from_iterator(size, (0..size).map(|i| 1.0 + 0.2 * ((i % 3) as f64))));
+        (k_lambda, k_mu, mass1)
+    }
+
+    /// Attachment vectors of the chain: static responses of K + 10⁻³M₁ to unit loads on DOFs
+    /// `first..first + 3`, the rigid translation projected out, M₁-normalised.
+    fn chain_attachments(k: &DMatrix<f64>, mass1: &DMatrix<f64>, rigid: &DMatrix<f64>, first: usize) -> DMatrix<f64> {
+        let mut loads = DMatrix::zeros(k.nrows(), 3);
+        for c in 0..3 {
+            loads[(first + c, c)] = 1.0;
+        }
+        let mut attach = (k + mass1 * 1e-3).lu().solve(&loads).unwrap();
+        for j in 0..3 {
+            let along = (rigid.transpose() * mass1 * attach.column(j))[(0, 0)];
+            let column = attach.column(j) - rigid * along;
+            let norm = (column.transpose() * mass1 * &column)[(0, 0)].sqrt();
+            attach.set_column(j, &(column / norm));
+        }
+        attach
+    }
+
+    #[test]
+    fn the_rigid_motion_and_attachment_vectors_bring_the_loaded_ritz_values_to_the_full_solve() {
+        // A free "body": a chain of 60 masses and springs with two moduli, K(ν) = a K_λ + b K_μ,
+        // M₁ diagonal, one rigid motion (translation). The reduced basis is its first 6 elastic
+        // modes at ν, the candidate region DOFs 30..33 ("vertex" 10), a heavy mass there, the
+        // strike at DOF 59.
+        let size = 60;
+        let (k_lambda, k_mu, mass1) = chain(size, |i| (1.0 + 0.3 * ((i * 7 % 5) as f64), 2.0 + 0.5 * ((i * 3 % 4) as f64)));
         let (a, b) = crate::eigen::reduced::lame_unit(0.3);
         let k = &k_lambda * a + &k_mu * b;
         let l = mass1.clone().cholesky().unwrap().l();
@@ -607,20 +631,8 @@ mod tests {
         let with_rigid = ModesAtPoisson { theta, strike: basis.row(size - 1).iter().copied().collect(), values, lame: (a, b), coefficients: DMatrix::identity(n, n), rigid: rigid.clone(), rigid_strike: vec![rigid[(size - 1, 0)]] };
         let without_rigid = ModesAtPoisson { rigid: DMatrix::zeros(0, 0), rigid_strike: Vec::new(), ..with_rigid.clone() };
         let region = [10usize];
-        // Attachment vectors: static responses to unit loads on the region's DOFs, the rigid
-        // translation projected out.
-        let mut loads = DMatrix::zeros(size, 3);
-        for c in 0..3 {
-            loads[(30 + c, c)] = 1.0;
-        }
-        let mut attach = (&k + &mass1 * 1e-3).lu().solve(&loads).unwrap();
-        for j in 0..3 {
-            let along = (rigid.transpose() * &mass1 * attach.column(j))[(0, 0)];
-            let column = attach.column(j) - &rigid * along;
-            attach.set_column(j, &column);
-            let norm = (attach.column(j).transpose() * &mass1 * attach.column(j))[(0, 0)].sqrt();
-            attach.column_mut(j).scale_mut(1.0 / norm);
-        }
+        // Attachment vectors at the region's DOFs.
+        let attach = chain_attachments(&k, &mass1, &rigid, 30);
         let projections = AttachmentProjections {
             cross_lambda: basis.transpose() * &k_lambda * &attach,
             cross_mu: basis.transpose() * &k_mu * &attach,
@@ -675,18 +687,7 @@ mod tests {
         // the plain match's ν, the first anchor, is 0.05. (On this chain the fixed anchor's
         // search still lands near the true ν; on the bowl it did not, module docs.)
         let size = 60;
-        let mut k_lambda = DMatrix::zeros(size, size);
-        let mut k_mu = DMatrix::zeros(size, size);
-        for i in 0..size - 1 {
-            let (kl, km) = (0.2 + 1.5 * ((i * 7 % 5) as f64), 2.0 + 0.5 * ((i * 3 % 4) as f64));
-            for (mat, k) in [(&mut k_lambda, kl), (&mut k_mu, km)] {
-                mat[(i, i)] += k;
-                mat[(i + 1, i + 1)] += k;
-                mat[(i, i + 1)] -= k;
-                mat[(i + 1, i)] -= k;
-            }
-        }
-        let mass1 = DMatrix::from_diagonal(&DVector::from_iterator(size, (0..size).map(|i| 1.0 + 0.2 * ((i % 3) as f64))));
+        let (k_lambda, k_mu, mass1) = chain(size, |i| (0.2 + 1.5 * ((i * 7 % 5) as f64), 2.0 + 0.5 * ((i * 3 % 4) as f64)));
         let total: f64 = mass1.diagonal().sum();
         let stiffness_at = |nu: f64| {
             let (a, b) = crate::eigen::reduced::lame_unit(nu);
@@ -736,17 +737,7 @@ mod tests {
             anchors_asked.borrow_mut().push(anchor);
             let k = stiffness_at(anchor);
             let v = regions[r][0];
-            let mut loads = DMatrix::zeros(size, 3);
-            for c in 0..3 {
-                loads[(3 * v + c, c)] = 1.0;
-            }
-            let mut attach = (&k + &mass1 * 1e-3).lu().solve(&loads).unwrap();
-            for j in 0..3 {
-                let along = (rigid.transpose() * &mass1 * attach.column(j))[(0, 0)];
-                let column = attach.column(j) - &rigid * along;
-                let norm = (column.transpose() * &mass1 * &column)[(0, 0)].sqrt();
-                attach.set_column(j, &(column / norm));
-            }
+            let attach = chain_attachments(&k, &mass1, &rigid, 3 * v);
             let projections = AttachmentProjections {
                 cross_lambda: space.transpose() * &k_lambda * &attach,
                 cross_mu: space.transpose() * &k_mu * &attach,
