@@ -38,16 +38,21 @@
 //!    reached, for up to three re-anchored fine passes over ν ± 0.03 at its 8 nearest sites
 //!    (the plain ν can be far off: 0.354 for a true 0.188 on set2 case 012; module docs of
 //!    [`crate::inverse::loaded_match`], "Re-anchoring"). Each of the 4 candidates is checked
-//!    by a full solve with its mass, and the best checked one is the answer. If it at most halves the plain distance, the
-//!    simulation of stage 4 carries that mass: its modes are matched to the
+//!    by a full solve with its mass, and the best checked one is the answer. If it at most
+//!    halves the plain distance, the simulation of stage 4 carries that mass: its modes are
+//!    matched to the
 //!    recording by their loaded frequencies (`SimulatedMode::match_frequency_hz`), while the
 //!    catalogue's baseline is each loaded mode with the mass taken out again,
 //!    λ_k/(1 − q_k) with q_k = m_v Σ_{v∈R} |φ_k(v)|² its loaded modal-mass fraction at the
 //!    mass, and the added-mass weight is r_k = q_k/(1 − q_k) (at μ = max r the mass term gives
 //!    back the loaded frequencies). The mass must then earn its place like any effect (ΔBIC
-//!    with the site charged 2 parameters, held-out gain). Why: a mass of a few per cent splits
-//!    every degenerate pair of a symmetric object and pulls the plain match's ν far off, so
-//!    nothing downstream matches (the blind benchmark's added-mass cases).
+//!    with the site charged 2 parameters, held-out gain), and beat the plain model: stages 4
+//!    and 5 also run without the mass at the plain match's E and ν, and the loaded model's
+//!    report stands only if the catalogue accepts the mass and it matches recorded modes the
+//!    plain model leaves unmatched (otherwise the plain report stands and
+//!    `loaded_line_match.rejected` says why). Why: a mass of a few per cent splits every
+//!    degenerate pair of a symmetric object and pulls the plain match's ν far off, so nothing
+//!    downstream matches (the blind benchmark's added-mass cases).
 //! 4. **Simulated modes**: every P2 mode up to 1.15 × the highest recorded frequency in use
 //!    (SLEPc), the shapes gathered on rank 0, and per mode its drive at the strike
 //!    (|φ·n|; with the strike unknown, the RMS of |φ·n| over the surface vertices one can hit),
