@@ -36,6 +36,10 @@ pub struct Floors {
     /// Per mode, common to its channels: the mode's level.
     pub ln_amplitude_level: f64,
     pub glide: f64,
+    /// Of a split pair's ln d_u − ln d_l, on top of the fixed
+    /// [`super::model::DECAY_SPLIT_MODEL_FLOOR`] (absent from reports written before it).
+    #[serde(default)]
+    pub decay_split: f64,
 }
 
 /// One fitted model: parameters, floors, likelihood and criterion.

@@ -140,6 +140,7 @@ fn floors(tau2: &FloorVariances) -> Floors {
         ln_amplitude: tau2[2].sqrt(),
         ln_amplitude_level: tau2[LEVEL_FLOOR].sqrt(),
         glide: tau2[4].sqrt(),
+        decay_split: tau2[5].sqrt(),
     }
 }
 

@@ -11,8 +11,12 @@
 //!
 //! Two variants: damping only (γ) and damping with the frequency shift (γ, κ); the criterion
 //! picks. Detector: weighted regressions of the current decay residuals d_obs − d_pred on w
-//! (slope γ̂, its z) and of the ln f residuals on w (slope κ̂, its z); the candidate goes on if
-//! γ̂ > 0 with z > 1 or |z_κ| > 1.5 (the weights must vary by 5 % of the largest matched one).
+//! (slope γ̂, its z), of the decay-split residuals of split pairs on w_u − w_l through the
+//! origin (slope γ̂_pair, its z: the two modes of a pair share any damping law's misfit, so a
+//! support that damps one more than the other stands out to the extraction's precision), and
+//! of the ln f residuals on w (slope κ̂, its z); the candidate goes on if γ̂ > 0 with z > 1,
+//! γ̂_pair > 0 with z > 1.5, or |z_κ| > 1.5 (the weights must vary by 5 % of the largest matched
+//! one).
 //!
 //! Signature, after the fit: the support must damp (γ > 2σ_γ), or shift the matched modes'
 //! frequencies differentially by at least [`super::added_mass::MIN_DIFFERENTIAL_SHIFT`]
@@ -76,6 +80,17 @@ impl Term for SupportTerm {
     }
 }
 
+/// Weighted least-squares slope of y on x through the origin, and its z (slope / σ) for
+/// points (x, y, weight = 1/variance of y). (0, 0) without spread in x.
+fn regression_through_origin(points: &[(f64, f64, f64)]) -> (f64, f64) {
+    let sxx: f64 = points.iter().map(|p| p.2 * p.0 * p.0).sum();
+    if !(sxx > 0.0) {
+        return (0.0, 0.0);
+    }
+    let slope = points.iter().map(|p| p.2 * p.0 * p.1).sum::<f64>() / sxx;
+    (slope, slope * sxx.sqrt())
+}
+
 impl Effect for SupportContact {
     fn name(&self) -> &'static str {
         "support_contact"
@@ -112,12 +127,28 @@ impl Effect for SupportContact {
             .collect();
         let (gamma, z_gamma) = weighted_regression(&damping);
         let (kappa, z_kappa) = weighted_regression(&frequency);
-        let detail = format!("decay residual vs support weight: slope {gamma:.3} 1/s (z = {z_gamma:.1}); ln f: slope {kappa:.2e} (z = {z_kappa:.1})");
-        let statistic = z_gamma.max(z_kappa.abs());
-        if !(gamma > 0.0 && z_gamma > 1.0) && z_kappa.abs() <= 1.5 {
+        // Within split pairs: the decay split's residual in 1/s, d̄ (r_u − r_l) at the pair's
+        // mean decay d̄, against w_u − w_l, through the origin (a damping law gives the two
+        // modes of a pair the same residual, so no intercept is left).
+        let within: Vec<(f64, f64, f64)> = current
+            .decay_split_residuals(table)
+            .into_iter()
+            .filter_map(|(pair, r, v)| {
+                let (l, u) = (&table.modes[pair.lower], &table.modes[pair.upper]);
+                let d = 0.5 * (l.ln_d?.0.exp() + u.ln_d?.0.exp());
+                Some((u.support_weight - l.support_weight, d * r, 1.0 / (d * d * v)))
+            })
+            .collect();
+        let (gamma_pair, z_pair) = regression_through_origin(&within);
+        let detail = format!(
+            "decay residual vs support weight: slope {gamma:.3} 1/s (z = {z_gamma:.1}); within split pairs: slope {gamma_pair:.3} 1/s (z = {z_pair:.1}); ln f: slope {kappa:.2e} (z = {z_kappa:.1})"
+        );
+        let statistic = z_gamma.max(z_pair).max(z_kappa.abs());
+        let damps = (gamma > 0.0 && z_gamma > 1.0) || (gamma_pair > 0.0 && z_pair > 1.5);
+        if !damps && z_kappa.abs() <= 1.5 {
             return Detection::Nothing { statistic, detail };
         }
-        let g0 = gamma.max(0.0);
+        let g0 = if z_pair > z_gamma { gamma_pair } else { gamma }.max(0.0);
         Detection::Found {
             statistic,
             detail,
