@@ -85,7 +85,7 @@
 //!
 //! Decay rates split the same way, with one more floor. A damping law's misfit is common to
 //! two modes 0.1 % apart (the ln d floor τ_d, carried by the pair's mean row), and each mode
-//! has an error of its own, variance τ_i² = (F² + τ_s²)/2: F = 0.5 % fixed
+//! has an error of its own, variance τ_i² = (F² + τ_s²)/2: F = 0.2 % fixed
 //! ([`model::DECAY_SPLIT_MODEL_FLOOR`]) and τ_s profiled on the decay-split rows, which carry
 //! 2τ_i² (the mean row τ_i²/2, a lone mode's row τ_i²). On clean synthetic recordings the
 //! extraction's decay splits sit within 2.2σ of the truth, so τ_s stays near 0 and a support
@@ -101,7 +101,7 @@
 //! | effect | signature | detector (screen) | model | parameters |
 //! |---|---|---|---|---|
 //! | [`NonRayleighDamping`] | ln d residuals bend with ln f | 3 hat functions in ln f fitted to the ln d residuals, Δχ² > 1 | ln d piecewise linear in ln f through 3 knots, replacing α, β | d at 3 knots \[1/s\] (+1 net) |
-//! | [`BeatingPair`] | a degenerate cluster seen as two modes split beyond σ (and 10 % of the simulated split), the two decaying alike, centred on their cluster | \|split − predicted split\| > 3σ, decay rates within 10 % (or 3σ), leave-one-out \|z\| of the pair mean ≤ 4, split wider than the pair's own measured glide | pair at centre ∓ δ/2 in ln f | δ_c per split cluster \[1\] |
+//! | [`BeatingPair`] | a degenerate cluster seen as two modes split beyond σ (and 5 % of the simulated split), the two decaying alike, centred on their cluster | \|split − predicted split\| > 3σ, decay rates within 10 % (or 3σ), leave-one-out \|z\| of the pair mean ≤ 4, split wider than the pair's own measured glide | pair at centre ∓ δ/2 in ln f | δ_c per split cluster \[1\] |
 //! | [`SupportContact`] | modes moving at the support decay faster (and shift) | regressions of d and ln f residuals on the support weight w, and of split pairs' decay-split residuals on w_u − w_l (weights varying by ≥ 5 % of the largest) | Δd = γw, Δ ln f = κw | γ ≥ 0 \[1/s\] (, κ \[1\]) |
 //! | [`ContactDuration`] | high modes weaker than their drive says | grid over T of the half-sine low-pass on the per-mode level residuals | ln a += ln \|cos(ωT/2)/(1 − (ωT/π)²)\| | T \[s\] |
 //! | [`ReverbNoise`] | residual energy decaying after the strike above the measured floor, in most bands | early vs late mean ln E per band, z > 2; after the fit, a significant excess in ≥ half the bands (else rejected: signature missing) | ln E = ln(N_b + ρ_b N_b e^(−13.8t/T60)) vs ln N_b | T60 \[s\], ρ_b \[1\] per band |

@@ -9,7 +9,7 @@
 //! Signature: a simulated degenerate cluster (two or more modes within the cluster tolerance)
 //! matched to two observed modes whose split ln f_u − ln f_l differs from the simulated split
 //! by more than 3σ, σ = √(σ_l² + σ_u² + (κ·split_sim)²) (in ln f; κ =
-//! [`super::model::SPLIT_MODEL_FLOOR`]: the simulated split is only known to 10 %; the model
+//! [`super::model::SPLIT_MODEL_FLOOR`]: the simulated split is only known to 5 %; the model
 //! error common to both members of a pair cancels in their difference). A lone simulated mode
 //! matched to two observed ones is not a candidate: the model has no near-degeneracy there.
 //!

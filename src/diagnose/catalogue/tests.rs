@@ -628,9 +628,17 @@ fn a_pair_split_as_the_mesh_splits_it_stands_for_its_own_members() {
     assert!((lower.drive - 1.0).abs() < 1e-12 && (upper.drive - 0.2).abs() < 1e-12, "{lower:?} {upper:?}");
     assert_eq!((lower.mass_weight, upper.mass_weight), (1.0, 0.0));
     assert_eq!((lower.transfer.clone().unwrap(), upper.transfer.clone().unwrap()), (vec![4.0, 1.0], vec![1.0, 4.0]));
-    // Split 3× the simulated one (a beating pair): the orientation is unknown, both pooled.
+    // 10 % wider than the simulated split: within 3κ (κ = 5 %), still the mesh's own split.
+    let (lower, upper) = pair(&table_for(1002.2, DEFAULT_OWN_MEMBER_SPLIT_Z));
+    assert_eq!((lower.simulated.clone(), upper.simulated.clone()), (vec![1], vec![2]));
+    // Split 3× or 20 % wider than the simulated one (a beating pair): the orientation is
+    // unknown, both pooled.
     let pooled_drive = (1.0f64 + 0.04).sqrt() * 0.5f64.sqrt();
-    for (t, why) in [(table_for(1006.0, DEFAULT_OWN_MEMBER_SPLIT_Z), "split 3× the simulated"), (table_for(1002.0, 0.0), "own_member_split_z = 0")] {
+    for (t, why) in [
+        (table_for(1006.0, DEFAULT_OWN_MEMBER_SPLIT_Z), "split 3× the simulated"),
+        (table_for(1002.4, DEFAULT_OWN_MEMBER_SPLIT_Z), "split 20 % wider than the simulated"),
+        (table_for(1002.0, 0.0), "own_member_split_z = 0"),
+    ] {
         let (lower, upper) = pair(&t);
         assert_eq!((lower.simulated.clone(), upper.simulated.clone()), (vec![1, 2], vec![1, 2]), "{why}");
         assert!((lower.drive - pooled_drive).abs() < 1e-12 && (upper.drive - pooled_drive).abs() < 1e-12, "{why}");
