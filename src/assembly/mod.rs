@@ -70,6 +70,17 @@ impl DofLayout {
         }
         out
     }
+    /// Every vector gathered to rank 0 and reordered into original node order; empty on the
+    /// other ranks. Collective: every rank must call it with the same vectors.
+    pub fn gather_original_order(&self, vectors: &[petsc::Vector]) -> petsc::Result<Vec<Vec<f64>>> {
+        let mut out = Vec::new();
+        for v in vectors {
+            if let Some(full) = v.gather_to_root(self.rank)? {
+                out.push(self.to_original_order(&full));
+            }
+        }
+        Ok(out)
+    }
     /// Takes this rank's owned entries of a vector given in original node order.
     pub fn local_part_of(&self, original_order: &[f64]) -> Vec<f64> {
         let mut out = Vec::with_capacity(3 * self.owned_nodes().len());

@@ -1015,12 +1015,7 @@ fn compute(petsc: &Petsc, job: &Job) -> Result<(), String> {
         }
         let cfg = EigenConfig::new(ModeRequest::UpTo { f_max_hz: 1.15 * top_observed.max(1.0) }, eigen::spectrum_scale(material.lame_mu(), job.density, diagonal));
         let modes = eigen::solve_modes(petsc, &k, &m, &cfg).map_err(|e| e.to_string())?;
-        let mut shapes = Vec::new();
-        for v in &modes.vectors {
-            if let Some(full) = v.gather_to_root(rank).map_err(|e| e.to_string())? {
-                shapes.push(assembled.layout.to_original_order(&full));
-            }
-        }
+        let shapes = assembled.layout.gather_original_order(&modes.vectors).map_err(|e| e.to_string())?;
         let solve_seconds = t_solve.elapsed().as_secs_f64();
         solve_seconds_sum += solve_seconds;
         if let (Some(l), Some(record)) = (&carried, loaded.as_mut()) {

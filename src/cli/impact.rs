@@ -515,12 +515,7 @@ fn compute(petsc: &Petsc, job: &Job) -> Result<(), String> {
     let f_top = 1.05 * job.max_frequency_hz;
     let cfg = EigenConfig::new(ModeRequest::UpTo { f_max_hz: f_top }, eigen::spectrum_scale(material.lame_mu(), material.density, diagonal));
     let modes = eigen::solve_modes(petsc, &k, &m, &cfg).map_err(|e| e.to_string())?;
-    let mut shapes = Vec::new();
-    for v in &modes.vectors {
-        if let Some(full) = v.gather_to_root(rank).map_err(|e| e.to_string())? {
-            shapes.push(assembled.layout.to_original_order(&full));
-        }
-    }
+    let mut shapes = assembled.layout.gather_original_order(&modes.vectors).map_err(|e| e.to_string())?;
     let solve_seconds = t_solve.elapsed().as_secs_f64();
     progress.say(format!("{} simulated modes up to {:.0} Hz at E = {:.4e} Pa, ν = {:.4}, ρ = {} in {:.1} s", modes.eigenvalues.len(), f_top, material.youngs_modulus, material.poisson_ratio, material.density, solve_seconds));
     for w in &modes.warnings {

@@ -238,15 +238,11 @@ fn compute(petsc: &Petsc, job: &Job) -> Result<(), String> {
 
     // Gather every mode to rank 0 in original node order, with a deterministic sign: the entry
     // of largest magnitude is made positive, so runs on any number of ranks agree.
-    let mut shapes: Vec<Vec<f64>> = Vec::new();
-    for v in &modes.vectors {
-        if let Some(full) = v.gather_to_root(rank).map_err(|e| e.to_string())? {
-            let mut s = layout.to_original_order(&full);
-            let (imax, _) = s.iter().enumerate().fold((0, 0.0f64), |(bi, bv), (i, &x)| if x.abs() > bv + 1e-12 * bv { (i, x.abs()) } else { (bi, bv) });
-            if s[imax] < 0.0 {
-                s.iter_mut().for_each(|x| *x = -*x);
-            }
-            shapes.push(s);
+    let mut shapes = layout.gather_original_order(&modes.vectors).map_err(|e| e.to_string())?;
+    for s in &mut shapes {
+        let (imax, _) = s.iter().enumerate().fold((0, 0.0f64), |(bi, bv), (i, &x)| if x.abs() > bv + 1e-12 * bv { (i, x.abs()) } else { (bi, bv) });
+        if s[imax] < 0.0 {
+            s.iter_mut().for_each(|x| *x = -*x);
         }
     }
     let frequencies: Vec<f64> = modes.eigenvalues.iter().map(|&l| eigen::frequency_hz(l)).collect();

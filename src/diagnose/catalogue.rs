@@ -821,6 +821,14 @@ pub(crate) fn weights_vary(weights: impl Iterator<Item = f64>) -> bool {
     hi > 0.0 && hi - lo > 0.05 * hi
 }
 
+/// Weighted least-squares line through the origin for points (x, y, w): the slope and its
+/// z = slope / σ_slope (σ from the weights alone); `None` when Σ w x² is not positive.
+pub(crate) fn weighted_regression_through_origin(points: impl Iterator<Item = (f64, f64, f64)> + Clone) -> Option<(f64, f64)> {
+    let sxx: f64 = points.clone().map(|p| p.2 * p.0 * p.0).sum();
+    let sxy: f64 = points.map(|p| p.2 * p.0 * p.1).sum();
+    (sxx > 0.0).then(|| (sxy / sxx, sxy / sxx.sqrt()))
+}
+
 /// Weighted least-squares line through points (x, y, w) with an intercept: the slope and its
 /// z = slope / σ_slope (σ from the weights alone). (0, 0) when x does not vary.
 pub(crate) fn weighted_regression(points: &[(f64, f64, f64)]) -> (f64, f64) {

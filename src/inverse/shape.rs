@@ -420,15 +420,11 @@ pub fn shape_modes(petsc: &Petsc, grid: &BackgroundGrid, values: &[f64], options
     let quadratic = lift_to_quadratic(&marched.mesh);
     let mut timings = StepTimings::default();
     let (assembled, modes) = assemble_and_solve(petsc, &quadratic, material, n_modes, &mut timings)?;
-    let mut shapes = Vec::new();
-    for v in &modes.vectors {
-        if let Some(full) = v.gather_to_root(petsc.rank()).map_err(|e| ShapeError::Solver(e.to_string()))? {
-            let mut s = assembled.layout.to_original_order(&full);
-            let largest = s.iter().copied().fold(0.0_f64, |m, x| if x.abs() > m.abs() { x } else { m });
-            if largest < 0.0 {
-                s.iter_mut().for_each(|x| *x = -*x);
-            }
-            shapes.push(s);
+    let mut shapes = assembled.layout.gather_original_order(&modes.vectors).map_err(|e| ShapeError::Solver(e.to_string()))?;
+    for s in &mut shapes {
+        let largest = s.iter().copied().fold(0.0_f64, |m, x| if x.abs() > m.abs() { x } else { m });
+        if largest < 0.0 {
+            s.iter_mut().for_each(|x| *x = -*x);
         }
     }
     Ok(ShapeModes { eigenvalues: modes.eigenvalues.clone(), residuals: modes.residuals.clone(), rigid_eigenvalues: modes.rigid_eigenvalues.clone(), clusters: modes.clusters.clone(), shapes, report: marched.report.clone(), mesh: quadratic })

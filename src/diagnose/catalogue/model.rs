@@ -428,8 +428,7 @@ impl ModeTable {
                     rows.push(Row {
                         kind: RowKind::LnD(k),
                         value: v,
-                        // The mode's own error, as one of a pair's (see `own_decay_share`).
-                        sigma: (s * s + 0.5 * DECAY_SPLIT_MODEL_FLOOR * DECAY_SPLIT_MODEL_FLOOR).sqrt(),
+                        sigma: s,
                     });
                 }
             }
@@ -439,13 +438,12 @@ impl ModeTable {
             rows.push(Row {
                 kind: RowKind::PairMeanLnD(p.lower, p.upper),
                 value: 0.5 * (dl + du),
-                // Each mode's own error (split floor ½·F² each) reaches the mean as F²/4.
-                sigma: 0.5 * (sl * sl + su * su + DECAY_SPLIT_MODEL_FLOOR * DECAY_SPLIT_MODEL_FLOOR).sqrt(),
+                sigma: 0.5 * (sl * sl + su * su).sqrt(),
             });
             rows.push(Row {
                 kind: RowKind::DecaySplit(p.lower, p.upper),
                 value: du - dl,
-                sigma: (sl * sl + su * su + DECAY_SPLIT_MODEL_FLOOR * DECAY_SPLIT_MODEL_FLOOR).sqrt(),
+                sigma: (sl * sl + su * su).sqrt(),
             });
         }
         for (k, m) in modes.iter().enumerate() {
@@ -714,16 +712,23 @@ fn row_variance(row: &Row, tau2: &FloorVariances) -> f64 {
     row.sigma * row.sigma + row.kind.quantity().floor_index().map_or(0.0, |q| tau2[q]) + own_decay_share(row, tau2)
 }
 
-/// The profiled part of a mode's own decay error that a decay row carries. Every mode's ln d
-/// has an error the law's misfit shares between neighbours (the ln d floor τ_d, common to the
-/// two modes of a pair) and one of its own, of variance τ_i². A pair's split row carries
-/// 2τ_i², the fixed [`DECAY_SPLIT_MODEL_FLOOR`]² plus the profiled τ_s²; so a lone mode's row
-/// carries τ_i² = (F² + τ_s²)/2 on top of τ_d², and a pair's mean row τ_i²/2 = (F² + τ_s²)/4
-/// (the fixed parts are in the rows' σ, this is the τ_s² part).
+/// Variance τ_i² of a mode's own ln d error (see [`own_decay_share`]): (F² + τ_s²)/2, F the
+/// fixed [`DECAY_SPLIT_MODEL_FLOOR`] and τ_s² the profiled decay-split floor.
+fn own_decay_variance(tau2: &FloorVariances) -> f64 {
+    0.5 * (DECAY_SPLIT_MODEL_FLOOR * DECAY_SPLIT_MODEL_FLOOR + tau2[5])
+}
+
+/// The part of the modes' own decay errors that a decay row carries beyond its measurement σ
+/// and its own profiled floor. Every mode's ln d has an error the law's misfit shares between
+/// neighbours (the ln d floor τ_d, common to the two modes of a pair) and one of its own, of
+/// variance τ_i² = [`own_decay_variance`]. A pair's split row carries 2τ_i²: its own profiled
+/// floor τ_s² plus F² added here; a lone mode's row carries τ_i² on top of τ_d², and a pair's
+/// mean row τ_i²/2.
 fn own_decay_share(row: &Row, tau2: &FloorVariances) -> f64 {
     match row.kind {
-        RowKind::LnD(_) => 0.5 * tau2[5],
-        RowKind::PairMeanLnD(..) => 0.25 * tau2[5],
+        RowKind::LnD(_) => own_decay_variance(tau2),
+        RowKind::PairMeanLnD(..) => 0.5 * own_decay_variance(tau2),
+        RowKind::DecaySplit(..) => DECAY_SPLIT_MODEL_FLOOR * DECAY_SPLIT_MODEL_FLOOR,
         _ => 0.0,
     }
 }
@@ -1017,7 +1022,7 @@ fn residuals_with(table: &ModeTable, p: &Prediction, t: &FloorVariances) -> Mode
         .modes
         .iter()
         .enumerate()
-        .map(|(k, m)| m.ln_d.map(|(v, s)| (v - p.decay[k].max(1e-300).ln(), s * s + t[1] + 0.5 * (DECAY_SPLIT_MODEL_FLOOR.powi(2) + t[5]))))
+        .map(|(k, m)| m.ln_d.map(|(v, s)| (v - p.decay[k].max(1e-300).ln(), s * s + t[1] + own_decay_variance(t))))
         .collect();
     let ln_a: Vec<Vec<Option<(f64, f64)>>> = table
         .modes

@@ -28,7 +28,7 @@
 
 use std::sync::Arc;
 
-use super::{Detection, Effect, Fit, ModeTable, ParamSpec, Proposal, Term};
+use super::{weighted_regression_through_origin, Detection, Effect, Fit, ModeTable, ParamSpec, Proposal, Term};
 
 pub struct PitchGlide;
 
@@ -113,11 +113,7 @@ impl Effect for PitchGlide {
             ));
         }
         // Through-origin weighted regressions of y on each variant's covariate.
-        let through_origin = |x: &dyn Fn(&(f64, f64, f64)) -> f64| {
-            let sxx: f64 = points.iter().map(|p| p.2 * x(p) * x(p)).sum();
-            let sxy: f64 = points.iter().map(|p| p.2 * x(p) * p.1).sum();
-            (sxx > 0.0).then(|| (sxy / sxx, sxy / sxx.sqrt()))
-        };
+        let through_origin = |x: &dyn Fn(&(f64, f64, f64)) -> f64| weighted_regression_through_origin(points.iter().map(|p| (x(p), p.1, p.2)));
         let mut details = Vec::new();
         let mut proposals = Vec::new();
         let mut statistic = 0.0f64;

@@ -28,7 +28,7 @@
 use std::sync::Arc;
 
 use super::added_mass::MIN_DIFFERENTIAL_SHIFT;
-use super::{weight_range, weighted_regression, weights_vary, Detection, Effect, Fit, ModeTable, ParamSpec, Proposal, Term};
+use super::{weight_range, weighted_regression, weighted_regression_through_origin, weights_vary, Detection, Effect, Fit, ModeTable, ParamSpec, Proposal, Term};
 
 pub struct SupportContact;
 
@@ -80,17 +80,6 @@ impl Term for SupportTerm {
     }
 }
 
-/// Weighted least-squares slope of y on x through the origin, and its z (slope / σ) for
-/// points (x, y, weight = 1/variance of y). (0, 0) without spread in x.
-fn regression_through_origin(points: &[(f64, f64, f64)]) -> (f64, f64) {
-    let sxx: f64 = points.iter().map(|p| p.2 * p.0 * p.0).sum();
-    if !(sxx > 0.0) {
-        return (0.0, 0.0);
-    }
-    let slope = points.iter().map(|p| p.2 * p.0 * p.1).sum::<f64>() / sxx;
-    (slope, slope * sxx.sqrt())
-}
-
 impl Effect for SupportContact {
     fn name(&self) -> &'static str {
         "support_contact"
@@ -139,7 +128,7 @@ impl Effect for SupportContact {
                 Some((u.support_weight - l.support_weight, d * r, 1.0 / (d * d * v)))
             })
             .collect();
-        let (gamma_pair, z_pair) = regression_through_origin(&within);
+        let (gamma_pair, z_pair) = weighted_regression_through_origin(within.iter().copied()).unwrap_or((0.0, 0.0));
         let detail = format!(
             "decay residual vs support weight: slope {gamma:.3} 1/s (z = {z_gamma:.1}); within split pairs: slope {gamma_pair:.3} 1/s (z = {z_pair:.1}); ln f: slope {kappa:.2e} (z = {z_kappa:.1})"
         );

@@ -982,7 +982,7 @@ fn support_pair_evidence(gamma: f64, seed: u64) -> Evidence {
             });
         }
     }
-    let mut observe = |channels: std::ops::Range<usize>, rng: &mut Rng| -> Vec<ObservedMode> {
+    let observe = |channels: std::ops::Range<usize>, rng: &mut Rng| -> Vec<ObservedMode> {
         truth
             .iter()
             .map(|&(j, d, ln_amp)| {
