@@ -650,12 +650,7 @@ fn generate_case<'p>(
     let t_rad = Instant::now();
     let mut transfers: Option<Radiated> = None;
     if plan.has(Effect::Radiation) {
-        let mut shapes = Vec::new();
-        for v in &solved.vectors {
-            if let Some(full) = v.gather_to_root(rank).map_err(|e| e.to_string())? {
-                shapes.push(asm.layout.to_original_order(&full));
-            }
-        }
+        let shapes = asm.layout.gather_original_order(&solved.vectors).map_err(|e| e.to_string())?;
         if rank == 0 {
             if surface.get().is_none() {
                 let q = SurfaceQuadrature::new(&body.mesh).map_err(|e| e.to_string())?;

@@ -199,12 +199,7 @@ fn main() {
         let (k, m) = assembled.operators(&material).expect("operators");
         let cfg = EigenConfig::new(ModeRequest::FirstN(args.modes), eigen::spectrum_scale(material.lame_mu(), material.density, size));
         let modes = eigen::solve_modes(&petsc, &k, &m, &cfg).unwrap_or_else(|e| panic!("{name}: modes: {e}"));
-        let mut shapes = Vec::new();
-        for v in &modes.vectors {
-            if let Some(full) = v.gather_to_root(petsc.rank()).expect("gather") {
-                shapes.push(assembled.layout.to_original_order(&full));
-            }
-        }
+        let shapes = assembled.layout.gather_original_order(&modes.vectors).expect("gather");
         let modes_seconds = t_modes.elapsed().as_secs_f64();
         if !root {
             continue;
