@@ -36,7 +36,8 @@
 //! With R (and A) in the basis the loaded Ritz values are upper bounds of the full solve's.
 //!
 //! **The search** minimises the plain match's distance (mean capped nearest-line distance,
-//! both ways, over the audible partials) over ν, the site, the mass and the scale (E): a
+//! both ways: every target line to any partial, every partial that should be heard to a
+//! target line; [`super::material::line_spectrum_start`]) over ν, the site, the mass and the scale (E): a
 //! coarse pass over ν, a subset of candidate regions and a ladder of mass fractions (0.5–16 %
 //! of the body's mass), with E searched in a window around the plain match's; then
 //! ([`loaded_line_candidates`]) the best coarse regions at distinct sites, each refined by a
@@ -65,7 +66,7 @@ use std::rc::Rc;
 
 use crate::eigen::reduced::AttachmentProjections;
 
-use super::material::line_distance;
+use super::material::{line_distance, LinePattern, AUDIBLE_FRACTION};
 #[cfg(test)]
 use super::material::capped_nearest;
 
@@ -250,7 +251,8 @@ pub struct LoadedMatchSettings {
     pub shift_window: (f64, f64),
     /// The cap of the capped distance (ln f), as the plain match's.
     pub cap: f64,
-    /// Partials whose drive is below this fraction of the loudest are inaudible.
+    /// A partial quieter than this fraction of the loudest one in the compared band need not
+    /// be recorded ([`LinePattern::heard`]).
     pub audible: f64,
     /// Re-anchored fine rounds per candidate (module docs, "Re-anchoring"): at most this many,
     /// each over ν ± `reanchor_window` by `reanchor_step`, with the attachment vectors solved
@@ -272,7 +274,7 @@ impl Default for LoadedMatchSettings {
             coarse_poisson_step: 0.01,
             shift_window: (0.05, 0.15),
             cap: 0.02,
-            audible: 1e-3,
+            audible: AUDIBLE_FRACTION,
             reanchor_rounds: 3,
             reanchor_window: 0.03,
             reanchor_step: 0.002,
@@ -350,11 +352,11 @@ pub fn loaded_line_candidates(problem: &LoadedMatchProblem, modes_at: &dyn Fn(f6
     let c_plain = 0.5 * (problem.plain_youngs / problem.density).ln() - two_pi_ln;
     let cap = settings.cap;
     let ceiling = problem.ceiling_ln_f;
-    let distance = |u: &[f64], c: f64| line_distance(&target, u, c, ceiling, cap);
-    let pattern = |loaded: &[(f64, f64)]| audible_pattern(loaded, settings.audible);
+    let distance = |u: &LinePattern, c: f64| line_distance(&target, u, c, ceiling, cap, settings.audible);
+    let pattern = |loaded: &[(f64, f64)]| LinePattern::new(loaded.iter().copied());
     // Best scale for a pattern over c_plain − below … c_plain + above, by `step`, then ten
     // times finer around the best.
-    let best_shift = |u: &[f64], centre: f64, below: f64, above: f64, step: f64| -> (f64, f64, usize) {
+    let best_shift = |u: &LinePattern, centre: f64, below: f64, above: f64, step: f64| -> (f64, f64, usize) {
         let mut best = (f64::INFINITY, centre);
         let n = ((below + above) / step).ceil() as usize;
         let mut evals = 0;
@@ -470,22 +472,13 @@ pub fn loaded_line_candidates(problem: &LoadedMatchProblem, modes_at: &dyn Fn(f6
     Ok(out)
 }
 
-/// ½ ln θ' of the audible partials (drive at least `audible` of the loudest), ascending: the
-/// pattern the line distance compares with the target.
-fn audible_pattern(loaded: &[(f64, f64)], audible: f64) -> Vec<f64> {
-    let loudest = loaded.iter().fold(0.0_f64, |m, p| m.max(p.1));
-    let mut u: Vec<f64> = loaded.iter().filter(|p| p.0 > 0.0 && p.1 >= audible * loudest).map(|p| 0.5 * p.0.ln()).collect();
-    u.sort_by(f64::total_cmp);
-    u
-}
-
 /// The line match of a given loaded spectrum (θ'_k for E/ρ = 1 with their drives, e.g. from a
 /// full solve): its distance and E at the best scale within `window` (ln f, below and above)
 /// of `youngs_centre`, with the search's cap and audibility.
 pub fn scale_fit(target_ln_f: &[f64], ceiling_ln_f: f64, loaded: &[(f64, f64)], density: f64, youngs_centre: f64, window: f64, settings: &LoadedMatchSettings) -> (f64, f64) {
     let mut target: Vec<f64> = target_ln_f.iter().copied().filter(|x| x.is_finite()).collect();
     target.sort_by(f64::total_cmp);
-    let u = audible_pattern(loaded, settings.audible);
+    let u = LinePattern::new(loaded.iter().copied());
     let two_pi_ln = (2.0 * std::f64::consts::PI).ln();
     let centre = 0.5 * (youngs_centre / density).ln() - two_pi_ln;
     let mut best = (f64::INFINITY, centre);
@@ -493,7 +486,7 @@ pub fn scale_fit(target_ln_f: &[f64], ceiling_ln_f: f64, loaded: &[(f64, f64)], 
         let (lo, n) = if step > 5e-4 { (centre - window, (2.0 * window / step).ceil() as i64) } else { (best.1 - 1e-3, 20) };
         for i in 0..=n {
             let c = lo + i as f64 * step;
-            let d = line_distance(&target, &u, c, ceiling_ln_f, settings.cap);
+            let d = line_distance(&target, &u, c, ceiling_ln_f, settings.cap, settings.audible);
             if d < best.0 {
                 best = (d, c);
             }
