@@ -103,8 +103,9 @@ fn diagnose_rejects_bad_input_clearly() {
     let config = dir.join("bad_loaded.toml");
     std::fs::write(&config, "[model]\nloaded_mass_match = \"yes\"\n").unwrap();
     let config = config.to_str().unwrap();
-    let cases: [(&[&str], &str); 6] = [
+    let cases: [(&[&str], &str); 7] = [
         (&["diagnose", "--config", config, "--mesh", mesh, "--recording", wav, "--recording", wav, "--out", out], "loaded_mass_match"),
+        (&["diagnose", "--mesh", mesh, "--recording", wav, "--recording", wav, "--loaded-mass-match", "--no-loaded-mass-match", "--out", out], "cannot be used with"),
         (&["diagnose", "--mesh", mesh, "--recording", "/nonexistent.wav", "--recording", wav, "--out", out], "does not exist"),
         (&["diagnose", "--mesh", mesh, "--recording", wav, "--out", out], "held-out"),
         (&["diagnose", "--mesh", mesh, "--recording", wav, "--recording", wav, "--held-out", "5", "--out", out], "held-out microphone 5 does not exist"),
