@@ -18,16 +18,20 @@
 //! γ̂_pair > 0 with z > 1.5, or |z_κ| > 1.5 (the weights must vary by 5 % of the largest matched
 //! one).
 //!
-//! Signature, after the fit: the support must damp (γ > 2σ_γ), or shift the matched modes'
-//! frequencies differentially by at least [`super::added_mass::MIN_DIFFERENTIAL_SHIFT`]
-//! (|κ|·(w_max − w_min) ≥ 5·10⁻⁴, the finite-element model's own accuracy). A frequency-only
-//! "support" below that is a fit of the material's residual misfit to whatever pattern the
-//! weights have: on a clean blind-benchmark case it was accepted at ΔBIC 6.9 with a
-//! differential shift of 10⁻⁶.
+//! Signature, after the fit: the support must damp, γ > 2σ_γ. A passive contact always takes
+//! energy from the modes that move at it; a frequency shift alone is not a support's signature,
+//! because any small frequency misfit correlated with the support weights looks the same. Two
+//! versions of this rule failed. The first accepted any frequency-only "support": on a clean
+//! blind-benchmark case it was accepted at ΔBIC 6.9 with a differential shift of 10⁻⁶. The
+//! second accepted one whose differential shift |κ|·(w_max − w_min) reached 5·10⁻⁴, the
+//! finite-element model's own accuracy. On the blind set 3 (seed 303) that still named a
+//! support with γ = 0 ± 0.05 1/s twice: next to a beating pair whose sector of denser, stiffer
+//! material also moves the pair means (case 015, κ = 9.7·10⁻⁴), and next to an added mass
+//! (case 028). Requiring the damping removed both false alarms and lost no support on sets 1
+//! to 3.
 
 use std::sync::Arc;
 
-use super::added_mass::MIN_DIFFERENTIAL_SHIFT;
 use super::{weight_range, weighted_regression, weighted_regression_through_origin, weights_vary, Detection, Effect, Fit, ModeTable, ParamSpec, Proposal, Term};
 
 pub struct SupportContact;
@@ -71,12 +75,7 @@ impl Term for SupportTerm {
         let damps = p[0] > 2.0 * sigma[0];
         let (lo, hi) = weight_range(table.modes.iter().map(|m| m.support_weight));
         let shift = if self.with_frequency { p[1].abs() * (hi - lo) } else { 0.0 };
-        (!damps && !(shift >= MIN_DIFFERENTIAL_SHIFT)).then(|| {
-            format!(
-                "the support neither damps (γ = {:.3} ± {:.3} 1/s) nor shifts the modes measurably (differential shift {shift:.1e} < {MIN_DIFFERENTIAL_SHIFT:.0e})",
-                p[0], sigma[0]
-            )
-        })
+        (!damps).then(|| format!("the support does not damp (γ = {:.3} ± {:.3} 1/s; differential frequency shift {shift:.1e}, which alone is not a support)", p[0], sigma[0]))
     }
 }
 

@@ -947,6 +947,21 @@ fn a_support_that_neither_damps_nor_shifts_measurably_is_not_named() {
     assert_eq!(r.reason, Rejection::SignatureMissing, "{r:?}");
 }
 
+#[test]
+fn a_frequency_shift_without_damping_is_not_named_a_support() {
+    // The stiffening of the recovery test above (κ = 0.008, well resolved) without its
+    // damping: a pattern of frequency shifts that follows the support weights, but no energy
+    // lost at the contact, which every passive support takes (module docs of support_contact).
+    let truth = Truth {
+        support: Some((0.0, 0.008)),
+        ..Truth::default()
+    };
+    let report = run(&truth, 23);
+    assert!(accepted(&report, "support_contact").is_none(), "{:#?}", report.accepted);
+    let r = report.rejected.iter().find(|r| r.name == "support_contact").expect("rejected");
+    assert_eq!(r.reason, Rejection::SignatureMissing, "{r:?}");
+}
+
 /// Evidence of an object whose damping law the baseline cannot follow (a power law with a
 /// 15 % misfit per cluster, common to both modes of a pair) and whose support damps by
 /// Δd = γ w: six split pairs resolved in the simulation (members 0.2 % apart) and six lone
