@@ -704,6 +704,38 @@ fn split_sigma_of(sigma_lower: f64, sigma_upper: f64, simulated_split: f64) -> f
 /// Index of the per-mode amplitude level floor τ_A.
 pub const LEVEL_FLOOR: usize = 3;
 
+/// Degrees of freedom ν of the Student-t likelihood of the glide rows (parent docs,
+/// "Likelihood").
+pub const GLIDE_T_DOF: f64 = 4.0;
+/// 2 ln(Γ(ν/2) √(νπ) / Γ((ν+1)/2)) at ν = 4: the t density's normalisation in −2 ln L
+/// (Γ(2) = 1, Γ(5/2) = 3√π/4, so the ratio is 8/3).
+const GLIDE_T_NORMALISATION: f64 = 1.961_658_506_140_943_7;
+
+/// A glide row's −2 ln L without the constant and ln v: (ν + 1) ln(1 + r²/(ν v)), with v the
+/// squared scale σ² + τ². For small r/√v it is r²/v (1 + 1/ν), the Gaussian's r²/v up to a
+/// factor; for large r it grows only logarithmically.
+fn glide_deviance(r: f64, v: f64) -> f64 {
+    (GLIDE_T_DOF + 1.0) * (r * r / (GLIDE_T_DOF * v)).ln_1p()
+}
+
+/// The least-squares residual whose square is [`glide_deviance`].
+fn glide_whitened(r: f64, v: f64) -> f64 {
+    glide_deviance(r, v).sqrt().copysign(r)
+}
+
+/// The glide floor τ² maximising the Student-t likelihood of residuals `r` with measurement
+/// variances `v`.
+fn profile_glide_floor(r: &[f64], v: &[f64]) -> f64 {
+    if r.is_empty() {
+        return 0.0;
+    }
+    let v_min = v.iter().cloned().fold(f64::INFINITY, f64::min).max(1e-300);
+    let v_max = v.iter().cloned().fold(0.0, f64::max);
+    let r2_max = r.iter().map(|r| r * r).fold(0.0, f64::max);
+    let objective = |t: f64| r.iter().zip(v).map(|(&r, &v)| (v + t).ln() + glide_deviance(r, v + t)).sum::<f64>();
+    lm::minimise_nonnegative(objective, 1e-4 * v_min, 10.0 * r2_max + v_max)
+}
+
 /// Floors τ² (variances), indexed as [`N_FLOORS`].
 pub type FloorVariances = [f64; N_FLOORS];
 
@@ -790,7 +822,8 @@ fn whiten(table: &ModeTable, p: &Prediction, tau2: &FloorVariances, out: &mut [f
     let mut i = 0;
     for &r in &table.other_rows {
         let row = &table.rows[r];
-        out[i] = (row.value - row.kind.predict(p)) / row_variance(row, tau2).sqrt();
+        let (res, v) = (row.value - row.kind.predict(p), row_variance(row, tau2));
+        out[i] = if row.kind.quantity() == Quantity::Glide { glide_whitened(res, v) } else { res / v.sqrt() };
         i += 1;
     }
     for (_, rows) in &table.amplitude_groups {
@@ -813,7 +846,11 @@ fn minus_two_log_likelihood(table: &ModeTable, p: &Prediction, tau2: &FloorVaria
         let row = &table.rows[r];
         let v = row_variance(row, tau2);
         let res = row.value - row.kind.predict(p);
-        sum += ln_two_pi + v.ln() + res * res / v;
+        sum += if row.kind.quantity() == Quantity::Glide {
+            GLIDE_T_NORMALISATION + v.ln() + glide_deviance(res, v)
+        } else {
+            ln_two_pi + v.ln() + res * res / v
+        };
     }
     for (_, rows) in &table.amplitude_groups {
         let block = group_block(table, rows, p, tau2);
@@ -847,7 +884,7 @@ fn profile_floors_where(table: &ModeTable, p: &Prediction, keep: impl Fn(usize) 
             .map(|row| (row.value - row.kind.predict(p), row.sigma * row.sigma + own_decay_share(row, &tau2)))
             .unzip();
         if r.iter().all(|r| r.is_finite()) {
-            tau2[q] = lm::profile_floor(&r, &v);
+            tau2[q] = if q == 4 { profile_glide_floor(&r, &v) } else { lm::profile_floor(&r, &v) };
         }
     }
     let groups: Vec<Vec<(f64, f64)>> = table
