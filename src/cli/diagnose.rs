@@ -720,6 +720,8 @@ const ATTACHMENT_BLOCKS: usize = 2;
 /// 012 (9.6 % on three vertices) the truth's centre scored 8.6·10⁻⁴ with its three vertices
 /// and 1.7·10⁻² with five.
 const LOADED_MATCH_REGION_SIZES: [usize; 3] = [3, 5, 8];
+/// Seconds between the loaded match's progress lines.
+const LOADED_MATCH_PROGRESS_SECONDS: f64 = 30.0;
 /// Candidate sites of the loaded match checked by a full solve each.
 const LOADED_MATCH_CANDIDATES: usize = 4;
 
@@ -825,6 +827,7 @@ fn loaded_match<'p>(petsc: &'p Petsc, assembled: &assembly::Assembled<'p>, basis
     let enrich_seconds = std::cell::Cell::new(0.0f64);
     let factorisations = std::cell::Cell::new(1usize);
     let factor_total = std::cell::Cell::new(factor_seconds);
+    let last_report = std::cell::Cell::new(Instant::now());
     let enrich = |r: usize, anchor: f64| -> Option<Rc<Enrichment>> {
         let key = (r, anchor.to_bits());
         if let Some(hit) = cache.borrow().get(&key) {
@@ -866,6 +869,11 @@ fn loaded_match<'p>(petsc: &'p Petsc, assembled: &assembly::Assembled<'p>, basis
         drop(held);
         cache.borrow_mut().insert(key, made.clone());
         enrich_seconds.set(enrich_seconds.get() + started.elapsed().as_secs_f64());
+        // The search is silent otherwise for minutes: report it about every 30 s.
+        if last_report.get().elapsed().as_secs_f64() >= LOADED_MATCH_PROGRESS_SECONDS {
+            last_report.set(Instant::now());
+            progress.say(format!("  loaded line match: {} regions enriched so far (attachments at ν = {anchor:.3}), {:.0} s", cache.borrow().len(), t.elapsed().as_secs_f64()));
+        }
         made
     };
     let search = LoadedMatchProblem { target_ln_f: &target, ceiling_ln_f: ceiling, density, volume, regions: &regions, coarse: &coarse, neighbours: &neighbours, plain_youngs: start.youngs, enrichment: Some(&enrich), anchor_poisson: start.poisson };
