@@ -944,7 +944,7 @@ fn compute(petsc: &Petsc, job: &Job) -> Result<(), String> {
 
     // 1–2: the recording (rank 0), shared so that every rank stops together on an error.
     let local = (rank == 0).then(|| measure(job, &progress));
-    let measured: Measured = super::fit_material::broadcast_json(petsc, local)??;
+    let measured: Measured = super::fit_material::broadcast_from_root(petsc, local)??;
     if measured.fit.len() < 4 {
         return Err(format!("only {} modes found in the recording below {} Hz; the diagnosis needs at least 4", measured.fit.len(), job.max_frequency_hz));
     }

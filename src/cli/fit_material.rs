@@ -345,24 +345,46 @@ fn agree_on_fit(petsc: &Petsc, fit: MaterialFit, progress: &Progress) -> Result<
         progress.say(format!("ranks' fits differ by up to {spread:.2e} (relative E / absolute ν); using rank 0's"));
     }
     let root = if petsc.rank() == 0 { Some(fit) } else { None };
-    broadcast_json(petsc, root)
+    broadcast_from_root(petsc, root)
 }
 
-/// Broadcasts a value from rank 0 as JSON (a length, then the bytes).
-pub(super) fn broadcast_json<T: serde::Serialize + serde::de::DeserializeOwned>(petsc: &Petsc, value: Option<T>) -> Result<T, String> {
+/// Broadcasts a value from rank 0 (a length, then the bytes of [`encode_for_broadcast`]).
+/// Every rank returns the same value or the same error: a value rank 0 cannot encode is an
+/// error on every rank, not a rank waiting forever for bytes that never come.
+pub(super) fn broadcast_from_root<T: serde::Serialize + serde::de::DeserializeOwned>(petsc: &Petsc, value: Option<T>) -> Result<T, String> {
     let root = petsc.world().process_at_rank(0);
-    let mut bytes = match &value {
-        Some(v) => serde_json::to_vec(v).map_err(|e| e.to_string())?,
-        None => Vec::new(),
+    let (mut bytes, failure) = match value.as_ref().map(encode_for_broadcast) {
+        Some(Ok(bytes)) => (bytes, None),
+        Some(Err(e)) => (Vec::new(), Some(e)),
+        None => (Vec::new(), None),
     };
-    let mut len = bytes.len() as u64;
+    // u64::MAX: rank 0 could not encode the value.
+    let mut len = if failure.is_some() { u64::MAX } else { bytes.len() as u64 };
     root.broadcast_into(&mut len);
+    if len == u64::MAX {
+        return Err(format!("broadcast from rank 0: {}", failure.unwrap_or_else(|| "rank 0 could not encode its result".into())));
+    }
     bytes.resize(len as usize, 0);
     root.broadcast_into(&mut bytes[..]);
     match value {
         Some(v) => Ok(v),
-        None => serde_json::from_slice(&bytes).map_err(|e| format!("broadcast of the stage-1 result: {e}")),
+        None => decode_from_broadcast(&bytes),
     }
+}
+
+/// CBOR, which carries every f64 bit for bit. The first version sent JSON: a NaN or ±∞
+/// anywhere in a diagnosis's extraction became `null`, which the other ranks could not read
+/// (seed 404 case 019 of the blind benchmark stopped with "invalid type: null, expected f64"),
+/// and JSON's decimal round trip is not guaranteed exact, so ranks could differ in the last bit.
+pub(super) fn encode_for_broadcast<T: serde::Serialize>(value: &T) -> Result<Vec<u8>, String> {
+    let mut bytes = Vec::new();
+    ciborium::into_writer(value, &mut bytes).map_err(|e| format!("encoding rank 0's result: {e}"))?;
+    Ok(bytes)
+}
+
+/// The inverse of [`encode_for_broadcast`].
+pub(super) fn decode_from_broadcast<T: serde::de::DeserializeOwned>(bytes: &[u8]) -> Result<T, String> {
+    ciborium::from_reader(bytes).map_err(|e| format!("broadcast from rank 0: {e}"))
 }
 
 /// Stage 1 on rank 0: the recording and the damping fit. Errors travel with the broadcast so
@@ -383,7 +405,7 @@ fn stage_one(petsc: &Petsc, job: &Job, progress: &Progress) -> Result<StageOne, 
         progress.say(format!("damping fit: {} modes, {} kept, loss {:.4e} → {:.4e}, α = {:.3} 1/s, β = {:.3e} s, {:.1} s", damping.modes.len(), kept, damping.loss_initial, damping.loss_final, damping.rayleigh.alpha, damping.rayleigh.beta, t.elapsed().as_secs_f64()));
         Ok(StageOne { channels: rec.channels, names: rec.names, onset_s: rec.onset_s, damping })
     });
-    let shared: Result<StageOne, String> = broadcast_json(petsc, local)?;
+    let shared: Result<StageOne, String> = broadcast_from_root(petsc, local)?;
     shared
 }
 
@@ -773,6 +795,26 @@ fn write_plots(job: &Job, stage: &StageOne, targets: &[Vec<f64>], start: &[Vec<f
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// What rank 0 broadcasts reaches the other ranks bit for bit, NaN and ±∞ included (JSON
+    /// turned them into null and the other ranks failed to read it).
+    #[test]
+    fn a_broadcast_value_survives_bit_for_bit() {
+        #[derive(serde::Serialize, serde::Deserialize, Debug)]
+        struct Sample {
+            values: Vec<f64>,
+            pair: Option<(f64, f64)>,
+            name: String,
+        }
+        let sample = Sample { values: vec![f64::NAN, f64::INFINITY, f64::NEG_INFINITY, 0.1 + 0.2, -0.0, 5e-324, f64::MAX], pair: Some((1.0 / 3.0, f64::NAN)), name: "ν".into() };
+        let back: Sample = decode_from_broadcast(&encode_for_broadcast(&sample).unwrap()).unwrap();
+        let bits = |v: &[f64]| v.iter().map(|x| x.to_bits()).collect::<Vec<u64>>();
+        assert_eq!(bits(&back.values), bits(&sample.values));
+        let (a, b) = back.pair.unwrap();
+        assert_eq!((a.to_bits(), b.to_bits()), ((1.0f64 / 3.0).to_bits(), f64::NAN.to_bits()));
+        assert_eq!(back.name, "ν");
+        assert!(decode_from_broadcast::<Sample>(&[0xff, 0x00]).is_err());
+    }
 
     #[test]
     fn modes_pair_one_to_one_closest_first() {

@@ -62,7 +62,7 @@
 //!   candidates (and the truth, when known) marked.
 
 use super::diagnose::{read_fit_material, with_suffix};
-use super::fit_material::broadcast_json;
+use super::fit_material::broadcast_from_root;
 use super::{fail, Progress};
 use crate::assembly;
 use crate::audio::chain::{DampingCurve, Strike};
@@ -498,7 +498,7 @@ fn compute(petsc: &Petsc, job: &Job) -> Result<(), String> {
 
     // 1: the recording (rank 0), shared so that every rank stops together on an error.
     let local = (rank == 0).then(|| measure(job, &progress));
-    let measured: Measured = broadcast_json(petsc, local)??;
+    let measured: Measured = broadcast_from_root(petsc, local)??;
     if measured.poles.len() < 3 {
         return Err(format!("only {} poles found in the recording below {} Hz; the map needs at least 3", measured.poles.len(), job.max_frequency_hz));
     }
