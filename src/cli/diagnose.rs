@@ -1025,7 +1025,7 @@ fn compute(petsc: &Petsc, job: &Job) -> Result<(), String> {
     // (`material.loaded_line_match.rejected`). On set2 the four mass cases left 3–5 recorded
     // modes unmatched without the mass and none with it; cases 007 and 024 (no mass) left none
     // either way. A mass whose splits are small enough for the plain model to match every line
-    // leaves none unmatched either way too (set3 case 028: 0.5 % of the body's mass, the plain
+    // leaves none unmatched either way too (set3 case 028: 2.0 % of the body's mass, the plain
     // distance 3.9·10⁻³, the loaded 1.4·10⁻⁴, and without the mass the catalogue named the
     // splits a beating pair), so a decisive cut of the line distance
     // ([`LOADED_MATCH_DECISIVE_CUT`]) stands in for an unmatched mode; set2 case 024 cut it 2.1
