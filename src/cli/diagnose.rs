@@ -559,20 +559,12 @@ fn measure(job: &Job, progress: &Progress) -> Result<Measured, String> {
         modes.retain(|m| m.frequency_hz <= job.max_frequency_hz);
         modes
     };
-    let plausible = |modes: Vec<ObservedMode>, channels: &[Vec<f64>], what: &str| {
-        let (kept, dropped) = drop_overloaded_modes(modes, channels, fs);
-        if !dropped.is_empty() {
-            progress.say(format!("extraction ({what}): dropped {} mode(s) at {:?} Hz whose energy exceeds {MAX_MODE_ENERGY_RATIO} × their channel's (halves of cancelling pole pairs)", dropped.len(), dropped.iter().map(|f| (f * 10.0).round() / 10.0).collect::<Vec<_>>()));
-        }
-        kept
-    };
-    let fit = plausible(in_band(evidence::observed_modes(&full, None, None, &job.observed)), &fit_post, "fit microphones");
+    let fit = in_band(evidence::observed_modes(&full, None, None, &job.observed));
     let (held_out, extraction_held) = if job.held_channels.is_empty() {
         (Vec::new(), None)
     } else {
-        let held_post = pick(&post, &job.held_channels);
-        let held = extract(&held_post, "held-out microphones")?;
-        (plausible(in_band(evidence::observed_modes(&held, None, None, &job.observed)), &held_post, "held-out microphones"), Some(held))
+        let held = extract(&pick(&post, &job.held_channels), "held-out microphones")?;
+        (in_band(evidence::observed_modes(&held, None, None, &job.observed)), Some(held))
     };
     let envelopes = match evidence::residual_envelopes(&fit_post, &pick(&pre, &job.fit_channels), &full, &job.envelopes) {
         Ok(e) => Some(e),
@@ -584,36 +576,6 @@ fn measure(job: &Job, progress: &Progress) -> Result<Measured, String> {
     let model0 = full.render_channel(0, n);
     let plot_residual = fit_post[0].iter().zip(&model0).map(|(a, b)| a - b).collect();
     Ok(Measured { names: rec.names, onset_s: rec.onset_s, fit, held_out, envelopes, extraction_fit: full, extraction_held, plot_signal: fit_post[0].clone(), plot_residual, seconds: t.elapsed().as_secs_f64() })
-}
-
-/// A mode's energy on one channel may exceed the channel's own energy by at most this factor.
-const MAX_MODE_ENERGY_RATIO: f64 = 4.0;
-
-/// Drops the modes that cannot be a component of the channels they were extracted from: on
-/// some channel c their energy over the span, a_c² (1 − e^(−2dT)) / (4d) (a_c² T / 2 without
-/// decay), exceeds [`MAX_MODE_ENERGY_RATIO`] × Σ s_c² / f_s. Components at distinct frequencies
-/// are nearly orthogonal over the span, so a real mode's energy is at most about its channel's;
-/// only two near-identical poles with huge opposite amplitudes exceed it, and together they
-/// stand for almost nothing (blind seed 404 case 019: two held-out modes at 3724.3 Hz, d = 31.9
-/// 1/s, a ≈ 4949 each, in channels of peak 0.5, and a NaN full-rate residual of the refined
-/// poles). Returns the kept modes and the frequencies of the dropped ones, Hz.
-fn drop_overloaded_modes(modes: Vec<ObservedMode>, channels: &[Vec<f64>], fs: f64) -> (Vec<ObservedMode>, Vec<f64>) {
-    let span = channels.first().map_or(0.0, |c| c.len() as f64 / fs);
-    let energy: Vec<f64> = channels.iter().map(|c| c.iter().map(|x| x * x).sum::<f64>() / fs).collect();
-    let mut dropped = Vec::new();
-    let kept = modes
-        .into_iter()
-        .filter(|m| {
-            let d = m.decay_rate;
-            let shape = if d > 0.0 { -(-2.0 * d * span).exp_m1() / (4.0 * d) } else { 0.5 * span };
-            let overloaded = m.amplitudes.iter().zip(&energy).any(|(a, e)| !(a * a * shape <= MAX_MODE_ENERGY_RATIO * e));
-            if overloaded {
-                dropped.push(m.frequency_hz);
-            }
-            !overloaded
-        })
-        .collect();
-    (kept, dropped)
 }
 
 /// Per-mode features on rank 0 from the full shapes (original node order).
@@ -1450,20 +1412,6 @@ fn write_plots(job: &Job, measured: &Measured, report: &CatalogueReport) -> Resu
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    /// A mode as loud as its channel is kept; the two halves of a cancelling pair (seed 404 case
-    /// 019's amplitudes) are dropped; NaN amplitudes are dropped too.
-    #[test]
-    fn modes_louder_than_their_channel_are_dropped() {
-        let fs = 48000.0;
-        let (f, d, a) = (1000.0, 5.0, 0.5);
-        let channel: Vec<f64> = (0..48000).map(|n| { let t = n as f64 / fs; a * (-d * t).exp() * (2.0 * std::f64::consts::PI * f * t).sin() }).collect();
-        let mode = |hz: f64, decay: f64, amp: f64| ObservedMode { frequency_hz: hz, sigma_frequency_hz: 0.01, decay_rate: decay, sigma_decay_rate: 0.1, amplitudes: vec![amp], sigma_amplitudes: vec![0.01], early_frequency_hz: None, late_frequency_hz: None, glide: None };
-        let modes = vec![mode(f, d, a), mode(3724.3, 31.9, 4949.0), mode(3724.31, 31.9, 4949.0), mode(5000.0, 0.0, 0.01), mode(6000.0, 10.0, f64::NAN)];
-        let (kept, dropped) = drop_overloaded_modes(modes, &[channel], fs);
-        assert_eq!(kept.iter().map(|m| m.frequency_hz).collect::<Vec<_>>(), vec![f, 5000.0]);
-        assert_eq!(dropped.len(), 3);
-    }
 
     /// The blind benchmark's cases: seed 303 case 028 (a 2.0 % mass whose splits the plain model
     /// matched, line distance cut 27.9 times) stands; seed 202 case 024 (clean, cut 2.1 times,
