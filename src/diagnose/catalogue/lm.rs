@@ -182,11 +182,6 @@ pub(super) fn minimise<F: FnMut(&[f64], &mut [f64])>(
     Minimum { x, cost }
 }
 
-/// h(t) of the module docs.
-fn floor_objective(r: &[f64], v: &[f64], t: f64) -> f64 {
-    r.iter().zip(v).map(|(&r, &v)| (v + t).ln() + r * r / (v + t)).sum()
-}
-
 /// The t ≥ 0 minimising `h` over [0, t_hi]: a grid of t = 0 and 64 log-spaced values from
 /// `t_lo` to `t_hi`, then golden section between the neighbours of the best grid point; the
 /// best of the refined value, the grid's best and t = 0 is returned.
@@ -239,13 +234,20 @@ pub(super) fn minimise_nonnegative(h: impl Fn(f64) -> f64, t_lo: f64, t_hi: f64)
 /// The maximum-likelihood extra variance τ² ≥ 0 for residuals `r` with measurement
 /// variances `v` (module docs, "Profiled floor"). 0 for no residuals.
 pub(super) fn profile_floor(r: &[f64], v: &[f64]) -> f64 {
+    profile_floor_with(r, v, |r, v| v.ln() + r * r / v)
+}
+
+/// [`profile_floor`] for any row likelihood: the τ² ≥ 0 minimising h(τ²) = Σ_i
+/// `row`(r_i, v_i + τ²), `row`(r, v) being a row's −2 ln L without its constant (for Gaussian
+/// rows ln v + r²/v, h(t) of the module docs), searched over [10⁻⁴ min v, 10 max r² + max v].
+pub(super) fn profile_floor_with(r: &[f64], v: &[f64], row: impl Fn(f64, f64) -> f64) -> f64 {
     if r.is_empty() {
         return 0.0;
     }
     let v_min = v.iter().cloned().fold(f64::INFINITY, f64::min).max(1e-300);
     let v_max = v.iter().cloned().fold(0.0, f64::max);
     let r2_max = r.iter().map(|r| r * r).fold(0.0, f64::max);
-    minimise_nonnegative(|t| floor_objective(r, v, t), 1e-4 * v_min, 10.0 * r2_max + v_max)
+    minimise_nonnegative(|t| r.iter().zip(v).map(|(&r, &v)| row(r, v + t)).sum(), 1e-4 * v_min, 10.0 * r2_max + v_max)
 }
 
 /// Inverse of JᵀJ (the covariance of the parameters when the residuals are standardised),

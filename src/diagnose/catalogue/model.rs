@@ -726,14 +726,7 @@ fn glide_whitened(r: f64, v: f64) -> f64 {
 /// The glide floor τ² maximising the Student-t likelihood of residuals `r` with measurement
 /// variances `v`.
 fn profile_glide_floor(r: &[f64], v: &[f64]) -> f64 {
-    if r.is_empty() {
-        return 0.0;
-    }
-    let v_min = v.iter().cloned().fold(f64::INFINITY, f64::min).max(1e-300);
-    let v_max = v.iter().cloned().fold(0.0, f64::max);
-    let r2_max = r.iter().map(|r| r * r).fold(0.0, f64::max);
-    let objective = |t: f64| r.iter().zip(v).map(|(&r, &v)| (v + t).ln() + glide_deviance(r, v + t)).sum::<f64>();
-    lm::minimise_nonnegative(objective, 1e-4 * v_min, 10.0 * r2_max + v_max)
+    lm::profile_floor_with(r, v, |r, v| v.ln() + glide_deviance(r, v))
 }
 
 /// Floors τ² (variances), indexed as [`N_FLOORS`].
