@@ -9,7 +9,8 @@
 //!
 //!   mpirun -np 2 target/release/examples/geometry_benchmark [--voxels 16,8] [--cells 20]
 //!       [--target-cells 32] [--modes 12] [--steps 30] [--seed 1] [--lr 1e-3]
-//!       [--voxel-weight 1] [--eikonal-weight 0.1] [--prefit-steps 1000] [--max-field-change 0.2] [--out-dir DIR] SURFACE...
+//!       [--voxel-weight 1] [--eikonal-weight 0.1] [--prefit-steps 1000] [--max-field-change 0.2]
+//!       [--method gauss_newton|adam] [--damping 1e-3] [--no-bias-correction] [--out-dir DIR] SURFACE...
 //!
 //! Shapes are centred and scaled to a 0.1 m bounding-box diagonal; ceramic. The seed sets the
 //! target grid's shift, the network's initialisation, the pre-fit batches and the eikonal
@@ -28,7 +29,7 @@ struct Args {
 }
 
 fn usage() -> ! {
-    eprintln!("usage: geometry_benchmark [--voxels 16,8] [--cells N] [--target-cells N] [--modes N] [--steps N] [--seed S] [--lr X] [--voxel-weight X] [--eikonal-weight X] [--prefit-steps N] [--max-field-change X] [--out-dir DIR] [-v] SURFACE...");
+    eprintln!("usage: geometry_benchmark [--voxels 16,8] [--cells N] [--target-cells N] [--modes N] [--steps N] [--seed S] [--lr X] [--voxel-weight X] [--eikonal-weight X] [--prefit-steps N] [--max-field-change X] [--method adam|gauss_newton] [--damping X] [--no-bias-correction] [--out-dir DIR] [-v] SURFACE...");
     std::process::exit(2)
 }
 
@@ -51,6 +52,9 @@ fn parse_args() -> Args {
             "--eikonal-weight" => s.refine.eikonal_weight = num(it.next()),
             "--prefit-steps" => s.prefit.steps = num(it.next()),
             "--max-field-change" => s.refine.max_field_change = num(it.next()),
+            "--method" => s.refine.method = num(it.next()),
+            "--no-bias-correction" => s.bias_correction = false,
+            "--damping" => s.refine.damping = num(it.next()),
             "--seed" => {
                 let seed: u64 = num(it.next());
                 (s.target_seed, s.network_seed, s.prefit.seed, s.refine.seed) = (seed, seed, seed, seed);
@@ -77,8 +81,8 @@ fn main() {
     if root {
         println!("## Geometry from a coarse voxel constraint\n");
         println!(
-            "seed {}, {} modes, fit grid {} cells, target grid {} cells (randomly shifted), {} refinement steps (Adam lr {}, step cap {} cells), voxel weight {}, eikonal weight {}, pre-fit {} updates, MLP {:?} with {} octaves, {} rank(s), ceramic, shapes scaled to a 0.1 m diagonal. Distances in mm against the true surface; rms relative frequency error of the N modes against the target.\n",
-            s.target_seed, s.modes, s.cells, s.target_cells, s.refine.steps, s.refine.learning_rate, s.refine.max_field_change, s.refine.voxel_weight, s.refine.eikonal_weight, s.prefit.steps, s.hidden, s.octaves, petsc.size()
+            "seed {}, {} modes, fit grid {} cells, target grid {} cells (randomly shifted), {} refinement steps ({}, step cap {} cells, grid-bias correction {}), voxel weight {}, eikonal weight {}, pre-fit {} updates, MLP {:?} with {} octaves, {} rank(s), ceramic, shapes scaled to a 0.1 m diagonal. Distances in mm against the true surface; rms relative frequency error of the N modes against the target.\n",
+            s.target_seed, s.modes, s.cells, s.target_cells, s.refine.steps, match s.refine.method { diffsound::inverse::geometry::RefineMethod::Adam => format!("Adam lr {}", s.refine.learning_rate), diffsound::inverse::geometry::RefineMethod::GaussNewton => format!("minimum-norm Gauss–Newton, damping {}", s.refine.damping) }, s.refine.max_field_change, if s.bias_correction { "on" } else { "off" }, s.refine.voxel_weight, s.refine.eikonal_weight, s.prefit.steps, s.hidden, s.octaves, petsc.size()
         );
         println!("| shape | voxels | Chamfer vox / before / after / floor | Hausdorff vox / before / after / floor | IoU vox / before / after / floor | freq err before / after / floor | eigen loss before → after | best step |");
         println!("|---|---|---|---|---|---|---|---|");

@@ -13,7 +13,7 @@
 # Environment: OUT_DIR (default out/bench_geometry), SHARED (shared data directory, default
 # /work/shared if present, else ../shared), SHAPES (surfaces), VOXELS (16,8), CELLS (fit grid,
 # 16), TARGET_CELLS (28), MODES (12), STEPS (20), EXTRA (more flags for the benchmark, e.g.
-# "--lr 3e-4 --voxel-weight 2"). Runs at nice 5 (the machine is shared).
+# "--method adam --no-bias-correction" for the first version). Runs at nice 5 (the machine is shared).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 source scripts/mpi-env.sh

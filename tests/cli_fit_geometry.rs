@@ -89,6 +89,8 @@ fn bad_input_fails_cleanly_without_output() {
         (vec!["fit-geometry", "--surface", s(&solid), "--cells", "16", "--target-cells", "14"], "target grid at least as many as the fit grid"),
         (vec!["fit-geometry", "--surface", s(&solid), "--learning-rate", "-1"], "learning_rate must be positive"),
         (vec!["fit-geometry", "--surface", s(&solid), "--hidden", "0"], "hidden layers"),
+        (vec!["fit-geometry", "--surface", s(&solid), "--method", "newton"], "adam or gauss_newton"),
+        (vec!["fit-geometry", "--surface", s(&solid), "--damping", "0"], "damping must be positive"),
         (vec!["fit-geometry", "--surface", s(&garbage)], "garbage.obj"),
         (vec!["fit-geometry", "--config", s(&config), "--surface", s(&solid)], "voxles"),
         (vec!["fit-geometry", "--surface", s(&solid), "--material", "cheese"], "unknown material"),

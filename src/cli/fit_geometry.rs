@@ -15,8 +15,10 @@
 //!   box), rendered for the target spectrum (`target_cells`, a grid shifted by a random fraction
 //!   of a cell from `target_seed`), and compared with the results. The fit itself only sees the
 //!   voxels and the target eigenvalues.
-//! * **Fit**: the grid (`cells` along the longest axis), `modes` N, Adam `steps` and
-//!   `learning_rate`, the weights of the voxel constraint and of the eikonal regulariser, the
+//! * **Fit**: the grid (`cells` along the longest axis), `modes` N, the refinement's `steps`
+//!   and update (`method`: minimum-norm Gauss–Newton with its `damping`, the default, or Adam
+//!   with its `learning_rate`), the grid-bias correction (on unless `--no-bias-correction`),
+//!   the weights of the voxel constraint and of the eikonal regulariser, the
 //!   pre-fit's updates, the network (`octaves`, `hidden` widths) and `seed` (network
 //!   initialisation, pre-fit batches and eikonal points).
 //! * **Material**: a preset and overrides (E, ν, ρ are known).
@@ -30,6 +32,7 @@
 //! |------|----------|
 //! | `/metrics/{voxels,before,after,floor}` attrs | `chamfer`, `hausdorff` [m], `iou` against the true surface: the voxels' staircase, the pre-fitted field, the refined field (both marched on the fit grid) and the true signed distance marched on the fit grid (the floor); the last three add `rms_frequency_error`, `eigen_loss`, `volume` [m³] |
 //! | `/modes/{target,before,after,floor}_eigenvalues`, `…_frequency_hz`, `{before,after,floor}_relative_frequency_error` | the N compared modes |
+//! | `/modes/bias_correction` | with the grid-bias correction (default): ln λ_k(fit grid) − ln λ_k(bias grid) of the pre-fitted field, added to ln λ*_k for the refinement (the errors above are against the uncorrected target) |
 //! | `/refine/history/{step,loss,eigen_loss,voxel_loss,eikonal_loss,tets,p2_nodes,meshing_s,assembly_s,solve_s,gradient_s,network_s,step_scale,backtracked,failed}` | every evaluation (step 0 = the pre-fit; step_scale: the fraction of Adam's update taken after it; backtracked: the next update restarted from the best θ); attrs `best_step`, `seconds` |
 //! | `/refine/mean_step` attrs | `meshing`, `assembly`, `solve`, `gradient`, `network`, `total` [s] per evaluation |
 //! | `/prefit/loss` | L_pre per update; attrs `centre_accuracy`, `sign_loss`, `eikonal_loss`, `seconds` |
@@ -87,15 +90,24 @@ pub struct FitGeometryArgs {
     /// Eigenvalues compared (default 12).
     #[arg(long)]
     pub modes: Option<usize>,
-    /// Adam updates of the refinement (default 30).
+    /// Updates of the refinement (default 30).
     #[arg(long)]
     pub steps: Option<usize>,
-    /// Adam step size of the refinement (default 5e-4).
+    /// Adam step size of the refinement with --method adam (default 5e-4).
     #[arg(long)]
     pub learning_rate: Option<f64>,
     /// Step cap: largest change of the field at a grid vertex per update, in grid cells (default 0.2).
     #[arg(long)]
     pub max_field_change: Option<f64>,
+    /// Refinement update: gauss_newton (default; the minimum-norm Levenberg step, module docs of src/inverse/geometry.rs) or adam.
+    #[arg(long)]
+    pub method: Option<crate::inverse::geometry::RefineMethod>,
+    /// Initial Levenberg damping of the Gauss–Newton step, relative to the mean diagonal of J Jᵀ (default 1e-3).
+    #[arg(long)]
+    pub damping: Option<f64>,
+    /// No grid-bias correction (by default the pre-fitted field is also solved on the target's cell count and the target moved by the difference of the log-eigenvalues).
+    #[arg(long)]
+    pub no_bias_correction: bool,
     /// Weight of the voxel sign constraint in the refinement (default 1).
     #[arg(long)]
     pub voxel_weight: Option<f64>,
@@ -145,10 +157,11 @@ pub struct FitGeometryArgs {
 /// diagonal = 0.1
 /// out = "out/spot_geometry.h5"
 /// png = "out/spot_geometry.png"
-/// [geometry]                # GeometrySettings: voxels, cells, target_cells, target_seed, modes,
-/// voxels = 16               # cluster_rtol, octaves, hidden, network_seed, surface_samples,
-/// [geometry.refine]         # volume_samples, metric_seed; [geometry.prefit] PrefitSettings;
-/// steps = 30                # [geometry.refine] RefineSettings
+/// [geometry]                # GeometrySettings: voxels, cells, target_cells, target_seed,
+/// voxels = 16               # bias_correction, modes, cluster_rtol, octaves, hidden, network_seed,
+/// [geometry.refine]         # surface_samples, volume_samples, metric_seed; [geometry.prefit]
+/// steps = 30                # PrefitSettings; [geometry.refine] RefineSettings
+/// method = "gauss_newton"   # (steps, method = "adam" | "gauss_newton", damping, learning_rate, …)
 /// [material]
 /// preset = "ceramic"
 /// [solver]
@@ -229,6 +242,15 @@ pub fn resolve(args: &FitGeometryArgs) -> Result<Job, String> {
     }
     if let Some(v) = args.max_field_change {
         s.refine.max_field_change = v;
+    }
+    if let Some(v) = args.method {
+        s.refine.method = v;
+    }
+    if let Some(v) = args.damping {
+        s.refine.damping = v;
+    }
+    if args.no_bias_correction {
+        s.bias_correction = false;
     }
     if let Some(v) = args.voxel_weight {
         s.refine.voxel_weight = v;
@@ -387,6 +409,9 @@ fn write_results(job: &Job, fit: &GeometryFit, body: &crate::inverse::shape::Sha
         file.column(&format!("/modes/{name}_eigenvalues"), a.eigenvalues.clone(), "rad^2/s^2")
             .column(&format!("/modes/{name}_frequency_hz"), hz(&a.eigenvalues), "Hz")
             .column(&format!("/modes/{name}_relative_frequency_error"), a.eigenvalues.iter().zip(&fit.target.eigenvalues).map(|(l, t)| (l / t).sqrt() - 1.0).collect(), "1");
+    }
+    if !fit.bias_correction.is_empty() {
+        file.column("/modes/bias_correction", fit.bias_correction.clone(), "1");
     }
     file.column("/modes/target_eigenvalues", fit.target.eigenvalues.clone(), "rad^2/s^2").column("/modes/target_frequency_hz", hz(&fit.target.eigenvalues), "Hz").number("/modes", "target_spacing", fit.target_spacing);
     let h = &fit.refinement.history;

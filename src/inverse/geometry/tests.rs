@@ -160,3 +160,97 @@ fn settings_are_validated() {
         assert!(matches!(bad.validate(), Err(GeometryError::Invalid(_) | GeometryError::Network(_))), "{bad:?}");
     }
 }
+
+/// A small network on the box of a voxelised ball, a grid over it, and a made-up per-mode
+/// sensitivity dλ_k/ds_i (smooth in i), for the least-squares rows.
+fn least_squares_case() -> (NeuralSdf, Vec<[f64; 3]>, Vec<Vec<f64>>, Vec<f64>, SpectrumTarget, Voxels, Vec<[f64; 3]>, RefineSettings) {
+    let r = 0.03;
+    let (_, sdf) = ball(r);
+    let voxels = Voxels::of_sdf(&sdf, [-r; 3], [r; 3], 4).unwrap();
+    let (lo, hi) = voxels.padded_box();
+    let net = NeuralSdf::new(NeuralSdfConfig::for_box(lo, hi, 1, vec![6]).unwrap(), 5).unwrap();
+    let grid_points = BackgroundGrid::covering([-r; 3], [r; 3], 3, 1.0).unwrap().vertex_positions();
+    let per_mode: Vec<Vec<f64>> = (0..4).map(|k| grid_points.iter().map(|p| 1e9 * (1.0 + k as f64) * (p[0] + 2.0 * p[1] - p[2] + 0.1)).collect()).collect();
+    let target = SpectrumTarget::new(vec![1.0e8, 1.003e8, 2.5e8, 4.0e8], 1e-2).unwrap();
+    let eigenvalues = vec![1.1e8, 0.97e8, 2.4e8, 4.3e8];
+    let eik_points = uniform_points(lo, hi, 7, &mut SplitMix64::new(3));
+    let settings = RefineSettings { voxel_weight: 2.0, eikonal_weight: 0.3, ..Default::default() };
+    (net, grid_points, per_mode, eigenvalues, target, voxels, eik_points, settings)
+}
+
+#[test]
+fn least_squares_rows_sum_to_the_loss_and_match_finite_differences_in_theta() {
+    let (mut net, grid_points, per_mode, eigenvalues, target, voxels, eik_points, settings) = least_squares_case();
+    let delta = 0.25 * voxels.min_edge();
+    let system = least_squares(&net, &grid_points, &per_mode, &eigenvalues, &target, &voxels, &eik_points, delta, &settings).unwrap();
+    // Σ r² is the loss of the three terms.
+    let (le, _) = eigenvalue_loss(&eigenvalues, &target).unwrap();
+    let (lv, _) = hinge_loss(&net.values(&voxels.centres()), &voxels.labels(), voxels.min_edge());
+    let lk = eikonal_loss(&net.values(&stencil(&eik_points, delta)), delta).0;
+    let total = le + settings.voxel_weight * lv + settings.eikonal_weight * lk;
+    let squares: f64 = system.residuals.iter().map(|r| r * r).sum();
+    assert!((squares - total).abs() <= 1e-12 * total, "{squares} vs {total}");
+    assert!(lv > 0.0, "an untrained network violates some voxels, so the case has voxel rows");
+    assert_eq!(system.rows.len(), system.residuals.len());
+    // The voxel and eikonal rows are ∂r/∂θ: central differences in θ with the active set held.
+    // (The eigenvalue rows' λ do not follow θ here; their θ-part is the network's VJP of a
+    // fixed dλ/ds, checked for the network itself in neural_sdf.)
+    let theta = net.parameters().to_vec();
+    let groups = target.groups.len();
+    let residuals_at = |net: &NeuralSdf| least_squares(net, &grid_points, &per_mode, &eigenvalues, &target, &voxels, &eik_points, delta, &settings).unwrap().residuals;
+    let h = 1e-6;
+    for i in (0..theta.len()).step_by(7) {
+        let mut t = theta.clone();
+        t[i] += h;
+        net.set_parameters(&t).unwrap();
+        let plus = residuals_at(&net);
+        t[i] -= 2.0 * h;
+        net.set_parameters(&t).unwrap();
+        let minus = residuals_at(&net);
+        if plus.len() != system.residuals.len() || minus.len() != system.residuals.len() {
+            continue; // a voxel crossed its bound: the active set changed
+        }
+        for j in groups..system.residuals.len() {
+            let fd = (plus[j] - minus[j]) / (2.0 * h);
+            assert!((fd - system.rows[j][i]).abs() <= 1e-5 * (1.0 + fd.abs()), "row {j}, θ_{i}: {} vs FD {fd}", system.rows[j][i]);
+        }
+    }
+    net.set_parameters(&theta).unwrap();
+    // The eigenvalue rows: √|G| · mean_{k∈G} (1/λ_k) dλ_k/ds pushed through the network.
+    let g = &target.groups[0];
+    assert_eq!(g.len(), 2, "the first two target modes form a cluster");
+    let mut d_values = vec![0.0; grid_points.len()];
+    for k in g.clone() {
+        add_scaled(&mut d_values, 2f64.sqrt() / 2.0 / eigenvalues[k], &per_mode[k]);
+    }
+    let expected = net.vjp(&grid_points, &d_values).unwrap();
+    assert!(system.rows[0].iter().zip(&expected).all(|(a, b)| (a - b).abs() <= 1e-14 * b.abs().max(1e-300)));
+}
+
+#[test]
+fn the_minimum_norm_step_solves_the_linearised_rows_in_their_row_space() {
+    let mut rng = Rng(12);
+    let rows: Vec<Vec<f64>> = (0..3).map(|_| rng.uniform_vec(8, -1.0, 1.0)).collect();
+    let residuals = rng.uniform_vec(3, -0.5, 0.5);
+    let system = LeastSquares { residuals: residuals.clone(), rows: rows.clone() };
+    let step = minimum_norm_step(&system, 1e-12).unwrap();
+    // J δ = −r: an underdetermined system solved exactly …
+    for (row, r) in rows.iter().zip(&residuals) {
+        let jd: f64 = row.iter().zip(&step).map(|(a, b)| a * b).sum();
+        assert!((jd + r).abs() < 1e-9, "{jd} vs {}", -r);
+    }
+    // … by the smallest step: δ lies in the span of the rows, so any other solution δ + n
+    // (n in the null space) is longer. Take n = a random vector minus its projection on the rows.
+    let norm = |v: &[f64]| v.iter().map(|x| x * x).sum::<f64>().sqrt();
+    let mut n = rng.uniform_vec(8, -1.0, 1.0);
+    for _ in 0..50 {
+        for row in &rows {
+            let c = row.iter().zip(&n).map(|(a, b)| a * b).sum::<f64>() / row.iter().map(|a| a * a).sum::<f64>();
+            add_scaled(&mut n, -c, row);
+        }
+    }
+    let other: Vec<f64> = step.iter().zip(&n).map(|(a, b)| a + b).collect();
+    assert!(norm(&other) > norm(&step));
+    // Damping shortens it.
+    assert!(norm(&minimum_norm_step(&system, 1.0).unwrap()) < norm(&step));
+}
