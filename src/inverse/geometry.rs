@@ -171,8 +171,8 @@
 //! argument is about. A pre-fit with 4 octaves on spot 16³ starts worse (0.92 mm) and ends at
 //! 0.81 mm.
 //!
-//! Time per step at 16 cells: 1.1–1.8 s on 2 ranks, 2.0–2.9 s on 1 (solve 60–90 % of it, the
-//! network's rows and the K × K system under 0.1 s); a whole case 50–68 s on 2 ranks.
+//! Time per step at 16 cells: 1.1–1.8 s on 2 ranks, 2.0–2.9 s on 1 (the eigen-solve 85–90 % of
+//! it, the network with its residual rows 0.07–0.10 s); a whole case 50–68 s on 2 ranks.
 //!
 //! The first version's analysis, which led here: with Adam the refinement matched the spectrum
 //! (frequency error down 1.4–7×) but not the surface, for two reasons: (1) the grid bias of the
