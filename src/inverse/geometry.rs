@@ -373,15 +373,19 @@ pub fn eigenvalue_loss(eigenvalues: &[f64], target: &SpectrumTarget) -> Result<(
     }
     let mut loss = 0.0;
     let mut d = vec![0.0; n];
-    for g in &target.groups {
-        let size = g.len() as f64;
-        let r = g.clone().map(|k| (eigenvalues[k] / target.eigenvalues[k]).ln()).sum::<f64>() / size;
-        loss += size * r * r;
+    for (g, r) in target.groups.iter().zip(group_log_ratios(eigenvalues, &target.eigenvalues, &target.groups)) {
+        loss += g.len() as f64 * r * r;
         for k in g.clone() {
             d[k] = 2.0 * r / eigenvalues[k];
         }
     }
     Ok((loss, d))
+}
+
+/// mean_{k∈G} ln(a_k/b_k) for every group G: the residual r_G of the eigenvalue loss for
+/// (model, target), and the grid bias for (fit grid, finer grid).
+fn group_log_ratios(a: &[f64], b: &[f64], groups: &[std::ops::Range<usize>]) -> Vec<f64> {
+    groups.iter().map(|g| g.clone().map(|k| (a[k] / b[k]).ln()).sum::<f64>() / g.len() as f64).collect()
 }
 
 /// mean_p softplus(−y_p s_p/τ) and its derivative in s.
@@ -439,8 +443,7 @@ pub fn eikonal_loss(stencil_values: &[f64], step: f64) -> (f64, Vec<f64>) {
     let mut loss = 0.0;
     let mut d = vec![0.0; stencil_values.len()];
     for (q, v) in stencil_values.chunks_exact(6).enumerate() {
-        let g = [0, 1, 2].map(|a| (v[2 * a] - v[2 * a + 1]) / (2.0 * step));
-        let norm = (g[0] * g[0] + g[1] * g[1] + g[2] * g[2]).sqrt();
+        let (g, norm) = central_gradient(v, step);
         loss += (norm - 1.0).powi(2);
         if norm > 0.0 {
             let outer = 2.0 * (norm - 1.0) / norm / n / (2.0 * step);
@@ -451,6 +454,12 @@ pub fn eikonal_loss(stencil_values: &[f64], step: f64) -> (f64, Vec<f64>) {
         }
     }
     (loss / n, d)
+}
+
+/// D s and |D s| from the field at one point's six [`stencil`] points.
+fn central_gradient(v: &[f64], step: f64) -> ([f64; 3], f64) {
+    let g = [0, 1, 2].map(|a| (v[2 * a] - v[2 * a + 1]) / (2.0 * step));
+    (g, (g[0] * g[0] + g[1] * g[1] + g[2] * g[2]).sqrt())
 }
 
 /// The eikonal term at `points` (stencil step `step` [m]) and its gradient in θ.
@@ -744,9 +753,8 @@ enum Derivatives {
 fn least_squares(net: &NeuralSdf, grid_points: &[[f64; 3]], per_mode: &[Vec<f64>], eigenvalues: &[f64], target: &SpectrumTarget, voxels: &Voxels, eik_points: &[[f64; 3]], delta: f64, settings: &RefineSettings) -> Result<LeastSquares, GeometryError> {
     let mut residuals = Vec::new();
     let mut rows = Vec::new();
-    for g in &target.groups {
+    for (g, r) in target.groups.iter().zip(group_log_ratios(eigenvalues, &target.eigenvalues, &target.groups)) {
         let size = g.len() as f64;
-        let r = g.clone().map(|k| (eigenvalues[k] / target.eigenvalues[k]).ln()).sum::<f64>() / size;
         let mut d_values = vec![0.0; grid_points.len()];
         for k in g.clone() {
             add_scaled(&mut d_values, size.sqrt() / size / eigenvalues[k], &per_mode[k]);
@@ -767,11 +775,10 @@ fn least_squares(net: &NeuralSdf, grid_points: &[[f64; 3]], per_mode: &[Vec<f64>
     }
     if settings.eikonal_weight > 0.0 {
         let eik_weight = (settings.eikonal_weight / eik_points.len().max(1) as f64).sqrt();
-        for q in eik_points {
-            let around = stencil(&[*q], delta);
-            let v = net.values(&around);
-            let g = [0, 1, 2].map(|a| (v[2 * a] - v[2 * a + 1]) / (2.0 * delta));
-            let norm = (g[0] * g[0] + g[1] * g[1] + g[2] * g[2]).sqrt();
+        let around = stencil(eik_points, delta);
+        let values = net.values(&around);
+        for (points, v) in around.chunks_exact(6).zip(values.chunks_exact(6)) {
+            let (g, norm) = central_gradient(v, delta);
             if norm == 0.0 {
                 continue;
             }
@@ -781,7 +788,7 @@ fn least_squares(net: &NeuralSdf, grid_points: &[[f64; 3]], per_mode: &[Vec<f64>
                 d[2 * a + 1] = -d[2 * a];
             }
             residuals.push(eik_weight * (norm - 1.0));
-            rows.push(net.vjp(&around, &d)?);
+            rows.push(net.vjp(points, &d)?);
         }
     }
     Ok(LeastSquares { residuals, rows })
@@ -1101,8 +1108,7 @@ fn grid_bias(petsc: &Petsc, net: &NeuralSdf, grid: &BackgroundGrid, lo: [f64; 3]
     let fine = shape_spectrum(petsc, &fine_grid, &net.values(&fine_grid.vertex_positions()), options, material, n, false).map_err(|e| GeometryError::Invalid(format!("the grid-bias reference (pre-fitted field on {bias_cells} cells): {e}")))?;
     let coarse = shape_spectrum(petsc, grid, &net.values(&grid.vertex_positions()), options, material, n, false)?;
     let mut correction = vec![0.0; n];
-    for g in &target.groups {
-        let c = g.clone().map(|k| (coarse.eigenvalues[k] / fine.eigenvalues[k]).ln()).sum::<f64>() / g.len() as f64;
+    for (g, c) in target.groups.iter().zip(group_log_ratios(&coarse.eigenvalues, &fine.eigenvalues, &target.groups)) {
         for k in g.clone() {
             correction[k] = c;
         }
