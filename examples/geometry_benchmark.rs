@@ -10,7 +10,7 @@
 //!   mpirun -np 2 target/release/examples/geometry_benchmark [--voxels 16,8] [--cells 20]
 //!       [--target-cells 32] [--modes 12] [--steps 30] [--seed 1] [--lr 1e-3]
 //!       [--voxel-weight 1] [--eikonal-weight 0.1] [--prefit-steps 1000] [--max-field-change 0.2]
-//!       [--method gauss_newton|adam] [--damping 1e-3] [--no-bias-correction] [--out-dir DIR] SURFACE...
+//!       [--method gauss_newton|adam] [--damping 1e-3] [--no-bias-correction] [--free-scale] [--step-metrics] [--out-dir DIR] SURFACE...
 //!
 //! Shapes are centred and scaled to a 0.1 m bounding-box diagonal; ceramic. The seed sets the
 //! target grid's shift, the network's initialisation, the pre-fit batches and the eikonal
@@ -26,15 +26,16 @@ struct Args {
     out_dir: Option<std::path::PathBuf>,
     inputs: Vec<String>,
     verbose: bool,
+    step_metrics: bool,
 }
 
 fn usage() -> ! {
-    eprintln!("usage: geometry_benchmark [--voxels 16,8] [--cells N] [--target-cells N] [--modes N] [--steps N] [--seed S] [--lr X] [--voxel-weight X] [--eikonal-weight X] [--prefit-steps N] [--max-field-change X] [--method adam|gauss_newton] [--damping X] [--no-bias-correction] [--out-dir DIR] [-v] SURFACE...");
+    eprintln!("usage: geometry_benchmark [--voxels 16,8] [--cells N] [--target-cells N] [--modes N] [--steps N] [--seed S] [--lr X] [--voxel-weight X] [--eikonal-weight X] [--prefit-steps N] [--max-field-change X] [--method adam|gauss_newton] [--damping X] [--no-bias-correction] [--free-scale] [--step-metrics] [--out-dir DIR] [-v] SURFACE...");
     std::process::exit(2)
 }
 
 fn parse_args() -> Args {
-    let mut a = Args { voxels: vec![16, 8], settings: GeometrySettings::default(), out_dir: None, inputs: Vec::new(), verbose: false };
+    let mut a = Args { voxels: vec![16, 8], settings: GeometrySettings::default(), out_dir: None, inputs: Vec::new(), verbose: false, step_metrics: false };
     let mut it = std::env::args().skip(1);
     fn num<T: std::str::FromStr>(v: Option<String>) -> T {
         v.and_then(|v| v.parse().ok()).unwrap_or_else(|| usage())
@@ -55,6 +56,8 @@ fn parse_args() -> Args {
             "--method" => s.refine.method = num(it.next()),
             "--no-bias-correction" => s.bias_correction = false,
             "--damping" => s.refine.damping = num(it.next()),
+            "--free-scale" => s.refine.free_scale = true,
+            "--step-metrics" => a.step_metrics = true,
             "--seed" => {
                 let seed: u64 = num(it.next());
                 (s.target_seed, s.network_seed, s.prefit.seed, s.refine.seed) = (seed, seed, seed, seed);
@@ -81,8 +84,8 @@ fn main() {
     if root {
         println!("## Geometry from a coarse voxel constraint\n");
         println!(
-            "seed {}, {} modes, fit grid {} cells, target grid {} cells (randomly shifted), {} refinement steps ({}, step cap {} cells, grid-bias correction {}), voxel weight {}, eikonal weight {}, pre-fit {} updates, MLP {:?} with {} octaves, {} rank(s), ceramic, shapes scaled to a 0.1 m diagonal. Distances in mm against the true surface; rms relative frequency error of the N modes against the target.\n",
-            s.target_seed, s.modes, s.cells, s.target_cells, s.refine.steps, match s.refine.method { diffsound::inverse::geometry::RefineMethod::Adam => format!("Adam lr {}", s.refine.learning_rate), diffsound::inverse::geometry::RefineMethod::GaussNewton => format!("minimum-norm Gauss–Newton, damping {}", s.refine.damping) }, s.refine.max_field_change, if s.bias_correction { "on" } else { "off" }, s.refine.voxel_weight, s.refine.eikonal_weight, s.prefit.steps, s.hidden, s.octaves, petsc.size()
+            "seed {}, {} modes, fit grid {} cells, target grid {} cells (randomly shifted), {} refinement steps ({}, step cap {} cells, grid-bias correction {}, free scale {}), voxel weight {}, eikonal weight {}, pre-fit {} updates, MLP {:?} with {} octaves, {} rank(s), ceramic, shapes scaled to a 0.1 m diagonal. Distances in mm against the true surface; rms relative frequency error of the N modes against the target.\n",
+            s.target_seed, s.modes, s.cells, s.target_cells, s.refine.steps, match s.refine.method { diffsound::inverse::geometry::RefineMethod::Adam => format!("Adam lr {}", s.refine.learning_rate), diffsound::inverse::geometry::RefineMethod::GaussNewton => format!("minimum-norm Gauss–Newton, damping {}", s.refine.damping) }, s.refine.max_field_change, if s.bias_correction { "on" } else { "off" }, if s.refine.free_scale { "on" } else { "off" }, s.refine.voxel_weight, s.refine.eikonal_weight, s.prefit.steps, s.hidden, s.octaves, petsc.size()
         );
         println!("| shape | voxels | Chamfer vox / before / after / floor | Hausdorff vox / before / after / floor | IoU vox / before / after / floor | freq err before / after / floor | eigen loss before → after | best step |");
         println!("|---|---|---|---|---|---|---|---|");
@@ -112,6 +115,22 @@ fn main() {
                     continue;
                 }
             };
+            // Every evaluation's body against the truth: how the answer's choice (lowest loss, or
+            // lowest held-out loss) relates to the shape. Diagnostics only (the fit never sees it).
+            let mut step_rows = Vec::new();
+            if args.step_metrics && root {
+                for st in fit.refinement.history.iter().filter(|st| st.failure.is_none()) {
+                    let net = diffsound::inverse::neural_sdf::NeuralSdf::from_parameters(fit.network.clone(), st.parameters.clone()).expect("network");
+                    let values = net.values(&fit.grid.vertex_positions());
+                    let Ok(marched) = diffsound::mesh::march(&fit.grid, &values, None, &diffsound::mesh::MarchingOptions::default()) else { continue };
+                    let surface = diffsound::mesh::TriangleSurface::from_mesh_boundary(&marched.mesh);
+                    if let Ok(c) = diffsound::mesh::compare_shapes(&surface, &truth, settings.surface_samples, settings.volume_samples, settings.metric_seed) {
+                        let mark = if st.step == fit.refinement.best().step { " answer" } else { "" };
+                        eprintln!("{name} {n}³ step {:2}: loss {:.3e} eigen {:.3e} | Chamfer {:.3} mm IoU {:.4}{mark}", st.step, st.loss, st.eigen_loss, 1e3 * c.chamfer, c.iou);
+                        step_rows.push(serde_json::json!({"step": st.step, "loss": st.loss, "eigen_loss": st.eigen_loss, "chamfer": c.chamfer, "hausdorff": c.hausdorff, "iou": c.iou}));
+                    }
+                }
+            }
             if !root {
                 continue;
             }
@@ -147,7 +166,7 @@ fn main() {
                     "rms_frequency_error": {"before": fit.before.rms_frequency_error(&fit.target), "after": fit.after.rms_frequency_error(&fit.target), "floor": fit.floor.rms_frequency_error(&fit.target)},
                 },
                 "target_eigenvalues": fit.target.eigenvalues, "before_eigenvalues": fit.before.eigenvalues, "after_eigenvalues": fit.after.eigenvalues, "floor_eigenvalues": fit.floor.eigenvalues,
-                "prefit": fit.prefit, "history": fit.refinement.history, "best_step": fit.refinement.best_step,
+                "prefit": fit.prefit, "history": fit.refinement.history, "best_step": fit.refinement.best_step, "step_metrics": step_rows, "bias_correction": fit.bias_correction,
                 "timings": fit.timings, "n_ranks": petsc.size(),
             }));
         }

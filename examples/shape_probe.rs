@@ -32,6 +32,7 @@ fn main() {
     let mut scan: Option<(f64, f64, f64)> = None;
     let mut grid_max = false;
     let mut exact = false;
+    let mut subdivide = false;
     let mut shifts = 0usize;
     let mut analytic: Option<f64> = None;
     let mut path = String::new();
@@ -44,6 +45,7 @@ fn main() {
             "--snap" => snap = it.next().unwrap().parse().unwrap(),
             "--grid-max" => grid_max = true,
             "--exact" => exact = true,
+            "--subdivide" => subdivide = true,
             "--shifts" => shifts = it.next().unwrap().parse().unwrap(),
             "--analytic-sphere" => analytic = Some(it.next().unwrap().parse().unwrap()),
             "--analytic-shell" => {
@@ -156,7 +158,7 @@ fn main() {
     let spectrum = |g: &BackgroundGrid, v: &[f64], s: f64, t: f64| -> Result<ShapeSpectrum, String> {
         let depth = t * s;
         let shell: Vec<f64> = v.iter().map(|&x| x.min(depth - x)).collect();
-        if !exact {
+        if !exact && !subdivide {
             return shape_spectrum(&petsc, g, &shell, &options, &material, modes, false).map_err(|e| e.to_string());
         }
         // Crossings moved onto the continuous shell's zero along their edges.
@@ -166,7 +168,8 @@ fn main() {
             let d = sdf.signed_distance(x);
             d.min(depth - d)
         };
-        let (linear, moved, kept) = diffsound::inverse::shape::refine_crossings(&marched, g, &f, 0.01);
+        let (linear, moved, kept) = if exact { diffsound::inverse::shape::refine_crossings(&marched, g, &f, 0.01) } else { (marched.mesh.clone(), Vec::new(), 0) };
+        let linear = if subdivide { split_in_eight(&linear) } else { linear };
         let quadratic = mesh::lift_to_quadratic(&linear);
         let meshing = clock.elapsed().as_secs_f64();
         let clock = std::time::Instant::now();
@@ -244,4 +247,45 @@ fn main() {
             }
         }
     }
+}
+
+/// Every linear tet split into eight by its edge midpoints (the same polyhedral body): the
+/// eigenvalue change it makes is the finite-element error of the unsplit mesh on that body.
+fn split_in_eight(linear: &mesh::TetMesh) -> mesh::TetMesh {
+    let quadratic = mesh::lift_to_quadratic(linear);
+    let nodes = quadratic.nodes.clone();
+    let volume = |t: &[usize; 4]| {
+        let p = t.map(|i| nodes[i]);
+        let a = [0, 1, 2].map(|d| p[1][d] - p[0][d]);
+        let b = [0, 1, 2].map(|d| p[2][d] - p[0][d]);
+        let c = [0, 1, 2].map(|d| p[3][d] - p[0][d]);
+        a[0] * (b[1] * c[2] - b[2] * c[1]) - a[1] * (b[0] * c[2] - b[2] * c[0]) + a[2] * (b[0] * c[1] - b[1] * c[0])
+    };
+    let mut connectivity = Vec::new();
+    for e in 0..quadratic.n_tets() {
+        let q = quadratic.tet(e);
+        let c = [q[0], q[1], q[2], q[3]];
+        let mut mid = std::collections::HashMap::new();
+        for (k, &(a, b)) in mesh::TET10_EDGES.iter().enumerate() {
+            mid.insert((a.min(b), a.max(b)), q[4 + k]);
+        }
+        let m = |a: usize, b: usize| mid[&(a.min(b), a.max(b))];
+        let children = [
+            [c[0], m(0, 1), m(0, 2), m(0, 3)],
+            [m(0, 1), c[1], m(1, 2), m(1, 3)],
+            [m(0, 2), m(1, 2), c[2], m(2, 3)],
+            [m(0, 3), m(1, 3), m(2, 3), c[3]],
+            [m(0, 2), m(1, 3), m(0, 1), m(1, 2)],
+            [m(0, 2), m(1, 3), m(1, 2), m(2, 3)],
+            [m(0, 2), m(1, 3), m(2, 3), m(0, 3)],
+            [m(0, 2), m(1, 3), m(0, 3), m(0, 1)],
+        ];
+        for mut t in children {
+            if volume(&t) < 0.0 {
+                t.swap(0, 1);
+            }
+            connectivity.extend_from_slice(&t);
+        }
+    }
+    mesh::TetMesh { nodes, connectivity, order: mesh::ElementOrder::Linear }
 }

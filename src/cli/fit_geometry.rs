@@ -18,6 +18,7 @@
 //! * **Fit**: the grid (`cells` along the longest axis), `modes` N, the refinement's `steps`
 //!   and update (`method`: minimum-norm Gauss–Newton with its `damping`, the default, or Adam
 //!   with its `learning_rate`), the grid-bias correction (on unless `--no-bias-correction`),
+//!   `free_scale` (off; the spectrum's shape only, for a body of unknown stiffness),
 //!   the weights of the voxel constraint and of the eikonal regulariser, the
 //!   pre-fit's updates, the network (`octaves`, `hidden` widths) and `seed` (network
 //!   initialisation, pre-fit batches and eikonal points).
@@ -105,6 +106,9 @@ pub struct FitGeometryArgs {
     /// Initial Levenberg damping of the Gauss–Newton step, relative to the mean diagonal of J Jᵀ (default 1e-3).
     #[arg(long)]
     pub damping: Option<f64>,
+    /// Compare only the spectrum's shape: a common factor of all eigenvalues (an unknown stiffness) is profiled out of the refinement's loss.
+    #[arg(long)]
+    pub free_scale: bool,
     /// No grid-bias correction (by default the pre-fitted field is also solved on the target's cell count and the target moved by the difference of the log-eigenvalues).
     #[arg(long)]
     pub no_bias_correction: bool,
@@ -161,7 +165,7 @@ pub struct FitGeometryArgs {
 /// voxels = 16               # bias_correction, modes, cluster_rtol, octaves, hidden, network_seed,
 /// [geometry.refine]         # surface_samples, volume_samples, metric_seed; [geometry.prefit]
 /// steps = 30                # PrefitSettings; [geometry.refine] RefineSettings
-/// method = "gauss_newton"   # (steps, method = "adam" | "gauss_newton", damping, learning_rate, …)
+/// method = "gauss_newton"   # (steps, method = "adam" | "gauss_newton", damping, free_scale, learning_rate, …)
 /// [material]
 /// preset = "ceramic"
 /// [solver]
@@ -248,6 +252,9 @@ pub fn resolve(args: &FitGeometryArgs) -> Result<Job, String> {
     }
     if let Some(v) = args.damping {
         s.refine.damping = v;
+    }
+    if args.free_scale {
+        s.refine.free_scale = true;
     }
     if args.no_bias_correction {
         s.bias_correction = false;

@@ -133,6 +133,12 @@
 //! (first mode at 28/40 cells: 11278/11113 Hz exact, 11301 (32)/11190 Hz linear), and the
 //! alignment of the grid alone moves spot's modes by 0.1–0.5 % at 28 cells (four shifts).
 //! A single grid coarser than the target therefore cannot reach 0.005 in t.
+//! How much of the grid dependence is the finite-element error of P2 on the marched body and
+//! how much the body itself: splitting every tet of the 20-cell spot shell into eight (the same
+//! polyhedral body, `shape_probe --subdivide`) lowers its first eight frequencies by 0.5–1.1 %
+//! (t = 0.5; 0.4–0.9 % at t = 0.7), while the 28-cell grid lowers them by 1.0–5.8 %. So the
+//! body the marching makes of the field is most of the grid dependence — all but the first
+//! mode's — and a better element alone would not remove it.
 //!
 //! With two or more levels (spacings h_ℓ, answers p_ℓ), [`ShapeFit`] also reports the
 //! least-squares line p(h) = α + β h through the finest `extrapolation_levels` (default 3)

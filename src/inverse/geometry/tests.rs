@@ -254,3 +254,56 @@ fn the_minimum_norm_step_solves_the_linearised_rows_in_their_row_space() {
     // Damping shortens it.
     assert!(norm(&minimum_norm_step(&system, 1.0).unwrap()) < norm(&step));
 }
+
+#[test]
+fn the_free_scale_loss_is_the_shape_modules_and_ignores_a_common_factor() {
+    let target = SpectrumTarget::new(vec![1.0e8, 1.004e8, 3.0e8, 5.0e8, 5.02e8, 7.0e8], 1e-2).unwrap();
+    let model = vec![1.05e8, 0.98e8, 2.9e8, 5.3e8, 5.1e8, 7.2e8];
+    let mut rng = Rng(22);
+    let (loss, d) = eigenvalue_loss_with(&model, &target, true).unwrap();
+    assert!(loss > 0.0 && loss < eigenvalue_loss(&model, &target).unwrap().0);
+    for _ in 0..4 {
+        let dlambda = rng.uniform_vec(6, -1e7, 1e7);
+        let reference = spectrum_loss(&model, &dlambda, &target, true).unwrap();
+        let chain: f64 = d.iter().zip(&dlambda).map(|(a, b)| a * b).sum();
+        assert!((reference.loss - loss).abs() < 1e-14 * loss, "{} vs {loss}", reference.loss);
+        assert!((reference.gradient - chain).abs() < 1e-10 * reference.gradient.abs().max(1e-12), "{} vs {chain}", reference.gradient);
+    }
+    // A stiffness factor common to every mode is invisible to it.
+    let stiffer: Vec<f64> = model.iter().map(|l| 1.7 * l).collect();
+    let (scaled, _) = eigenvalue_loss_with(&stiffer, &target, true).unwrap();
+    assert!((scaled - loss).abs() < 1e-12 * loss, "{scaled} vs {loss}");
+}
+
+#[test]
+fn free_scale_rows_are_the_plain_rows_less_their_weighted_mean_and_sum_to_the_loss() {
+    let (net, grid_points, per_mode, eigenvalues, target, voxels, eik_points, plain_settings) = least_squares_case();
+    let delta = 0.25 * voxels.min_edge();
+    let free_settings = RefineSettings { free_scale: true, ..plain_settings.clone() };
+    let plain = least_squares(&net, &grid_points, &per_mode, &eigenvalues, &target, &voxels, &eik_points, delta, &plain_settings).unwrap();
+    let free = least_squares(&net, &grid_points, &per_mode, &eigenvalues, &target, &voxels, &eik_points, delta, &free_settings).unwrap();
+    assert_eq!(plain.residuals.len(), free.residuals.len());
+    // Σ r² is the free-scale eigenvalue loss plus the same voxel and eikonal terms.
+    let groups = &target.groups;
+    let (le_plain, _) = eigenvalue_loss(&eigenvalues, &target).unwrap();
+    let (le_free, _) = eigenvalue_loss_with(&eigenvalues, &target, true).unwrap();
+    let squares = |s: &LeastSquares| s.residuals.iter().map(|r| r * r).sum::<f64>();
+    let expected = squares(&plain) - le_plain + le_free;
+    assert!((squares(&free) - expected).abs() <= 1e-12 * expected, "{} vs {expected}", squares(&free));
+    // Eigenvalue rows: J_G − J̄ (J_G = row_G/√|G|, J̄ the |G|-weighted mean), times √|G|.
+    let total: f64 = groups.iter().map(|g| g.len() as f64).sum();
+    let n_theta = plain.rows[0].len();
+    let mean: Vec<f64> = (0..n_theta).map(|j| groups.iter().enumerate().map(|(i, g)| g.len() as f64 * plain.rows[i][j] / (g.len() as f64).sqrt()).sum::<f64>() / total).collect();
+    for (i, g) in groups.iter().enumerate() {
+        let root = (g.len() as f64).sqrt();
+        for j in 0..n_theta {
+            let want = root * (plain.rows[i][j] / root - mean[j]);
+            assert!((free.rows[i][j] - want).abs() <= 1e-12 * (want.abs() + mean[j].abs()).max(1e-300), "group {i}, θ_{j}: {} vs {want}", free.rows[i][j]);
+        }
+    }
+    // The voxel and eikonal rows do not change.
+    for j in groups.len()..plain.rows.len() {
+        assert_eq!(plain.residuals[j], free.residuals[j]);
+        assert_eq!(plain.rows[j], free.rows[j]);
+    }
+}
