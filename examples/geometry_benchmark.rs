@@ -10,7 +10,7 @@
 //!   mpirun -np 2 target/release/examples/geometry_benchmark [--voxels 16,8] [--cells 20]
 //!       [--target-cells 32] [--modes 12] [--steps 30] [--seed 1] [--lr 1e-3]
 //!       [--voxel-weight 1] [--eikonal-weight 0.1] [--prefit-steps 1000] [--max-field-change 0.2]
-//!       [--method gauss_newton|adam] [--damping 1e-3] [--no-bias-correction] [--free-scale] [--step-metrics] [--out-dir DIR] SURFACE...
+//!       [--method gauss_newton|adam] [--damping 1e-3] [--no-bias-correction] [--free-scale] [--no-target-grid-check] [--step-metrics] [--out-dir DIR] SURFACE...
 //!
 //! Shapes are centred and scaled to a 0.1 m bounding-box diagonal; ceramic. The seed sets the
 //! target grid's shift, the network's initialisation, the pre-fit batches and the eikonal
@@ -30,7 +30,7 @@ struct Args {
 }
 
 fn usage() -> ! {
-    eprintln!("usage: geometry_benchmark [--voxels 16,8] [--cells N] [--target-cells N] [--modes N] [--steps N] [--seed S] [--lr X] [--voxel-weight X] [--eikonal-weight X] [--prefit-steps N] [--max-field-change X] [--method adam|gauss_newton] [--damping X] [--no-bias-correction] [--free-scale] [--step-metrics] [--out-dir DIR] [-v] SURFACE...");
+    eprintln!("usage: geometry_benchmark [--voxels 16,8] [--cells N] [--target-cells N] [--modes N] [--steps N] [--seed S] [--lr X] [--voxel-weight X] [--eikonal-weight X] [--prefit-steps N] [--max-field-change X] [--method adam|gauss_newton] [--damping X] [--no-bias-correction] [--free-scale] [--no-target-grid-check] [--step-metrics] [--out-dir DIR] [-v] SURFACE...");
     std::process::exit(2)
 }
 
@@ -57,6 +57,7 @@ fn parse_args() -> Args {
             "--no-bias-correction" => s.bias_correction = false,
             "--damping" => s.refine.damping = num(it.next()),
             "--free-scale" => s.refine.free_scale = true,
+            "--no-target-grid-check" => s.target_grid_check = false,
             "--step-metrics" => a.step_metrics = true,
             "--seed" => {
                 let seed: u64 = num(it.next());
@@ -166,7 +167,7 @@ fn main() {
                     "rms_frequency_error": {"before": fit.before.rms_frequency_error(&fit.target), "after": fit.after.rms_frequency_error(&fit.target), "floor": fit.floor.rms_frequency_error(&fit.target)},
                 },
                 "target_eigenvalues": fit.target.eigenvalues, "before_eigenvalues": fit.before.eigenvalues, "after_eigenvalues": fit.after.eigenvalues, "floor_eigenvalues": fit.floor.eigenvalues,
-                "prefit": fit.prefit, "history": fit.refinement.history, "best_step": fit.refinement.best_step, "step_metrics": step_rows, "bias_correction": fit.bias_correction,
+                "prefit": fit.prefit, "history": fit.refinement.history, "best_step": fit.refinement.best_step, "step_metrics": step_rows, "target_grid_check": fit.check, "bias_correction": fit.bias_correction,
                 "timings": fit.timings, "n_ranks": petsc.size(),
             }));
         }

@@ -43,6 +43,14 @@ fn a_tiny_box_is_prefitted_refined_and_written() {
     assert_eq!(loss.len(), 4, "the pre-fit and three updates");
     let best = number_attribute(&out, "/refine", "best_step") as usize;
     assert!(loss[best] <= loss[0]);
+    // The check on the target's cell count decides between the refined and the pre-fitted field.
+    let (before, after) = (number_attribute(&out, "/check", "before_loss"), number_attribute(&out, "/check", "after_loss"));
+    assert!(before.is_finite() && after.is_finite() && before >= 0.0 && after >= 0.0, "{before} {after}");
+    if number_attribute(&out, "/check", "refined_kept") == 1.0 {
+        assert!(best > 0 && after < before, "kept: best step {best}, {before} → {after}");
+    } else {
+        assert_eq!(best, 0, "not kept: the answer is the pre-fit");
+    }
     for column in ["eigen_loss", "voxel_loss", "eikonal_loss", "tets", "meshing_s", "assembly_s", "solve_s", "gradient_s", "network_s", "failed"] {
         let (v, _) = read_dataset(&out, &format!("/refine/history/{column}")).unwrap();
         assert_eq!(v.len(), 4, "{column}");
@@ -91,6 +99,7 @@ fn bad_input_fails_cleanly_without_output() {
         (vec!["fit-geometry", "--surface", s(&solid), "--hidden", "0"], "hidden layers"),
         (vec!["fit-geometry", "--surface", s(&solid), "--method", "newton"], "adam or gauss_newton"),
         (vec!["fit-geometry", "--surface", s(&solid), "--damping", "0"], "damping must be positive"),
+        (vec!["fit-geometry", "--surface", s(&solid), "--free-scale", "--modes", "1"], "at least two modes"),
         (vec!["fit-geometry", "--surface", s(&garbage)], "garbage.obj"),
         (vec!["fit-geometry", "--config", s(&config), "--surface", s(&solid)], "voxles"),
         (vec!["fit-geometry", "--surface", s(&solid), "--material", "cheese"], "unknown material"),

@@ -18,7 +18,8 @@
 //! * **Fit**: the grid (`cells` along the longest axis), `modes` N, the refinement's `steps`
 //!   and update (`method`: minimum-norm Gauss–Newton with its `damping`, the default, or Adam
 //!   with its `learning_rate`), the grid-bias correction (on unless `--no-bias-correction`),
-//!   `free_scale` (off; the spectrum's shape only, for a body of unknown stiffness),
+//!   `free_scale` (off; the spectrum's shape only, for a body of unknown stiffness), the check
+//!   on the target's cell count (on unless `--no-target-grid-check`),
 //!   the weights of the voxel constraint and of the eikonal regulariser, the
 //!   pre-fit's updates, the network (`octaves`, `hidden` widths) and `seed` (network
 //!   initialisation, pre-fit batches and eikonal points).
@@ -33,6 +34,7 @@
 //! |------|----------|
 //! | `/metrics/{voxels,before,after,floor}` attrs | `chamfer`, `hausdorff` [m], `iou` against the true surface: the voxels' staircase, the pre-fitted field, the refined field (both marched on the fit grid) and the true signed distance marched on the fit grid (the floor); the last three add `rms_frequency_error`, `eigen_loss`, `volume` [m³] |
 //! | `/modes/{target,before,after,floor}_eigenvalues`, `…_frequency_hz`, `{before,after,floor}_relative_frequency_error` | the N compared modes |
+//! | `/check` attrs `before_loss`, `after_loss`, `refined_kept` | with the correction and the check (default): the eigenvalue loss of the pre-fitted and the refined field on a centred grid of `target_cells` against the uncorrected target; `refined_kept` = 1 if the refined field is the answer (its loss there is lower), else the answer is the pre-fitted field |
 //! | `/modes/bias_correction` | with the grid-bias correction (default): ln λ_k(fit grid) − ln λ_k(bias grid) of the pre-fitted field, added to ln λ*_k for the refinement (the errors above are against the uncorrected target) |
 //! | `/refine/history/{step,loss,eigen_loss,voxel_loss,eikonal_loss,tets,p2_nodes,meshing_s,assembly_s,solve_s,gradient_s,network_s,step_scale,backtracked,failed}` | every evaluation (step 0 = the pre-fit; step_scale: the fraction of Adam's update taken after it; backtracked: the next update restarted from the best θ); attrs `best_step`, `seconds` |
 //! | `/refine/mean_step` attrs | `meshing`, `assembly`, `solve`, `gradient`, `network`, `total` [s] per evaluation |
@@ -109,6 +111,9 @@ pub struct FitGeometryArgs {
     /// Compare only the spectrum's shape: a common factor of all eigenvalues (an unknown stiffness) is profiled out of the refinement's loss.
     #[arg(long)]
     pub free_scale: bool,
+    /// Keep the refined field even if, solved on the target's cell count, it matches the target worse than the pre-fitted field (by default the pre-fitted field is then the answer).
+    #[arg(long)]
+    pub no_target_grid_check: bool,
     /// No grid-bias correction (by default the pre-fitted field is also solved on the target's cell count and the target moved by the difference of the log-eigenvalues).
     #[arg(long)]
     pub no_bias_correction: bool,
@@ -162,7 +167,7 @@ pub struct FitGeometryArgs {
 /// out = "out/spot_geometry.h5"
 /// png = "out/spot_geometry.png"
 /// [geometry]                # GeometrySettings: voxels, cells, target_cells, target_seed,
-/// voxels = 16               # bias_correction, modes, cluster_rtol, octaves, hidden, network_seed,
+/// voxels = 16               # bias_correction, target_grid_check, modes, cluster_rtol, octaves, hidden, network_seed,
 /// [geometry.refine]         # surface_samples, volume_samples, metric_seed; [geometry.prefit]
 /// steps = 30                # PrefitSettings; [geometry.refine] RefineSettings
 /// method = "gauss_newton"   # (steps, method = "adam" | "gauss_newton", damping, free_scale, learning_rate, …)
@@ -255,6 +260,9 @@ pub fn resolve(args: &FitGeometryArgs) -> Result<Job, String> {
     }
     if args.free_scale {
         s.refine.free_scale = true;
+    }
+    if args.no_target_grid_check {
+        s.target_grid_check = false;
     }
     if args.no_bias_correction {
         s.bias_correction = false;
@@ -419,6 +427,9 @@ fn write_results(job: &Job, fit: &GeometryFit, body: &crate::inverse::shape::Sha
     }
     if !fit.bias_correction.is_empty() {
         file.column("/modes/bias_correction", fit.bias_correction.clone(), "1");
+    }
+    if let Some(c) = &fit.check {
+        file.number("/check", "before_loss", c.before_loss).number("/check", "after_loss", c.after_loss).number("/check", "refined_kept", f64::from(u8::from(c.refined_kept)));
     }
     file.column("/modes/target_eigenvalues", fit.target.eigenvalues.clone(), "rad^2/s^2").column("/modes/target_frequency_hz", hz(&fit.target.eigenvalues), "Hz").number("/modes", "target_spacing", fit.target_spacing);
     let h = &fit.refinement.history;

@@ -153,6 +153,7 @@ fn settings_are_validated() {
         GeometrySettings { voxels: 1, ..Default::default() },
         GeometrySettings { cells: 32, target_cells: 31, ..Default::default() },
         GeometrySettings { modes: 0, ..Default::default() },
+        GeometrySettings { modes: 1, refine: RefineSettings { free_scale: true, ..Default::default() }, ..Default::default() },
         GeometrySettings { hidden: vec![], ..Default::default() },
         GeometrySettings { refine: RefineSettings { learning_rate: 0.0, ..Default::default() }, ..Default::default() },
         GeometrySettings { prefit: PrefitSettings { margin: f64::NAN, ..Default::default() }, ..Default::default() },
