@@ -3,7 +3,7 @@
 //! `diffsound::inverse::shape` come from here).
 //!
 //!   shape_probe [--cells 14,20,32] [--thickness 0.3,0.5,0.7] [--modes 8] [--snap 0.05]
-//!               [--shifts K] [--exact] [--grid-max] [--scan LO:HI:STEP] SURFACE.obj
+//!               [--shifts K] [--exact] [--subdivide] [--grid-max] [--scan LO:HI:STEP] SURFACE.obj
 //!   shape_probe --analytic-sphere R [--cells ..] [--snap ..]      (solid ball vs Lamb)
 //!   shape_probe --analytic-shell R [--thickness ..] [--exact]     (hollow ball 0 < R − |x| ≤ tR)
 //!
@@ -12,7 +12,9 @@
 //! point S of the continuous signed distance, and for every t the tets, volume, pieces, snapped
 //! values, clusters, time split and the first modes' frequencies. `--grid-max` uses S_grid as the
 //! reference depth (the first version's definition); `--exact` moves every crossing onto the
-//! continuous field's zero ([`diffsound::inverse::shape::refine_crossings`]). `--scan` prints
+//! continuous field's zero ([`diffsound::inverse::shape::refine_crossings`]); `--subdivide` splits
+//! every marched tet into eight (the same polyhedral body: what changes is the finite-element
+//! error alone). `--scan` prints
 //! L(t) and ln(λ_k/λ*_k) per mode on a t grid at every grid but the last, against the target at
 //! the first t on the last grid, and per mode the t where its eigenvalue crosses the target's.
 use diffsound::fem::Material;
