@@ -17,7 +17,7 @@
 //! points. With --out-dir, one PNG per case (voxels / before / after / true) and `results.json`.
 use diffsound::cli::fit_geometry::{load_surface, render_comparison, step_line};
 use diffsound::fem::Material;
-use diffsound::inverse::geometry::{eigenvalue_loss, fit_geometry, GeometryProgress, GeometrySettings};
+use diffsound::inverse::geometry::{assess, eigenvalue_loss, fit_geometry, GeometryProgress, GeometrySettings};
 use diffsound::petsc::Petsc;
 
 struct Args {
@@ -116,16 +116,14 @@ fn main() {
                     continue;
                 }
             };
-            // Every evaluation's body against the truth: how the answer's choice (lowest loss, or
-            // lowest held-out loss) relates to the shape. Diagnostics only (the fit never sees it).
+            // Every evaluation's body against the truth: how the loss the fit lowers relates to
+            // the shape. Diagnostics only (the fit never sees it).
             let mut step_rows = Vec::new();
             if args.step_metrics && root {
                 for st in fit.refinement.history.iter().filter(|st| st.failure.is_none()) {
                     let net = diffsound::inverse::neural_sdf::NeuralSdf::from_parameters(fit.network.clone(), st.parameters.clone()).expect("network");
-                    let values = net.values(&fit.grid.vertex_positions());
-                    let Ok(marched) = diffsound::mesh::march(&fit.grid, &values, None, &diffsound::mesh::MarchingOptions::default()) else { continue };
-                    let surface = diffsound::mesh::TriangleSurface::from_mesh_boundary(&marched.mesh);
-                    if let Ok(c) = diffsound::mesh::compare_shapes(&surface, &truth, settings.surface_samples, settings.volume_samples, settings.metric_seed) {
+                    if let Ok(assessed) = assess(&fit.grid, &net.values(&fit.grid.vertex_positions()), Vec::new(), &truth, &settings) {
+                        let c = assessed.comparison;
                         let mark = if st.step == fit.refinement.best().step { " answer" } else { "" };
                         eprintln!("{name} {n}³ step {:2}: loss {:.3e} eigen {:.3e} | Chamfer {:.3} mm IoU {:.4}{mark}", st.step, st.loss, st.eigen_loss, 1e3 * c.chamfer, c.iou);
                         step_rows.push(serde_json::json!({"step": st.step, "loss": st.loss, "eigen_loss": st.eigen_loss, "chamfer": c.chamfer, "hausdorff": c.hausdorff, "iou": c.iou}));

@@ -267,11 +267,12 @@ fn split_in_eight(linear: &mesh::TetMesh) -> mesh::TetMesh {
     for e in 0..quadratic.n_tets() {
         let q = quadratic.tet(e);
         let c = [q[0], q[1], q[2], q[3]];
-        let mut mid = std::collections::HashMap::new();
+        // mid[a][b]: the midpoint node of the edge between corners a and b.
+        let mut mid = [[0usize; 4]; 4];
         for (k, &(a, b)) in mesh::TET10_EDGES.iter().enumerate() {
-            mid.insert((a.min(b), a.max(b)), q[4 + k]);
+            (mid[a][b], mid[b][a]) = (q[4 + k], q[4 + k]);
         }
-        let m = |a: usize, b: usize| mid[&(a.min(b), a.max(b))];
+        let m = |a: usize, b: usize| mid[a][b];
         let children = [
             [c[0], m(0, 1), m(0, 2), m(0, 3)],
             [m(0, 1), c[1], m(1, 2), m(1, 3)],

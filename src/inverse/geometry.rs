@@ -1217,7 +1217,7 @@ pub struct GeometryFit {
 }
 
 /// Marches `values` on `grid` and compares the body with `truth`.
-fn assess(grid: &BackgroundGrid, values: &[f64], eigenvalues: Vec<f64>, truth: &TriangleSurface, settings: &GeometrySettings) -> Result<Assessed, GeometryError> {
+pub fn assess(grid: &BackgroundGrid, values: &[f64], eigenvalues: Vec<f64>, truth: &TriangleSurface, settings: &GeometrySettings) -> Result<Assessed, GeometryError> {
     let marched = mesh::march(grid, values, None, &MarchingOptions::default()).map_err(ShapeError::from)?;
     let surface = TriangleSurface::from_mesh_boundary(&marched.mesh);
     let comparison = mesh::compare_shapes(&surface, truth, settings.surface_samples, settings.volume_samples, settings.metric_seed)?;
