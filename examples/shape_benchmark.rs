@@ -7,7 +7,7 @@
 //!
 //!   mpirun -np 2 target/release/examples/shape_benchmark thickness [--levels 20,28]
 //!       [--target-cells 40] [--modes 8] [--seed 1] [--values 0.3,0.4,0.5,0.6,0.7]
-//!       [--replicas K] [--no-extrapolate] [--free-scale] [--json FILE] SURFACE...
+//!       [--replicas K] [--extrapolate|--no-extrapolate] [--free-scale] [--straight-boundary] [--json FILE] SURFACE...
 //!   mpirun -np 2 target/release/examples/shape_benchmark morph [--levels 16,22]
 //!       [--target-cells 32] [--values 0,0.2,0.4,0.6,0.8,1] A.obj:B.obj...
 //!
@@ -26,10 +26,11 @@
 //! alignment per spacing (module docs of `diffsound::inverse::shape`, "Grid bias").
 use diffsound::random::SplitMix64;
 use diffsound::fem::Material;
-use diffsound::inverse::shape::{fit_morph, fit_thickness, normalise_surface, replica_levels, replica_shift, read_surface, reference_depth, shape_spectrum, union_box, FitEvaluation, SampledField, ShapeFamily, ShapeFit, ShapeFitSettings, SpectrumTarget};
+use diffsound::inverse::shape::{fit_morph, fit_thickness, normalise_surface, replica_levels, replica_shift, read_surface, reference_depth, union_box, FitEvaluation, SampledField, ShapeFamily, ShapeFit, ShapeFitSettings, SpectrumTarget};
 use diffsound::mesh::{BackgroundGrid, MarchingOptions, SignedDistance, TriangleSurface};
 use diffsound::petsc::Petsc;
 use std::time::Instant;
+use std::sync::Arc;
 
 struct Args {
     task: String,
@@ -39,14 +40,16 @@ struct Args {
     modes: usize,
     seed: u64,
     values: Vec<f64>,
-    extrapolate: bool,
+    /// None: the family's default (ShapeFamily::extrapolates_by_default).
+    extrapolate: Option<bool>,
     free_scale: bool,
+    straight_boundary: bool,
     json: Option<String>,
     inputs: Vec<String>,
 }
 
 fn usage() -> ! {
-    eprintln!("usage: shape_benchmark thickness|morph [--levels N,N] [--target-cells N] [--modes N] [--seed S] [--values a,b,..] [--replicas K] [--no-extrapolate] [--free-scale] [--json FILE] SURFACE... | A:B...");
+    eprintln!("usage: shape_benchmark thickness|morph [--levels N,N] [--target-cells N] [--modes N] [--seed S] [--values a,b,..] [--replicas K] [--extrapolate|--no-extrapolate] [--free-scale] [--straight-boundary] [--json FILE] SURFACE... | A:B...");
     std::process::exit(2)
 }
 
@@ -66,8 +69,9 @@ fn parse_args() -> Args {
         modes: 8,
         seed: 1,
         values: if morph { vec![0.0, 0.2, 0.4, 0.6, 0.8, 1.0] } else { vec![0.3, 0.4, 0.5, 0.6, 0.7] },
-        extrapolate: true,
+        extrapolate: None,
         free_scale: false,
+        straight_boundary: false,
         json: None,
         inputs: Vec::new(),
     };
@@ -81,8 +85,10 @@ fn parse_args() -> Args {
             "--seed" => a.seed = value().parse().unwrap_or_else(|_| usage()),
             "--values" => a.values = list(value()),
             "--replicas" => a.replicas = value().parse().ok().filter(|&k| (1..=4).contains(&k)).unwrap_or_else(|| usage()),
-            "--no-extrapolate" => a.extrapolate = false,
+            "--no-extrapolate" => a.extrapolate = Some(false),
+            "--extrapolate" => a.extrapolate = Some(true),
             "--free-scale" => a.free_scale = true,
+            "--straight-boundary" => a.straight_boundary = true,
             "--json" => a.json = Some(value()),
             _ if x.starts_with("--") => usage(),
             _ => a.inputs.push(x),
@@ -133,7 +139,7 @@ fn main() {
     let name_p = if morph { "c" } else { "t" };
     if root {
         println!(
-            "## {} benchmark\n\nseed {}, {} modes, fit levels {:?} cells ({} grid replica(s) per level after the first), target grid {} cells (randomly shifted), {} rank(s), ceramic, shapes scaled to a 0.1 m diagonal, extrapolation in h {}, free stiffness scale {}.\n",
+            "## {} benchmark\n\nseed {}, {} modes, fit levels {:?} cells ({} grid replica(s) per level after the first), target grid {} cells (randomly shifted), {} rank(s), ceramic, shapes scaled to a 0.1 m diagonal, extrapolation in h {}, free stiffness scale {}, thickness boundary {}.\n",
             if morph { "Morph" } else { "Thickness" },
             args.seed,
             args.modes,
@@ -141,22 +147,23 @@ fn main() {
             args.replicas,
             args.target_cells,
             petsc.size(),
-            if args.extrapolate { "on" } else { "off" },
-            if args.free_scale { "on" } else { "off" }
+            match args.extrapolate { Some(true) => "on", Some(false) => "off", None => "the family's default (off for the curved thickness, else on)" },
+            if args.free_scale { "on" } else { "off" },
+            if args.straight_boundary { "straight (samples alone)" } else { "curved (exact crossings, curved P2 edges)" }
         );
         let per_level: String = fit_levels.iter().map(|l| format!(" {name_p} {} |", level_name(l))).collect();
         let timing: String = fit_levels.iter().map(|l| format!(" s/eval {0} (mesh/asm/solve/grad) | evals {0} |", level_name(l))).collect();
-        println!("| shape | {name_p}* | {name_p} fit | abs err |{per_level} final-level abs err |{timing} target s | fit s |");
-        println!("|---|---|---|---|{}---|{}---|---|", "---|".repeat(fit_levels.len()), "---|---|".repeat(fit_levels.len()));
+        println!("| shape | {name_p}* | {name_p} fit | abs err |{per_level} final-level abs err | line abs err |{timing} target s | fit s |");
+        println!("|---|---|---|---|{}---|---|{}---|---|", "---|".repeat(fit_levels.len()), "---|---|".repeat(fit_levels.len()));
     }
     let mut rng = SplitMix64::new(args.seed);
     let mut records = Vec::new();
-    let mut summary: Vec<(String, Vec<f64>, Vec<f64>, Vec<f64>)> = Vec::new();
+    let mut summary: Vec<(String, Vec<f64>, Vec<f64>, Vec<f64>, Vec<f64>)> = Vec::new();
     for input in &args.inputs {
         // One shape (thickness) or a pair A:B (morph) on common grids.
         let (name, family_at, lo, hi): (String, Box<dyn Fn(&SampledField, Option<&SampledField>) -> ShapeFamily>, [f64; 3], [f64; 3]);
         let sampled: Vec<(SampledField, Option<SampledField>)>;
-        let sdfs: Vec<SignedDistance>;
+        let sdfs: Vec<Arc<SignedDistance>>;
         if morph {
             let (pa, pb) = input.split_once(':').unwrap_or_else(|| panic!("morph inputs are A.obj:B.obj, got {input}"));
             let (na, sa, da) = load(pa);
@@ -165,7 +172,7 @@ fn main() {
             name = format!("{na}/{nb}");
             sampled = fit_levels.iter().map(|&(n, r)| (SampledField::of_sdf_shifted(&da, lo, hi, n, replica_shift(r, args.replicas)).expect("field"), Some(SampledField::of_sdf_shifted(&db, lo, hi, n, replica_shift(r, args.replicas)).expect("field")))).collect();
             family_at = Box::new(|a, b| ShapeFamily::Morph { a: a.values.clone(), b: b.expect("pair").values.clone() });
-            sdfs = vec![da, db];
+            sdfs = vec![Arc::new(da), Arc::new(db)];
         } else {
             let (n, s, d) = load(input);
             (lo, hi) = s.bounding_box();
@@ -175,10 +182,12 @@ fn main() {
             }
             name = n;
             sampled = fit_levels.iter().map(|&(c, r)| (SampledField::of_sdf_shifted(&d, lo, hi, c, replica_shift(r, args.replicas)).expect("field"), None)).collect();
-            family_at = Box::new(move |a, _| ShapeFamily::Thickness { solid: a.values.clone(), depth });
+            let d = Arc::new(d);
+            let surface = (!args.straight_boundary).then(|| Arc::clone(&d));
+            family_at = Box::new(move |a, _| ShapeFamily::Thickness { solid: a.values.clone(), depth, surface: surface.clone() });
             sdfs = vec![d];
         }
-        let (mut errors, mut finest_errors, mut seconds) = (Vec::new(), Vec::new(), Vec::new());
+        let (mut errors, mut finest_errors, mut line_errors, mut seconds) = (Vec::new(), Vec::new(), Vec::new(), Vec::new());
         for &truth in &args.values {
             // The target: the true parameter on a finer, randomly shifted grid.
             let clock = Instant::now();
@@ -186,7 +195,7 @@ fn main() {
             let positions = grid.vertex_positions();
             let fields: Vec<SampledField> = sdfs.iter().map(|d| SampledField { grid: grid.clone(), values: d.evaluate(&positions) }).collect();
             let family = family_at(&fields[0], fields.get(1));
-            let target_spectrum = family.field(truth).and_then(|v| shape_spectrum(&petsc, &grid, &v, &options, &material, args.modes, false));
+            let target_spectrum = family.spectrum(&petsc, &grid, truth, &options, &material, args.modes, false).map(|(s, _)| s);
             let target_seconds = clock.elapsed().as_secs_f64();
             let target = match target_spectrum.and_then(|t| SpectrumTarget::new(t.eigenvalues, settings.cluster_rtol)) {
                 Ok(t) => t,
@@ -211,8 +220,8 @@ fn main() {
                 fit_morph(&petsc, &pairs, &target, &options, &material, &settings, Some(h_target), on_eval)
             } else {
                 let solids: Vec<SampledField> = sampled.iter().map(|(a, _)| a.clone()).collect();
-                let ShapeFamily::Thickness { depth, .. } = family_at(&solids[0], None) else { unreachable!() };
-                fit_thickness(&petsc, &solids, depth, &target, &options, &material, &settings, Some(h_target), on_eval)
+                let ShapeFamily::Thickness { depth, surface, .. } = family_at(&solids[0], None) else { unreachable!() };
+                fit_thickness(&petsc, &solids, depth, surface, &target, &options, &material, &settings, Some(h_target), on_eval)
             };
             let fit = match fit {
                 Ok(f) => f,
@@ -224,9 +233,11 @@ fn main() {
                 }
             };
             let err = (fit.parameter - truth).abs();
-            let finest = (fit.levels.last().expect("levels").parameter - truth).abs();
+            let finest = (fit.finest_parameter() - truth).abs();
+            let line = fit.extrapolated.map_or(f64::NAN, |e| (e - truth).abs());
             errors.push(err);
             finest_errors.push(finest);
+            line_errors.push(line);
             seconds.push(fit.seconds);
             if root {
                 let per_level: String = fit.levels.iter().map(|l| format!(" {:.4} |", l.parameter)).collect();
@@ -236,18 +247,18 @@ fn main() {
                         format!(" {:.1} ({:.2}/{:.2}/{:.1}/{:.2}) | {} |", t.total(), t.meshing, t.assembly, t.solve, t.gradient, fit.levels[i].evaluations)
                     })
                     .collect();
-                println!("| {name} | {truth} | {:.4} | {err:.4} |{per_level} {finest:.4} |{timing} {target_seconds:.0} | {:.0} |", fit.parameter, fit.seconds);
+                println!("| {name} | {truth} | {:.4} | {err:.4} |{per_level} {finest:.4} | {line:.4} |{timing} {target_seconds:.0} | {:.0} |", fit.parameter, fit.seconds);
             }
             records.push(serde_json::json!({ "shape": name, "truth": truth, "target_spacing": h_target, "target_eigenvalues": target.eigenvalues, "fit": fit }));
         }
-        summary.push((name, errors, finest_errors, seconds));
+        summary.push((name, errors, finest_errors, line_errors, seconds));
     }
     if root {
-        println!("\n| shape | mean abs error | max abs error | mean abs error, finest level alone | mean fit s | max fit s |\n|---|---|---|---|---|---|");
-        for (name, e, f, s) in &summary {
+        println!("\n| shape | mean abs error | max abs error | mean abs error, finest level alone | mean abs error, line | mean fit s | max fit s |\n|---|---|---|---|---|---|---|");
+        for (name, e, f, l, s) in &summary {
             let mean = |v: &[f64]| v.iter().sum::<f64>() / v.len().max(1) as f64;
             let max = |v: &[f64]| v.iter().cloned().fold(0.0, f64::max);
-            println!("| {name} | {:.4} | {:.4} | {:.4} | {:.0} | {:.0} |", mean(e), max(e), mean(f), mean(s), max(s));
+            println!("| {name} | {:.4} | {:.4} | {:.4} | {:.4} | {:.0} | {:.0} |", mean(e), max(e), mean(f), mean(l), mean(s), max(s));
         }
         if let Some(path) = &args.json {
             std::fs::write(path, serde_json::to_string_pretty(&records).expect("json")).unwrap_or_else(|e| panic!("{path}: {e}"));

@@ -3,16 +3,18 @@
 //! `diffsound::inverse::shape` come from here).
 //!
 //!   shape_probe [--cells 14,20,32] [--thickness 0.3,0.5,0.7] [--modes 8] [--snap 0.05]
-//!               [--shifts K] [--exact] [--subdivide] [--grid-max] [--scan LO:HI:STEP] SURFACE.obj
+//!               [--shifts K] [--exact] [--curved] [--subdivide] [--grid-max] [--scan LO:HI:STEP] SURFACE.obj
 //!   shape_probe --analytic-sphere R [--cells ..] [--snap ..]      (solid ball vs Lamb)
-//!   shape_probe --analytic-shell R [--thickness ..] [--exact]     (hollow ball 0 < R − |x| ≤ tR)
+//!   shape_probe --analytic-shell R [--thickness ..] [--exact|--curved] (hollow ball 0 < R − |x| ≤ tR)
 //!
 //! The surface is centred and scaled to a 0.1 m diagonal, ceramic. For every grid (and K
 //! randomly shifted copies of it): its size, the largest sample S_grid against the deepest
 //! point S of the continuous signed distance, and for every t the tets, volume, pieces, snapped
 //! values, clusters, time split and the first modes' frequencies. `--grid-max` uses S_grid as the
 //! reference depth (the first version's definition); `--exact` moves every crossing onto the
-//! continuous field's zero ([`diffsound::inverse::shape::refine_crossings`]); `--subdivide` splits
+//! continuous field's zero ([`diffsound::inverse::shape::refine_crossings`]); `--curved` does that
+//! and moves every boundary mid-edge node onto it too ([`diffsound::mesh::curve_boundary`], the
+//! thickness fit's default body); `--subdivide` splits
 //! every marched tet into eight (the same polyhedral body: what changes is the finite-element
 //! error alone). `--scan` prints
 //! L(t) and ln(λ_k/λ*_k) per mode on a t grid at every grid but the last, against the target at
@@ -35,6 +37,7 @@ fn main() {
     let mut grid_max = false;
     let mut exact = false;
     let mut subdivide = false;
+    let mut curved = false;
     let mut shifts = 0usize;
     let mut analytic: Option<f64> = None;
     let mut path = String::new();
@@ -48,6 +51,10 @@ fn main() {
             "--grid-max" => grid_max = true,
             "--exact" => exact = true,
             "--subdivide" => subdivide = true,
+            "--curved" => {
+                curved = true;
+                exact = true;
+            }
             "--shifts" => shifts = it.next().unwrap().parse().unwrap(),
             "--analytic-sphere" => analytic = Some(it.next().unwrap().parse().unwrap()),
             "--analytic-shell" => {
@@ -66,6 +73,9 @@ fn main() {
     let root = petsc.rank() == 0;
     let material = Material::preset("ceramic").unwrap();
     let options = MarchingOptions { snap_fraction: snap, ..Default::default() };
+    // The marched bodies' slivers: MUMPS's workspace estimate falls short without this (as in
+    // the shape module's own solves).
+    petsc.set_default_option("-st_mat_mumps_icntl_14", "100").unwrap();
     if let Some(radius) = analytic {
         // The solid sphere s = R − |x| against Lamb's frequencies: the order of the marching +
         // P2 discretisation on its own.
@@ -90,6 +100,7 @@ fn main() {
                     let f = |p: [f64; 3]| { let s = radius - (p[0] * p[0] + p[1] * p[1] + p[2] * p[2]).sqrt(); s.min(depth - s) };
                     let linear = if exact { diffsound::inverse::shape::refine_crossings(&marched, &grid, &f, 0.01).0 } else { marched.mesh.clone() };
                     let quadratic = mesh::lift_to_quadratic(&linear);
+                    let quadratic = if curved { mesh::curve_boundary(&quadratic, &f, 0.5, 0.05).0 } else { quadratic };
                     let assembled = diffsound::assembly::assemble(&petsc, &quadratic).unwrap();
                     let (k, m) = assembled.operators(&material).unwrap();
                     let mut cfg = diffsound::eigen::EigenConfig::new(diffsound::eigen::ModeRequest::FirstN(modes), diffsound::eigen::spectrum_scale(material.lame_mu(), material.density, 2.0 * radius));
@@ -173,6 +184,15 @@ fn main() {
         let (linear, moved, kept) = if exact { diffsound::inverse::shape::refine_crossings(&marched, g, &f, 0.01) } else { (marched.mesh.clone(), Vec::new(), 0) };
         let linear = if subdivide { split_in_eight(&linear) } else { linear };
         let quadratic = mesh::lift_to_quadratic(&linear);
+        let quadratic = if curved {
+            let (q, _, report) = mesh::curve_boundary(&quadratic, &f, 0.5, 0.05);
+            if root {
+                eprintln!("  curved: {report:?}");
+            }
+            q
+        } else {
+            quadratic
+        };
         let meshing = clock.elapsed().as_secs_f64();
         let clock = std::time::Instant::now();
         let assembled = diffsound::assembly::assemble(&petsc, &quadratic).map_err(|e| e.to_string())?;

@@ -30,6 +30,14 @@ fn thickness_and_morph_fits_write_results_and_a_paraview_mesh() {
     assert!((number_attribute(&out, "/fit", "abs_error") - (t - 0.5).abs()).abs() < 1e-12);
     // S of a 60 × 40 × 30 mm box is half its smallest side.
     assert!((number_attribute(&out, "/shape", "reference_depth") - 0.015).abs() < 1e-9);
+    // The default boundary is curved. The body's volume is the hollow box's at the answer t
+    // (the inner wall at depth 15t mm) within 5 %: the cavity's edges and corners are cut by
+    // the 14-cell grid.
+    assert_eq!(number_attribute(&out, "/shape", "curved_boundary"), 1.0);
+    let volume = number_attribute(&out, "/shape", "volume");
+    let d = 30.0 * t;
+    let hollow = 1e-9 * (60.0 * 40.0 * 30.0 - (60.0 - d) * (40.0 - d) * (30.0 - d));
+    assert!((volume / hollow - 1.0).abs() < 0.05, "volume {volume:.4e} m³ against {hollow:.4e} m³ at t = {t}");
     let (levels, _) = read_dataset(&out, "/fit/levels/parameter").unwrap();
     assert_eq!(levels.len(), 2);
     let (loss, _) = read_dataset(&out, "/fit/history/loss").unwrap();
@@ -102,6 +110,8 @@ fn bad_input_fails_cleanly_without_output() {
     let missing = dir.join("missing.obj");
     let config = dir.join("typo.toml");
     std::fs::write(&config, "[fit]\nmodse = 8\n").unwrap();
+    let straight = dir.join("straight.toml");
+    std::fs::write(&straight, "straight_boundary = true\n").unwrap();
     let cases: Vec<(Vec<&str>, &str)> = vec![
         (vec!["fit-thickness", "--surface", s(&missing), "--target-thickness", "0.5"], "does not exist"),
         (vec!["fit-thickness", "--surface", s(&solid)], "no target"),
@@ -111,6 +121,7 @@ fn bad_input_fails_cleanly_without_output() {
         (vec!["fit-thickness", "--surface", s(&garbage), "--target-thickness", "0.5"], "garbage.obj"),
         (vec!["fit-thickness", "--config", s(&config), "--surface", s(&solid), "--target-thickness", "0.5"], "modse"),
         (vec!["fit-morph", "--shape-a", s(&solid), "--target-weight", "0.5"], "no shape B"),
+        (vec!["fit-morph", "--config", s(&straight), "--shape-a", s(&solid), "--shape-b", s(&solid), "--target-weight", "0.5"], "straight_boundary"),
         (vec!["fit-thickness", "--surface", s(&solid), "--target-thickness", "0.5", "--replicas", "5"], "--replicas must lie in 1..=4"),
         (vec!["fit-morph", "--shape-a", s(&solid), "--shape-b", s(&solid), "--target-weight", "0.5", "--cells", "14,12"], "must increase"),
     ];

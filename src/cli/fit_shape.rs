@@ -20,15 +20,22 @@
 //!   drawn from `target_seed`, as the benchmark does. The fit never sees the true value; it is
 //!   only written to the result for the error.
 //! * **Grid levels** `cells` (coarse to fine, cells along the longest axis): the coarsest is
-//!   scanned, every level refined; with two or more levels the answer is extrapolated linearly
-//!   in the grid spacing to the target's spacing (`target_spacing`, default 0 for a file
-//!   target, the target grid's for a synthesised one; `--no-extrapolate` answers with the
-//!   finest level). `replicas` K (default 1) fits every level after the first on K grids of
-//!   its spacing, moved by r/K of a cell along the diagonal, and the line goes through all of
-//!   them: the grids' alignment noise averages instead of riding on one alignment per spacing
+//!   scanned, every level refined. The answer is the finest level's (curved thickness body) or,
+//!   with two or more levels, the line in the grid spacing through the finest levels' answers
+//!   at the target's spacing (morph, `--straight-boundary`; `target_spacing`, default 0 for a
+//!   file target, the target grid's for a synthesised one); `--extrapolate` and
+//!   `--no-extrapolate` choose explicitly. `replicas` K (default 1) fits every level after the
+//!   first on K grids of its spacing, moved by r/K of a cell along the diagonal; the line goes
+//!   through all of them and the finest level's answer is the mean of its K grids': the grids'
+//!   alignment noise averages instead of riding on one alignment per spacing
 //!   (src/inverse/shape.rs, "Grid bias and its extrapolation"), at K times the cost of those
 //!   levels.
 //! * **Material**: a preset and overrides (E, ν, ρ are known; only the shape is fitted).
+//! * **Boundary** (thickness): by default every crossing of the marched shell sits on the zero
+//!   of the continuous signed distance and every boundary mid-edge node is moved onto it (a
+//!   curved P2 surface, src/inverse/shape.rs "Curved boundary"); `--straight-boundary` (TOML
+//!   `straight_boundary = true`) meshes from the grid samples alone, as the morph does. The
+//!   synthesised target uses the same boundary as the fit.
 //!
 //! # Outputs
 //!
@@ -38,12 +45,12 @@
 //!
 //! | path | contents |
 //! |------|----------|
-//! | `/fit` attrs | `parameter` (the answer), `finest_level_parameter`, `extrapolated` (if any), `target_spacing` [m], `loss` (finest level), `evaluations`, `seconds`; synthesised targets add `true_parameter`, `abs_error`, `target_cells` |
+//! | `/fit` attrs | `parameter` (the answer), `finest_level_parameter` (the mean over the finest spacing's replicas), `extrapolated` (if any), `target_spacing` [m], `loss` (finest level), `evaluations`, `seconds`; synthesised targets add `true_parameter`, `abs_error`, `target_cells` |
 //! | `/fit/levels/{cells,spacing,parameter,loss,log_stiffness_scale,evaluations,seconds}` | per level, coarse to fine (replicas of a spacing are consecutive entries with equal cells); spacing in m; log_stiffness_scale the profiled ln factor with `--free-scale` (else 0) |
 //! | `/fit/history/{level,cells,phase,parameter,loss,gradient,step,tets,p2_nodes,meshing_s,assembly_s,solve_s,gradient_s,failed}` | every evaluation (phase 0 = scan, 1 = refine; failed 1 where no body could be meshed or solved, loss NaN) |
 //! | `/modes/{target_frequency_hz,fitted_frequency_hz,target_eigenvalues,fitted_eigenvalues,relative_frequency_error}` | the compared modes: target vs the finest level's best fit (the model on that grid) |
 //! | `/modes/answer_frequency_hz` | the body at the answer (extrapolated) parameter on the finest grid: the mesh file's modes |
-//! | `/shape` attrs | `reference_depth` [m] (thickness), `diagonal` [m], `finest_cells`, `tets`, `p2_nodes`, `volume` [m³] |
+//! | `/shape` attrs | `reference_depth` [m] and `curved_boundary` (1: exact crossings and curved P2 edges, 0: `--straight-boundary`) for thickness, `diagonal` [m], `finest_cells`, `tets`, `p2_nodes`, `volume` [m³] of the P2 body |
 //! | `/material` attrs | `youngs_modulus` [Pa], `poisson_ratio`, `density` [kg/m³] |
 //! | `/timings` attrs | `setup`, `target`, `fit`, `final_body`, `total` [s] |
 //!
@@ -54,7 +61,7 @@
 use super::{fail, Progress};
 use crate::random::SplitMix64;
 use crate::fem::Material;
-use crate::inverse::shape::{fit_shape, normalise_surface, read_surface, reference_depth, shape_modes, replica_levels, replica_shift, shape_spectrum, shifted_covering, union_box, FitEvaluation, SearchPhase, ShapeFamily, ShapeFit, ShapeFitSettings, ShapeLevel, SpectrumTarget};
+use crate::inverse::shape::{fit_shape, normalise_surface, read_surface, reference_depth, replica_levels, replica_shift, shifted_covering, union_box, FitEvaluation, SearchPhase, ShapeFamily, ShapeFit, ShapeFitSettings, ShapeLevel, SpectrumTarget};
 use crate::io::results::ResultsFile;
 use crate::io::{write_modes, MaterialRecord, ModesFile};
 use crate::mesh::{self, MarchingOptions, SignedDistance, TriangleSurface};
@@ -63,6 +70,7 @@ use clap::Args;
 use mpi::environment::Universe;
 use serde::Deserialize;
 use std::path::{Path, PathBuf};
+use std::sync::Arc;
 
 /// Flags shared by both commands.
 #[derive(Args, Debug, Clone, Default)]
@@ -106,6 +114,10 @@ pub struct ShapeArgs {
     /// Answer with the finest level instead of the extrapolation to the target spacing.
     #[arg(long)]
     pub no_extrapolate: bool,
+    /// Answer with the extrapolation (the default for fit-morph and a straight-boundary
+    /// thickness fit; a curved-boundary thickness fit answers with its finest level).
+    #[arg(long)]
+    pub extrapolate: bool,
     /// Profile a stiffness factor common to every mode out of the loss (the spectrum's shape,
     /// not its level, decides; see "Free stiffness scale" in src/inverse/shape.rs).
     #[arg(long)]
@@ -148,6 +160,11 @@ pub struct FitThicknessArgs {
     /// Lowest and highest thickness searched, lo,hi (default 0.1,0.95).
     #[arg(long, value_delimiter = ',')]
     pub bounds: Vec<f64>,
+    /// Mesh the shell from the grid samples alone (linear crossings, straight P2 edges) instead
+    /// of exact crossings and a curved boundary on the continuous signed distance (see "Curved
+    /// boundary" in src/inverse/shape.rs).
+    #[arg(long)]
+    pub straight_boundary: bool,
     #[command(flatten)]
     pub common: ShapeArgs,
 }
@@ -176,6 +193,7 @@ pub struct FitMorphArgs {
 /// diagonal = 0.1
 /// cells = [20, 28]
 /// replicas = 1                  # grids per level after the first (1–4)
+/// straight_boundary = false      # fit-thickness: true meshes from the grid samples alone
 /// out = "out/spot_thickness.h5"
 /// [target]
 /// file = "modes.txt"            # or: thickness = 0.5 (fit-morph: weight = 0.4), cells = 40, seed = 1
@@ -198,6 +216,8 @@ pub struct ShapeFileConfig {
     pub diagonal: Option<f64>,
     pub cells: Option<Vec<usize>>,
     pub replicas: Option<usize>,
+    /// fit-thickness: true for the straight boundary (`--straight-boundary`).
+    pub straight_boundary: Option<bool>,
     pub out: Option<PathBuf>,
     #[serde(default)]
     pub target: TargetConfig,
@@ -248,7 +268,8 @@ pub struct SolverConfig {
 /// Which parameter is fitted, and of what.
 #[derive(Clone, Debug)]
 pub enum Task {
-    Thickness { surface: PathBuf },
+    /// `curved`: exact crossings and a curved boundary on the continuous signed distance.
+    Thickness { surface: PathBuf, curved: bool },
     Morph { a: PathBuf, b: PathBuf },
 }
 
@@ -371,8 +392,14 @@ fn resolve(task: Task, synthetic_value: Option<f64>, bounds: Option<(f64, f64)>,
     if let Some(n) = common.max_refinements {
         settings.max_refinements = n;
     }
+    if common.no_extrapolate && common.extrapolate {
+        return Err("--extrapolate and --no-extrapolate exclude each other".into());
+    }
     if common.no_extrapolate {
-        settings.extrapolate = false;
+        settings.extrapolate = Some(false);
+    }
+    if common.extrapolate {
+        settings.extrapolate = Some(true);
     }
     if common.free_scale {
         settings.free_scale = true;
@@ -446,13 +473,14 @@ pub fn resolve_thickness(args: &FitThicknessArgs) -> Result<Job, String> {
         [lo, hi] => Some((*lo, *hi)),
         other => return Err(format!("--bounds takes lo,hi, got {other:?}")),
     };
-    resolve(Task::Thickness { surface }, args.target_thickness.or(file.target.thickness), bounds, &args.common, &file)
+    let curved = !(args.straight_boundary || file.straight_boundary.unwrap_or(false));
+    resolve(Task::Thickness { surface, curved }, args.target_thickness.or(file.target.thickness), bounds, &args.common, &file)
 }
 
 pub fn resolve_morph(args: &FitMorphArgs) -> Result<Job, String> {
     let file = load_config(&args.common.config)?;
-    if file.surface.is_some() || file.target.thickness.is_some() {
-        return Err("surface and target.thickness are fit-thickness keys, not fit-morph ones".into());
+    if file.surface.is_some() || file.target.thickness.is_some() || file.straight_boundary.is_some() {
+        return Err("surface, straight_boundary and target.thickness are fit-thickness keys, not fit-morph ones".into());
     }
     let a = existing(args.shape_a.clone().or(file.shape_a.clone()), "shape A", "--shape-a")?;
     let b = existing(args.shape_b.clone().or(file.shape_b.clone()), "shape B", "--shape-b")?;
@@ -484,7 +512,7 @@ fn run(universe: Universe, job: Job) -> Result<(), String> {
 struct Shape {
     path: PathBuf,
     surface: TriangleSurface,
-    sdf: SignedDistance,
+    sdf: Arc<SignedDistance>,
     /// The reader's warnings (dropped degenerate triangles, ignored element types, …).
     warnings: Vec<String>,
 }
@@ -500,12 +528,12 @@ fn load_shape(path: &Path, job: &Job) -> Result<Shape, String> {
     let size = (0..3).map(|d| (hi[d] - lo[d]).powi(2)).sum::<f64>().sqrt();
     normalise_surface(&mut surface, job.diagonal.unwrap_or(size)).map_err(|e| format!("{}: {e}", path.display()))?;
     let sdf = SignedDistance::new(&surface).map_err(|e| format!("{}: {e}", path.display()))?;
-    Ok(Shape { path: path.to_path_buf(), surface, sdf, warnings })
+    Ok(Shape { path: path.to_path_buf(), surface, sdf: Arc::new(sdf), warnings })
 }
 
 fn load_shapes(job: &Job) -> Result<Vec<Shape>, String> {
     match &job.task {
-        Task::Thickness { surface } => Ok(vec![load_shape(surface, job)?]),
+        Task::Thickness { surface, .. } => Ok(vec![load_shape(surface, job)?]),
         Task::Morph { a, b } => Ok(vec![load_shape(a, job)?, load_shape(b, job)?]),
     }
 }
@@ -514,7 +542,7 @@ fn load_shapes(job: &Job) -> Result<Vec<Shape>, String> {
 fn family_on(job: &Job, shapes: &[Shape], grid: &mesh::BackgroundGrid, depth: f64) -> ShapeFamily {
     let positions = grid.vertex_positions();
     match job.task {
-        Task::Thickness { .. } => ShapeFamily::Thickness { solid: shapes[0].sdf.evaluate(&positions), depth },
+        Task::Thickness { curved, .. } => ShapeFamily::Thickness { solid: shapes[0].sdf.evaluate(&positions), depth, surface: curved.then(|| Arc::clone(&shapes[0].sdf)) },
         Task::Morph { .. } => ShapeFamily::Morph { a: shapes[0].sdf.evaluate(&positions), b: shapes[1].sdf.evaluate(&positions) },
     }
 }
@@ -557,8 +585,7 @@ fn compute(petsc: &Petsc, job: &Job, shapes: Vec<Shape>) -> Result<(), String> {
             let grid = shifted_covering(lo, hi, *cells, shift).map_err(|e| e.to_string())?;
             progress.say(format!("synthesising the target: {parameter_name} {value} on a {cells}-cell grid shifted by {:.2?} cells", shift));
             let family = family_on(job, &shapes, &grid, depth);
-            let field = family.field(*value).map_err(|e| e.to_string())?;
-            let spectrum = shape_spectrum(petsc, &grid, &field, &options, &job.material, job.settings.modes, false).map_err(|e| format!("the synthesised target: {e}"))?;
+            let (spectrum, _) = family.spectrum(petsc, &grid, *value, &options, &job.material, job.settings.modes, false).map_err(|e| format!("the synthesised target: {e}"))?;
             (spectrum.eigenvalues, spacing.unwrap_or(grid.spacing()[0]), Some((*value, *cells)))
         }
     };
@@ -581,8 +608,7 @@ fn compute(petsc: &Petsc, job: &Job, shapes: Vec<Shape>) -> Result<(), String> {
     // The fitted body on the finest grid, with its modes, for the mesh file and the comparison.
     let clock = std::time::Instant::now();
     let finest = levels.last().expect("at least one level");
-    let field = finest.family.field(fit.parameter).map_err(|e| e.to_string())?;
-    let body = shape_modes(petsc, &finest.grid, &field, &options, &job.material, job.settings.modes).map_err(|e| format!("the fitted body: {e}"))?;
+    let body = finest.family.modes(petsc, &finest.grid, fit.parameter, &options, &job.material, job.settings.modes).map_err(|e| format!("the fitted body: {e}"))?;
     let final_seconds = clock.elapsed().as_secs_f64();
 
     if rank == 0 {
@@ -598,7 +624,7 @@ fn compute(petsc: &Petsc, job: &Job, shapes: Vec<Shape>) -> Result<(), String> {
             println!("  level {:>3} cells (h = {:.3} mm): {parameter_name} {:.5}, loss {:.3e}, {} evaluations, {:.1} s", l.cells, 1e3 * l.spacing, l.parameter, l.loss, l.evaluations, l.seconds);
         }
         if let Some(e) = fit.extrapolated {
-            println!("  extrapolated to the target spacing {:.3} mm: {e:.5}{}", 1e3 * target_spacing, if job.settings.extrapolate { "" } else { " (not used: --no-extrapolate)" });
+            println!("  extrapolated to the target spacing {:.3} mm: {e:.5}{}", 1e3 * target_spacing, if fit.extrapolation_used { "" } else { " (not used: the answer is the finest level's)" });
         }
         println!("  {:>4} {:>12} {:>18} {:>9} {:>18}", "mode", "target Hz", "finest-level fit", "error", "answer, finest grid");
         for k in 0..target_hz.len() {
@@ -622,7 +648,7 @@ fn write_results(job: &Job, shapes: &[Shape], fit: &ShapeFit, target: &SpectrumT
         .number("/", "n_ranks", n_ranks as f64);
     let finest = fit.levels.last().expect("at least one level");
     file.number("/fit", "parameter", fit.parameter)
-        .number("/fit", "finest_level_parameter", finest.parameter)
+        .number("/fit", "finest_level_parameter", fit.finest_parameter())
         .number("/fit", "target_spacing", target_spacing)
         .number("/fit", "loss", finest.loss)
         .number("/fit", "evaluations", fit.history.len() as f64)
@@ -663,15 +689,18 @@ fn write_results(job: &Job, shapes: &[Shape], fit: &ShapeFit, target: &SpectrumT
         .column("/modes/target_frequency_hz", target_hz, "Hz")
         .column("/modes/fitted_frequency_hz", fitted_hz, "Hz")
         .column("/modes/answer_frequency_hz", hz(&body.eigenvalues[..fitted.len()]), "Hz");
-    let linear = mesh::to_linear(&body.mesh);
+    // ∫ det J over the P2 elements: the curved boundary's volume, not its chords' (det J is a
+    // cubic, so the degree-4 rule is exact).
+    let rule = crate::fem::tet_rule(4);
+    let volume = (0..body.mesh.n_tets()).map(|e| crate::fem::element_volume(&body.mesh.tet_coords(e), &rule)).sum::<Result<f64, _>>().map_err(|e| format!("the fitted body's volume: {e}"))?;
     let (lo, hi) = union_box(&shapes.iter().map(|s| &s.surface).collect::<Vec<_>>());
     file.number("/shape", "diagonal", (0..3).map(|d| (hi[d] - lo[d]).powi(2)).sum::<f64>().sqrt())
         .number("/shape", "finest_cells", finest.cells as f64)
         .number("/shape", "tets", body.mesh.n_tets() as f64)
         .number("/shape", "p2_nodes", body.mesh.n_nodes() as f64)
-        .number("/shape", "volume", linear.volume());
-    if depth.is_finite() {
-        file.number("/shape", "reference_depth", depth);
+        .number("/shape", "volume", volume);
+    if let Task::Thickness { curved, .. } = job.task {
+        file.number("/shape", "reference_depth", depth).number("/shape", "curved_boundary", f64::from(u8::from(curved)));
     }
     file.number("/material", "youngs_modulus", job.material.youngs_modulus).number("/material", "poisson_ratio", job.material.poisson_ratio).number("/material", "density", job.material.density);
     for (k, v) in [("setup", setup), ("target", target_s), ("fit", fit_s), ("final_body", final_s), ("total", total)] {

@@ -163,8 +163,9 @@
 //!
 //! **Replicas.** The fit levels' own alignment noise can be averaged: with `replicas` K
 //! (the CLI's `--replicas`, [`replica_shift`]) every level after the first is fitted on K grids
-//! of its spacing moved by r/K of a cell along the diagonal, each a level of its own, and the
-//! line goes through all K answers per spacing. The oloid shows why (2 ranks, seed 1, levels
+//! of its spacing moved by r/K of a cell along the diagonal, each a level of its own, the
+//! line goes through all K answers per spacing, and the finest level's answer (the answer
+//! without the line) is the mean of the finest spacing's K answers ([`ShapeFit::finest_parameter`]). The oloid shows why (2 ranks, seed 1, levels
 //! 20/28/32/36 against 40 cells): its answers alternate with the alignment — at t* = 0.5 the
 //! centred grids gave 0.5088/0.5100/0.4942 and the half-cell-shifted ones 0.4844/0.4897/0.5110
 //! at 28/32/36 cells — so one alignment per spacing put the line 0.007–0.024 off (mean error
@@ -177,6 +178,51 @@
 //! 0.608 and 0.649 against the centred 0.624 and 0.671 at t* = 0.7, tilting the line). So K
 //! stays 1 by default: it is the remedy for a body whose answers alternate with the grid's
 //! alignment, not for curvature in h.
+//!
+//! # Curved boundary (thickness)
+//!
+//! Everything above describes the body marched from the grid samples alone: crossings linearly
+//! interpolated, P2 edges straight. The thickness fit knows more: the continuous signed
+//! distance s of the solid, so the shell's continuous field g(x) = min(s(x), t·S − s(x)) can be
+//! evaluated anywhere. By default ([`ShapeFamily::Thickness`] with `surface`, the CLI's
+//! default; `--straight-boundary` for the samples alone) the body is meshed by
+//! [`curved_shell`]: the marching's topology from the samples, every crossing moved onto the
+//! zero of g along its grid edge ([`refine_crossings`]), and every mid-edge node of a boundary
+//! edge moved onto it along ∇g ([`mesh::curve_boundary`]; a move that would fold a tet is undone,
+//! spot at 20 cells: 8394 boundary edges, 7275 moved, 254 without a root within half an edge —
+//! edges from the outer to the inner wall — and 865 undone). The P2 surface then interpolates
+//! the true one at six points per face instead of approximating it by chords.
+//!
+//! dλ_k/dt follows the moves: a node on g(x; t) = 0 that moves along a fixed direction d has
+//! dx = d · (−∇g·dx₀ − ∂g/∂t dt)/(∇g·d), with ∂g/∂t = S on the inner wall and 0 on the outer;
+//! for a crossing d is its grid edge and x₀ fixed, for a mid-edge node d is ∇g at the midpoint
+//! x₀ of its corners, so the rest of its gradient goes to the corners projected along d. Nodes
+//! left linear go through the marching's chain as before. Against central differences of
+//! re-meshed, re-solved spectra on a triangulated ellipsoid shell the relative error is 2e-8
+//! (`tests/mpi_sensitivity.rs`).
+//!
+//! Measured (`shape_probe --curved`, ceramic, 2 ranks):
+//!
+//! * hollow analytic ball (R = 50 mm, t = 0.5), mean of its first five-fold cluster at 16/20/24
+//!   cells: straight 20427/20348/20304 Hz, exact crossings alone 20330/20291/20265, curved
+//!   20281/20256/20222. The exact-crossing series (with 32 cells: 20238) extrapolates in h² to
+//!   about 20210 Hz, so the error falls from +217/+138/+94 Hz to +71/+46/+12 Hz.
+//! * spot at t = 0.5 and 0.7 on the centred grid and one randomly shifted grid per size, first
+//!   eight frequencies: from 20 to 28 cells they move by −6.5 … −1.0 % straight and −2.7 …
+//!   −0.6 % curved; from 28 to 36 by −4.5 … −1.1 % and −1.5 … −0.4 %; from 36 to 40 by
+//!   −0.89 … −0.11 % and −0.17 … +0.18 %. The two alignments differ at 36 cells by up to 0.47 %
+//!   straight and 0.24 % curved. So the curved body at 36 cells is as close to the 40-cell
+//!   body as the grids' alignment lets one tell, and the curved body at 20 cells is about where
+//!   the straight one is at 36.
+//!
+//! That is why a curved-boundary fit answers with its finest level by default
+//! ([`ShapeFamily::extrapolates_by_default`]; `extrapolate` in [`ShapeFitSettings`], the CLI's
+//! `--extrapolate`, overrides): the line in h has no bias left to remove between 36 and 40
+//! cells, only the levels' alignment noise to amplify. On spot (seed 1, levels 20/28/32/36,
+//! 40-cell target, 2 ranks) the finest level missed t* = 0.3/0.4/0.5/0.6 by 0.0005/0.0003/
+//! 0.0008/0.0006 and the line by 0.0029/0.0031/0.0050/0.0101. Cost: the signed-distance queries
+//! add 0.4–2.4 s of meshing and 0.2–1.5 s of gradient per evaluation (0.02 and 0.25 s straight)
+//! to a 3–26 s solve.
 //!
 //! E, ν and ρ are known here (the material fit is a separate problem). Every rank runs the same
 //! search on the same numbers (eigenvalues and gradients are broadcast from rank 0), so the
@@ -367,6 +413,118 @@ pub fn refine_crossings(marched: &mesh::MarchedMesh, grid: &BackgroundGrid, f: &
     (out, moved, kept_linear)
 }
 
+/// The body of a hollow shell 0 < s ≤ t·S meshed with its crossings on the continuous
+/// field's zero and a curved P2 boundary (module docs, "Curved boundary").
+pub struct CurvedShell {
+    /// The marching of the sampled shell field (topology, and the crossings' grid edges).
+    pub marched: mesh::MarchedMesh,
+    pub shell: mesh::Shell,
+    /// The linear mesh with exact crossings.
+    pub linear: TetMesh,
+    pub crossings: Vec<ExactCrossing>,
+    /// Crossings left at the linear estimate (a move would have folded a tet).
+    pub crossings_kept_linear: usize,
+    /// The P2 mesh with its boundary mid-edge nodes on the surface.
+    pub quadratic: TetMesh,
+    pub curved: Vec<mesh::CurvedNode>,
+    pub curving: mesh::CurvingReport,
+}
+
+/// Meshes the shell of relative thickness `t` of the solid whose signed distance is `sdf`
+/// (sampled on `grid` as `solid`) with reference depth `depth` = S [m]: marched from the
+/// samples, then every crossing moved onto the zero of the continuous g = min(s, t·S − s)
+/// along its grid edge ([`refine_crossings`]) and every boundary mid-edge node onto it along
+/// ∇g ([`mesh::curve_boundary`]).
+pub fn curved_shell(grid: &BackgroundGrid, solid: &[f64], sdf: &SignedDistance, depth: f64, t: f64, options: &MarchingOptions) -> Result<CurvedShell, ShapeError> {
+    let shell = mesh::shell_of_depth(solid, t, depth)?;
+    if shell.values.iter().all(|v| *v <= 0.0) {
+        return Err(ShapeError::Empty);
+    }
+    let marched = mesh::march(grid, &shell.values, None, options)?;
+    let wall = t * depth;
+    let g = |x: [f64; 3]| {
+        let s = sdf.signed_distance(x);
+        s.min(wall - s)
+    };
+    let (linear, crossings, crossings_kept_linear) = refine_crossings(&marched, grid, &g, 0.01);
+    let straight = lift_to_quadratic(&linear);
+    let (quadratic, curved, curving) = mesh::curve_boundary(&straight, &g, CURVE_MAX_FRACTION, CURVE_MIN_JACOBIAN_RATIO);
+    Ok(CurvedShell { marched, shell, linear, crossings, crossings_kept_linear, quadratic, curved, curving })
+}
+
+/// A boundary mid-edge node moves at most this fraction of its edge's length.
+const CURVE_MAX_FRACTION: f64 = 0.5;
+/// A curved tet keeps det J at least this fraction of its straight det J everywhere.
+const CURVE_MIN_JACOBIAN_RATIO: f64 = 0.05;
+
+impl CurvedShell {
+    /// dλ/dt per mode from the P2 node gradients of every mode (rank 0's `per_node`, 3 per
+    /// node) — module docs, "Curved boundary": a node on g(x; t) = 0 moved along a fixed
+    /// direction d has dx = d·(−∇g·dx₀ − ∂g/∂t dt)/(∇g·d), with ∂g/∂t = S on the inner wall
+    /// (s > t·S/2 there) and 0 on the outer one.
+    fn thickness_derivatives(&self, sdf: &SignedDistance, depth: f64, per_node: &[Vec<f64>]) -> Result<Vec<f64>, ShapeError> {
+        let wall = self.shell.thickness * depth;
+        let dg_dt = |x: [f64; 3]| if sdf.signed_distance(x) > 0.5 * wall { depth } else { 0.0 };
+        let curved_dg_dt: Vec<f64> = self.curved.iter().map(|c| dg_dt(c.position)).collect();
+        let crossing_dg_dt: Vec<f64> = self.crossings.iter().map(|c| dg_dt(c.position)).collect();
+        let mut out = Vec::with_capacity(per_node.len());
+        for g in per_node {
+            let mut g = g.clone();
+            let mut direct = 0.0;
+            // Curved mid-edge nodes: their own t term, and the rest to the corners as the
+            // midpoint's gradient projected along the move.
+            for (c, &ft) in self.curved.iter().zip(&curved_dg_dt) {
+                let gm = [g[3 * c.node], g[3 * c.node + 1], g[3 * c.node + 2]];
+                let along = (0..3).map(|d| gm[d] * c.direction[d]).sum::<f64>() / c.slope;
+                direct -= along * ft;
+                for d in 0..3 {
+                    g[3 * c.node + d] = gm[d] - along * c.gradient[d];
+                }
+            }
+            let mut corners = linear_node_gradient(&self.linear, &self.quadratic, &g).map_err(|e| ShapeError::Solver(e.to_string()))?;
+            // Exact crossings: x = x_a + u (x_b − x_a) with fixed grid corners.
+            for (c, &ft) in self.crossings.iter().zip(&crossing_dg_dt) {
+                let gc = &mut corners[3 * c.node..3 * c.node + 3];
+                let along: f64 = (0..3).map(|d| gc[d] * c.edge[d]).sum();
+                direct -= along * ft / c.slope;
+                gc.iter_mut().for_each(|x| *x = 0.0);
+            }
+            // Everything else (crossings kept linear) through the marching and the shell.
+            let back = self.marched.vjp(&corners)?;
+            out.push(direct + self.shell.vjp(&back.values)?.thickness);
+        }
+        Ok(out)
+    }
+}
+
+/// The spectrum of [`curved_shell`] and, if asked, dλ_k/dt. Collective.
+#[allow(clippy::too_many_arguments)]
+pub fn curved_shell_spectrum(petsc: &Petsc, grid: &BackgroundGrid, solid: &[f64], sdf: &SignedDistance, depth: f64, t: f64, options: &MarchingOptions, material: &Material, n_modes: usize, with_gradient: bool) -> Result<(ShapeSpectrum, Option<Vec<f64>>), ShapeError> {
+    let mut timings = StepTimings::default();
+    let clock = std::time::Instant::now();
+    let body = curved_shell(grid, solid, sdf, depth, t, options)?;
+    timings.meshing = clock.elapsed().as_secs_f64();
+    let (assembled, modes) = assemble_and_solve(petsc, &body.quadratic, material, n_modes, &mut timings)?;
+    let mut eigenvalues: Vec<f64> = modes.eigenvalues[..n_modes].to_vec();
+    broadcast_from_root(petsc, &mut eigenvalues);
+    let derivative = if with_gradient {
+        let clock = std::time::Instant::now();
+        let per_node = node_gradients(petsc, &body.quadratic, &assembled.layout, &modes, material, ClusterTreatment::Mean).map_err(|e| ShapeError::Solver(e.to_string()))?;
+        let mut d = vec![0.0; n_modes];
+        if let Some(per_node) = per_node {
+            d = body.thickness_derivatives(sdf, depth, &per_node[..n_modes])?;
+        }
+        broadcast_from_root(petsc, &mut d);
+        timings.gradient = clock.elapsed().as_secs_f64();
+        Some(d)
+    } else {
+        None
+    };
+    let clusters = modes.clusters.iter().filter(|r| r.start < n_modes).map(|r| r.start..r.end.min(n_modes)).collect();
+    let spectrum = ShapeSpectrum { eigenvalues, gradient: None, clusters, report: body.marched.report.clone(), tets: body.linear.n_tets(), p2_nodes: body.quadratic.n_nodes(), volume: body.linear.volume(), timings };
+    Ok((spectrum, derivative))
+}
+
 /// Assembles the P2 mesh and solves its first `n_modes` elastic modes (the count proven by the
 /// solver's cluster completion, not by an inertia check: that would be a second factorisation
 /// per evaluation).
@@ -423,7 +581,10 @@ pub fn shape_modes(petsc: &Petsc, grid: &BackgroundGrid, values: &[f64], options
         return Err(ShapeError::Empty);
     }
     let marched = mesh::march(grid, values, None, options)?;
-    let quadratic = lift_to_quadratic(&marched.mesh);
+    modes_of_mesh(petsc, lift_to_quadratic(&marched.mesh), marched.report.clone(), material, n_modes)
+}
+
+fn modes_of_mesh(petsc: &Petsc, quadratic: TetMesh, report: MarchingReport, material: &Material, n_modes: usize) -> Result<ShapeModes, ShapeError> {
     let mut timings = StepTimings::default();
     let (assembled, modes) = assemble_and_solve(petsc, &quadratic, material, n_modes, &mut timings)?;
     let mut shapes = assembled.layout.gather_original_order(&modes.vectors).map_err(|e| ShapeError::Solver(e.to_string()))?;
@@ -433,7 +594,7 @@ pub fn shape_modes(petsc: &Petsc, grid: &BackgroundGrid, values: &[f64], options
             s.iter_mut().for_each(|x| *x = -*x);
         }
     }
-    Ok(ShapeModes { eigenvalues: modes.eigenvalues.clone(), residuals: modes.residuals.clone(), rigid_eigenvalues: modes.rigid_eigenvalues.clone(), clusters: modes.clusters.clone(), shapes, report: marched.report.clone(), mesh: quadratic })
+    Ok(ShapeModes { eigenvalues: modes.eigenvalues.clone(), residuals: modes.residuals.clone(), rigid_eigenvalues: modes.rigid_eigenvalues.clone(), clusters: modes.clusters.clone(), shapes, report, mesh: quadratic })
 }
 
 // ------------------------------------------------------------------ surfaces and fields
@@ -585,8 +746,10 @@ pub fn reference_depth(sdf: &SignedDistance, surface: &TriangleSurface) -> Resul
 #[derive(Clone, Debug)]
 pub enum ShapeFamily {
     /// g = min(s, t·S − s): the hollow version of the solid `solid` (samples of its signed
-    /// distance) with reference depth S = `depth` [m]; the parameter is t.
-    Thickness { solid: Vec<f64>, depth: f64 },
+    /// distance) with reference depth S = `depth` [m]; the parameter is t. With `surface` (the
+    /// continuous signed distance the samples came from) the body is meshed with exact
+    /// crossings and a curved boundary ([`curved_shell`]); without, from the samples alone.
+    Thickness { solid: Vec<f64>, depth: f64, surface: Option<std::sync::Arc<SignedDistance>> },
     /// m = c·A + (1 − c)·B; the parameter is c.
     Morph { a: Vec<f64>, b: Vec<f64> },
 }
@@ -613,7 +776,7 @@ impl ShapeFamily {
 
     fn build(&self, p: f64) -> Result<(Vec<f64>, Built), ShapeError> {
         match self {
-            ShapeFamily::Thickness { solid, depth } => {
+            ShapeFamily::Thickness { solid, depth, .. } => {
                 let shell = mesh::shell_of_depth(solid, p, *depth)?;
                 Ok((shell.values.clone(), Built::Shell(shell)))
             }
@@ -628,6 +791,37 @@ impl ShapeFamily {
             (ShapeFamily::Morph { a, b }, Built::Morph(c)) => Ok(mesh::morph_vjp(a, b, *c, d_field)?.c),
             (ShapeFamily::Thickness { .. }, Built::Morph(_)) => unreachable!("a thickness family builds a shell"),
         }
+    }
+
+    /// The spectrum at parameter `p` on `grid` and, if asked, dλ_k/dp. Collective.
+    #[allow(clippy::too_many_arguments)]
+    pub fn spectrum(&self, petsc: &Petsc, grid: &BackgroundGrid, p: f64, options: &MarchingOptions, material: &Material, n_modes: usize, with_gradient: bool) -> Result<(ShapeSpectrum, Option<Vec<f64>>), ShapeError> {
+        if let ShapeFamily::Thickness { solid, depth, surface: Some(sdf) } = self {
+            return curved_shell_spectrum(petsc, grid, solid, sdf, *depth, p, options, material, n_modes, with_gradient);
+        }
+        let (values, built) = self.build(p)?;
+        let spectrum = shape_spectrum(petsc, grid, &values, options, material, n_modes, with_gradient)?;
+        let derivative = match &spectrum.gradient {
+            Some(gradient) => Some(gradient.iter().map(|g| self.derivative(&built, g)).collect::<Result<Vec<f64>, ShapeError>>()?),
+            None => None,
+        };
+        Ok((spectrum, derivative))
+    }
+
+    /// Whether a fit over several levels answers with the extrapolation unless told otherwise
+    /// (module docs, "Curved boundary"): false for the curved thickness body, whose finest
+    /// level is already within the grids' alignment spread of a finer target; true otherwise.
+    pub fn extrapolates_by_default(&self) -> bool {
+        !matches!(self, ShapeFamily::Thickness { surface: Some(_), .. })
+    }
+
+    /// The modes and mesh of the body at parameter `p` (for writing it). Collective.
+    pub fn modes(&self, petsc: &Petsc, grid: &BackgroundGrid, p: f64, options: &MarchingOptions, material: &Material, n_modes: usize) -> Result<ShapeModes, ShapeError> {
+        if let ShapeFamily::Thickness { solid, depth, surface: Some(sdf) } = self {
+            let body = curved_shell(grid, solid, sdf, *depth, p, options)?;
+            return modes_of_mesh(petsc, body.quadratic, body.marched.report.clone(), material, n_modes);
+        }
+        shape_modes(petsc, grid, &self.field(p)?, options, material, n_modes)
     }
 
     fn n_values(&self) -> usize {
@@ -776,8 +970,9 @@ pub struct ShapeFitSettings {
     /// Relative gap below which target modes form one group (default 1e-2).
     pub cluster_rtol: f64,
     /// With two or more levels, answer with the line through the levels' answers evaluated at
-    /// the target's grid spacing (default true).
-    pub extrapolate: bool,
+    /// the target's grid spacing. None (default): the family's default
+    /// ([`ShapeFamily::extrapolates_by_default`]: on, except for the curved thickness body).
+    pub extrapolate: Option<bool>,
     /// The line is fitted to this many of the finest levels (default 3, at least 2).
     pub extrapolation_levels: usize,
     /// Profile a stiffness factor common to every mode out of the loss (module docs, "Free
@@ -787,7 +982,7 @@ pub struct ShapeFitSettings {
 
 impl Default for ShapeFitSettings {
     fn default() -> Self {
-        ShapeFitSettings { modes: 8, bounds: (0.1, 0.95), scan_points: 9, max_refinements: 8, tolerance: 1e-3, refine_window: 0.05, cluster_rtol: 1e-2, extrapolate: true, extrapolation_levels: 3, free_scale: false }
+        ShapeFitSettings { modes: 8, bounds: (0.1, 0.95), scan_points: 9, max_refinements: 8, tolerance: 1e-3, refine_window: 0.05, cluster_rtol: 1e-2, extrapolate: None, extrapolation_levels: 3, free_scale: false }
     }
 }
 
@@ -871,7 +1066,7 @@ pub struct LevelResult {
 #[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
 pub struct ShapeFit {
     /// The answer: the extrapolated value if asked for and available, else the finest
-    /// level's.
+    /// level's (with grid replicas, the mean of the finest spacing's replicas).
     pub parameter: f64,
     /// Per level, coarse to fine.
     pub levels: Vec<LevelResult>,
@@ -879,6 +1074,8 @@ pub struct ShapeFit {
     /// spacing (module docs), clamped to the bounds; `None` with one level or no target
     /// spacing.
     pub extrapolated: Option<f64>,
+    /// Whether `parameter` is `extrapolated` ([`ShapeFitSettings::extrapolate`]).
+    pub extrapolation_used: bool,
     /// The target's grid spacing h* [m] used for the extrapolation (0: continuous).
     pub target_spacing: Option<f64>,
     /// Every evaluation, in order.
@@ -887,6 +1084,11 @@ pub struct ShapeFit {
 }
 
 impl ShapeFit {
+    /// The finest spacing's answer (the mean over its replicas, if any).
+    pub fn finest_parameter(&self) -> f64 {
+        finest_mean(&self.levels)
+    }
+
     /// Seconds per evaluation on average, split like [`StepTimings`], over the evaluations of
     /// `level` that produced a body.
     pub fn mean_timings(&self, level: usize) -> StepTimings {
@@ -1066,12 +1268,21 @@ pub fn fit_shape(petsc: &Petsc, levels: &[ShapeLevel], target: &SpectrumTarget, 
         }
         _ => None,
     };
-    let finest = results.last().expect("at least one level").parameter;
-    let parameter = match extrapolated {
-        Some(p) if settings.extrapolate => p,
-        _ => finest,
+    let finest = finest_mean(&results);
+    let extrapolate = settings.extrapolate.unwrap_or_else(|| levels[0].family.extrapolates_by_default());
+    let (parameter, extrapolation_used) = match extrapolated {
+        Some(p) if extrapolate => (p, true),
+        _ => (finest, false),
     };
-    Ok(ShapeFit { parameter, levels: results, extrapolated, target_spacing, history, seconds: clock.elapsed().as_secs_f64() })
+    Ok(ShapeFit { parameter, levels: results, extrapolated, extrapolation_used, target_spacing, history, seconds: clock.elapsed().as_secs_f64() })
+}
+
+/// The finest spacing's answer: with grid replicas, the mean over its K grids (their alignment
+/// noise averages, as it does in the line). `levels` must not be empty.
+fn finest_mean(levels: &[LevelResult]) -> f64 {
+    let finest_spacing = levels.last().expect("at least one level").spacing;
+    let group: Vec<f64> = levels.iter().filter(|r| (r.spacing - finest_spacing).abs() <= 1e-9 * finest_spacing).map(|r| r.parameter).collect();
+    group.iter().sum::<f64>() / group.len() as f64
 }
 
 /// The least-squares line y = α + β x through `points` (at least two distinct x), at `x`.
@@ -1090,18 +1301,17 @@ pub fn extrapolate_line(points: &[(f64, f64)], x: f64) -> f64 {
 
 /// The loss, its derivative and the Gauss–Newton step at parameter `p` on one level.
 fn evaluate_point(petsc: &Petsc, level: &ShapeLevel, p: f64, target: &SpectrumTarget, options: &MarchingOptions, material: &Material, settings: &ShapeFitSettings) -> Result<(Point<Vec<f64>>, ShapeSpectrum), ShapeError> {
-    let (values, built) = level.family.build(p)?;
-    let spectrum = shape_spectrum(petsc, &level.grid, &values, options, material, settings.modes, true)?;
-    let gradient = spectrum.gradient.as_ref().ok_or_else(|| ShapeError::Solver("the spectrum came without its gradient".into()))?;
-    let d_eigenvalues = gradient.iter().map(|g| level.family.derivative(&built, g)).collect::<Result<Vec<f64>, ShapeError>>()?;
+    let (spectrum, d_eigenvalues) = level.family.spectrum(petsc, &level.grid, p, options, material, settings.modes, true)?;
+    let d_eigenvalues = d_eigenvalues.ok_or_else(|| ShapeError::Solver("the spectrum came without its gradient".into()))?;
     let loss = spectrum_loss(&spectrum.eigenvalues, &d_eigenvalues, target, settings.free_scale)?;
     Ok((Point { p, loss, data: spectrum.eigenvalues.clone() }, spectrum))
 }
 
 /// The thickness fit: `solids` are the solid's signed distance sampled on the levels' grids
-/// (coarse to fine), `depth` its reference depth S ([`reference_depth`]). Collective.
+/// (coarse to fine), `depth` its reference depth S ([`reference_depth`]), `surface` the
+/// continuous signed distance for the curved boundary (None: the samples alone). Collective.
 #[allow(clippy::too_many_arguments)]
-pub fn fit_thickness(petsc: &Petsc, solids: &[SampledField], depth: f64, target: &SpectrumTarget, options: &MarchingOptions, material: &Material, settings: &ShapeFitSettings, target_spacing: Option<f64>, on_eval: impl FnMut(&FitEvaluation)) -> Result<ShapeFit, ShapeError> {
+pub fn fit_thickness(petsc: &Petsc, solids: &[SampledField], depth: f64, surface: Option<std::sync::Arc<SignedDistance>>, target: &SpectrumTarget, options: &MarchingOptions, material: &Material, settings: &ShapeFitSettings, target_spacing: Option<f64>, on_eval: impl FnMut(&FitEvaluation)) -> Result<ShapeFit, ShapeError> {
     if !(depth.is_finite() && depth > 0.0) {
         return Err(ShapeError::Invalid(format!("the reference depth S must be positive, got {depth}")));
     }
@@ -1109,7 +1319,7 @@ pub fn fit_thickness(petsc: &Petsc, solids: &[SampledField], depth: f64, target:
     if !(lo > 0.0 && hi <= 1.0) {
         return Err(ShapeError::Invalid(format!("thickness bounds ({lo}, {hi}) must lie in (0, 1]")));
     }
-    let levels: Vec<ShapeLevel> = solids.iter().map(|s| ShapeLevel { grid: s.grid.clone(), family: ShapeFamily::Thickness { solid: s.values.clone(), depth } }).collect();
+    let levels: Vec<ShapeLevel> = solids.iter().map(|s| ShapeLevel { grid: s.grid.clone(), family: ShapeFamily::Thickness { solid: s.values.clone(), depth, surface: surface.clone() } }).collect();
     fit_shape(petsc, &levels, target, options, material, settings, target_spacing, on_eval)
 }
 

@@ -65,6 +65,7 @@
 use std::fmt;
 use std::path::PathBuf;
 
+pub mod curve;
 pub mod distance;
 mod generate;
 mod gmsh;
@@ -79,6 +80,7 @@ mod write;
 mod tests;
 
 mod locate;
+pub use curve::{curve_boundary, CurvedNode, CurvingReport};
 pub use distance::{compare_shapes, sample_surface, surface_distance, volume_iou, DistanceError, ShapeComparison, SurfaceDistance};
 pub use generate::box_mesh;
 pub use locate::SurfacePoint;

@@ -164,7 +164,7 @@ fn family_derivatives_match_finite_differences_of_the_field() {
     let depth = 0.0213;
     let weights = rng.uniform_vec(n, -1.0, 1.0);
     let dot = |f: &[f64]| f.iter().zip(&weights).map(|(a, b)| a * b).sum::<f64>();
-    let thickness = ShapeFamily::Thickness { solid: solid.clone(), depth };
+    let thickness = ShapeFamily::Thickness { solid: solid.clone(), depth, surface: None };
     let t = 0.437;
     let (_, built) = thickness.build(t).unwrap();
     let exact = thickness.derivative(&built, &weights).unwrap();
@@ -183,7 +183,7 @@ fn family_derivatives_match_finite_differences_of_the_field() {
     let exact = morph.derivative(&built, &weights).unwrap();
     let fd = (dot(&morph.field(0.3 + h).unwrap()) - dot(&morph.field(0.3 - h).unwrap())) / (2.0 * h);
     assert!((exact - fd).abs() < 1e-6 * exact.abs().max(1e-12), "dλ/dc {exact} vs {fd}");
-    assert!(matches!(ShapeFamily::Thickness { solid, depth: 0.0 }.field(0.5), Err(ShapeError::Marching(_))));
+    assert!(matches!(ShapeFamily::Thickness { solid, depth: 0.0, surface: None }.field(0.5), Err(ShapeError::Marching(_))));
 }
 
 #[test]
@@ -276,4 +276,22 @@ fn refined_crossings_lie_on_the_continuous_surface_and_keep_the_mesh_valid() {
     let (linear_error, refined_error) = ((marched.mesh.volume() / exact - 1.0).abs(), (moved_mesh.volume() / exact - 1.0).abs());
     // What remains is the inscribed polyhedron's deficit (here 2.2 % against 4.2 %).
     assert!(refined_error < 0.6 * linear_error, "volume error {refined_error:e} (refined) vs {linear_error:e} (linear)");
+}
+
+#[test]
+fn the_finest_answer_is_the_mean_over_the_finest_spacings_replicas_and_the_curved_body_does_not_extrapolate() {
+    let level = |cells: usize, spacing: f64, parameter: f64| LevelResult { cells, spacing, parameter, loss: 0.0, log_scale: 0.0, eigenvalues: Vec::new(), evaluations: 1, seconds: 0.0 };
+    // One grid per spacing: the last level's answer.
+    assert_eq!(finest_mean(&[level(20, 3e-3, 0.4), level(28, 2e-3, 0.5)]), 0.5);
+    // Two replicas of the finest spacing: their mean, not the coarser level's.
+    let replicas = [level(20, 3e-3, 0.4), level(28, 2e-3, 0.5), level(28, 2e-3, 0.52)];
+    assert!((finest_mean(&replicas) - 0.51).abs() < 1e-15);
+    let fit = ShapeFit { parameter: 0.51, levels: replicas.to_vec(), extrapolated: None, extrapolation_used: false, target_spacing: None, history: Vec::new(), seconds: 0.0 };
+    assert!((fit.finest_parameter() - 0.51).abs() < 1e-15);
+    // The family's default: the curved thickness body answers with its finest level.
+    let surface = TriangleSurface { vertices: vec![[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]], triangles: vec![[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]] };
+    let sdf = std::sync::Arc::new(SignedDistance::new(&surface).unwrap());
+    assert!(!ShapeFamily::Thickness { solid: vec![1.0], depth: 0.1, surface: Some(sdf) }.extrapolates_by_default());
+    assert!(ShapeFamily::Thickness { solid: vec![1.0], depth: 0.1, surface: None }.extrapolates_by_default());
+    assert!(ShapeFamily::Morph { a: vec![1.0], b: vec![1.0] }.extrapolates_by_default());
 }
