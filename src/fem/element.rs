@@ -391,7 +391,7 @@ pub(super) fn check_nodes(n: usize) -> Result<(), ElementError> {
 
 /// J[r][c] = ∂x_r/∂ξ_c = Σ_a x_a[r] ∂N_a/∂ξ_c.
 #[inline(always)]
-pub(super) fn jacobian(coords: &[[f64; 3]], grad: &[[f64; 3]]) -> [[f64; 3]; 3] {
+pub(crate) fn jacobian(coords: &[[f64; 3]], grad: &[[f64; 3]]) -> [[f64; 3]; 3] {
     let mut j = [[0.0; 3]; 3];
     for (x, g) in coords.iter().zip(grad) {
         for r in 0..3 {
@@ -405,7 +405,7 @@ pub(super) fn jacobian(coords: &[[f64; 3]], grad: &[[f64; 3]]) -> [[f64; 3]; 3] 
 
 /// Jacobian of the affine map through the 4 corners (columns are edge vectors from corner 0).
 #[inline(always)]
-pub(super) fn affine_jacobian(coords: &[[f64; 3]]) -> [[f64; 3]; 3] {
+pub(crate) fn affine_jacobian(coords: &[[f64; 3]]) -> [[f64; 3]; 3] {
     let mut j = [[0.0; 3]; 3];
     for r in 0..3 {
         for c in 0..3 {
@@ -416,7 +416,7 @@ pub(super) fn affine_jacobian(coords: &[[f64; 3]]) -> [[f64; 3]; 3] {
 }
 
 #[inline(always)]
-pub(super) fn det3(j: &[[f64; 3]; 3]) -> f64 {
+pub(crate) fn det3(j: &[[f64; 3]; 3]) -> f64 {
     j[0][0] * (j[1][1] * j[2][2] - j[1][2] * j[2][1])
         - j[0][1] * (j[1][0] * j[2][2] - j[1][2] * j[2][0])
         + j[0][2] * (j[1][0] * j[2][1] - j[1][1] * j[2][0])

@@ -32,6 +32,7 @@
 //! units of f], so the caller only needs ∂f/∂p there.
 
 use super::{ElementOrder, TetMesh, TET10_EDGES};
+use crate::fem::element::{affine_jacobian, det3, jacobian};
 use crate::fem::p2_grad_ref;
 use std::collections::HashMap;
 
@@ -200,27 +201,9 @@ fn lattice_gradients() -> Vec<[[f64; 3]; 10]> {
 
 /// det J ≥ ratio × the straight tet's det J at every lattice point.
 fn keeps_orientation(coords: &[[f64; 3]], lattice: &[[[f64; 3]; 10]], ratio: f64) -> bool {
-    let straight = {
-        let c = coords;
-        let j = [0, 1, 2].map(|r| [0, 1, 2].map(|col| c[col + 1][r] - c[0][r]));
-        det(&j)
-    };
+    let straight = det3(&affine_jacobian(coords));
     let sign = straight.signum();
-    lattice.iter().all(|g| {
-        let mut j = [[0.0; 3]; 3];
-        for (x, ga) in coords.iter().zip(g) {
-            for r in 0..3 {
-                for c in 0..3 {
-                    j[r][c] += x[r] * ga[c];
-                }
-            }
-        }
-        sign * det(&j) >= ratio * straight.abs()
-    })
-}
-
-fn det(j: &[[f64; 3]; 3]) -> f64 {
-    j[0][0] * (j[1][1] * j[2][2] - j[1][2] * j[2][1]) - j[0][1] * (j[1][0] * j[2][2] - j[1][2] * j[2][0]) + j[0][2] * (j[1][0] * j[2][1] - j[1][1] * j[2][0])
+    lattice.iter().all(|g| sign * det3(&jacobian(coords, g)) >= ratio * straight.abs())
 }
 
 #[cfg(test)]
