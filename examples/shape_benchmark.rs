@@ -19,14 +19,17 @@
 //! true parameter. The thickness reference S (deepest point of the surface) is computed once
 //! per surface and used by target and fit alike.
 //!
-//! `--replicas K` fits every level after the first on K grids of its spacing, moved by r/K of
-//! a cell along the diagonal (r = 0 … K−1, [`replica_shift`]), each replica a level of its own
-//! (starting from the previous one's answer), and the line in h goes through the finest
-//! 3·K answers: the grids' alignment noise averages over the replicas instead of riding on one
-//! alignment per spacing (module docs of `diffsound::inverse::shape`, "Grid bias").
+//! `--replicas K` fits the finest level (when the answer is the finest level's: the curved
+//! thickness body's default) or every level after the first (when the answer is the line) on K
+//! grids of its spacing, moved by r/K of a cell along the diagonal (r = 0 … K−1,
+//! [`replica_shift`]), each replica a level of its own (starting from the previous one's
+//! answer); the finest level's answer is the mean of its K grids', and the line in h goes
+//! through every replica of the finest three spacings: the grids' alignment noise averages
+//! over the replicas instead of riding on one alignment per spacing (module docs of
+//! `diffsound::inverse::shape`, "Grid bias").
 use diffsound::random::SplitMix64;
 use diffsound::fem::Material;
-use diffsound::inverse::shape::{fit_morph, fit_thickness, normalise_surface, replica_levels, replica_shift, read_surface, reference_depth, union_box, FitEvaluation, SampledField, ShapeFamily, ShapeFit, ShapeFitSettings, SpectrumTarget};
+use diffsound::inverse::shape::{fit_morph, fit_thickness, normalise_surface, replica_levels, replica_line_levels, replica_shift, read_surface, reference_depth, union_box, FitEvaluation, SampledField, ShapeFamily, ShapeFit, ShapeFitSettings, SpectrumTarget};
 use diffsound::mesh::{BackgroundGrid, MarchingOptions, SignedDistance, TriangleSurface};
 use diffsound::petsc::Petsc;
 use std::time::Instant;
@@ -132,19 +135,22 @@ fn main() {
     settings.modes = args.modes;
     settings.extrapolate = args.extrapolate;
     settings.free_scale = args.free_scale;
-    // Every level after the first on `replicas` grids: (cells, replica).
-    let fit_levels = replica_levels(&args.levels, args.replicas);
-    settings.extrapolation_levels *= args.replicas;
+    // The finest level (answer from the finest level) or every level after the first (answer
+    // from the line) on `replicas` grids: (cells, replica).
+    let every_level = args.extrapolate.unwrap_or(morph || args.straight_boundary);
+    let fit_levels = replica_levels(&args.levels, args.replicas, every_level);
+    settings.extrapolation_levels = replica_line_levels(settings.extrapolation_levels, args.replicas, every_level);
     let level_name = |&(c, r): &(usize, usize)| if r == 0 { format!("@{c}") } else { format!("@{c}~{r}") };
     let name_p = if morph { "c" } else { "t" };
     if root {
         println!(
-            "## {} benchmark\n\nseed {}, {} modes, fit levels {:?} cells ({} grid replica(s) per level after the first), target grid {} cells (randomly shifted), {} rank(s), ceramic, shapes scaled to a 0.1 m diagonal, extrapolation in h {}, free stiffness scale {}, thickness boundary {}.\n",
+            "## {} benchmark\n\nseed {}, {} modes, fit levels {:?} cells ({} grid replica(s) {}), target grid {} cells (randomly shifted), {} rank(s), ceramic, shapes scaled to a 0.1 m diagonal, extrapolation in h {}, free stiffness scale {}, thickness boundary {}.\n",
             if morph { "Morph" } else { "Thickness" },
             args.seed,
             args.modes,
             args.levels,
             args.replicas,
+            if every_level { "per level after the first" } else { "of the finest level" },
             args.target_cells,
             petsc.size(),
             match args.extrapolate { Some(true) => "on", Some(false) => "off", None => "the family's default (off for the curved thickness, else on)" },

@@ -11,7 +11,7 @@
 #
 # Environment: OUT_DIR (default out/bench_shape), SHARED (shared data directory, default
 # /work/shared if present, else ../shared), THICKNESS_SHAPES / MORPH_PAIRS to override the
-# inputs, THICKNESS_LEVELS (20,28,32,36) / THICKNESS_TARGET (40), MORPH_LEVELS (16,20,24,28) /
+# inputs, THICKNESS_LEVELS (20,28,36) / THICKNESS_TARGET (40), MORPH_LEVELS (16,20,24,28) /
 # MORPH_TARGET (32), REPLICAS (grids per level after the first, default 1). Runs at nice 5 (the machine is shared).
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -46,7 +46,7 @@ bench=target/release/examples/shape_benchmark
 for np in $ranks; do
   if [ "$task" = thickness ] || [ "$task" = both ]; then
     name="thickness_np$np"
-    nice -n 5 mpirun -np "$np" "$bench" thickness --levels "${THICKNESS_LEVELS:-20,28,32,36}" --target-cells "${THICKNESS_TARGET:-40}" --replicas "${REPLICAS:-1}" \
+    nice -n 5 mpirun -np "$np" "$bench" thickness --levels "${THICKNESS_LEVELS:-20,28,36}" --target-cells "${THICKNESS_TARGET:-40}" --replicas "${REPLICAS:-1}" \
       --seed "$seed" --json "$OUT_DIR/$name.json" "${thickness_shapes[@]}" 2> "$OUT_DIR/$name.log" | tee "$OUT_DIR/$name.md"
     echo "- $name: ${thickness_shapes[*]} → $name.md, $name.json, $name.log (finished $(date -u +%H:%MZ))" >> "$OUT_DIR/README.md"
   fi

@@ -123,6 +123,7 @@ fn bad_input_fails_cleanly_without_output() {
         (vec!["fit-morph", "--shape-a", s(&solid), "--target-weight", "0.5"], "no shape B"),
         (vec!["fit-morph", "--config", s(&straight), "--shape-a", s(&solid), "--shape-b", s(&solid), "--target-weight", "0.5"], "straight_boundary"),
         (vec!["fit-thickness", "--surface", s(&solid), "--target-thickness", "0.5", "--replicas", "5"], "--replicas must lie in 1..=4"),
+        (vec!["fit-thickness", "--surface", s(&solid), "--target-thickness", "0.5", "--extrapolate", "--no-extrapolate"], "exclude each other"),
         (vec!["fit-morph", "--shape-a", s(&solid), "--shape-b", s(&solid), "--target-weight", "0.5", "--cells", "14,12"], "must increase"),
     ];
     for (mut args, expected) in cases {

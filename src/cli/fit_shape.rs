@@ -24,9 +24,10 @@
 //!   with two or more levels, the line in the grid spacing through the finest levels' answers
 //!   at the target's spacing (morph, `--straight-boundary`; `target_spacing`, default 0 for a
 //!   file target, the target grid's for a synthesised one); `--extrapolate` and
-//!   `--no-extrapolate` choose explicitly. `replicas` K (default 1) fits every level after the
-//!   first on K grids of its spacing, moved by r/K of a cell along the diagonal; the line goes
-//!   through all of them and the finest level's answer is the mean of its K grids': the grids'
+//!   `--no-extrapolate` choose explicitly. `replicas` K (default 1) fits the finest level (the
+//!   answer is the finest level's) or every level after the first (the answer is the line) on
+//!   K grids of its spacing, moved by r/K of a cell along the diagonal; the line goes through
+//!   all of them and the finest level's answer is the mean of its K grids': the grids'
 //!   alignment noise averages instead of riding on one alignment per spacing
 //!   (src/inverse/shape.rs, "Grid bias and its extrapolation"), at K times the cost of those
 //!   levels.
@@ -61,7 +62,7 @@
 use super::{fail, Progress};
 use crate::random::SplitMix64;
 use crate::fem::Material;
-use crate::inverse::shape::{fit_shape, normalise_surface, read_surface, reference_depth, replica_levels, replica_shift, shifted_covering, union_box, FitEvaluation, SearchPhase, ShapeFamily, ShapeFit, ShapeFitSettings, ShapeLevel, SpectrumTarget};
+use crate::inverse::shape::{fit_shape, normalise_surface, read_surface, reference_depth, replica_levels, replica_line_levels, replica_shift, shifted_covering, union_box, FitEvaluation, SearchPhase, ShapeFamily, ShapeFit, ShapeFitSettings, ShapeLevel, SpectrumTarget};
 use crate::io::results::ResultsFile;
 use crate::io::{write_modes, MaterialRecord, ModesFile};
 use crate::mesh::{self, MarchingOptions, SignedDistance, TriangleSurface};
@@ -265,6 +266,13 @@ pub struct SolverConfig {
     pub petsc_options: Vec<String>,
 }
 
+/// Whether replicas go on every level after the first (the answer is the line through the
+/// levels) or on the finest alone (the answer is the finest spacing's mean: the curved
+/// thickness body unless told `--extrapolate`).
+fn replicate_every_level(task: &Task, settings: &ShapeFitSettings) -> bool {
+    settings.extrapolate.unwrap_or(!matches!(task, Task::Thickness { curved: true, .. }))
+}
+
 /// Which parameter is fitted, and of what.
 #[derive(Clone, Debug)]
 pub enum Task {
@@ -406,7 +414,7 @@ fn resolve(task: Task, synthetic_value: Option<f64>, bounds: Option<(f64, f64)>,
     }
     settings.validate().map_err(|e| e.to_string())?;
     // The line goes through the same number of spacings, each with all its replicas.
-    settings.extrapolation_levels *= replicas;
+    settings.extrapolation_levels = replica_line_levels(settings.extrapolation_levels, replicas, replicate_every_level(&task, &settings));
     let (lo, hi) = settings.bounds;
     match task {
         Task::Thickness { .. } if !(lo > 0.0 && hi <= 1.0) => return Err(format!("thickness bounds ({lo}, {hi}) must lie in (0, 1]")),
@@ -569,7 +577,7 @@ fn compute(petsc: &Petsc, job: &Job, shapes: Vec<Shape>) -> Result<(), String> {
         progress.say(format!("{}: reference depth S = {:.4} mm (deepest point of the solid)", shapes[0].path.display(), 1e3 * depth));
     }
     let mut levels = Vec::new();
-    for (cells, r) in replica_levels(&job.cells, job.replicas) {
+    for (cells, r) in replica_levels(&job.cells, job.replicas, replicate_every_level(&job.task, &job.settings)) {
         let grid = shifted_covering(lo, hi, cells, replica_shift(r, job.replicas)).map_err(|e| e.to_string())?;
         levels.push(ShapeLevel { family: family_on(job, &shapes, &grid, depth), grid });
     }

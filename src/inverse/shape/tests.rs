@@ -93,6 +93,11 @@ fn free_scale_loss_ignores_a_common_stiffness_factor_and_its_gradient_is_exact()
 /// A synthetic level: the log-linear model with curvature, plus jumps of the loss (topology
 /// changes) and a region without a body.
 fn synthetic(truth: f64, jumps: f64, hole_below: f64) -> impl Fn(f64) -> Option<Point<()>> {
+    synthetic_with_spacing(truth, jumps, 0.037, hole_below)
+}
+
+/// [`synthetic`] with a jump every `spacing` in p.
+fn synthetic_with_spacing(truth: f64, jumps: f64, spacing: f64, hole_below: f64) -> impl Fn(f64) -> Option<Point<()>> {
     let target = SpectrumTarget::new(vec![1.0e8, 2.0e8, 2.01e8, 4.0e8], 1e-2).unwrap();
     let a = [0.2, 1.5, 1.4, 0.8];
     let b = [0.5, 0.3, 0.2, -0.4];
@@ -101,8 +106,8 @@ fn synthetic(truth: f64, jumps: f64, hole_below: f64) -> impl Fn(f64) -> Option<
             return None;
         }
         let (mut l, d) = model(p, truth, &target.eigenvalues, &a, &b);
-        // Piecewise-constant relative offsets of the spectrum (a jump every 0.037 in p).
-        let cell = (p / 0.037).floor();
+        // Piecewise-constant relative offsets of the spectrum (a jump every `spacing` in p).
+        let cell = (p / spacing).floor();
         for (k, v) in l.iter_mut().enumerate() {
             *v *= 1.0 + jumps * ((cell * 7.0 + k as f64 * 3.0).sin());
         }
@@ -144,6 +149,54 @@ fn search_refines_from_a_coarser_answer_and_reports_what_failed() {
     let hole = synthetic(0.5, 0.0, 2.0);
     assert_eq!(search_level(|p, _| hole(p), SearchStart::Scan, &settings).unwrap_err(), SearchFailure::NothingScanned);
     assert_eq!(search_level(|p, _| hole(p), SearchStart::From(0.5), &settings).unwrap_err(), SearchFailure::StartFailed);
+}
+
+/// A level that cannot match the target (the grid's bias: every mode off by its own 1–2 %)
+/// and whose modes bend with p, as on the oloid's 36-cell level (loss 7e-4 at its minimum).
+/// The Gauss–Newton curvature Σ|G|J² leaves out the residuals' own curvature Σ|G| r dJ/dp,
+/// so with a large residual each step from one point overshoots: on the oloid it bounced
+/// between 0.6937 and 0.6949 for seven evaluations. The secant of dL/dp through the previous
+/// point sees the true curvature.
+#[test]
+fn search_settles_in_few_evaluations_when_the_target_is_out_of_reach() {
+    let settings = ShapeFitSettings { bounds: (0.05, 0.95), ..Default::default() };
+    let target = SpectrumTarget::new(vec![1.0e8, 2.0e8, 2.01e8, 4.0e8, 6.0e8], 1e-2).unwrap();
+    // Every mode's residual and its bending have the same sign: the residuals' curvature adds
+    // to the Gauss–Newton one.
+    let a = [0.2, 0.3, 0.25, 0.15, 0.2];
+    let b = [1.5, 1.2, 1.0, 1.6, 1.4];
+    let bias = [0.02, 0.015, 0.012, 0.018, 0.02];
+    let mut rng = Rng(5);
+    let mut total = 0;
+    for _ in 0..20 {
+        let centre = rng.uniform(0.3, 0.8);
+        let level = |p: f64| {
+            let (mut l, mut d) = model(p, centre, &target.eigenvalues, &a, &b);
+            for k in 0..l.len() {
+                l[k] *= 1.0 + bias[k];
+                d[k] *= 1.0 + bias[k];
+            }
+            Some(Point { p, loss: spectrum_loss(&l, &d, &target, false).ok()?, data: () })
+        };
+        // The true minimiser, by a fine scan of the smooth loss.
+        let minimiser = (-20000..=20000).map(|i| centre + 1e-5 * i as f64).min_by(|&x, &y| level(x).unwrap().loss.loss.total_cmp(&level(y).unwrap().loss.loss)).unwrap();
+        let start = minimiser + rng.uniform(-0.03, 0.03);
+        let mut evaluations = 0;
+        let best = search_level(
+            |p, _| {
+                evaluations += 1;
+                level(p)
+            },
+            SearchStart::From(start),
+            &settings,
+        )
+        .unwrap();
+        assert!((best.p - minimiser).abs() < 1.5e-3, "minimiser {minimiser}, start {start}: found {} after {evaluations} evaluations", best.p);
+        total += evaluations;
+    }
+    // Measured: 82 evaluations with the secant's curvature, 138 with Gauss–Newton steps alone
+    // (and 50 against 51 when the modes' bias and bending have mixed signs).
+    assert!(total <= 20 * 5, "{total} evaluations for 20 searches");
 }
 
 #[test]
@@ -230,8 +283,12 @@ fn replica_grids_are_shifted_copies_of_the_centred_grid() {
     }
     assert_ne!(moved.values, centred.values);
     assert!(SampledField::of_sdf_shifted(&sdf, lo, hi, 8, [0.6, 0.0, 0.0]).is_err());
-    assert_eq!(replica_levels(&[20, 28, 32], 2), vec![(20, 0), (28, 0), (28, 1), (32, 0), (32, 1)]);
-    assert_eq!(replica_levels(&[20, 28], 1), vec![(20, 0), (28, 0)]);
+    assert_eq!(replica_levels(&[20, 28, 32], 2, true), vec![(20, 0), (28, 0), (28, 1), (32, 0), (32, 1)]);
+    assert_eq!(replica_levels(&[20, 28], 1, true), vec![(20, 0), (28, 0)]);
+    assert_eq!(replica_levels(&[20, 28, 36], 2, false), vec![(20, 0), (28, 0), (36, 0), (36, 1)]);
+    assert_eq!(replica_levels(&[20], 3, false), vec![(20, 0)]);
+    assert_eq!(replica_line_levels(3, 2, true), 6);
+    assert_eq!(replica_line_levels(3, 2, false), 4);
 }
 
 #[test]
