@@ -12,7 +12,9 @@
 # Environment: OUT_DIR (default out/bench_shape), SHARED (shared data directory, default
 # /work/shared if present, else ../shared), THICKNESS_SHAPES / MORPH_PAIRS to override the
 # inputs, THICKNESS_LEVELS (20,28,36) / THICKNESS_TARGET (40), MORPH_LEVELS (16,20,24,28) /
-# MORPH_TARGET (32), REPLICAS (grids per level after the first, default 1). Runs at nice 5 (the machine is shared).
+# MORPH_TARGET (32), REPLICAS (grids per replicated level, default 1: the finest level when the
+# answer is the finest level's, as for the curved thickness body, else every level after the
+# first), THICKNESS_MODES / MORPH_MODES (compared modes, default 8). Runs at nice 5 (the machine is shared).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 source scripts/mpi-env.sh
@@ -47,13 +49,13 @@ for np in $ranks; do
   if [ "$task" = thickness ] || [ "$task" = both ]; then
     name="thickness_np$np"
     nice -n 5 mpirun -np "$np" "$bench" thickness --levels "${THICKNESS_LEVELS:-20,28,36}" --target-cells "${THICKNESS_TARGET:-40}" --replicas "${REPLICAS:-1}" \
-      --seed "$seed" --json "$OUT_DIR/$name.json" "${thickness_shapes[@]}" 2> "$OUT_DIR/$name.log" | tee "$OUT_DIR/$name.md"
+      --modes "${THICKNESS_MODES:-8}" --seed "$seed" --json "$OUT_DIR/$name.json" "${thickness_shapes[@]}" 2> "$OUT_DIR/$name.log" | tee "$OUT_DIR/$name.md"
     echo "- $name: ${thickness_shapes[*]} → $name.md, $name.json, $name.log (finished $(date -u +%H:%MZ))" >> "$OUT_DIR/README.md"
   fi
   if [ "$task" = morph ] || [ "$task" = both ]; then
     name="morph_np$np"
     nice -n 5 mpirun -np "$np" "$bench" morph --levels "${MORPH_LEVELS:-16,20,24,28}" --target-cells "${MORPH_TARGET:-32}" --replicas "${REPLICAS:-1}" \
-      --seed "$seed" --json "$OUT_DIR/$name.json" "${morph_pairs[@]}" 2> "$OUT_DIR/$name.log" | tee "$OUT_DIR/$name.md"
+      --modes "${MORPH_MODES:-8}" --seed "$seed" --json "$OUT_DIR/$name.json" "${morph_pairs[@]}" 2> "$OUT_DIR/$name.log" | tee "$OUT_DIR/$name.md"
     echo "- $name: ${morph_pairs[*]} → $name.md, $name.json, $name.log (finished $(date -u +%H:%MZ))" >> "$OUT_DIR/README.md"
   fi
 done

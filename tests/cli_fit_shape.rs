@@ -98,6 +98,28 @@ fn thickness_and_morph_fits_write_results_and_a_paraview_mesh() {
     assert!((c_replicas - 0.3).abs() < 0.1, "morph weight with replicas {c_replicas}");
 }
 
+/// The curved thickness body answers with its finest level, so `--replicas` replicates that
+/// level alone, and the answer is the mean over its grids.
+#[test]
+fn thickness_replicas_go_on_the_finest_level_alone() {
+    let dir = scratch("cli_fit_shape_replicas");
+    let solid = box_obj(&dir, "box.obj", [60.0, 40.0, 30.0]);
+    let out = dir.join("thickness_replicas.h5");
+    let args = vec![
+        "fit-thickness", "--surface", s(&solid), "--target-thickness", "0.5", "--target-cells", "16", "--units", "mm", "--cells", "10,12,14", "--replicas", "2",
+        "--modes", "4", "--scan-points", "5", "--max-refinements", "3", "--out", s(&out),
+    ];
+    let run = mpirun(2, &args, LIMIT);
+    assert!(run.success(), "{}", run.describe());
+    let (cells, _) = read_dataset(&out, "/fit/levels/cells").unwrap();
+    assert_eq!(cells, vec![10.0, 12.0, 14.0, 14.0]);
+    let (levels, _) = read_dataset(&out, "/fit/levels/parameter").unwrap();
+    let answer = number_attribute(&out, "/fit", "parameter");
+    assert!((answer - 0.5 * (levels[2] + levels[3])).abs() < 1e-12, "answer {answer}, levels {levels:?}");
+    assert!((number_attribute(&out, "/fit", "finest_level_parameter") - answer).abs() < 1e-12);
+    assert!((answer - 0.5).abs() < 0.1, "thickness {answer}");
+}
+
 #[test]
 fn bad_input_fails_cleanly_without_output() {
     let dir = scratch("cli_fit_shape_bad");

@@ -232,13 +232,43 @@
 //! | turtle | 0.0234 | 0.0184 | 0.0273 |
 //!
 //! The choice of the finest level rests on the probe above, but was made after the spot fits
-//! had been seen; a second seed has not been run. What the curved boundary does not fix: the
-//! oloid's answer alternates with the grid's alignment at its sharp rim (the centred 36-cell
-//! grid answers 0.010–0.015 below the 28- and 32-cell ones on every target), and the turtle's
-//! cavity at t ≥ 0.6 spans a cell or two (levels 0.43/0.50/0.57/0.61 for t* = 0.7). Cost: the
-//! signed-distance queries add 0.3–2.4 s of meshing and 0.2–1.5 s of gradient per evaluation
-//! (0.02 and 0.25 s straight) to a 2–26 s solve; 180–370 s per fit (mean 213–272 s per shape,
-//! two spot fits and one bob fit shared the machine with builds).
+//! had been seen. What the curved boundary does not fix: the oloid's answer alternates with
+//! the grid's alignment at its sharp rim (the centred 36-cell grid answers 0.010–0.015 below
+//! the 28- and 32-cell ones on every target), and the turtle's cavity at t ≥ 0.6 spans a cell
+//! or two (levels 0.43/0.50/0.57/0.61 for t* = 0.7). Cost: the signed-distance queries add
+//! 0.3–2.4 s of meshing and 0.2–1.5 s of gradient per evaluation (0.02 and 0.25 s straight) to
+//! a 2–26 s solve; 180–370 s per fit (mean 213–272 s per shape, two spot fits and one bob fit
+//! shared the machine with builds).
+//!
+//! **Second seed, replicas of the finest level.** The oloid's alternation averages out over
+//! two grids of the finest spacing; the middle levels only start the next one, so
+//! [`replica_levels`] replicates the finest level alone when the answer is the finest level's,
+//! and the 32-cell level, which served only the line, is gone. Seed 2, levels 20/28/36 with two
+//! 36-cell grids, 40-cell target, 2 ranks (`out/bench_shape/seed2/`), finest-level mean / line
+//! through all four levels:
+//!
+//! | shape | finest level (max) | line | s per fit (max) |
+//! |---|---|---|---|
+//! | oloid | 0.0019 (0.0046) | 0.0025 | 238 (298) |
+//! | spot | 0.0046 (0.0118) | 0.0018 | 217 (278) |
+//! | bob | 0.0028 (0.0046) | 0.0093 | 219 (254) |
+//!
+//! Every fit took under 300 s. Neither answer wins on both seeds: spot's finest level was the
+//! better one on seed 1 (0.0012 against 0.0087) and the worse on seed 2, where at t* = 0.6 and
+//! 0.7 both 36-cell grids sit 0.006–0.018 below t* while the levels still climb (0.588/0.654/
+//! 0.688 at t* = 0.7): at high t spot is not converged at 36 cells, and the probe's 36 → 40
+//! change above (±0.18 %) understated that.
+//!
+//! **The turtle needs more modes.** Its first eight modes hardly see the cavity at high t:
+//! from t = 0.65 to 0.8 they move by under 1.2 % in λ (36 cells), while its first mode, a thin
+//! feature's, sits 7 % below the 40-cell target's at every t (`shape_probe --scan`), so the
+//! 8-mode loss changes by 1.5 % over that range and its minimum goes wherever the grids'
+//! alignment puts it. Modes 9–20 move by 1.5–13 % from t = 0.6 to 0.8. With 16 modes (seed 2,
+//! same levels and replicas, `out/bench_shape/seed2_turtle16/`): t* = 0.3 … 0.7 → errors
+//! 0.0059, 0.0025, 0.0030, 0.0015, 0.0473 (8 modes, seed 1: 0.0027, 0.0014, 0.0104, 0.0101,
+//! 0.0923), mean 0.0120; 266–462 s per fit (43.7 s per 36-cell evaluation against 28.8 with 8
+//! modes). At t* = 0.7 the levels still climb (0.55/0.60/0.65): its cavity is not resolved by
+//! 36 cells whatever the modes. The default stays at 8 modes (`--modes`).
 //!
 //! E, ν and ρ are known here (the material fit is a separate problem). Every rank runs the same
 //! search on the same numbers (eigenvalues and gradients are broadcast from rank 0), so the
