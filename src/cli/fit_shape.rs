@@ -89,8 +89,9 @@ pub struct ShapeArgs {
     /// Grid levels, coarse to fine: cells along the longest axis (default 20,28).
     #[arg(long, value_delimiter = ',')]
     pub cells: Vec<usize>,
-    /// Grids per level after the first, each moved by r/K of a cell along the diagonal; the
-    /// extrapolation goes through all of them (1–4, default 1).
+    /// Grids per replicated level, each moved by r/K of a cell along the diagonal (1–4, default
+    /// 1): the finest level when the answer is the finest level's (curved thickness; the answer
+    /// is then their mean), else every level after the first (the line goes through all).
     #[arg(long)]
     pub replicas: Option<usize>,
     /// Modes compared (default 8).
@@ -193,7 +194,7 @@ pub struct FitMorphArgs {
 /// units = "m"
 /// diagonal = 0.1
 /// cells = [20, 28]
-/// replicas = 1                  # grids per level after the first (1–4)
+/// replicas = 1                  # grids per replicated level (1–4): the finest, or all but the first for the line
 /// straight_boundary = false      # fit-thickness: true meshes from the grid samples alone
 /// out = "out/spot_thickness.h5"
 /// [target]
