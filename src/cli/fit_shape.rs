@@ -298,7 +298,7 @@ pub struct Job {
     pub unit_scale: f64,
     pub diagonal: Option<f64>,
     pub cells: Vec<usize>,
-    /// Grids per level after the first ([`crate::inverse::shape::replica_shift`]).
+    /// Grids per replicated level ([`crate::inverse::shape::replica_levels`], [`crate::inverse::shape::replica_shift`]).
     pub replicas: usize,
     pub target: TargetSource,
     pub material: Material,
