@@ -29,7 +29,7 @@
 //! `diffsound::inverse::shape`, "Grid bias").
 use diffsound::random::SplitMix64;
 use diffsound::fem::Material;
-use diffsound::inverse::shape::{fit_morph, fit_thickness, normalise_surface, replica_levels, replica_line_levels, replica_shift, read_surface, reference_depth, union_box, FitEvaluation, SampledField, ShapeFamily, ShapeFit, ShapeFitSettings, SpectrumTarget};
+use diffsound::inverse::shape::{answers_with_line, fit_morph, fit_thickness, normalise_surface, replica_levels, replica_line_levels, replica_shift, read_surface, reference_depth, union_box, FitEvaluation, SampledField, ShapeFamily, ShapeFit, ShapeFitSettings, SpectrumTarget};
 use diffsound::mesh::{BackgroundGrid, MarchingOptions, SignedDistance, TriangleSurface};
 use diffsound::petsc::Petsc;
 use std::time::Instant;
@@ -137,7 +137,7 @@ fn main() {
     settings.free_scale = args.free_scale;
     // The finest level (answer from the finest level) or every level after the first (answer
     // from the line) on `replicas` grids: (cells, replica).
-    let every_level = args.extrapolate.unwrap_or(morph || args.straight_boundary);
+    let every_level = answers_with_line(args.extrapolate, !morph && !args.straight_boundary);
     let fit_levels = replica_levels(&args.levels, args.replicas, every_level);
     settings.extrapolation_levels = replica_line_levels(settings.extrapolation_levels, args.replicas, every_level);
     let level_name = |&(c, r): &(usize, usize)| if r == 0 { format!("@{c}") } else { format!("@{c}~{r}") };

@@ -62,7 +62,7 @@
 use super::{fail, Progress};
 use crate::random::SplitMix64;
 use crate::fem::Material;
-use crate::inverse::shape::{fit_shape, normalise_surface, read_surface, reference_depth, replica_levels, replica_line_levels, replica_shift, shifted_covering, union_box, FitEvaluation, SearchPhase, ShapeFamily, ShapeFit, ShapeFitSettings, ShapeLevel, SpectrumTarget};
+use crate::inverse::shape::{answers_with_line, fit_shape, normalise_surface, read_surface, reference_depth, replica_levels, replica_line_levels, replica_shift, shifted_covering, union_box, FitEvaluation, SearchPhase, ShapeFamily, ShapeFit, ShapeFitSettings, ShapeLevel, SpectrumTarget};
 use crate::io::results::ResultsFile;
 use crate::io::{write_modes, MaterialRecord, ModesFile};
 use crate::mesh::{self, MarchingOptions, SignedDistance, TriangleSurface};
@@ -271,7 +271,7 @@ pub struct SolverConfig {
 /// levels) or on the finest alone (the answer is the finest spacing's mean: the curved
 /// thickness body unless told `--extrapolate`).
 fn replicate_every_level(task: &Task, settings: &ShapeFitSettings) -> bool {
-    settings.extrapolate.unwrap_or(!matches!(task, Task::Thickness { curved: true, .. }))
+    answers_with_line(settings.extrapolate, matches!(task, Task::Thickness { curved: true, .. }))
 }
 
 /// Which parameter is fitted, and of what.

@@ -741,6 +741,15 @@ pub fn replica_levels(cells: &[usize], replicas: usize, every_level: bool) -> Ve
     cells.iter().enumerate().flat_map(|(i, &c)| (0..if i == 0 || (!every_level && i != last) { 1 } else { replicas.max(1) }).map(move |r| (c, r))).collect()
 }
 
+/// Whether a fit answers with the line through its levels' answers (else with the finest
+/// level's): `extrapolate` if given, else off for the curved thickness body, whose finest level
+/// is already within the grids' alignment spread of a finer target, and on for every other
+/// body (module docs, "Curved boundary"). The fit, [`replica_levels`]' callers and the CLI all
+/// decide through this one rule.
+pub fn answers_with_line(extrapolate: Option<bool>, curved_thickness: bool) -> bool {
+    extrapolate.unwrap_or(!curved_thickness)
+}
+
 /// How many of [`replica_levels`]' entries the extrapolation line goes through so that it
 /// spans `spacings` spacings with all their replicas.
 pub fn replica_line_levels(spacings: usize, replicas: usize, every_level: bool) -> usize {
@@ -868,10 +877,14 @@ impl ShapeFamily {
     }
 
     /// Whether a fit over several levels answers with the extrapolation unless told otherwise
-    /// (module docs, "Curved boundary"): false for the curved thickness body, whose finest
-    /// level is already within the grids' alignment spread of a finer target; true otherwise.
+    /// ([`answers_with_line`] with nothing said).
     pub fn extrapolates_by_default(&self) -> bool {
-        !matches!(self, ShapeFamily::Thickness { surface: Some(_), .. })
+        answers_with_line(None, self.is_curved_thickness())
+    }
+
+    /// The thickness body meshed with exact crossings and a curved boundary ([`curved_shell`]).
+    pub fn is_curved_thickness(&self) -> bool {
+        matches!(self, ShapeFamily::Thickness { surface: Some(_), .. })
     }
 
     /// The modes and mesh of the body at parameter `p` (for writing it). Collective.
@@ -1342,7 +1355,7 @@ pub fn fit_shape(petsc: &Petsc, levels: &[ShapeLevel], target: &SpectrumTarget, 
         _ => None,
     };
     let finest = finest_mean(&results);
-    let extrapolate = settings.extrapolate.unwrap_or_else(|| levels[0].family.extrapolates_by_default());
+    let extrapolate = answers_with_line(settings.extrapolate, levels[0].family.is_curved_thickness());
     let (parameter, extrapolation_used) = match extrapolated {
         Some(p) if extrapolate => (p, true),
         _ => (finest, false),

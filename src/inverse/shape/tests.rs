@@ -351,4 +351,6 @@ fn the_finest_answer_is_the_mean_over_the_finest_spacings_replicas_and_the_curve
     assert!(!ShapeFamily::Thickness { solid: vec![1.0], depth: 0.1, surface: Some(sdf) }.extrapolates_by_default());
     assert!(ShapeFamily::Thickness { solid: vec![1.0], depth: 0.1, surface: None }.extrapolates_by_default());
     assert!(ShapeFamily::Morph { a: vec![1.0], b: vec![1.0] }.extrapolates_by_default());
+    // What the fit was told wins over the body's default.
+    assert!(answers_with_line(Some(true), true) && !answers_with_line(Some(false), false));
 }
