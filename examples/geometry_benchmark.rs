@@ -10,7 +10,7 @@
 //!   mpirun -np 2 target/release/examples/geometry_benchmark [--voxels 16,8] [--cells 20]
 //!       [--target-cells 32] [--modes 12] [--steps 30] [--seed 1] [--lr 1e-3]
 //!       [--voxel-weight 1] [--eikonal-weight 0.1] [--prefit-steps 1000] [--max-field-change 0.2]
-//!       [--method gauss_newton|adam] [--damping 1e-3] [--no-bias-correction] [--free-scale] [--no-target-grid-check] [--step-metrics] [--out-dir DIR] SURFACE...
+//!       [--method gauss_newton|adam] [--damping 1e-3] [--no-bias-correction] [--free-scale] [--straight-boundary] [--no-target-grid-check] [--step-metrics] [--out-dir DIR] SURFACE...
 //!
 //! Shapes are centred and scaled to a 0.1 m bounding-box diagonal; ceramic. The seed sets the
 //! target grid's shift, the network's initialisation, the pre-fit batches and the eikonal
@@ -30,7 +30,7 @@ struct Args {
 }
 
 fn usage() -> ! {
-    eprintln!("usage: geometry_benchmark [--voxels 16,8] [--cells N] [--target-cells N] [--modes N] [--steps N] [--seed S] [--lr X] [--voxel-weight X] [--eikonal-weight X] [--prefit-steps N] [--max-field-change X] [--method adam|gauss_newton] [--damping X] [--no-bias-correction] [--free-scale] [--no-target-grid-check] [--step-metrics] [--out-dir DIR] [-v] SURFACE...");
+    eprintln!("usage: geometry_benchmark [--voxels 16,8] [--cells N] [--target-cells N] [--modes N] [--steps N] [--seed S] [--lr X] [--voxel-weight X] [--eikonal-weight X] [--prefit-steps N] [--max-field-change X] [--method adam|gauss_newton] [--damping X] [--no-bias-correction] [--free-scale] [--straight-boundary] [--no-target-grid-check] [--step-metrics] [--out-dir DIR] [-v] SURFACE...");
     std::process::exit(2)
 }
 
@@ -57,6 +57,7 @@ fn parse_args() -> Args {
             "--no-bias-correction" => s.bias_correction = false,
             "--damping" => s.refine.damping = num(it.next()),
             "--free-scale" => s.refine.free_scale = true,
+            "--straight-boundary" => s.refine.curved_boundary = false,
             "--no-target-grid-check" => s.target_grid_check = false,
             "--step-metrics" => a.step_metrics = true,
             "--seed" => {
@@ -122,7 +123,9 @@ fn main() {
             if args.step_metrics && root {
                 for st in fit.refinement.history.iter().filter(|st| st.failure.is_none()) {
                     let net = diffsound::inverse::neural_sdf::NeuralSdf::from_parameters(fit.network.clone(), st.parameters.clone()).expect("network");
-                    if let Ok(assessed) = assess(&fit.grid, &net.values(&fit.grid.vertex_positions()), Vec::new(), &truth, &settings) {
+                    let field = |x: [f64; 3]| net.value(x);
+                    let curved: Option<&dyn Fn([f64; 3]) -> f64> = if settings.refine.curved_boundary { Some(&field) } else { None };
+                    if let Ok(assessed) = assess(&fit.grid, &net.values(&fit.grid.vertex_positions()), curved, Vec::new(), &truth, &settings) {
                         let c = assessed.comparison;
                         let mark = if st.step == fit.refinement.best().step { " answer" } else { "" };
                         eprintln!("{name} {n}³ step {:2}: loss {:.3e} eigen {:.3e} | Chamfer {:.3} mm IoU {:.4}{mark}", st.step, st.loss, st.eigen_loss, 1e3 * c.chamfer, c.iou);

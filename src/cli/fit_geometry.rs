@@ -52,7 +52,7 @@ use super::fit_shape::{MaterialConfig, SolverConfig};
 use super::{fail, Progress};
 use crate::fem::Material;
 use crate::inverse::geometry::{fit_geometry, GeometryFit, GeometryProgress, GeometrySettings};
-use crate::inverse::shape::{normalise_surface, read_surface, shape_modes};
+use crate::inverse::shape::{curved_field_modes, normalise_surface, read_surface, shape_modes};
 use crate::io::plot::{surface_png, SurfaceFigure, SurfacePanel, View};
 use crate::io::results::ResultsFile;
 use crate::io::{write_modes, MaterialRecord, ModesFile};
@@ -114,6 +114,9 @@ pub struct FitGeometryArgs {
     /// Keep the refined field even if, solved on the target's cell count, it matches the target worse than the pre-fitted field (by default the pre-fitted field is then the answer).
     #[arg(long)]
     pub no_target_grid_check: bool,
+    /// Mesh every body from the grid samples alone, with straight P2 edges (by default the crossings and the boundary mid-edge nodes sit on the zero of the continuous field: the network's, or the true signed distance's for the target and the floor).
+    #[arg(long)]
+    pub straight_boundary: bool,
     /// No grid-bias correction (by default the pre-fitted field is also solved on the target's cell count and the target moved by the difference of the log-eigenvalues).
     #[arg(long)]
     pub no_bias_correction: bool,
@@ -170,7 +173,7 @@ pub struct FitGeometryArgs {
 /// voxels = 16               # bias_correction, target_grid_check, modes, cluster_rtol, octaves, hidden, network_seed,
 /// [geometry.refine]         # surface_samples, volume_samples, metric_seed; [geometry.prefit]
 /// steps = 30                # PrefitSettings; [geometry.refine] RefineSettings
-/// method = "gauss_newton"   # (steps, method = "adam" | "gauss_newton", damping, free_scale, learning_rate, …)
+/// method = "gauss_newton"   # (steps, method = "adam" | "gauss_newton", damping, free_scale, curved_boundary, learning_rate, …)
 /// [material]
 /// preset = "ceramic"
 /// [solver]
@@ -267,6 +270,9 @@ pub fn resolve(args: &FitGeometryArgs) -> Result<Job, String> {
     if args.no_bias_correction {
         s.bias_correction = false;
     }
+    if args.straight_boundary {
+        s.refine.curved_boundary = false;
+    }
     if let Some(v) = args.voxel_weight {
         s.refine.voxel_weight = v;
     }
@@ -350,7 +356,12 @@ fn compute(petsc: &Petsc, job: &Job, truth: &TriangleSurface, sdf: &SignedDistan
     let clock = std::time::Instant::now();
     let net = crate::inverse::neural_sdf::NeuralSdf::from_parameters(fit.network.clone(), fit.refinement.best_parameters.clone()).map_err(|e| e.to_string())?;
     let values = net.values(&fit.grid.vertex_positions());
-    let body = shape_modes(petsc, &fit.grid, &values, &MarchingOptions::default(), &job.material, job.settings.modes).map_err(|e| format!("the refined body: {e}"))?;
+    let body = if job.settings.refine.curved_boundary {
+        curved_field_modes(petsc, &fit.grid, &values, &|x| net.value(x), &MarchingOptions::default(), &job.material, job.settings.modes)
+    } else {
+        shape_modes(petsc, &fit.grid, &values, &MarchingOptions::default(), &job.material, job.settings.modes)
+    }
+    .map_err(|e| format!("the refined body: {e}"))?;
     let final_seconds = clock.elapsed().as_secs_f64();
     if rank == 0 {
         print_summary(&fit);

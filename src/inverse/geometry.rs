@@ -262,7 +262,7 @@
 
 use super::neural_sdf::{NeuralSdf, NeuralSdfConfig, NeuralSdfError};
 use super::optim::Adam;
-use super::shape::{shape_spectrum, shifted_covering, ShapeError, SpectrumTarget, StepTimings};
+use super::shape::{curved_field_spectrum, refine_crossings, shape_spectrum, shifted_covering, PointGradient, ShapeError, ShapeSpectrum, SpectrumTarget, StepTimings};
 use crate::random::SplitMix64;
 use crate::fem::Material;
 use crate::mesh::{self, BackgroundGrid, MarchingOptions, ShapeComparison, SignedDistance, TriangleSurface};
@@ -704,6 +704,11 @@ pub struct RefineSettings {
     /// Compare the spectrum's shape only: the common level of the log-eigenvalue residuals is
     /// profiled out (module docs, "Free scale").
     pub free_scale: bool,
+    /// Every body of the task — the target, the fit's, the grid-bias reference, the floor — is
+    /// meshed with its crossings and boundary mid-edge nodes on the zero of its continuous field
+    /// (the network, or the true signed distance), as the thickness fit's (module docs,
+    /// "Curved boundary"); false: from the grid samples alone, straight P2 edges.
+    pub curved_boundary: bool,
 }
 
 /// The update rule of the refinement.
@@ -727,7 +732,7 @@ impl std::str::FromStr for RefineMethod {
 
 impl Default for RefineSettings {
     fn default() -> Self {
-        RefineSettings { steps: 30, learning_rate: 5e-4, voxel_weight: 1.0, eikonal_weight: 0.1, eikonal_points: 512, eikonal_step: 0.25, max_field_change: 0.2, seed: 2, method: RefineMethod::GaussNewton, damping: 1e-3, free_scale: false }
+        RefineSettings { steps: 30, learning_rate: 5e-4, voxel_weight: 1.0, eikonal_weight: 0.1, eikonal_points: 512, eikonal_step: 0.25, max_field_change: 0.2, seed: 2, method: RefineMethod::GaussNewton, damping: 1e-3, free_scale: false, curved_boundary: true }
     }
 }
 
@@ -855,18 +860,18 @@ enum Derivatives {
 /// √(w_vox/n_vox) max(0, −y_v s(c_v)/e_min) per violated voxel (the others have zero residual
 /// and zero derivative), √(w_eik/n_q) (|D s(q)| − 1) per eikonal point.
 #[allow(clippy::too_many_arguments)]
-fn least_squares(net: &NeuralSdf, grid_points: &[[f64; 3]], per_mode: &[Vec<f64>], eigenvalues: &[f64], target: &SpectrumTarget, voxels: &Voxels, eik_points: &[[f64; 3]], delta: f64, settings: &RefineSettings) -> Result<LeastSquares, GeometryError> {
+fn least_squares(net: &NeuralSdf, points: &[[f64; 3]], per_mode: &[Vec<f64>], eigenvalues: &[f64], target: &SpectrumTarget, voxels: &Voxels, eik_points: &[[f64; 3]], delta: f64, settings: &RefineSettings) -> Result<LeastSquares, GeometryError> {
     let mut residuals = Vec::new();
     let mut rows = Vec::new();
     // J_G = ∂r_G/∂θ per group; with the free scale, the rows are √|G| (J_G − J̄) (module docs).
     let mut group_rows = Vec::with_capacity(target.groups.len());
     for g in &target.groups {
         let size = g.len() as f64;
-        let mut d_values = vec![0.0; grid_points.len()];
+        let mut d_values = vec![0.0; points.len()];
         for k in g.clone() {
             add_scaled(&mut d_values, 1.0 / size / eigenvalues[k], &per_mode[k]);
         }
-        group_rows.push(net.vjp(grid_points, &d_values)?);
+        group_rows.push(net.vjp(points, &d_values)?);
     }
     if settings.free_scale {
         let mean_row: Vec<f64> = (0..group_rows.first().map_or(0, Vec::len)).map(|j| weighted_group_mean(&target.groups, |i| group_rows[i][j])).collect();
@@ -939,6 +944,19 @@ fn minimum_norm_step(system: &LeastSquares, damping: f64) -> Result<Vec<f64>, Ge
     Ok(step)
 }
 
+/// The spectrum of the body the field `f` (sampled on `grid` as `values`) encloses, with the
+/// curved boundary or from the samples alone, and, if asked, dλ_k as weights at points
+/// ([`PointGradient`]: ∂λ_k/∂θ = Σ_j w_kj ∂f(x_j)/∂θ, the network's backpropagation).
+#[allow(clippy::too_many_arguments)]
+pub fn field_spectrum(petsc: &Petsc, grid: &BackgroundGrid, values: &[f64], f: &dyn Fn([f64; 3]) -> f64, curved: bool, options: &MarchingOptions, material: &Material, n_modes: usize, with_gradient: bool) -> Result<(ShapeSpectrum, Option<PointGradient>), ShapeError> {
+    if curved {
+        return curved_field_spectrum(petsc, grid, values, f, options, material, n_modes, with_gradient);
+    }
+    let mut spectrum = shape_spectrum(petsc, grid, values, options, material, n_modes, with_gradient)?;
+    let gradient = spectrum.gradient.take().map(|per_mode| PointGradient { points: grid.vertex_positions(), per_mode });
+    Ok((spectrum, gradient))
+}
+
 /// The loss and, if asked, its derivatives at the network's current θ. The eikonal points are
 /// drawn from stream `eikonal_stream` of the refinement's seed.
 #[allow(clippy::too_many_arguments)]
@@ -947,7 +965,8 @@ fn evaluate(petsc: &Petsc, net: &NeuralSdf, grid_points: &[[f64; 3]], grid: &Bac
     let clock = std::time::Instant::now();
     let values = net.values(grid_points);
     let mut network = clock.elapsed().as_secs_f64();
-    let spectrum = match shape_spectrum(petsc, grid, &values, options, material, target.len(), want != Derivative::None) {
+    let field = |x: [f64; 3]| net.value(x);
+    let (spectrum, point_gradient) = match field_spectrum(petsc, grid, &values, &field, settings.curved_boundary, options, material, target.len(), want != Derivative::None) {
         Ok(s) => s,
         Err(e) => {
             record.failure = Some(e.to_string());
@@ -968,21 +987,22 @@ fn evaluate(petsc: &Petsc, net: &NeuralSdf, grid_points: &[[f64; 3]], grid: &Bac
         let eik_points = uniform_points(lo, hi, settings.eikonal_points, &mut SplitMix64::stream(settings.seed, eikonal_stream));
         let delta = settings.eikonal_step * voxels.min_edge();
         record.eikonal_loss = eikonal_loss(&net.values(&stencil(&eik_points, delta)), delta).0;
-        let per_mode = || spectrum.gradient.as_ref().ok_or_else(|| GeometryError::Invalid("the spectrum came without its gradient".into()));
+        let gradient = || point_gradient.as_ref().ok_or_else(|| GeometryError::Invalid("the spectrum came without its gradient".into()));
         let derivatives = match want {
             Derivative::None => None,
             Derivative::Gradient => {
-                let mut d_values = vec![0.0; grid_points.len()];
-                for (k, g) in per_mode()?.iter().enumerate().take(target.len()) {
+                let pg = gradient()?;
+                let mut d_values = vec![0.0; pg.points.len()];
+                for (k, g) in pg.per_mode.iter().enumerate().take(target.len()) {
                     add_scaled(&mut d_values, d_lambda[k], g);
                 }
-                let mut grad = net.vjp(grid_points, &d_values)?;
+                let mut grad = net.vjp(&pg.points, &d_values)?;
                 add_scaled(&mut grad, settings.voxel_weight, &net.vjp(&centres, &dv)?);
                 let (_, gk) = eikonal_term(net, &eik_points, delta)?;
                 add_scaled(&mut grad, settings.eikonal_weight, &gk);
                 Some(Derivatives::Gradient(grad))
             }
-            Derivative::Rows => Some(Derivatives::Rows(least_squares(net, grid_points, per_mode()?, &spectrum.eigenvalues, target, voxels, &eik_points, delta, settings)?)),
+            Derivative::Rows => Some(Derivatives::Rows(least_squares(net, &gradient()?.points, &gradient()?.per_mode, &spectrum.eigenvalues, target, voxels, &eik_points, delta, settings)?)),
         };
         record.eigen_loss = le;
         record.voxel_loss = lv;
@@ -1216,22 +1236,33 @@ pub struct GeometryFit {
     pub timings: GeometryTimings,
 }
 
-/// Marches `values` on `grid` and compares the body with `truth`.
-pub fn assess(grid: &BackgroundGrid, values: &[f64], eigenvalues: Vec<f64>, truth: &TriangleSurface, settings: &GeometrySettings) -> Result<Assessed, GeometryError> {
+/// The continuous field for [`assess`] when the bodies are curved.
+fn pick<'a>(curved: bool, f: &'a dyn Fn([f64; 3]) -> f64) -> Option<&'a dyn Fn([f64; 3]) -> f64> {
+    curved.then_some(f)
+}
+
+/// Marches `values` on `grid` and compares the body with `truth`. With the continuous field
+/// `f` (the curved boundary) the crossings sit on its zero along their grid edges, as in the
+/// body the spectrum was solved on; its surface is that mesh's (flat-faced) boundary.
+pub fn assess(grid: &BackgroundGrid, values: &[f64], f: Option<&dyn Fn([f64; 3]) -> f64>, eigenvalues: Vec<f64>, truth: &TriangleSurface, settings: &GeometrySettings) -> Result<Assessed, GeometryError> {
     let marched = mesh::march(grid, values, None, &MarchingOptions::default()).map_err(ShapeError::from)?;
-    let surface = TriangleSurface::from_mesh_boundary(&marched.mesh);
+    let linear = match f {
+        Some(f) => refine_crossings(&marched, grid, f, 0.01).0,
+        None => marched.mesh,
+    };
+    let surface = TriangleSurface::from_mesh_boundary(&linear);
     let comparison = mesh::compare_shapes(&surface, truth, settings.surface_samples, settings.volume_samples, settings.metric_seed)?;
-    Ok(Assessed { surface, comparison, eigenvalues, volume: marched.mesh.volume() })
+    Ok(Assessed { surface, comparison, eigenvalues, volume: linear.volume() })
 }
 
 /// The grid bias of the marched spectrum, estimated on the pre-fitted field `net` (module docs,
 /// "Grid bias"): ln λ_k on the fit grid minus ln λ_k on a centred grid of `bias_cells`, averaged
 /// over each of the target's groups, one value per mode.
 #[allow(clippy::too_many_arguments)]
-fn grid_bias(petsc: &Petsc, net: &NeuralSdf, grid: &BackgroundGrid, lo: [f64; 3], hi: [f64; 3], bias_cells: usize, target: &SpectrumTarget, options: &MarchingOptions, material: &Material) -> Result<(Vec<f64>, Vec<f64>), GeometryError> {
+fn grid_bias(petsc: &Petsc, net: &NeuralSdf, grid: &BackgroundGrid, lo: [f64; 3], hi: [f64; 3], bias_cells: usize, target: &SpectrumTarget, curved: bool, options: &MarchingOptions, material: &Material) -> Result<(Vec<f64>, Vec<f64>), GeometryError> {
     let n = target.len();
-    let fine = centred_grid_spectrum(petsc, net, lo, hi, bias_cells, n, options, material).map_err(|e| GeometryError::Invalid(format!("the grid-bias reference (pre-fitted field on {bias_cells} cells): {e}")))?;
-    let coarse = shape_spectrum(petsc, grid, &net.values(&grid.vertex_positions()), options, material, n, false)?;
+    let fine = centred_grid_spectrum(petsc, net, lo, hi, bias_cells, n, curved, options, material).map_err(|e| GeometryError::Invalid(format!("the grid-bias reference (pre-fitted field on {bias_cells} cells): {e}")))?;
+    let coarse = field_spectrum(petsc, grid, &net.values(&grid.vertex_positions()), &|x| net.value(x), curved, options, material, n, false)?.0;
     let mut correction = vec![0.0; n];
     for (g, c) in target.groups.iter().zip(group_log_ratios(&coarse.eigenvalues, &fine, &target.groups)) {
         for k in g.clone() {
@@ -1243,9 +1274,9 @@ fn grid_bias(petsc: &Petsc, net: &NeuralSdf, grid: &BackgroundGrid, lo: [f64; 3]
 
 /// The first `n` eigenvalues of `net`'s body on a centred grid of `cells` over [lo, hi].
 #[allow(clippy::too_many_arguments)]
-fn centred_grid_spectrum(petsc: &Petsc, net: &NeuralSdf, lo: [f64; 3], hi: [f64; 3], cells: usize, n: usize, options: &MarchingOptions, material: &Material) -> Result<Vec<f64>, GeometryError> {
+fn centred_grid_spectrum(petsc: &Petsc, net: &NeuralSdf, lo: [f64; 3], hi: [f64; 3], cells: usize, n: usize, curved: bool, options: &MarchingOptions, material: &Material) -> Result<Vec<f64>, GeometryError> {
     let grid = BackgroundGrid::covering(lo, hi, cells, 1.0).map_err(ShapeError::from)?;
-    Ok(shape_spectrum(petsc, &grid, &net.values(&grid.vertex_positions()), options, material, n, false)?.eigenvalues)
+    Ok(field_spectrum(petsc, &grid, &net.values(&grid.vertex_positions()), &|x| net.value(x), curved, options, material, n, false)?.0.eigenvalues)
 }
 
 /// The check of the refined field on the target's grid (module docs).
@@ -1302,7 +1333,9 @@ pub fn fit_geometry(petsc: &Petsc, truth: &TriangleSurface, sdf: &SignedDistance
     let shift = [0; 3].map(|_| rng.uniform(-0.5, 0.5));
     let target_grid = shifted_covering(lo, hi, settings.target_cells, shift)?;
     let target_values = sdf.evaluate(&target_grid.vertex_positions());
-    let target_spectrum = shape_spectrum(petsc, &target_grid, &target_values, &options, material, settings.modes, false).map_err(|e| GeometryError::Invalid(format!("the target (true shape on the {}-cell grid): {e}", settings.target_cells)))?;
+    let curved = settings.refine.curved_boundary;
+    let true_field = |x: [f64; 3]| sdf.signed_distance(x);
+    let target_spectrum = field_spectrum(petsc, &target_grid, &target_values, &true_field, curved, &options, material, settings.modes, false).map(|s| s.0).map_err(|e| GeometryError::Invalid(format!("the target (true shape on the {}-cell grid): {e}", settings.target_cells)))?;
     let target = SpectrumTarget::new(target_spectrum.eigenvalues, settings.cluster_rtol)?;
     let target_spacing = target_grid.spacing()[0];
     timings.target = clock.elapsed().as_secs_f64();
@@ -1312,7 +1345,7 @@ pub fn fit_geometry(petsc: &Petsc, truth: &TriangleSurface, sdf: &SignedDistance
     let grid = BackgroundGrid::covering(lo, hi, settings.cells, 1.0).map_err(ShapeError::from)?;
     let mut before_fine_loss = None;
     let (fit_target, bias_correction) = if settings.bias_correction && settings.target_cells > settings.cells {
-        let (correction, fine) = grid_bias(petsc, &net, &grid, lo, hi, settings.target_cells, &target, &options, material)?;
+        let (correction, fine) = grid_bias(petsc, &net, &grid, lo, hi, settings.target_cells, &target, curved, &options, material)?;
         before_fine_loss = Some(eigenvalue_loss(&fine, &target)?.0);
         let corrected = target.eigenvalues.iter().zip(&correction).map(|(l, c)| l * c.exp()).collect();
         progress(GeometryProgress::Message(format!("grid bias of the pre-fitted field, {} against {} cells: ln λ shifts {:+.4?}", settings.cells, settings.target_cells, correction)));
@@ -1330,7 +1363,7 @@ pub fn fit_geometry(petsc: &Petsc, truth: &TriangleSurface, sdf: &SignedDistance
         let after_loss = if refinement.best_step == 0 {
             before_loss
         } else {
-            match centred_grid_spectrum(petsc, &net, lo, hi, settings.target_cells, target.len(), &options, material).and_then(|fine| Ok(eigenvalue_loss(&fine, &target)?.0)) {
+            match centred_grid_spectrum(petsc, &net, lo, hi, settings.target_cells, target.len(), curved, &options, material).and_then(|fine| Ok(eigenvalue_loss(&fine, &target)?.0)) {
                 Ok(loss) => loss,
                 Err(e) => {
                     progress(GeometryProgress::Message(format!("check on {} cells: the refined field fails there: {e}", settings.target_cells)));
@@ -1352,11 +1385,13 @@ pub fn fit_geometry(petsc: &Petsc, truth: &TriangleSurface, sdf: &SignedDistance
     let clock = std::time::Instant::now();
     let grid_points = grid.vertex_positions();
     let before_net = NeuralSdf::from_parameters(config.clone(), prefit_parameters.clone())?;
-    let before = assess(&grid, &before_net.values(&grid_points), refinement.history[0].eigenvalues.clone(), truth, settings)?;
-    let after = assess(&grid, &net.values(&grid_points), refinement.best().eigenvalues.clone(), truth, settings)?;
+    let before_field = |x: [f64; 3]| before_net.value(x);
+    let after_field = |x: [f64; 3]| net.value(x);
+    let before = assess(&grid, &before_net.values(&grid_points), pick(curved, &before_field), refinement.history[0].eigenvalues.clone(), truth, settings)?;
+    let after = assess(&grid, &net.values(&grid_points), pick(curved, &after_field), refinement.best().eigenvalues.clone(), truth, settings)?;
     let true_values = sdf.evaluate(&grid_points);
-    let floor_spectrum = shape_spectrum(petsc, &grid, &true_values, &options, material, settings.modes, false)?;
-    let floor = assess(&grid, &true_values, floor_spectrum.eigenvalues, truth, settings)?;
+    let floor_spectrum = field_spectrum(petsc, &grid, &true_values, &true_field, curved, &options, material, settings.modes, false)?.0;
+    let floor = assess(&grid, &true_values, pick(curved, &true_field), floor_spectrum.eigenvalues, truth, settings)?;
     timings.assess = clock.elapsed().as_secs_f64();
     timings.total = total.elapsed().as_secs_f64();
     Ok(GeometryFit { voxels, voxel_comparison, grid, target, bias_correction, check, target_spacing, network: config, prefit: prefit_report, prefit_parameters, refinement, before, after, floor, timings })

@@ -459,12 +459,12 @@ pub fn refine_crossings(marched: &mesh::MarchedMesh, grid: &BackgroundGrid, f: &
     (out, moved, kept_linear)
 }
 
-/// The body of a hollow shell 0 < s ≤ t·S meshed with its crossings on the continuous
-/// field's zero and a curved P2 boundary (module docs, "Curved boundary").
-pub struct CurvedShell {
-    /// The marching of the sampled shell field (topology, and the crossings' grid edges).
+/// A body marched from field samples with its crossings on the zero of the continuous field f
+/// along their grid edges and its boundary mid-edge nodes on f = 0 (module docs, "Curved
+/// boundary"): the thickness fit's shell and the geometry task's network field both use it.
+pub struct CurvedBody {
+    /// The marching of the samples (topology, and the crossings' grid edges).
     pub marched: mesh::MarchedMesh,
-    pub shell: mesh::Shell,
     /// The linear mesh with exact crossings.
     pub linear: TetMesh,
     pub crossings: Vec<ExactCrossing>,
@@ -474,28 +474,68 @@ pub struct CurvedShell {
     pub quadratic: TetMesh,
     pub curved: Vec<mesh::CurvedNode>,
     pub curving: mesh::CurvingReport,
+    /// ∂D/∂p₀ (the central-difference Hessian of f) at every moved mid-edge node's midpoint,
+    /// when asked for ([`curved_body`]): the direction of move also turns as p₀ moves.
+    pub hessians: Option<Vec<[[f64; 3]; 3]>>,
 }
 
-/// Meshes the shell of relative thickness `t` of the solid whose signed distance is `sdf`
-/// (sampled on `grid` as `solid`) with reference depth `depth` = S [m]: marched from the
-/// samples, then every crossing moved onto the zero of the continuous g = min(s, t·S − s)
-/// along its grid edge ([`refine_crossings`]) and every boundary mid-edge node onto it along
-/// ∇g ([`mesh::curve_boundary`]).
-pub fn curved_shell(grid: &BackgroundGrid, solid: &[f64], sdf: &SignedDistance, depth: f64, t: f64, options: &MarchingOptions) -> Result<CurvedShell, ShapeError> {
-    let shell = mesh::shell_of_depth(solid, t, depth)?;
-    if shell.values.iter().all(|v| *v <= 0.0) {
+/// Where one mode's gradient goes when f depends on a parameter p (module docs, "Curved
+/// boundary"): dλ/dp = Σ_i grid_i ∂s_i/∂p + Σ_c crossings_c ∂f(x_c)/∂p + Σ_m curved_m ∂f(x_m)/∂p,
+/// with s_i the samples (they still move the crossings kept linear) and x_c, x_m the moved
+/// crossings and mid-edge nodes ([`CurvedBody::moved_points`], in that order), plus the turn
+/// of each mid-edge node's direction of move: Σ_m Σ_d turns_m,d (∂f(p₀_m + δ e_d)/∂p −
+/// ∂f(p₀_m − δ e_d)/∂p)/(2δ) ([`mesh::CurvedNode`]'s docs; [`CurvedBody::turn_points`]).
+#[derive(Clone, Debug)]
+pub struct FieldWeights {
+    pub grid: Vec<f64>,
+    pub crossings: Vec<f64>,
+    pub curved: Vec<f64>,
+    /// b = u (I − n nᵀ) T/|D f(p₀)| per moved mid-edge node.
+    pub turns: Vec<[f64; 3]>,
+}
+
+/// Marches `values` on `grid`, moves every crossing onto the zero of `f` along its grid edge
+/// ([`refine_crossings`]) and every boundary mid-edge node onto it along ∇f
+/// ([`mesh::curve_boundary`]). With `hessians`, also ∂D/∂p₀ at every moved mid-edge node
+/// ([`CurvedBody::field_weights`]): 13 more evaluations of f per node. A signed distance s
+/// does not need it (the thickness fit): ∇s is constant along the normal, and a wall that
+/// moves along its normal turns no direction (the curved shell's chain meets central
+/// differences to 2e-8 without it), but a general field's does (the geometry task's network:
+/// 0.3 % of Σ G·dx/dp on a wavy field without it).
+pub fn curved_body(grid: &BackgroundGrid, values: &[f64], f: &dyn Fn([f64; 3]) -> f64, options: &MarchingOptions, hessians: bool) -> Result<CurvedBody, ShapeError> {
+    if values.iter().all(|v| *v <= 0.0) {
         return Err(ShapeError::Empty);
     }
-    let marched = mesh::march(grid, &shell.values, None, options)?;
-    let wall = t * depth;
-    let g = |x: [f64; 3]| {
-        let s = sdf.signed_distance(x);
-        s.min(wall - s)
-    };
-    let (linear, crossings, crossings_kept_linear) = refine_crossings(&marched, grid, &g, 0.01);
+    let marched = mesh::march(grid, values, None, options)?;
+    let (linear, crossings, crossings_kept_linear) = refine_crossings(&marched, grid, f, 0.01);
     let straight = lift_to_quadratic(&linear);
-    let (quadratic, curved, curving) = mesh::curve_boundary(&straight, &g, CURVE_MAX_FRACTION, CURVE_MIN_JACOBIAN_RATIO);
-    Ok(CurvedShell { marched, shell, linear, crossings, crossings_kept_linear, quadratic, curved, curving })
+    let (quadratic, curved, curving) = mesh::curve_boundary(&straight, f, CURVE_MAX_FRACTION, CURVE_MIN_JACOBIAN_RATIO);
+    let hessians = hessians.then(|| curved.iter().map(|c| difference_hessian(f, c.origin, c.difference_step)).collect());
+    Ok(CurvedBody { marched, linear, crossings, crossings_kept_linear, quadratic, curved, curving, hessians })
+}
+
+/// ∂D_d/∂p_e of the central difference D_d(p) = (f(p + δ e_d) − f(p − δ e_d))/(2δ) at p,
+/// by central differences of step δ again (symmetric).
+fn difference_hessian(f: &dyn Fn([f64; 3]) -> f64, p: [f64; 3], step: f64) -> [[f64; 3]; 3] {
+    let at = |moves: &[(usize, f64)]| {
+        let mut q = p;
+        for &(d, s) in moves {
+            q[d] += s * step;
+        }
+        f(q)
+    };
+    let centre = at(&[]);
+    let mut h = [[0.0; 3]; 3];
+    for d in 0..3 {
+        // D_d at p ± δ e_d differs by (f(p + 2δ e_d) − 2 f(p) + f(p − 2δ e_d))/(2δ).
+        h[d][d] = (at(&[(d, 2.0)]) - 2.0 * centre + at(&[(d, -2.0)])) / (4.0 * step * step);
+        for e in d + 1..3 {
+            let v = (at(&[(d, 1.0), (e, 1.0)]) - at(&[(d, 1.0), (e, -1.0)]) - at(&[(d, -1.0), (e, 1.0)]) + at(&[(d, -1.0), (e, -1.0)])) / (4.0 * step * step);
+            h[d][e] = v;
+            h[e][d] = v;
+        }
+    }
+    h
 }
 
 /// A boundary mid-edge node moves at most this fraction of its edge's length.
@@ -503,41 +543,116 @@ const CURVE_MAX_FRACTION: f64 = 0.5;
 /// A curved tet keeps det J at least this fraction of its straight det J everywhere.
 const CURVE_MIN_JACOBIAN_RATIO: f64 = 0.05;
 
-impl CurvedShell {
-    /// dλ/dt per mode from the P2 node gradients of every mode (rank 0's `per_node`, 3 per
-    /// node) — module docs, "Curved boundary": a node on g(x; t) = 0 moved along a fixed
-    /// direction d has dx = d·(−∇g·dx₀ − ∂g/∂t dt)/(∇g·d), with ∂g/∂t = S on the inner wall
-    /// (s > t·S/2 there) and 0 on the outer one.
-    fn thickness_derivatives(&self, sdf: &SignedDistance, depth: f64, per_node: &[Vec<f64>]) -> Result<Vec<f64>, ShapeError> {
-        let wall = self.shell.thickness * depth;
-        let dg_dt = |x: [f64; 3]| if sdf.signed_distance(x) > 0.5 * wall { depth } else { 0.0 };
-        let curved_dg_dt: Vec<f64> = self.curved.iter().map(|c| dg_dt(c.position)).collect();
-        let crossing_dg_dt: Vec<f64> = self.crossings.iter().map(|c| dg_dt(c.position)).collect();
-        let mut out = Vec::with_capacity(per_node.len());
-        for g in per_node {
-            let mut g = g.clone();
-            let mut direct = 0.0;
-            // Curved mid-edge nodes: their own t term, and the rest to the corners as the
-            // midpoint's gradient projected along the move.
-            for (c, &ft) in self.curved.iter().zip(&curved_dg_dt) {
-                let gm = [g[3 * c.node], g[3 * c.node + 1], g[3 * c.node + 2]];
-                let along = (0..3).map(|d| gm[d] * c.direction[d]).sum::<f64>() / c.slope;
-                direct -= along * ft;
-                for d in 0..3 {
-                    g[3 * c.node + d] = gm[d] - along * c.gradient[d];
+impl CurvedBody {
+    /// The moved crossings, then the moved mid-edge nodes: where [`FieldWeights`] apply.
+    pub fn moved_points(&self) -> Vec<[f64; 3]> {
+        self.crossings.iter().map(|c| c.position).chain(self.curved.iter().map(|c| c.position)).collect()
+    }
+
+    /// A mode's P2 node gradient `node_gradient` (3 per node, [rad²/(s²·m)]) carried to the
+    /// field: a node on f(x; p) = 0 moved along a fixed direction d has
+    /// dx = d·(−∇f·dx₀ − ∂f/∂p dp)/(∇f·d). For a crossing d is its grid edge and x₀ a fixed grid
+    /// vertex; for a mid-edge node d is its direction of move and x₀ the midpoint of its
+    /// corners, so the rest of its gradient, G − (G·d/∇f·d) ∇f, goes to the corners. Corners
+    /// that are crossings kept linear go through the marching to the samples.
+    pub fn field_weights(&self, node_gradient: &[f64]) -> Result<FieldWeights, ShapeError> {
+        let mut g = node_gradient.to_vec();
+        let mut curved = Vec::with_capacity(self.curved.len());
+        let mut turns = Vec::with_capacity(self.curved.len());
+        for c in &self.curved {
+            let gm = [g[3 * c.node], g[3 * c.node + 1], g[3 * c.node + 2]];
+            let along = (0..3).map(|d| gm[d] * c.direction[d]).sum::<f64>() / c.slope;
+            curved.push(-along);
+            let rest = [0, 1, 2].map(|d| gm[d] - along * c.gradient[d]);
+            let normal: f64 = (0..3).map(|d| rest[d] * c.direction[d]).sum();
+            let turn = [0, 1, 2].map(|d| c.offset * (rest[d] - normal * c.direction[d]) / c.origin_gradient_norm);
+            // The turn as p₀ moves: b·(∂D/∂p₀) dp₀ goes to p₀ with the rest.
+            let to_origin = match &self.hessians {
+                Some(h) => {
+                    let h = &h[turns.len()];
+                    [0, 1, 2].map(|e| rest[e] + (0..3).map(|d| turn[d] * h[d][e]).sum::<f64>())
+                }
+                None => rest,
+            };
+            turns.push(turn);
+            for d in 0..3 {
+                g[3 * c.node + d] = to_origin[d];
+            }
+        }
+        let mut corners = linear_node_gradient(&self.linear, &self.quadratic, &g).map_err(|e| ShapeError::Solver(e.to_string()))?;
+        let mut crossings = Vec::with_capacity(self.crossings.len());
+        for c in &self.crossings {
+            let gc = &mut corners[3 * c.node..3 * c.node + 3];
+            let along: f64 = (0..3).map(|d| gc[d] * c.edge[d]).sum();
+            crossings.push(-along / c.slope);
+            gc.iter_mut().for_each(|x| *x = 0.0);
+        }
+        let back = self.marched.vjp(&corners)?;
+        Ok(FieldWeights { grid: back.values, crossings, curved, turns })
+    }
+
+    /// p₀ ± δ e_d for every moved mid-edge node, in the order of [`Self::turn_weights`].
+    pub fn turn_points(&self) -> Vec<[f64; 3]> {
+        let mut out = Vec::with_capacity(6 * self.curved.len());
+        for c in &self.curved {
+            for d in 0..3 {
+                for sign in [1.0, -1.0] {
+                    let mut p = c.origin;
+                    p[d] += sign * c.difference_step;
+                    out.push(p);
                 }
             }
-            let mut corners = linear_node_gradient(&self.linear, &self.quadratic, &g).map_err(|e| ShapeError::Solver(e.to_string()))?;
-            // Exact crossings: x = x_a + u (x_b − x_a) with fixed grid corners.
-            for (c, &ft) in self.crossings.iter().zip(&crossing_dg_dt) {
-                let gc = &mut corners[3 * c.node..3 * c.node + 3];
-                let along: f64 = (0..3).map(|d| gc[d] * c.edge[d]).sum();
-                direct -= along * ft / c.slope;
-                gc.iter_mut().for_each(|x| *x = 0.0);
+        }
+        out
+    }
+
+    /// The weights ±b_d/(2δ) of `turns` at [`Self::turn_points`].
+    pub fn turn_weights(&self, turns: &[[f64; 3]]) -> Vec<f64> {
+        let mut out = Vec::with_capacity(6 * turns.len());
+        for (c, b) in self.curved.iter().zip(turns) {
+            for bd in b {
+                let w = bd / (2.0 * c.difference_step);
+                out.extend([w, -w]);
             }
-            // Everything else (crossings kept linear) through the marching and the shell.
-            let back = self.marched.vjp(&corners)?;
-            out.push(direct + self.shell.vjp(&back.values)?.thickness);
+        }
+        out
+    }
+}
+
+/// The body of a hollow shell 0 < s ≤ t·S meshed with its crossings on the continuous
+/// field's zero and a curved P2 boundary (module docs, "Curved boundary").
+pub struct CurvedShell {
+    pub body: CurvedBody,
+    pub shell: mesh::Shell,
+}
+
+/// Meshes the shell of relative thickness `t` of the solid whose signed distance is `sdf`
+/// (sampled on `grid` as `solid`) with reference depth `depth` = S [m]: [`curved_body`] of
+/// the samples of g = min(s, t·S − s) with the continuous g.
+pub fn curved_shell(grid: &BackgroundGrid, solid: &[f64], sdf: &SignedDistance, depth: f64, t: f64, options: &MarchingOptions) -> Result<CurvedShell, ShapeError> {
+    let shell = mesh::shell_of_depth(solid, t, depth)?;
+    let wall = t * depth;
+    let g = |x: [f64; 3]| {
+        let s = sdf.signed_distance(x);
+        s.min(wall - s)
+    };
+    let body = curved_body(grid, &shell.values, &g, options, false)?;
+    Ok(CurvedShell { body, shell })
+}
+
+impl CurvedShell {
+    /// dλ/dt per mode from the P2 node gradients of every mode (rank 0's `per_node`, 3 per
+    /// node): [`CurvedBody::field_weights`] with ∂g/∂t = S on the inner wall (s > t·S/2
+    /// there) and 0 on the outer one, and the samples' share through the shell. The turns of
+    /// the mid-edge nodes' directions carry no weight: ∂g/∂t is the same at p₀ ± δ e_d.
+    fn thickness_derivatives(&self, sdf: &SignedDistance, depth: f64, per_node: &[Vec<f64>]) -> Result<Vec<f64>, ShapeError> {
+        let wall = self.shell.thickness * depth;
+        let dg_dt: Vec<f64> = self.body.moved_points().into_iter().map(|x| if sdf.signed_distance(x) > 0.5 * wall { depth } else { 0.0 }).collect();
+        let mut out = Vec::with_capacity(per_node.len());
+        for g in per_node {
+            let w = self.body.field_weights(g)?;
+            let direct: f64 = w.crossings.iter().chain(&w.curved).zip(&dg_dt).map(|(a, b)| a * b).sum();
+            out.push(direct + self.shell.vjp(&w.grid)?.thickness);
         }
         Ok(out)
     }
@@ -548,17 +663,17 @@ impl CurvedShell {
 pub fn curved_shell_spectrum(petsc: &Petsc, grid: &BackgroundGrid, solid: &[f64], sdf: &SignedDistance, depth: f64, t: f64, options: &MarchingOptions, material: &Material, n_modes: usize, with_gradient: bool) -> Result<(ShapeSpectrum, Option<Vec<f64>>), ShapeError> {
     let mut timings = StepTimings::default();
     let clock = std::time::Instant::now();
-    let body = curved_shell(grid, solid, sdf, depth, t, options)?;
+    let shell = curved_shell(grid, solid, sdf, depth, t, options)?;
     timings.meshing = clock.elapsed().as_secs_f64();
-    let (assembled, modes) = assemble_and_solve(petsc, &body.quadratic, material, n_modes, &mut timings)?;
+    let (assembled, modes) = assemble_and_solve(petsc, &shell.body.quadratic, material, n_modes, &mut timings)?;
     let mut eigenvalues: Vec<f64> = modes.eigenvalues[..n_modes].to_vec();
     broadcast_from_root(petsc, &mut eigenvalues);
     let derivative = if with_gradient {
         let clock = std::time::Instant::now();
-        let per_node = node_gradients(petsc, &body.quadratic, &assembled.layout, &modes, material, ClusterTreatment::Mean).map_err(|e| ShapeError::Solver(e.to_string()))?;
+        let per_node = node_gradients(petsc, &shell.body.quadratic, &assembled.layout, &modes, material, ClusterTreatment::Mean).map_err(|e| ShapeError::Solver(e.to_string()))?;
         let mut d = vec![0.0; n_modes];
         if let Some(per_node) = per_node {
-            d = body.thickness_derivatives(sdf, depth, &per_node[..n_modes])?;
+            d = shell.thickness_derivatives(sdf, depth, &per_node[..n_modes])?;
         }
         broadcast_from_root(petsc, &mut d);
         timings.gradient = clock.elapsed().as_secs_f64();
@@ -566,9 +681,64 @@ pub fn curved_shell_spectrum(petsc: &Petsc, grid: &BackgroundGrid, solid: &[f64]
     } else {
         None
     };
+    Ok((body_spectrum(&shell.body, eigenvalues, &modes, n_modes, timings), derivative))
+}
+
+fn body_spectrum(body: &CurvedBody, eigenvalues: Vec<f64>, modes: &eigen::Modes, n_modes: usize, timings: StepTimings) -> ShapeSpectrum {
     let clusters = modes.clusters.iter().filter(|r| r.start < n_modes).map(|r| r.start..r.end.min(n_modes)).collect();
-    let spectrum = ShapeSpectrum { eigenvalues, gradient: None, clusters, report: body.marched.report.clone(), tets: body.linear.n_tets(), p2_nodes: body.quadratic.n_nodes(), volume: body.linear.volume(), timings };
-    Ok((spectrum, derivative))
+    ShapeSpectrum { eigenvalues, gradient: None, clusters, report: body.marched.report.clone(), tets: body.linear.n_tets(), p2_nodes: body.quadratic.n_nodes(), volume: body.linear.volume(), timings }
+}
+
+/// A spectrum's gradient with respect to a field given as weights at points: dλ_k/dp =
+/// Σ_j per_mode[k][j] ∂f(points_j)/∂p for any parameter p of the field f (the network's
+/// backpropagation at those points, for the geometry task).
+#[derive(Clone, Debug)]
+pub struct PointGradient {
+    pub points: Vec<[f64; 3]>,
+    pub per_mode: Vec<Vec<f64>>,
+}
+
+/// The spectrum of [`curved_body`] of the samples `values` of the continuous field `f` and,
+/// if asked, its gradient as weights at the grid vertices, the moved points and the turn
+/// points ([`PointGradient`]). Collective: every rank passes the same field.
+#[allow(clippy::too_many_arguments)]
+pub fn curved_field_spectrum(petsc: &Petsc, grid: &BackgroundGrid, values: &[f64], f: &dyn Fn([f64; 3]) -> f64, options: &MarchingOptions, material: &Material, n_modes: usize, with_gradient: bool) -> Result<(ShapeSpectrum, Option<PointGradient>), ShapeError> {
+    let mut timings = StepTimings::default();
+    let clock = std::time::Instant::now();
+    let body = curved_body(grid, values, f, options, true)?;
+    timings.meshing = clock.elapsed().as_secs_f64();
+    let (assembled, modes) = assemble_and_solve(petsc, &body.quadratic, material, n_modes, &mut timings)?;
+    let mut eigenvalues: Vec<f64> = modes.eigenvalues[..n_modes].to_vec();
+    broadcast_from_root(petsc, &mut eigenvalues);
+    let gradient = if with_gradient {
+        let clock = std::time::Instant::now();
+        let per_node = node_gradients(petsc, &body.quadratic, &assembled.layout, &modes, material, ClusterTreatment::Mean).map_err(|e| ShapeError::Solver(e.to_string()))?;
+        let mut points = grid.vertex_positions();
+        points.extend(body.moved_points());
+        points.extend(body.turn_points());
+        let mut flat = vec![0.0; n_modes * points.len()];
+        if let Some(per_node) = per_node {
+            for (k, g) in per_node.iter().take(n_modes).enumerate() {
+                let w = body.field_weights(g)?;
+                let turn = body.turn_weights(&w.turns);
+                let row = w.grid.iter().chain(&w.crossings).chain(&w.curved).chain(&turn);
+                flat[k * points.len()..(k + 1) * points.len()].iter_mut().zip(row).for_each(|(x, v)| *x = *v);
+            }
+        }
+        broadcast_from_root(petsc, &mut flat);
+        timings.gradient = clock.elapsed().as_secs_f64();
+        let per_mode = flat.chunks(points.len()).map(<[f64]>::to_vec).collect();
+        Some(PointGradient { points, per_mode })
+    } else {
+        None
+    };
+    Ok((body_spectrum(&body, eigenvalues, &modes, n_modes, timings), gradient))
+}
+
+/// The modes of [`curved_body`] with their shapes (for writing a fitted body). Collective.
+pub fn curved_field_modes(petsc: &Petsc, grid: &BackgroundGrid, values: &[f64], f: &dyn Fn([f64; 3]) -> f64, options: &MarchingOptions, material: &Material, n_modes: usize) -> Result<ShapeModes, ShapeError> {
+    let body = curved_body(grid, values, f, options, false)?;
+    modes_of_mesh(petsc, body.quadratic, body.marched.report.clone(), material, n_modes)
 }
 
 /// Assembles the P2 mesh and solves its first `n_modes` elastic modes (the count proven by the
@@ -891,7 +1061,7 @@ impl ShapeFamily {
     pub fn modes(&self, petsc: &Petsc, grid: &BackgroundGrid, p: f64, options: &MarchingOptions, material: &Material, n_modes: usize) -> Result<ShapeModes, ShapeError> {
         if let ShapeFamily::Thickness { solid, depth, surface: Some(sdf) } = self {
             let body = curved_shell(grid, solid, sdf, *depth, p, options)?;
-            return modes_of_mesh(petsc, body.quadratic, body.marched.report.clone(), material, n_modes);
+            return modes_of_mesh(petsc, body.body.quadratic, body.body.marched.report.clone(), material, n_modes);
         }
         shape_modes(petsc, grid, &self.field(p)?, options, material, n_modes)
     }

@@ -29,7 +29,13 @@
 //!
 //! If f depends on a parameter p, a node on f(x; p) = 0 that moves along the fixed direction n
 //! has dx/dp = −(∂f/∂p) / (∇f·n) · n; [`CurvedNode::slope`] is ∇f·n at the root [1/m ×
-//! units of f], so the caller only needs ∂f/∂p there.
+//! units of f], so the caller only needs ∂f/∂p there. The direction n = D f(p₀)/|D f(p₀)|
+//! (D the central difference of step δ) turns when f changes shape near p₀: with x = p₀ + u n,
+//! a node gradient G contributes u·T·dn, T = G − (G·n/∇f·n) ∇f, and dn = (I − n nᵀ) dD/|D|,
+//! so the node also carries weights ±b_d/(2δ), b = u (I − n nᵀ) T/|D|, at p₀ ± δ e_d
+//! ([`CurvedNode::origin`], `offset`, `origin_gradient_norm`, `difference_step`). A change
+//! of f that only moves the surface along itself (a thickness's inner wall: ∂f/∂p is the
+//! same at all six points) gives that term no weight.
 
 use super::{ElementOrder, TetMesh, TET10_EDGES};
 use crate::fem::element::{affine_jacobian, det3, jacobian};
@@ -49,6 +55,13 @@ pub struct CurvedNode {
     pub slope: f64,
     /// ∇f at the root [units of f per m] (central differences).
     pub gradient: [f64; 3],
+    /// The midpoint p₀ it moved from [m], and how far: position = p₀ + offset · direction.
+    pub origin: [f64; 3],
+    pub offset: f64,
+    /// |D f(p₀)| [units of f per m], the central-difference gradient at p₀ whose direction is
+    /// `direction`, and that difference's step [m] (the direction turns with f: the module docs).
+    pub origin_gradient_norm: f64,
+    pub difference_step: f64,
 }
 
 /// What [`curve_boundary`] did.
@@ -183,7 +196,7 @@ fn project(p0: [f64; 3], length: f64, f: &dyn Fn([f64; 3]) -> f64, max_fraction:
     }
     let position = [0, 1, 2].map(|d| p0[d] + u1 * n[d]);
     let gradient = [0, 1, 2].map(|d| (at(position, d, step) - at(position, d, -step)) / (2.0 * step));
-    Some(CurvedNode { node: usize::MAX, position, direction: n, slope, gradient })
+    Some(CurvedNode { node: usize::MAX, position, direction: n, slope, gradient, origin: p0, offset: u1, origin_gradient_norm: norm, difference_step: step })
 }
 
 /// Reference gradients of the ten P2 shape functions on the order-4 barycentric lattice.
