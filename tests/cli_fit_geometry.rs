@@ -23,6 +23,11 @@ fn a_tiny_box_is_prefitted_refined_and_written() {
     let run = mpirun(2, &args, LIMIT);
     assert!(run.success(), "{}", run.describe());
     assert!(run.stderr.contains("pre-fit:") && run.stderr.contains("step   3:"), "progress on stderr:\n{}", run.stderr);
+    // The default body has the curved boundary, and the settings say so.
+    match diffsound::io::results::read_attribute(&out, "/", "settings_json").unwrap() {
+        diffsound::io::results::AttrValue::Text(json) => assert!(json.contains("\"curved_boundary\":true"), "{json}"),
+        other => panic!("settings_json is not text: {other:?}"),
+    }
     // The box is 60 × 40 × 30 mm: every distance is a fraction of it, the IoU close to 1.
     for group in ["voxels", "before", "after", "floor"] {
         let g = format!("/metrics/{group}");

@@ -19,7 +19,10 @@
 //!   and update (`method`: minimum-norm Gauss–Newton with its `damping`, the default, or Adam
 //!   with its `learning_rate`), the grid-bias correction (on unless `--no-bias-correction`),
 //!   `free_scale` (off; the spectrum's shape only, for a body of unknown stiffness), the check
-//!   on the target's cell count (on unless `--no-target-grid-check`),
+//!   on the target's cell count (on unless `--no-target-grid-check`), the body's boundary
+//!   (curved unless `--straight-boundary`: every body — target, fit, bias reference, floor —
+//!   has its crossings and boundary mid-edge nodes on the zero of its continuous field, the
+//!   network's or the true signed distance; TOML `[geometry.refine] curved_boundary`),
 //!   the weights of the voxel constraint and of the eikonal regulariser, the
 //!   pre-fit's updates, the network (`octaves`, `hidden` widths) and `seed` (network
 //!   initialisation, pre-fit batches and eikonal points).
@@ -32,7 +35,7 @@
 //!
 //! | path | contents |
 //! |------|----------|
-//! | `/metrics/{voxels,before,after,floor}` attrs | `chamfer`, `hausdorff` [m], `iou` against the true surface: the voxels' staircase, the pre-fitted field, the refined field (both marched on the fit grid) and the true signed distance marched on the fit grid (the floor); the last three add `rms_frequency_error`, `eigen_loss`, `volume` [m³] |
+//! | `/metrics/{voxels,before,after,floor}` attrs | `chamfer`, `hausdorff` [m], `iou` against the true surface: the voxels' staircase, the pre-fitted field, the refined field (both marched on the fit grid, crossings on the field's zero with the curved boundary) and the true signed distance marched on the fit grid (the floor); the last three add `rms_frequency_error`, `eigen_loss`, `volume` [m³] |
 //! | `/modes/{target,before,after,floor}_eigenvalues`, `…_frequency_hz`, `{before,after,floor}_relative_frequency_error` | the N compared modes |
 //! | `/check` attrs `before_loss`, `after_loss`, `refined_kept` | with the correction and the check (default): the eigenvalue loss of the pre-fitted and the refined field on a centred grid of `target_cells` against the uncorrected target; `refined_kept` = 1 if the refined field is the answer (its loss there is lower), else the answer is the pre-fitted field |
 //! | `/modes/bias_correction` | with the grid-bias correction (default): ln λ_k(fit grid) − ln λ_k(bias grid) of the pre-fitted field, added to ln λ*_k for the refinement (the errors above are against the uncorrected target) |
@@ -43,8 +46,8 @@
 //! | `/voxels` attrs | `resolution`, `occupied`, `edge_x/y/z` [m] |
 //! | `/material` attrs, `/timings` attrs | E, ν, ρ; `voxelise`, `prefit`, `target`, `refine`, `assess`, `final_body`, `total` [s] |
 //!
-//! `<out stem>_mesh.h5` + `.xdmf` (ParaView): the refined body on the fit grid, P2, with its
-//! modes ([`crate::io::write_modes`] layout). `png` (default `<out stem>.png`): the voxels,
+//! `<out stem>_mesh.h5` + `.xdmf` (ParaView): the refined body on the fit grid, P2 (curved
+//! boundary by default), with its modes ([`crate::io::write_modes`] layout). `png` (default `<out stem>.png`): the voxels,
 //! the pre-fitted body, the refined body and the true surface side by side, from two views, at
 //! one scale. Progress per step on stderr (with `-v`, or on a terminal); only rank 0 writes.
 

@@ -299,37 +299,69 @@ impl NeuralSdf {
                 continue;
             }
             let (_, trace) = self.forward(x, true);
-            let trace = trace.expect("kept");
-            let mut delta = vec![self.config.length * ds];
-            // From the output layer down: delta holds dL/dz of the current layer (the output
-            // layer is linear, so its dL/dz is dL/dy).
-            for (j, l) in self.layers.iter().enumerate().rev() {
-                let input = &trace.activations[j];
-                for i in 0..l.n_out {
-                    let row = l.weights + i * l.n_in;
-                    for k in 0..l.n_in {
-                        grad[row + k] += delta[i] * input[k];
-                    }
-                    grad[l.biases + i] += delta[i];
-                }
-                if j == 0 {
-                    break;
-                }
-                let z = &trace.pre[j - 1];
-                let mut below = vec![0.0; l.n_in];
-                for i in 0..l.n_out {
-                    let row = &self.parameters[l.weights + i * l.n_in..l.weights + (i + 1) * l.n_in];
-                    for k in 0..l.n_in {
-                        below[k] += row[k] * delta[i];
-                    }
-                }
-                for k in 0..l.n_in {
-                    below[k] *= logistic(z[k]);
-                }
-                delta = below;
-            }
+            self.backward(&trace.expect("kept"), self.config.length * ds, &mut grad);
         }
         Ok(grad)
+    }
+
+    /// [`Self::vjp`] for several rows of dL/ds at the same points at once: one forward pass
+    /// per point serves every row (the geometry task backpropagates a dozen eigenvalue groups
+    /// through the same points).
+    pub fn vjp_rows(&self, points: &[[f64; 3]], rows: &[Vec<f64>]) -> Result<Vec<Vec<f64>>, NeuralSdfError> {
+        for (r, d_values) in rows.iter().enumerate() {
+            if points.len() != d_values.len() {
+                return Err(NeuralSdfError::Invalid(format!("{} points and {} values of dL/ds in row {r}", points.len(), d_values.len())));
+            }
+            if let Some(i) = d_values.iter().position(|v| !v.is_finite()) {
+                return Err(NeuralSdfError::Invalid(format!("dL/ds at point {i} of row {r} is {}", d_values[i])));
+            }
+        }
+        let mut grads = vec![vec![0.0; self.parameters.len()]; rows.len()];
+        for (p, &x) in points.iter().enumerate() {
+            if rows.iter().all(|r| r[p] == 0.0) {
+                continue;
+            }
+            let (_, trace) = self.forward(x, true);
+            let trace = trace.expect("kept");
+            for (row, grad) in rows.iter().zip(grads.iter_mut()) {
+                if row[p] != 0.0 {
+                    self.backward(&trace, self.config.length * row[p], grad);
+                }
+            }
+        }
+        Ok(grads)
+    }
+
+    /// Adds dy/dθ · `d_output` to `grad` along the forward pass `trace`.
+    fn backward(&self, trace: &Trace, d_output: f64, grad: &mut [f64]) {
+        let mut delta = vec![d_output];
+        // From the output layer down: delta holds dL/dz of the current layer (the output
+        // layer is linear, so its dL/dz is dL/dy).
+        for (j, l) in self.layers.iter().enumerate().rev() {
+            let input = &trace.activations[j];
+            for i in 0..l.n_out {
+                let row = l.weights + i * l.n_in;
+                for k in 0..l.n_in {
+                    grad[row + k] += delta[i] * input[k];
+                }
+                grad[l.biases + i] += delta[i];
+            }
+            if j == 0 {
+                break;
+            }
+            let z = &trace.pre[j - 1];
+            let mut below = vec![0.0; l.n_in];
+            for i in 0..l.n_out {
+                let row = &self.parameters[l.weights + i * l.n_in..l.weights + (i + 1) * l.n_in];
+                for k in 0..l.n_in {
+                    below[k] += row[k] * delta[i];
+                }
+            }
+            for k in 0..l.n_in {
+                below[k] *= logistic(z[k]);
+            }
+            delta = below;
+        }
     }
 
     /// Index ranges of every parameter block in θ: (name, range), for checks and files.
@@ -409,6 +441,24 @@ mod tests {
         assert!(NeuralSdfConfig::for_box([0.0; 3], [0.0; 3], 3, vec![8]).is_err());
         assert!(NeuralSdfConfig::for_box([0.0; 3], [1.0; 3], 3, vec![]).is_err());
         assert!(a.vjp(&[x], &[1.0, 2.0]).is_err());
+        assert!(a.vjp_rows(&[x], &[vec![1.0], vec![1.0, 2.0]]).is_err());
+        assert!(a.vjp_rows(&[x], &[vec![f64::NAN]]).is_err());
+    }
+
+    #[test]
+    fn vjp_rows_equal_one_vjp_per_row() {
+        let net = net(5);
+        let mut rng = Rng(17);
+        let points: Vec<[f64; 3]> = (0..40).map(|_| [rng.uniform(-0.03, 0.05), rng.uniform(-0.02, 0.04), rng.uniform(-0.01, 0.02)]).collect();
+        // Rows with zeros in different places, one all zero.
+        let mut rows: Vec<Vec<f64>> = (0..4).map(|_| rng.uniform_vec(points.len(), -1.0, 1.0)).collect();
+        rows[1].iter_mut().step_by(3).for_each(|v| *v = 0.0);
+        rows[2] = vec![0.0; points.len()];
+        let together = net.vjp_rows(&points, &rows).unwrap();
+        assert_eq!(together.len(), rows.len());
+        for (row, grad) in rows.iter().zip(&together) {
+            assert_eq!(&net.vjp(&points, row).unwrap(), grad);
+        }
     }
 
     #[test]

@@ -164,6 +164,11 @@ fn settings_are_validated() {
 
 /// A small network on the box of a voxelised ball, a grid over it, and a made-up per-mode
 /// sensitivity dλ_k/ds_i (smooth in i), for the least-squares rows.
+/// The group rows on this process alone.
+fn serial(net: &NeuralSdf, points: &[[f64; 3]], rows: &[Vec<f64>]) -> Result<Vec<Vec<f64>>, GeometryError> {
+    Ok(net.vjp_rows(points, rows)?)
+}
+
 fn least_squares_case() -> (NeuralSdf, Vec<[f64; 3]>, Vec<Vec<f64>>, Vec<f64>, SpectrumTarget, Voxels, Vec<[f64; 3]>, RefineSettings) {
     let r = 0.03;
     let (_, sdf) = ball(r);
@@ -183,7 +188,7 @@ fn least_squares_case() -> (NeuralSdf, Vec<[f64; 3]>, Vec<Vec<f64>>, Vec<f64>, S
 fn least_squares_rows_sum_to_the_loss_and_match_finite_differences_in_theta() {
     let (mut net, grid_points, per_mode, eigenvalues, target, voxels, eik_points, settings) = least_squares_case();
     let delta = 0.25 * voxels.min_edge();
-    let system = least_squares(&net, &grid_points, &per_mode, &eigenvalues, &target, &voxels, &eik_points, delta, &settings).unwrap();
+    let system = least_squares(&serial, &net, &grid_points, &per_mode, &eigenvalues, &target, &voxels, &eik_points, delta, &settings).unwrap();
     // Σ r² is the loss of the three terms.
     let (le, _) = eigenvalue_loss(&eigenvalues, &target).unwrap();
     let (lv, _) = hinge_loss(&net.values(&voxels.centres()), &voxels.labels(), voxels.min_edge());
@@ -198,7 +203,7 @@ fn least_squares_rows_sum_to_the_loss_and_match_finite_differences_in_theta() {
     // fixed dλ/ds, checked for the network itself in neural_sdf.)
     let theta = net.parameters().to_vec();
     let groups = target.groups.len();
-    let residuals_at = |net: &NeuralSdf| least_squares(net, &grid_points, &per_mode, &eigenvalues, &target, &voxels, &eik_points, delta, &settings).unwrap().residuals;
+    let residuals_at = |net: &NeuralSdf| least_squares(&serial, net, &grid_points, &per_mode, &eigenvalues, &target, &voxels, &eik_points, delta, &settings).unwrap().residuals;
     let h = 1e-6;
     for i in (0..theta.len()).step_by(7) {
         let mut t = theta.clone();
@@ -281,8 +286,8 @@ fn free_scale_rows_are_the_plain_rows_less_their_weighted_mean_and_sum_to_the_lo
     let (net, grid_points, per_mode, eigenvalues, target, voxels, eik_points, plain_settings) = least_squares_case();
     let delta = 0.25 * voxels.min_edge();
     let free_settings = RefineSettings { free_scale: true, ..plain_settings.clone() };
-    let plain = least_squares(&net, &grid_points, &per_mode, &eigenvalues, &target, &voxels, &eik_points, delta, &plain_settings).unwrap();
-    let free = least_squares(&net, &grid_points, &per_mode, &eigenvalues, &target, &voxels, &eik_points, delta, &free_settings).unwrap();
+    let plain = least_squares(&serial, &net, &grid_points, &per_mode, &eigenvalues, &target, &voxels, &eik_points, delta, &plain_settings).unwrap();
+    let free = least_squares(&serial, &net, &grid_points, &per_mode, &eigenvalues, &target, &voxels, &eik_points, delta, &free_settings).unwrap();
     assert_eq!(plain.residuals.len(), free.residuals.len());
     // Σ r² is the free-scale eigenvalue loss plus the same voxel and eikonal terms.
     let groups = &target.groups;
