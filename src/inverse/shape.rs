@@ -201,7 +201,10 @@
 //! x₀ of its corners, so the rest of its gradient goes to the corners projected along d. Nodes
 //! left linear go through the marching's chain as before. Against central differences of
 //! re-meshed, re-solved spectra on a triangulated ellipsoid shell the relative error is 2e-8
-//! (`tests/mpi_sensitivity.rs`).
+//! (`tests/mpi_sensitivity.rs`). The body and its chain are the field's, not the shell's
+//! ([`curved_body`], [`FieldWeights`]): the geometry task meshes its network field the same
+//! way ([`curved_field_spectrum`]), where the turn of each mid-edge node's direction of move
+//! with the field also counts (a signed distance's normal does not turn as its wall moves).
 //!
 //! Measured (`shape_probe --curved`, ceramic, 2 ranks):
 //!
@@ -269,6 +272,15 @@
 //! 0.0923), mean 0.0120; 266–462 s per fit (43.7 s per 36-cell evaluation against 28.8 with 8
 //! modes). At t* = 0.7 the levels still climb (0.55/0.60/0.65): its cavity is not resolved by
 //! 36 cells whatever the modes. The default stays at 8 modes (`--modes`).
+//!
+//! **Where the thickness fit stands at high t on the turtle** (stop 31, `shape_probe --curved
+//! --modes 16`, no fit): its first frequencies at t = 0.6 on 20/28/36/44 cells are 7422/6343/
+//! 6101/5978 Hz (mode 1), 15414/14406/14084/13656 (mode 3), 42783/41429/39987/39443 (mode
+//! 10): the first 16 still 0.6–3 % apart between 36 and 44 cells, which is as much as
+//! t = 0.6 → 0.7 moves modes 9–16 (0.9–4 % at 28 cells). So no fit level at or below 36 cells can place t* = 0.7 against a
+//! 40-cell target; the cheaper solve that would allow a finer level was not found either
+//! (Debian's MUMPS: block low-rank, `-st_mat_mumps_icntl_35 1|2`, 43–47 s against 39 s, and it
+//! let three rigid modes through; orderings AMD/AMF/QAMD 54–120 s against PORD's 39 s).
 //!
 //! E, ν and ρ are known here (the material fit is a separate problem). Every rank runs the same
 //! search on the same numbers (eigenvalues and gradients are broadcast from rank 0), so the
