@@ -717,7 +717,8 @@ pub struct PointGradient {
 pub fn curved_field_spectrum(petsc: &Petsc, grid: &BackgroundGrid, values: &[f64], f: &dyn Fn([f64; 3]) -> f64, options: &MarchingOptions, material: &Material, n_modes: usize, with_gradient: bool) -> Result<(ShapeSpectrum, Option<PointGradient>), ShapeError> {
     let mut timings = StepTimings::default();
     let clock = std::time::Instant::now();
-    let body = curved_body(grid, values, f, options, true)?;
+    // The Hessians serve the gradient alone.
+    let body = curved_body(grid, values, f, options, with_gradient)?;
     timings.meshing = clock.elapsed().as_secs_f64();
     let (assembled, modes) = assemble_and_solve(petsc, &body.quadratic, material, n_modes, &mut timings)?;
     let mut eigenvalues: Vec<f64> = modes.eigenvalues[..n_modes].to_vec();
