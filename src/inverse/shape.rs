@@ -355,31 +355,53 @@ pub fn shape_spectrum(petsc: &Petsc, grid: &BackgroundGrid, values: &[f64], opti
     let linear = &marched.mesh;
     let quadratic = lift_to_quadratic(linear);
     timings.meshing = t.elapsed().as_secs_f64();
-    let (assembled, modes) = assemble_and_solve(petsc, &quadratic, material, n_modes, &mut timings)?;
+    // dλ_k/ds_i: through the P1 corners and the marching.
+    let to_samples = |per_node: &[Vec<f64>]| -> Result<Vec<f64>, ShapeError> {
+        let mut flat = Vec::with_capacity(per_node.len() * grid.n_vertices());
+        for g in per_node {
+            let corners = linear_node_gradient(linear, &quadratic, g).map_err(|e| ShapeError::Solver(e.to_string()))?;
+            flat.extend(marched.vjp(&corners)?.values);
+        }
+        Ok(flat)
+    };
+    let carry = with_gradient.then_some(Carry { len: grid.n_vertices(), map: &to_samples });
+    let (eigenvalues, clusters, gradient) = solve_and_carry(petsc, &quadratic, material, n_modes, &mut timings, carry)?;
+    Ok(ShapeSpectrum { eigenvalues, gradient, clusters, report: marched.report.clone(), tets: linear.n_tets(), p2_nodes: quadratic.n_nodes(), volume: linear.volume(), timings })
+}
+
+/// How rank 0's node gradients of the first n modes (3 per P2 node each) become numbers of the
+/// field: `len` per mode, mode after mode.
+struct Carry<'a> {
+    len: usize,
+    map: &'a dyn Fn(&[Vec<f64>]) -> Result<Vec<f64>, ShapeError>,
+}
+
+/// What every spectrum of a meshed body shares: assembles and solves `quadratic`, gives every
+/// rank rank 0's first `n_modes` eigenvalues and their clusters and, with `carry`, carries rank
+/// 0's node gradients to the field there (only rank 0 holds them) and shares the rows, one per
+/// mode. Adds the assembly, solve and gradient times to `timings`. Collective.
+#[allow(clippy::type_complexity)]
+fn solve_and_carry(petsc: &Petsc, quadratic: &TetMesh, material: &Material, n_modes: usize, timings: &mut StepTimings, carry: Option<Carry>) -> Result<(Vec<f64>, Vec<Range<usize>>, Option<Vec<Vec<f64>>>), ShapeError> {
+    let (assembled, modes) = assemble_and_solve(petsc, quadratic, material, n_modes, timings)?;
     let mut eigenvalues: Vec<f64> = modes.eigenvalues[..n_modes].to_vec();
     broadcast_from_root(petsc, &mut eigenvalues);
-
-    let gradient = if with_gradient {
-        let t = std::time::Instant::now();
-        let per_node = node_gradients(petsc, &quadratic, &assembled.layout, &modes, material, ClusterTreatment::Mean).map_err(|e| ShapeError::Solver(e.to_string()))?;
-        // Rank 0 holds the node gradients: carry them to the field there, then share.
-        let n_grid = grid.n_vertices();
-        let mut flat = vec![0.0; n_modes * n_grid];
-        if let Some(per_node) = per_node {
-            for (k, g) in per_node.iter().take(n_modes).enumerate() {
-                let corners = linear_node_gradient(linear, &quadratic, g).map_err(|e| ShapeError::Solver(e.to_string()))?;
-                let back = marched.vjp(&corners)?;
-                flat[k * n_grid..(k + 1) * n_grid].copy_from_slice(&back.values);
-            }
-        }
-        broadcast_from_root(petsc, &mut flat);
-        timings.gradient = t.elapsed().as_secs_f64();
-        Some(flat.chunks(n_grid).map(<[f64]>::to_vec).collect())
-    } else {
-        None
-    };
     let clusters = modes.clusters.iter().filter(|r| r.start < n_modes).map(|r| r.start..r.end.min(n_modes)).collect();
-    Ok(ShapeSpectrum { eigenvalues, gradient, clusters, report: marched.report.clone(), tets: linear.n_tets(), p2_nodes: quadratic.n_nodes(), volume: linear.volume(), timings })
+    let rows = match carry {
+        Some(carry) => {
+            let clock = std::time::Instant::now();
+            let per_node = node_gradients(petsc, quadratic, &assembled.layout, &modes, material, ClusterTreatment::Mean).map_err(|e| ShapeError::Solver(e.to_string()))?;
+            let mut flat = vec![0.0; n_modes * carry.len];
+            if let Some(per_node) = per_node {
+                flat = (carry.map)(&per_node[..n_modes])?;
+                assert_eq!(flat.len(), n_modes * carry.len, "one row of the carried length per mode");
+            }
+            broadcast_from_root(petsc, &mut flat);
+            timings.gradient = clock.elapsed().as_secs_f64();
+            Some(flat.chunks(carry.len.max(1)).map(<[f64]>::to_vec).collect())
+        }
+        None => None,
+    };
+    Ok((eigenvalues, clusters, rows))
 }
 
 /// A crossing vertex moved onto the zero of the continuous field along its grid edge.
@@ -571,7 +593,7 @@ impl CurvedBody {
         let mut g = node_gradient.to_vec();
         let mut curved = Vec::with_capacity(self.curved.len());
         let mut turns = Vec::with_capacity(self.curved.len());
-        for c in &self.curved {
+        for (m, c) in self.curved.iter().enumerate() {
             let gm = [g[3 * c.node], g[3 * c.node + 1], g[3 * c.node + 2]];
             let along = (0..3).map(|d| gm[d] * c.direction[d]).sum::<f64>() / c.slope;
             curved.push(-along);
@@ -581,7 +603,7 @@ impl CurvedBody {
             // The turn as p₀ moves: b·(∂D/∂p₀) dp₀ goes to p₀ with the rest.
             let to_origin = match &self.hessians {
                 Some(h) => {
-                    let h = &h[turns.len()];
+                    let h = &h[m];
                     [0, 1, 2].map(|e| rest[e] + (0..3).map(|d| turn[d] * h[d][e]).sum::<f64>())
                 }
                 None => rest,
@@ -677,27 +699,14 @@ pub fn curved_shell_spectrum(petsc: &Petsc, grid: &BackgroundGrid, solid: &[f64]
     let clock = std::time::Instant::now();
     let shell = curved_shell(grid, solid, sdf, depth, t, options)?;
     timings.meshing = clock.elapsed().as_secs_f64();
-    let (assembled, modes) = assemble_and_solve(petsc, &shell.body.quadratic, material, n_modes, &mut timings)?;
-    let mut eigenvalues: Vec<f64> = modes.eigenvalues[..n_modes].to_vec();
-    broadcast_from_root(petsc, &mut eigenvalues);
-    let derivative = if with_gradient {
-        let clock = std::time::Instant::now();
-        let per_node = node_gradients(petsc, &shell.body.quadratic, &assembled.layout, &modes, material, ClusterTreatment::Mean).map_err(|e| ShapeError::Solver(e.to_string()))?;
-        let mut d = vec![0.0; n_modes];
-        if let Some(per_node) = per_node {
-            d = shell.thickness_derivatives(sdf, depth, &per_node[..n_modes])?;
-        }
-        broadcast_from_root(petsc, &mut d);
-        timings.gradient = clock.elapsed().as_secs_f64();
-        Some(d)
-    } else {
-        None
-    };
-    Ok((body_spectrum(&shell.body, eigenvalues, &modes, n_modes, timings), derivative))
+    let to_thickness = |per_node: &[Vec<f64>]| shell.thickness_derivatives(sdf, depth, per_node);
+    let carry = with_gradient.then_some(Carry { len: 1, map: &to_thickness });
+    let (eigenvalues, clusters, rows) = solve_and_carry(petsc, &shell.body.quadratic, material, n_modes, &mut timings, carry)?;
+    let derivative = rows.map(|rows| rows.into_iter().map(|r| r[0]).collect());
+    Ok((body_spectrum(&shell.body, eigenvalues, clusters, timings), derivative))
 }
 
-fn body_spectrum(body: &CurvedBody, eigenvalues: Vec<f64>, modes: &eigen::Modes, n_modes: usize, timings: StepTimings) -> ShapeSpectrum {
-    let clusters = modes.clusters.iter().filter(|r| r.start < n_modes).map(|r| r.start..r.end.min(n_modes)).collect();
+fn body_spectrum(body: &CurvedBody, eigenvalues: Vec<f64>, clusters: Vec<Range<usize>>, timings: StepTimings) -> ShapeSpectrum {
     ShapeSpectrum { eigenvalues, gradient: None, clusters, report: body.marched.report.clone(), tets: body.linear.n_tets(), p2_nodes: body.quadratic.n_nodes(), volume: body.linear.volume(), timings }
 }
 
@@ -720,32 +729,26 @@ pub fn curved_field_spectrum(petsc: &Petsc, grid: &BackgroundGrid, values: &[f64
     // The Hessians serve the gradient alone.
     let body = curved_body(grid, values, f, options, with_gradient)?;
     timings.meshing = clock.elapsed().as_secs_f64();
-    let (assembled, modes) = assemble_and_solve(petsc, &body.quadratic, material, n_modes, &mut timings)?;
-    let mut eigenvalues: Vec<f64> = modes.eigenvalues[..n_modes].to_vec();
-    broadcast_from_root(petsc, &mut eigenvalues);
-    let gradient = if with_gradient {
-        let clock = std::time::Instant::now();
-        let per_node = node_gradients(petsc, &body.quadratic, &assembled.layout, &modes, material, ClusterTreatment::Mean).map_err(|e| ShapeError::Solver(e.to_string()))?;
-        let mut points = grid.vertex_positions();
+    // Where the weights apply (the gradient alone needs them).
+    let mut points = Vec::new();
+    if with_gradient {
+        points = grid.vertex_positions();
         points.extend(body.moved_points());
         points.extend(body.turn_points());
-        let mut flat = vec![0.0; n_modes * points.len()];
-        if let Some(per_node) = per_node {
-            for (k, g) in per_node.iter().take(n_modes).enumerate() {
-                let w = body.field_weights(g)?;
-                let turn = body.turn_weights(&w.turns);
-                let row = w.grid.iter().chain(&w.crossings).chain(&w.curved).chain(&turn);
-                flat[k * points.len()..(k + 1) * points.len()].iter_mut().zip(row).for_each(|(x, v)| *x = *v);
-            }
+    }
+    let to_points = |per_node: &[Vec<f64>]| -> Result<Vec<f64>, ShapeError> {
+        let mut flat = Vec::with_capacity(per_node.len() * points.len());
+        for g in per_node {
+            let w = body.field_weights(g)?;
+            flat.extend(w.grid.iter().chain(&w.crossings).chain(&w.curved));
+            flat.extend(body.turn_weights(&w.turns));
         }
-        broadcast_from_root(petsc, &mut flat);
-        timings.gradient = clock.elapsed().as_secs_f64();
-        let per_mode = flat.chunks(points.len()).map(<[f64]>::to_vec).collect();
-        Some(PointGradient { points, per_mode })
-    } else {
-        None
+        Ok(flat)
     };
-    Ok((body_spectrum(&body, eigenvalues, &modes, n_modes, timings), gradient))
+    let carry = with_gradient.then_some(Carry { len: points.len(), map: &to_points });
+    let (eigenvalues, clusters, rows) = solve_and_carry(petsc, &body.quadratic, material, n_modes, &mut timings, carry)?;
+    let gradient = rows.map(|per_mode| PointGradient { points, per_mode });
+    Ok((body_spectrum(&body, eigenvalues, clusters, timings), gradient))
 }
 
 /// The modes of [`curved_body`] with their shapes (for writing a fitted body). Collective.
