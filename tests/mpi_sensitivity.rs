@@ -84,8 +84,10 @@ fn main() {
     }
     let (mut passed, mut failed) = (0usize, 0usize);
     for np in [1, 2] {
-        let out = Command::new("mpirun")
-            .args(["-np", &np.to_string()])
+        // A hung job (a rank waiting in a collective another rank left) fails here after 20
+        // minutes instead of stalling the suite; the full run takes about five.
+        let out = Command::new("timeout")
+            .args(["--kill-after=10", "1200", "mpirun", "-np", &np.to_string()])
             .arg(std::env::current_exe().expect("test binary path"))
             .env("DIFFSOUND_MPI_CHILD", "1")
             .env("OMPI_ALLOW_RUN_AS_ROOT", "1")
@@ -747,10 +749,50 @@ fn check_loaded_ritz(petsc: &Petsc, c: &mut Checker) {
     );
 }
 
+/// A failure on one rank reaches every rank as the same error, instead of leaving the others
+/// waiting in the next collective (before `petsc::collective`, rank 0 carrying a shape gradient
+/// or one rank's share of a network backpropagation could return early and hang the job; this
+/// check would then hang, and the launcher's time limit fails it). Every rank's outcome is
+/// reduced, so a wrong answer on any rank fails the check.
+fn check_collective_failures(petsc: &Petsc, c: &mut Checker) {
+    use diffsound::petsc::collective::{agree, share_from_root};
+    let (rank, size) = (petsc.rank(), petsc.size());
+    let root_only = |r: Result<Vec<f64>, String>| if rank == 0 { Some(r) } else { None };
+    let shared = share_from_root(petsc, root_only(Ok(vec![1.5, -2.0, 3.25])), 3);
+    let shared_ok = shared == Ok(vec![1.5, -2.0, 3.25]);
+    let failed = share_from_root(petsc, root_only(Err("the carry failed".into())), 3);
+    let failed_ok = matches!(&failed, Err(m) if m.contains("the carry failed"));
+    let wrong_length = share_from_root(petsc, root_only(Ok(vec![1.0; 2])), 3);
+    let wrong_length_ok = matches!(&wrong_length, Err(m) if m.contains("2 numbers where 3"));
+    let last = size - 1;
+    let agreed_ok = agree(petsc, Ok::<usize, String>(rank)) == Ok(rank);
+    let one_failed = agree(petsc, if rank == last { Err(format!("share {rank} is not finite")) } else { Ok(rank) });
+    // On one rank there is nobody to tell, and the error comes back as it was.
+    let expected = if size > 1 { format!("rank {last}: share {last} is not finite") } else { "share 0 is not finite".to_string() };
+    let one_failed_ok = matches!(&one_failed, Err(m) if m == &expected);
+    let all = [shared_ok, failed_ok, wrong_length_ok, agreed_ok, one_failed_ok];
+    let mine: Vec<i32> = all.iter().map(|&b| b as i32).collect();
+    let mut everywhere = vec![0i32; mine.len()];
+    petsc.world().all_reduce_into(&mine[..], &mut everywhere[..], SystemOperation::min());
+    c.check(
+        "collective failures",
+        everywhere.iter().all(|&b| b == 1),
+        format!(
+            "on every one of {size} rank(s): rank 0's rows shared {}, rank 0's error shared {}, a wrong length refused {}, all-ok agreed {}, rank {last}'s error agreed {} ({failed:?} / {one_failed:?} on rank {rank})",
+            everywhere[0] == 1,
+            everywhere[1] == 1,
+            everywhere[2] == 1,
+            everywhere[3] == 1,
+            everywhere[4] == 1
+        ),
+    );
+}
+
 fn child() {
     let universe = mpi::initialize().expect("MPI");
     let petsc = Petsc::initialize(universe, "mpi_sensitivity", &[]).expect("PETSc");
     let mut c = Checker { rank: petsc.rank(), failures: 0 };
+    check_collective_failures(&petsc, &mut c);
     // A small brick with unequal sides, so that its low modes are well separated.
     let brick = mesh::lift_to_quadratic(&mesh::box_mesh([5, 4, 3], [0.10, 0.07, 0.04]));
     check_mesh(&petsc, &mut c, "brick", &brick, 12);

@@ -163,29 +163,35 @@ pub fn node_gradients<'p>(petsc: &'p Petsc, mesh: &TetMesh, layout: &DofLayout, 
     let mut phi_e = vec![0.0; m * 3 * npt];
     let mut grad = vec![[0.0; 3]; m * npt];
     let mut pos = vec![0usize; npt];
-    for &e in &owned {
-        let tet = mesh.tet(e);
-        for (a, &node) in tet.iter().enumerate() {
-            coords[a] = mesh.nodes[node];
-            let g = (3 * layout.partition.new_of_old[node]) as PetscInt;
-            pos[a] = needed.binary_search(&g).expect("owned element dofs were gathered");
-        }
-        for k in 0..m {
-            for a in 0..npt {
-                for c in 0..3 {
-                    phi_e[k * 3 * npt + 3 * a + c] = values[k][pos[a] + c];
-                }
-            }
-        }
-        kernel.gradients_into(&coords, &phi_e, &modes.eigenvalues, coef, &mut grad, None).map_err(|err| SensitivityError::Element { element: e, message: err.to_string() })?;
-        for k in 0..m {
+    // An element that fails on one rank must stop every rank before the reduction below.
+    let mut element_loop = || -> Result<(), SensitivityError> {
+        for &e in &owned {
+            let tet = mesh.tet(e);
             for (a, &node) in tet.iter().enumerate() {
-                for c in 0..3 {
-                    local[k * 3 * mesh.n_nodes() + 3 * node + c] += grad[k * npt + a][c];
+                coords[a] = mesh.nodes[node];
+                let g = (3 * layout.partition.new_of_old[node]) as PetscInt;
+                pos[a] = needed.binary_search(&g).expect("owned element dofs were gathered");
+            }
+            for k in 0..m {
+                for a in 0..npt {
+                    for c in 0..3 {
+                        phi_e[k * 3 * npt + 3 * a + c] = values[k][pos[a] + c];
+                    }
+                }
+            }
+            kernel.gradients_into(&coords, &phi_e, &modes.eigenvalues, coef, &mut grad, None).map_err(|err| SensitivityError::Element { element: e, message: err.to_string() })?;
+            for k in 0..m {
+                for (a, &node) in tet.iter().enumerate() {
+                    for c in 0..3 {
+                        local[k * 3 * mesh.n_nodes() + 3 * node + c] += grad[k * npt + a][c];
+                    }
                 }
             }
         }
-    }
+        Ok(())
+    };
+    let outcome = element_loop();
+    crate::petsc::collective::agree(petsc, outcome.map_err(|e| e.to_string())).map_err(SensitivityError::Collective)?;
     let reduced = {
         use mpi::collective::{Root, SystemOperation};
         use mpi::topology::Communicator;
@@ -222,6 +228,9 @@ pub enum SensitivityError {
     Petsc(#[from] PetscError),
     #[error("element {element}: {message}")]
     Element { element: usize, message: String },
+    /// A failure on some rank, shared by every rank ([`crate::petsc::collective::agree`]).
+    #[error("{0}")]
+    Collective(String),
 }
 
 /// Derivatives of what is heard with respect to λ and the Rayleigh coefficients, for one mode.

@@ -331,7 +331,7 @@ use super::shape::{curved_field_spectrum, refine_crossings, shape_spectrum, shif
 use crate::random::SplitMix64;
 use crate::fem::Material;
 use crate::mesh::{self, BackgroundGrid, MarchingOptions, ShapeComparison, SignedDistance, TriangleSurface};
-use crate::petsc::Petsc;
+use crate::petsc::{collective, Petsc};
 use std::collections::HashMap;
 
 /// Why the geometry task failed.
@@ -891,13 +891,6 @@ impl Refinement {
     }
 }
 
-fn broadcast_from_root(petsc: &Petsc, data: &mut [f64]) {
-    use mpi::traits::{Communicator, Root};
-    if petsc.size() > 1 {
-        petsc.world().process_at_rank(0).broadcast_into(data);
-    }
-}
-
 /// What [`evaluate`] returns besides the loss.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 enum Derivative {
@@ -999,7 +992,9 @@ fn vjp_rows_across_ranks(petsc: &Petsc, net: &NeuralSdf, points: &[[f64; 3]], ro
     let n = points.len();
     let share = n * rank / size..n * (rank + 1) / size;
     let local_rows: Vec<Vec<f64>> = rows.iter().map(|r| r[share.clone()].to_vec()).collect();
-    let local: Vec<f64> = net.vjp_rows(&points[share], &local_rows)?.concat();
+    // A share that fails on one rank (a non-finite weight in its points) must stop every rank
+    // before the reduction.
+    let local = collective::agree(petsc, net.vjp_rows(&points[share], &local_rows).map_err(|e| e.to_string())).map_err(GeometryError::Invalid)?.concat();
     let mut total = vec![0.0; local.len()];
     petsc.world().all_reduce_into(&local[..], &mut total[..], SystemOperation::sum());
     Ok(total.chunks(net.n_parameters()).map(<[f64]>::to_vec).collect())
@@ -1117,7 +1112,7 @@ pub fn refine(petsc: &Petsc, net: &mut NeuralSdf, grid: &BackgroundGrid, voxels:
     let clock = std::time::Instant::now();
     let grid_points = grid.vertex_positions();
     let mut theta = net.parameters().to_vec();
-    broadcast_from_root(petsc, &mut theta);
+    collective::broadcast_slice(petsc, &mut theta);
     net.set_parameters(&theta)?;
     let mut adam = Adam::new(vec![settings.learning_rate; theta.len()]);
     let gauss_newton = settings.method == RefineMethod::GaussNewton;
@@ -1184,7 +1179,7 @@ pub fn refine(petsc: &Petsc, net: &mut NeuralSdf, grid: &BackgroundGrid, voxels:
         if last {
             break;
         }
-        broadcast_from_root(petsc, &mut theta);
+        collective::broadcast_slice(petsc, &mut theta);
         net.set_parameters(&theta)?;
     }
     net.set_parameters(&best_theta)?;
@@ -1412,7 +1407,7 @@ pub fn fit_geometry(petsc: &Petsc, truth: &TriangleSurface, sdf: &SignedDistance
     let prefit_report = prefit(&mut net, &voxels, &settings.prefit)?;
     // Deterministic serial code gives every rank the same θ; share rank 0's anyway.
     let mut theta = net.parameters().to_vec();
-    broadcast_from_root(petsc, &mut theta);
+    collective::broadcast_slice(petsc, &mut theta);
     net.set_parameters(&theta)?;
     let prefit_parameters = theta;
     timings.prefit = clock.elapsed().as_secs_f64();

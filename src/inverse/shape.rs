@@ -291,7 +291,7 @@ use crate::eigen::sensitivity::{node_gradients, ClusterTreatment};
 use crate::eigen::{self, EigenConfig, ModeRequest};
 use crate::fem::Material;
 use crate::mesh::{self, lift_to_quadratic, linear_node_gradient, BackgroundGrid, MarchingOptions, MarchingReport, SignedDistance, TetMesh, TriangleSurface};
-use crate::petsc::Petsc;
+use crate::petsc::{collective, Petsc};
 use std::ops::Range;
 use std::path::Path;
 
@@ -384,18 +384,15 @@ struct Carry<'a> {
 fn solve_and_carry(petsc: &Petsc, quadratic: &TetMesh, material: &Material, n_modes: usize, timings: &mut StepTimings, carry: Option<Carry>) -> Result<(Vec<f64>, Vec<Range<usize>>, Option<Vec<Vec<f64>>>), ShapeError> {
     let (assembled, modes) = assemble_and_solve(petsc, quadratic, material, n_modes, timings)?;
     let mut eigenvalues: Vec<f64> = modes.eigenvalues[..n_modes].to_vec();
-    broadcast_from_root(petsc, &mut eigenvalues);
+    collective::broadcast_slice(petsc, &mut eigenvalues);
     let clusters = modes.clusters.iter().filter(|r| r.start < n_modes).map(|r| r.start..r.end.min(n_modes)).collect();
     let rows = match carry {
         Some(carry) => {
             let clock = std::time::Instant::now();
             let per_node = node_gradients(petsc, quadratic, &assembled.layout, &modes, material, ClusterTreatment::Mean).map_err(|e| ShapeError::Solver(e.to_string()))?;
-            let mut flat = vec![0.0; n_modes * carry.len];
-            if let Some(per_node) = per_node {
-                flat = (carry.map)(&per_node[..n_modes])?;
-                assert_eq!(flat.len(), n_modes * carry.len, "one row of the carried length per mode");
-            }
-            broadcast_from_root(petsc, &mut flat);
+            // Only rank 0 carries; its failure must reach the ranks waiting for its rows.
+            let carried = per_node.map(|per_node| (carry.map)(&per_node[..n_modes]).map_err(|e| e.to_string()));
+            let flat = collective::share_from_root(petsc, carried, n_modes * carry.len).map_err(ShapeError::Solver)?;
             timings.gradient = clock.elapsed().as_secs_f64();
             Some(flat.chunks(carry.len.max(1)).map(<[f64]>::to_vec).collect())
         }
@@ -780,13 +777,6 @@ fn assemble_and_solve<'p>(petsc: &'p Petsc, quadratic: &TetMesh, material: &Mate
     }
     timings.solve = t.elapsed().as_secs_f64();
     Ok((assembled, modes))
-}
-
-fn broadcast_from_root(petsc: &Petsc, data: &mut [f64]) {
-    use mpi::traits::{Communicator, Root};
-    if petsc.size() > 1 {
-        petsc.world().process_at_rank(0).broadcast_into(data);
-    }
 }
 
 /// The modes of the body inside a field, with the P2 mesh and mode shapes for output.

@@ -8,6 +8,7 @@
 //! Handles borrow the runtime (`'p`), so none can outlive `SlepcFinalize`. The runtime owns the
 //! MPI universe and finalises PETSc/SLEPc before MPI (stack note 7).
 
+pub mod collective;
 mod eps;
 mod error;
 mod ksp;
