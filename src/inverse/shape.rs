@@ -282,6 +282,20 @@
 //! (Debian's MUMPS: block low-rank, `-st_mat_mumps_icntl_35 1|2`, 43–47 s against 39 s, and it
 //! let three rigid modes through; orderings AMD/AMF/QAMD 54–120 s against PORD's 39 s).
 //!
+//! **The turtle's floor at t* = 0.7** (stop 32, `out/bench_shape/floor_turtle/`): fitted on
+//! the target's own spacing (40 cells, the centred grid, 16 modes, seed 2) against 40-cell
+//! targets on shifted grids, the answers were 0.6234 for t* = 0.7 and 0.5978 for t* = 0.6. The
+//! two bodies differ only in the grid's alignment, so at t* = 0.7 the alignment alone moves
+//! the answer by 0.077, more than any fit level's error (the 36-cell levels of seed 2: 0.047).
+//! The information is not in the target: at t = 0.7 the cavity is the set of points deeper than
+//! 0.7 S = 11.0 mm (S = 15.7 mm), at most 2 × 4.7 mm across (five 1.73 mm spacings at 40 cells)
+//! and thinner towards its rim, and what the samples make of it changes with the alignment more
+//! than with t. The Gauss–Newton information Σ|G|J_G² at the 36-cell answer is 0.76 at t* = 0.7, against 5.2
+//! at 0.6 and 74 at 0.3. At t* = 0.6 the floor is 0.002, and the fits' errors there (0.0015
+//! with 16 modes) are as small. So no fit on grids of this spacing can meet 0.005 at t* = 0.7
+//! on the turtle; a target on a finer grid would be needed, and the fit would have to follow it.
+//! Nothing in the search was tuned to this case.
+//!
 //! E, ν and ρ are known here (the material fit is a separate problem). Every rank runs the same
 //! search on the same numbers (eigenvalues and gradients are broadcast from rank 0), so the
 //! decisions agree across ranks.
