@@ -283,10 +283,13 @@
 //! let three rigid modes through; orderings AMD/AMF/QAMD 54–120 s against PORD's 39 s).
 //!
 //! **The turtle's floor at t* = 0.7** (stop 32, `out/bench_shape/floor_turtle/`): fitted on
-//! the target's own spacing (40 cells, the centred grid, 16 modes, seed 2) against 40-cell
-//! targets on shifted grids, the answers were 0.6234 for t* = 0.7 and 0.5978 for t* = 0.6. The
-//! two bodies differ only in the grid's alignment, so at t* = 0.7 the alignment alone moves
-//! the answer by 0.077, more than any fit level's error (the 36-cell levels of seed 2: 0.047).
+//! the target's own spacing (40 cells, the centred grid, 16 modes) against 40-cell targets on
+//! shifted grids, the answers were 0.6234 (seed 2) and 0.6319 (seed 3) for t* = 0.7 and 0.5978
+//! for t* = 0.6. The bodies differ only in the grid's alignment, so at t* = 0.7 the alignment
+//! alone moves the answer by 0.07–0.08, more than any fit level's error (the 36-cell levels of
+//! seed 2: 0.047). A second fit alignment (half a cell along the diagonal) answered 0.6612 on
+//! the seed-2 target: the fit's own alignments disagree by 0.038, and their mean (0.6423) is no
+//! closer.
 //! The information is not in the target: at t = 0.7 the cavity is the set of points deeper than
 //! 0.7 S = 11.0 mm (S = 15.7 mm), at most 2 × 4.7 mm across (five 1.73 mm spacings at 40 cells)
 //! and thinner towards its rim, and what the samples make of it changes with the alignment more
