@@ -287,27 +287,14 @@ impl NeuralSdf {
 
     /// dL/dθ = Σ_p (dL/ds_p) ∂s_p/∂θ for `d_values` = dL/ds at `points` (module docs).
     pub fn vjp(&self, points: &[[f64; 3]], d_values: &[f64]) -> Result<Vec<f64>, NeuralSdfError> {
-        if points.len() != d_values.len() {
-            return Err(NeuralSdfError::Invalid(format!("{} points and {} values of dL/ds", points.len(), d_values.len())));
-        }
-        if let Some(i) = d_values.iter().position(|v| !v.is_finite()) {
-            return Err(NeuralSdfError::Invalid(format!("dL/ds at point {i} is {}", d_values[i])));
-        }
-        let mut grad = vec![0.0; self.parameters.len()];
-        for (&x, &ds) in points.iter().zip(d_values) {
-            if ds == 0.0 {
-                continue;
-            }
-            let (_, trace) = self.forward(x, true);
-            self.backward(&trace.expect("kept"), self.config.length * ds, &mut grad);
-        }
-        Ok(grad)
+        Ok(self.vjp_rows(points, &[d_values])?.pop().expect("one row in, one gradient out"))
     }
 
     /// [`Self::vjp`] for several rows of dL/ds at the same points at once: one forward pass
     /// per point serves every row (the geometry task backpropagates a dozen eigenvalue groups
     /// through the same points).
-    pub fn vjp_rows(&self, points: &[[f64; 3]], rows: &[Vec<f64>]) -> Result<Vec<Vec<f64>>, NeuralSdfError> {
+    pub fn vjp_rows<R: AsRef<[f64]>>(&self, points: &[[f64; 3]], rows: &[R]) -> Result<Vec<Vec<f64>>, NeuralSdfError> {
+        let rows: Vec<&[f64]> = rows.iter().map(AsRef::as_ref).collect();
         for (r, d_values) in rows.iter().enumerate() {
             if points.len() != d_values.len() {
                 return Err(NeuralSdfError::Invalid(format!("{} points and {} values of dL/ds in row {r}", points.len(), d_values.len())));

@@ -744,12 +744,7 @@ pub fn curved_field_spectrum(petsc: &Petsc, grid: &BackgroundGrid, values: &[f64
     let body = curved_body(grid, values, f, options, with_gradient)?;
     timings.meshing = clock.elapsed().as_secs_f64();
     // Where the weights apply (the gradient alone needs them).
-    let mut points = Vec::new();
-    if with_gradient {
-        points = grid.vertex_positions();
-        points.extend(body.moved_points());
-        points.extend(body.turn_points());
-    }
+    let points: Vec<[f64; 3]> = if with_gradient { grid.vertex_positions().into_iter().chain(body.moved_points()).chain(body.turn_points()).collect() } else { Vec::new() };
     let to_points = |per_node: &[Vec<f64>]| -> Result<Vec<f64>, ShapeError> {
         let mut flat = Vec::with_capacity(per_node.len() * points.len());
         for g in per_node {
