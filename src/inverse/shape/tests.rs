@@ -199,6 +199,52 @@ fn search_settles_in_few_evaluations_when_the_target_is_out_of_reach() {
     assert!(total <= 20 * 5, "{total} evaluations for 20 searches");
 }
 
+/// A level whose sensitivities fall steeply towards the minimum, as a small cavity's do: the
+/// cavity of a hollow body at thickness t is the set deeper than t·S, about a ball of radius
+/// (1 − t)·S around the deepest point, so its volume goes as (1 − t)³ — on the turtle faster
+/// still (the Gauss–Newton information Σ|G|J² fell from 5.2 to 0.76 between t = 0.6 and 0.7);
+/// the model's modes move with (1 − t)⁴. Started below the minimiser (a coarser level's answer
+/// is thinner), every slope has the same sign until the minimum, and each Gauss–Newton step is
+/// close. A secant through the previous point on the same side extrapolates from the steeper
+/// part and cut those steps short: on the turtle at t* = 0.7 (36 cells) six evaluations, each
+/// covering about half the way left. Measured here: 67 evaluations for the 20 searches with the
+/// secant across the minimum only, 88 with the previous point's.
+#[test]
+fn search_takes_full_steps_where_the_sensitivity_fades_towards_the_minimum() {
+    let settings = ShapeFitSettings { bounds: (0.05, 0.95), ..Default::default() };
+    let target = SpectrumTarget::new(vec![1.0e8, 2.0e8, 2.01e8, 4.0e8, 6.0e8, 7.5e8], 1e-2).unwrap();
+    let a = [0.8, 1.5, 1.4, 2.2, 0.6, 1.1];
+    // A small bias per mode: the level cannot meet the target exactly.
+    let bias = [0.012, -0.006, 0.009, 0.006, -0.012, 0.003];
+    let mut rng = Rng(11);
+    let mut total = 0;
+    for _ in 0..20 {
+        let truth: f64 = rng.uniform(0.55, 0.75);
+        let level = |p: f64| {
+            let volume = |t: f64| (1.0 - t).powi(4);
+            let dvolume = -4.0 * (1.0 - p).powi(3);
+            let l: Vec<f64> = (0..a.len()).map(|k| target.eigenvalues[k] * (a[k] * (volume(p) - volume(truth)) + bias[k]).exp()).collect();
+            let d: Vec<f64> = (0..a.len()).map(|k| l[k] * a[k] * dvolume).collect();
+            Some(Point { p, loss: spectrum_loss(&l, &d, &target, false).ok()?, data: () })
+        };
+        let minimiser = (-20000..=20000).map(|i| truth + 1e-5 * i as f64).min_by(|&x, &y| level(x).unwrap().loss.loss.total_cmp(&level(y).unwrap().loss.loss)).unwrap();
+        let start = minimiser - rng.uniform(0.04, 0.06);
+        let mut evaluations = 0;
+        let best = search_level(
+            |p, _| {
+                evaluations += 1;
+                level(p)
+            },
+            SearchStart::From(start),
+            &settings,
+        )
+        .unwrap();
+        assert!((best.p - minimiser).abs() < 1e-3, "minimiser {minimiser}, start {start}: found {} after {evaluations} evaluations", best.p);
+        total += evaluations;
+    }
+    assert!(total <= 20 * 4, "{total} evaluations for 20 searches");
+}
+
 #[test]
 fn extrapolation_line_is_exact_for_lines_and_least_squares_otherwise() {
     assert!((extrapolate_line(&[(3.0, 0.52), (2.0, 0.51)], 1.0) - 0.50).abs() < 1e-12);
