@@ -788,6 +788,53 @@ fn check_collective_failures(petsc: &Petsc, c: &mut Checker) {
     );
 }
 
+/// Rigid-mode deflation (`eigen::solve_modes_deflated`): the same elastic modes as the plain
+/// solve, each M-orthogonal to the six rigid motions, the six motions' Rayleigh quotients
+/// reported as the rigid eigenvalues, and a vector that is not a rigid motion refused.
+fn check_rigid_deflation(petsc: &Petsc, c: &mut Checker, label: &str, m: &TetMesh, n: usize) {
+    let mat = Material::preset("ceramic").unwrap();
+    let assembled = assembly::assemble(petsc, m).expect("assembly");
+    let (k, mm) = assembled.operators(&mat).expect("operators");
+    let cfg = config(m, &mat, n);
+    let plain = eigen::solve_modes(petsc, &k, &mm, &cfg).expect("plain solve");
+    let rigid = eigen::rigid_body_vectors(&k, &assembled.layout, &m.nodes).expect("rigid vectors");
+    let deflated = eigen::solve_modes_deflated(petsc, &k, &mm, &cfg, &rigid).expect("deflated solve");
+    let worst = (0..n).map(|i| rel(deflated.eigenvalues[i], plain.eigenvalues[i], plain.eigenvalues[i])).fold(0.0, f64::max);
+    let worst_residual = deflated.residuals.iter().take(n).copied().fold(0.0, f64::max);
+    let limit = cfg.rigid_threshold * cfg.spectrum_scale;
+    let rigid_ok = deflated.rigid_eigenvalues.len() == 6 && deflated.rigid_eigenvalues.iter().all(|q| q.abs() < limit);
+    // |φ_kᵀ M r| / (‖φ_k‖_M ‖r‖_M), φ_k mass-normalised.
+    let mut worst_overlap: f64 = 0.0;
+    let mut mr = k.create_vector().expect("vector");
+    for r in &rigid {
+        mm.mult(r, &mut mr).expect("M r");
+        let norm = r.dot(&mr).expect("rMr").sqrt();
+        for phi in deflated.vectors.iter().take(n) {
+            worst_overlap = worst_overlap.max(phi.dot(&mr).expect("φMr").abs() / norm);
+        }
+    }
+    // A stretch along x is no rigid motion: it must be refused, not deflated.
+    let nodes = assembled.layout.owned_nodes();
+    let mut stretch = k.create_vector().expect("vector");
+    let values: Vec<f64> = nodes.flat_map(|new| {
+        let x = m.nodes[assembled.layout.partition.old_of_new[new]];
+        [x[0], 0.0, 0.0]
+    }).collect();
+    stretch.set_local_values(&values).expect("set");
+    let refused = matches!(eigen::solve_modes_deflated(petsc, &k, &mm, &cfg, &[stretch]), Err(eigen::EigenError::BadRequest(ref e)) if e.contains("not a rigid-body motion"));
+    let calls = |modes: &eigen::Modes| modes.settings.iter().find(|(k, _)| k == "iterations").map(|(_, v)| v.clone()).unwrap_or_default();
+    c.check(
+        &format!("{label} rigid-mode deflation"),
+        worst < 1e-9 && worst_residual < 1e-8 && rigid_ok && worst_overlap < 1e-8 && refused,
+        format!(
+            "{n} modes: worst relative eigenvalue difference {worst:.2e}, worst residual {worst_residual:.2e}, rigid quotients {:?} (limit {limit:.1e}), worst M-overlap with a rigid motion {worst_overlap:.2e}, a stretch refused {refused}; Krylov–Schur restarts {} plain / {} deflated",
+            deflated.rigid_eigenvalues.iter().map(|q| format!("{q:.1e}")).collect::<Vec<_>>(),
+            calls(&plain),
+            calls(&deflated)
+        ),
+    );
+}
+
 fn child() {
     let universe = mpi::initialize().expect("MPI");
     let petsc = Petsc::initialize(universe, "mpi_sensitivity", &[]).expect("PETSc");
@@ -798,6 +845,8 @@ fn child() {
     check_mesh(&petsc, &mut c, "brick", &brick, 12);
     check_audio_loss(&petsc, &mut c, "brick", &brick, 12);
     check_mesh(&petsc, &mut c, "bowl", &load("examples/bowl/bowl.msh"), 10);
+    check_rigid_deflation(&petsc, &mut c, "brick", &brick, 12);
+    check_rigid_deflation(&petsc, &mut c, "bowl", &load("examples/bowl/bowl.msh"), 16);
     check_shape_chain(&petsc, &mut c);
     check_curved_shell_chain(&petsc, &mut c);
     check_morph_chain(&petsc, &mut c);

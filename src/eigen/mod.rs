@@ -21,6 +21,15 @@
 //! We factor K − τM with τ halfway between the last kept and the next eigenvalue and compare; if
 //! SLEPc missed one, the solve is repeated with more vectors.
 //!
+//! **Rigid-mode deflation.** For a free body whose node coordinates are known, the six rigid
+//! motions (translations and infinitesimal rotations, exact null vectors of K for any
+//! isoparametric element) can be handed to SLEPc as a deflation space
+//! ([`rigid_body_vectors`], [`solve_modes_deflated`]): Krylov–Schur then works in their
+//! M-orthogonal complement and computes only the N elastic modes (plus the buffer) instead of
+//! N + 6. Their Rayleigh quotients are checked against the rigid limit first and reported as the
+//! rigid eigenvalues, so a vector that is not a rigid motion of this body is an error and the
+//! count of rigid modes (deflated plus any further near-zero ones found) is still checked.
+//!
 //! **User control.** Our defaults are set in code first, then `EPSSetFromOptions` applies any
 //! `-eps_*`, `-st_*`, `-mat_mumps_*` options, so every setting can be overridden.
 
@@ -28,6 +37,7 @@ pub mod analytic;
 pub mod reduced;
 pub mod sensitivity;
 
+use crate::assembly::DofLayout;
 use crate::petsc::{self, Eps, EpsWhich, Mat, NonzeroPattern, Petsc, PetscError, Vector};
 
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -141,6 +151,54 @@ struct RawPairs<'p> {
 
 /// Computes the modes requested in `cfg` for stiffness `k` and mass `m` (both symmetric).
 pub fn solve_modes<'p>(petsc: &'p Petsc, k: &Mat<'p>, m: &Mat<'p>, cfg: &EigenConfig) -> Result<Modes<'p>, EigenError> {
+    solve_modes_deflated(petsc, k, m, cfg, &[])
+}
+
+/// The six rigid-body motions of a free body, in the layout of `like`'s vectors (3 dofs per node,
+/// `layout`'s ordering): unit translations along x, y, z and the rotations about the axes through
+/// the nodes' centroid c, u(x) = e_i × (x − c) / L with L the bounding-box diagonal [m] so that
+/// all six have entries of order 1. `nodes` [m] are the mesh's nodes in original order.
+pub fn rigid_body_vectors<'p>(like: &Mat<'p>, layout: &DofLayout, nodes: &[[f64; 3]]) -> Result<Vec<Vector<'p>>, EigenError> {
+    if nodes.len() != layout.n_nodes() {
+        return Err(EigenError::BadRequest(format!("{} node positions for a layout of {} nodes", nodes.len(), layout.n_nodes())));
+    }
+    if nodes.iter().flatten().any(|x| !x.is_finite()) {
+        return Err(EigenError::BadRequest("a node position is not finite".into()));
+    }
+    let n = nodes.len().max(1) as f64;
+    let centroid: [f64; 3] = std::array::from_fn(|d| nodes.iter().map(|x| x[d]).sum::<f64>() / n);
+    let (lo, hi) = nodes.iter().fold(([f64::INFINITY; 3], [f64::NEG_INFINITY; 3]), |(lo, hi), x| (std::array::from_fn(|d| lo[d].min(x[d])), std::array::from_fn(|d| hi[d].max(x[d]))));
+    let diagonal = (0..3).map(|d| (hi[d] - lo[d]).powi(2)).sum::<f64>().sqrt();
+    if !(diagonal > 0.0) {
+        return Err(EigenError::BadRequest("the nodes span no volume".into()));
+    }
+    let owned = layout.owned_nodes();
+    let mut out = Vec::with_capacity(6);
+    for motion in 0..6 {
+        let mut local = Vec::with_capacity(3 * owned.len());
+        for new in owned.clone() {
+            let x = nodes[layout.partition.old_of_new[new]];
+            let r: [f64; 3] = std::array::from_fn(|d| (x[d] - centroid[d]) / diagonal);
+            let u = match motion {
+                0..=2 => std::array::from_fn(|d| if d == motion { 1.0 } else { 0.0 }),
+                // e_x × r, e_y × r, e_z × r.
+                3 => [0.0, -r[2], r[1]],
+                4 => [r[2], 0.0, -r[0]],
+                _ => [-r[1], r[0], 0.0],
+            };
+            local.extend_from_slice(&u);
+        }
+        let mut v = like.create_vector()?;
+        v.set_local_values(&local)?;
+        out.push(v);
+    }
+    Ok(out)
+}
+
+/// [`solve_modes`] in the complement of known rigid-body motions `deflate` (module docs; empty:
+/// no deflation). Only for [`ModeRequest::FirstN`]. The deflated motions' Rayleigh quotients
+/// come first among [`Modes::rigid_eigenvalues`].
+pub fn solve_modes_deflated<'p>(petsc: &'p Petsc, k: &Mat<'p>, m: &Mat<'p>, cfg: &EigenConfig, deflate: &[Vector<'p>]) -> Result<Modes<'p>, EigenError> {
     let start = std::time::Instant::now();
     let shift = cfg.effective_shift();
     if !(cfg.spectrum_scale.is_finite() && cfg.spectrum_scale > 0.0) {
@@ -148,6 +206,23 @@ pub fn solve_modes<'p>(petsc: &'p Petsc, k: &Mat<'p>, m: &Mat<'p>, cfg: &EigenCo
     }
     let rigid_limit = cfg.rigid_threshold * cfg.spectrum_scale;
     let mut warnings = Vec::new();
+    if !deflate.is_empty() && !matches!(cfg.request, ModeRequest::FirstN(_)) {
+        return Err(EigenError::BadRequest("rigid-mode deflation applies to a request for the first N modes only".into()));
+    }
+    // A deflated vector that is not in K's null space would take a true mode away unseen.
+    let mut deflated = Vec::with_capacity(deflate.len());
+    {
+        let (mut kv, mut mv) = (k.create_vector()?, k.create_vector()?);
+        for (i, v) in deflate.iter().enumerate() {
+            k.mult(v, &mut kv)?;
+            m.mult(v, &mut mv)?;
+            let quotient = v.dot(&kv)? / v.dot(&mv)?;
+            if !(quotient.abs() < rigid_limit) {
+                return Err(EigenError::BadRequest(format!("deflation vector {i} is not a rigid-body motion of this body: its Rayleigh quotient {quotient:e} is not below the rigid limit {rigid_limit:e} rad²/s²")));
+            }
+            deflated.push(quotient);
+        }
+    }
 
     // The upper end of the interval for spectrum slicing, λ_max = (2π f_max)².
     let interval_upper = match cfg.request {
@@ -163,20 +238,20 @@ pub fn solve_modes<'p>(petsc: &'p Petsc, k: &Mat<'p>, m: &Mat<'p>, cfg: &EigenCo
         ModeRequest::UpTo { .. } => 0,
     };
 
-    let mut nev = wanted + cfg.expected_rigid + 4.max(wanted / 10);
+    let mut nev = wanted + cfg.expected_rigid.saturating_sub(deflate.len()) + 4.max(wanted / 10);
     let max_attempts = 3;
     let mut attempt = 0;
     loop {
         attempt += 1;
         let pairs = match interval_upper {
             Some(upper) => solve_interval(petsc, k, m, shift, upper, cfg)?,
-            None => solve_nearest(petsc, k, m, shift, nev, cfg)?,
+            None => solve_nearest(petsc, k, m, shift, nev, cfg, deflate)?,
         };
         let RawPairs { values, vectors, residuals, mut settings } = pairs;
         let mut order: Vec<usize> = (0..values.len()).collect();
         order.sort_by(|&a, &b| values[a].total_cmp(&values[b]));
         let mut vectors: Vec<Option<Vector<'p>>> = vectors.into_iter().map(Some).collect();
-        let mut rigid = Vec::new();
+        let mut rigid = deflated.clone();
         let mut elastic = Vec::new();
         let mut elastic_vecs = Vec::new();
         let mut elastic_res = Vec::new();
@@ -264,6 +339,7 @@ pub fn solve_modes<'p>(petsc: &'p Petsc, k: &Mat<'p>, m: &Mat<'p>, cfg: &EigenCo
         settings.push(("rigid_threshold_rad2_s2".into(), format!("{rigid_limit:e}")));
         settings.push(("cluster_rtol".into(), format!("{:e}", cfg.cluster_rtol)));
         settings.push(("attempts".into(), attempt.to_string()));
+        settings.push(("deflated_rigid_modes".into(), deflate.len().to_string()));
         return Ok(Modes {
             eigenvalues: elastic,
             vectors: elastic_vecs,
@@ -322,11 +398,14 @@ fn configure_common<'p>(petsc: &'p Petsc, k: &Mat<'p>, m: &Mat<'p>, cfg: &EigenC
     Ok(eps)
 }
 
-fn solve_nearest<'p>(petsc: &'p Petsc, k: &Mat<'p>, m: &Mat<'p>, shift: f64, nev: usize, cfg: &EigenConfig) -> Result<RawPairs<'p>, EigenError> {
+fn solve_nearest<'p>(petsc: &'p Petsc, k: &Mat<'p>, m: &Mat<'p>, shift: f64, nev: usize, cfg: &EigenConfig, deflate: &[Vector<'p>]) -> Result<RawPairs<'p>, EigenError> {
     let mut eps = configure_common(petsc, k, m, cfg)?;
     eps.set_which(EpsWhich::TargetMagnitude)?;
     eps.set_target(shift)?;
     eps.set_dimensions(nev, None, None)?;
+    if !deflate.is_empty() {
+        eps.set_deflation_space(deflate)?;
+    }
     eps.set_from_options()?;
     eps.solve()?;
     // The user may have changed nev with -eps_nev; hold SLEPc to what is in force.

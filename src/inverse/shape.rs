@@ -784,7 +784,10 @@ fn assemble_and_solve<'p>(petsc: &'p Petsc, quadratic: &TetMesh, material: &Mate
     let diagonal = (0..3).map(|d| (hi[d] - lo[d]).powi(2)).sum::<f64>().sqrt();
     let mut cfg = EigenConfig::new(ModeRequest::FirstN(n_modes), eigen::spectrum_scale(material.lame_mu(), material.density, diagonal));
     cfg.verify_count = false;
-    let modes = eigen::solve_modes(petsc, &k, &m, &cfg).map_err(|e| ShapeError::Solver(e.to_string()))?;
+    // The marched body is one free piece (its largest component): its six rigid motions are
+    // known, and deflating them saves the Krylov–Schur iteration their six vectors.
+    let rigid = eigen::rigid_body_vectors(&k, &assembled.layout, &quadratic.nodes).map_err(|e| ShapeError::Solver(e.to_string()))?;
+    let modes = eigen::solve_modes_deflated(petsc, &k, &m, &cfg, &rigid).map_err(|e| ShapeError::Solver(e.to_string()))?;
     if modes.eigenvalues.len() < n_modes {
         return Err(ShapeError::Solver(format!("the solve gave {} elastic modes, {n_modes} wanted", modes.eigenvalues.len())));
     }

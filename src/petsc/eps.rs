@@ -93,6 +93,16 @@ impl<'p> Eps<'p> {
         unsafe { check(sys::EPSSetPurify(self.raw, purify as sys::PetscBool), "EPSSetPurify") }
     }
 
+    /// Restricts the solve to the complement (in the B-inner product of the GHEP) of the space
+    /// the `vectors` span, which must be invariant (known eigenvectors, such as a free body's
+    /// rigid motions). SLEPc orthonormalises them itself and holds its own references until the
+    /// next solve, so they need not outlive this call; they apply to one `solve` only.
+    pub fn set_deflation_space(&mut self, vectors: &[Vector<'p>]) -> Result<()> {
+        let mut raw: Vec<sys::Vec> = vectors.iter().map(|v| v.raw()).collect();
+        // SAFETY: `raw` holds live Vec handles of the operators' layout; SLEPc references them.
+        unsafe { check(sys::EPSSetDeflationSpace(self.raw, to_petsc_int(raw.len())?, raw.as_mut_ptr()), "EPSSetDeflationSpace") }
+    }
+
     pub fn st(&self) -> Result<St<'_>> {
         let mut raw: sys::ST = std::ptr::null_mut();
         // SAFETY: borrowed handle owned by the EPS.
