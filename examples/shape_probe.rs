@@ -3,7 +3,8 @@
 //! `diffsound::inverse::shape` come from here).
 //!
 //!   shape_probe [--cells 14,20,32] [--thickness 0.3,0.5,0.7] [--modes 8] [--snap 0.05]
-//!               [--shifts K] [--exact] [--curved] [--subdivide] [--grid-max] [--scan LO:HI:STEP] SURFACE.obj
+//!               [--shifts K] [--exact] [--curved] [--subdivide] [--grid-max] [--scan LO:HI:STEP]
+//!               [--ab-deflation R] SURFACE.obj
 //!   shape_probe --analytic-sphere R [--cells ..] [--snap ..]      (solid ball vs Lamb)
 //!   shape_probe --analytic-shell R [--thickness ..] [--exact|--curved] (hollow ball 0 < R − |x| ≤ tR)
 //!
@@ -19,6 +20,10 @@
 //! error alone). `--scan` prints
 //! L(t) and ln(λ_k/λ*_k) per mode on a t grid at every grid but the last, against the target at
 //! the first t on the last grid, and per mode the t where its eigenvalue crosses the target's.
+//! `--ab-deflation R` solves every body R more times in turns without and with the six rigid
+//! motions deflated ([`diffsound::eigen::solve_modes_deflated`], what the fits use), side by
+//! side on the same matrices, and prints both times, SLEPc's restarts and the largest
+//! eigenvalue difference.
 use diffsound::fem::Material;
 use diffsound::inverse::shape::{shape_spectrum, ShapeSpectrum};
 use diffsound::mesh::{self, BackgroundGrid, MarchingOptions, SignedDistance, TriangleSurface};
@@ -39,6 +44,7 @@ fn main() {
     let mut subdivide = false;
     let mut curved = false;
     let mut shifts = 0usize;
+    let mut ab_deflation = 0usize;
     let mut analytic: Option<f64> = None;
     let mut path = String::new();
     let mut it = std::env::args().skip(1);
@@ -56,6 +62,7 @@ fn main() {
                 exact = true;
             }
             "--shifts" => shifts = it.next().unwrap().parse().unwrap(),
+            "--ab-deflation" => ab_deflation = it.next().unwrap().parse().unwrap(),
             "--analytic-sphere" => analytic = Some(it.next().unwrap().parse().unwrap()),
             "--analytic-shell" => {
                 analytic = Some(it.next().unwrap().parse().unwrap());
@@ -204,6 +211,29 @@ fn main() {
         let mut cfg = diffsound::eigen::EigenConfig::new(diffsound::eigen::ModeRequest::FirstN(modes), diffsound::eigen::spectrum_scale(material.lame_mu(), material.density, diagonal));
         cfg.verify_count = false;
         let solved = diffsound::eigen::solve_modes(&petsc, &k, &m, &cfg).map_err(|e| e.to_string())?;
+        let solve = clock.elapsed().as_secs_f64();
+        if ab_deflation > 0 {
+            let rigid = diffsound::eigen::rigid_body_vectors(&k, &assembled.layout, &quadratic.nodes).map_err(|e| e.to_string())?;
+            let restarts = |s: &diffsound::eigen::Modes| s.settings.iter().find(|(k, _)| k == "iterations").map(|(_, v)| v.clone()).unwrap_or_default();
+            let (mut plain_s, mut deflated_s) = (0.0, 0.0);
+            for round in 0..ab_deflation {
+                let clock = std::time::Instant::now();
+                let plain = diffsound::eigen::solve_modes(&petsc, &k, &m, &cfg).map_err(|e| e.to_string())?;
+                let a = clock.elapsed().as_secs_f64();
+                let clock = std::time::Instant::now();
+                let deflated = diffsound::eigen::solve_modes_deflated(&petsc, &k, &m, &cfg, &rigid).map_err(|e| e.to_string())?;
+                let b = clock.elapsed().as_secs_f64();
+                let worst = (0..modes).map(|i| (plain.eigenvalues[i] - deflated.eigenvalues[i]).abs() / plain.eigenvalues[i]).fold(0.0, f64::max);
+                plain_s += a;
+                deflated_s += b;
+                if root {
+                    eprintln!("  A/B round {round}: plain {a:.2} s ({} restarts), deflated {b:.2} s ({} restarts), ratio {:.3}, worst relative eigenvalue difference {worst:.1e}", restarts(&plain), restarts(&deflated), b / a);
+                }
+            }
+            if root {
+                eprintln!("  A/B over {ab_deflation} rounds: plain {plain_s:.2} s, deflated {deflated_s:.2} s, deflated/plain {:.3}", deflated_s / plain_s);
+            }
+        }
         if root {
             eprintln!("  exact crossings: {} moved, {} kept linear, {:.2} s", moved.len(), kept, meshing);
         }
@@ -215,7 +245,7 @@ fn main() {
             tets: linear.n_tets(),
             p2_nodes: quadratic.n_nodes(),
             volume: linear.volume(),
-            timings: diffsound::inverse::shape::StepTimings { meshing, assembly, solve: clock.elapsed().as_secs_f64(), gradient: 0.0 },
+            timings: diffsound::inverse::shape::StepTimings { meshing, assembly, solve, gradient: 0.0 },
         })
     };
     let hz = |l: &[f64]| l.iter().map(|&x| format!("{:8.1}", x.sqrt() / (2.0 * std::f64::consts::PI))).collect::<Vec<_>>().join(" ");

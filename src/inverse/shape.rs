@@ -300,6 +300,19 @@
 //! on the turtle; a target on a finer grid would be needed, and the fit would have to follow it.
 //! Nothing in the search was tuned to this case.
 //!
+//! **Where an evaluation's time goes, and the rigid motions** (stop 33). The solve is 85–90 %
+//! of an evaluation (turtle, 36 cells: 39.5 of 43.7 s); in it, MUMPS's Cholesky factorisation
+//! and about 70 shift-invert triangular solves (turtle t = 0.6, 28 cells: 5.2 s and 10.0 s of
+//! 17.7 s, `-log_view`). The body is one free piece, so its six rigid motions are known exactly
+//! and are deflated ([`eigen::solve_modes_deflated`]): SLEPc looks for 20 vectors instead of 26.
+//! Side by side on the same matrices (`shape_probe --curved --ab-deflation 3`, turtle t = 0.6,
+//! 16 modes, 2 ranks, `out/bench_shape/deflation_ab/`) it took 0.944 × the plain solve's time
+//! at 28 cells and 1.000 × at 36; with `-eps_ncv 52` and 46 for both, 0.965 and 0.970. Single
+//! rounds scattered from 0.87 to 1.08 on this machine, so the gain is a few per cent at most,
+//! not the 12 % that asking for 20 instead of 26 eigenpairs (rigid modes still in) suggested.
+//! What it does buy: no rigid motion can leak into the elastic modes (block low-rank MUMPS let
+//! three through), and a deflated vector that is not a rigid motion is refused.
+//!
 //! E, ν and ρ are known here (the material fit is a separate problem). Every rank runs the same
 //! search on the same numbers (eigenvalues and gradients are broadcast from rank 0), so the
 //! decisions agree across ranks.
