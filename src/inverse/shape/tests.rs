@@ -151,6 +151,28 @@ fn search_refines_from_a_coarser_answer_and_reports_what_failed() {
     assert_eq!(search_level(|p, _| hole(p), SearchStart::From(0.5), &settings).unwrap_err(), SearchFailure::StartFailed);
 }
 
+/// The true minimiser of a smooth synthetic level, by a fine scan (steps of 1e-5) within 0.2 of
+/// `centre`.
+fn scanned_minimiser(level: &dyn Fn(f64) -> Option<Point<()>>, centre: f64) -> f64 {
+    let loss = |p: f64| level(p).expect("a body everywhere").loss.loss;
+    (-20000..=20000).map(|i| centre + 1e-5 * i as f64).min_by(|&x, &y| loss(x).total_cmp(&loss(y))).expect("points")
+}
+
+/// The search's answer on `level` from `start`, and how many evaluations it took.
+fn counted_search(level: &dyn Fn(f64) -> Option<Point<()>>, start: f64, settings: &ShapeFitSettings) -> (f64, usize) {
+    let mut evaluations = 0;
+    let best = search_level(
+        |p, _| {
+            evaluations += 1;
+            level(p)
+        },
+        SearchStart::From(start),
+        settings,
+    )
+    .expect("a body at the start");
+    (best.p, evaluations)
+}
+
 /// A level that cannot match the target (the grid's bias: every mode off by its own 1–2 %)
 /// and whose modes bend with p, as on the oloid's 36-cell level (loss 7e-4 at its minimum).
 /// The Gauss–Newton curvature Σ|G|J² leaves out the residuals' own curvature Σ|G| r dJ/dp,
@@ -178,20 +200,10 @@ fn search_settles_in_few_evaluations_when_the_target_is_out_of_reach() {
             }
             Some(Point { p, loss: spectrum_loss(&l, &d, &target, false).ok()?, data: () })
         };
-        // The true minimiser, by a fine scan of the smooth loss.
-        let minimiser = (-20000..=20000).map(|i| centre + 1e-5 * i as f64).min_by(|&x, &y| level(x).unwrap().loss.loss.total_cmp(&level(y).unwrap().loss.loss)).unwrap();
+        let minimiser = scanned_minimiser(&level, centre);
         let start = minimiser + rng.uniform(-0.03, 0.03);
-        let mut evaluations = 0;
-        let best = search_level(
-            |p, _| {
-                evaluations += 1;
-                level(p)
-            },
-            SearchStart::From(start),
-            &settings,
-        )
-        .unwrap();
-        assert!((best.p - minimiser).abs() < 1.5e-3, "minimiser {minimiser}, start {start}: found {} after {evaluations} evaluations", best.p);
+        let (found, evaluations) = counted_search(&level, start, &settings);
+        assert!((found - minimiser).abs() < 1.5e-3, "minimiser {minimiser}, start {start}: found {found} after {evaluations} evaluations");
         total += evaluations;
     }
     // Measured: 82 evaluations with the secant's curvature, 138 with Gauss–Newton steps alone
@@ -227,19 +239,10 @@ fn search_takes_full_steps_where_the_sensitivity_fades_towards_the_minimum() {
             let d: Vec<f64> = (0..a.len()).map(|k| l[k] * a[k] * dvolume).collect();
             Some(Point { p, loss: spectrum_loss(&l, &d, &target, false).ok()?, data: () })
         };
-        let minimiser = (-20000..=20000).map(|i| truth + 1e-5 * i as f64).min_by(|&x, &y| level(x).unwrap().loss.loss.total_cmp(&level(y).unwrap().loss.loss)).unwrap();
+        let minimiser = scanned_minimiser(&level, truth);
         let start = minimiser - rng.uniform(0.04, 0.06);
-        let mut evaluations = 0;
-        let best = search_level(
-            |p, _| {
-                evaluations += 1;
-                level(p)
-            },
-            SearchStart::From(start),
-            &settings,
-        )
-        .unwrap();
-        assert!((best.p - minimiser).abs() < 1e-3, "minimiser {minimiser}, start {start}: found {} after {evaluations} evaluations", best.p);
+        let (found, evaluations) = counted_search(&level, start, &settings);
+        assert!((found - minimiser).abs() < 1e-3, "minimiser {minimiser}, start {start}: found {found} after {evaluations} evaluations");
         total += evaluations;
     }
     assert!(total <= 20 * 4, "{total} evaluations for 20 searches");
