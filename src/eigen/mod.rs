@@ -142,6 +142,14 @@ pub struct Modes<'p> {
     pub solve_seconds: f64,
 }
 
+impl Modes<'_> {
+    /// The value of one solver setting in force (`settings`), such as `"iterations"` (SLEPc's
+    /// restarts).
+    pub fn setting(&self, name: &str) -> Option<&str> {
+        self.settings.iter().find(|(k, _)| k == name).map(|(_, v)| v.as_str())
+    }
+}
+
 struct RawPairs<'p> {
     values: Vec<f64>,
     vectors: Vec<Vector<'p>>,
@@ -165,13 +173,12 @@ pub fn rigid_body_vectors<'p>(like: &Mat<'p>, layout: &DofLayout, nodes: &[[f64;
     if nodes.iter().flatten().any(|x| !x.is_finite()) {
         return Err(EigenError::BadRequest("a node position is not finite".into()));
     }
-    let n = nodes.len().max(1) as f64;
-    let centroid: [f64; 3] = std::array::from_fn(|d| nodes.iter().map(|x| x[d]).sum::<f64>() / n);
-    let (lo, hi) = nodes.iter().fold(([f64::INFINITY; 3], [f64::NEG_INFINITY; 3]), |(lo, hi), x| (std::array::from_fn(|d| lo[d].min(x[d])), std::array::from_fn(|d| hi[d].max(x[d]))));
+    let (lo, hi) = crate::mesh::bounding_box_of(nodes);
     let diagonal = (0..3).map(|d| (hi[d] - lo[d]).powi(2)).sum::<f64>().sqrt();
     if !(diagonal > 0.0) {
         return Err(EigenError::BadRequest("the nodes span no volume".into()));
     }
+    let centroid: [f64; 3] = std::array::from_fn(|d| nodes.iter().map(|x| x[d]).sum::<f64>() / nodes.len() as f64);
     let owned = layout.owned_nodes();
     let mut out = Vec::with_capacity(6);
     for motion in 0..6 {
