@@ -499,13 +499,17 @@ fn ellipsoid_surface(axes: [f64; 3], rings: usize) -> mesh::TriangleSurface {
 /// t = 0.45, 6 modes, ceramic, h = 1e-5, cluster means. The chain keeps each node's direction
 /// of move fixed, so its error is of the order of the move (a fraction of a cell) times the
 /// curvature, measured at 2e-8: bar 1e-4 relative to λ_k/t, as for the straight chain.
-fn check_curved_shell_chain(petsc: &Petsc, c: &mut Checker) {
-    use diffsound::inverse::shape::{curved_shell_spectrum, reference_depth};
+/// With `wall_levels` > 0 the grid is first refined that many times near the inner walls of
+/// t ∈ [0.40, 0.50] ([`diffsound::inverse::shape::refine_near_wall`], as the fit's finer levels
+/// are): the chain then runs through crossings on bisected edges and midpoint samples.
+fn check_curved_shell_chain(petsc: &Petsc, c: &mut Checker, wall_levels: usize) {
+    use diffsound::inverse::shape::{curved_shell_spectrum, reference_depth, refine_near_wall};
     let surface = ellipsoid_surface([0.05, 0.04, 0.03], 24);
     let sdf = mesh::SignedDistance::new(&surface).expect("sdf");
     let depth = reference_depth(&sdf, &surface).expect("depth");
     let grid = mesh::BackgroundGrid::covering([-0.05, -0.04, -0.03], [0.05, 0.04, 0.03], 12, 1.0).expect("grid");
     let solid = sdf.evaluate(&grid.vertex_positions());
+    let (grid, solid) = if wall_levels > 0 { refine_near_wall(&grid, &solid, &sdf, depth, (0.40, 0.50), wall_levels).expect("refined grid") } else { (grid, solid) };
     let options = mesh::MarchingOptions::default();
     let material = Material::preset("ceramic").expect("preset");
     let (n, t0, h) = (6, 0.45, 1e-5);
@@ -528,7 +532,7 @@ fn check_curved_shell_chain(petsc: &Petsc, c: &mut Checker) {
         worst = worst.max(error);
     }
     c.check(
-        "curved hollow-ellipsoid chain dλ/dt (exact crossings + curved P2 boundary → SLEPc → back)",
+        &format!("curved hollow-ellipsoid chain dλ/dt (exact crossings + curved P2 boundary → SLEPc → back){}", if wall_levels > 0 { format!(", grid refined {wall_levels}× at the inner wall ({} background tets)", grid.n_tets()) } else { String::new() }),
         same_topology && worst < 1e-4,
         format!("{} tets, {} P2 nodes, worst relative error {worst:.2e} (exact/FD {}), topology unchanged by ±h: {same_topology}", base.tets, base.p2_nodes, rows.join(" ")),
     );
@@ -847,7 +851,8 @@ fn child() {
     check_rigid_deflation(&petsc, &mut c, "brick", &brick, 12);
     check_rigid_deflation(&petsc, &mut c, "bowl", &load("examples/bowl/bowl.msh"), 16);
     check_shape_chain(&petsc, &mut c);
-    check_curved_shell_chain(&petsc, &mut c);
+    check_curved_shell_chain(&petsc, &mut c, 0);
+    check_curved_shell_chain(&petsc, &mut c, 1);
     check_morph_chain(&petsc, &mut c);
     check_neural_chain(&petsc, &mut c, false);
     check_neural_chain(&petsc, &mut c, true);

@@ -36,7 +36,12 @@
 //!   of the continuous signed distance and every boundary mid-edge node is moved onto it (a
 //!   curved P2 surface, src/inverse/shape.rs "Curved boundary"); `--straight-boundary` (TOML
 //!   `straight_boundary = true`) meshes from the grid samples alone, as the morph does. The
-//!   synthesised target uses the same boundary as the fit.
+//!   synthesised target uses the same boundary as the fit. `--wall-refinement L` (TOML
+//!   `[fit] wall_refinement`) halves the grid L times near the walls where its samples do not
+//!   resolve the signed distance, on every level after the first and on a synthesised target
+//!   (src/inverse/shape.rs "Refinement near the walls"); each halving multiplies the tets
+//!   there by 8, so L = 1 on a 28-cell turtle already takes 4× the solve time and L = 2 does
+//!   not fit in 24 GB.
 //!
 //! # Outputs
 //!
@@ -46,8 +51,8 @@
 //!
 //! | path | contents |
 //! |------|----------|
-//! | `/fit` attrs | `parameter` (the answer), `finest_level_parameter` (the mean over the finest spacing's replicas), `extrapolated` (if any), `target_spacing` [m], `loss` (finest level), `evaluations`, `seconds`; synthesised targets add `true_parameter`, `abs_error`, `target_cells` |
-//! | `/fit/levels/{cells,spacing,parameter,loss,log_stiffness_scale,evaluations,seconds}` | per level, coarse to fine (replicas of a spacing are consecutive entries with equal cells); spacing in m; log_stiffness_scale the profiled ln factor with `--free-scale` (else 0) |
+//! | `/fit` attrs | `wall_refinement`, `wall_band`, `wall_tolerance` (the grid refinement near the walls; 0 halvings: none), `parameter` (the answer), `finest_level_parameter` (the mean over the finest spacing's replicas), `extrapolated` (if any), `target_spacing` [m], `loss` (finest level), `evaluations`, `seconds`; synthesised targets add `true_parameter`, `abs_error`, `target_cells` |
+//! | `/fit/levels/{cells,spacing,parameter,loss,log_stiffness_scale,evaluations,seconds,grid_tets,wall_centre}` | per level, coarse to fine (replicas of a spacing are consecutive entries with equal cells); spacing in m (of the structured grid); log_stiffness_scale the profiled ln factor with `--free-scale` (else 0); grid_tets the background tets after any refinement, wall_centre the t its inner-wall band was centred on (NaN: not refined) |
 //! | `/fit/history/{level,cells,phase,parameter,loss,gradient,step,tets,p2_nodes,meshing_s,assembly_s,solve_s,gradient_s,failed}` | every evaluation (phase 0 = scan, 1 = refine; failed 1 where no body could be meshed or solved, loss NaN) |
 //! | `/modes/{target_frequency_hz,fitted_frequency_hz,target_eigenvalues,fitted_eigenvalues,relative_frequency_error}` | the compared modes: target vs the finest level's best fit (the model on that grid) |
 //! | `/modes/answer_frequency_hz` | the body at the answer (extrapolated) parameter on the finest grid: the mesh file's modes |
@@ -167,6 +172,20 @@ pub struct FitThicknessArgs {
     /// boundary" in src/inverse/shape.rs).
     #[arg(long)]
     pub straight_boundary: bool,
+    /// Halve the grid this many times (0–3, default 0) near the outer wall and the inner walls
+    /// around each level's start, where the samples do not resolve the signed distance, on
+    /// every level after the first and on a synthesised target (around its true thickness);
+    /// see "Refinement near the walls" in src/inverse/shape.rs.
+    #[arg(long)]
+    pub wall_refinement: Option<usize>,
+    /// The thickness half-range ±w around a level's start whose inner walls are refined
+    /// (default 0.05).
+    #[arg(long)]
+    pub wall_band: Option<f64>,
+    /// Refine only where an edge midpoint's signed distance misses the corners' mean by more
+    /// than this fraction of the tet's longest edge (default 0.05; 0: the whole bands).
+    #[arg(long)]
+    pub wall_tolerance: Option<f64>,
     #[command(flatten)]
     pub common: ShapeArgs,
 }
@@ -204,7 +223,8 @@ pub struct FitMorphArgs {
 /// [material]
 /// preset = "ceramic"            # youngs_modulus, poisson_ratio, density
 /// [fit]                         # ShapeFitSettings: modes, bounds, scan_points, max_refinements,
-/// modes = 8                     # tolerance, refine_window, cluster_rtol, extrapolate, free_scale
+/// modes = 8                     # tolerance, refine_window, cluster_rtol, extrapolate, free_scale,
+/// wall_refinement = 0           # wall_band, wall_tolerance (fit-thickness, curved boundary)
 /// [solver]
 /// petsc_options = []
 /// ```
@@ -365,7 +385,7 @@ fn existing(path: Option<PathBuf>, what: &str, flag: &str) -> Result<PathBuf, St
 }
 
 /// Merges defaults < config file < flags and validates, for either command.
-fn resolve(task: Task, synthetic_value: Option<f64>, bounds: Option<(f64, f64)>, common: &ShapeArgs, file: &ShapeFileConfig) -> Result<Job, String> {
+fn resolve(task: Task, synthetic_value: Option<f64>, bounds: Option<(f64, f64)>, wall: (Option<usize>, Option<f64>, Option<f64>), common: &ShapeArgs, file: &ShapeFileConfig) -> Result<Job, String> {
     let units = common.units.clone().or(file.units.clone()).unwrap_or_else(|| "m".into());
     let unit_scale = mesh::parse_unit(&units).map_err(|e| e.to_string())?;
     let diagonal = common.diagonal.or(file.diagonal);
@@ -412,6 +432,18 @@ fn resolve(task: Task, synthetic_value: Option<f64>, bounds: Option<(f64, f64)>,
     }
     if common.free_scale {
         settings.free_scale = true;
+    }
+    if let Some(n) = wall.0 {
+        settings.wall_refinement = n;
+    }
+    if let Some(w) = wall.1 {
+        settings.wall_band = w;
+    }
+    if let Some(e) = wall.2 {
+        settings.wall_tolerance = e;
+    }
+    if settings.wall_refinement > 0 && !matches!(task, Task::Thickness { curved: true, .. }) {
+        return Err("wall refinement needs the curved thickness body (not fit-morph, not --straight-boundary)".into());
     }
     settings.validate().map_err(|e| e.to_string())?;
     // The line goes through the same number of spacings, each with all its replicas.
@@ -483,7 +515,7 @@ pub fn resolve_thickness(args: &FitThicknessArgs) -> Result<Job, String> {
         other => return Err(format!("--bounds takes lo,hi, got {other:?}")),
     };
     let curved = !(args.straight_boundary || file.straight_boundary.unwrap_or(false));
-    resolve(Task::Thickness { surface, curved }, args.target_thickness.or(file.target.thickness), bounds, &args.common, &file)
+    resolve(Task::Thickness { surface, curved }, args.target_thickness.or(file.target.thickness), bounds, (args.wall_refinement, args.wall_band, args.wall_tolerance), &args.common, &file)
 }
 
 pub fn resolve_morph(args: &FitMorphArgs) -> Result<Job, String> {
@@ -493,7 +525,7 @@ pub fn resolve_morph(args: &FitMorphArgs) -> Result<Job, String> {
     }
     let a = existing(args.shape_a.clone().or(file.shape_a.clone()), "shape A", "--shape-a")?;
     let b = existing(args.shape_b.clone().or(file.shape_b.clone()), "shape B", "--shape-b")?;
-    resolve(Task::Morph { a, b }, args.target_weight.or(file.target.weight), None, &args.common, &file)
+    resolve(Task::Morph { a, b }, args.target_weight.or(file.target.weight), None, (None, None, None), &args.common, &file)
 }
 
 pub fn run_thickness(universe: Universe, args: FitThicknessArgs) -> Result<(), String> {
@@ -593,8 +625,14 @@ fn compute(petsc: &Petsc, job: &Job, shapes: Vec<Shape>) -> Result<(), String> {
             let shift = [0; 3].map(|_| rng.uniform(-0.5, 0.5));
             let grid = shifted_covering(lo, hi, *cells, shift).map_err(|e| e.to_string())?;
             progress.say(format!("synthesising the target: {parameter_name} {value} on a {cells}-cell grid shifted by {:.2?} cells", shift));
-            let family = family_on(job, &shapes, &grid, depth);
-            let (spectrum, _) = family.spectrum(petsc, &grid, *value, &options, &job.material, job.settings.modes, false).map_err(|e| format!("the synthesised target: {e}"))?;
+            let plain = ShapeLevel { family: family_on(job, &shapes, &grid, depth), grid };
+            // The target is refined at its own inner wall as the fit levels are at theirs.
+            let target_level = plain.near_wall(*value, job.settings.wall_band, job.settings.wall_refinement, job.settings.wall_tolerance).map_err(|e| format!("the synthesised target: {e}"))?.unwrap_or(plain);
+            if target_level.grid.is_refined() {
+                progress.say(format!("target grid refined {} times near its walls: {} background tets", job.settings.wall_refinement, target_level.grid.n_tets()));
+            }
+            let (grid, family) = (&target_level.grid, &target_level.family);
+            let (spectrum, _) = family.spectrum(petsc, grid, *value, &options, &job.material, job.settings.modes, false).map_err(|e| format!("the synthesised target: {e}"))?;
             (spectrum.eigenvalues, spacing.unwrap_or(grid.spacing()[0]), Some((*value, *cells)))
         }
     };
@@ -617,6 +655,12 @@ fn compute(petsc: &Petsc, job: &Job, shapes: Vec<Shape>) -> Result<(), String> {
     // The fitted body on the finest grid, with its modes, for the mesh file and the comparison.
     let clock = std::time::Instant::now();
     let finest = levels.last().expect("at least one level");
+    // Refined as the finest level was during the fit (around that level's start).
+    let finest_refined = match fit.levels.last().and_then(|l| l.wall_centre) {
+        Some(p0) => finest.near_wall(p0, job.settings.wall_band, job.settings.wall_refinement, job.settings.wall_tolerance).map_err(|e| format!("the fitted body: {e}"))?,
+        None => None,
+    };
+    let finest = finest_refined.as_ref().unwrap_or(finest);
     let body = finest.family.modes(petsc, &finest.grid, fit.parameter, &options, &job.material, job.settings.modes).map_err(|e| format!("the fitted body: {e}"))?;
     let final_seconds = clock.elapsed().as_secs_f64();
 
@@ -630,7 +674,8 @@ fn compute(petsc: &Petsc, job: &Job, shapes: Vec<Shape>) -> Result<(), String> {
             None => String::new(),
         });
         for l in &fit.levels {
-            println!("  level {:>3} cells (h = {:.3} mm): {parameter_name} {:.5}, loss {:.3e}, {} evaluations, {:.1} s", l.cells, 1e3 * l.spacing, l.parameter, l.loss, l.evaluations, l.seconds);
+            let refined = l.wall_centre.map(|p0| format!(", grid refined near the walls around {p0:.4} ({} background tets)", l.grid_tets)).unwrap_or_default();
+            println!("  level {:>3} cells (h = {:.3} mm): {parameter_name} {:.5}, loss {:.3e}, {} evaluations, {:.1} s{refined}", l.cells, 1e3 * l.spacing, l.parameter, l.loss, l.evaluations, l.seconds);
         }
         if let Some(e) = fit.extrapolated {
             println!("  extrapolated to the target spacing {:.3} mm: {e:.5}{}", 1e3 * target_spacing, if fit.extrapolation_used { "" } else { " (not used: the answer is the finest level's)" });
@@ -675,7 +720,10 @@ fn write_results(job: &Job, shapes: &[Shape], fit: &ShapeFit, target: &SpectrumT
         .column("/fit/levels/loss", l.iter().map(|l| l.loss).collect(), "1")
         .column("/fit/levels/log_stiffness_scale", l.iter().map(|l| l.log_scale).collect(), "1")
         .column("/fit/levels/evaluations", l.iter().map(|l| l.evaluations as f64).collect(), "")
-        .column("/fit/levels/seconds", l.iter().map(|l| l.seconds).collect(), "s");
+        .column("/fit/levels/seconds", l.iter().map(|l| l.seconds).collect(), "s")
+        .column("/fit/levels/grid_tets", l.iter().map(|l| l.grid_tets as f64).collect(), "")
+        .column("/fit/levels/wall_centre", l.iter().map(|l| l.wall_centre.unwrap_or(f64::NAN)).collect(), "1");
+    file.number("/fit", "wall_refinement", job.settings.wall_refinement as f64).number("/fit", "wall_band", job.settings.wall_band).number("/fit", "wall_tolerance", job.settings.wall_tolerance);
     let h = &fit.history;
     file.column("/fit/history/level", h.iter().map(|e| e.level as f64).collect(), "")
         .column("/fit/history/cells", h.iter().map(|e| e.cells as f64).collect(), "")

@@ -291,10 +291,11 @@
 //! seed 2: 0.047). A second fit alignment (half a cell along the diagonal) answered 0.6612 on
 //! the seed-2 target: the fit's own alignments disagree by 0.038, and their mean (0.6423) is no
 //! closer.
-//! The information is not in the target: at t = 0.7 the cavity is the set of points deeper than
-//! 0.7 S = 11.0 mm (S = 15.7 mm), at most 2 × 4.7 mm across (five 1.73 mm spacings at 40 cells)
-//! and thinner towards its rim, and what the samples make of it changes with the alignment more
-//! than with t. The Gauss–Newton information Σ|G|J_G² at the 36-cell answer is 0.76 at t* = 0.7, against 5.2
+//! The information is not in the target: the alignment moves the spectrum more than t does.
+//! (Stop 32 put this down to the cavity — at t = 0.7 the points deeper than 0.7 S = 11.0 mm,
+//! at most 2 × 4.7 mm across — but refining the grid at the inner wall moves the frequencies by
+//! under 0.11 %; the alignment acts on the thin flippers of the outer wall: "Refinement near
+//! the walls" below.) The Gauss–Newton information Σ|G|J_G² at the 36-cell answer is 0.76 at t* = 0.7, against 5.2
 //! at 0.6 and 74 at 0.3. At t* = 0.6 the floor is 0.002, and the fits' errors there (0.0015
 //! with 16 modes) are as small. So no fit on grids of this spacing can meet 0.005 at t* = 0.7
 //! on the turtle; a target on a finer grid would be needed, and the fit would have to follow it.
@@ -313,6 +314,50 @@
 //! What it does buy: no rigid motion can leak into the elastic modes (block low-rank MUMPS let
 //! three through), and a deflated vector that is not a rigid motion is refused.
 //!
+//! # Refinement near the walls (thickness)
+//!
+//! The turtle's high-t targets were put down (stop 32) to its cavity not being resolved. The
+//! cavity is not what moves: refining the background grid only near the inner walls
+//! ([`refine_near_wall`]: longest-edge bisection of the Kuhn tets, [`crate::mesh::refine`])
+//! moves the turtle's first 16 frequencies at t = 0.7 on 28 cells by 0.00–0.08 % with one
+//! halving and 0.00–0.11 % with two (`wall_probe --where inner`,
+//! `out/bench_shape/wall_probe/turtle28_quick.txt`), while another alignment of the same grid
+//! moves them by up to 4.2 % (mode 1) and 3.5 % (modes 10–11). The turtle (185 vertices, 366
+//! faces) has flippers 1.4–2.8 mm thick at z ≈ −32 mm (ray casting along the inward normals),
+//! one to one and a half 28-cell spacings (2.53 mm): the outer wall is what the grid's
+//! alignment changes.
+//!
+//! So the refinement ([`ShapeLevel::near_wall`], `wall_refinement` in [`ShapeFitSettings`],
+//! the CLI's `--wall-refinement L`) bisects the tets that reach the outer wall s = 0 or the
+//! inner walls of t ∈ [p₀ − w, p₀ + w] around a level's start p₀ (`wall_band` w, default
+//! 0.05), and only where the samples miss the signed distance: some edge midpoint m of the
+//! tet with |s(m) − (s_a + s_b)/2| > ε ℓ (`wall_tolerance` ε, default 0.05; ℓ the tet's
+//! longest edge; a smooth wall of radius R gives at most ℓ/8R, a crease, ridge or thin
+//! feature much more) — [`refine_unresolved`]. Marked tets become Kuhn tets of h/2^L; the
+//! closure refines their neighbours as far as conformity needs. New vertices take the
+//! continuous distance. The first (scanned) level is never refined; a synthesised target is
+//! refined the same way around its true t, so it stays finer than the fit. The chain to t is
+//! the curved shell's, unchanged: against central differences it meets 1e-4 on a refined grid
+//! as on a plain one (`tests/mpi_sensitivity.rs`).
+//!
+//! Measured on the turtle (28 cells, 16 modes, t = 0.7, the centred grid and two random
+//! shifts, 2 ranks, `wall_probe --where both --tolerance 0.05`,
+//! `out/bench_shape/wall_probe/turtle28_both_tol005.txt`):
+//!
+//! | L | background tets | body tets | P2 nodes | solve | alignment spread, modes 9–16 (mean) | as t |
+//! |---|---|---|---|---|---|---|
+//! | 0 | 84 672 | 29 000 | 50 000 | 14–18 s | 1.88 % | 0.148 |
+//! | 1 | 214 000 | 115 000 | 190 000 | 55–69 s | 0.55 % | 0.058 |
+//!
+//! ("as t": the spreads read through d ln f_k/dt between t = 0.70 and 0.75 as a Gauss–Newton
+//! step, Σ|s_k| δ_k / Σ s_k².) One halving takes 3.4× out of the alignment spread of the modes
+//! that carry t (modes 9–16: d ln f/dt 0.04–0.19), at 4× the tets and solve time. The
+//! flippers' own modes (1–3) keep theirs (4.3 %, 2.0 %, 2.3 %); they hardly depend on t
+//! (|d ln f/dt| ≤ 0.015), so they add a constant to the loss, not a bias to its minimum.
+//! Refining the whole outer band (ε = 0) costs 144 000 body tets for the same frequencies
+//! (within 0.02 %); two halvings there ran the 24 GB machine out of memory in MUMPS. The
+//! option is off by default: it buys accuracy on thin features at several times the time.
+//!
 //! E, ν and ρ are known here (the material fit is a separate problem). Every rank runs the same
 //! search on the same numbers (eigenvalues and gradients are broadcast from rank 0), so the
 //! decisions agree across ranks.
@@ -325,6 +370,7 @@ use crate::mesh::{self, lift_to_quadratic, linear_node_gradient, BackgroundGrid,
 use crate::petsc::{collective, Petsc};
 use std::ops::Range;
 use std::path::Path;
+use std::sync::Arc;
 
 /// Why a shape evaluation or fit failed.
 #[derive(Debug, thiserror::Error)]
@@ -1117,8 +1163,76 @@ pub struct ShapeLevel {
     pub family: ShapeFamily,
 }
 
+/// More halvings than this near the inner wall would not fit in memory on any grid worth it.
+pub const MAX_WALL_REFINEMENT: usize = 3;
+
+/// The grid refined `levels` times near the inner wall of every shell with t ∈ `t_range`
+/// (module docs, "Refinement at the inner wall"): [`refine_near_depths`] with the one band
+/// [t_lo·S, t_hi·S].
+pub fn refine_near_wall(grid: &BackgroundGrid, solid: &[f64], sdf: &SignedDistance, depth: f64, t_range: (f64, f64), levels: usize) -> Result<(BackgroundGrid, Vec<f64>), ShapeError> {
+    let (t_lo, t_hi) = t_range;
+    if !(t_lo.is_finite() && t_hi.is_finite() && t_lo <= t_hi) {
+        return Err(ShapeError::Invalid(format!("wall refinement range ({t_lo}, {t_hi}) must be finite and ordered")));
+    }
+    refine_near_depths(grid, solid, sdf, &[(t_lo * depth, t_hi * depth)], levels)
+}
+
+/// The grid refined `levels` times where the solid's signed distance s takes a value in one
+/// of the `bands` [s_lo, s_hi] [m]: a tet whose samples s_v, widened by its longest edge ℓ (s
+/// is 1-Lipschitz, so s inside the tet lies in [min s_v − ℓ, max s_v + ℓ]), reach into a band
+/// is bisected until it is a Kuhn tet of h/2^levels. New vertices take the continuous distance.
+/// Returns the grid and the solid's samples on it.
+pub fn refine_near_depths(grid: &BackgroundGrid, solid: &[f64], sdf: &SignedDistance, bands: &[(f64, f64)], levels: usize) -> Result<(BackgroundGrid, Vec<f64>), ShapeError> {
+    refine_unresolved(grid, solid, sdf, bands, levels, 0.0)
+}
+
+/// [`refine_near_depths`], but only tets where the samples do not resolve s: some edge (a, b)
+/// whose midpoint value misses the corners' mean by more than `tolerance` times the tet's
+/// longest edge, |s(m) − (s_a + s_b)/2| > tolerance·ℓ (a crease, a ridge, a thin feature or a
+/// tight curvature: a smooth wall of radius R gives ℓ/(8R) at most). 0 refines the whole band.
+pub fn refine_unresolved(grid: &BackgroundGrid, solid: &[f64], sdf: &SignedDistance, bands: &[(f64, f64)], levels: usize, tolerance: f64) -> Result<(BackgroundGrid, Vec<f64>), ShapeError> {
+    if !(tolerance.is_finite() && tolerance >= 0.0) {
+        return Err(ShapeError::Invalid(format!("the resolution tolerance must be ≥ 0, got {tolerance}")));
+    }
+    if bands.iter().any(|&(a, b)| !(a.is_finite() && b.is_finite() && a <= b)) {
+        return Err(ShapeError::Invalid(format!("refinement bands {bands:?} must be finite and ordered")));
+    }
+    if levels > MAX_WALL_REFINEMENT {
+        return Err(ShapeError::Invalid(format!("wall refinement must lie in 0..={MAX_WALL_REFINEMENT}, got {levels}")));
+    }
+    let field = |x: [f64; 3]| sdf.signed_distance(x);
+    let marked = |v: &mesh::refine::TetView| {
+        let (lo, hi) = v.values.iter().fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), &x| (a.min(x), b.max(x)));
+        let in_band = bands.iter().any(|&(band_lo, band_hi)| lo - v.longest_edge <= band_hi && hi + v.longest_edge >= band_lo);
+        in_band
+            && (tolerance == 0.0
+                || [(0, 1), (0, 2), (0, 3), (1, 2), (1, 3), (2, 3)].iter().any(|&(a, b)| {
+                    let m = [0, 1, 2].map(|d| 0.5 * (v.corners[a][d] + v.corners[b][d]));
+                    (sdf.signed_distance(m) - 0.5 * (v.values[a] + v.values[b])).abs() > tolerance * v.longest_edge
+                }))
+    };
+    Ok(grid.refined(levels, solid, &field, &marked)?)
+}
+
 impl ShapeLevel {
-    /// Cell size h [m].
+    /// This level with its grid refined `levels` times near both walls where the samples do
+    /// not resolve the signed distance ([`refine_unresolved`] with `tolerance`, 0 for the whole
+    /// bands): the outer wall s = 0 and the inner walls of t ∈ [p₀ − w, p₀ + w]. `None` for a
+    /// family other than the curved thickness body, or with `levels` = 0.
+    pub fn near_wall(&self, p0: f64, w: f64, levels: usize, tolerance: f64) -> Result<Option<ShapeLevel>, ShapeError> {
+        let ShapeFamily::Thickness { solid, depth, surface: Some(sdf) } = &self.family else { return Ok(None) };
+        if levels == 0 {
+            return Ok(None);
+        }
+        if !(p0.is_finite() && w.is_finite() && w > 0.0) {
+            return Err(ShapeError::Invalid(format!("wall refinement around {p0} ± {w}: both must be finite, w > 0")));
+        }
+        let bands = [(0.0, 0.0), ((p0 - w) * depth, (p0 + w) * depth)];
+        let (grid, solid) = refine_unresolved(&self.grid, solid, sdf, &bands, levels, tolerance)?;
+        Ok(Some(ShapeLevel { grid, family: ShapeFamily::Thickness { solid, depth: *depth, surface: Some(Arc::clone(sdf)) } }))
+    }
+
+    /// Cell size h [m] (of the structured grid, before any refinement).
     pub fn spacing(&self) -> f64 {
         self.grid.spacing()[0]
     }
@@ -1256,11 +1370,21 @@ pub struct ShapeFitSettings {
     /// Profile a stiffness factor common to every mode out of the loss (module docs, "Free
     /// stiffness scale"; default false).
     pub free_scale: bool,
+    /// Curved thickness body: halvings of the grid near the inner wall on every level after
+    /// the first (module docs, "Refinement at the inner wall"; default 0, none).
+    pub wall_refinement: usize,
+    /// The thickness range [p₀ − w, p₀ + w] around a level's start p₀ whose inner walls the
+    /// refinement covers (default 0.05).
+    pub wall_band: f64,
+    /// Only tets where the samples miss the signed distance at an edge midpoint by more than
+    /// this fraction of the tet's longest edge are refined ([`refine_unresolved`]; default
+    /// 0.05; 0 refines the whole bands).
+    pub wall_tolerance: f64,
 }
 
 impl Default for ShapeFitSettings {
     fn default() -> Self {
-        ShapeFitSettings { modes: 8, bounds: (0.1, 0.95), scan_points: 9, max_refinements: 8, tolerance: 1e-3, refine_window: 0.05, cluster_rtol: 1e-2, extrapolate: None, extrapolation_levels: 3, free_scale: false }
+        ShapeFitSettings { modes: 8, bounds: (0.1, 0.95), scan_points: 9, max_refinements: 8, tolerance: 1e-3, refine_window: 0.05, cluster_rtol: 1e-2, extrapolate: None, extrapolation_levels: 3, free_scale: false, wall_refinement: 0, wall_band: 0.05, wall_tolerance: 0.05 }
     }
 }
 
@@ -1293,6 +1417,15 @@ impl ShapeFitSettings {
         }
         if self.extrapolation_levels < 2 {
             return bad(format!("extrapolation_levels must be at least 2, got {}", self.extrapolation_levels));
+        }
+        if self.wall_refinement > MAX_WALL_REFINEMENT {
+            return bad(format!("wall_refinement must lie in 0..={MAX_WALL_REFINEMENT}, got {}", self.wall_refinement));
+        }
+        if !(self.wall_band.is_finite() && self.wall_band > 0.0) {
+            return bad(format!("wall_band must be positive, got {}", self.wall_band));
+        }
+        if !(self.wall_tolerance.is_finite() && self.wall_tolerance >= 0.0) {
+            return bad(format!("wall_tolerance must be ≥ 0, got {}", self.wall_tolerance));
         }
         Ok(())
     }
@@ -1338,6 +1471,13 @@ pub struct LevelResult {
     pub eigenvalues: Vec<f64>,
     pub evaluations: usize,
     pub seconds: f64,
+    /// The start p₀ around which the level's grid was refined near the inner wall
+    /// ([`ShapeLevel::near_wall`] with the fit's `wall_band` and `wall_refinement`), if it was.
+    #[serde(default)]
+    pub wall_centre: Option<f64>,
+    /// Background tets of the level's grid (after any refinement).
+    #[serde(default)]
+    pub grid_tets: usize,
 }
 
 /// The result of [`fit_shape`].
@@ -1533,6 +1673,14 @@ pub fn fit_shape(petsc: &Petsc, levels: &[ShapeLevel], target: &SpectrumTarget, 
     for (index, level) in levels.iter().enumerate() {
         let level_clock = std::time::Instant::now();
         let first_eval = history.len();
+        // Every level after the scanned one may be refined near the inner walls around its start.
+        let wall_centre = (index > 0).then(|| results[index - 1].parameter);
+        let refined = match wall_centre {
+            Some(p0) => level.near_wall(p0, settings.wall_band, settings.wall_refinement, settings.wall_tolerance)?,
+            None => None,
+        };
+        let wall_centre = wall_centre.filter(|_| refined.is_some());
+        let level = refined.as_ref().unwrap_or(level);
         let evaluate = |p: f64, phase: SearchPhase| -> Option<Point<Vec<f64>>> {
             let mut record = FitEvaluation { level: index, cells: level.cells(), phase, parameter: p, loss: f64::NAN, gradient: f64::NAN, step: f64::NAN, tets: 0, p2_nodes: 0, timings: StepTimings::default(), failure: None };
             let point = match evaluate_point(petsc, level, p, target, options, material, settings) {
@@ -1563,7 +1711,7 @@ pub fn fit_shape(petsc: &Petsc, levels: &[ShapeLevel], target: &SpectrumTarget, 
                 SearchFailure::StartFailed => format!("the {}-cell grid could not take the coarser grid's answer: {}", level.cells(), reasons.join("; ")),
             })
         })?;
-        results.push(LevelResult { cells: level.cells(), spacing: level.spacing(), parameter: best.p, loss: best.loss.loss, log_scale: best.loss.log_scale, eigenvalues: best.data, evaluations: history.len() - first_eval, seconds: level_clock.elapsed().as_secs_f64() });
+        results.push(LevelResult { cells: level.cells(), spacing: level.spacing(), parameter: best.p, loss: best.loss.loss, log_scale: best.loss.log_scale, eigenvalues: best.data, evaluations: history.len() - first_eval, seconds: level_clock.elapsed().as_secs_f64(), wall_centre, grid_tets: level.grid.n_tets() });
     }
 
     let extrapolated = match target_spacing {

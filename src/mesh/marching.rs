@@ -33,6 +33,17 @@
 //! ([`MarchingReport::inverted_background_tets`]), but their neighbours then overlap in
 //! space, so such a mesh is only combinatorially valid.
 //!
+//! # Local refinement
+//!
+//! [`BackgroundGrid::refined`] bisects the Kuhn tets where a predicate of their corners and
+//! field values asks for it ([`super::refine`]: longest-edge bisection, conforming, every tet
+//! positively oriented, marked tets refined to Kuhn tets of h/2^L). The structured vertices
+//! keep their indices; the edge midpoints follow them, with the field's value taken from the
+//! continuous field where the caller has one. Marching, snapping, the volume guard (against
+//! the smallest rest tet, h_x h_y h_z/(6·2^g) after g bisections) and the gradients work on
+//! the refined tets and edges unchanged; learned vertex offsets are refused on a refined grid
+//! (the bound below is for Kuhn tets of one size).
+//!
 //! # Marching tetrahedra
 //!
 //! Values s_v > 0 are inside (the SDF convention of [`super::sdf`]). Inside each background
@@ -182,6 +193,20 @@ pub struct BackgroundGrid {
     origin: [f64; 3],
     spacing: [f64; 3],
     cells: [usize; 3],
+    /// Local refinement ([`BackgroundGrid::refined`]): the tets, the vertices beyond the
+    /// structured ones and the edges replace the structured grid's.
+    refinement: Option<std::sync::Arc<GridRefinement>>,
+}
+
+/// The tets of a locally refined grid (module docs, "Local refinement").
+#[derive(Clone, Debug, PartialEq)]
+struct GridRefinement {
+    /// Vertices after the structured grid's (index n_structured + i): edge midpoints.
+    extra: Vec<[f64; 3]>,
+    tets: Vec<[usize; 4]>,
+    edges: Vec<(usize, usize)>,
+    /// The most bisections of any tet (each halves its volume).
+    max_generation: u8,
 }
 
 impl BackgroundGrid {
@@ -213,6 +238,7 @@ impl BackgroundGrid {
             origin,
             spacing,
             cells,
+            refinement: None,
         })
     }
 
@@ -271,13 +297,62 @@ impl BackgroundGrid {
         self.cells.map(|n| n + 1)
     }
 
+    /// Vertices: the structured grid's, then a refinement's midpoints.
     pub fn n_vertices(&self) -> usize {
+        self.n_structured_vertices() + self.refinement.as_ref().map_or(0, |r| r.extra.len())
+    }
+
+    fn n_structured_vertices(&self) -> usize {
         self.vertex_counts().iter().product()
     }
 
-    /// Background tets: 6 per cell.
+    /// Background tets: 6 per cell, or a refinement's.
     pub fn n_tets(&self) -> usize {
-        6 * self.cells.iter().product::<usize>()
+        match &self.refinement {
+            Some(r) => r.tets.len(),
+            None => 6 * self.cells.iter().product::<usize>(),
+        }
+    }
+
+    /// Whether the grid was refined locally ([`BackgroundGrid::refined`]).
+    pub fn is_refined(&self) -> bool {
+        self.refinement.is_some()
+    }
+
+    /// The rest volume of the smallest background tet: h_x h_y h_z / 6, halved by every
+    /// bisection of a refinement.
+    pub fn smallest_rest_tet_volume(&self) -> f64 {
+        let generations = self.refinement.as_ref().map_or(0, |r| r.max_generation);
+        self.spacing.iter().product::<f64>() / 6.0 / 2f64.powi(generations as i32)
+    }
+
+    /// The grid refined by bisection where `marked` holds (module docs, "Local refinement";
+    /// [`super::refine::refine_marked`]): marked tets are bisected until they are Kuhn tets of
+    /// h/2^`levels`, and their neighbours as far as conformity needs. `values` are the field at
+    /// the structured vertices, `field` gives it at the new ones; returns the refined grid and
+    /// the field at all its vertices. The structured vertices keep their indices.
+    pub fn refined(
+        &self,
+        levels: usize,
+        values: &[f64],
+        field: &dyn Fn([f64; 3]) -> f64,
+        marked: &dyn Fn(&super::refine::TetView) -> bool,
+    ) -> Result<(BackgroundGrid, Vec<f64>), MarchingError> {
+        if self.refinement.is_some() {
+            return Err(MarchingError::BadGrid { message: "the grid is refined already; refine the structured grid once".into() });
+        }
+        if levels > 40 {
+            return Err(MarchingError::BadGrid { message: format!("{levels} refinement levels: at most 40") });
+        }
+        check_finite("values", values, self.n_vertices())?;
+        let tets: Vec<[usize; 4]> = (0..self.n_tets()).map(|e| self.tet(e)).collect();
+        let r = super::refine::refine_marked(self.vertex_positions(), values.to_vec(), &tets, levels, field, marked);
+        let n = self.n_structured_vertices();
+        let max_generation = r.generations.iter().copied().max().unwrap_or(0);
+        let refinement = GridRefinement { extra: r.positions[n..].to_vec(), tets: r.tets, edges: r.edges, max_generation };
+        let mut grid = self.clone();
+        grid.refinement = Some(std::sync::Arc::new(refinement));
+        Ok((grid, r.values))
     }
 
     /// Index of vertex (i, j, k).
@@ -288,6 +363,12 @@ impl BackgroundGrid {
 
     /// Rest position X_v.
     pub fn vertex_position(&self, v: usize) -> [f64; 3] {
+        let n = self.n_structured_vertices();
+        if v >= n {
+            if let Some(r) = &self.refinement {
+                return r.extra[v - n];
+            }
+        }
         let [nx, ny, _] = self.vertex_counts();
         let ijk = [v % nx, (v / nx) % ny, v / (nx * ny)];
         [0, 1, 2].map(|d| self.origin[d] + ijk[d] as f64 * self.spacing[d])
@@ -303,6 +384,9 @@ impl BackgroundGrid {
 
     /// The 4 grid vertices of background tet `e`, positively oriented at rest.
     pub fn tet(&self, e: usize) -> [usize; 4] {
+        if let Some(r) = &self.refinement {
+            return r.tets[e];
+        }
         let [cx, cy, _] = self.cells;
         let cell = e / 6;
         let (i, j, k) = (cell % cx, (cell / cx) % cy, cell / (cx * cy));
@@ -324,6 +408,11 @@ impl BackgroundGrid {
         check_offset_fraction(max_offset_fraction)?;
         let mut x = self.vertex_positions();
         if let Some(theta) = offsets {
+            if self.refinement.is_some() {
+                // The bound that keeps every background tet positive holds for Kuhn tets of
+                // one size (module docs), not for a refinement's mix of sizes.
+                return Err(MarchingError::BadGrid { message: "vertex offsets are not supported on a locally refined grid".into() });
+            }
             check_finite("offsets", theta, 3 * self.n_vertices())?;
             let b = self.offset_bound(max_offset_fraction);
             for (v, p) in x.iter_mut().enumerate() {
@@ -353,6 +442,12 @@ impl BackgroundGrid {
     /// The grid edges as vertex pairs (v, v + offset) for the 7 offsets in {0,1}³ \ {0}: every
     /// edge of a Kuhn tet is one of them, and each appears once.
     fn for_each_edge(&self, mut f: impl FnMut(usize, usize)) {
+        if let Some(r) = &self.refinement {
+            for &(v, w) in &r.edges {
+                f(v, w);
+            }
+            return;
+        }
         let [nx, ny, nz] = self.vertex_counts();
         for k in 0..nz {
             for j in 0..ny {
@@ -561,7 +656,7 @@ pub fn march(
     let h = grid.spacing();
     let extent = [0, 1, 2].map(|k| grid.cells()[k] as f64 * h[k]);
     let diagonal = (extent[0] * extent[0] + extent[1] * extent[1] + extent[2] * extent[2]).sqrt();
-    let rest_tet_volume = h[0] * h[1] * h[2] / 6.0;
+    let rest_tet_volume = grid.smallest_rest_tet_volume();
     let threshold = (ZERO_VOLUME_RELATIVE_TOLERANCE * diagonal.powi(3))
         .max(options.min_volume_fraction * rest_tet_volume);
     report.volume_threshold = threshold;

@@ -71,6 +71,7 @@ mod generate;
 mod gmsh;
 mod lift;
 pub mod marching;
+pub mod refine;
 pub mod sdf;
 pub mod surface;
 mod validate;

@@ -386,7 +386,7 @@ fn refined_crossings_lie_on_the_continuous_surface_and_keep_the_mesh_valid() {
 
 #[test]
 fn the_finest_answer_is_the_mean_over_the_finest_spacings_replicas_and_the_curved_body_does_not_extrapolate() {
-    let level = |cells: usize, spacing: f64, parameter: f64| LevelResult { cells, spacing, parameter, loss: 0.0, log_scale: 0.0, eigenvalues: Vec::new(), evaluations: 1, seconds: 0.0 };
+    let level = |cells: usize, spacing: f64, parameter: f64| LevelResult { cells, spacing, parameter, loss: 0.0, log_scale: 0.0, eigenvalues: Vec::new(), evaluations: 1, seconds: 0.0, wall_centre: None, grid_tets: 0 };
     // One grid per spacing: the last level's answer.
     assert_eq!(finest_mean(&[level(20, 3e-3, 0.4), level(28, 2e-3, 0.5)]), 0.5);
     // Two replicas of the finest spacing: their mean, not the coarser level's.
@@ -440,4 +440,97 @@ fn curved_body_weights_carry_node_gradients_to_the_field_parameter() {
     let fd = (dot(&plus) - dot(&minus)) / (2.0 * h);
     eprintln!("Σ G·dx/dp: from the weights {exact:.10e}, central differences {fd:.10e}");
     assert!((exact - fd).abs() <= 1e-6 * fd.abs(), "exact {exact:.10e}, FD {fd:.10e}");
+}
+
+#[test]
+fn refinement_at_the_inner_wall_halves_the_tets_there_and_brings_the_cavity_closer() {
+    // A ball of radius R: S = R, and the shell 0 < s ≤ t·S has an exact volume.
+    let r = 0.05;
+    let (vertices, triangles) = crate::testing::icosphere(r, 4);
+    let surface = TriangleSurface { vertices, triangles };
+    let sdf = SignedDistance::new(&surface).unwrap();
+    let depth = reference_depth(&sdf, &surface).unwrap();
+    let grid = shifted_covering([-r; 3], [r; 3], 12, [0.17, -0.23, 0.31]).unwrap();
+    let solid = sdf.evaluate(&grid.vertex_positions());
+    let (t, w) = (0.8, 0.05);
+    let (refined, values) = refine_near_wall(&grid, &solid, &sdf, depth, (t - w, t + w), 1).unwrap();
+    assert!(refined.n_tets() > grid.n_tets());
+    assert_eq!(values.len(), refined.n_vertices());
+    assert_eq!(&values[..solid.len()], &solid[..]);
+    for v in solid.len()..refined.n_vertices() {
+        assert_eq!(values[v], sdf.signed_distance(refined.vertex_position(v)));
+    }
+    let h = grid.spacing()[0];
+    let coarse_volume = h * h * h / 6.0;
+    let (mut total, mut in_band, mut untouched) = (0.0, 0, 0);
+    for e in 0..refined.n_tets() {
+        let v = refined.tet(e).map(|i| refined.vertex_position(i));
+        let volume = crate::mesh::signed_tet_volume(v[0], v[1], v[2], v[3]);
+        assert!(volume > 0.0);
+        total += volume;
+        let s = refined.tet(e).map(|i| values[i]);
+        // A corner inside the band: the tet is a Kuhn tet of h/2 (or a piece of one).
+        if s.iter().any(|&x| x > (t - w) * depth && x < (t + w) * depth) {
+            in_band += 1;
+            assert!(volume <= coarse_volume / 8.0 * (1.0 + 1e-9), "tet {e} in the band has volume {volume:e}");
+        }
+        // Far from the band (further than a coarse tet's longest edge, √3 h): untouched.
+        if s.iter().all(|&x| x < (t - w) * depth - 2.0 * 3f64.sqrt() * h) {
+            untouched += 1;
+            assert!((volume - coarse_volume).abs() <= 1e-9 * coarse_volume, "tet {e} far from the band was refined");
+        }
+    }
+    let box_volume: f64 = (0..3).map(|d| grid.cells()[d] as f64 * h).product();
+    assert!((total - box_volume).abs() < 1e-9 * box_volume);
+    assert!(in_band > 100 && untouched > 100, "{in_band} in the band, {untouched} untouched");
+
+    // The cavity {s > t·S} (a ball of about R − t·S = 10 mm, one coarse cell): its marched
+    // volume (crossings on the continuous zero) against a uniform 60-cell grid's.
+    let wall = t * depth;
+    let cavity = |x: [f64; 3]| sdf.signed_distance(x) - wall;
+    let cavity_volume = |g: &BackgroundGrid, s: &[f64]| {
+        let values: Vec<f64> = s.iter().map(|x| x - wall).collect();
+        curved_body(g, &values, &cavity, &MarchingOptions::default(), false).unwrap().linear.volume()
+    };
+    let fine_grid = shifted_covering([-r; 3], [r; 3], 60, [0.0; 3]).unwrap();
+    let reference = cavity_volume(&fine_grid, &sdf.evaluate(&fine_grid.vertex_positions()));
+    let (twice, twice_values) = refine_near_wall(&grid, &solid, &sdf, depth, (t - w, t + w), 2).unwrap();
+    let errors = [cavity_volume(&grid, &solid), cavity_volume(&refined, &values), cavity_volume(&twice, &twice_values)].map(|v| (v / reference - 1.0).abs());
+    assert!(errors[1] < 0.5 * errors[0] && errors[2] < 0.5 * errors[1], "cavity volume errors on 0, 1, 2 halvings: {errors:.3?}");
+
+    // Where the samples resolve s (the outer wall, radius 50 mm against tets of 9 mm: ℓ/8R
+    // ≈ 0.04) refine_unresolved leaves the band alone; the 10 mm cavity (0.2) it refines.
+    let both = [(0.0, 0.0), ((t - w) * depth, (t + w) * depth)];
+    let (all, _) = refine_near_depths(&grid, &solid, &sdf, &both, 1).unwrap();
+    let (picky, picky_values) = refine_unresolved(&grid, &solid, &sdf, &both, 1, 0.08).unwrap();
+    assert!(picky.n_tets() < all.n_tets() && picky.n_tets() > grid.n_tets(), "{} < {} < {}", grid.n_tets(), picky.n_tets(), all.n_tets());
+    // The share of tets refined to h/2 among those with a corner in a band.
+    let refined_share = |in_band: &dyn Fn(f64) -> bool| {
+        let near: Vec<usize> = (0..picky.n_tets()).filter(|&e| picky.tet(e).iter().any(|&i| in_band(picky_values[i]))).collect();
+        let fine = near.iter().filter(|&&e| {
+            let v = picky.tet(e).map(|i| picky.vertex_position(i));
+            crate::mesh::signed_tet_volume(v[0], v[1], v[2], v[3]) <= coarse_volume / 8.0 * (1.0 + 1e-9)
+        });
+        fine.count() as f64 / near.len() as f64
+    };
+    let cavity_share = refined_share(&|x| x > (t - w) * depth && x < (t + w) * depth);
+    let outer_share = refined_share(&|x| x.abs() < 0.25 * h);
+    eprintln!("refined to h/2: {:.0} % of the tets at the cavity's wall, {:.0} % at the outer wall", 100.0 * cavity_share, 100.0 * outer_share);
+    assert!(cavity_share > 0.7 && outer_share < 0.1, "refined shares: cavity {cavity_share:.2}, outer {outer_share:.2}");
+    assert!(refine_unresolved(&grid, &solid, &sdf, &both, 1, -1.0).is_err());
+
+    // Only the curved thickness body is refined, never more than the cap.
+    let level = ShapeLevel { grid: grid.clone(), family: ShapeFamily::Thickness { solid: solid.clone(), depth, surface: Some(Arc::new(sdf.clone())) } };
+    assert!(level.near_wall(t, w, 0, 0.08).unwrap().is_none());
+    assert_eq!(level.near_wall(t, w, 1, 0.08).unwrap().expect("refined").grid, picky);
+    assert_eq!(level.near_wall(t, w, 1, 0.0).unwrap().expect("refined").grid, all);
+    assert!(matches!(level.near_wall(t, w, MAX_WALL_REFINEMENT + 1, 0.08), Err(ShapeError::Invalid(_))));
+    assert!(matches!(level.near_wall(t, -w, 1, 0.08), Err(ShapeError::Invalid(_))));
+    let straight = ShapeLevel { grid: grid.clone(), family: ShapeFamily::Thickness { solid: solid.clone(), depth, surface: None } };
+    assert!(straight.near_wall(t, w, 1, 0.08).unwrap().is_none());
+    let morph = ShapeLevel { grid: grid.clone(), family: ShapeFamily::Morph { a: solid.clone(), b: solid.clone() } };
+    assert!(morph.near_wall(t, w, 1, 0.08).unwrap().is_none());
+    assert!(ShapeFitSettings { wall_refinement: MAX_WALL_REFINEMENT + 1, ..Default::default() }.validate().is_err());
+    assert!(ShapeFitSettings { wall_band: 0.0, ..Default::default() }.validate().is_err());
+    assert!(ShapeFitSettings { wall_tolerance: f64::NAN, ..Default::default() }.validate().is_err());
 }
