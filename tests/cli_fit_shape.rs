@@ -120,6 +120,35 @@ fn thickness_replicas_go_on_the_finest_level_alone() {
     assert!((answer - 0.5).abs() < 0.1, "thickness {answer}");
 }
 
+/// `--wall-refinement 1`: the scanned level stays plain, the finer one is refined near the
+/// walls around the coarser answer (the box's edges and corners are creases the samples do not
+/// resolve), and the result records it.
+#[test]
+fn thickness_fit_refines_the_finer_levels_near_the_walls() {
+    let dir = scratch("cli_fit_shape_wall");
+    let solid = box_obj(&dir, "box.obj", [60.0, 40.0, 30.0]);
+    let out = dir.join("thickness_wall.h5");
+    let args = vec![
+        "fit-thickness", "--surface", s(&solid), "--target-thickness", "0.5", "--target-cells", "14", "--units", "mm", "--cells", "10,12", "--wall-refinement", "1",
+        "--modes", "4", "--scan-points", "5", "--max-refinements", "3", "--out", s(&out),
+    ];
+    let run = mpirun(2, &args, LIMIT);
+    assert!(run.success(), "{}", run.describe());
+    assert_eq!(number_attribute(&out, "/fit", "wall_refinement"), 1.0);
+    let (levels, _) = read_dataset(&out, "/fit/levels/parameter").unwrap();
+    let (centres, _) = read_dataset(&out, "/fit/levels/wall_centre").unwrap();
+    let (tets, _) = read_dataset(&out, "/fit/levels/grid_tets").unwrap();
+    let (cells, _) = read_dataset(&out, "/fit/levels/cells").unwrap();
+    assert!(centres[0].is_nan(), "the scanned level is not refined: {centres:?}");
+    assert!((centres[1] - levels[0]).abs() < 1e-12, "the finer level is refined around the coarser answer: {centres:?} vs {levels:?}");
+    // The box's plain 12-cell grid: 12 × 9 × 7 cells of 6 mm (one of margin each side), 6 tets each.
+    let plain = 6.0 * cells[1] * ((40.0 / 60.0 * (cells[1] - 2.0)).ceil() + 2.0) * ((30.0 / 60.0 * (cells[1] - 2.0)).ceil() + 2.0);
+    assert!(tets[1] > plain, "refined grid {} tets against {plain} plain", tets[1]);
+    let answer = number_attribute(&out, "/fit", "parameter");
+    assert!((answer - 0.5).abs() < 0.1, "thickness {answer}");
+    assert!(run.stdout.contains("refined near the walls"), "{}", run.describe());
+}
+
 #[test]
 fn bad_input_fails_cleanly_without_output() {
     let dir = scratch("cli_fit_shape_bad");
@@ -146,6 +175,9 @@ fn bad_input_fails_cleanly_without_output() {
         (vec!["fit-morph", "--config", s(&straight), "--shape-a", s(&solid), "--shape-b", s(&solid), "--target-weight", "0.5"], "straight_boundary"),
         (vec!["fit-thickness", "--surface", s(&solid), "--target-thickness", "0.5", "--replicas", "5"], "--replicas must lie in 1..=4"),
         (vec!["fit-thickness", "--surface", s(&solid), "--target-thickness", "0.5", "--extrapolate", "--no-extrapolate"], "exclude each other"),
+        (vec!["fit-thickness", "--surface", s(&solid), "--target-thickness", "0.5", "--wall-refinement", "4"], "wall_refinement must lie in 0..=3"),
+        (vec!["fit-thickness", "--surface", s(&solid), "--target-thickness", "0.5", "--wall-refinement", "1", "--straight-boundary"], "needs the curved thickness body"),
+        (vec!["fit-thickness", "--surface", s(&solid), "--target-thickness", "0.5", "--wall-tolerance", "-1"], "wall_tolerance must be ≥ 0"),
         (vec!["fit-morph", "--shape-a", s(&solid), "--shape-b", s(&solid), "--target-weight", "0.5", "--cells", "14,12"], "must increase"),
     ];
     for (mut args, expected) in cases {
