@@ -9,37 +9,10 @@ use diffsound::inverse::shape::{reference_depth, refine_near_wall, ShapeFamily};
 use diffsound::mesh;
 use diffsound::petsc::Petsc;
 
-fn ellipsoid_surface(axes: [f64; 3], rings: usize) -> mesh::TriangleSurface {
-    let segments = 2 * rings;
-    let mut vertices = vec![[0.0, 0.0, axes[2]]];
-    for i in 1..rings {
-        let theta = std::f64::consts::PI * i as f64 / rings as f64;
-        for j in 0..segments {
-            let phi = 2.0 * std::f64::consts::PI * j as f64 / segments as f64;
-            vertices.push([axes[0] * theta.sin() * phi.cos(), axes[1] * theta.sin() * phi.sin(), axes[2] * theta.cos()]);
-        }
-    }
-    vertices.push([0.0, 0.0, -axes[2]]);
-    let south = vertices.len() - 1;
-    let ring = |i: usize, j: usize| 1 + (i - 1) * segments + j % segments;
-    let mut triangles = Vec::new();
-    for j in 0..segments {
-        triangles.push([0, ring(1, j), ring(1, j + 1)]);
-        triangles.push([south, ring(rings - 1, j + 1), ring(rings - 1, j)]);
-    }
-    for i in 1..rings - 1 {
-        for j in 0..segments {
-            triangles.push([ring(i, j), ring(i + 1, j), ring(i + 1, j + 1)]);
-            triangles.push([ring(i, j), ring(i + 1, j + 1), ring(i, j + 1)]);
-        }
-    }
-    mesh::TriangleSurface { vertices, triangles }
-}
-
 fn main() {
     let universe = mpi::initialize().unwrap();
     let petsc = Petsc::initialize(universe, "probe", &[]).unwrap();
-    let surface = ellipsoid_surface([0.05, 0.04, 0.03], 24);
+    let surface = mesh::TriangleSurface::ellipsoid([0.05, 0.04, 0.03], 24);
     let sdf = std::sync::Arc::new(mesh::SignedDistance::new(&surface).unwrap());
     let depth = reference_depth(&sdf, &surface).unwrap();
     let grid0 = mesh::BackgroundGrid::covering([-0.05, -0.04, -0.03], [0.05, 0.04, 0.03], 12, 1.0).unwrap();

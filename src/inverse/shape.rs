@@ -361,8 +361,15 @@
 //! flippers' own modes (1–3) keep theirs (4.3 %, 2.0 %, 2.3 %); they hardly depend on t
 //! (|d ln f/dt| ≤ 0.015), so they add a constant to the loss, not a bias to its minimum.
 //! Refining the whole outer band (ε = 0) costs 144 000 body tets for the same frequencies
-//! (within 0.02 %); two halvings there ran the 24 GB machine out of memory in MUMPS. The
-//! option is off by default: it buys accuracy on thin features at several times the time.
+//! (within 0.02 %); two halvings there ran the 24 GB machine out of memory in MUMPS.
+//!
+//! In a fit (turtle, t* = 0.7, levels 20/28, 16 modes, a 36-cell target of seed 2 refined
+//! like the fit, 2 ranks, `out/bench_shape/wall_ab/`): without refinement the 28-cell level
+//! answered 0.5956 (error −0.104, loss 3.4e-2, 254 s, 2.7 GB); with one halving 0.6410
+//! (error −0.059, loss 2.9e-3, 721 s, 9.3 GB at most, the refined target's solve). The
+//! loss at the answer falls 11×, the error by 43 %; the 5-minute goal is out of reach this
+//! way (five 28-cell evaluations at 64–85 s each). The option is off by default: it buys
+//! accuracy on thin features at several times the time.
 //!
 //! E, ν and ρ are known here (the material fit is a separate problem). Every rank runs the same
 //! search on the same numbers (eigenvalues and gradients are broadcast from rank 0), so the

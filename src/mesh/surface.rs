@@ -88,6 +88,38 @@ pub enum SurfaceError {
 }
 
 impl TriangleSurface {
+    /// A closed ellipsoid of semi-axes `axes` [m] centred on the origin: a vertex at each pole
+    /// and `rings − 1` rings of `2·rings` vertices at evenly spaced polar angles, triangles
+    /// counter-clockwise seen from outside (`rings` ≥ 2). For checks that need a smooth,
+    /// unsymmetric solid with a known signed distance's behaviour.
+    pub fn ellipsoid(axes: [f64; 3], rings: usize) -> TriangleSurface {
+        let rings = rings.max(2);
+        let segments = 2 * rings;
+        let mut vertices = vec![[0.0, 0.0, axes[2]]];
+        for i in 1..rings {
+            let theta = std::f64::consts::PI * i as f64 / rings as f64;
+            for j in 0..segments {
+                let phi = 2.0 * std::f64::consts::PI * j as f64 / segments as f64;
+                vertices.push([axes[0] * theta.sin() * phi.cos(), axes[1] * theta.sin() * phi.sin(), axes[2] * theta.cos()]);
+            }
+        }
+        vertices.push([0.0, 0.0, -axes[2]]);
+        let south = vertices.len() - 1;
+        let ring = |i: usize, j: usize| 1 + (i - 1) * segments + j % segments;
+        let mut triangles = Vec::new();
+        for j in 0..segments {
+            triangles.push([0, ring(1, j), ring(1, j + 1)]);
+            triangles.push([south, ring(rings - 1, j + 1), ring(rings - 1, j)]);
+        }
+        for i in 1..rings - 1 {
+            for j in 0..segments {
+                triangles.push([ring(i, j), ring(i + 1, j), ring(i + 1, j + 1)]);
+                triangles.push([ring(i, j), ring(i + 1, j + 1), ring(i, j + 1)]);
+            }
+        }
+        TriangleSurface { vertices, triangles }
+    }
+
     /// Checks that every index is in range and every coordinate finite.
     pub fn new(vertices: Vec<[f64; 3]>, triangles: Vec<[usize; 3]>) -> Result<Self, SurfaceError> {
         if let Some((vertex, &coordinates)) = vertices
