@@ -1,5 +1,5 @@
-//! How much the refinement at the inner wall (src/inverse/shape.rs, "Refinement at the inner
-//! wall") takes out of the grid-alignment noise of a hollow body's spectrum, measured on the
+//! How much the refinement near the walls (src/inverse/shape.rs, "Refinement near the walls")
+//! takes out of the grid-alignment noise of a hollow body's spectrum, measured on the
 //! thickness fit's own body (curved boundary) and solve.
 //!
 //!   mpirun -np 2 target/release/examples/wall_probe [--cells 28,36] [--levels 0,1] \
@@ -76,16 +76,14 @@ fn main() {
             for (ti, &t) in thickness.iter().enumerate() {
                 for &l in &levels {
                     let clock = std::time::Instant::now();
-                    let (g, s) = if l == 0 { (grid.clone(), solid.clone()) } else { {
-                        let inner = ((t - band) * depth, (t + band) * depth);
-                        let bands: Vec<(f64, f64)> = match place.as_str() {
-                            "inner" => vec![inner],
-                            "outer" => vec![(0.0, 0.0)],
-                            "both" => vec![(0.0, 0.0), inner],
-                            other => panic!("--where takes inner, outer or both, not {other}"),
-                        };
-                        refine_unresolved(&grid, &solid, &sdf, &bands, l, tolerance).expect("refined")
-                    } };
+                    let inner = ((t - band) * depth, (t + band) * depth);
+                    let bands: Vec<(f64, f64)> = match place.as_str() {
+                        "inner" => vec![inner],
+                        "outer" => vec![(0.0, 0.0)],
+                        "both" => vec![(0.0, 0.0), inner],
+                        other => panic!("--where takes inner, outer or both, not {other}"),
+                    };
+                    let (g, s) = if l == 0 { (grid.clone(), solid.clone()) } else { refine_unresolved(&grid, &solid, &sdf, &bands, l, tolerance).expect("refined") };
                     let refine_s = clock.elapsed().as_secs_f64();
                     match curved_shell_spectrum(&petsc, &g, &s, &sdf, depth, t, &options, &material, modes, false) {
                         Ok((sp, _)) => {

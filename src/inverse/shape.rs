@@ -1180,11 +1180,11 @@ pub struct ShapeLevel {
     pub family: ShapeFamily,
 }
 
-/// More halvings than this near the inner wall would not fit in memory on any grid worth it.
+/// More halvings than this near the walls would not fit in memory on any grid worth it.
 pub const MAX_WALL_REFINEMENT: usize = 3;
 
 /// The grid refined `levels` times near the inner wall of every shell with t ∈ `t_range`
-/// (module docs, "Refinement at the inner wall"): [`refine_near_depths`] with the one band
+/// (module docs, "Refinement near the walls"): [`refine_near_depths`] with the one band
 /// [t_lo·S, t_hi·S].
 pub fn refine_near_wall(grid: &BackgroundGrid, solid: &[f64], sdf: &SignedDistance, depth: f64, t_range: (f64, f64), levels: usize) -> Result<(BackgroundGrid, Vec<f64>), ShapeError> {
     let (t_lo, t_hi) = t_range;
@@ -1223,7 +1223,7 @@ pub fn refine_unresolved(grid: &BackgroundGrid, solid: &[f64], sdf: &SignedDista
         let in_band = bands.iter().any(|&(band_lo, band_hi)| lo - v.longest_edge <= band_hi && hi + v.longest_edge >= band_lo);
         in_band
             && (tolerance == 0.0
-                || [(0, 1), (0, 2), (0, 3), (1, 2), (1, 3), (2, 3)].iter().any(|&(a, b)| {
+                || mesh::TET10_EDGES.iter().any(|&(a, b)| {
                     let m = [0, 1, 2].map(|d| 0.5 * (v.corners[a][d] + v.corners[b][d]));
                     (sdf.signed_distance(m) - 0.5 * (v.values[a] + v.values[b])).abs() > tolerance * v.longest_edge
                 }))
@@ -1388,7 +1388,7 @@ pub struct ShapeFitSettings {
     /// stiffness scale"; default false).
     pub free_scale: bool,
     /// Curved thickness body: halvings of the grid near the inner wall on every level after
-    /// the first (module docs, "Refinement at the inner wall"; default 0, none).
+    /// the first (module docs, "Refinement near the walls"; default 0, none).
     pub wall_refinement: usize,
     /// The thickness range [p₀ − w, p₀ + w] around a level's start p₀ whose inner walls the
     /// refinement covers (default 0.05).

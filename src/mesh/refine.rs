@@ -41,6 +41,8 @@
 
 use std::collections::HashMap;
 
+use super::TET10_EDGES as TET_EDGES;
+
 /// A refined mesh: every vertex (the input's first, in their order, then the midpoints), the
 /// tets (positively oriented if the input's were) with their generation, and every edge once.
 #[derive(Clone, Debug, PartialEq)]
@@ -72,8 +74,6 @@ struct Refiner<'f> {
     midpoints: HashMap<(usize, usize), usize>,
     field: &'f dyn Fn([f64; 3]) -> f64,
 }
-
-const TET_EDGES: [(usize, usize); 6] = [(0, 1), (0, 2), (0, 3), (1, 2), (1, 3), (2, 3)];
 
 fn key(a: usize, b: usize) -> (usize, usize) {
     if a < b {
@@ -189,8 +189,12 @@ pub fn refine_marked(positions: Vec<[f64; 3]>, values: Vec<f64>, tets: &[[usize;
     for &t in tets {
         r.add_tet(t, 0);
     }
+    // A tet's mark depends on its corners and their values alone, so a tet that a pass left
+    // unmarked stays so: each pass looks only at the tets made since the previous one.
+    let mut first_unseen = 0;
     loop {
-        let todo: Vec<usize> = (0..r.tets.len()).filter(|&t| r.alive[t] && r.generations[t] < max_generation && marked(&r.view(t))).collect();
+        let todo: Vec<usize> = (first_unseen..r.tets.len()).filter(|&t| r.alive[t] && r.generations[t] < max_generation && marked(&r.view(t))).collect();
+        first_unseen = r.tets.len();
         if todo.is_empty() {
             break;
         }
