@@ -105,9 +105,9 @@ fn main() {
                     let values: Vec<f64> = grid.vertex_positions().iter().map(|p| { let s = radius - (p[0] * p[0] + p[1] * p[1] + p[2] * p[2]).sqrt(); s.min(depth - s) }).collect();
                     let marched = mesh::march(&grid, &values, None, &options).unwrap();
                     let f = |p: [f64; 3]| { let s = radius - (p[0] * p[0] + p[1] * p[1] + p[2] * p[2]).sqrt(); s.min(depth - s) };
-                    let linear = if exact { diffsound::inverse::shape::refine_crossings(&marched, &grid, &f, 0.01).0 } else { marched.mesh.clone() };
+                    let linear = if exact { diffsound::inverse::shape::refine_crossings(&marched, &grid, &f, None, 0.01).0 } else { marched.mesh.clone() };
                     let quadratic = mesh::lift_to_quadratic(&linear);
-                    let quadratic = if curved { mesh::curve_boundary(&quadratic, &f, 0.5, 0.05).0 } else { quadratic };
+                    let quadratic = if curved { mesh::curve_boundary(&quadratic, &f, None, 0.5, 0.05).0 } else { quadratic };
                     let assembled = diffsound::assembly::assemble(&petsc, &quadratic).unwrap();
                     let (k, m) = assembled.operators(&material).unwrap();
                     let mut cfg = diffsound::eigen::EigenConfig::new(diffsound::eigen::ModeRequest::FirstN(modes), diffsound::eigen::spectrum_scale(material.lame_mu(), material.density, 2.0 * radius));
@@ -188,11 +188,11 @@ fn main() {
             let d = sdf.signed_distance(x);
             d.min(depth - d)
         };
-        let (linear, moved, kept) = if exact { diffsound::inverse::shape::refine_crossings(&marched, g, &f, 0.01) } else { (marched.mesh.clone(), Vec::new(), 0) };
+        let (linear, moved, kept) = if exact { diffsound::inverse::shape::refine_crossings(&marched, g, &f, None, 0.01) } else { (marched.mesh.clone(), Vec::new(), 0) };
         let linear = if subdivide { split_in_eight(&linear) } else { linear };
         let quadratic = mesh::lift_to_quadratic(&linear);
         let quadratic = if curved {
-            let (q, _, report) = mesh::curve_boundary(&quadratic, &f, 0.5, 0.05);
+            let (q, _, report) = mesh::curve_boundary(&quadratic, &f, None, 0.5, 0.05);
             if root {
                 eprintln!("  curved: {report:?}");
             }

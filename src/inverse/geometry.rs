@@ -1332,7 +1332,7 @@ fn pick<'a>(curved: bool, f: &'a dyn Fn([f64; 3]) -> f64) -> Option<&'a dyn Fn([
 pub fn assess(grid: &BackgroundGrid, values: &[f64], f: Option<&dyn Fn([f64; 3]) -> f64>, eigenvalues: Vec<f64>, truth: &TriangleSurface, settings: &GeometrySettings) -> Result<Assessed, GeometryError> {
     let marched = mesh::march(grid, values, None, &MarchingOptions::default()).map_err(ShapeError::from)?;
     let linear = match f {
-        Some(f) => refine_crossings(&marched, grid, f, 0.01).0,
+        Some(f) => refine_crossings(&marched, grid, f, None, 0.01).0,
         None => marched.mesh,
     };
     let surface = TriangleSurface::from_mesh_boundary(&linear);

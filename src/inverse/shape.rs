@@ -196,16 +196,25 @@
 //! edges from the outer to the inner wall — and 865 undone). The P2 surface then interpolates
 //! the true one at six points per face instead of approximating it by chords.
 //!
-//! dλ_k/dt follows the moves: a node on g(x; t) = 0 that moves along a fixed direction d has
-//! dx = d · (−∇g·dx₀ − ∂g/∂t dt)/(∇g·d), with ∂g/∂t = S on the inner wall and 0 on the outer;
-//! for a crossing d is its grid edge and x₀ fixed, for a mid-edge node d is ∇g at the midpoint
-//! x₀ of its corners, so the rest of its gradient goes to the corners projected along d. Nodes
-//! left linear go through the marching's chain as before. Against central differences of
+//! dλ_k/dt follows the moves: a node on g(x; t) = 0 that moves along a direction d has
+//! dx = d · (−∇g·dx₀ − ∂g/∂t dt)/(∇g·d) + (the turn of d), with ∂g/∂t = S on the inner wall and
+//! 0 on the outer; for a crossing d is its grid edge and x₀ fixed, for a mid-edge node d is the
+//! central difference D g (step δ = 1e-3 of its edge) at the midpoint x₀ of its corners, so the
+//! rest of its gradient goes to the corners projected along d, and d turns as x₀ moves with
+//! them: ∂D_i/∂x₀_j = (∂_j g(x₀ + δ e_i) − ∂_j g(x₀ − δ e_i))/(2δ). ∇g at the roots and in that
+//! turn is the signed distance's exact gradient ([`SignedDistance::gradient`], (x − c)/|x − c|
+//! with c the nearest surface point); a central difference would blend the two sides of the
+//! distance's creases inside a triangulated surface (inside a convex polyhedron s is the least
+//! distance to the face planes, piecewise linear), and where D's stencil straddles a crease, d
+//! turns quickly with x₀ (until stop 35 the chain ignored that turn, which a signed
+//! distance's smooth walls would not have had: below, "Refinement near the walls"). Nodes left
+//! linear go through the marching's chain as before. Against central differences of
 //! re-meshed, re-solved spectra on a triangulated ellipsoid shell the relative error is 2e-8
-//! (`tests/mpi_sensitivity.rs`). The body and its chain are the field's, not the shell's
-//! ([`curved_body`], [`FieldWeights`]): the geometry task meshes its network field the same
-//! way ([`curved_field_spectrum`]), where the turn of each mid-edge node's direction of move
-//! with the field also counts (a signed distance's normal does not turn as its wall moves).
+//! (`tests/mpi_sensitivity.rs`), and the chain's weight on every class of node against the
+//! nodes' own motion is checked serially (`curved_shell_chain_follows_the_nodes_on_plain_and_refined_grids`).
+//! The body and its chain are the field's, not the shell's ([`curved_body`], [`FieldWeights`]):
+//! the geometry task meshes its network field the same way ([`curved_field_spectrum`]), where
+//! the network is smooth and the central differences serve.
 //!
 //! Measured (`shape_probe --curved`, ceramic, 2 ranks):
 //!
@@ -337,14 +346,20 @@
 //! closure refines their neighbours as far as conformity needs. New vertices take the
 //! continuous distance. The first (scanned) level is never refined; a synthesised target is
 //! refined the same way around its true t, so it stays finer than the fit. The chain to t is
-//! the curved shell's, unchanged. Against central differences (`tests/mpi_sensitivity.rs`,
+//! the curved shell's. Against central differences (`tests/mpi_sensitivity.rs`,
 //! `examples/wall_chain_probe.rs`, hollow triangulated ellipsoid, 12 cells) the straight body
-//! on a refined grid meets 1e-9 as on a plain one, but the curved body misses by 1.2e-4 to
-//! 6.0e-4 of λ_k/t (1e-9 on the plain grid), the same with h = 1e-5 and 1e-6: an approximation
-//! in the curved boundary's chain that the refined grid exposes, not traced yet (adding the
-//! Hessian turn of the mid-edge nodes' directions flips its sign without shrinking it). For
-//! the search it is harmless (a step off by 0.06 %); the check's bar on the refined grid is
-//! 2e-3 until it is found.
+//! on a refined grid meets 1e-9 as on a plain one; the curved body missed by 1.2e-4 to 6.0e-4
+//! of λ_k/t (1e-9 on the plain grid), the same with h = 1e-5 and 1e-6, until stop 35 traced
+//! it: the mid-edge nodes' directions of move are central differences of the signed distance,
+//! and on the refined grid (vertices on the ellipsoid's symmetry planes, where its triangulated
+//! distance has creases) many stencils straddle a crease, so the direction turns fast as the
+//! corners move — 9.9e-3 of a node's velocity at the worst nodes, unaccounted for. (The earlier
+//! attempt to add the turn took its Hessian by central differences of step δ too, which across a
+//! crease is no better; it flipped the error's sign.) With the turn from the exact gradient
+//! (above, "Curved boundary") the refined grid's error is 4.9e-7 to 5.4e-6 and the check's bar
+//! 1e-4 as on the plain grid. A randomly shifted plain grid showed the same defect (the chain's
+//! weight on the curved nodes off by 1.8e-2 against their motion, now 1.5e-5); the centred plain
+//! grid of the MPI check happened to have no straddled stencil on its inner wall.
 //!
 //! Measured on the turtle (28 cells, 16 modes, t = 0.7, the centred grid and two random
 //! shifts, 2 ranks, `wall_probe --where both --tolerance 0.05`,
@@ -513,7 +528,7 @@ pub struct ExactCrossing {
 /// root kept at least `margin` from either end so that no piece degenerates). A crossing whose
 /// move would invert or flatten a tet keeps its linear position. Returns the moved linear mesh,
 /// the moved crossings and how many were kept linear.
-pub fn refine_crossings(marched: &mesh::MarchedMesh, grid: &BackgroundGrid, f: &dyn Fn([f64; 3]) -> f64, margin: f64) -> (TetMesh, Vec<ExactCrossing>, usize) {
+pub fn refine_crossings(marched: &mesh::MarchedMesh, grid: &BackgroundGrid, f: &dyn Fn([f64; 3]) -> f64, gradient: Option<mesh::FieldGradient>, margin: f64) -> (TetMesh, Vec<ExactCrossing>, usize) {
     let mut out = marched.mesh.clone();
     let mut moved = Vec::new();
     for (node, origin) in marched.origins.iter().enumerate() {
@@ -550,9 +565,12 @@ pub fn refine_crossings(marched: &mesh::MarchedMesh, grid: &BackgroundGrid, f: &
             fu = at(u);
         }
         let u = u.clamp(margin, 1.0 - margin);
-        let h = 1e-4;
-        let slope = (at((u + h).min(1.0)) - at((u - h).max(0.0))) / ((u + h).min(1.0) - (u - h).max(0.0));
         let position = [0, 1, 2].map(|d| xa[d] + u * edge[d]);
+        let h = 1e-4;
+        let slope = match gradient.and_then(|g| g(position)) {
+            Some(g) => (0..3).map(|d| g[d] * edge[d]).sum(),
+            None => (at((u + h).min(1.0)) - at((u - h).max(0.0))) / ((u + h).min(1.0) - (u - h).max(0.0)),
+        };
         out.nodes[node] = position;
         moved.push(ExactCrossing { node, position, edge, slope });
     }
@@ -622,26 +640,46 @@ pub struct FieldWeights {
 /// Marches `values` on `grid`, moves every crossing onto the zero of `f` along its grid edge
 /// ([`refine_crossings`]) and every boundary mid-edge node onto it along ∇f
 /// ([`mesh::curve_boundary`]). With `hessians`, also ∂D/∂p₀ at every moved mid-edge node
-/// ([`CurvedBody::field_weights`]): 13 more evaluations of f per node. A signed distance s
-/// does not need it (the thickness fit): ∇s is constant along the normal, and a wall that
-/// moves along its normal turns no direction (the curved shell's chain meets central
-/// differences to 2e-8 without it), but a general field's does (the geometry task's network:
-/// 0.3 % of Σ G·dx/dp on a wavy field without it).
-pub fn curved_body(grid: &BackgroundGrid, values: &[f64], f: &dyn Fn([f64; 3]) -> f64, options: &MarchingOptions, hessians: bool) -> Result<CurvedBody, ShapeError> {
+/// ([`CurvedBody::field_weights`]): 6 evaluations of the exact `gradient` per node, or 13 more
+/// of f without it. A signed distance needs it where a difference stencil straddles one of its
+/// creases (module docs, "Curved boundary"); a general field's direction turns with the field
+/// too (the geometry task's network: 0.3 % of Σ G·dx/dp on a wavy field without it). `gradient`,
+/// f's exact gradient where known, also serves ∇f at the crossings and the curved nodes' roots.
+pub fn curved_body(grid: &BackgroundGrid, values: &[f64], f: &dyn Fn([f64; 3]) -> f64, gradient: Option<mesh::FieldGradient>, options: &MarchingOptions, hessians: bool) -> Result<CurvedBody, ShapeError> {
     if values.iter().all(|v| *v <= 0.0) {
         return Err(ShapeError::Empty);
     }
     let marched = mesh::march(grid, values, None, options)?;
-    let (linear, crossings, crossings_kept_linear) = refine_crossings(&marched, grid, f, 0.01);
+    let (linear, crossings, crossings_kept_linear) = refine_crossings(&marched, grid, f, gradient, 0.01);
     let straight = lift_to_quadratic(&linear);
-    let (quadratic, curved, curving) = mesh::curve_boundary(&straight, f, CURVE_MAX_FRACTION, CURVE_MIN_JACOBIAN_RATIO);
-    let hessians = hessians.then(|| curved.iter().map(|c| difference_hessian(f, c.origin, c.difference_step)).collect());
+    let (quadratic, curved, curving) = mesh::curve_boundary(&straight, f, gradient, CURVE_MAX_FRACTION, CURVE_MIN_JACOBIAN_RATIO);
+    let hessians = hessians.then(|| curved.iter().map(|c| difference_hessian(f, gradient, c.origin, c.difference_step)).collect());
     Ok(CurvedBody { marched, linear, crossings, crossings_kept_linear, quadratic, curved, curving, hessians })
 }
 
-/// ∂D_d/∂p_e of the central difference D_d(p) = (f(p + δ e_d) − f(p − δ e_d))/(2δ) at p,
-/// by central differences of step δ again (symmetric).
-fn difference_hessian(f: &dyn Fn([f64; 3]) -> f64, p: [f64; 3], step: f64) -> [[f64; 3]; 3] {
+/// ∂D_d/∂p_e of the central difference D_d(p) = (f(p + δ e_d) − f(p − δ e_d))/(2δ) at p:
+/// with the exact gradient, (∂_e f(p + δ e_d) − ∂_e f(p − δ e_d))/(2δ), exact also where a
+/// crease of f passes between the stencil's points; otherwise by central differences of step
+/// δ again (symmetric).
+fn difference_hessian(f: &dyn Fn([f64; 3]) -> f64, gradient: Option<mesh::FieldGradient>, p: [f64; 3], step: f64) -> [[f64; 3]; 3] {
+    if let Some(gradient) = gradient {
+        let at = |d: usize, sign: f64| {
+            let mut q = p;
+            q[d] += sign * step;
+            gradient(q)
+        };
+        let mut h = [[0.0; 3]; 3];
+        let mut exact = true;
+        for (d, row) in h.iter_mut().enumerate() {
+            match (at(d, 1.0), at(d, -1.0)) {
+                (Some(plus), Some(minus)) => *row = [0, 1, 2].map(|e| (plus[e] - minus[e]) / (2.0 * step)),
+                _ => exact = false,
+            }
+        }
+        if exact {
+            return h;
+        }
+    }
     let at = |moves: &[(usize, f64)]| {
         let mut q = p;
         for &(d, s) in moves {
@@ -761,15 +799,27 @@ pub fn curved_shell(grid: &BackgroundGrid, solid: &[f64], sdf: &SignedDistance, 
         let s = sdf.signed_distance(x);
         s.min(wall - s)
     };
-    let body = curved_body(grid, &shell.values, &g, options, false)?;
+    // The exact gradient (central differences blend the two sides of the distance's creases),
+    // for the roots and the turn of the mid-edge nodes' directions with their corners (module
+    // docs, "Curved boundary"), except right on the outer wall s = 0, where the nearest point's
+    // direction is lost in rounding: the roots there keep central differences.
+    let dg = |x: [f64; 3]| {
+        let (s, ds) = sdf.value_and_gradient(x);
+        if s.abs() < 1e-6 * depth {
+            return None;
+        }
+        ds.map(|ds| if s <= wall - s { ds } else { ds.map(|c| -c) })
+    };
+    let body = curved_body(grid, &shell.values, &g, Some(&dg), options, true)?;
     Ok(CurvedShell { body, shell })
 }
 
 impl CurvedShell {
     /// dλ/dt per mode from the P2 node gradients of every mode (rank 0's `per_node`, 3 per
     /// node): [`CurvedBody::field_weights`] with ∂g/∂t = S on the inner wall (s > t·S/2
-    /// there) and 0 on the outer one, and the samples' share through the shell. The turns of
-    /// the mid-edge nodes' directions carry no weight: ∂g/∂t is the same at p₀ ± δ e_d.
+    /// there) and 0 on the outer one, and the samples' share through the shell. The mid-edge
+    /// nodes' directions turn with their corners (the body's Hessians), not with t directly:
+    /// ∂g/∂t is the same at p₀ ± δ e_d, so the turn points carry no weight.
     fn thickness_derivatives(&self, sdf: &SignedDistance, depth: f64, per_node: &[Vec<f64>]) -> Result<Vec<f64>, ShapeError> {
         let wall = self.shell.thickness * depth;
         let dg_dt: Vec<f64> = self.body.moved_points().into_iter().map(|x| if sdf.signed_distance(x) > 0.5 * wall { depth } else { 0.0 }).collect();
@@ -818,7 +868,7 @@ pub fn curved_field_spectrum(petsc: &Petsc, grid: &BackgroundGrid, values: &[f64
     let mut timings = StepTimings::default();
     let clock = std::time::Instant::now();
     // The Hessians serve the gradient alone.
-    let body = curved_body(grid, values, f, options, with_gradient)?;
+    let body = curved_body(grid, values, f, None, options, with_gradient)?;
     timings.meshing = clock.elapsed().as_secs_f64();
     // Where the weights apply (the gradient alone needs them).
     let points: Vec<[f64; 3]> = if with_gradient { grid.vertex_positions().into_iter().chain(body.moved_points()).chain(body.turn_points()).collect() } else { Vec::new() };
@@ -839,7 +889,7 @@ pub fn curved_field_spectrum(petsc: &Petsc, grid: &BackgroundGrid, values: &[f64
 
 /// The modes of [`curved_body`] with their shapes (for writing a fitted body). Collective.
 pub fn curved_field_modes(petsc: &Petsc, grid: &BackgroundGrid, values: &[f64], f: &dyn Fn([f64; 3]) -> f64, options: &MarchingOptions, material: &Material, n_modes: usize) -> Result<ShapeModes, ShapeError> {
-    let body = curved_body(grid, values, f, options, false)?;
+    let body = curved_body(grid, values, f, None, options, false)?;
     modes_of_mesh(petsc, body.quadratic, body.marched.report.clone(), material, n_modes)
 }
 

@@ -13,8 +13,9 @@
 //!
 //! # The move
 //!
-//! From the midpoint p₀ the node moves along the unit direction n = ∇f/|∇f| at p₀ (central
-//! differences with a step of 1e-3 of the edge length): x = p₀ + u n with f(x) = 0, found by
+//! From the midpoint p₀ the node moves along the unit direction n = D f/|D f| at p₀ (D: central
+//! differences with a step of 1e-3 of the edge length, which vary continuously with p₀ even
+//! across a crease of f): x = p₀ + u n with f(x) = 0, found by
 //! safeguarded secant iteration on u, |u| at most `max_fraction` of the edge length. A node
 //! whose root is not found there keeps its midpoint.
 //!
@@ -29,7 +30,8 @@
 //!
 //! If f depends on a parameter p, a node on f(x; p) = 0 that moves along the fixed direction n
 //! has dx/dp = −(∂f/∂p) / (∇f·n) · n; [`CurvedNode::slope`] is ∇f·n at the root [1/m ×
-//! units of f], so the caller only needs ∂f/∂p there. The direction n = D f(p₀)/|D f(p₀)|
+//! units of f], so the caller only needs ∂f/∂p there; ∇f at the root is the field's exact
+//! gradient where the caller has one ([`FieldGradient`]), else central differences. The direction n = D f(p₀)/|D f(p₀)|
 //! (D the central difference of step δ) turns when f changes shape near p₀: with x = p₀ + u n,
 //! a node gradient G contributes u·T·dn, T = G − (G·n/∇f·n) ∇f, and dn = (I − n nᵀ) dD/|D|,
 //! so the node also carries weights ±b_d/(2δ), b = u (I − n nᵀ) T/|D|, at p₀ ± δ e_d
@@ -41,6 +43,11 @@ use super::{ElementOrder, TetMesh, TET10_EDGES};
 use crate::fem::element::{affine_jacobian, det3, jacobian};
 use crate::fem::p2_grad_ref;
 use std::collections::HashMap;
+
+/// The gradient of f where it is known in closed form (None where it is not defined there,
+/// e.g. on a signed distance's surface): used instead of central differences, which blend
+/// the two sides of a crease of f (a signed distance's, [`super::SignedDistance::gradient`]).
+pub type FieldGradient<'a> = &'a dyn Fn([f64; 3]) -> Option<[f64; 3]>;
 
 /// One mid-edge node moved onto f = 0.
 #[derive(Clone, Copy, Debug)]
@@ -79,7 +86,7 @@ pub struct CurvingReport {
 
 /// Curves the boundary of a P2 mesh onto f = 0 (module docs). Returns the curved mesh, the
 /// kept moves and a report. A linear mesh is returned unchanged.
-pub fn curve_boundary(quadratic: &TetMesh, f: &dyn Fn([f64; 3]) -> f64, max_fraction: f64, min_jacobian_ratio: f64) -> (TetMesh, Vec<CurvedNode>, CurvingReport) {
+pub fn curve_boundary(quadratic: &TetMesh, f: &dyn Fn([f64; 3]) -> f64, gradient: Option<FieldGradient>, max_fraction: f64, min_jacobian_ratio: f64) -> (TetMesh, Vec<CurvedNode>, CurvingReport) {
     let mut report = CurvingReport::default();
     if quadratic.order != ElementOrder::Quadratic {
         return (quadratic.clone(), Vec::new(), report);
@@ -110,7 +117,7 @@ pub fn curve_boundary(quadratic: &TetMesh, f: &dyn Fn([f64; 3]) -> f64, max_frac
         let (pa, pb) = (quadratic.nodes[a], quadratic.nodes[b]);
         let length = (0..3).map(|d| (pb[d] - pa[d]).powi(2)).sum::<f64>().sqrt();
         let p0 = quadratic.nodes[node];
-        if let Some(c) = project(p0, length, f, max_fraction) {
+        if let Some(c) = project(p0, length, f, gradient, max_fraction) {
             out.nodes[node] = c.position;
             moved.push(CurvedNode { node, ..c });
         } else {
@@ -153,14 +160,17 @@ pub fn curve_boundary(quadratic: &TetMesh, f: &dyn Fn([f64; 3]) -> f64, max_frac
 }
 
 /// The root of f along ∇f from p0 (module docs), or None.
-fn project(p0: [f64; 3], length: f64, f: &dyn Fn([f64; 3]) -> f64, max_fraction: f64) -> Option<CurvedNode> {
+fn project(p0: [f64; 3], length: f64, f: &dyn Fn([f64; 3]) -> f64, exact_gradient: Option<FieldGradient>, max_fraction: f64) -> Option<CurvedNode> {
     let step = 1e-3 * length;
     let at = |p: [f64; 3], d: usize, s: f64| {
         let mut q = p;
         q[d] += s;
         f(q)
     };
-    let grad = [0, 1, 2].map(|d| (at(p0, d, step) - at(p0, d, -step)) / (2.0 * step));
+    let difference = |p: [f64; 3]| [0, 1, 2].map(|d| (at(p, d, step) - at(p, d, -step)) / (2.0 * step));
+    // The direction is the central difference even where the exact gradient is known: it
+    // varies continuously with p₀ across a crease of f, where the exact one jumps.
+    let grad = difference(p0);
     let norm = grad.iter().map(|g| g * g).sum::<f64>().sqrt();
     if !(norm.is_finite() && norm > 0.0) {
         return None;
@@ -190,12 +200,15 @@ fn project(p0: [f64; 3], length: f64, f: &dyn Fn([f64; 3]) -> f64, max_fraction:
     if !(f1.abs() <= 1e-9 * length.max(f0.abs())) && (u1 - u0).abs() > 1e-8 * length {
         return None;
     }
-    let slope = (along(u1 + step) - along(u1 - step)) / (2.0 * step);
+    let position = [0, 1, 2].map(|d| p0[d] + u1 * n[d]);
+    let gradient = exact_gradient.and_then(|g| g(position)).unwrap_or_else(|| difference(position));
+    let slope = match exact_gradient {
+        Some(_) => (0..3).map(|d| gradient[d] * n[d]).sum::<f64>(),
+        None => (along(u1 + step) - along(u1 - step)) / (2.0 * step),
+    };
     if !(slope.is_finite() && slope != 0.0) {
         return None;
     }
-    let position = [0, 1, 2].map(|d| p0[d] + u1 * n[d]);
-    let gradient = [0, 1, 2].map(|d| (at(position, d, step) - at(position, d, -step)) / (2.0 * step));
     Some(CurvedNode { node: usize::MAX, position, direction: n, slope, gradient, origin: p0, offset: u1, origin_gradient_norm: norm, difference_step: step })
 }
 
@@ -237,9 +250,9 @@ mod tests {
             let grid = BackgroundGrid::covering([-radius; 3], [radius; 3], n, 1.0).unwrap();
             let values: Vec<f64> = grid.vertex_positions().iter().map(|&p| f(p)).collect();
             let marched = march(&grid, &values, None, &MarchingOptions::default()).unwrap();
-            let (exact_linear, _, _) = crate::inverse::shape::refine_crossings(&marched, &grid, &f, 0.01);
+            let (exact_linear, _, _) = crate::inverse::shape::refine_crossings(&marched, &grid, &f, None, 0.01);
             let straight = lift_to_quadratic(&exact_linear);
-            let (curved, moved, report) = curve_boundary(&straight, &f, 0.5, 0.05);
+            let (curved, moved, report) = curve_boundary(&straight, &f, None, 0.5, 0.05);
             assert!(report.moved > 0 && report.moved == moved.len());
             for c in &moved {
                 assert!(f(curved.nodes[c.node]).abs() < 1e-9, "a moved node is off the sphere");
@@ -262,7 +275,7 @@ mod tests {
         // f = 0.3 − z + x·(1 − x)·4·0.45: the x-edge's midpoint moves by +0.45 in z (nearly to
         // the top corner): the tet would fold.
         let f = |p: [f64; 3]| -p[2] + 1.8 * p[0] * (1.0 - p[0]) * (1.0 - p[1]);
-        let (curved, moved, report) = curve_boundary(&mesh, &f, 0.6, 0.05);
+        let (curved, moved, report) = curve_boundary(&mesh, &f, None, 0.6, 0.05);
         assert!(report.reverted > 0);
         for c in &moved {
             assert!(keeps_orientation(&curved.tet_coords(0), &lattice_gradients(), 0.05), "{c:?}");

@@ -81,7 +81,7 @@ mod write;
 mod tests;
 
 mod locate;
-pub use curve::{curve_boundary, CurvedNode, CurvingReport};
+pub use curve::{curve_boundary, CurvedNode, CurvingReport, FieldGradient};
 pub use distance::{compare_shapes, sample_surface, surface_distance, volume_iou, DistanceError, ShapeComparison, SurfaceDistance};
 pub use generate::box_mesh;
 pub use locate::SurfacePoint;

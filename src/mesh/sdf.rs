@@ -60,6 +60,16 @@
 //! only asks whether w > ½. [`SignedDistance::winding_number_exact`] is the O(n) brute
 //! force. A grid of 65 × 38 × 65 points around spot (4588 triangles) takes about a second.
 //!
+//! # Gradient
+//!
+//! [`SignedDistance::gradient`] is exact: ∇s(q) = ±(q − c(q))/|q − c(q)| with c(q) the
+//! nearest surface point, + inside and − outside (dimensionless, |∇s| = 1). Inside a polyhedron
+//! s is piecewise smooth with creases where two surface features are equally near (inside a
+//! convex body s = min over the face planes, so ∇s is piecewise constant); a central difference
+//! whose stencil straddles a crease returns a blend of the two sides that turns quickly as the
+//! point moves, which the curved boundary's chain cannot follow (the shape module's docs,
+//! "Refinement near the walls").
+//!
 //! # Deepest point
 //!
 //! [`SignedDistance::deepest_point`] maximises s (the radius of the largest inscribed ball,
@@ -225,6 +235,21 @@ impl SignedDistance {
         }
     }
 
+    /// The exact gradient of the signed distance at `q` (module docs, "Gradient"), or None on
+    /// the surface itself, where it is not defined.
+    pub fn gradient(&self, q: [f64; 3]) -> Option<[f64; 3]> {
+        self.value_and_gradient(q).1
+    }
+
+    /// The signed distance at `q` and its exact gradient (None on the surface itself).
+    pub fn value_and_gradient(&self, q: [f64; 3]) -> (f64, Option<[f64; 3]>) {
+        let (d2, closest) = self.nearest(q, f64::INFINITY);
+        let d = d2.sqrt();
+        let sign = if self.winding_number(q) > 0.5 { 1.0 } else { -1.0 };
+        let gradient = (d > 0.0).then(|| [0, 1, 2].map(|k| sign * (q[k] - closest[k]) / d));
+        (sign * d, gradient)
+    }
+
     /// Signed distances at all `points`, each search bounded by the previous point's
     /// distance plus the step (module docs): visit neighbouring points in sequence.
     pub fn evaluate(&self, points: &[[f64; 3]]) -> Vec<f64> {
@@ -295,9 +320,9 @@ impl SignedDistance {
         best
     }
 
-    /// Squared distance to the nearest triangle, given an upper bound on the distance (not
-    /// squared) that some triangle is known to meet.
-    fn nearest_squared(&self, q: [f64; 3], bound: f64) -> f64 {
+    /// Squared distance to the nearest triangle and its nearest point, given an upper bound on
+    /// the distance (not squared) that some triangle is known to meet.
+    fn nearest(&self, q: [f64; 3], bound: f64) -> (f64, [f64; 3]) {
         // A hair above the bound, so that rounding cannot hide the triangle that meets it.
         let start = if bound.is_finite() {
             (bound * (1.0 + 1e-9)).powi(2) + f64::MIN_POSITIVE
@@ -306,6 +331,7 @@ impl SignedDistance {
         };
         let mut best = start;
         let mut found = false;
+        let mut closest = q;
         let mut stack = vec![0usize];
         while let Some(i) = stack.pop() {
             let node = &self.nodes[i];
@@ -314,9 +340,10 @@ impl SignedDistance {
             }
             if node.count > 0 {
                 for tri in &self.triangles[node.first..node.first + node.count] {
-                    let d2 = triangle_distance_squared(tri, q);
+                    let (d2, p) = triangle_nearest(tri, q);
                     if d2 <= best {
                         best = d2;
+                        closest = p;
                         found = true;
                     }
                 }
@@ -335,11 +362,16 @@ impl SignedDistance {
             }
         }
         if found {
-            best
+            (best, closest)
         } else {
             // Only reachable with a wrong bound; a full search is always right.
-            self.nearest_squared(q, f64::INFINITY)
+            self.nearest(q, f64::INFINITY)
         }
+    }
+
+    /// Squared distance to the nearest surface point, the search bounded by `bound`.
+    fn nearest_squared(&self, q: [f64; 3], bound: f64) -> f64 {
+        self.nearest(q, bound).0
     }
 }
 
@@ -448,24 +480,26 @@ fn solid_angle(tri: &[[f64; 3]; 3], q: [f64; 3]) -> f64 {
 /// Squared distance from `q` to the closest point of a triangle. A needle or collinear
 /// triangle (twice its area below 1e-12 of its longest edge squared) is measured as its three
 /// segments, where the barycentric region test would divide by ~0.
-fn triangle_distance_squared(tri: &[[f64; 3]; 3], q: [f64; 3]) -> f64 {
+/// The squared distance from `q` to the triangle and the triangle's point nearest to it.
+fn triangle_nearest(tri: &[[f64; 3]; 3], q: [f64; 3]) -> (f64, [f64; 3]) {
     let [a, b, c] = *tri;
     let twice_area = norm(cross(sub(b, a), sub(c, a)));
     let longest2 = dot(sub(b, a), sub(b, a))
         .max(dot(sub(c, b), sub(c, b)))
         .max(dot(sub(a, c), sub(a, c)));
     if twice_area <= 1e-12 * longest2 {
-        return segment_distance_squared(a, b, q)
-            .min(segment_distance_squared(b, c, q))
-            .min(segment_distance_squared(c, a, q));
+        return [(a, b), (b, c), (c, a)]
+            .map(|(u, v)| segment_nearest(u, v, q))
+            .into_iter()
+            .fold((f64::INFINITY, q), |best, x| if x.0 < best.0 { x } else { best });
     }
     let w = closest_on_triangle(q, a, b, c);
     let p = [0, 1, 2].map(|k| w[0] * a[k] + w[1] * b[k] + w[2] * c[k]);
     let d = sub(q, p);
-    dot(d, d)
+    (dot(d, d), p)
 }
 
-fn segment_distance_squared(a: [f64; 3], b: [f64; 3], q: [f64; 3]) -> f64 {
+fn segment_nearest(a: [f64; 3], b: [f64; 3], q: [f64; 3]) -> (f64, [f64; 3]) {
     let ab = sub(b, a);
     let len2 = dot(ab, ab);
     let t = if len2 > 0.0 {
@@ -473,8 +507,9 @@ fn segment_distance_squared(a: [f64; 3], b: [f64; 3], q: [f64; 3]) -> f64 {
     } else {
         0.0
     };
-    let d = sub(q, [0, 1, 2].map(|k| a[k] + t * ab[k]));
-    dot(d, d)
+    let p = [0, 1, 2].map(|k| a[k] + t * ab[k]);
+    let d = sub(q, p);
+    (dot(d, d), p)
 }
 
 #[cfg(test)]

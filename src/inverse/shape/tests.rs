@@ -364,7 +364,7 @@ fn refined_crossings_lie_on_the_continuous_surface_and_keep_the_mesh_valid() {
     let grid = BackgroundGrid::covering([-0.35; 3], [0.35; 3], 10, 1.0).unwrap();
     let values: Vec<f64> = grid.vertex_positions().into_iter().map(s).collect();
     let marched = mesh::march(&grid, &values, None, &MarchingOptions::default()).unwrap();
-    let (moved_mesh, moved, kept_linear) = refine_crossings(&marched, &grid, &s, 0.01);
+    let (moved_mesh, moved, kept_linear) = refine_crossings(&marched, &grid, &s, None, 0.01);
     assert_eq!(kept_linear, 0);
     let crossings = marched.origins.iter().filter(|o| matches!(o, mesh::VertexOrigin::Crossing { .. })).count();
     assert_eq!(moved.len(), crossings);
@@ -421,7 +421,7 @@ fn curved_body_weights_carry_node_gradients_to_the_field_parameter() {
     let body_at = |p: f64| {
         let f = field(p);
         let values: Vec<f64> = points.iter().map(|&x| f(x)).collect();
-        curved_body(&grid, &values, &f, &options, true).unwrap()
+        curved_body(&grid, &values, &f, None, &options, true).unwrap()
     };
     let p0 = 0.3;
     let base = body_at(p0);
@@ -490,7 +490,7 @@ fn refinement_at_the_inner_wall_halves_the_tets_there_and_brings_the_cavity_clos
     let cavity = |x: [f64; 3]| sdf.signed_distance(x) - wall;
     let cavity_volume = |g: &BackgroundGrid, s: &[f64]| {
         let values: Vec<f64> = s.iter().map(|x| x - wall).collect();
-        curved_body(g, &values, &cavity, &MarchingOptions::default(), false).unwrap().linear.volume()
+        curved_body(g, &values, &cavity, None, &MarchingOptions::default(), false).unwrap().linear.volume()
     };
     let fine_grid = shifted_covering([-r; 3], [r; 3], 60, [0.0; 3]).unwrap();
     let reference = cavity_volume(&fine_grid, &sdf.evaluate(&fine_grid.vertex_positions()));
@@ -533,4 +533,50 @@ fn refinement_at_the_inner_wall_halves_the_tets_there_and_brings_the_cavity_clos
     assert!(ShapeFitSettings { wall_refinement: MAX_WALL_REFINEMENT + 1, ..Default::default() }.validate().is_err());
     assert!(ShapeFitSettings { wall_band: 0.0, ..Default::default() }.validate().is_err());
     assert!(ShapeFitSettings { wall_tolerance: f64::NAN, ..Default::default() }.validate().is_err());
+}
+
+/// The curved shell's chain (the weights dλ/dt puts on each node's gradient, for an arbitrary
+/// node gradient G) against the nodes' own velocities by central differences of re-meshed
+/// shells, Σ G·dx/dt, per class of node, on a randomly shifted grid and on the same grid
+/// refined once near the inner walls. The curved mid-edge nodes are the check: their
+/// direction of move is a central difference of the signed distance, which inside a
+/// triangulated surface has creases; where its stencil straddles one the direction turns
+/// quickly as the node's corners move. With that turn taken from the distance's exact gradient
+/// the class meets 7.6e-5 on the refined grid (1.5e-5 plain); without it (the turn ignored,
+/// before stop 35) it missed by 1.8e-2 on this plain grid and by 0.7 on the centred refined
+/// grid. No eigenvalue solve: G is random.
+#[test]
+fn curved_shell_chain_follows_the_nodes_on_plain_and_refined_grids() {
+    let surface = TriangleSurface::ellipsoid([0.05, 0.04, 0.03], 24);
+    let sdf = Arc::new(SignedDistance::new(&surface).unwrap());
+    let depth = reference_depth(&sdf, &surface).unwrap();
+    let grid0 = shifted_covering([-0.05, -0.04, -0.03], [0.05, 0.04, 0.03], 12, [0.137, 0.291, 0.413]).unwrap();
+    let solid0 = sdf.evaluate(&grid0.vertex_positions());
+    let options = MarchingOptions::default();
+    let (t0, h) = (0.45, 1e-7);
+    for refined in [false, true] {
+        let (grid, solid) = if refined { refine_near_wall(&grid0, &solid0, &sdf, depth, (0.40, 0.50), 1).unwrap() } else { (grid0.clone(), solid0.clone()) };
+        let [minus, centre, plus] = [t0 - h, t0, t0 + h].map(|t| curved_shell(&grid, &solid, &sdf, depth, t, &options).unwrap());
+        assert_eq!(minus.body.quadratic.connectivity, plus.body.quadratic.connectivity);
+        let n = centre.body.quadratic.nodes.len();
+        let velocity: Vec<[f64; 3]> = (0..n).map(|i| [0, 1, 2].map(|d| (plus.body.quadratic.nodes[i][d] - minus.body.quadratic.nodes[i][d]) / (2.0 * h))).collect();
+        // 0: grid vertices, crossings kept linear and straight mid-edge nodes; 1: moved
+        // crossings; 2: curved mid-edge nodes.
+        let mut class = vec![0u8; n];
+        centre.body.crossings.iter().for_each(|x| class[x.node] = 1);
+        centre.body.curved.iter().for_each(|x| class[x.node] = 2);
+        let mut rng = Rng(3);
+        for (which, bar) in [(0u8, 1e-6), (1, 1e-6), (2, 1e-3)] {
+            let mut g = vec![0.0; 3 * n];
+            for i in (0..n).filter(|&i| class[i] == which) {
+                for d in 0..3 {
+                    g[3 * i + d] = rng.uniform(-1.0, 1.0);
+                }
+            }
+            let chain = centre.thickness_derivatives(&sdf, depth, &[g.clone()]).unwrap()[0];
+            let moved: f64 = (0..n).map(|i| (0..3).map(|d| g[3 * i + d] * velocity[i][d]).sum::<f64>()).sum();
+            let error = (chain - moved).abs() / moved.abs();
+            assert!(error < bar, "refined {refined}, class {which}: chain {chain:e} against the nodes' motion {moved:e} (relative {error:.2e})");
+        }
+    }
 }

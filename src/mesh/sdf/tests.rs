@@ -16,7 +16,7 @@ pub(crate) fn icosphere(r: f64, levels: usize) -> TriangleSurface {
 
 fn brute_force_distance(surface: &TriangleSurface, q: [f64; 3]) -> f64 {
     (0..surface.n_triangles())
-        .map(|t| triangle_distance_squared(&surface.triangle_coords(t), q))
+        .map(|t| triangle_nearest(&surface.triangle_coords(t), q).0)
         .fold(f64::INFINITY, f64::min)
         .sqrt()
 }
@@ -313,4 +313,41 @@ fn deepest_point_of_a_ball_and_a_box() {
     // Several starts: the best result wins; a start outside climbs in.
     let (_, s2) = sdf.deepest_point(&[[0.1, 0.1, 0.1], [0.03, 0.02, 0.01]], 0.01, 1e-10);
     assert!((s2 - 0.01).abs() < 1e-8, "{s2}");
+}
+
+/// The exact gradient is a unit vector that matches central differences of s wherever the
+/// difference's stencil stays on one side of the distance's creases (checked by the two
+/// one-sided differences agreeing), inside and outside; on the surface it is not defined.
+#[test]
+fn gradient_is_unit_and_matches_differences_off_the_creases() {
+    let surface = icosphere(0.04, 2);
+    let sdf = SignedDistance::new(&surface).unwrap();
+    let mut rng = Rng(11);
+    let step = 1e-7;
+    let (mut checked, mut inside) = (0, 0);
+    for _ in 0..400 {
+        let q = random_point(&mut rng, 0.06);
+        let (s, gradient) = sdf.value_and_gradient(q);
+        assert_eq!(s, sdf.signed_distance(q));
+        let g = gradient.expect("defined off the surface");
+        assert!((norm(g) - 1.0).abs() < 1e-12, "|∇s| = {}", norm(g));
+        let at = |d: usize, h: f64| {
+            let mut p = q;
+            p[d] += h;
+            sdf.signed_distance(p)
+        };
+        let forward = [0, 1, 2].map(|d| (at(d, step) - s) / step);
+        let backward = [0, 1, 2].map(|d| (s - at(d, -step)) / step);
+        if (0..3).any(|d| (forward[d] - backward[d]).abs() > 1e-5) {
+            continue; // a crease within the stencil
+        }
+        for d in 0..3 {
+            assert!((g[d] - 0.5 * (forward[d] + backward[d])).abs() < 1e-6, "q {q:?}: exact {g:?}, differences {forward:?}");
+        }
+        checked += 1;
+        inside += usize::from(s > 0.0);
+    }
+    assert!(checked > 300 && inside > 20, "checked {checked}, inside {inside}");
+    let on_surface = surface.vertices[0];
+    assert_eq!(sdf.gradient(on_surface), None);
 }
