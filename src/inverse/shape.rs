@@ -272,6 +272,14 @@
 //! 0.688 at t* = 0.7): at high t spot is not converged at 36 cells, and the probe's 36 → 40
 //! change above (±0.18 %) understated that.
 //!
+//! **With the exact-gradient chain** (stop 35, "Curved boundary" above; `seed2_exactgrad/`,
+//! `seed2_turtle16_exactgrad/`, same targets): the oloid's five answers and spot's first three
+//! repeat to four digits (oloid t* = 0.6: 0.5983 against 0.5980), and the turtle's five
+//! (16 modes) to within 2e-4. The chain's old error, a few 1e-4 of λ/t on straddled stencils,
+//! did not steer the search on these bodies; the fix is one of correctness, not of accuracy
+//! here. It adds 6 gradient queries per curved node (meshing at 36 cells 1.95 s against 1.76 s
+//! per turtle evaluation).
+//!
 //! **The turtle needs more modes.** Its first eight modes hardly see the cavity at high t:
 //! from t = 0.65 to 0.8 they move by under 1.2 % in λ (36 cells), while its first mode, a thin
 //! feature's, sits 7 % below the 40-cell target's at every t (`shape_probe --scan`), so the
