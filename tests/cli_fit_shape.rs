@@ -98,19 +98,25 @@ fn thickness_and_morph_fits_write_results_and_a_paraview_mesh() {
     assert!((c_replicas - 0.3).abs() < 0.1, "morph weight with replicas {c_replicas}");
 }
 
+/// `fit-thickness` of the 60 × 40 × 30 mm box to t* = 0.5 on 2 ranks (4 modes, 5 scan points,
+/// 3 refinements) with `grids` (the target's and the fit's grids and their options), in the
+/// scratch directory `name`. The run must succeed; returns it and its result file.
+fn fit_box_thickness(name: &str, grids: &[&str]) -> (Run, std::path::PathBuf) {
+    let dir = scratch(name);
+    let solid = box_obj(&dir, "box.obj", [60.0, 40.0, 30.0]);
+    let out = dir.join("thickness.h5");
+    let mut args = vec!["fit-thickness", "--surface", s(&solid), "--target-thickness", "0.5", "--units", "mm", "--modes", "4", "--scan-points", "5", "--max-refinements", "3", "--out", s(&out)];
+    args.extend(grids);
+    let run = mpirun(2, &args, LIMIT);
+    assert!(run.success(), "{}", run.describe());
+    (run, out)
+}
+
 /// The curved thickness body answers with its finest level, so `--replicas` replicates that
 /// level alone, and the answer is the mean over its grids.
 #[test]
 fn thickness_replicas_go_on_the_finest_level_alone() {
-    let dir = scratch("cli_fit_shape_replicas");
-    let solid = box_obj(&dir, "box.obj", [60.0, 40.0, 30.0]);
-    let out = dir.join("thickness_replicas.h5");
-    let args = vec![
-        "fit-thickness", "--surface", s(&solid), "--target-thickness", "0.5", "--target-cells", "16", "--units", "mm", "--cells", "10,12,14", "--replicas", "2",
-        "--modes", "4", "--scan-points", "5", "--max-refinements", "3", "--out", s(&out),
-    ];
-    let run = mpirun(2, &args, LIMIT);
-    assert!(run.success(), "{}", run.describe());
+    let (_, out) = fit_box_thickness("cli_fit_shape_replicas", &["--target-cells", "16", "--cells", "10,12,14", "--replicas", "2"]);
     let (cells, _) = read_dataset(&out, "/fit/levels/cells").unwrap();
     assert_eq!(cells, vec![10.0, 12.0, 14.0, 14.0]);
     let (levels, _) = read_dataset(&out, "/fit/levels/parameter").unwrap();
@@ -125,15 +131,7 @@ fn thickness_replicas_go_on_the_finest_level_alone() {
 /// resolve), and the result records it.
 #[test]
 fn thickness_fit_refines_the_finer_levels_near_the_walls() {
-    let dir = scratch("cli_fit_shape_wall");
-    let solid = box_obj(&dir, "box.obj", [60.0, 40.0, 30.0]);
-    let out = dir.join("thickness_wall.h5");
-    let args = vec![
-        "fit-thickness", "--surface", s(&solid), "--target-thickness", "0.5", "--target-cells", "14", "--units", "mm", "--cells", "10,12", "--wall-refinement", "1",
-        "--modes", "4", "--scan-points", "5", "--max-refinements", "3", "--out", s(&out),
-    ];
-    let run = mpirun(2, &args, LIMIT);
-    assert!(run.success(), "{}", run.describe());
+    let (run, out) = fit_box_thickness("cli_fit_shape_wall", &["--target-cells", "14", "--cells", "10,12", "--wall-refinement", "1"]);
     assert_eq!(number_attribute(&out, "/fit", "wall_refinement"), 1.0);
     let (levels, _) = read_dataset(&out, "/fit/levels/parameter").unwrap();
     let (centres, _) = read_dataset(&out, "/fit/levels/wall_centre").unwrap();

@@ -574,10 +574,12 @@ pub fn refine_crossings(marched: &mesh::MarchedMesh, grid: &BackgroundGrid, f: &
         }
         let u = u.clamp(margin, 1.0 - margin);
         let position = [0, 1, 2].map(|d| xa[d] + u * edge[d]);
-        let h = 1e-4;
         let slope = match gradient.and_then(|g| g(position)) {
             Some(g) => (0..3).map(|d| g[d] * edge[d]).sum(),
-            None => (at((u + h).min(1.0)) - at((u - h).max(0.0))) / ((u + h).min(1.0) - (u - h).max(0.0)),
+            None => {
+                let h = 1e-4;
+                (at((u + h).min(1.0)) - at((u - h).max(0.0))) / ((u + h).min(1.0) - (u - h).max(0.0))
+            }
         };
         out.nodes[node] = position;
         moved.push(ExactCrossing { node, position, edge, slope });

@@ -31,8 +31,9 @@
 //! If f depends on a parameter p, a node on f(x; p) = 0 that moves along the fixed direction n
 //! has dx/dp = −(∂f/∂p) / (∇f·n) · n; [`CurvedNode::slope`] is ∇f·n at the root [1/m ×
 //! units of f], so the caller only needs ∂f/∂p there; ∇f at the root is the field's exact
-//! gradient where the caller has one ([`FieldGradient`]), else central differences. The direction n = D f(p₀)/|D f(p₀)|
-//! (D the central difference of step δ) turns when f changes shape near p₀: with x = p₀ + u n,
+//! gradient where the caller has one ([`FieldGradient`]), else central differences. The
+//! direction n = D f(p₀)/|D f(p₀)| (D the central difference of step δ) turns when f changes
+//! shape near p₀ or p₀ moves where f is not linear: with x = p₀ + u n,
 //! a node gradient G contributes u·T·dn, T = G − (G·n/∇f·n) ∇f, and dn = (I − n nᵀ) dD/|D|,
 //! so the node also carries weights ±b_d/(2δ), b = u (I − n nᵀ) T/|D|, at p₀ ± δ e_d
 //! ([`CurvedNode::origin`], `offset`, `origin_gradient_norm`, `difference_step`). A change

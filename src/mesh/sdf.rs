@@ -67,8 +67,8 @@
 //! s is piecewise smooth with creases where two surface features are equally near (inside a
 //! convex body s = min over the face planes, so ∇s is piecewise constant); a central difference
 //! whose stencil straddles a crease returns a blend of the two sides that turns quickly as the
-//! point moves, which the curved boundary's chain cannot follow (the shape module's docs,
-//! "Refinement near the walls").
+//! point moves; the curved boundary's chain takes that turn from the exact gradient (the shape
+//! module's docs, "Curved boundary").
 //!
 //! # Deepest point
 //!
@@ -227,12 +227,7 @@ impl SignedDistance {
 
     /// Signed distance at `q`: positive inside (module docs).
     pub fn signed_distance(&self, q: [f64; 3]) -> f64 {
-        let d = self.unsigned_distance(q);
-        if self.winding_number(q) > 0.5 {
-            d
-        } else {
-            -d
-        }
+        self.value_and_gradient(q).0
     }
 
     /// The exact gradient of the signed distance at `q` (module docs, "Gradient"), or None on
@@ -477,10 +472,9 @@ fn solid_angle(tri: &[[f64; 3]; 3], q: [f64; 3]) -> f64 {
     2.0 * numerator.atan2(denominator)
 }
 
-/// Squared distance from `q` to the closest point of a triangle. A needle or collinear
-/// triangle (twice its area below 1e-12 of its longest edge squared) is measured as its three
-/// segments, where the barycentric region test would divide by ~0.
-/// The squared distance from `q` to the triangle and the triangle's point nearest to it.
+/// The squared distance from `q` to a triangle and the triangle's point nearest to it. A needle
+/// or collinear triangle (twice its area below 1e-12 of its longest edge squared) is measured
+/// as its three segments, where the barycentric region test would divide by ~0.
 fn triangle_nearest(tri: &[[f64; 3]; 3], q: [f64; 3]) -> (f64, [f64; 3]) {
     let [a, b, c] = *tri;
     let twice_area = norm(cross(sub(b, a), sub(c, a)));
