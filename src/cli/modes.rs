@@ -262,13 +262,13 @@ fn compute(petsc: &Petsc, job: &Job) -> Result<(), String> {
         solver.push(("petsc_version".into(), pv));
         solver.push(("slepc_version".into(), sv));
         if let Some(c) = &modes.inertia_check {
-            solver.push(("inertia_check".into(), format!("{} eigenvalues below {:e} rad²/s²; {} returned", c.below, c.threshold, c.found)));
+            solver.push(("inertia_check".into(), inertia_line(c)));
         }
         solver.push(("clusters".into(), modes.clusters.iter().map(|r| format!("{}-{}", r.start, r.end - 1)).collect::<Vec<_>>().join(",")));
         let timings = vec![
             ("assembly".to_string(), stats.seconds + operator_seconds),
             ("solve".to_string(), solve_seconds),
-            ("inertia_check".to_string(), modes.inertia_check.map_or(0.0, |c| c.seconds)),
+            ("inertia_check".to_string(), modes.inertia_check.as_ref().map_or(0.0, |c| c.seconds)),
             ("sensitivities".to_string(), sensitivity_seconds),
             ("material_sensitivities".to_string(), material_seconds),
             ("node_gradients".to_string(), node_gradient_seconds),
@@ -327,7 +327,7 @@ fn compute(petsc: &Petsc, job: &Job) -> Result<(), String> {
                 "n_ranks": petsc.size(),
                 "assembly_s": stats.seconds + operator_seconds,
                 "solve_s": solve_seconds,
-                "inertia_check_s": modes.inertia_check.map_or(0.0, |c| c.seconds),
+                "inertia_check_s": modes.inertia_check.as_ref().map_or(0.0, |c| c.seconds),
                 "material_sensitivities_s": material_seconds,
                 "node_gradients_s": node_gradient_seconds,
                 "total_s": total.elapsed().as_secs_f64(),
@@ -337,6 +337,18 @@ fn compute(petsc: &Petsc, job: &Job) -> Result<(), String> {
                 "frequencies_hz": frequencies,
                 "rigid_eigenvalues": modes.rigid_eigenvalues,
                 "residuals": modes.residuals,
+                "factor_retries": modes.setting("factor_retries").and_then(|v| v.parse::<usize>().ok()).unwrap_or(0),
+                "factor_attempts": modes.setting("factor_attempts").unwrap_or(""),
+                "inertia": modes.inertia_check.as_ref().map(|c| serde_json::json!({
+                    "threshold": c.threshold,
+                    "below": c.below,
+                    "found": c.found,
+                    "proven": c.proven,
+                    "second": c.second.map(|(t, b, f)| serde_json::json!({"threshold": t, "below": b, "found": f})),
+                    "verdict": c.verdict.word(),
+                    "factor_retries": c.factor_log.retries(),
+                    "factor_attempts": c.factor_log.describe(),
+                })),
             });
             io::write_atomically(path, |tmp| std::fs::write(tmp, serde_json::to_string_pretty(&json).unwrap_or_default()).map_err(|e| io::IoError::Fs { path: tmp.to_path_buf(), context: "writing timings".into(), source: e }))
                 .map_err(|e| e.to_string())?;
@@ -426,6 +438,18 @@ fn sensitivity_datasets(s: &sensitivity::MaterialSensitivities, modes: &eigen::M
 }
 
 #[allow(clippy::too_many_arguments)]
+/// The inertia proof in one line: both counts and the verdict.
+fn inertia_line(c: &eigen::InertiaCheck) -> String {
+    let second = c.second.map_or(String::new(), |(t2, below, found)| format!("; {below} below {t2:.6e}, {found} found"));
+    let verdict = match &c.verdict {
+        eigen::CountVerdict::Complete => "complete".to_string(),
+        eigen::CountVerdict::Missed => "MISSED MODES".to_string(),
+        eigen::CountVerdict::Unproven(_) => "UNPROVEN (see the warning)".to_string(),
+    };
+    let retries = if c.factor_log.retries() > 0 { format!(" [factor tries {}]", c.factor_log.describe()) } else { String::new() };
+    format!("{} eigenvalues below {:.6e} rad^2/s^2, {} found{second} -> {verdict}{retries}", c.below, c.threshold, c.found)
+}
+
 fn print_summary(job: &Job, mesh: &TetMesh, stats: &assembly::AssemblyStats, modes: &eigen::Modes<'_>, freqs: &[f64], total: f64, ranks: usize, sens: Option<&sensitivity::MaterialSensitivities>) {
     println!("diffsound modes: {} ({} tets, {} DOF, P{}, {} rank(s))", job.mesh.display(), mesh.n_tets(), stats.n_dofs, job.order, ranks);
     println!(
@@ -434,7 +458,7 @@ fn print_summary(job: &Job, mesh: &TetMesh, stats: &assembly::AssemblyStats, mod
     );
     println!("rigid modes removed: {}  |  elastic modes: {}", modes.rigid_eigenvalues.len(), modes.eigenvalues.len());
     if let Some(c) = &modes.inertia_check {
-        println!("inertia check: {} eigenvalues below {:.6e} rad^2/s^2, {} found -> {}", c.below, c.threshold, c.found, if c.below == c.found { "complete" } else { "MISMATCH" });
+        println!("inertia check: {}", inertia_line(c));
     }
     let sens_header = if sens.is_some() { format!(" {:>14} {:>12}", "df/dE [Hz/GPa]", "df/dnu [Hz]") } else { String::new() };
     println!("{:>5} {:>14} {:>18} {:>10}{}", "mode", "freq [Hz]", "lambda [rad2/s2]", "residual", sens_header);

@@ -38,6 +38,7 @@ pub mod reduced;
 pub mod sensitivity;
 
 use crate::assembly::DofLayout;
+use crate::petsc::factor::{self, FactorAttempt, FactorError, FactorLog, FactorUse, Inertia, MumpsCholesky, MumpsFailure, MumpsStatus, ScopedOption};
 use crate::petsc::{self, Eps, EpsWhich, Mat, NonzeroPattern, Petsc, PetscError, Vector};
 
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -108,18 +109,8 @@ pub enum EigenError {
     MissedModes { below: usize, found: usize, threshold: f64, attempts: usize },
     #[error("invalid request: {0}")]
     BadRequest(String),
-}
-
-/// The proof that no mode was lost.
-#[derive(Clone, Copy, Debug)]
-pub struct InertiaCheck {
-    /// τ [rad²/s²].
-    pub threshold: f64,
-    /// Eigenvalues below τ according to the inertia of K − τM.
-    pub below: usize,
-    /// Eigenpairs the solver returned below τ (rigid + elastic).
-    pub found: usize,
-    pub seconds: f64,
+    #[error("{0}")]
+    Factor(#[from] FactorError),
 }
 
 pub struct Modes<'p> {
@@ -248,12 +239,13 @@ pub fn solve_modes_deflated<'p>(petsc: &'p Petsc, k: &Mat<'p>, m: &Mat<'p>, cfg:
     let mut nev = wanted + cfg.expected_rigid.saturating_sub(deflate.len()) + 4.max(wanted / 10);
     let max_attempts = 3;
     let mut attempt = 0;
+    let mut solve_log = FactorLog::default();
     loop {
         attempt += 1;
-        let pairs = match interval_upper {
-            Some(upper) => solve_interval(petsc, k, m, shift, upper, cfg)?,
-            None => solve_nearest(petsc, k, m, shift, nev, cfg, deflate)?,
-        };
+        let pairs = solve_with_workspace(petsc, &mut solve_log, &mut warnings, |petsc| match interval_upper {
+            Some(upper) => solve_interval(petsc, k, m, shift, upper, cfg),
+            None => solve_nearest(petsc, k, m, shift, nev, cfg, deflate),
+        })?;
         let RawPairs { values, vectors, residuals, mut settings } = pairs;
         let mut order: Vec<usize> = (0..values.len()).collect();
         order.sort_by(|&a, &b| values[a].total_cmp(&values[b]));
@@ -299,26 +291,29 @@ pub fn solve_modes_deflated<'p>(petsc: &'p Petsc, k: &Mat<'p>, m: &Mat<'p>, cfg:
             ModeRequest::UpTo { .. } => elastic.len(),
         };
 
-        let inertia_check = if cfg.verify_count {
+        let inertia_check = if cfg.verify_count && keep > 0 {
             let threshold = match interval_upper {
                 Some(upper) => upper,
                 None if keep < elastic.len() => 0.5 * (elastic[keep - 1] + elastic[keep]),
                 None => elastic[keep - 1] * (1.0 + 10.0 * cfg.cluster_rtol),
             };
-            let t0 = std::time::Instant::now();
-            let below = count_below(petsc, k, m, threshold)?;
-            let found = rigid.len() + elastic.iter().filter(|&&l| l < threshold).count();
-            let check = InertiaCheck { threshold, below, found, seconds: t0.elapsed().as_secs_f64() };
-            if below > found {
-                if matches!(cfg.request, ModeRequest::FirstN(_)) && attempt < max_attempts {
-                    warnings.push(format!("inertia count found {below} eigenvalues below {threshold:.6e} but the solver returned {found}; solving again with more vectors"));
-                    nev = nev.max(below + 4) + 4;
-                    continue;
+            let returned = Returned { n_rigid: rigid.len(), elastic: &elastic, residuals: &elastic_res, keep };
+            let check = prove_count(petsc, k, m, threshold, &returned)?;
+            warnings.extend(check.factor_log.retry_notes("inertia matrix K − τM"));
+            match &check.verdict {
+                CountVerdict::Missed => {
+                    if matches!(cfg.request, ModeRequest::FirstN(_)) && attempt < max_attempts {
+                        warnings.push(format!(
+                            "inertia count found {} eigenvalues below {:.6e} but the solver returned {}; solving again with more vectors",
+                            check.below, check.threshold, check.found
+                        ));
+                        nev = nev.max(check.below + 4) + 4;
+                        continue;
+                    }
+                    return Err(EigenError::MissedModes { below: check.below, found: check.found, threshold: check.threshold, attempts: attempt });
                 }
-                return Err(EigenError::MissedModes { below, found, threshold, attempts: attempt });
-            }
-            if below < found {
-                warnings.push(format!("inertia count found only {below} eigenvalues below {threshold:.6e} but the solver returned {found}: some returned pairs may be spurious"));
+                CountVerdict::Unproven(why) => warnings.push(format!("the mode count is not proven: {why}")),
+                CountVerdict::Complete => {}
             }
             Some(check)
         } else {
@@ -347,6 +342,12 @@ pub fn solve_modes_deflated<'p>(petsc: &'p Petsc, k: &Mat<'p>, m: &Mat<'p>, cfg:
         settings.push(("cluster_rtol".into(), format!("{:e}", cfg.cluster_rtol)));
         settings.push(("attempts".into(), attempt.to_string()));
         settings.push(("deflated_rigid_modes".into(), deflate.len().to_string()));
+        settings.push(("factor_retries".into(), solve_log.retries().to_string()));
+        settings.push(("factor_attempts".into(), solve_log.describe()));
+        if let Some(c) = &inertia_check {
+            settings.push(("inertia_verdict".into(), c.verdict.word().into()));
+            settings.push(("inertia_factor_attempts".into(), c.factor_log.describe()));
+        }
         return Ok(Modes {
             eigenvalues: elastic,
             vectors: elastic_vecs,
@@ -360,6 +361,223 @@ pub fn solve_modes_deflated<'p>(petsc: &'p Petsc, k: &Mat<'p>, m: &Mat<'p>, cfg:
             solve_seconds: start.elapsed().as_secs_f64(),
         });
     }
+}
+
+/// A shift-invert solve that failed, with MUMPS's status when the factorisation was the cause.
+enum SolveFailure {
+    Factor { status: MumpsStatus, error: PetscError },
+    Other(EigenError),
+}
+
+impl<T: Into<EigenError>> From<T> for SolveFailure {
+    fn from(e: T) -> Self {
+        SolveFailure::Other(e.into())
+    }
+}
+
+/// Runs an eigen-solve, and runs it again with a larger MUMPS workspace while its shift-invert
+/// factorisation runs short (module docs of [`crate::petsc::factor`]). The ST's factor reads its
+/// controls from the options database (prefix `st_`), so the raised ICNTL(14) is set there for
+/// the solve and the user's value restored after it.
+fn solve_with_workspace<'p>(
+    petsc: &'p Petsc,
+    log: &mut FactorLog,
+    warnings: &mut Vec<String>,
+    mut run: impl FnMut(&'p Petsc) -> Result<RawPairs<'p>, SolveFailure>,
+) -> Result<RawPairs<'p>, EigenError> {
+    const OPTION: &str = "-st_mat_mumps_icntl_14";
+    let user: Option<i32> = petsc.option_value(OPTION)?.and_then(|v| v.trim().parse().ok());
+    let mut percent = factor::learned_workspace_percent().filter(|&p| user.is_none_or(|u| p > u));
+    let first = log.attempts.len();
+    loop {
+        let _raised = match percent {
+            Some(p) => Some(ScopedOption::set(petsc, OPTION, &p.to_string())?),
+            None => None,
+        };
+        match run(petsc) {
+            Ok(pairs) => {
+                let icntl14 = percent.or(user).unwrap_or(MUMPS_DEFAULT_ICNTL14);
+                log.attempts.push(FactorAttempt { retry: log.attempts.len() > first, icntl14, infog1: 0, infog2: 0 });
+                let taken = FactorLog { attempts: log.attempts[first..].to_vec() };
+                warnings.extend(taken.retry_notes("shift-invert matrix K − σM"));
+                if taken.retries() > 0 {
+                    factor::learn_workspace_percent(icntl14);
+                }
+                return Ok(pairs);
+            }
+            Err(SolveFailure::Other(e)) => return Err(e),
+            Err(SolveFailure::Factor { status, error }) => {
+                log.attempts.push(FactorAttempt { retry: log.attempts.len() > first, icntl14: status.icntl14, infog1: status.infog1, infog2: status.infog2 });
+                let retries = log.attempts.len() - first - 1;
+                if status.failure() == Some(MumpsFailure::Workspace) && retries < factor::MAX_WORKSPACE_RETRIES {
+                    percent = Some(factor::next_workspace_percent(status.icntl14));
+                    continue;
+                }
+                if status.failure().is_none() {
+                    return Err(error.into());
+                }
+                let taken = FactorLog { attempts: log.attempts[first..].to_vec() };
+                return Err(FactorError::from_status("shift-invert matrix K − σM", &status, &taken).into());
+            }
+        }
+    }
+}
+
+/// MUMPS's ICNTL(14) when nobody set it (MUMPS 5.5 users' guide), for the log of a solve whose
+/// factor could not be queried.
+const MUMPS_DEFAULT_ICNTL14: i32 = 20;
+
+/// The failure of `eps.solve()` classified: MUMPS's status read from the ST's factor, or (inside
+/// spectrum slicing, whose factors SLEPc keeps to itself) parsed from PETSc's message.
+fn classify_solve_error(petsc: &Petsc, eps: &Eps<'_>, error: PetscError) -> SolveFailure {
+    let from_pc = eps.st().ok().and_then(|st| st.pc().ok().and_then(|pc| pc.mumps_status())).filter(|s| s.infog1 < 0);
+    let status = from_pc.or_else(|| {
+        factor::mumps_code_in(&error).map(|(infog1, infog2)| {
+            let icntl14 = petsc.option_value("-st_mat_mumps_icntl_14").ok().flatten().and_then(|v| v.trim().parse().ok()).unwrap_or(MUMPS_DEFAULT_ICNTL14);
+            MumpsStatus { infog1, infog2, icntl14, ..MumpsStatus::default() }
+        })
+    });
+    match status {
+        Some(status) if status.infog1 < 0 => SolveFailure::Factor { status, error },
+        _ => SolveFailure::Other(error.into()),
+    }
+}
+
+/// A relative residual ‖Kx − λMx‖₂/(|λ|‖x‖₂) at or below which a returned pair is taken as
+/// proven: SLEPc's tolerance is 1e-10 and converged pairs sit at 1e-15…1e-11, while a pair this
+/// far from the spectrum would be off by more than any cluster gap we resolve.
+pub const PROVEN_RESIDUAL: f64 = 1e-6;
+
+/// What the inertia counts say about the returned modes.
+#[derive(Clone, Debug, PartialEq)]
+pub enum CountVerdict {
+    /// Both counts equal the pairs returned below their thresholds.
+    Complete,
+    /// More eigenvalues lie below τ than were returned: the solver missed some.
+    Missed,
+    /// The counts cannot be trusted or leave returned pairs unproven; the text says why.
+    Unproven(String),
+}
+
+impl CountVerdict {
+    pub fn word(&self) -> &'static str {
+        match self {
+            CountVerdict::Complete => "complete",
+            CountVerdict::Missed => "missed",
+            CountVerdict::Unproven(_) => "unproven",
+        }
+    }
+}
+
+/// The proof that no mode was lost.
+#[derive(Clone, Debug)]
+pub struct InertiaCheck {
+    /// τ [rad²/s²].
+    pub threshold: f64,
+    /// Eigenvalues below τ according to the inertia of K − τM.
+    pub below: usize,
+    /// Eigenpairs the solver returned below τ (rigid + elastic).
+    pub found: usize,
+    /// Of those, the pairs proven by their residuals (≤ [`PROVEN_RESIDUAL`]; rigid modes count).
+    pub proven: usize,
+    /// The second count (τ₂, eigenvalues below τ₂ by inertia, pairs returned below τ₂), at the
+    /// widest relative gap of the returned spectrum below τ.
+    pub second: Option<(f64, usize, usize)>,
+    pub verdict: CountVerdict,
+    /// The inertia factorisations' tries (both counts).
+    pub factor_log: FactorLog,
+    pub seconds: f64,
+}
+
+/// What a solve returned: the rigid modes' count, the elastic eigenvalues (ascending) with their
+/// residuals, and how many of them are kept.
+struct Returned<'a> {
+    n_rigid: usize,
+    elastic: &'a [f64],
+    residuals: &'a [f64],
+    keep: usize,
+}
+
+/// Counts the eigenvalues below τ twice (at τ and at τ₂ in the widest gap of the returned
+/// spectrum below it) and judges the returned pairs against both counts (module docs of
+/// [`crate::petsc::factor`] for what MUMPS's count guarantees).
+fn prove_count<'p>(petsc: &'p Petsc, k: &Mat<'p>, m: &Mat<'p>, tau: f64, returned: &Returned<'_>) -> Result<InertiaCheck, EigenError> {
+    let t0 = std::time::Instant::now();
+    let &Returned { n_rigid, elastic, residuals, keep } = returned;
+    let found_below = |t: f64| n_rigid + elastic.iter().filter(|&&l| l < t).count();
+    let proven_below = |t: f64| n_rigid + elastic.iter().zip(residuals).filter(|&(&l, &r)| l < t && r <= PROVEN_RESIDUAL).count();
+    let mut log = FactorLog::default();
+    let first = inertia_below(petsc, k, m, tau, &mut log)?;
+    let (found, proven) = (found_below(tau), proven_below(tau));
+
+    // τ₂ in the widest relative gap among the kept modes below τ (between the rigid modes and the
+    // first elastic one when only one is kept): far from any eigenvalue, so its count is robust.
+    let kept: Vec<f64> = elastic[..keep].iter().copied().filter(|&l| l < tau).collect();
+    let tau2 = if kept.len() >= 2 {
+        let j = (0..kept.len() - 1).max_by(|&a, &b| relative_gap(kept[a], kept[a + 1]).total_cmp(&relative_gap(kept[b], kept[b + 1]))).expect("two or more");
+        Some(0.5 * (kept[j] + kept[j + 1]))
+    } else {
+        kept.first().map(|&l| 0.5 * l)
+    };
+    let second = match tau2 {
+        Some(t2) => Some((t2, inertia_below(petsc, k, m, t2, &mut log)?, found_below(t2), proven_below(t2))),
+        None => None,
+    };
+
+    let mut doubts = Vec::new();
+    if first.zero > 0 {
+        doubts.push(format!("MUMPS flagged {} null pivots in K − τM at τ = {tau:.6e} (an eigenvalue within rounding of τ), so their signs are unknown", first.zero));
+    }
+    if first.negative < proven {
+        doubts.push(format!(
+            "MUMPS counts {} eigenvalues below τ = {tau:.6e}, fewer than the {proven} returned pairs whose residuals (≤ {PROVEN_RESIDUAL:e}) prove them: the count is wrong, not the pairs",
+            first.negative
+        ));
+    }
+    if let Some((t2, c2, f2, p2)) = second {
+        if c2.zero > 0 {
+            doubts.push(format!("MUMPS flagged {} null pivots at the second threshold τ₂ = {t2:.6e}", c2.zero));
+        } else if c2.negative < p2 {
+            doubts.push(format!("the second count at τ₂ = {t2:.6e} gives {} eigenvalues, fewer than the {p2} proven pairs below it", c2.negative));
+        } else if c2.negative > f2 && first.negative <= found {
+            doubts.push(format!("the second count at τ₂ = {t2:.6e} gives {} eigenvalues where {f2} pairs were returned, but the count at τ agrees with the solver", c2.negative));
+        }
+    }
+    let missed = first.negative > found || second.is_some_and(|(_, c2, f2, _)| c2.negative > f2);
+    let verdict = if !doubts.is_empty() {
+        CountVerdict::Unproven(doubts.join("; "))
+    } else if missed {
+        CountVerdict::Missed
+    } else if first.negative == found {
+        CountVerdict::Complete
+    } else {
+        let unproven: Vec<String> = elastic.iter().zip(residuals).enumerate().filter(|&(_, (&l, &r))| l < tau && r > PROVEN_RESIDUAL).map(|(i, (_, r))| format!("mode {} (residual {r:.1e})", i + 1)).collect();
+        CountVerdict::Unproven(format!(
+            "{} eigenvalues lie below τ = {tau:.6e} but {found} pairs were returned; of those only {proven} are proven by their residuals, and the unproven ones may be spurious: {}",
+            first.negative,
+            unproven.join(", ")
+        ))
+    };
+    Ok(InertiaCheck {
+        threshold: tau,
+        below: first.negative,
+        found,
+        proven,
+        second: second.map(|(t2, c2, f2, _)| (t2, c2.negative, f2)),
+        verdict,
+        factor_log: log,
+        seconds: t0.elapsed().as_secs_f64(),
+    })
+}
+
+/// The inertia of K − τM through the one factor path (workspace retries logged in `log`).
+fn inertia_below<'p>(petsc: &'p Petsc, k: &Mat<'p>, m: &Mat<'p>, tau: f64, log: &mut FactorLog) -> Result<Inertia, EigenError> {
+    let mut a = k.duplicate()?;
+    a.axpy(-tau, m, NonzeroPattern::Same)?;
+    a.set_symmetric()?;
+    let factor = MumpsCholesky::factor(petsc, &a, FactorUse::Inertia, "inertia matrix K − τM")?;
+    log.attempts.extend(factor.log().attempts.iter().copied());
+    Ok(factor.inertia(petsc)?)
 }
 
 fn relative_gap(a: f64, b: f64) -> f64 {
@@ -381,12 +599,14 @@ pub fn find_clusters(sorted: &[f64], rtol: f64) -> Vec<std::ops::Range<usize>> {
     out
 }
 
-/// Number of eigenvalues of (K, M) below τ: the negative inertia of K − τM.
-pub fn count_below<'p>(petsc: &'p Petsc, k: &Mat<'p>, m: &Mat<'p>, tau: f64) -> Result<usize, PetscError> {
-    let mut a = k.duplicate()?;
-    a.axpy(-tau, m, NonzeroPattern::Same)?;
-    a.set_symmetric()?;
-    Ok(petsc::inertia(petsc, &a)?.negative)
+/// Number of eigenvalues of (K, M) below τ: the negative inertia of K − τM, through the one
+/// factor path (an error if MUMPS flags a null pivot, whose sign is unknown).
+pub fn count_below<'p>(petsc: &'p Petsc, k: &Mat<'p>, m: &Mat<'p>, tau: f64) -> Result<usize, EigenError> {
+    let inertia = inertia_below(petsc, k, m, tau, &mut FactorLog::default())?;
+    if inertia.zero > 0 {
+        return Err(EigenError::BadRequest(format!("τ = {tau:e} lies within rounding of an eigenvalue: MUMPS flagged {} null pivots", inertia.zero)));
+    }
+    Ok(inertia.negative)
 }
 
 /// Common defaults: GHEP, Krylov–Schur, shift-invert with MUMPS Cholesky, no purification.
@@ -405,7 +625,7 @@ fn configure_common<'p>(petsc: &'p Petsc, k: &Mat<'p>, m: &Mat<'p>, cfg: &EigenC
     Ok(eps)
 }
 
-fn solve_nearest<'p>(petsc: &'p Petsc, k: &Mat<'p>, m: &Mat<'p>, shift: f64, nev: usize, cfg: &EigenConfig, deflate: &[Vector<'p>]) -> Result<RawPairs<'p>, EigenError> {
+fn solve_nearest<'p>(petsc: &'p Petsc, k: &Mat<'p>, m: &Mat<'p>, shift: f64, nev: usize, cfg: &EigenConfig, deflate: &[Vector<'p>]) -> Result<RawPairs<'p>, SolveFailure> {
     let mut eps = configure_common(petsc, k, m, cfg)?;
     eps.set_which(EpsWhich::TargetMagnitude)?;
     eps.set_target(shift)?;
@@ -414,13 +634,15 @@ fn solve_nearest<'p>(petsc: &'p Petsc, k: &Mat<'p>, m: &Mat<'p>, shift: f64, nev
         eps.set_deflation_space(deflate)?;
     }
     eps.set_from_options()?;
-    eps.solve()?;
+    if let Err(e) = eps.solve() {
+        return Err(classify_solve_error(petsc, &eps, e));
+    }
     // The user may have changed nev with -eps_nev; hold SLEPc to what is in force.
     let wanted = eps.dimensions()?.0;
-    collect(&eps, k, m, wanted)
+    Ok(collect(&eps, k, m, wanted)?)
 }
 
-fn solve_interval<'p>(petsc: &'p Petsc, k: &Mat<'p>, m: &Mat<'p>, lower: f64, upper: f64, cfg: &EigenConfig) -> Result<RawPairs<'p>, EigenError> {
+fn solve_interval<'p>(petsc: &'p Petsc, k: &Mat<'p>, m: &Mat<'p>, lower: f64, upper: f64, cfg: &EigenConfig) -> Result<RawPairs<'p>, SolveFailure> {
     // MUMPS reports the inertia that slicing relies on only with ICNTL(13)=1 (no ScaLAPACK root)
     // and PETSc wants null-pivot detection (ICNTL(24)=1) with it. The factor inherits the ST's
     // options prefix, hence `-st_`.
@@ -430,8 +652,10 @@ fn solve_interval<'p>(petsc: &'p Petsc, k: &Mat<'p>, m: &Mat<'p>, lower: f64, up
     eps.set_which(EpsWhich::All)?;
     eps.set_interval(lower, upper)?;
     eps.set_from_options()?;
-    eps.solve()?;
-    collect(&eps, k, m, 0)
+    if let Err(e) = eps.solve() {
+        return Err(classify_solve_error(petsc, &eps, e));
+    }
+    Ok(collect(&eps, k, m, 0)?)
 }
 
 /// The converged pairs and their relative residuals ‖Kx − λMx‖₂/(|λ|‖x‖₂) (absolute for

@@ -113,8 +113,7 @@ pub struct AttachmentProjections {
 /// The factored operator a(ν)K_λ + b(ν)K_μ + σM₁ and the M₁-orthonormal rigid-body motions,
 /// for [`PoissonBasis::attachments`].
 pub struct AttachmentSolver<'p> {
-    solver: crate::petsc::CholeskySolver<'p>,
-    _operator: Mat<'p>,
+    solver: crate::petsc::MumpsCholesky<'p>,
     rigid: Vec<Vector<'p>>,
     /// M₁ times each rigid motion.
     rigid_mass: Vec<Vector<'p>>,
@@ -356,7 +355,7 @@ impl<'p> PoissonBasis<'p> {
         operator.axpy(b, &assembled.k_mu, crate::petsc::NonzeroPattern::Same)?;
         operator.axpy(shift, &assembled.mass_unit, crate::petsc::NonzeroPattern::Subset)?;
         operator.set_symmetric()?;
-        let solver = crate::petsc::CholeskySolver::factor(petsc, &operator)?;
+        let solver = crate::petsc::MumpsCholesky::factor(petsc, &operator, crate::petsc::FactorUse::Solve, "attachment operator a(ν)K_λ + b(ν)K_μ + σM₁").map_err(PetscError::from)?;
         let n = nodes.len();
         let centre = nodes.iter().fold([0.0; 3], |acc, x| [acc[0] + x[0] / n as f64, acc[1] + x[1] / n as f64, acc[2] + x[2] / n as f64]);
         let mut rigid: Vec<Vector<'p>> = Vec::with_capacity(6);
@@ -392,7 +391,7 @@ impl<'p> PoissonBasis<'p> {
             rigid_mass.push(mv);
         }
         let local_basis = self.vectors.iter().map(|v| v.local_values()).collect::<Result<_, _>>()?;
-        Ok(AttachmentSolver { solver, _operator: operator, rigid, rigid_mass, local_basis })
+        Ok(AttachmentSolver { solver, rigid, rigid_mass, local_basis })
     }
 
     /// The six rigid-body motions (M₁-orthonormal, ρ = 1) at the probe DOFs (probes × 6).

@@ -908,9 +908,9 @@ pub fn curved_field_modes(petsc: &Petsc, grid: &BackgroundGrid, values: &[f64], 
 /// per evaluation).
 fn assemble_and_solve<'p>(petsc: &'p Petsc, quadratic: &TetMesh, material: &Material, n_modes: usize, timings: &mut StepTimings) -> Result<(assembly::Assembled<'p>, eigen::Modes<'p>), ShapeError> {
     // Marched meshes have slivers, and on two ranks MUMPS's workspace estimate fell short on
-    // some of them (INFOG(1) = −9 on a hollow box at 14 cells): double the estimate unless the
-    // user set it.
-    petsc.set_default_option("-st_mat_mumps_icntl_14", "100").map_err(|e| ShapeError::Solver(e.to_string()))?;
+    // some of them (INFOG(1) = −9 on a hollow box at 14 cells): the solver's one factor path
+    // factors again with a larger workspace and keeps it for the later evaluations
+    // (`petsc::factor`).
     let t = std::time::Instant::now();
     let assembled = assembly::assemble(petsc, quadratic).map_err(|e| ShapeError::Solver(e.to_string()))?;
     let (k, m) = assembled.operators(material).map_err(|e| ShapeError::Solver(e.to_string()))?;

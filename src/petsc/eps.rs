@@ -270,7 +270,12 @@ impl St<'_> {
             check(sys::PCGetType(pc.raw, &mut pt), "PCGetType")?;
             let mut st: sys::MatSolverType = std::ptr::null();
             // Not every PC has a factor solver type; an error here just means "none".
-            let solver = if sys::PCFactorGetMatSolverType(pc.raw, &mut st) == 0 { from_cstr(st) } else { String::new() };
+            let solver = if sys::PCFactorGetMatSolverType(pc.raw, &mut st) == 0 {
+                from_cstr(st)
+            } else {
+                super::error::discard_recorded();
+                String::new()
+            };
             Ok((from_cstr(kt), from_cstr(pt), solver))
         }
     }
@@ -279,5 +284,22 @@ impl St<'_> {
 impl Pc<'_> {
     pub fn raw(&self) -> sys::PC {
         self.raw
+    }
+
+    /// MUMPS's status of this PC's factor, when it has one made by MUMPS.
+    pub fn mumps_status(&self) -> Option<super::factor::MumpsStatus> {
+        let mut factor: sys::Mat = std::ptr::null_mut();
+        // SAFETY: borrowed factor handle; the queries fail harmlessly on a non-MUMPS factor.
+        unsafe {
+            if sys::PCFactorGetMatrix(self.raw, &mut factor) != 0 || factor.is_null() {
+                super::error::discard_recorded();
+                return None;
+            }
+        }
+        let status = super::factor::MumpsStatus::read(factor);
+        if status.is_err() {
+            super::error::discard_recorded();
+        }
+        status.ok()
     }
 }

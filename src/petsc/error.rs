@@ -56,6 +56,12 @@ pub(crate) fn check(code: sys::PetscErrorCode, call: &str) -> Result<()> {
     Err(PetscError { code: code as i32, call: call.to_string(), message })
 }
 
+/// Drops the messages of a failure that the caller tolerates (a query answered "none"), so they
+/// are not attached to the next real error.
+pub(crate) fn discard_recorded() {
+    RECORDED.lock().unwrap_or_else(|p| p.into_inner()).clear();
+}
+
 /// PETSc's fixed text for an error code, used when no handler message was recorded.
 fn generic_text(code: sys::PetscErrorCode) -> String {
     let mut text: *const c_char = std::ptr::null();

@@ -1,7 +1,8 @@
 //! The one unsafe boundary: raw PETSc/SLEPc bindings ([`sys`]) under safe RAII handles.
 //!
 //! Everything above this module uses [`Petsc`] (the runtime guard), [`Mat`], [`Vector`],
-//! [`Eps`], [`Ksp`] and the borrowed [`St`]/[`Pc`] views. Every PETSc error code becomes a
+//! [`Eps`], [`MumpsCholesky`] (the one factorisation path, module [`factor`]) and the borrowed
+//! [`St`]/[`Pc`] views. Every PETSc error code becomes a
 //! [`PetscError`] that carries PETSc's own message (captured by an error handler that we push at
 //! start-up) and the name of the call that failed.
 //!
@@ -11,7 +12,7 @@
 pub mod collective;
 mod eps;
 mod error;
-mod ksp;
+pub mod factor;
 mod mat;
 mod runtime;
 pub mod sys;
@@ -19,7 +20,7 @@ mod vector;
 
 pub use eps::{Eps, EpsWhich, Pc, St};
 pub use error::{PetscError, Result};
-pub use ksp::{inertia, CholeskySolver, Inertia, Ksp};
+pub use factor::{FactorError, FactorLog, FactorUse, Inertia, MumpsCholesky};
 pub use mat::{Mat, NonzeroPattern};
 pub use runtime::Petsc;
 pub use vector::Vector;

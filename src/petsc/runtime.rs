@@ -40,7 +40,9 @@ impl Petsc {
             check(sys::SlepcInitialize(&mut argc, &mut argv, std::ptr::null(), std::ptr::null()), "SlepcInitialize")?;
             check(sys::PetscPushErrorHandler(Some(record_error), std::ptr::null_mut()), "PetscPushErrorHandler")?;
         }
-        Ok(Petsc { _argv_storage: argv_storage, _argv_ptrs: argv_ptrs, world, universe })
+        let petsc = Petsc { _argv_storage: argv_storage, _argv_ptrs: argv_ptrs, world, universe };
+        super::factor::share_mumps_options(&petsc)?;
+        Ok(petsc)
     }
 
     pub fn world(&self) -> &SimpleCommunicator {
@@ -81,6 +83,20 @@ impl Petsc {
         let (n, v) = (cstring(name), cstring(value));
         // SAFETY: PETSc copies both strings.
         unsafe { check(sys::PetscOptionsSetValue(std::ptr::null_mut(), n.as_ptr(), v.as_ptr()), "PetscOptionsSetValue") }
+    }
+
+    /// Sets an option in the global database (replacing any value).
+    pub fn set_option(&self, name: &str, value: &str) -> Result<()> {
+        let (n, v) = (cstring(name), cstring(value));
+        // SAFETY: PETSc copies both strings.
+        unsafe { check(sys::PetscOptionsSetValue(std::ptr::null_mut(), n.as_ptr(), v.as_ptr()), "PetscOptionsSetValue") }
+    }
+
+    /// Removes an option from the global database.
+    pub fn clear_option(&self, name: &str) -> Result<()> {
+        let n = cstring(name);
+        // SAFETY: PETSc only reads the string.
+        unsafe { check(sys::PetscOptionsClearValue(std::ptr::null_mut(), n.as_ptr()), "PetscOptionsClearValue") }
     }
 
     /// The value of a string option, if given.
