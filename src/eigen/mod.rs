@@ -18,8 +18,19 @@
 //! **No lost modes.** For FirstN, a degenerate or near-degenerate cluster that straddles the N-th
 //! mode is completed (relative gap ≤ `cluster_rtol`), and the count is then proven: by Sylvester's
 //! law of inertia the number of negative pivots of K − τM equals the number of eigenvalues below τ.
-//! We factor K − τM with τ halfway between the last kept and the next eigenvalue and compare; if
-//! SLEPc missed one, the solve is repeated with more vectors.
+//! We factor K − τM with τ halfway between the last kept and the next eigenvalue (for `UpTo`, at
+//! the interval's end) and compare; if SLEPc missed one, the solve is repeated with more vectors.
+//! A second count at τ₂ in the widest relative gap of the returned spectrum below τ must agree
+//! with the pairs returned below τ₂. A count is believed only from a factorisation MUMPS reports
+//! as successful, exact on several ranks and free of null pivots ([`crate::petsc::factor`]); a
+//! count smaller than the pairs proven by their residuals (≤ [`PROVEN_RESIDUAL`]) means the count
+//! is wrong, and the verdict is [`CountVerdict::Unproven`] with the reason — never a claim that
+//! proven pairs are spurious.
+//!
+//! **Factorisations.** The shift-invert factor (inside SLEPc, options prefix `st_`) and the
+//! inertia factors go through the one factor path: a workspace failure is recovered by factoring
+//! again with a larger ICNTL(14), logged in [`Modes::warnings`] and in the settings
+//! (`factor_attempts`, `inertia_factor_attempts`).
 //!
 //! **Rigid-mode deflation.** For a free body whose node coordinates are known, the six rigid
 //! motions (translations and infinitesimal rotations, exact null vectors of K for any
