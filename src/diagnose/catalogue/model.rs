@@ -535,8 +535,15 @@ impl Prediction {
 /// Parameters of the baseline before the per-channel gains: ln s, α, b (parent docs).
 pub const BASE_PARAMS: usize = 3;
 
+/// Per-channel nuisance parameters of the baseline: the ln gain and the amplitude tilt.
+pub const CHANNEL_PARAMS: usize = 2;
+
+/// Bound on an amplitude tilt η_c: a power law f^η beyond the acceleration law, ±6 covering
+/// displacement (−2) to pressure of a small radiator (+2) with any microphone response on top.
+pub const TILT_BOUND: f64 = 6.0;
+
 /// Baseline plus accepted terms; the parameter vector is [ln s, α, b, ln g_0 … ln g_{C−1},
-/// the terms' parameters in order].
+/// η_0 … η_{C−1}, the terms' parameters in order].
 #[derive(Clone, Debug)]
 pub struct Model {
     pub terms: Vec<Arc<dyn Term>>,
@@ -552,7 +559,7 @@ impl Model {
     pub fn new(terms: Vec<Arc<dyn Term>>, ln_f_ref: f64, channels: usize) -> Model {
         let counts: Vec<usize> = terms.iter().map(|t| t.params().len()).collect();
         let mut offsets = Vec::with_capacity(terms.len());
-        let mut next = BASE_PARAMS + channels;
+        let mut next = BASE_PARAMS + CHANNEL_PARAMS * channels;
         for &n in &counts {
             offsets.push(next);
             next += n;
@@ -573,7 +580,12 @@ impl Model {
     }
 
     pub fn n_params(&self) -> usize {
-        BASE_PARAMS + self.channels + self.counts.iter().sum::<usize>()
+        BASE_PARAMS + CHANNEL_PARAMS * self.channels + self.counts.iter().sum::<usize>()
+    }
+
+    /// Index of channel `c`'s amplitude tilt η_c within the parameter vector.
+    pub fn tilt_index(&self, c: usize) -> usize {
+        BASE_PARAMS + self.channels + c
     }
 
     /// The parameters of term `i` within `x`.
@@ -604,6 +616,9 @@ impl Model {
                 300.0,
                 1.0,
             ));
+        }
+        for c in 0..self.channels {
+            specs.push(ParamSpec::new(format!("amplitude tilt of channel {c}"), "1", -TILT_BOUND, TILT_BOUND, 1.0));
         }
         for t in &self.terms {
             specs.extend(t.params());
@@ -641,8 +656,9 @@ impl Model {
         let ln_two_pi = (2.0 * PI).ln();
         for (k, m) in table.modes.iter().enumerate() {
             let base = m.drive.max(1e-300).ln() + ln_two_pi + out.ln_f[k];
+            let octave = out.ln_f[k] - self.ln_f_ref;
             for c in 0..c_n {
-                out.ln_a[k * c_n + c] = x[BASE_PARAMS + c] + base;
+                out.ln_a[k * c_n + c] = x[BASE_PARAMS + c] + x[BASE_PARAMS + c_n + c] * octave + base;
             }
         }
         for (i, t) in self.terms.iter().enumerate() {
@@ -1265,7 +1281,7 @@ pub fn held_out_chi2(fit: &Fit, held: &ModeTable, tau2: &FloorVariances) -> Opti
     }
     let model = Model::new(terms, fit.model.ln_f_ref, held.channels);
     let mut x = fit.x[..BASE_PARAMS].to_vec();
-    x.extend(std::iter::repeat_n(0.0, held.channels));
+    x.extend(std::iter::repeat_n(0.0, CHANNEL_PARAMS * held.channels));
     x.extend(nuisance_init);
     let start = model.prediction(held, &x);
     set_gains_to_mean_residual(held, &start, &mut x);
@@ -1296,7 +1312,7 @@ pub fn held_out_chi2(fit: &Fit, held: &ModeTable, tau2: &FloorVariances) -> Opti
                 .any(|r| matches!(r.kind, RowKind::LnA(_, ch) if ch == c))
         })
         .count();
-    let nuisance = x.len() - BASE_PARAMS - held.channels + channels_seen;
+    let nuisance = x.len() - BASE_PARAMS - CHANNEL_PARAMS * (held.channels - channels_seen);
     let dof = (held.rows.len() as f64 - nuisance as f64).max(1.0);
     Some(HeldOutChi2 { chi2: min.cost, dof, dispersion: robust_dispersion(&z) })
 }

@@ -3,7 +3,7 @@
 
 use super::matching::{match_modes, Matching};
 use super::model::{
-    baseline_start, fit, held_out_chi2, held_out_error, undamped_hz, Fit, FloorVariances, ModeTable, Model, BASE_PARAMS, LEVEL_FLOOR,
+    baseline_start, fit, held_out_chi2, held_out_error, undamped_hz, Fit, FloorVariances, ModeTable, Model, BASE_PARAMS, CHANNEL_PARAMS, LEVEL_FLOOR,
 };
 use super::report::*;
 use super::{catalogue, CatalogueError, CatalogueSettings, Detection, Effect, Evidence, HeldOutChange, OwnOutcome, Quantity};
@@ -165,6 +165,10 @@ fn summary(fit: &Fit, held: Option<&ModeTable>, yardstick: &FloorVariances) -> M
             fit.sigma[BASE_PARAMS + c],
         ));
     }
+    for c in 0..fit.model.channels {
+        let i = fit.model.tilt_index(c);
+        params.push(FittedParam::new(format!("amplitude tilt of channel {c} (power of f beyond the acceleration law)"), "1", fit.x[i], fit.sigma[i]));
+    }
     for i in 0..fit.model.terms.len() {
         params.extend(term_params(fit, i));
     }
@@ -219,6 +223,42 @@ fn matching_report(m: &Matching, table: &ModeTable, held: Option<&Matching>) -> 
     }
 }
 
+/// Why observed mode `i` (ln f₀ in `fit_ln_f`) has no simulated partner, as the matching saw it:
+/// no simulated mode within the tolerance after the scale, or the nearest one's cluster already
+/// taken by closer observed modes (an extra pole of the same partial: damping or asymmetry the
+/// model lacks, or a mode the mesh does not have).
+fn unmatched_reason(evidence: &Evidence, matching: &super::Matching, fit_ln_f: &[f64], i: usize, settings: &CatalogueSettings) -> String {
+    let x = fit_ln_f[i] - matching.ln_scale;
+    let Some((j, e)) = evidence.simulated.iter().enumerate().map(|(j, m)| (j, x - m.match_ln_f())).min_by(|a, b| a.1.abs().total_cmp(&b.1.abs())) else {
+        return "no simulated modes".into();
+    };
+    let sim_hz = evidence.simulated[j].match_ln_f().exp();
+    let percent = 100.0 * e.exp_m1();
+    if e.abs() > settings.match_tolerance {
+        return format!(
+            "no simulated mode within ln-frequency tolerance {} after the scale {:.4}: the nearest, mode {j} at {sim_hz:.1} Hz (×{:.4}), is {percent:+.2} % away",
+            settings.match_tolerance,
+            matching.ln_scale.exp(),
+            matching.ln_scale.exp()
+        );
+    }
+    let cluster = evidence.simulated[j].cluster;
+    let takers: Vec<String> = matching
+        .units
+        .iter()
+        .filter(|u| u.cluster == cluster)
+        .map(|u| format!("{:.1} Hz", evidence.fit[u.observed].frequency_hz))
+        .collect();
+    if takers.is_empty() {
+        return format!("simulated mode {j} at {sim_hz:.1} Hz is {percent:+.2} % away after the scale but was not paired (a closer observed mode took it first)");
+    }
+    format!(
+        "its simulated cluster (mode {j} at {sim_hz:.1} Hz, {percent:+.2} % away after the scale) is matched to the recorded mode(s) at {} already, and a cluster takes at most one mode per member (two for a split pair within {:.1} %): an extra pole of the same partial (damping or asymmetry the model does not have) or a mode the mesh lacks",
+        takers.join(", "),
+        100.0 * settings.max_pair_split
+    )
+}
+
 /// Runs the whole catalogue on `evidence`: match, fit the baseline, select effects greedily,
 /// report (parent module docs).
 pub fn diagnose(evidence: &Evidence, settings: &CatalogueSettings) -> Result<CatalogueReport, CatalogueError> {
@@ -238,7 +278,7 @@ pub fn diagnose_with(
     let table = ModeTable::build(&evidence.fit, &evidence.simulated, &matching, 0, settings.own_member_split_z);
     let channels = table.channels;
     const MIN_MATCHED: usize = 3;
-    if table.modes.len() < MIN_MATCHED || table.rows.len() < BASE_PARAMS + channels + 4 {
+    if table.modes.len() < MIN_MATCHED || table.rows.len() < BASE_PARAMS + CHANNEL_PARAMS * channels + 4 {
         return Err(CatalogueError::TooFewMatches {
             matched: table.modes.len(),
             needed: MIN_MATCHED,
@@ -422,10 +462,7 @@ pub fn diagnose_with(
             quantity: None,
             channel: None,
             z: None,
-            reason: format!(
-                "no simulated mode within ln-frequency tolerance {} after the scale",
-                settings.match_tolerance
-            ),
+            reason: unmatched_reason(evidence, &matching, &fit_ln_f, i, settings),
         })
         .collect();
     let z_loo = current.row_z_leave_one_out(&table);

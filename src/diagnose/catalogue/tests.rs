@@ -136,6 +136,11 @@ struct Truth {
     /// Model-error scatter (ln f, ln d, ln a), shared by fit and held-out data.
     scatter: Option<(f64, f64, f64)>,
     held_out: bool,
+    /// Nuisance amplitude tilt: every channel's amplitudes × (f / 1 kHz)^η with η = `tilt`
+    /// (the response quantity and a radiation-efficiency trend, common to all microphones)
+    /// plus a per-channel part uniform in ±`mic_tilt_spread` (each microphone's response).
+    tilt: f64,
+    mic_tilt_spread: f64,
 }
 
 impl Default for Truth {
@@ -156,6 +161,8 @@ impl Default for Truth {
             reverb_t60: None,
             scatter: None,
             held_out: true,
+            tilt: 0.0,
+            mic_tilt_spread: 0.0,
         }
     }
 }
@@ -263,6 +270,7 @@ fn observe(
     truth: &Truth,
     modes: &[TrueMode],
     gains: &[f64],
+    tilts: &[f64],
     channels: std::ops::Range<usize>,
     rng: &mut Rng,
 ) -> Vec<ObservedMode> {
@@ -276,7 +284,7 @@ fn observe(
             let amplitudes: Vec<f64> = channels
                 .clone()
                 .map(|c| {
-                    let mut ln_a = gains[c] + m.ln_amp;
+                    let mut ln_a = gains[c] + m.ln_amp + tilts[c] * (f0 / 1000.0).ln();
                     match truth.radiation {
                         Some(Pattern::Lobes) => ln_a += obj.lobes[m.cluster][c].ln(),
                         Some(Pattern::Axis) => ln_a += obj.axis[m.cluster][c].ln(),
@@ -342,14 +350,19 @@ fn evidence(truth: &Truth, seed: u64) -> (Evidence, Object) {
     let gains: Vec<f64> = (0..FIT_CHANNELS + HELD_CHANNELS)
         .map(|_| rng.uniform(-1.0, 1.0) - 3.0)
         .collect();
+    // Drawn only when asked for, so that the other tests' random streams stay as they were.
+    let tilts: Vec<f64> = (0..FIT_CHANNELS + HELD_CHANNELS)
+        .map(|_| truth.tilt + if truth.mic_tilt_spread > 0.0 { rng.uniform(-truth.mic_tilt_spread, truth.mic_tilt_spread) } else { 0.0 })
+        .collect();
     let modes = true_modes(&obj, truth, &mut rng);
-    let fit = observe(&obj, truth, &modes, &gains, 0..FIT_CHANNELS, &mut rng);
+    let fit = observe(&obj, truth, &modes, &gains, &tilts, 0..FIT_CHANNELS, &mut rng);
     let held_out = truth.held_out.then(|| {
         observe(
             &obj,
             truth,
             &modes,
             &gains,
+            &tilts,
             FIT_CHANNELS..FIT_CHANNELS + HELD_CHANNELS,
             &mut rng,
         )
@@ -1402,6 +1415,44 @@ fn false_alarms_with_model_error_scatter_at_most_five_percent() {
             accepted as f64 <= 0.05 * n,
             "{name}: accepted on {accepted} of {n} draws with model-error scatter"
         );
+    }
+}
+
+#[test]
+fn amplitude_tilts_from_f_minus_2_to_f_plus_2_are_nuisances_not_effects() {
+    // What a user cannot know — the response quantity (displacement … pressure: f^-2 … f^0
+    // relative to acceleration, more with a radiation-efficiency trend), each microphone's
+    // response (±0.5 in the power per channel) and per-mode radiation levels (±40 %, the
+    // level scatter) — tilts the amplitudes with frequency. The baseline profiles a power law
+    // per channel, so on clean recordings no effect may claim the tilt (contact duration's
+    // low-pass was the one that did: its slope absorbed it).
+    let mut worst = 0usize;
+    for tilt in [-2.0, -1.0, 1.0, 2.0] {
+        let truth = Truth { tilt, mic_tilt_spread: 0.5, scatter: Some((0.0, 0.0, 0.4)), ..Truth::default() };
+        let draws = clean_draws(&truth, 3000..3030);
+        for (i, name) in EFFECTS.iter().enumerate() {
+            let accepted = draws.iter().filter(|d| d[i].1).count();
+            println!("tilt f^{tilt:+}: {name:22} accepted {accepted} of {}", draws.len());
+            worst = worst.max(accepted);
+            assert!(accepted * 20 <= draws.len(), "tilt {tilt}: {name} accepted on {accepted} of {} clean draws", draws.len());
+        }
+        let contact = draws.iter().filter(|d| d[3].1).count();
+        assert_eq!(contact, 0, "tilt {tilt}: contact duration claimed a tilt");
+    }
+    println!("worst acceptances per effect and tilt: {worst} of 30");
+}
+
+#[test]
+fn a_contact_duration_is_found_past_an_amplitude_tilt() {
+    // The half-sine's knee, not its slope, is the contact's signature: a hard mallet's
+    // low-pass is still found when the recording is also tilted (velocity response, f^-1,
+    // and microphones that differ by ±0.5).
+    let t_h = 1.6e-4;
+    for tilt in [-1.0, 1.0] {
+        let truth = Truth { hertz: Some(t_h), tilt, mic_tilt_spread: 0.5, ..Truth::default() };
+        let (ev, _) = evidence(&truth, 24);
+        let report = diagnose(&ev, &CatalogueSettings::default()).expect("valid");
+        expect_accepted(&report, "contact_duration");
     }
 }
 
