@@ -170,3 +170,27 @@ fn a_memory_cap_too_small_fails_with_the_option_named() {
     assert!(run.stderr.contains("-mat_mumps_icntl_23") && run.stderr.contains("INFOG(1) = -19"), "{}", run.describe());
     assert!(!out.exists(), "no output may be written");
 }
+
+/// Requests the mesh cannot meet end at once with a message that says what to change, instead
+/// of spinning inside SLEPc (more modes than degrees of freedom; a shift that is no number).
+#[test]
+fn requests_the_mesh_cannot_meet_fail_at_once() {
+    let mesh = zoo_mesh("slivers");
+    let dir = mesh.parent().unwrap();
+    let out = dir.join("impossible.h5");
+    let cases: [(&[&str], &str); 3] = [
+        (&["--modes", "2000"], "at most 1335 elastic modes exist"),
+        (&["--modes", "5", "--shift", "nan"], "leave --shift out"),
+        (&["--modes", "5", "--shift", "-1e30"], "not a finite number near the spectrum"),
+    ];
+    for (request, expected) in cases {
+        let mut args = vec!["modes", "--mesh", s(&mesh), "--out", s(&out)];
+        args.extend_from_slice(request);
+        let started = std::time::Instant::now();
+        let run = mpirun(2, &args, Duration::from_secs(60));
+        assert!(!run.success() && !run.timed_out, "{request:?}: {}", run.describe());
+        assert!(run.stderr.contains(expected), "{request:?}: expected «{expected}»:\n{}", run.describe());
+        assert!(started.elapsed() < Duration::from_secs(30), "{request:?} took {:?}", started.elapsed());
+        assert!(!out.exists(), "{request:?}: no output may be written");
+    }
+}

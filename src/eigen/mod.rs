@@ -216,6 +216,23 @@ pub fn solve_modes_deflated<'p>(petsc: &'p Petsc, k: &Mat<'p>, m: &Mat<'p>, cfg:
     if !(cfg.spectrum_scale.is_finite() && cfg.spectrum_scale > 0.0) {
         return Err(EigenError::BadRequest(format!("spectrum scale must be positive, got {}", cfg.spectrum_scale)));
     }
+    if !shift.is_finite() || shift.abs() > 1e6 * cfg.spectrum_scale {
+        return Err(EigenError::BadRequest(format!(
+            "the shift σ = {shift:e} rad²/s² is not a finite number near the spectrum (its scale μ/(ρL²) is {:e} rad²/s²): leave --shift out for the default just below zero",
+            cfg.spectrum_scale
+        )));
+    }
+    // A request the system cannot meet fails here, in no time, instead of inside SLEPc.
+    let dofs = k.global_rows()?;
+    if let ModeRequest::FirstN(n) = cfg.request {
+        let most = dofs.saturating_sub(cfg.expected_rigid);
+        if n > most {
+            return Err(EigenError::BadRequest(format!(
+                "{n} elastic modes asked for, but the mesh has {dofs} degrees of freedom: at most {most} elastic modes exist ({} are rigid); ask for fewer with --modes, or use a finer mesh",
+                cfg.expected_rigid
+            )));
+        }
+    }
     let rigid_limit = cfg.rigid_threshold * cfg.spectrum_scale;
     let mut warnings = Vec::new();
     if !deflate.is_empty() && !matches!(cfg.request, ModeRequest::FirstN(_)) {
@@ -250,7 +267,8 @@ pub fn solve_modes_deflated<'p>(petsc: &'p Petsc, k: &Mat<'p>, m: &Mat<'p>, cfg:
         ModeRequest::UpTo { .. } => 0,
     };
 
-    let mut nev = wanted + cfg.expected_rigid.saturating_sub(deflate.len()) + 4.max(wanted / 10);
+    let nev_cap = dofs.saturating_sub(deflate.len());
+    let mut nev = (wanted + cfg.expected_rigid.saturating_sub(deflate.len()) + 4.max(wanted / 10)).min(nev_cap);
     let max_attempts = 3;
     let mut attempt = 0;
     let mut solve_log = FactorLog::default();
@@ -285,7 +303,7 @@ pub fn solve_modes_deflated<'p>(petsc: &'p Petsc, k: &Mat<'p>, m: &Mat<'p>, cfg:
             ModeRequest::FirstN(n) => {
                 if elastic.len() < n {
                     if attempt < max_attempts {
-                        nev += n;
+                        nev = (nev + n).min(nev_cap);
                         continue;
                     }
                     return Err(EigenError::NotConverged { converged: elastic.len() + rigid.len(), wanted: n + cfg.expected_rigid, reason: 0 });
@@ -296,7 +314,7 @@ pub fn solve_modes_deflated<'p>(petsc: &'p Petsc, k: &Mat<'p>, m: &Mat<'p>, cfg:
                 }
                 if keep == elastic.len() && keep > n && attempt < max_attempts {
                     // The cluster may go on beyond what was computed.
-                    nev += 10;
+                    nev = (nev + 10).min(nev_cap);
                     continue;
                 }
                 if keep > n {
@@ -323,7 +341,7 @@ pub fn solve_modes_deflated<'p>(petsc: &'p Petsc, k: &Mat<'p>, m: &Mat<'p>, cfg:
                             "inertia count found {} eigenvalues below {:.6e} but the solver returned {}; solving again with more vectors",
                             check.below, check.threshold, check.found
                         ));
-                        nev = nev.max(check.below + 4) + 4;
+                        nev = (nev.max(check.below + 4) + 4).min(nev_cap);
                         continue;
                     }
                     return Err(EigenError::MissedModes { below: check.below, found: check.found, threshold: check.threshold, attempts: attempt });

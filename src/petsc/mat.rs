@@ -144,6 +144,14 @@ impl<'p> Mat<'p> {
         Ok(Vector::from_raw(raw))
     }
 
+    /// The number of global rows (the system's size).
+    pub fn global_rows(&self) -> Result<usize> {
+        let (mut m, mut n) = (0, 0);
+        // SAFETY: query only.
+        unsafe { check(sys::MatGetSize(self.raw, &mut m, &mut n), "MatGetSize")? };
+        Ok(m as usize)
+    }
+
     /// The global rows `[start, end)` this rank owns.
     pub fn ownership_range(&self) -> Result<(usize, usize)> {
         let (mut lo, mut hi) = (0, 0);
