@@ -1172,7 +1172,17 @@ fn fmt_param(p: &catalogue::FittedParam) -> String {
 fn print_report(job: &Job, measured: &Measured, report: &CatalogueReport, youngs: f64, poisson: f64, feats: &Features, localised: &Localised) {
     println!("diagnose: E = {youngs:.5e} Pa, ν = {poisson:.4}, ρ = {} kg/m³ ({:?}); strike {}", job.density, job.material_source, feats.strike_note);
     println!("  recording: {} modes on {} fit microphones, {} on {} held-out, below {} Hz", measured.fit.len(), job.fit_channels.len(), measured.held_out.len(), job.held_channels.len(), job.max_frequency_hz);
-    println!("  matching: scale {:.5}, {} pairs, {} observed and {} simulated modes unmatched", report.matching.scale, report.matching.pairs.len(), report.matching.unmatched_observed.len(), report.matching.unmatched_simulated.len());
+    println!(
+        "  matching: scale {:.5}, {} pairs, {} extra poles of matched partials, {} observed and {} simulated modes unmatched",
+        report.matching.scale,
+        report.matching.pairs.len(),
+        report.matching.extra_poles.len(),
+        report.matching.unmatched_observed.len(),
+        report.matching.unmatched_simulated.len()
+    );
+    for p in &report.matching.extra_poles {
+        println!("      extra pole {:.2} Hz of the partial at {:.2} Hz (simulated cluster {})", p.observed_hz, p.beside_hz, p.cluster);
+    }
     let ho = |v: Option<f64>| v.map_or("n/a".to_string(), |v| format!("{v:.3}"));
     let gain = |g: Option<f64>| g.map_or(String::new(), |g| format!(" (Σz² gain {g:.1})"));
     println!("  held-out error (RMS standardised residual): baseline {} → final {}", ho(report.baseline.held_out_error), ho(report.final_model.held_out_error));

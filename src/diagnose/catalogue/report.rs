@@ -71,6 +71,17 @@ pub struct MatchedPair {
     pub simulated_hz: f64,
 }
 
+/// A recorded pole that belongs to a matched partial (matching step 5).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct ExtraPole {
+    pub observed: usize,
+    pub observed_hz: f64,
+    /// The matched recorded mode it sits beside, and its frequency.
+    pub beside: usize,
+    pub beside_hz: f64,
+    pub cluster: usize,
+}
+
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct MatchingReport {
     /// Global frequency scale s of the matching (the baseline refits it).
@@ -78,6 +89,10 @@ pub struct MatchingReport {
     pub pairs: Vec<MatchedPair>,
     pub unmatched_observed: Vec<usize>,
     pub unmatched_simulated: Vec<usize>,
+    /// Extra poles of matched partials (matching step 5): recorded modes within the largest
+    /// pair split of a matched mode of the same simulated cluster, which carry no rows.
+    #[serde(default)]
+    pub extra_poles: Vec<ExtraPole>,
     /// Held-out modes matched (with the fit's scale), and those left over.
     pub held_out_matched: Option<usize>,
     pub held_out_unmatched: Option<Vec<usize>>,

@@ -200,7 +200,7 @@ fn z_scores(fit: &Fit, table: &ModeTable, k: usize) -> ZScores {
     }
 }
 
-fn matching_report(m: &Matching, table: &ModeTable, held: Option<&Matching>) -> MatchingReport {
+fn matching_report(evidence: &Evidence, m: &Matching, table: &ModeTable, held: Option<&Matching>) -> MatchingReport {
     let scale = m.ln_scale.exp();
     MatchingReport {
         scale,
@@ -218,6 +218,11 @@ fn matching_report(m: &Matching, table: &ModeTable, held: Option<&Matching>) -> 
             .collect(),
         unmatched_observed: m.unmatched_observed.clone(),
         unmatched_simulated: m.unmatched_simulated.clone(),
+        extra_poles: m
+            .extra_poles
+            .iter()
+            .map(|&(i, beside, cluster)| ExtraPole { observed: i, observed_hz: evidence.fit[i].frequency_hz, beside, beside_hz: evidence.fit[beside].frequency_hz, cluster })
+            .collect(),
         held_out_matched: held.map(|h| h.units.len()),
         held_out_unmatched: held.map(|h| h.unmatched_observed.clone()),
     }
@@ -525,7 +530,7 @@ pub fn diagnose_with(
 
     Ok(CatalogueReport {
         delta_bic_threshold: settings.delta_bic_threshold,
-        matching: matching_report(&matching, &table, held.as_ref().map(|(_, m)| m)),
+        matching: matching_report(evidence, &matching, &table, held.as_ref().map(|(_, m)| m)),
         baseline: summary(&baseline, held_table, &baseline.tau2),
         final_model: summary(&current, held_table, &baseline.tau2),
         accepted: report_accepted,

@@ -614,6 +614,48 @@ fn observed_at(f: f64) -> ObservedMode {
 }
 
 #[test]
+fn extra_poles_of_a_partial_join_its_cluster_and_far_modes_stay_unmatched() {
+    // A real partial recorded as several poles (the bowl's near 1680 Hz: five within 0.5 %):
+    // the first split pair takes the cluster, the other poles within the largest pair split
+    // join it as extra poles; a mode 4.6 % from everything stays unmatched.
+    let simulated = vec![sim(1000.0, 0), sim(1000.2, 0), sim(1700.0, 1), sim(2600.0, 2), sim(4000.0, 3)];
+    let obs_hz = [1000.0, 998.0, 1001.5, 1003.0, 1700.0, 2600.0 * 0.996, 2600.0 * 1.004, 2600.0 * 1.009, 4000.0, 3100.0];
+    let ln: Vec<f64> = obs_hz.iter().map(|f: &f64| f.ln()).collect();
+    let m = match_modes(&ln, &simulated, Some(0.0), &CatalogueSettings::default());
+    assert_eq!(m.unmatched_observed, vec![9], "{m:#?}");
+    // Which poles of a partial become its split pair is the matching's choice; the others are
+    // its extra poles: two beside the partial near 1000 Hz, one beside 2600 Hz.
+    let mut extra: Vec<(usize, usize)> = m.extra_poles.iter().map(|&(i, _, c)| (i, c)).collect();
+    extra.sort_unstable();
+    let per_cluster = |c: usize| extra.iter().filter(|e| e.1 == c).count();
+    assert_eq!((per_cluster(0), per_cluster(2), extra.len()), (2, 1, 3), "{m:#?}");
+    // Extra poles carry no rows: every unit is one of the matched modes.
+    assert!(m.units.iter().all(|u| !extra.iter().any(|e| e.0 == u.observed)));
+}
+
+#[test]
+fn extra_poles_change_no_decision_on_clean_evidence() {
+    // The clean baseline of `clean_evidence_recovers_the_baseline_and_accepts_nothing`, with
+    // two faint extra poles beside cluster 5's mode (−0.4 %, +0.6 %): they are matched to it as
+    // extra poles, nothing is unmatched and nothing is accepted.
+    let (mut ev, _) = evidence(&Truth::default(), 5);
+    let k = 5;
+    for factor in [0.996, 1.006] {
+        let mut extra = ev.fit[k].clone();
+        extra.frequency_hz *= factor;
+        extra.amplitudes.iter_mut().for_each(|a| *a *= 0.1);
+        extra.sigma_amplitudes.iter_mut().for_each(|a| *a *= 0.1);
+        ev.fit.push(extra);
+    }
+    let report = diagnose(&ev, &CatalogueSettings::default()).expect("valid");
+    // One of the two may become the partial's split partner instead; both are matched.
+    let in_cluster = report.matching.pairs.iter().filter(|p| p.cluster == k).count();
+    assert_eq!(report.matching.extra_poles.len() + in_cluster, 3, "{:#?}", report.matching);
+    assert!(report.matching.unmatched_observed.is_empty(), "{:#?}", report.matching);
+    assert!(report.accepted.is_empty(), "{:#?}", report.accepted);
+}
+
+#[test]
 fn a_pair_split_as_the_mesh_splits_it_stands_for_its_own_members() {
     // Cluster 1: members at 1000 and 1002 Hz (split 2·10⁻³) with unlike drives and transfers.
     let mut simulated = vec![sim(500.0, 0), sim(1000.0, 1), sim(1002.0, 1), sim(2000.0, 2)];
