@@ -194,3 +194,17 @@ fn requests_the_mesh_cannot_meet_fail_at_once() {
         assert!(!out.exists(), "{request:?}: no output may be written");
     }
 }
+
+/// A misspelled PETSc option, or a word after `--` that is no option, is reported instead of
+/// ignored in silence; options that were used (and a MUMPS control in either spelling) are not.
+#[test]
+fn unused_petsc_options_are_reported() {
+    let mesh = zoo_mesh("slivers");
+    let out = mesh.parent().unwrap().join("options.h5");
+    let run = mpirun(2, &["modes", "--mesh", s(&mesh), "--modes", "5", "--out", s(&out), "--", "-foo_bar", "1", "notanoption", "-eps_ncv", "40", "-mat_mumps_icntl_14", "60"], LIMIT);
+    assert!(run.success(), "{}", run.describe());
+    assert!(run.stderr.contains("never used") && run.stderr.contains("-foo_bar 1"), "{}", run.describe());
+    assert!(run.stderr.contains("'notanoption' after -- is not a PETSc option"), "{}", run.describe());
+    let unused_line = run.stderr.lines().find(|l| l.contains("never used")).unwrap_or("");
+    assert!(!unused_line.contains("eps_ncv") && !unused_line.contains("mumps"), "used options reported: {unused_line}");
+}

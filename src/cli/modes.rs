@@ -437,7 +437,6 @@ fn sensitivity_datasets(s: &sensitivity::MaterialSensitivities, modes: &eigen::M
     out
 }
 
-#[allow(clippy::too_many_arguments)]
 /// The inertia proof in one line: both counts and the verdict.
 fn inertia_line(c: &eigen::InertiaCheck) -> String {
     let second = c.second.map_or(String::new(), |(t2, below, found)| format!("; {below} below {t2:.6e}, {found} found"));
@@ -450,6 +449,7 @@ fn inertia_line(c: &eigen::InertiaCheck) -> String {
     format!("{} eigenvalues below {:.6e} rad^2/s^2, {} found{second} -> {verdict}{retries}", c.below, c.threshold, c.found)
 }
 
+#[allow(clippy::too_many_arguments)]
 fn print_summary(job: &Job, mesh: &TetMesh, stats: &assembly::AssemblyStats, modes: &eigen::Modes<'_>, freqs: &[f64], total: f64, ranks: usize, sens: Option<&sensitivity::MaterialSensitivities>) {
     println!("diffsound modes: {} ({} tets, {} DOF, P{}, {} rank(s))", job.mesh.display(), mesh.n_tets(), stats.n_dofs, job.order, ranks);
     println!(

@@ -20,6 +20,12 @@ pub struct Material {
     pub rayleigh_beta: f64,
 }
 
+/// How close to 0.5 a Poisson ratio may come. At ν = 0.5 − 10⁻⁴ the bulk-to-shear ratio
+/// λ/μ = 2ν/(1 − 2ν) is 5·10³; beyond it P2 displacement elements lock and the rigid modes stop
+/// separating from the elastic ones (ν = 0.4999999 gave three "elastic" modes at 3.5–6.5 Hz with
+/// residuals 1e-2, issue 41). The fits search ν ≤ 0.49.
+pub const NEARLY_INCOMPRESSIBLE: f64 = 1e-4;
+
 /// Why a [`Material`] is not physically admissible.
 #[derive(thiserror::Error, Debug, Clone, PartialEq)]
 pub enum MaterialError {
@@ -27,6 +33,12 @@ pub enum MaterialError {
     YoungsModulus(f64),
     #[error("Poisson ratio must satisfy -1 < nu < 0.5, got {0}")]
     PoissonRatio(f64),
+    #[error(
+        "Poisson ratio {0} is within {NEARLY_INCOMPRESSIBLE} of 0.5: displacement-based elements lock there (the bulk modulus swamps the shear \
+         stiffness by {ratio:.0e}, and the solver can no longer tell the rigid modes from the elastic ones); no solid that rings is that \
+         incompressible — use nu <= {limit}", ratio = (1.0 - 2.0 * .0).recip(), limit = 0.5 - NEARLY_INCOMPRESSIBLE
+    )]
+    NearlyIncompressible(f64),
     #[error("density must be positive and finite, got {0} kg/m^3")]
     Density(f64),
     #[error("Rayleigh damping coefficients must be finite and >= 0, got alpha = {alpha} 1/s, beta = {beta} s")]
@@ -124,6 +136,9 @@ impl Material {
         if !(nu > -1.0 && nu < 0.5) {
             return Err(MaterialError::PoissonRatio(nu));
         }
+        if nu > 0.5 - NEARLY_INCOMPRESSIBLE {
+            return Err(MaterialError::NearlyIncompressible(nu));
+        }
         let rho = self.density;
         if !(rho.is_finite() && rho > 0.0) {
             return Err(MaterialError::Density(rho));
@@ -198,6 +213,10 @@ mod tests {
             },
             Material {
                 poisson_ratio: -1.0,
+                ..ok
+            },
+            Material {
+                poisson_ratio: 0.4999999,
                 ..ok
             },
             Material {

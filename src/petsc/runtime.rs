@@ -19,6 +19,9 @@ pub struct Petsc {
     _argv_ptrs: Vec<*mut c_char>,
     world: SimpleCommunicator,
     universe: Universe,
+    /// Options this code set itself (defaults, shared MUMPS spellings, scoped overrides): left
+    /// out of the warning about options nobody used.
+    ours: std::sync::Mutex<std::collections::BTreeSet<String>>,
 }
 
 impl Petsc {
@@ -40,7 +43,12 @@ impl Petsc {
             check(sys::SlepcInitialize(&mut argc, &mut argv, std::ptr::null(), std::ptr::null()), "SlepcInitialize")?;
             check(sys::PetscPushErrorHandler(Some(record_error), std::ptr::null_mut()), "PetscPushErrorHandler")?;
         }
-        let petsc = Petsc { _argv_storage: argv_storage, _argv_ptrs: argv_ptrs, world, universe };
+        let petsc = Petsc { _argv_storage: argv_storage, _argv_ptrs: argv_ptrs, world, universe, ours: Default::default() };
+        if petsc.rank() == 0 {
+            for token in stray_tokens(petsc_args) {
+                eprintln!("warning: '{token}' after -- is not a PETSc option (options start with '-') and is ignored");
+            }
+        }
         super::factor::share_mumps_options(&petsc)?;
         Ok(petsc)
     }
@@ -80,6 +88,7 @@ impl Petsc {
         if self.option_given(name)? {
             return Ok(());
         }
+        self.mark_ours(name);
         let (n, v) = (cstring(name), cstring(value));
         // SAFETY: PETSc copies both strings.
         unsafe { check(sys::PetscOptionsSetValue(std::ptr::null_mut(), n.as_ptr(), v.as_ptr()), "PetscOptionsSetValue") }
@@ -87,6 +96,7 @@ impl Petsc {
 
     /// Sets an option in the global database (replacing any value).
     pub fn set_option(&self, name: &str, value: &str) -> Result<()> {
+        self.mark_ours(name);
         let (n, v) = (cstring(name), cstring(value));
         // SAFETY: PETSc copies both strings.
         unsafe { check(sys::PetscOptionsSetValue(std::ptr::null_mut(), n.as_ptr(), v.as_ptr()), "PetscOptionsSetValue") }
@@ -114,6 +124,47 @@ impl Petsc {
         }
     }
 
+    fn mark_ours(&self, name: &str) {
+        self.ours.lock().unwrap_or_else(|p| p.into_inner()).insert(name.trim_start_matches('-').to_string());
+    }
+
+    /// The options the user gave that no PETSc object has read so far (PETSc's
+    /// `-options_left` list), less the ones this code set; a MUMPS control counts as used when
+    /// its other spelling (`-st_…` or plain) was. Meaningful at the end of a job.
+    pub fn unused_user_options(&self) -> Vec<String> {
+        let mut names: Vec<String> = Vec::new();
+        // SAFETY: PETSc allocates the arrays and frees them in the matching Restore call.
+        unsafe {
+            let mut n: sys::PetscInt = 0;
+            let mut raw_names: *mut *mut c_char = std::ptr::null_mut();
+            let mut raw_values: *mut *mut c_char = std::ptr::null_mut();
+            if sys::PetscOptionsLeftGet(std::ptr::null_mut(), &mut n, &mut raw_names, &mut raw_values) != 0 {
+                super::error::discard_recorded();
+                return names;
+            }
+            for i in 0..n.max(0) as usize {
+                let name = super::from_cstr(*raw_names.add(i));
+                let value = super::from_cstr(*raw_values.add(i));
+                let name = name.trim_start_matches('-').to_string();
+                names.push(if value.is_empty() { name } else { format!("{name} {value}") });
+            }
+            sys::PetscOptionsLeftRestore(std::ptr::null_mut(), &mut n, &mut raw_names, &mut raw_values);
+        }
+        let ours = self.ours.lock().unwrap_or_else(|p| p.into_inner()).clone();
+        let key = |entry: &str| entry.split(' ').next().unwrap_or("").to_string();
+        let unused: std::collections::BTreeSet<String> = names.iter().map(|e| key(e)).collect();
+        names
+            .into_iter()
+            .filter(|e| {
+                let k = key(e);
+                let mirror = if let Some(plain) = k.strip_prefix("st_") { plain.to_string() } else { format!("st_{k}") };
+                let mirrored_use = k.contains("mat_mumps_") && !unused.contains(&mirror);
+                !ours.contains(&k) && !mirrored_use
+            })
+            .map(|e| format!("-{e}"))
+            .collect()
+    }
+
     /// Version strings of the PETSc and SLEPc libraries we run on.
     pub fn versions(&self) -> (String, String) {
         let mut p = vec![0 as c_char; 256];
@@ -137,11 +188,48 @@ impl Petsc {
     }
 }
 
+/// Tokens after `--` that PETSc ignores: words that neither start an option (`-name`) nor follow
+/// one as its value. Numbers (`-1e30`) are values, not names.
+fn stray_tokens(args: &[String]) -> Vec<String> {
+    let mut stray = Vec::new();
+    let mut after_name = false;
+    for token in args {
+        let is_name = token.starts_with('-') && token.parse::<f64>().is_err() && token.len() > 1;
+        if is_name {
+            after_name = true;
+        } else if after_name {
+            after_name = false;
+        } else {
+            stray.push(token.clone());
+        }
+    }
+    stray
+}
+
 impl Drop for Petsc {
     fn drop(&mut self) {
+        // A misspelled option is otherwise ignored in silence.
+        let unused = self.unused_user_options();
+        if self.rank() == 0 && !unused.is_empty() {
+            eprintln!("warning: PETSc option(s) given but never used (misspelled, or for a solver this job does not run): {}", unused.join(", "));
+        }
         // SAFETY: every handle borrows `self`, so all were destroyed before this runs.
         unsafe {
             sys::SlepcFinalize();
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::stray_tokens;
+
+    #[test]
+    fn words_that_are_neither_options_nor_their_values_are_stray() {
+        let args = |v: &[&str]| v.iter().map(|s| s.to_string()).collect::<Vec<_>>();
+        assert_eq!(stray_tokens(&args(&["-eps_ncv", "80", "-eps_view"])), Vec::<String>::new());
+        assert_eq!(stray_tokens(&args(&["notanoption"])), vec!["notanoption".to_string()]);
+        assert_eq!(stray_tokens(&args(&["-foo_bar", "1", "extra"])), vec!["extra".to_string()]);
+        assert_eq!(stray_tokens(&args(&["-st_shift", "-1e30"])), Vec::<String>::new(), "a negative number is a value");
     }
 }
