@@ -141,21 +141,31 @@ fn bowl() {
 /// room, the retry is logged, and the proof is complete.
 #[test]
 fn starved_inertia_workspace_is_retried_not_miscounted() {
+    // Whether MUMPS runs short at 0 % depends on its dynamic scheduling on two ranks (it did in
+    // every run on an idle machine, and once not under load): up to five runs, each of which
+    // must end complete, and at least one must show the retry.
     let mesh = zoo_mesh("thin_plate");
     let dir = mesh.parent().unwrap();
     let json = dir.join("starved.json");
-    let run = mpirun(
-        2,
-        &["modes", "--mesh", s(&mesh), "--material", "aluminium", "--modes", "40", "--out", s(&dir.join("starved.h5")), "--timings-json", s(&json), "--", "-mat_mumps_icntl_14", "0", "-st_mat_mumps_icntl_14", "200"],
-        LIMIT,
-    );
-    assert!(run.success(), "{}", run.describe());
-    assert!(run.stdout.contains("-> complete"), "{}", run.describe());
-    let v = read_json(&json);
-    let retries = v["inertia"]["factor_retries"].as_u64().unwrap_or(0);
-    assert!(retries >= 1, "the starved inertia factor should have been retried: {}\n{}", v["inertia"], run.describe());
-    assert!(run.stderr.contains("MUMPS workspace too small for the inertia matrix"), "the retry must be logged:\n{}", run.stderr);
-    println!("starved inertia factor: {}", v["inertia"]["factor_attempts"]);
+    let mut seen = Vec::new();
+    for _ in 0..5 {
+        let run = mpirun(
+            2,
+            &["modes", "--mesh", s(&mesh), "--material", "aluminium", "--modes", "40", "--out", s(&dir.join("starved.h5")), "--timings-json", s(&json), "--", "-mat_mumps_icntl_14", "0", "-st_mat_mumps_icntl_14", "200"],
+            LIMIT,
+        );
+        assert!(run.success(), "{}", run.describe());
+        assert!(run.stdout.contains("-> complete"), "{}", run.describe());
+        let v = read_json(&json);
+        let attempts = v["inertia"]["factor_attempts"].as_str().unwrap_or("").to_string();
+        println!("starved inertia factor: {attempts}");
+        if v["inertia"]["factor_retries"].as_u64().unwrap_or(0) >= 1 {
+            assert!(run.stderr.contains("MUMPS workspace too small for the inertia matrix"), "the retry must be logged:\n{}", run.stderr);
+            return;
+        }
+        seen.push(attempts);
+    }
+    panic!("the starved inertia factor never ran short in five runs: {seen:?}");
 }
 
 /// A cap on MUMPS's memory (ICNTL(23)) too small to factor is not retried: the job fails at once

@@ -220,7 +220,7 @@ pub enum FactorError {
     )]
     Workspace { what: String, infog1: i32, retries: usize, last_percent: i32, estimate_mb_max: i32, estimate_mb_sum: i32 },
     #[error(
-        "MUMPS could not allocate memory factoring the {what} (INFOG(1) = -13): it asked for {requested_mb:.0} MB on one rank, \
+        "MUMPS could not allocate memory factoring the {what} (INFOG(1) = -13): it asked for about {requested_mb:.0} MB on one rank (entries of 8 bytes), \
          with an estimate of {estimate_mb_max} MB on the largest rank ({estimate_mb_sum} MB in all). \
          Use fewer ranks per machine, a coarser mesh, or MUMPS's block low-rank factorisation (-mat_mumps_icntl_35 1)"
     )]
