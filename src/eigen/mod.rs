@@ -49,7 +49,7 @@ pub mod reduced;
 pub mod sensitivity;
 
 use crate::assembly::DofLayout;
-use crate::petsc::factor::{self, FactorAttempt, FactorError, FactorLog, FactorUse, Inertia, MumpsCholesky, MumpsFailure, MumpsStatus, ScopedOption};
+use crate::petsc::factor::{self, FactorError, FactorLog, FactorUse, Inertia, MumpsCholesky, MumpsFailure, MumpsStatus, ScopedOption};
 use crate::petsc::{self, Eps, EpsWhich, Mat, NonzeroPattern, Petsc, PetscError, Vector};
 
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -399,7 +399,7 @@ pub fn solve_modes_deflated<'p>(petsc: &'p Petsc, k: &Mat<'p>, m: &Mat<'p>, cfg:
 
 /// A shift-invert solve that failed, with MUMPS's status when the factorisation was the cause.
 enum SolveFailure {
-    Factor { status: MumpsStatus, error: PetscError },
+    Factor { status: MumpsStatus },
     Other(EigenError),
 }
 
@@ -419,42 +419,45 @@ fn solve_with_workspace<'p>(
     warnings: &mut Vec<String>,
     mut run: impl FnMut(&'p Petsc) -> Result<RawPairs<'p>, SolveFailure>,
 ) -> Result<RawPairs<'p>, EigenError> {
-    const OPTION: &str = "-st_mat_mumps_icntl_14";
-    let user: Option<i32> = petsc.option_value(OPTION)?.and_then(|v| v.trim().parse().ok());
+    let user = st_workspace_percent(petsc);
     let mut percent = factor::learned_workspace_percent().filter(|&p| user.is_none_or(|u| p > u));
-    let first = log.attempts.len();
-    loop {
+    let mut tries = FactorLog::default();
+    let outcome = loop {
         let _raised = match percent {
-            Some(p) => Some(ScopedOption::set(petsc, OPTION, &p.to_string())?),
+            Some(p) => Some(ScopedOption::set(petsc, ST_WORKSPACE_OPTION, &p.to_string())?),
             None => None,
         };
         match run(petsc) {
             Ok(pairs) => {
                 let icntl14 = percent.or(user).unwrap_or(MUMPS_DEFAULT_ICNTL14);
-                log.attempts.push(FactorAttempt { retry: log.attempts.len() > first, icntl14, infog1: 0, infog2: 0 });
-                let taken = FactorLog { attempts: log.attempts[first..].to_vec() };
-                warnings.extend(taken.retry_notes("shift-invert matrix K − σM"));
-                if taken.retries() > 0 {
+                tries.record(icntl14, 0, 0);
+                warnings.extend(tries.retry_notes("shift-invert matrix K − σM"));
+                if tries.retries() > 0 {
                     factor::learn_workspace_percent(icntl14);
                 }
-                return Ok(pairs);
+                break Ok(pairs);
             }
-            Err(SolveFailure::Other(e)) => return Err(e),
-            Err(SolveFailure::Factor { status, error }) => {
-                log.attempts.push(FactorAttempt { retry: log.attempts.len() > first, icntl14: status.icntl14, infog1: status.infog1, infog2: status.infog2 });
-                let retries = log.attempts.len() - first - 1;
-                if status.failure() == Some(MumpsFailure::Workspace) && retries < factor::MAX_WORKSPACE_RETRIES {
+            Err(SolveFailure::Other(e)) => break Err(e),
+            Err(SolveFailure::Factor { status }) => {
+                tries.record(status.icntl14, status.infog1, status.infog2);
+                if status.failure() == Some(MumpsFailure::Workspace) && tries.retries() < factor::MAX_WORKSPACE_RETRIES {
                     percent = Some(factor::next_workspace_percent(status.icntl14));
                     continue;
                 }
-                if status.failure().is_none() {
-                    return Err(error.into());
-                }
-                let taken = FactorLog { attempts: log.attempts[first..].to_vec() };
-                return Err(FactorError::from_status("shift-invert matrix K − σM", &status, &taken).into());
+                break Err(FactorError::from_status("shift-invert matrix K − σM", &status, &tries).into());
             }
         }
-    }
+    };
+    log.attempts.extend(tries.attempts);
+    outcome
+}
+
+/// The option through which the ST's factor reads its workspace percentage.
+const ST_WORKSPACE_OPTION: &str = "-st_mat_mumps_icntl_14";
+
+/// The ST factor's ICNTL(14) in the options database (the user's, or a retry's while it lasts).
+fn st_workspace_percent(petsc: &Petsc) -> Option<i32> {
+    petsc.option_value(ST_WORKSPACE_OPTION).ok().flatten().and_then(|v| v.trim().parse().ok())
 }
 
 /// MUMPS's ICNTL(14) when nobody set it (MUMPS 5.5 users' guide), for the log of a solve whose
@@ -467,12 +470,11 @@ fn classify_solve_error(petsc: &Petsc, eps: &Eps<'_>, error: PetscError) -> Solv
     let from_pc = eps.st().ok().and_then(|st| st.pc().ok().and_then(|pc| pc.mumps_status())).filter(|s| s.infog1 < 0);
     let status = from_pc.or_else(|| {
         factor::mumps_code_in(&error).map(|(infog1, infog2)| {
-            let icntl14 = petsc.option_value("-st_mat_mumps_icntl_14").ok().flatten().and_then(|v| v.trim().parse().ok()).unwrap_or(MUMPS_DEFAULT_ICNTL14);
-            MumpsStatus { infog1, infog2, icntl14, ..MumpsStatus::default() }
+            MumpsStatus { infog1, infog2, icntl14: st_workspace_percent(petsc).unwrap_or(MUMPS_DEFAULT_ICNTL14), ..MumpsStatus::default() }
         })
     });
     match status {
-        Some(status) if status.infog1 < 0 => SolveFailure::Factor { status, error },
+        Some(status) if status.infog1 < 0 => SolveFailure::Factor { status },
         _ => SolveFailure::Other(error.into()),
     }
 }
@@ -634,16 +636,6 @@ pub fn find_clusters(sorted: &[f64], rtol: f64) -> Vec<std::ops::Range<usize>> {
         }
     }
     out
-}
-
-/// Number of eigenvalues of (K, M) below τ: the negative inertia of K − τM, through the one
-/// factor path (an error if MUMPS flags a null pivot, whose sign is unknown).
-pub fn count_below<'p>(petsc: &'p Petsc, k: &Mat<'p>, m: &Mat<'p>, tau: f64) -> Result<usize, EigenError> {
-    let inertia = inertia_below(petsc, k, m, tau, &mut FactorLog::default())?;
-    if inertia.zero > 0 {
-        return Err(EigenError::BadRequest(format!("τ = {tau:e} lies within rounding of an eigenvalue: MUMPS flagged {} null pivots", inertia.zero)));
-    }
-    Ok(inertia.negative)
 }
 
 /// Common defaults: GHEP, Krylov–Schur, shift-invert with MUMPS Cholesky, no purification.

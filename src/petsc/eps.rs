@@ -296,10 +296,7 @@ impl Pc<'_> {
                 return None;
             }
         }
-        let status = super::factor::MumpsStatus::read(factor);
-        if status.is_err() {
-            super::error::discard_recorded();
-        }
-        status.ok()
+        // A failed query's messages are taken by its `check`, so nothing is left recorded.
+        super::factor::MumpsStatus::read(factor).ok()
     }
 }

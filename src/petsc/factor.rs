@@ -176,6 +176,11 @@ pub struct FactorLog {
 }
 
 impl FactorLog {
+    /// Records a try; it is a retry when this log already holds one (a log per factorisation).
+    pub fn record(&mut self, icntl14: i32, infog1: i32, infog2: i32) {
+        self.attempts.push(FactorAttempt { retry: !self.attempts.is_empty(), icntl14, infog1, infog2 });
+    }
+
     /// Tries that repeated a failed one.
     pub fn retries(&self) -> usize {
         self.attempts.iter().filter(|a| a.retry).count()
@@ -341,7 +346,7 @@ impl<'p> MumpsCholesky<'p> {
                     return Err(e.into());
                 }
             }
-            log.attempts.push(FactorAttempt { retry: !log.attempts.is_empty(), icntl14: status.icntl14, infog1: status.infog1, infog2: status.infog2 });
+            log.record(status.icntl14, status.infog1, status.infog2);
             match status.failure() {
                 None => {
                     if log.retries() > 0 {
