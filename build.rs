@@ -9,7 +9,10 @@ use std::env;
 use std::path::PathBuf;
 
 fn include_dirs(lib: &pkg_config::Library) -> Vec<String> {
-    lib.include_paths.iter().map(|p| format!("-I{}", p.display())).collect()
+    lib.include_paths
+        .iter()
+        .map(|p| format!("-I{}", p.display()))
+        .collect()
 }
 
 fn main() {
@@ -30,8 +33,12 @@ fn main() {
     let bindings = bindgen::Builder::default()
         .header("src/petsc/wrapper.h")
         .clang_args(clang_args)
-        .allowlist_function("(Petsc|Mat|Vec|KSP|PC|EPS|ST|BV|DS|RG|Slepc|IS|ISLocalToGlobal|VecScatter|Options).*")
-        .allowlist_type("(Petsc|Mat|Vec|KSP|PC|EPS|ST|BV|Slepc|IS|InsertMode|NormType|ScatterMode|_p_).*")
+        .allowlist_function(
+            "(Petsc|Mat|Vec|KSP|PC|EPS|ST|BV|DS|RG|Slepc|IS|ISLocalToGlobal|VecScatter|Options).*",
+        )
+        .allowlist_type(
+            "(Petsc|Mat|Vec|KSP|PC|EPS|ST|BV|Slepc|IS|InsertMode|NormType|ScatterMode|_p_).*",
+        )
         .allowlist_var("(PETSC|MAT|VEC|KSP|PC|EPS|ST|SLEPC).*")
         .blocklist_type("(MPI_|ompi_).*")
         .blocklist_function("(MPI_|ompi_).*")
@@ -47,5 +54,7 @@ fn main() {
         .expect("bindgen failed over petsc.h/slepceps.h");
 
     let out = PathBuf::from(env::var("OUT_DIR").unwrap()).join("petsc_bindings.rs");
-    bindings.write_to_file(out).expect("could not write bindings");
+    bindings
+        .write_to_file(out)
+        .expect("could not write bindings");
 }

@@ -17,8 +17,12 @@
 //!
 //! With DIFFSOUND_BENCH_DUMP=DIR set, the target, the rendered prediction and dL/ds are also
 //! written to DIR as raw little-endian f64 (target.f64, signal.f64, grad_signal.f64), untimed.
-use diffsound::audio::loss::{MultiScaleSpectralLoss, SpectralLossConfig, TransportLoss, TransportLossConfig};
-use diffsound::audio::synth::{render_backward, render_samples, set_worker_threads, worker_threads, BankGradient};
+use diffsound::audio::loss::{
+    MultiScaleSpectralLoss, SpectralLossConfig, TransportLoss, TransportLossConfig,
+};
+use diffsound::audio::synth::{
+    render_backward, render_samples, set_worker_threads, worker_threads, BankGradient,
+};
 use diffsound::audio::ModalBank;
 use std::time::Instant;
 
@@ -32,7 +36,12 @@ struct Bank {
 
 impl From<Bank> for ModalBank {
     fn from(b: Bank) -> ModalBank {
-        ModalBank { frequencies_hz: b.frequencies_hz, decay_rates: b.decay_rates, amplitudes: b.amplitudes, phases: b.phases }
+        ModalBank {
+            frequencies_hz: b.frequencies_hz,
+            decay_rates: b.decay_rates,
+            amplitudes: b.amplitudes,
+            phases: b.phases,
+        }
     }
 }
 
@@ -70,16 +79,35 @@ fn evaluate(loss: &Loss, bank: &ModalBank, rate: f64, n: usize) -> (f64, BankGra
     let t2 = Instant::now();
     let grad = render_backward(bank, rate, &grad_signal);
     let t3 = Instant::now();
-    (value, grad, [(t1 - t0).as_secs_f64(), (t2 - t1).as_secs_f64(), (t3 - t2).as_secs_f64()])
+    (
+        value,
+        grad,
+        [
+            (t1 - t0).as_secs_f64(),
+            (t2 - t1).as_secs_f64(),
+            (t3 - t2).as_secs_f64(),
+        ],
+    )
 }
 
 /// Writes the intermediate signals as raw little-endian f64 (target.f64, signal.f64 and
 /// grad_signal.f64 = dL/ds), so a reference can be compared stage by stage on identical inputs.
-fn dump_stages(dir: &std::path::Path, loss: &Loss, bank: &ModalBank, target: &[f64], rate: f64, n: usize) {
+fn dump_stages(
+    dir: &std::path::Path,
+    loss: &Loss,
+    bank: &ModalBank,
+    target: &[f64],
+    rate: f64,
+    n: usize,
+) {
     let x = render_samples(bank, rate, n);
     let (_, g) = loss.value_and_gradient(&x);
     std::fs::create_dir_all(dir).expect("create the dump directory");
-    for (name, v) in [("target", target), ("signal", &x[..]), ("grad_signal", &g[..])] {
+    for (name, v) in [
+        ("target", target),
+        ("signal", &x[..]),
+        ("grad_signal", &g[..]),
+    ] {
         let bytes: Vec<u8> = v.iter().flat_map(|f| f.to_le_bytes()).collect();
         std::fs::write(dir.join(format!("{name}.f64")), bytes).expect("write a dump file");
     }
@@ -89,7 +117,11 @@ fn median(v: &[f64]) -> f64 {
     let mut s = v.to_vec();
     s.sort_by(f64::total_cmp);
     let m = s.len() / 2;
-    if s.len() % 2 == 1 { s[m] } else { 0.5 * (s[m - 1] + s[m]) }
+    if s.len() % 2 == 1 {
+        s[m]
+    } else {
+        0.5 * (s[m - 1] + s[m])
+    }
 }
 
 fn main() {
@@ -111,8 +143,14 @@ fn main() {
 
     let target = render_samples(&target_bank, rate, n);
     let loss = match p.loss.as_str() {
-        "spectral" => Loss::Spectral(MultiScaleSpectralLoss::new(&target, SpectralLossConfig::default()).expect("spectral loss")),
-        "transport" => Loss::Transport(TransportLoss::new(&target, rate, TransportLossConfig::default()).expect("transport loss")),
+        "spectral" => Loss::Spectral(
+            MultiScaleSpectralLoss::new(&target, SpectralLossConfig::default())
+                .expect("spectral loss"),
+        ),
+        "transport" => Loss::Transport(
+            TransportLoss::new(&target, rate, TransportLossConfig::default())
+                .expect("transport loss"),
+        ),
         other => panic!("unknown loss {other:?} (spectral | transport)"),
     };
 
@@ -157,7 +195,11 @@ fn main() {
             "phases": grad.phases,
         },
     });
-    std::fs::write(&args[2], serde_json::to_string_pretty(&out).expect("serialise")).expect("write the result file");
+    std::fs::write(
+        &args[2],
+        serde_json::to_string_pretty(&out).expect("serialise"),
+    )
+    .expect("write the result file");
     eprintln!(
         "{}: value {:.12e}, {} threads, median {:.2} ms, min {:.2} ms over {} repeats",
         p.loss,

@@ -46,16 +46,24 @@ fn parse_args() -> Args {
             "--to" => to = Some(value()),
             "--set" => {
                 let kv = value();
-                let Some((k, v)) = kv.split_once('=') else { usage() };
+                let Some((k, v)) = kv.split_once('=') else {
+                    usage()
+                };
                 // A bare word that is not JSON (a string setting) is taken as a string.
-                let v = serde_json::from_str(v).unwrap_or_else(|_| serde_json::Value::String(v.to_string()));
+                let v = serde_json::from_str(v)
+                    .unwrap_or_else(|_| serde_json::Value::String(v.to_string()));
                 overrides.push((k.to_string(), v));
             }
             _ => usage(),
         }
     }
     match (cases, from, to) {
-        (Some(cases), Some(from), Some(to)) if from != to => Args { cases, from, to, overrides },
+        (Some(cases), Some(from), Some(to)) if from != to => Args {
+            cases,
+            from,
+            to,
+            overrides,
+        },
         _ => usage(),
     }
 }
@@ -63,16 +71,28 @@ fn parse_args() -> Args {
 /// One case: the replayed report's accepted effect names, or why it could not be replayed.
 fn replay(path: &Path, out: &Path, args: &Args) -> Result<Vec<String>, String> {
     let text = std::fs::read_to_string(path).map_err(|e| format!("{}: {e}", path.display()))?;
-    let mut report: serde_json::Value = serde_json::from_str(&text).map_err(|e| format!("{}: {e}", path.display()))?;
-    let input = report.get("catalogue_input").ok_or_else(|| format!("{}: no catalogue_input (written by diagnose since this tool exists)", path.display()))?;
-    let evidence: Evidence = serde_json::from_value(input["evidence"].clone()).map_err(|e| format!("{}: evidence: {e}", path.display()))?;
+    let mut report: serde_json::Value =
+        serde_json::from_str(&text).map_err(|e| format!("{}: {e}", path.display()))?;
+    let input = report.get("catalogue_input").ok_or_else(|| {
+        format!(
+            "{}: no catalogue_input (written by diagnose since this tool exists)",
+            path.display()
+        )
+    })?;
+    let evidence: Evidence = serde_json::from_value(input["evidence"].clone())
+        .map_err(|e| format!("{}: evidence: {e}", path.display()))?;
     let mut settings = input["settings"].clone();
     for (k, v) in &args.overrides {
-        settings.as_object_mut().ok_or("settings are not a JSON object")?.insert(k.clone(), v.clone());
+        settings
+            .as_object_mut()
+            .ok_or("settings are not a JSON object")?
+            .insert(k.clone(), v.clone());
     }
     // catalogue::diagnose validates the settings.
-    let settings: CatalogueSettings = serde_json::from_value(settings).map_err(|e| format!("settings: {e}"))?;
-    let result = catalogue::diagnose(&evidence, &settings).map_err(|e| format!("catalogue: {e}"))?;
+    let settings: CatalogueSettings =
+        serde_json::from_value(settings).map_err(|e| format!("settings: {e}"))?;
+    let result =
+        catalogue::diagnose(&evidence, &settings).map_err(|e| format!("catalogue: {e}"))?;
     let accepted = result.accepted.iter().map(|a| a.name.clone()).collect();
     report["catalogue"] = serde_json::to_value(&result).map_err(|e| e.to_string())?;
     report["replay"] = serde_json::json!({
@@ -82,7 +102,14 @@ fn replay(path: &Path, out: &Path, args: &Args) -> Result<Vec<String>, String> {
     });
     let text = serde_json::to_string_pretty(&report).map_err(|e| e.to_string())?;
     // Atomic, as diagnose writes its reports: an interrupted replay leaves no half-written file.
-    write_atomically(out, |tmp| std::fs::write(tmp, &text).map_err(|source| IoError::Fs { path: tmp.to_path_buf(), context: "writing the replayed report".into(), source })).map_err(|e| e.to_string())?;
+    write_atomically(out, |tmp| {
+        std::fs::write(tmp, &text).map_err(|source| IoError::Fs {
+            path: tmp.to_path_buf(),
+            context: "writing the replayed report".into(),
+            source,
+        })
+    })
+    .map_err(|e| e.to_string())?;
     Ok(accepted)
 }
 
@@ -94,19 +121,34 @@ fn main() {
             std::process::exit(1)
         })
         .filter_map(|e| e.ok().map(|e| e.path()))
-        .filter(|p| p.is_dir() && p.file_name().is_some_and(|n| n.to_string_lossy().starts_with("case_")))
+        .filter(|p| {
+            p.is_dir()
+                && p.file_name()
+                    .is_some_and(|n| n.to_string_lossy().starts_with("case_"))
+        })
         .collect();
     dirs.sort();
     let mut failed = 0;
     for dir in &dirs {
-        let name = dir.file_name().unwrap_or_default().to_string_lossy().to_string();
+        let name = dir
+            .file_name()
+            .unwrap_or_default()
+            .to_string_lossy()
+            .to_string();
         let path = dir.join(format!("{}.json", args.from));
         if !path.exists() {
             println!("{name}: no {}.json", args.from);
             continue;
         }
         match replay(&path, &dir.join(format!("{}.json", args.to)), &args) {
-            Ok(accepted) => println!("{name}: {}", if accepted.is_empty() { "–".to_string() } else { accepted.join(", ") }),
+            Ok(accepted) => println!(
+                "{name}: {}",
+                if accepted.is_empty() {
+                    "–".to_string()
+                } else {
+                    accepted.join(", ")
+                }
+            ),
             Err(e) => {
                 failed += 1;
                 println!("{name}: FAILED {e}");

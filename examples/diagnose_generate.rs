@@ -71,7 +71,9 @@ use diffsound::assembly::{self, Assembled};
 use diffsound::audio::excitation::{modal_factor, ContactForce, Response};
 use diffsound::audio::radiation::{fit_multipoles, MultipoleSettings, SurfaceQuadrature};
 use diffsound::audio::{write_wav, WavFormat};
-use diffsound::diagnose::inject::{self, Effect, HertzPulse, ModeTrack, NoiseColour, RoomResponse, SplitMix64, ZenerDamping};
+use diffsound::diagnose::inject::{
+    self, Effect, HertzPulse, ModeTrack, NoiseColour, RoomResponse, SplitMix64, ZenerDamping,
+};
 use diffsound::eigen::{self, EigenConfig, ModeRequest};
 use diffsound::fem::Material;
 use diffsound::mesh::{self, ReadOptions, TetMesh};
@@ -147,7 +149,8 @@ fn parse_args() -> Result<Args, String> {
     while let Some(arg) = it.next() {
         let mut value = |name: &str| it.next().ok_or(format!("{name} needs a value"));
         fn num<T: std::str::FromStr>(name: &str, v: String) -> Result<T, String> {
-            v.parse().map_err(|_| format!("{name}: cannot read {v:?} as a number"))
+            v.parse()
+                .map_err(|_| format!("{name}: cannot read {v:?} as a number"))
         }
         match arg.as_str() {
             "--cases" => a.cases = num("--cases", value("--cases")?)?,
@@ -157,7 +160,10 @@ fn parse_args() -> Result<Args, String> {
             "--out" => out = Some(PathBuf::from(value("--out")?)),
             "--mics" => a.mics = num("--mics", value("--mics")?)?,
             "--fmax" => a.fmax = num("--fmax", value("--fmax")?)?,
-            "--effects" => a.effects = inject::parse_effect_list(&value("--effects")?).map_err(|e| e.to_string())?,
+            "--effects" => {
+                a.effects =
+                    inject::parse_effect_list(&value("--effects")?).map_err(|e| e.to_string())?
+            }
             "--sample-rate" => a.sample_rate = num("--sample-rate", value("--sample-rate")?)?,
             "--duration" => a.duration = num("--duration", value("--duration")?)?,
             "--pre-roll" => a.pre_roll = num("--pre-roll", value("--pre-roll")?)?,
@@ -176,13 +182,22 @@ fn parse_args() -> Result<Args, String> {
         return Err(format!("--mics must lie in 1..=64, got {}", a.mics));
     }
     if !(8_000..=384_000).contains(&a.sample_rate) {
-        return Err(format!("--sample-rate must lie in 8000..=384000 Hz, got {}", a.sample_rate));
+        return Err(format!(
+            "--sample-rate must lie in 8000..=384000 Hz, got {}",
+            a.sample_rate
+        ));
     }
     if !(a.fmax > 0.0 && a.fmax < 0.5 * a.sample_rate as f64) {
-        return Err(format!("--fmax must lie in (0, sample rate / 2), got {}", a.fmax));
+        return Err(format!(
+            "--fmax must lie in (0, sample rate / 2), got {}",
+            a.fmax
+        ));
     }
     if !(a.duration > 0.0 && a.duration <= 60.0 && a.pre_roll >= 0.0 && a.pre_roll <= 60.0) {
-        return Err(format!("--duration must lie in (0, 60] s and --pre-roll in [0, 60] s, got {} and {}", a.duration, a.pre_roll));
+        return Err(format!(
+            "--duration must lie in (0, 60] s and --pre-roll in [0, 60] s, got {} and {}",
+            a.duration, a.pre_roll
+        ));
     }
     Ok(a)
 }
@@ -242,18 +257,32 @@ fn draw_plan(args: &Args, body: &Body, effects: Vec<Effect>, rng: &mut SplitMix6
         rayleigh_beta: rng.uniform(BETA.0, BETA.1),
     };
     let (strike_vertex, normal) = body.strike_candidates[rng.below(body.strike_candidates.len())];
-    let gains_db = (0..args.mics).map(|_| rng.uniform(-GAIN_DB, GAIN_DB)).collect();
+    let gains_db = (0..args.mics)
+        .map(|_| rng.uniform(-GAIN_DB, GAIN_DB))
+        .collect();
     // Outside the body's bounding sphere with room to spare, whatever its size.
-    let mic_radius = rng.uniform(MIC_RADIUS.0, MIC_RADIUS.1).max(0.75 * body.diagonal);
+    let mic_radius = rng
+        .uniform(MIC_RADIUS.0, MIC_RADIUS.1)
+        .max(0.75 * body.diagonal);
     let mic_positions = (0..args.mics)
         .map(|_| {
             let azimuth = rng.uniform(0.0, 2.0 * PI);
-            let elevation = rng.uniform(MIC_ELEVATION_DEG.0, MIC_ELEVATION_DEG.1).to_radians();
+            let elevation = rng
+                .uniform(MIC_ELEVATION_DEG.0, MIC_ELEVATION_DEG.1)
+                .to_radians();
             let c = body.centre;
-            [c[0] + mic_radius * elevation.cos() * azimuth.cos(), c[1] + mic_radius * elevation.cos() * azimuth.sin(), c[2] + mic_radius * elevation.sin()]
+            [
+                c[0] + mic_radius * elevation.cos() * azimuth.cos(),
+                c[1] + mic_radius * elevation.cos() * azimuth.sin(),
+                c[2] + mic_radius * elevation.sin(),
+            ]
         })
         .collect();
-    let noise = if rng.unit() < 0.5 { NoiseColour::White } else { NoiseColour::Pink };
+    let noise = if rng.unit() < 0.5 {
+        NoiseColour::White
+    } else {
+        NoiseColour::Pink
+    };
     let snr_db = rng.uniform(SNR_DB.0, SNR_DB.1);
     // Strengths (radiation's is measured later) and the effects' other parameters; drawn for
     // every case so that the stream does not depend on which effects are present.
@@ -264,9 +293,16 @@ fn draw_plan(args: &Args, body: &Body, effects: Vec<Effect>, rng: &mut SplitMix6
             strengths.insert(e, u);
         }
     }
-    let scale = |e: Effect, strengths: &BTreeMap<Effect, f64>| e.strength_scale().value(strengths.get(&e).copied().unwrap_or(0.0));
+    let scale = |e: Effect, strengths: &BTreeMap<Effect, f64>| {
+        e.strength_scale()
+            .value(strengths.get(&e).copied().unwrap_or(0.0))
+    };
     let zener_corner_u = rng.unit();
-    let sector = (rng.uniform(0.0, 2.0 * PI), rng.uniform(SECTOR_WIDTH_DEG.0, SECTOR_WIDTH_DEG.1).to_radians());
+    let sector = (
+        rng.uniform(0.0, 2.0 * PI),
+        rng.uniform(SECTOR_WIDTH_DEG.0, SECTOR_WIDTH_DEG.1)
+            .to_radians(),
+    );
     let beating_stiffness_ratio = rng.uniform(-1.0, 1.0);
     let support_zeta = rng.uniform(SUPPORT_DAMPING_RATIO.0, SUPPORT_DAMPING_RATIO.1);
     let support_tangential = rng.uniform(SUPPORT_TANGENTIAL_RATIO.0, SUPPORT_TANGENTIAL_RATIO.1);
@@ -319,7 +355,16 @@ struct Solved<'p> {
 /// Every mode with λ_min < λ ≤ λ_max: SLEPc's first N modes, N grown until the last one lies
 /// above λ_max.
 #[allow(clippy::too_many_arguments)]
-fn solve_band<'p>(petsc: &'p Petsc, k: &Mat<'p>, m: &Mat<'p>, scale: f64, lambda_min: f64, lambda_max: f64, guess: usize, expected_rigid: usize) -> Result<Solved<'p>, String> {
+fn solve_band<'p>(
+    petsc: &'p Petsc,
+    k: &Mat<'p>,
+    m: &Mat<'p>,
+    scale: f64,
+    lambda_min: f64,
+    lambda_max: f64,
+    guess: usize,
+    expected_rigid: usize,
+) -> Result<Solved<'p>, String> {
     let start = Instant::now();
     let mut n = guess.clamp(4, MAX_MODES);
     let mut solves = 0;
@@ -334,7 +379,14 @@ fn solve_band<'p>(petsc: &'p Petsc, k: &Mat<'p>, m: &Mat<'p>, scale: f64, lambda
             if top <= lambda_max {
                 warnings.push(format!("{MAX_MODES} modes do not reach the frequency limit; the band is cut at {:.0} Hz", eigen::frequency_hz(top)));
             }
-            let mut out = Solved { eigenvalues: Vec::new(), vectors: Vec::new(), dropped: Vec::new(), seconds: 0.0, solves, warnings };
+            let mut out = Solved {
+                eigenvalues: Vec::new(),
+                vectors: Vec::new(),
+                dropped: Vec::new(),
+                seconds: 0.0,
+                solves,
+                warnings,
+            };
             for (lambda, v) in modes.eigenvalues.into_iter().zip(modes.vectors) {
                 if lambda <= lambda_min {
                     out.dropped.push(lambda);
@@ -352,11 +404,17 @@ fn solve_band<'p>(petsc: &'p Petsc, k: &Mat<'p>, m: &Mat<'p>, scale: f64, lambda
 
 /// φ_k at the given PETSc dofs, for every mode (collective).
 fn probe(vectors: &[Vector<'_>], dofs: &[PetscInt]) -> Result<Vec<Vec<f64>>, String> {
-    vectors.iter().map(|v| v.gather_indices(dofs).map_err(|e| e.to_string())).collect()
+    vectors
+        .iter()
+        .map(|v| v.gather_indices(dofs).map_err(|e| e.to_string()))
+        .collect()
 }
 
 fn node_dofs(asm: &Assembled<'_>, nodes: &[usize]) -> Vec<PetscInt> {
-    nodes.iter().flat_map(|&n| (0..3).map(move |c| asm.layout.global_dof(n, c) as PetscInt)).collect()
+    nodes
+        .iter()
+        .flat_map(|&n| (0..3).map(move |c| asm.layout.global_dof(n, c) as PetscInt))
+        .collect()
 }
 
 fn frequency(lambda: f64) -> f64 {
@@ -428,7 +486,14 @@ fn run(petsc: &Petsc, args: &Args) -> Result<(), String> {
     };
     let t_all = Instant::now();
     let unit_scale = mesh::parse_unit(&args.units).map_err(|e| e.to_string())?;
-    let read = mesh::read_mesh(&args.mesh, &ReadOptions { unit_scale, fix_inverted: false }).map_err(|e| e.to_string())?;
+    let read = mesh::read_mesh(
+        &args.mesh,
+        &ReadOptions {
+            unit_scale,
+            fix_inverted: false,
+        },
+    )
+    .map_err(|e| e.to_string())?;
     for w in &read.warnings {
         say(format!("warning: {w}"));
     }
@@ -451,7 +516,10 @@ fn run(petsc: &Petsc, args: &Args) -> Result<(), String> {
     };
     let strike_candidates = inject::strike_candidates(&quadratic, DOWN, STRIKE_CLEARANCE);
     if strike_candidates.is_empty() {
-        return Err(format!("{}: no surface vertex to strike", args.mesh.display()));
+        return Err(format!(
+            "{}: no surface vertex to strike",
+            args.mesh.display()
+        ));
     }
     let support_nodes = inject::support_nodes(&quadratic, DOWN, SUPPORT_BAND, SUPPORT_MIN_NODES);
     let body = Body {
@@ -477,9 +545,14 @@ fn run(petsc: &Petsc, args: &Args) -> Result<(), String> {
         body.support_nodes.len(),
         asm.stats.seconds
     ));
-    let schedule = inject::schedule_effects(args.cases, &args.effects, &mut SplitMix64::stream(args.seed, u64::MAX));
+    let schedule = inject::schedule_effects(
+        args.cases,
+        &args.effects,
+        &mut SplitMix64::stream(args.seed, u64::MAX),
+    );
     if rank == 0 {
-        std::fs::create_dir_all(args.out.join("labels")).map_err(|e| format!("{}: {e}", args.out.display()))?;
+        std::fs::create_dir_all(args.out.join("labels"))
+            .map_err(|e| format!("{}: {e}", args.out.display()))?;
     }
     let surface = std::cell::OnceCell::new();
     // (modes below fmax, E) of the last case: the next guess scales the count by E_last/E (the
@@ -492,7 +565,17 @@ fn run(petsc: &Petsc, args: &Args) -> Result<(), String> {
         let name = format!("case_{index:03}");
         let mut rng = SplitMix64::stream(args.seed, index as u64);
         let plan = draw_plan(args, &body, effects, &mut rng);
-        let t = generate_case(petsc, args, &body, &asm, &plan, &name, index, &mut mode_guess, &surface)?;
+        let t = generate_case(
+            petsc,
+            args,
+            &body,
+            &asm,
+            &plan,
+            &name,
+            index,
+            &mut mode_guess,
+            &surface,
+        )?;
         say(format!(
             "{name}: effects [{}], E {:.3e} ν {:.3}: {} SLEPc solve(s) {:.1} s + {:.1} s, radiation {:.1} s, render {:.1} s, total {:.1} s",
             plan.effects.iter().map(|e| e.name()).collect::<Vec<_>>().join(", "),
@@ -532,15 +615,30 @@ fn run(petsc: &Petsc, args: &Args) -> Result<(), String> {
             },
             "cases": listing,
         });
-        write_text(&args.out.join("cases.json"), &serde_json::to_string_pretty(&doc).map_err(|e| e.to_string())?)?;
+        write_text(
+            &args.out.join("cases.json"),
+            &serde_json::to_string_pretty(&doc).map_err(|e| e.to_string())?,
+        )?;
         let mean = timings.iter().sum::<f64>() / timings.len() as f64;
-        eprintln!("wrote {} cases to {} in {:.1} s ({mean:.1} s per case)", args.cases, args.out.display(), t_all.elapsed().as_secs_f64());
+        eprintln!(
+            "wrote {} cases to {} in {:.1} s ({mean:.1} s per case)",
+            args.cases,
+            args.out.display(),
+            t_all.elapsed().as_secs_f64()
+        );
     }
     Ok(())
 }
 
 fn write_text(path: &Path, text: &str) -> Result<(), String> {
-    diffsound::io::write_atomically(path, |tmp| std::fs::write(tmp, text).map_err(|e| diffsound::io::IoError::Fs { path: tmp.to_path_buf(), context: "writing".into(), source: e })).map_err(|e| e.to_string())
+    diffsound::io::write_atomically(path, |tmp| {
+        std::fs::write(tmp, text).map_err(|e| diffsound::io::IoError::Fs {
+            path: tmp.to_path_buf(),
+            context: "writing".into(),
+            source: e,
+        })
+    })
+    .map_err(|e| e.to_string())
 }
 
 #[allow(clippy::too_many_arguments)]
@@ -562,7 +660,8 @@ fn generate_case<'p>(
     let scale = eigen::spectrum_scale(material.lame_mu(), DENSITY, body.diagonal);
     let lambda_max = (2.0 * PI * args.fmax).powi(2);
     let (k, m) = asm.operators(material).map_err(|e| e.to_string())?;
-    let guess = (1.25 * mode_guess.0 as f64 * mode_guess.1 / material.youngs_modulus).ceil() as usize + 4;
+    let guess =
+        (1.25 * mode_guess.0 as f64 * mode_guess.1 / material.youngs_modulus).ceil() as usize + 4;
     let base = solve_band(petsc, &k, &m, scale, 0.0, lambda_max, guess, 6)?;
     timing.base_solve = base.seconds;
     timing.solves = base.solves;
@@ -579,14 +678,24 @@ fn generate_case<'p>(
     let mut beating_label = None;
 
     // FEM effects: one re-solve with all of them.
-    let fem_effects: Vec<Effect> = plan.effects.iter().copied().filter(|e| e.changes_fem()).collect();
+    let fem_effects: Vec<Effect> = plan
+        .effects
+        .iter()
+        .copied()
+        .filter(|e| e.changes_fem())
+        .collect();
     let support = plan.has(Effect::SupportContact);
     let (spring_n, spring_t, dashpot_n, dashpot_t) = {
         let n = body.support_nodes.len() as f64;
         let omega_s = 2.0 * PI * plan.support_bounce_hz;
         let k_n = body.mass * omega_s * omega_s / n;
         let c_n = 2.0 * plan.support_zeta * body.mass * omega_s / n;
-        (k_n, plan.support_tangential * k_n, c_n, plan.support_tangential * c_n)
+        (
+            k_n,
+            plan.support_tangential * k_n,
+            c_n,
+            plan.support_tangential * c_n,
+        )
     };
     let solved = if fem_effects.is_empty() {
         base
@@ -594,30 +703,76 @@ fn generate_case<'p>(
         let mut k2 = k.duplicate().map_err(|e| e.to_string())?;
         let mut m2 = m.duplicate().map_err(|e| e.to_string())?;
         if plan.has(Effect::BeatingPair) {
-            let sector = inject::sector_mesh(&body.mesh, body.centroid, DOWN, plan.sector.0, plan.sector.1);
+            let sector = inject::sector_mesh(
+                &body.mesh,
+                body.centroid,
+                DOWN,
+                plan.sector.0,
+                plan.sector.1,
+            );
             let sector_volume = sector.volume();
             let part = assembly::assemble(petsc, &sector).map_err(|e| e.to_string())?;
             let (eps, q) = (plan.beating_eps, plan.beating_stiffness_ratio);
-            m2.axpy(eps * DENSITY, &part.mass_unit, NonzeroPattern::Subset).map_err(|e| e.to_string())?;
-            k2.axpy(q * eps * material.lame_lambda(), &part.k_lambda, NonzeroPattern::Subset).map_err(|e| e.to_string())?;
-            k2.axpy(q * eps * material.lame_mu(), &part.k_mu, NonzeroPattern::Subset).map_err(|e| e.to_string())?;
-            beating_label = Some(json!({"density_increase": eps, "youngs_modulus_increase": q * eps, "sector_axis_point_m": body.centroid, "sector_axis": DOWN,
+            m2.axpy(eps * DENSITY, &part.mass_unit, NonzeroPattern::Subset)
+                .map_err(|e| e.to_string())?;
+            k2.axpy(
+                q * eps * material.lame_lambda(),
+                &part.k_lambda,
+                NonzeroPattern::Subset,
+            )
+            .map_err(|e| e.to_string())?;
+            k2.axpy(
+                q * eps * material.lame_mu(),
+                &part.k_mu,
+                NonzeroPattern::Subset,
+            )
+            .map_err(|e| e.to_string())?;
+            beating_label = Some(
+                json!({"density_increase": eps, "youngs_modulus_increase": q * eps, "sector_axis_point_m": body.centroid, "sector_axis": DOWN,
                 "sector_start_rad": plan.sector.0, "sector_width_rad": plan.sector.1, "sector_volume_fraction": sector_volume / body.mesh.volume(),
-                "sector": "azimuth psi about the axis, from the projection of +x, counter-clockwise seen from +axis (inject::sector_mesh)"}));
+                "sector": "azimuth psi about the axis, from the projection of +x, counter-clockwise seen from +axis (inject::sector_mesh)"}),
+            );
         }
         if support {
-            assembly::add_nodal_diagonal(petsc, &mut k2, &asm.layout, &body.support_nodes, [spring_t, spring_t, spring_n]).map_err(|e| e.to_string())?;
+            assembly::add_nodal_diagonal(
+                petsc,
+                &mut k2,
+                &asm.layout,
+                &body.support_nodes,
+                [spring_t, spring_t, spring_n],
+            )
+            .map_err(|e| e.to_string())?;
         }
         if plan.has(Effect::AddedMass) {
             let per_node = plan.mass_fraction * body.mass / plan.mass_nodes.len() as f64;
-            assembly::add_nodal_diagonal(petsc, &mut m2, &asm.layout, &plan.mass_nodes, [per_node; 3]).map_err(|e| e.to_string())?;
+            assembly::add_nodal_diagonal(
+                petsc,
+                &mut m2,
+                &asm.layout,
+                &plan.mass_nodes,
+                [per_node; 3],
+            )
+            .map_err(|e| e.to_string())?;
         }
         k2.set_symmetric().map_err(|e| e.to_string())?;
         m2.set_symmetric().map_err(|e| e.to_string())?;
         // With springs the six rigid modes become support modes: none is rigid any more, and
         // they are dropped below half the first free elastic mode.
-        let (lambda_min, rigid, extra) = if support { (0.25 * base.eigenvalues[0], 0, 6) } else { (0.0, 6, 0) };
-        let solved = solve_band(petsc, &k2, &m2, scale, lambda_min, lambda_max, base.eigenvalues.len() + extra + 4, rigid)?;
+        let (lambda_min, rigid, extra) = if support {
+            (0.25 * base.eigenvalues[0], 0, 6)
+        } else {
+            (0.0, 6, 0)
+        };
+        let solved = solve_band(
+            petsc,
+            &k2,
+            &m2,
+            scale,
+            lambda_min,
+            lambda_max,
+            base.eigenvalues.len() + extra + 4,
+            rigid,
+        )?;
         timing.effect_solve = solved.seconds;
         timing.solves += solved.solves;
         if rank == 0 {
@@ -625,7 +780,11 @@ fn generate_case<'p>(
                 eprintln!("{name}: warning (re-solve): {w}");
             }
             if support && solved.dropped.len() != 6 {
-                eprintln!("{name}: warning: {} support modes below {:.0} Hz, expected 6", solved.dropped.len(), frequency(lambda_min));
+                eprintln!(
+                    "{name}: warning: {} support modes below {:.0} Hz, expected 6",
+                    solved.dropped.len(),
+                    frequency(lambda_min)
+                );
             }
         }
         solved
@@ -634,7 +793,10 @@ fn generate_case<'p>(
     // Probes (collective): the strike and the support nodes.
     let direction = plan.strike_normal.map(|c| 0.0 - c);
     let strike_values = probe(&solved.vectors, &node_dofs(asm, &[plan.strike_vertex]))?;
-    let drive: Vec<f64> = strike_values.iter().map(|p| (0..3).map(|c| p[c] * direction[c]).sum()).collect();
+    let drive: Vec<f64> = strike_values
+        .iter()
+        .map(|p| (0..3).map(|c| p[c] * direction[c]).sum())
+        .collect();
     let support_extra: Vec<f64> = if support {
         probe(&solved.vectors, &node_dofs(asm, &body.support_nodes))?
             .iter()
@@ -650,7 +812,10 @@ fn generate_case<'p>(
     let t_rad = Instant::now();
     let mut transfers: Option<Radiated> = None;
     if plan.has(Effect::Radiation) {
-        let shapes = asm.layout.gather_original_order(&solved.vectors).map_err(|e| e.to_string())?;
+        let shapes = asm
+            .layout
+            .gather_original_order(&solved.vectors)
+            .map_err(|e| e.to_string())?;
         if rank == 0 {
             if surface.get().is_none() {
                 let q = SurfaceQuadrature::new(&body.mesh).map_err(|e| e.to_string())?;
@@ -660,19 +825,38 @@ fn generate_case<'p>(
             let settings = MultipoleSettings::default();
             let (mut h, mut degrees, mut residuals) = (Vec::new(), Vec::new(), Vec::new());
             for (shape, &lambda) in shapes.iter().zip(&solved.eigenvalues) {
-                let un = quadrature.normal_displacement(shape).map_err(|e| e.to_string())?;
-                let fit = fit_multipoles(quadrature.samples(), &un, lambda.sqrt(), &settings).map_err(|e| e.to_string())?;
+                let un = quadrature
+                    .normal_displacement(shape)
+                    .map_err(|e| e.to_string())?;
+                let fit = fit_multipoles(quadrature.samples(), &un, lambda.sqrt(), &settings)
+                    .map_err(|e| e.to_string())?;
                 // The series is reliable only outside the sphere about its centre that holds the
                 // surface (module docs of audio::radiation).
-                let nearest = plan.mic_positions.iter().map(|x| (0..3).map(|d| (x[d] - fit.centre[d]).powi(2)).sum::<f64>().sqrt()).fold(f64::INFINITY, f64::min);
+                let nearest = plan
+                    .mic_positions
+                    .iter()
+                    .map(|x| {
+                        (0..3)
+                            .map(|d| (x[d] - fit.centre[d]).powi(2))
+                            .sum::<f64>()
+                            .sqrt()
+                    })
+                    .fold(f64::INFINITY, f64::min);
                 if nearest <= fit.source_radius {
                     return Err(format!("{name}: a microphone {nearest:.3} m from the radiation fit's centre lies inside its source sphere ({:.3} m)", fit.source_radius));
                 }
-                h.push(fit.transfer(&plan.mic_positions).map_err(|e| e.to_string())?);
+                h.push(
+                    fit.transfer(&plan.mic_positions)
+                        .map_err(|e| e.to_string())?,
+                );
                 degrees.push(fit.degree);
                 residuals.push(fit.residual);
             }
-            transfers = Some(Radiated { transfer: h, degrees, residuals });
+            transfers = Some(Radiated {
+                transfer: h,
+                degrees,
+                residuals,
+            });
         }
     }
     timing.radiation = t_rad.elapsed().as_secs_f64();
@@ -687,16 +871,33 @@ fn generate_case<'p>(
     let undamped: Vec<f64> = solved.eigenvalues.iter().map(|&l| frequency(l)).collect();
     let (f_lo, f_hi) = (undamped[0], *undamped.last().expect("at least one mode"));
     let reference_hz = (f_lo * f_hi).sqrt();
-    let rayleigh = |f: f64| 0.5 * (material.rayleigh_alpha + material.rayleigh_beta * (2.0 * PI * f).powi(2));
+    let rayleigh =
+        |f: f64| 0.5 * (material.rayleigh_alpha + material.rayleigh_beta * (2.0 * PI * f).powi(2));
     let zener = if plan.has(Effect::NonRayleighDamping) {
         let corner = (f_lo.ln() + plan.zener_corner_u * (f_hi.ln() - f_lo.ln())).exp();
-        Some(ZenerDamping::matched(reference_hz, rayleigh(reference_hz), plan.zener_ratio, corner).map_err(|e| e.to_string())?)
+        Some(
+            ZenerDamping::matched(
+                reference_hz,
+                rayleigh(reference_hz),
+                plan.zener_ratio,
+                corner,
+            )
+            .map_err(|e| e.to_string())?,
+        )
     } else {
         None
     };
-    let hertz = if plan.has(Effect::ContactDuration) { Some(HertzPulse::new(plan.contact).map_err(|e| e.to_string())?) } else { None };
+    let hertz = if plan.has(Effect::ContactDuration) {
+        Some(HertzPulse::new(plan.contact).map_err(|e| e.to_string())?)
+    } else {
+        None
+    };
     let gains: Vec<f64> = plan.gains_db.iter().map(|g| 10f64.powf(g / 20.0)).collect();
-    let response = if transfers.is_some() { Response::Displacement } else { Response::Acceleration };
+    let response = if transfers.is_some() {
+        Response::Displacement
+    } else {
+        Response::Acceleration
+    };
     let mut tracks = Vec::new();
     let mut mode_rows = Vec::new();
     let mut contact_db = Vec::new();
@@ -711,7 +912,11 @@ fn generate_case<'p>(
         // A mode's sign is the solver's choice (it changes with the number of ranks). With the
         // radiation transfer the product drive × transfer does not depend on it; without, the
         // drive's magnitude is used, so that the files do not either.
-        let c = if transfers.is_some() { drive[kk] } else { drive[kk].abs() };
+        let c = if transfers.is_some() {
+            drive[kk]
+        } else {
+            drive[kk].abs()
+        };
         let mut z = modal_factor(&ContactForce::Impulse, response, decay, omega_d).value * c;
         if let Some(h) = hertz {
             let factor = h.laplace(s);
@@ -720,19 +925,31 @@ fn generate_case<'p>(
         }
         let amplitudes: Vec<Complex64> = match &transfers {
             // e^(−iωt) transfer into the synthesiser's e^(+iωt) convention: the conjugate.
-            Some(r) => r.transfer[kk].iter().zip(&gains).map(|(hc, g)| z * hc.conj() * *g).collect(),
+            Some(r) => r.transfer[kk]
+                .iter()
+                .zip(&gains)
+                .map(|(hc, g)| z * hc.conj() * *g)
+                .collect(),
             None => gains.iter().map(|g| z * *g).collect(),
         };
         mode_rows.push((kk, f, omega_d / (2.0 * PI), decay));
-        tracks.push(ModeTrack { frequency_hz: omega_d / (2.0 * PI), decay_rate: decay, amplitudes });
+        tracks.push(ModeTrack {
+            frequency_hz: omega_d / (2.0 * PI),
+            decay_rate: decay,
+            amplitudes,
+        });
     }
     let n_pre = (args.pre_roll * fs).round() as usize;
     let n_strike = (args.duration * fs).round() as usize;
     let glide = plan.has(Effect::PitchGlide).then_some(plan.glide);
-    let strike = inject::render_tracks(&tracks, args.mics, fs, n_strike, glide).map_err(|e| e.to_string())?;
+    let strike = inject::render_tracks(&tracks, args.mics, fs, n_strike, glide)
+        .map_err(|e| e.to_string())?;
     let peak = strike.iter().flatten().fold(0.0f64, |m, v| m.max(v.abs()));
     if peak <= 0.0 || !peak.is_finite() {
-        return Err(format!("{name}: the strike is silent (strike vertex {} on a nodal line of every mode?)", plan.strike_vertex));
+        return Err(format!(
+            "{name}: the strike is silent (strike vertex {} on a nodal line of every mode?)",
+            plan.strike_vertex
+        ));
     }
     let out_scale = PEAK / peak;
     let mut channels: Vec<Vec<f64>> = strike
@@ -745,21 +962,43 @@ fn generate_case<'p>(
         .collect();
     if plan.has(Effect::Reverb) {
         for (c, ch) in channels.iter_mut().enumerate() {
-            let mut room_rng = SplitMix64::stream(args.seed ^ 0x0052_4f4f_4d00, (index * 64 + c) as u64);
-            let h = plan.room.impulse_response(fs, ch.len(), &mut room_rng).map_err(|e| e.to_string())?;
+            let mut room_rng =
+                SplitMix64::stream(args.seed ^ 0x0052_4f4f_4d00, (index * 64 + c) as u64);
+            let h = plan
+                .room
+                .impulse_response(fs, ch.len(), &mut room_rng)
+                .map_err(|e| e.to_string())?;
             *ch = inject::convolve_truncated(ch, &h);
         }
     }
     let mut noise_rng = SplitMix64::stream(args.seed ^ 0x004e_4f49_5345, index as u64);
-    let noise_rms = inject::add_noise(&mut channels, n_pre..n_pre + n_strike, plan.snr_db, plan.noise, fs, &mut noise_rng).map_err(|e| e.to_string())?;
+    let noise_rms = inject::add_noise(
+        &mut channels,
+        n_pre..n_pre + n_strike,
+        plan.snr_db,
+        plan.noise,
+        fs,
+        &mut noise_rng,
+    )
+    .map_err(|e| e.to_string())?;
 
     // ---- Files. ----
     let dir = args.out.join(name);
     std::fs::create_dir_all(&dir).map_err(|e| format!("{}: {e}", dir.display()))?;
     for (c, ch) in channels.iter().enumerate() {
-        write_wav(&dir.join(format!("mic{c}.wav")), ch, args.sample_rate, WavFormat::Float32, None).map_err(|e| e.to_string())?;
+        write_wav(
+            &dir.join(format!("mic{c}.wav")),
+            ch,
+            args.sample_rate,
+            WavFormat::Float32,
+            None,
+        )
+        .map_err(|e| e.to_string())?;
     }
-    write_text(&dir.join("metadata.toml"), &metadata_toml(args, body, plan, name)?)?;
+    write_text(
+        &dir.join("metadata.toml"),
+        &metadata_toml(args, body, plan, name)?,
+    )?;
 
     // Sealed labels.
     let mut effect_labels = Vec::new();
@@ -770,7 +1009,8 @@ fn generate_case<'p>(
                 let z = zener.expect("drawn when present");
                 let decays: Vec<f64> = mode_rows.iter().map(|r| r.3).collect();
                 let freqs: Vec<f64> = mode_rows.iter().map(|r| r.1).collect();
-                let (alpha_fit, beta_fit, misfit) = inject::rayleigh_fit(&freqs, &decays).map_err(|e| e.to_string())?;
+                let (alpha_fit, beta_fit, misfit) =
+                    inject::rayleigh_fit(&freqs, &decays).map_err(|e| e.to_string())?;
                 json!({"law": "d(f) = pi f (eta + Delta x/(1+x^2)), x = f/f_c", "loss_factor": z.loss_factor, "relaxation_strength": z.relaxation_strength,
                        "corner_hz": z.corner_hz, "reference_hz": reference_hz, "best_rayleigh_alpha": alpha_fit, "best_rayleigh_beta": beta_fit, "rayleigh_log_misfit": misfit})
             }
@@ -795,24 +1035,47 @@ fn generate_case<'p>(
                 "support_modes_hz": solved.dropped.iter().map(|&l| frequency(l)).collect::<Vec<_>>(),
                 "added_decay_per_mode": support_extra,
             }),
-            Effect::ContactDuration => json!({"force": "hertz: sin^1.5(pi t/T) on [0, T]", "duration_s": plan.contact, "mode_attenuation_db": contact_db}),
-            Effect::Reverb => json!({"t60_s": plan.room.t60_s, "direct_to_reverberant_db": plan.room.direct_to_reverberant_db, "predelay_s": plan.room.predelay_s}),
+            Effect::ContactDuration => {
+                json!({"force": "hertz: sin^1.5(pi t/T) on [0, T]", "duration_s": plan.contact, "mode_attenuation_db": contact_db})
+            }
+            Effect::Reverb => {
+                json!({"t60_s": plan.room.t60_s, "direct_to_reverberant_db": plan.room.direct_to_reverberant_db, "predelay_s": plan.room.predelay_s})
+            }
             Effect::Radiation => {
-                let Radiated { transfer: h, degrees, residuals } = transfers.as_ref().expect("fitted when present");
+                let Radiated {
+                    transfer: h,
+                    degrees,
+                    residuals,
+                } = transfers.as_ref().expect("fitted when present");
                 let rows: Vec<usize> = mode_rows.iter().map(|r| r.0).collect();
-                let levels: Vec<Vec<f64>> = rows.iter().map(|&kk| h[kk].iter().map(|v| v.norm()).collect()).collect();
+                let levels: Vec<Vec<f64>> = rows
+                    .iter()
+                    .map(|&kk| h[kk].iter().map(|v| v.norm()).collect())
+                    .collect();
                 // Weight each mode by its share of the sound (mean |z|² over microphones).
-                let weights: Vec<f64> = tracks.iter().map(|t| t.amplitudes.iter().map(|a| a.norm_sqr()).sum::<f64>()).collect();
-                let misfit = inject::rank_one_level_misfit_db(&levels, &weights).map_err(|e| e.to_string())?;
+                let weights: Vec<f64> = tracks
+                    .iter()
+                    .map(|t| t.amplitudes.iter().map(|a| a.norm_sqr()).sum::<f64>())
+                    .collect();
+                let misfit = inject::rank_one_level_misfit_db(&levels, &weights)
+                    .map_err(|e| e.to_string())?;
                 strength = e.strength_scale().strength_of(misfit);
                 json!({"model": "multipole fit (audio::radiation), default settings", "microphone_radius_m": plan.mic_radius,
                        "rank_one_level_misfit_db": misfit, "multipole_degree_per_mode": degrees, "boundary_residual_per_mode": residuals})
             }
-            Effect::AddedMass => json!({"mass_kg": plan.mass_fraction * body.mass, "mass_fraction": plan.mass_fraction, "nodes": plan.mass_nodes,
-                "positions_m": plan.mass_nodes.iter().map(|&n| body.mesh.nodes[n]).collect::<Vec<_>>()}),
-            Effect::PitchGlide => json!({"glide": plan.glide, "law": "f(t) = f0 (1 + g exp(-2 d t))"}),
+            Effect::AddedMass => {
+                json!({"mass_kg": plan.mass_fraction * body.mass, "mass_fraction": plan.mass_fraction, "nodes": plan.mass_nodes,
+                "positions_m": plan.mass_nodes.iter().map(|&n| body.mesh.nodes[n]).collect::<Vec<_>>()})
+            }
+            Effect::PitchGlide => {
+                json!({"glide": plan.glide, "law": "f(t) = f0 (1 + g exp(-2 d t))"})
+            }
         };
-        effect_labels.push(inject::EffectLabel { effect: e, strength, parameters });
+        effect_labels.push(inject::EffectLabel {
+            effect: e,
+            strength,
+            parameters,
+        });
     }
     let modes_json: Vec<_> = mode_rows
         .iter()
@@ -840,7 +1103,10 @@ fn generate_case<'p>(
         "base_undamped_hz": base_eigenvalues.iter().map(|&l| frequency(l)).collect::<Vec<_>>(),
         "modes": modes_json,
     });
-    write_text(&args.out.join("labels").join(format!("{name}.json")), &serde_json::to_string_pretty(&labels).map_err(|e| e.to_string())?)?;
+    write_text(
+        &args.out.join("labels").join(format!("{name}.json")),
+        &serde_json::to_string_pretty(&labels).map_err(|e| e.to_string())?,
+    )?;
     timing.render = t_render.elapsed().as_secs_f64();
     timing.total = t_case.elapsed().as_secs_f64();
     Ok(timing)
@@ -881,7 +1147,11 @@ fn metadata_toml(args: &Args, body: &Body, plan: &Plan, name: &str) -> Result<St
         microphone_files: (0..args.mics).map(|c| format!("mic{c}.wav")).collect(),
         microphone_positions_m: &plan.mic_positions,
         support_direction: DOWN,
-        strike: Strike { vertex: plan.strike_vertex, position_m: body.mesh.nodes[plan.strike_vertex], direction: plan.strike_normal.map(|c| 0.0 - c) },
+        strike: Strike {
+            vertex: plan.strike_vertex,
+            position_m: body.mesh.nodes[plan.strike_vertex],
+            direction: plan.strike_normal.map(|c| 0.0 - c),
+        },
     };
     let body_text = toml::to_string(&meta).map_err(|e| e.to_string())?;
     Ok(format!(

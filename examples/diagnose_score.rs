@@ -91,7 +91,9 @@
 //! 2 on bad arguments.
 
 use diffsound::diagnose::catalogue::CatalogueReport;
-use diffsound::diagnose::inject::{self, CaseTruth, Effect, ErrorSummary, HeldOutSummary, ParameterComparison, ScoringContext};
+use diffsound::diagnose::inject::{
+    self, CaseTruth, Effect, ErrorSummary, HeldOutSummary, ParameterComparison, ScoringContext,
+};
 use serde::{Deserialize, Serialize};
 use serde_json::json;
 use std::collections::BTreeMap;
@@ -108,7 +110,13 @@ struct Args {
 }
 
 fn parse_args() -> Result<Args, String> {
-    let mut a = Args { cases: PathBuf::new(), report: "diagnosis.json".into(), bins: 3, out: None, glide_span: None };
+    let mut a = Args {
+        cases: PathBuf::new(),
+        report: "diagnosis.json".into(),
+        bins: 3,
+        out: None,
+        glide_span: None,
+    };
     let mut cases = None;
     let mut it = std::env::args().skip(1);
     while let Some(arg) = it.next() {
@@ -118,12 +126,16 @@ fn parse_args() -> Result<Args, String> {
             "--report" => a.report = value("--report")?,
             "--bins" => {
                 let v = value("--bins")?;
-                a.bins = v.parse().map_err(|_| format!("--bins: cannot read {v:?} as a whole number"))?;
+                a.bins = v
+                    .parse()
+                    .map_err(|_| format!("--bins: cannot read {v:?} as a whole number"))?;
             }
             "--out" => a.out = Some(PathBuf::from(value("--out")?)),
             "--glide-span" => {
                 let v = value("--glide-span")?;
-                a.glide_span = Some(v.parse().map_err(|_| format!("--glide-span: cannot read {v:?} as a number (seconds)"))?);
+                a.glide_span = Some(v.parse().map_err(|_| {
+                    format!("--glide-span: cannot read {v:?} as a number (seconds)")
+                })?);
             }
             "-h" | "--help" => {
                 eprintln!("{USAGE}");
@@ -138,11 +150,16 @@ fn parse_args() -> Result<Args, String> {
     }
     if let Some(s) = a.glide_span {
         if !(s > 0.0 && s.is_finite()) {
-            return Err(format!("--glide-span must be a positive number of seconds, got {s}"));
+            return Err(format!(
+                "--glide-span must be a positive number of seconds, got {s}"
+            ));
         }
     }
     if a.report.is_empty() || a.report.contains('/') {
-        return Err(format!("--report must be a file name inside each case directory, got {:?}", a.report));
+        return Err(format!(
+            "--report must be a file name inside each case directory, got {:?}",
+            a.report
+        ));
     }
     Ok(a)
 }
@@ -203,9 +220,15 @@ fn read_report(path: &Path) -> Result<Diagnosis, Missing> {
         return Err(Missing::NotRun);
     }
     let value = read_json(path).map_err(Missing::Unreadable)?;
-    let d: Diagnosis = serde_json::from_value(value).map_err(|e| Missing::Unreadable(format!("{}: {e}", path.display())))?;
+    let d: Diagnosis = serde_json::from_value(value)
+        .map_err(|e| Missing::Unreadable(format!("{}: {e}", path.display())))?;
     if d.format != "diffsound.diagnose" || d.format_version != 1 {
-        return Err(Missing::Unreadable(format!("{}: format {:?} version {}, expected \"diffsound.diagnose\" version 1", path.display(), d.format, d.format_version)));
+        return Err(Missing::Unreadable(format!(
+            "{}: format {:?} version {}, expected \"diffsound.diagnose\" version 1",
+            path.display(),
+            d.format,
+            d.format_version
+        )));
     }
     Ok(d)
 }
@@ -214,28 +237,71 @@ fn read_report(path: &Path) -> Result<Diagnosis, Missing> {
 fn analysis_span(dir: &Path) -> Option<f64> {
     let text = std::fs::read_to_string(dir.join("metadata.toml")).ok()?;
     let value: toml::Value = toml::from_str(&text).ok()?;
-    value.get("duration_after_onset_s")?.as_float().filter(|s| *s > 0.0)
+    value
+        .get("duration_after_onset_s")?
+        .as_float()
+        .filter(|s| *s > 0.0)
 }
 
 fn load(args: &Args) -> Result<Vec<Case>, String> {
     let listing = read_json(&args.cases.join("cases.json"))?;
-    let entries = listing.get("cases").and_then(|c| c.as_array()).ok_or_else(|| format!("{}: no \"cases\" list", args.cases.join("cases.json").display()))?;
+    let entries = listing
+        .get("cases")
+        .and_then(|c| c.as_array())
+        .ok_or_else(|| {
+            format!(
+                "{}: no \"cases\" list",
+                args.cases.join("cases.json").display()
+            )
+        })?;
     let mut cases = Vec::new();
     for (i, e) in entries.iter().enumerate() {
-        let name = e.get("case").and_then(|v| v.as_str()).ok_or_else(|| format!("cases.json: entry {i} has no \"case\""))?.to_string();
-        let directory = args.cases.join(e.get("directory").and_then(|v| v.as_str()).unwrap_or(&name));
+        let name = e
+            .get("case")
+            .and_then(|v| v.as_str())
+            .ok_or_else(|| format!("cases.json: entry {i} has no \"case\""))?
+            .to_string();
+        let directory = args
+            .cases
+            .join(e.get("directory").and_then(|v| v.as_str()).unwrap_or(&name));
         let label_path = args.cases.join("labels").join(format!("{name}.json"));
         let labels = read_json(&label_path).map_err(|e| format!("sealed labels of {name}: {e}"))?;
-        let truth: CaseTruth = serde_json::from_value(labels.clone()).map_err(|e| format!("{}: not a case label: {e}", label_path.display()))?;
+        let truth: CaseTruth = serde_json::from_value(labels.clone())
+            .map_err(|e| format!("{}: not a case label: {e}", label_path.display()))?;
         let report = read_report(&directory.join(&args.report));
         let matched_hz = match &report {
-            Ok(d) => d.catalogue.matching.pairs.iter().map(|p| p.observed_hz).collect(),
+            Ok(d) => d
+                .catalogue
+                .matching
+                .pairs
+                .iter()
+                .map(|p| p.observed_hz)
+                .collect(),
             Err(_) => Vec::new(),
         };
-        let glide_windows_s = report.as_ref().ok().and_then(|d| d.glide_windows_s).filter(|_| args.glide_span.is_none());
-        let glide_offset_at_onset = report.as_ref().ok().and_then(|d| d.glide_observable.as_deref()) == Some("offset_at_onset");
-        let context = ScoringContext { glide_span_s: args.glide_span.or_else(|| analysis_span(&directory)), glide_windows_s, glide_offset_at_onset, matched_hz };
-        cases.push(Case { name, truth, labels, context, report });
+        let glide_windows_s = report
+            .as_ref()
+            .ok()
+            .and_then(|d| d.glide_windows_s)
+            .filter(|_| args.glide_span.is_none());
+        let glide_offset_at_onset = report
+            .as_ref()
+            .ok()
+            .and_then(|d| d.glide_observable.as_deref())
+            == Some("offset_at_onset");
+        let context = ScoringContext {
+            glide_span_s: args.glide_span.or_else(|| analysis_span(&directory)),
+            glide_windows_s,
+            glide_offset_at_onset,
+            matched_hz,
+        };
+        cases.push(Case {
+            name,
+            truth,
+            labels,
+            context,
+            report,
+        });
     }
     Ok(cases)
 }
@@ -317,7 +383,11 @@ fn main() {
 
 fn run(args: &Args) -> Result<(), String> {
     let cases = load(args)?;
-    let not_run: Vec<&str> = cases.iter().filter(|c| matches!(c.report, Err(Missing::NotRun))).map(|c| c.name.as_str()).collect();
+    let not_run: Vec<&str> = cases
+        .iter()
+        .filter(|c| matches!(c.report, Err(Missing::NotRun)))
+        .map(|c| c.name.as_str())
+        .collect();
     let unreadable: Vec<(&str, &str)> = cases
         .iter()
         .filter_map(|c| match &c.report {
@@ -328,17 +398,33 @@ fn run(args: &Args) -> Result<(), String> {
     if !not_run.is_empty() || !unreadable.is_empty() {
         eprintln!("{}", "!".repeat(78));
         if !not_run.is_empty() {
-            eprintln!("WARNING: {} of {} cases NOT RUN (no {}): {}", not_run.len(), cases.len(), args.report, not_run.join(", "));
+            eprintln!(
+                "WARNING: {} of {} cases NOT RUN (no {}): {}",
+                not_run.len(),
+                cases.len(),
+                args.report,
+                not_run.join(", ")
+            );
         }
         for (c, why) in &unreadable {
             eprintln!("WARNING: {c}: report UNREADABLE, not scored: {why}");
         }
-        eprintln!("The scores below cover the other {} cases only.", cases.len() - not_run.len() - unreadable.len());
+        eprintln!(
+            "The scores below cover the other {} cases only.",
+            cases.len() - not_run.len() - unreadable.len()
+        );
         eprintln!("{}", "!".repeat(78));
     }
-    let scored: Vec<(&Case, &Diagnosis)> = cases.iter().filter_map(|c| c.report.as_ref().ok().map(|d| (c, d))).collect();
+    let scored: Vec<(&Case, &Diagnosis)> = cases
+        .iter()
+        .filter_map(|c| c.report.as_ref().ok().map(|d| (c, d)))
+        .collect();
     if scored.is_empty() {
-        return Err(format!("no case of {} has a readable {}: nothing to score", args.cases.display(), args.report));
+        return Err(format!(
+            "no case of {} has a readable {}: nothing to score",
+            args.cases.display(),
+            args.report
+        ));
     }
 
     // ---- 1. Detection. ----
@@ -359,9 +445,18 @@ fn run(args: &Args) -> Result<(), String> {
         let mut verdicts: Vec<Verdict> = Effect::ALL
             .iter()
             .filter_map(|&e| match (present.contains(&e), detected.contains(&e)) {
-                (true, true) => Some(Verdict { effect: e, verdict: "TP" }),
-                (true, false) => Some(Verdict { effect: e, verdict: "FN" }),
-                (false, true) => Some(Verdict { effect: e, verdict: "FP" }),
+                (true, true) => Some(Verdict {
+                    effect: e,
+                    verdict: "TP",
+                }),
+                (true, false) => Some(Verdict {
+                    effect: e,
+                    verdict: "FN",
+                }),
+                (false, true) => Some(Verdict {
+                    effect: e,
+                    verdict: "FP",
+                }),
                 (false, false) => None,
             })
             .collect();
@@ -369,14 +464,23 @@ fn run(args: &Args) -> Result<(), String> {
         let label_f64 = |k: &str| case.labels.get(k).and_then(|v| v.as_f64());
         let (e_err, nu_err) = match &d.material {
             Some(m) => (
-                m.youngs_modulus.zip(label_f64("youngs_modulus")).map(|(e, t)| e / t - 1.0),
-                m.poisson_ratio.zip(label_f64("poisson_ratio")).map(|(n, t)| n - t),
+                m.youngs_modulus
+                    .zip(label_f64("youngs_modulus"))
+                    .map(|(e, t)| e / t - 1.0),
+                m.poisson_ratio
+                    .zip(label_f64("poisson_ratio"))
+                    .map(|(n, t)| n - t),
             ),
             None => (None, None),
         };
         rows.push(CaseRow {
             case: case.name.clone(),
-            truth: case.truth.effects.iter().map(|l| (l.effect, l.strength)).collect(),
+            truth: case
+                .truth
+                .effects
+                .iter()
+                .map(|l| (l.effect, l.strength))
+                .collect(),
             detected: detected.clone(),
             unknown_detected: unknown,
             verdicts,
@@ -389,33 +493,102 @@ fn run(args: &Args) -> Result<(), String> {
     let truths: Vec<CaseTruth> = scored.iter().map(|(c, _)| c.truth.clone()).collect();
     let score = inject::score(&truths, &detections, args.bins).map_err(|e| e.to_string())?;
 
-    println!("Blind mismatch-diagnosis benchmark: {}", args.cases.display());
-    println!("{} cases listed, {} scored, {} not run, {} unreadable (reports: {})\n", cases.len(), scored.len(), not_run.len(), unreadable.len(), args.report);
+    println!(
+        "Blind mismatch-diagnosis benchmark: {}",
+        args.cases.display()
+    );
+    println!(
+        "{} cases listed, {} scored, {} not run, {} unreadable (reports: {})\n",
+        cases.len(),
+        scored.len(),
+        not_run.len(),
+        unreadable.len(),
+        args.report
+    );
     println!("1. Detection");
-    println!("{:<22} {:>3} {:>3} {:>3} {:>9} {:>7} {:>6}", "effect", "TP", "FP", "FN", "precision", "recall", "F1");
+    println!(
+        "{:<22} {:>3} {:>3} {:>3} {:>9} {:>7} {:>6}",
+        "effect", "TP", "FP", "FN", "precision", "recall", "F1"
+    );
     for s in &score.per_effect {
-        println!("{:<22} {:>3} {:>3} {:>3} {:>9} {:>7} {:>6}", s.effect.name(), s.true_positives, s.false_positives, s.false_negatives, opt(s.precision, 2), opt(s.recall, 2), opt(s.f1, 2));
+        println!(
+            "{:<22} {:>3} {:>3} {:>3} {:>9} {:>7} {:>6}",
+            s.effect.name(),
+            s.true_positives,
+            s.false_positives,
+            s.false_negatives,
+            opt(s.precision, 2),
+            opt(s.recall, 2),
+            opt(s.f1, 2)
+        );
     }
-    println!("macro F1 {}; clean cases {}, false-positive rate on clean cases {}", opt(score.macro_f1, 3), score.clean_cases, opt(score.clean_false_positive_rate, 2));
+    println!(
+        "macro F1 {}; clean cases {}, false-positive rate on clean cases {}",
+        opt(score.macro_f1, 3),
+        score.clean_cases,
+        opt(score.clean_false_positive_rate, 2)
+    );
     println!();
-    println!("{:<10} {:<48} {:<40} verdicts", "case", "true effects (u)", "detected");
+    println!(
+        "{:<10} {:<48} {:<40} verdicts",
+        "case", "true effects (u)", "detected"
+    );
     for r in &rows {
-        let truth = if r.truth.is_empty() { "clean".to_string() } else { r.truth.iter().map(|(e, u)| format!("{e} ({u:.2})")).collect::<Vec<_>>().join(", ") };
+        let truth = if r.truth.is_empty() {
+            "clean".to_string()
+        } else {
+            r.truth
+                .iter()
+                .map(|(e, u)| format!("{e} ({u:.2})"))
+                .collect::<Vec<_>>()
+                .join(", ")
+        };
         let mut detected: Vec<String> = r.detected.iter().map(|e| e.name().to_string()).collect();
         detected.extend(r.unknown_detected.iter().map(|n| format!("{n}?")));
-        let detected = if detected.is_empty() { "–".into() } else { detected.join(", ") };
-        let verdicts = if r.verdicts.is_empty() { "TN".into() } else { r.verdicts.iter().map(|v| format!("{} {}", v.effect, v.verdict)).collect::<Vec<_>>().join(", ") };
+        let detected = if detected.is_empty() {
+            "–".into()
+        } else {
+            detected.join(", ")
+        };
+        let verdicts = if r.verdicts.is_empty() {
+            "TN".into()
+        } else {
+            r.verdicts
+                .iter()
+                .map(|v| format!("{} {}", v.effect, v.verdict))
+                .collect::<Vec<_>>()
+                .join(", ")
+        };
         println!("{:<10} {:<48} {:<40} {verdicts}", r.case, truth, detected);
     }
-    let unknown: Vec<String> = rows.iter().flat_map(|r| r.unknown_detected.iter().map(move |n| format!("{}: {n}", r.case))).collect();
+    let unknown: Vec<String> = rows
+        .iter()
+        .flat_map(|r| {
+            r.unknown_detected
+                .iter()
+                .map(move |n| format!("{}: {n}", r.case))
+        })
+        .collect();
     if !unknown.is_empty() {
-        println!("accepted names that are no benchmark effect (ignored): {}", unknown.join("; "));
+        println!(
+            "accepted names that are no benchmark effect (ignored): {}",
+            unknown.join("; ")
+        );
     }
 
     // ---- 2. Recall by strength. ----
     println!("\n2. Recall by strength u (detected/present per bin)");
     for s in &score.per_effect {
-        let bins: Vec<String> = s.recall_by_strength.iter().map(|&(lo, hi, hit, n)| format!("[{lo:.2}, {hi:.2}{} {hit}/{n}", if hi >= 1.0 { "]" } else { ")" })).collect();
+        let bins: Vec<String> = s
+            .recall_by_strength
+            .iter()
+            .map(|&(lo, hi, hit, n)| {
+                format!(
+                    "[{lo:.2}, {hi:.2}{} {hit}/{n}",
+                    if hi >= 1.0 { "]" } else { ")" }
+                )
+            })
+            .collect();
         println!("{:<22} {}", s.effect.name(), bins.join("   "));
     }
 
@@ -425,22 +598,37 @@ fn run(args: &Args) -> Result<(), String> {
     let mut failures = Vec::new();
     for (case, d) in &scored {
         for a in &d.catalogue.accepted {
-            let Ok(effect) = Effect::from_catalogue_name(&a.name) else { continue };
+            let Ok(effect) = Effect::from_catalogue_name(&a.name) else {
+                continue;
+            };
             if !case.truth.effects.iter().any(|l| l.effect == effect) {
                 continue; // a false positive has no true parameter
             }
             match inject::compare_parameters(&case.labels, a, &case.context) {
-                Ok(c) => by_effect.entry(effect).or_default().push(CaseComparison { case: case.name.clone(), comparison: c }),
-                Err(e) => failures.push(Failure { case: case.name.clone(), effect: a.name.clone(), error: e.to_string() }),
+                Ok(c) => by_effect.entry(effect).or_default().push(CaseComparison {
+                    case: case.name.clone(),
+                    comparison: c,
+                }),
+                Err(e) => failures.push(Failure {
+                    case: case.name.clone(),
+                    effect: a.name.clone(),
+                    error: e.to_string(),
+                }),
             }
         }
     }
     let mut parameters = Vec::new();
     for effect in Effect::ALL {
         let list = by_effect.remove(&effect).unwrap_or_default();
-        let errors: Vec<f64> = list.iter().flat_map(|c| c.comparison.errors.iter().copied()).collect();
+        let errors: Vec<f64> = list
+            .iter()
+            .flat_map(|c| c.comparison.errors.iter().copied())
+            .collect();
         let mut reasons: Vec<String> = Vec::new();
-        for r in list.iter().filter_map(|c| c.comparison.not_comparable.as_ref()) {
+        for r in list
+            .iter()
+            .filter_map(|c| c.comparison.not_comparable.as_ref())
+        {
             if !reasons.contains(r) {
                 reasons.push(r.clone());
             }
@@ -448,7 +636,12 @@ fn run(args: &Args) -> Result<(), String> {
         if list.is_empty() {
             reasons.push("no true positive to compare".into());
         }
-        parameters.push(EffectParameters { effect, summary: ErrorSummary::of(&errors), not_comparable: reasons, cases: list });
+        parameters.push(EffectParameters {
+            effect,
+            summary: ErrorSummary::of(&errors),
+            not_comparable: reasons,
+            cases: list,
+        });
     }
     println!("\n3. Parameter errors of the true positives (error = detected/expected − 1; expected from the labels, see the module docs)");
     println!(
@@ -458,11 +651,25 @@ fn run(args: &Args) -> Result<(), String> {
         ratios.ratio_first_zero,
         ratios.hertz_first_zero_x / std::f64::consts::PI
     );
-    println!("{:<22} {:>3} {:>12} {:>12} {:>12}", "effect", "n", "median |err|", "max |err|", "median err");
+    println!(
+        "{:<22} {:>3} {:>12} {:>12} {:>12}",
+        "effect", "n", "median |err|", "max |err|", "median err"
+    );
     for p in &parameters {
         match &p.summary {
-            Some(s) => println!("{:<22} {:>3} {:>12} {:>12} {:>12}", p.effect.name(), s.n, pct(s.median_abs), pct(s.max_abs), pct(s.median)),
-            None => println!("{:<22} n/a: {}", p.effect.name(), p.not_comparable.join("; ")),
+            Some(s) => println!(
+                "{:<22} {:>3} {:>12} {:>12} {:>12}",
+                p.effect.name(),
+                s.n,
+                pct(s.median_abs),
+                pct(s.max_abs),
+                pct(s.median)
+            ),
+            None => println!(
+                "{:<22} n/a: {}",
+                p.effect.name(),
+                p.not_comparable.join("; ")
+            ),
         }
     }
     for p in &parameters {
@@ -477,7 +684,8 @@ fn run(args: &Args) -> Result<(), String> {
                     sci(v.truth),
                     sci(v.expected),
                     sci(v.detected),
-                    v.relative_error.map_or(String::new(), |e| format!(", error {}", pct(e)))
+                    v.relative_error
+                        .map_or(String::new(), |e| format!(", error {}", pct(e)))
                 );
             }
             if let (Some(why), true) = (&c.comparison.not_comparable, p.summary.is_some()) {
@@ -486,7 +694,10 @@ fn run(args: &Args) -> Result<(), String> {
         }
     }
     for f in &failures {
-        eprintln!("WARNING: {} {}: parameters not compared: {}", f.case, f.effect, f.error);
+        eprintln!(
+            "WARNING: {} {}: parameters not compared: {}",
+            f.case, f.effect, f.error
+        );
         println!("   {} {}: NOT COMPARED: {}", f.case, f.effect, f.error);
     }
 
@@ -497,20 +708,46 @@ fn run(args: &Args) -> Result<(), String> {
         if d.catalogue.accepted.is_empty() {
             continue;
         }
-        let catalogue = match (d.catalogue.baseline.held_out_error, d.catalogue.final_model.held_out_error) {
+        let catalogue = match (
+            d.catalogue.baseline.held_out_error,
+            d.catalogue.final_model.held_out_error,
+        ) {
             (Some(before), Some(after)) => Some(BeforeAfter { before, after }),
             _ => {
                 catalogue_missing.push(case.name.clone());
                 None
             }
         };
-        held.push(HeldOutRow { case: case.name.clone(), catalogue, audio: d.held_out_audio });
+        held.push(HeldOutRow {
+            case: case.name.clone(),
+            catalogue,
+            audio: d.held_out_audio,
+        });
     }
-    let catalogue_summary = HeldOutSummary::of(&held.iter().filter_map(|h| h.catalogue.map(|b| (b.before, b.after))).collect::<Vec<_>>());
-    let audio_summary = HeldOutSummary::of(&held.iter().filter_map(|h| h.audio.map(|b| (b.before, b.after))).collect::<Vec<_>>());
-    println!("\n4. Held-out improvement ({} cases with ≥ 1 accepted effect)", held.len());
-    println!("{:<10} {:>12} {:>12} {:>14} {:>14}", "case", "catalogue", "", "audio", "");
-    println!("{:<10} {:>12} {:>12} {:>14} {:>14}", "", "before", "after", "before", "after");
+    let catalogue_summary = HeldOutSummary::of(
+        &held
+            .iter()
+            .filter_map(|h| h.catalogue.map(|b| (b.before, b.after)))
+            .collect::<Vec<_>>(),
+    );
+    let audio_summary = HeldOutSummary::of(
+        &held
+            .iter()
+            .filter_map(|h| h.audio.map(|b| (b.before, b.after)))
+            .collect::<Vec<_>>(),
+    );
+    println!(
+        "\n4. Held-out improvement ({} cases with ≥ 1 accepted effect)",
+        held.len()
+    );
+    println!(
+        "{:<10} {:>12} {:>12} {:>14} {:>14}",
+        "case", "catalogue", "", "audio", ""
+    );
+    println!(
+        "{:<10} {:>12} {:>12} {:>14} {:>14}",
+        "", "before", "after", "before", "after"
+    );
     for h in &held {
         println!(
             "{:<10} {:>12} {:>12} {:>14} {:>14}",
@@ -527,57 +764,96 @@ fn run(args: &Args) -> Result<(), String> {
             s.cases - s.invalid,
             s.dropped,
             s.not_dropped,
-            if s.invalid > 0 { format!(" ({} invalid)", s.invalid) } else { String::new() },
+            if s.invalid > 0 {
+                format!(" ({} invalid)", s.invalid)
+            } else {
+                String::new()
+            },
             s.median_relative_drop.map_or("–".into(), pct)
         )
     };
     line("catalogue held-out error", &catalogue_summary);
     if !catalogue_missing.is_empty() {
-        println!("   no catalogue held-out error (baseline or final) in: {}", catalogue_missing.join(", "));
+        println!(
+            "   no catalogue held-out error (baseline or final) in: {}",
+            catalogue_missing.join(", ")
+        );
     }
     line("held-out audio error", &audio_summary);
 
     // Per accepted effect, its own held-out data at its step.
-    let mut per_effect: std::collections::BTreeMap<String, Vec<(f64, f64)>> = std::collections::BTreeMap::new();
+    let mut per_effect: std::collections::BTreeMap<String, Vec<(f64, f64)>> =
+        std::collections::BTreeMap::new();
     let mut without = Vec::new();
     for (case, d) in &scored {
         for a in &d.catalogue.accepted {
             match (a.held_out_before, a.held_out_after) {
-                (Some(b), Some(after)) => per_effect.entry(a.name.clone()).or_default().push((b, after)),
+                (Some(b), Some(after)) => per_effect
+                    .entry(a.name.clone())
+                    .or_default()
+                    .push((b, after)),
                 _ => without.push(format!("{} {}", case.name, a.name)),
             }
         }
     }
     println!("\n   each accepted effect on its own held-out data at its step (modal effects: the held-out microphones' rows; reverb: the odd STFT frames);\n   it falls for every accepted effect by construction (the selection requires it), false positives included");
-    println!("   {:<22} {:>8} {:>8} {:>12} {:>22}", "effect", "accepted", "dropped", "not dropped", "median relative drop");
+    println!(
+        "   {:<22} {:>8} {:>8} {:>12} {:>22}",
+        "effect", "accepted", "dropped", "not dropped", "median relative drop"
+    );
     let mut all_pairs = Vec::new();
     for (name, pairs) in &per_effect {
         let s = HeldOutSummary::of(pairs);
         all_pairs.extend_from_slice(pairs);
-        println!("   {:<22} {:>8} {:>8} {:>12} {:>22}", name, s.cases, s.dropped, s.not_dropped, s.median_relative_drop.map_or("–".into(), pct));
+        println!(
+            "   {:<22} {:>8} {:>8} {:>12} {:>22}",
+            name,
+            s.cases,
+            s.dropped,
+            s.not_dropped,
+            s.median_relative_drop.map_or("–".into(), pct)
+        );
     }
     line("   every accepted effect", &HeldOutSummary::of(&all_pairs));
     if !without.is_empty() {
-        println!("   accepted without a held-out error: {}", without.join(", "));
+        println!(
+            "   accepted without a held-out error: {}",
+            without.join(", ")
+        );
     }
 
     // ---- Material (when reported). ----
-    let e_errors: Vec<f64> = rows.iter().filter_map(|r| r.youngs_modulus_relative_error).collect();
+    let e_errors: Vec<f64> = rows
+        .iter()
+        .filter_map(|r| r.youngs_modulus_relative_error)
+        .collect();
     let nu_errors: Vec<f64> = rows.iter().filter_map(|r| r.poisson_ratio_error).collect();
     let e_summary = ErrorSummary::of(&e_errors);
     let nu_summary = ErrorSummary::of(&nu_errors);
     if let Some(s) = &e_summary {
-        println!("\nMaterial: E relative error over {} cases: median |err| {}, max {}, median {}", s.n, pct(s.median_abs), pct(s.max_abs), pct(s.median));
+        println!(
+            "\nMaterial: E relative error over {} cases: median |err| {}, max {}, median {}",
+            s.n,
+            pct(s.median_abs),
+            pct(s.max_abs),
+            pct(s.median)
+        );
     }
     if let Some(s) = &nu_summary {
-        println!("          ν error over {} cases: median |Δν| {:.4}, max {:.4}, median {:+.4}", s.n, s.median_abs, s.max_abs, s.median);
+        println!(
+            "          ν error over {} cases: median |Δν| {:.4}, max {:.4}, median {:+.4}",
+            s.n, s.median_abs, s.max_abs, s.median
+        );
     }
 
     if !not_run.is_empty() || !unreadable.is_empty() {
         println!("\nNOTE: {} case(s) not run and {} unreadable were left out of every number above (see stderr).", not_run.len(), unreadable.len());
     }
 
-    let out = args.out.clone().unwrap_or_else(|| args.cases.join("score.json"));
+    let out = args
+        .out
+        .clone()
+        .unwrap_or_else(|| args.cases.join("score.json"));
     let doc = json!({
         "format": "diffsound.diagnose_score",
         "format_version": 1,
@@ -605,7 +881,14 @@ fn run(args: &Args) -> Result<(), String> {
         "material": {"youngs_modulus_relative_error": e_summary, "poisson_ratio_error": nu_summary},
     });
     let text = serde_json::to_string_pretty(&doc).map_err(|e| e.to_string())?;
-    diffsound::io::write_atomically(&out, |tmp| std::fs::write(tmp, &text).map_err(|e| diffsound::io::IoError::Fs { path: tmp.to_path_buf(), context: "writing".into(), source: e })).map_err(|e| e.to_string())?;
+    diffsound::io::write_atomically(&out, |tmp| {
+        std::fs::write(tmp, &text).map_err(|e| diffsound::io::IoError::Fs {
+            path: tmp.to_path_buf(),
+            context: "writing".into(),
+            source: e,
+        })
+    })
+    .map_err(|e| e.to_string())?;
     println!("\nwrote {}", out.display());
     Ok(())
 }

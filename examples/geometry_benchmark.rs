@@ -17,7 +17,9 @@
 //! points. With --out-dir, one PNG per case (voxels / before / after / true) and `results.json`.
 use diffsound::cli::fit_geometry::{load_surface, render_comparison, step_line};
 use diffsound::fem::Material;
-use diffsound::inverse::geometry::{assess, eigenvalue_loss, fit_geometry, GeometryProgress, GeometrySettings};
+use diffsound::inverse::geometry::{
+    assess, eigenvalue_loss, fit_geometry, GeometryProgress, GeometrySettings,
+};
 use diffsound::petsc::Petsc;
 
 struct Args {
@@ -35,7 +37,14 @@ fn usage() -> ! {
 }
 
 fn parse_args() -> Args {
-    let mut a = Args { voxels: vec![16, 8], settings: GeometrySettings::default(), out_dir: None, inputs: Vec::new(), verbose: false, step_metrics: false };
+    let mut a = Args {
+        voxels: vec![16, 8],
+        settings: GeometrySettings::default(),
+        out_dir: None,
+        inputs: Vec::new(),
+        verbose: false,
+        step_metrics: false,
+    };
     let mut it = std::env::args().skip(1);
     fn num<T: std::str::FromStr>(v: Option<String>) -> T {
         v.and_then(|v| v.parse().ok()).unwrap_or_else(|| usage())
@@ -43,7 +52,14 @@ fn parse_args() -> Args {
     while let Some(x) = it.next() {
         let s = &mut a.settings;
         match x.as_str() {
-            "--voxels" => a.voxels = it.next().unwrap_or_else(|| usage()).split(',').map(|v| v.parse().unwrap_or_else(|_| usage())).collect(),
+            "--voxels" => {
+                a.voxels = it
+                    .next()
+                    .unwrap_or_else(|| usage())
+                    .split(',')
+                    .map(|v| v.parse().unwrap_or_else(|_| usage()))
+                    .collect()
+            }
             "--cells" => s.cells = num(it.next()),
             "--target-cells" => s.target_cells = num(it.next()),
             "--modes" => s.modes = num(it.next()),
@@ -62,7 +78,8 @@ fn parse_args() -> Args {
             "--step-metrics" => a.step_metrics = true,
             "--seed" => {
                 let seed: u64 = num(it.next());
-                (s.target_seed, s.network_seed, s.prefit.seed, s.refine.seed) = (seed, seed, seed, seed);
+                (s.target_seed, s.network_seed, s.prefit.seed, s.refine.seed) =
+                    (seed, seed, seed, seed);
             }
             "--out-dir" => a.out_dir = Some(it.next().unwrap_or_else(|| usage()).into()),
             "-v" => a.verbose = true,
@@ -95,8 +112,12 @@ fn main() {
     let mut timing_rows = Vec::new();
     let mut records = Vec::new();
     for input in &args.inputs {
-        let name = std::path::Path::new(input).file_stem().map(|s| s.to_string_lossy().trim_end_matches("_surf").to_string()).unwrap_or_default();
-        let (truth, sdf, _) = load_surface(std::path::Path::new(input), 1.0, Some(0.1)).unwrap_or_else(|e| panic!("{e}"));
+        let name = std::path::Path::new(input)
+            .file_stem()
+            .map(|s| s.to_string_lossy().trim_end_matches("_surf").to_string())
+            .unwrap_or_default();
+        let (truth, sdf, _) = load_surface(std::path::Path::new(input), 1.0, Some(0.1))
+            .unwrap_or_else(|e| panic!("{e}"));
         for &n in &args.voxels {
             let mut settings = args.settings.clone();
             settings.voxels = n;
@@ -121,13 +142,38 @@ fn main() {
             // the shape. Diagnostics only (the fit never sees it).
             let mut step_rows = Vec::new();
             if args.step_metrics && root {
-                for st in fit.refinement.history.iter().filter(|st| st.failure.is_none()) {
-                    let net = diffsound::inverse::neural_sdf::NeuralSdf::from_parameters(fit.network.clone(), st.parameters.clone()).expect("network");
+                for st in fit
+                    .refinement
+                    .history
+                    .iter()
+                    .filter(|st| st.failure.is_none())
+                {
+                    let net = diffsound::inverse::neural_sdf::NeuralSdf::from_parameters(
+                        fit.network.clone(),
+                        st.parameters.clone(),
+                    )
+                    .expect("network");
                     let field = |x: [f64; 3]| net.value(x);
-                    let curved: Option<&dyn Fn([f64; 3]) -> f64> = if settings.refine.curved_boundary { Some(&field) } else { None };
-                    if let Ok(assessed) = assess(&fit.grid, &net.values(&fit.grid.vertex_positions()), curved, Vec::new(), &truth, &settings) {
+                    let curved: Option<&dyn Fn([f64; 3]) -> f64> =
+                        if settings.refine.curved_boundary {
+                            Some(&field)
+                        } else {
+                            None
+                        };
+                    if let Ok(assessed) = assess(
+                        &fit.grid,
+                        &net.values(&fit.grid.vertex_positions()),
+                        curved,
+                        Vec::new(),
+                        &truth,
+                        &settings,
+                    ) {
                         let c = assessed.comparison;
-                        let mark = if st.step == fit.refinement.best().step { " answer" } else { "" };
+                        let mark = if st.step == fit.refinement.best().step {
+                            " answer"
+                        } else {
+                            ""
+                        };
                         eprintln!("{name} {n}³ step {:2}: loss {:.3e} eigen {:.3e} | Chamfer {:.3} mm IoU {:.4}{mark}", st.step, st.loss, st.eigen_loss, 1e3 * c.chamfer, c.iou);
                         step_rows.push(serde_json::json!({"step": st.step, "loss": st.loss, "eigen_loss": st.eigen_loss, "chamfer": c.chamfer, "hausdorff": c.hausdorff, "iou": c.iou}));
                     }
@@ -137,8 +183,17 @@ fn main() {
                 continue;
             }
             let mm = 1e3;
-            let (v, b, a, f) = (&fit.voxel_comparison, &fit.before.comparison, &fit.after.comparison, &fit.floor.comparison);
-            let loss = |e: &[f64]| eigenvalue_loss(e, &fit.target).map(|(l, _)| l).unwrap_or(f64::NAN);
+            let (v, b, a, f) = (
+                &fit.voxel_comparison,
+                &fit.before.comparison,
+                &fit.after.comparison,
+                &fit.floor.comparison,
+            );
+            let loss = |e: &[f64]| {
+                eigenvalue_loss(e, &fit.target)
+                    .map(|(l, _)| l)
+                    .unwrap_or(f64::NAN)
+            };
             println!(
                 "| {name} | {n}³ | {:.2} / {:.2} / {:.2} / {:.2} | {:.2} / {:.2} / {:.2} / {:.2} | {:.3} / {:.3} / {:.3} / {:.3} | {:.2} % / {:.2} % / {:.2} % | {:.2e} → {:.2e} | {} of {} |",
                 mm * v.chamfer, mm * b.chamfer, mm * a.chamfer, mm * f.chamfer,
@@ -149,8 +204,26 @@ fn main() {
                 fit.refinement.best_step, fit.refinement.history.len() - 1
             );
             let (mean, network) = fit.refinement.mean_timings();
-            let tets = fit.refinement.history.iter().filter(|s| s.failure.is_none()).map(|s| s.tets).sum::<usize>() / fit.refinement.history.iter().filter(|s| s.failure.is_none()).count().max(1);
-            let failed = fit.refinement.history.iter().filter(|s| s.failure.is_some()).count();
+            let tets = fit
+                .refinement
+                .history
+                .iter()
+                .filter(|s| s.failure.is_none())
+                .map(|s| s.tets)
+                .sum::<usize>()
+                / fit
+                    .refinement
+                    .history
+                    .iter()
+                    .filter(|s| s.failure.is_none())
+                    .count()
+                    .max(1);
+            let failed = fit
+                .refinement
+                .history
+                .iter()
+                .filter(|s| s.failure.is_some())
+                .count();
             timing_rows.push(format!(
                 "| {name} | {n}³ | {} | {tets} | {:.2} / {:.2} / {:.2} / {:.2} / {:.2} | {:.2} | {failed} | {:.1} | {:.1} | {:.1} | {:.1} |",
                 settings.cells, mean.meshing, mean.assembly, mean.solve, mean.gradient, network, mean.total() + network, fit.timings.prefit, fit.timings.target, fit.timings.refine, fit.timings.total
@@ -182,7 +255,8 @@ fn main() {
         }
         if let Some(dir) = &args.out_dir {
             let path = dir.join(format!("results_np{}.json", petsc.size()));
-            std::fs::write(&path, serde_json::to_string_pretty(&records).expect("json")).unwrap_or_else(|e| eprintln!("{}: {e}", path.display()));
+            std::fs::write(&path, serde_json::to_string_pretty(&records).expect("json"))
+                .unwrap_or_else(|e| eprintln!("{}: {e}", path.display()));
         }
     }
 }

@@ -45,15 +45,16 @@ use diffsound::audio::radiation::{fit_multipoles, MultipoleSettings, SurfaceQuad
 use diffsound::audio::synth::{render_samples, ModalBank};
 use diffsound::diagnose::evidence::cluster_ids;
 use diffsound::diagnose::inject::strike_candidates;
-use diffsound::random::SplitMix64;
 use diffsound::eigen::{self, EigenConfig, ModeRequest};
 use diffsound::fem::Material;
 use diffsound::inverse::impact::{
-    cluster_amplitudes, drive_signatures, fit_amplitudes, forward_amplitudes, likelihood_map, surface_candidates, symmetry_orbit, AmplitudeFitOptions, MapOptions, Pole, SurfaceGraph,
+    cluster_amplitudes, drive_signatures, fit_amplitudes, forward_amplitudes, likelihood_map,
+    surface_candidates, symmetry_orbit, AmplitudeFitOptions, MapOptions, Pole, SurfaceGraph,
     Transfer,
 };
 use diffsound::mesh::{self, ReadOptions};
 use diffsound::petsc::Petsc;
+use diffsound::random::SplitMix64;
 use rustfft::num_complex::Complex64;
 use std::time::Instant;
 
@@ -75,7 +76,17 @@ struct Args {
 }
 
 fn parse_args() -> Args {
-    let mut a = Args { seed: 1, strikes: 20, snr_db: 40.0, mics: 4, modes: 32, duration: 1.0, sample_rate: 48_000.0, orbit_rtol: 0.1, meshes: Vec::new() };
+    let mut a = Args {
+        seed: 1,
+        strikes: 20,
+        snr_db: 40.0,
+        mics: 4,
+        modes: 32,
+        duration: 1.0,
+        sample_rate: 48_000.0,
+        orbit_rtol: 0.1,
+        meshes: Vec::new(),
+    };
     let mut it = std::env::args().skip(1);
     while let Some(arg) = it.next() {
         let mut value = |name: &str| it.next().unwrap_or_else(|| panic!("{name} needs a value"));
@@ -86,8 +97,12 @@ fn parse_args() -> Args {
             "--mics" => a.mics = value("--mics").parse().expect("--mics: integer"),
             "--modes" => a.modes = value("--modes").parse().expect("--modes: integer"),
             "--duration" => a.duration = value("--duration").parse().expect("--duration: seconds"),
-            "--sample-rate" => a.sample_rate = value("--sample-rate").parse().expect("--sample-rate: Hz"),
-            "--orbit-rtol" => a.orbit_rtol = value("--orbit-rtol").parse().expect("--orbit-rtol: number"),
+            "--sample-rate" => {
+                a.sample_rate = value("--sample-rate").parse().expect("--sample-rate: Hz")
+            }
+            "--orbit-rtol" => {
+                a.orbit_rtol = value("--orbit-rtol").parse().expect("--orbit-rtol: number")
+            }
             "-h" | "--help" => {
                 eprintln!("usage: impact_benchmark [--seed 1] [--strikes 20] [--snr-db 40] [--mics 4] [--modes 32] [--duration 1] [--sample-rate 48000] [--orbit-rtol 0.1] [MESH...]");
                 std::process::exit(0);
@@ -96,9 +111,18 @@ fn parse_args() -> Args {
             s => a.meshes.push(s.to_string()),
         }
     }
-    assert!(a.strikes > 0 && a.mics > 0 && a.modes > 0, "--strikes, --mics and --modes must be positive");
+    assert!(
+        a.strikes > 0 && a.mics > 0 && a.modes > 0,
+        "--strikes, --mics and --modes must be positive"
+    );
     if a.meshes.is_empty() {
-        a.meshes = ["examples/bowl/bowl.msh", "examples/solids/plate.msh", "examples/solids/mug.msh"].map(String::from).to_vec();
+        a.meshes = [
+            "examples/bowl/bowl.msh",
+            "examples/solids/plate.msh",
+            "examples/solids/mug.msh",
+        ]
+        .map(String::from)
+        .to_vec();
     }
     a
 }
@@ -108,17 +132,32 @@ fn parse_args() -> Args {
 /// 7.3 kHz, 66 at 22 kHz); aluminium with its preset Rayleigh damping for the others.
 fn material_of(name: &str) -> (Material, DampingModel) {
     if name.contains("bowl") {
-        let m = Material { youngs_modulus: 7.469e10, poisson_ratio: 0.188, density: 2700.0, rayleigh_alpha: 0.0, rayleigh_beta: 0.0 };
-        let curve = DampingCurve::new(vec![1680.0, 7300.0, 22_000.0], &[3.1, 31.0, 66.0]).expect("damping curve");
+        let m = Material {
+            youngs_modulus: 7.469e10,
+            poisson_ratio: 0.188,
+            density: 2700.0,
+            rayleigh_alpha: 0.0,
+            rayleigh_beta: 0.0,
+        };
+        let curve = DampingCurve::new(vec![1680.0, 7300.0, 22_000.0], &[3.1, 31.0, 66.0])
+            .expect("damping curve");
         (m, DampingModel::Curve(curve))
     } else {
         let m = Material::preset("aluminium").expect("preset");
-        (m, DampingModel::Rayleigh { alpha: m.rayleigh_alpha, beta: m.rayleigh_beta })
+        (
+            m,
+            DampingModel::Rayleigh {
+                alpha: m.rayleigh_alpha,
+                beta: m.rayleigh_beta,
+            },
+        )
     }
 }
 
 fn fnv1a(s: &str) -> u64 {
-    s.bytes().fold(0xcbf2_9ce4_8422_2325, |h, b| (h ^ b as u64).wrapping_mul(0x100_0000_01b3))
+    s.bytes().fold(0xcbf2_9ce4_8422_2325, |h, b| {
+        (h ^ b as u64).wrapping_mul(0x100_0000_01b3)
+    })
 }
 
 fn quantile(values: &[f64], q: f64) -> f64 {
@@ -179,44 +218,100 @@ fn main() {
     let petsc = Petsc::initialize(universe, "impact_benchmark", &[]).expect("PETSc");
     let root = petsc.rank() == 0;
     if root {
-        eprintln!("seed {}, {} strikes, SNR {} dB, {} microphones, {} modes, {} s at {} Hz, {} ranks", args.seed, args.strikes, args.snr_db, args.mics, args.modes, args.duration, args.sample_rate, petsc.size());
+        eprintln!(
+            "seed {}, {} strikes, SNR {} dB, {} microphones, {} modes, {} s at {} Hz, {} ranks",
+            args.seed,
+            args.strikes,
+            args.snr_db,
+            args.mics,
+            args.modes,
+            args.duration,
+            args.sample_rate,
+            petsc.size()
+        );
     }
     let mut rows: Vec<Row> = Vec::new();
     let mut objects: Vec<ObjectRow> = Vec::new();
     for path in &args.meshes {
-        let name = std::path::Path::new(path).file_stem().unwrap().to_string_lossy().to_string();
-        let read = mesh::read_mesh(std::path::Path::new(path), &ReadOptions::default()).unwrap_or_else(|e| panic!("{path}: {e}"));
+        let name = std::path::Path::new(path)
+            .file_stem()
+            .unwrap()
+            .to_string_lossy()
+            .to_string();
+        let read = mesh::read_mesh(std::path::Path::new(path), &ReadOptions::default())
+            .unwrap_or_else(|e| panic!("{path}: {e}"));
         let model = mesh::lift_to_quadratic(&read.mesh);
         drop(read);
         let (lo, hi) = model.bounding_box();
         let size = (0..3).map(|d| (hi[d] - lo[d]).powi(2)).sum::<f64>().sqrt();
-        let centre = [0.5 * (lo[0] + hi[0]), 0.5 * (lo[1] + hi[1]), 0.5 * (lo[2] + hi[2])];
+        let centre = [
+            0.5 * (lo[0] + hi[0]),
+            0.5 * (lo[1] + hi[1]),
+            0.5 * (lo[2] + hi[2]),
+        ];
         let (material, damping) = material_of(&name);
 
         // Modes on every rank, shapes to rank 0.
         let t_modes = Instant::now();
-        let assembled = assembly::assemble(&petsc, &model).unwrap_or_else(|e| panic!("{name}: assembly: {e}"));
+        let assembled =
+            assembly::assemble(&petsc, &model).unwrap_or_else(|e| panic!("{name}: assembly: {e}"));
         let (k, m) = assembled.operators(&material).expect("operators");
-        let cfg = EigenConfig::new(ModeRequest::FirstN(args.modes), eigen::spectrum_scale(material.lame_mu(), material.density, size));
-        let modes = eigen::solve_modes(&petsc, &k, &m, &cfg).unwrap_or_else(|e| panic!("{name}: modes: {e}"));
-        let shapes = assembled.layout.gather_original_order(&modes.vectors).expect("gather");
+        let cfg = EigenConfig::new(
+            ModeRequest::FirstN(args.modes),
+            eigen::spectrum_scale(material.lame_mu(), material.density, size),
+        );
+        let modes = eigen::solve_modes(&petsc, &k, &m, &cfg)
+            .unwrap_or_else(|e| panic!("{name}: modes: {e}"));
+        let shapes = assembled
+            .layout
+            .gather_original_order(&modes.vectors)
+            .expect("gather");
         let modes_seconds = t_modes.elapsed().as_secs_f64();
         if !root {
             continue;
         }
         let eigenvalues = modes.eigenvalues.clone();
-        eprintln!("[{name}] {} nodes (P2), {} modes {:.0}–{:.0} Hz in {modes_seconds:.1} s", model.n_nodes(), eigenvalues.len(), eigen::frequency_hz(eigenvalues[0]), eigen::frequency_hz(*eigenvalues.last().unwrap()));
+        eprintln!(
+            "[{name}] {} nodes (P2), {} modes {:.0}–{:.0} Hz in {modes_seconds:.1} s",
+            model.n_nodes(),
+            eigenvalues.len(),
+            eigen::frequency_hz(eigenvalues[0]),
+            eigen::frequency_hz(*eigenvalues.last().unwrap())
+        );
 
         // Poles as the renderer makes them; modes above 0.45 f_s are left out.
-        let strike = Strike { force: ContactForce::HalfSine { duration_s: CONTACT_S }, response: Response::Displacement };
-        let (bank1, _) = ModalChain::new(&eigenvalues, &vec![1.0; eigenvalues.len()], &damping, &strike).expect("chain");
-        let keep: Vec<usize> = (0..eigenvalues.len()).filter(|&k| bank1.frequencies_hz[k] > 0.0 && bank1.frequencies_hz[k] < 0.45 * args.sample_rate).collect();
+        let strike = Strike {
+            force: ContactForce::HalfSine {
+                duration_s: CONTACT_S,
+            },
+            response: Response::Displacement,
+        };
+        let (bank1, _) = ModalChain::new(
+            &eigenvalues,
+            &vec![1.0; eigenvalues.len()],
+            &damping,
+            &strike,
+        )
+        .expect("chain");
+        let keep: Vec<usize> = (0..eigenvalues.len())
+            .filter(|&k| {
+                bank1.frequencies_hz[k] > 0.0 && bank1.frequencies_hz[k] < 0.45 * args.sample_rate
+            })
+            .collect();
         let eigenvalues: Vec<f64> = keep.iter().map(|&k| eigenvalues[k]).collect();
         let shapes: Vec<Vec<f64>> = keep.iter().map(|&k| shapes[k].clone()).collect();
         // The kept modes' decay rates, fixed per mode from here on.
         let decays: Vec<f64> = keep.iter().map(|&k| bank1.decay_rates[k]).collect();
-        let damping = DampingModel::PerMode { decay_rates: decays.clone() };
-        let poles: Vec<Pole> = keep.iter().map(|&k| Pole { frequency_hz: bank1.frequencies_hz[k], decay_rate: bank1.decay_rates[k] }).collect();
+        let damping = DampingModel::PerMode {
+            decay_rates: decays.clone(),
+        };
+        let poles: Vec<Pole> = keep
+            .iter()
+            .map(|&k| Pole {
+                frequency_hz: bank1.frequencies_hz[k],
+                decay_rate: bank1.decay_rates[k],
+            })
+            .collect();
         let frequencies: Vec<f64> = poles.iter().map(|p| p.frequency_hz).collect();
         let ids = cluster_ids(&frequencies, CLUSTER_RTOL);
 
@@ -227,7 +322,11 @@ fn main() {
             .map(|_| {
                 let d = [rng.normal(), rng.normal(), rng.normal()];
                 let n = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt();
-                [centre[0] + radius * d[0] / n, centre[1] + radius * d[1] / n, centre[2] + radius * d[2] / n]
+                [
+                    centre[0] + radius * d[0] / n,
+                    centre[1] + radius * d[1] / n,
+                    centre[2] + radius * d[2] / n,
+                ]
             })
             .collect();
         let t_transfer = Instant::now();
@@ -236,12 +335,37 @@ fn main() {
         let mut averaged: Vec<Vec<f64>> = Vec::new();
         let mut residuals = Vec::new();
         for (shape, &lambda) in shapes.iter().zip(&eigenvalues) {
-            let un = quadrature.normal_displacement(shape).expect("normal displacement");
-            let fit = fit_multipoles(quadrature.samples(), &un, lambda.sqrt(), &MultipoleSettings::default()).expect("multipole fit");
-            let nearest = mics.iter().map(|x| (0..3).map(|d| (x[d] - fit.centre[d]).powi(2)).sum::<f64>().sqrt()).fold(f64::INFINITY, f64::min);
-            assert!(nearest > fit.source_radius, "{name}: a microphone lies inside the source sphere");
+            let un = quadrature
+                .normal_displacement(shape)
+                .expect("normal displacement");
+            let fit = fit_multipoles(
+                quadrature.samples(),
+                &un,
+                lambda.sqrt(),
+                &MultipoleSettings::default(),
+            )
+            .expect("multipole fit");
+            let nearest = mics
+                .iter()
+                .map(|x| {
+                    (0..3)
+                        .map(|d| (x[d] - fit.centre[d]).powi(2))
+                        .sum::<f64>()
+                        .sqrt()
+                })
+                .fold(f64::INFINITY, f64::min);
+            assert!(
+                nearest > fit.source_radius,
+                "{name}: a microphone lies inside the source sphere"
+            );
             directional.push(fit.transfer(&mics).expect("transfer"));
-            averaged.push(fit.transfer_unknown_positions(args.mics, radius).expect("averaged").iter().map(|t| t.norm()).collect());
+            averaged.push(
+                fit.transfer_unknown_positions(args.mics, radius)
+                    .expect("averaged")
+                    .iter()
+                    .map(|t| t.norm())
+                    .collect(),
+            );
             residuals.push(fit.residual);
         }
         let transfer_seconds = t_transfer.elapsed().as_secs_f64();
@@ -250,11 +374,34 @@ fn main() {
         let candidates = surface_candidates(&model);
         let graph = SurfaceGraph::from_mesh(&model).expect("surface graph");
         let t_tables = Instant::now();
-        let table_dir = forward_amplitudes(&shapes, &eigenvalues, &decays, &strike, &candidates, &Transfer::Directional(&directional), &ids).expect("table");
-        let table_avg = forward_amplitudes(&shapes, &eigenvalues, &decays, &strike, &candidates, &Transfer::Magnitude(&averaged), &ids).expect("table");
+        let table_dir = forward_amplitudes(
+            &shapes,
+            &eigenvalues,
+            &decays,
+            &strike,
+            &candidates,
+            &Transfer::Directional(&directional),
+            &ids,
+        )
+        .expect("table");
+        let table_avg = forward_amplitudes(
+            &shapes,
+            &eigenvalues,
+            &decays,
+            &strike,
+            &candidates,
+            &Transfer::Magnitude(&averaged),
+            &ids,
+        )
+        .expect("table");
         let tables_seconds = t_tables.elapsed().as_secs_f64();
         let signatures = drive_signatures(&table_dir);
-        let index_of: std::collections::HashMap<usize, usize> = table_dir.candidates.iter().enumerate().map(|(i, c)| (c.vertex, i)).collect();
+        let index_of: std::collections::HashMap<usize, usize> = table_dir
+            .candidates
+            .iter()
+            .enumerate()
+            .map(|(i, c)| (c.vertex, i))
+            .collect();
         eprintln!(
             "[{name}] {} clusters ({} of several modes), transfer of {} modes to {} microphones at {radius:.3} m in {transfer_seconds:.1} s (boundary residual ε min {:.3}, median {:.3}, max {:.3}), tables {tables_seconds:.2} s",
             table_dir.clusters.len(),
@@ -267,7 +414,11 @@ fn main() {
         );
 
         // Strikes.
-        let mut pool: Vec<usize> = strike_candidates(&model, [0.0, 0.0, -1.0], 0.05).into_iter().map(|(v, _)| v).filter(|v| index_of.contains_key(v)).collect();
+        let mut pool: Vec<usize> = strike_candidates(&model, [0.0, 0.0, -1.0], 0.05)
+            .into_iter()
+            .map(|(v, _)| v)
+            .filter(|v| index_of.contains_key(v))
+            .collect();
         rng.shuffle(&mut pool);
         pool.truncate(args.strikes);
         let fs = args.sample_rate;
@@ -279,12 +430,24 @@ fn main() {
         for (s, &vertex) in pool.iter().enumerate() {
             let truth = index_of[&vertex];
             let impulse = rng.log_uniform(1e-3, 1e-2);
-            let projections: Vec<f64> = table_dir.drive[truth].iter().map(|d| impulse * d).collect();
-            let (bank, _) = ModalChain::new(&eigenvalues, &projections, &damping, &strike).expect("chain");
+            let projections: Vec<f64> =
+                table_dir.drive[truth].iter().map(|d| impulse * d).collect();
+            let (bank, _) =
+                ModalChain::new(&eigenvalues, &projections, &damping, &strike).expect("chain");
             let channels: Vec<Vec<f64>> = (0..args.mics)
                 .map(|mic| {
-                    let z: Vec<Complex64> = (0..shapes.len()).map(|k| Complex64::from_polar(bank.amplitudes[k], bank.phases[k]) * directional[k][mic].conj()).collect();
-                    let heard = ModalBank { frequencies_hz: bank.frequencies_hz.clone(), decay_rates: bank.decay_rates.clone(), amplitudes: z.iter().map(|z| z.norm()).collect(), phases: z.iter().map(|z| z.arg()).collect() };
+                    let z: Vec<Complex64> = (0..shapes.len())
+                        .map(|k| {
+                            Complex64::from_polar(bank.amplitudes[k], bank.phases[k])
+                                * directional[k][mic].conj()
+                        })
+                        .collect();
+                    let heard = ModalBank {
+                        frequencies_hz: bank.frequencies_hz.clone(),
+                        decay_rates: bank.decay_rates.clone(),
+                        amplitudes: z.iter().map(|z| z.norm()).collect(),
+                        phases: z.iter().map(|z| z.arg()).collect(),
+                    };
                     let clean = render_samples(&heard, fs, n_samples - pre);
                     let peak = clean.iter().fold(0.0_f64, |p, x| p.max(x.abs()));
                     let sigma = peak * 10f64.powf(-args.snr_db / 20.0);
@@ -295,29 +458,55 @@ fn main() {
                 })
                 .collect();
             let t_fit = Instant::now();
-            let fit = fit_amplitudes(&channels, fs, pre as f64 / fs, &poles, &AmplitudeFitOptions::default()).expect("amplitude fit");
+            let fit = fit_amplitudes(
+                &channels,
+                fs,
+                pre as f64 / fs,
+                &poles,
+                &AmplitudeFitOptions::default(),
+            )
+            .expect("amplitude fit");
             let measured = cluster_amplitudes(&fit, &ids).expect("cluster amplitudes");
             fit_seconds += t_fit.elapsed().as_secs_f64();
             let orbit = symmetry_orbit(&signatures, truth, args.orbit_rtol).expect("orbit");
-            let from_truth = graph.distances_from(vertex, f64::INFINITY).expect("geodesic");
+            let from_truth = graph
+                .distances_from(vertex, f64::INFINITY)
+                .expect("geodesic");
             orbit_sizes.push(orbit.len() as f64);
-            let extent = |orbit: &[usize]| orbit.iter().map(|&u| from_truth[graph.index_of(table_dir.candidates[u].vertex).unwrap()]).fold(0.0, f64::max) / size;
+            let extent = |orbit: &[usize]| {
+                orbit
+                    .iter()
+                    .map(|&u| from_truth[graph.index_of(table_dir.candidates[u].vertex).unwrap()])
+                    .fold(0.0, f64::max)
+                    / size
+            };
             orbit_extents.push(extent(&orbit));
             for (count, &rtol) in far.iter_mut().zip(&SYMMETRY_RTOLS) {
-                *count += usize::from(extent(&symmetry_orbit(&signatures, truth, rtol).expect("orbit")) > 0.2);
+                *count += usize::from(
+                    extent(&symmetry_orbit(&signatures, truth, rtol).expect("orbit")) > 0.2,
+                );
             }
             for (variant, table) in [&table_dir, &table_avg].into_iter().enumerate() {
                 let t_map = Instant::now();
-                let map = likelihood_map(&measured, table, &graph, &MapOptions::default()).expect("map");
+                let map =
+                    likelihood_map(&measured, table, &graph, &MapOptions::default()).expect("map");
                 let map_seconds = t_map.elapsed().as_secs_f64();
                 let best_vertex = table.candidates[map.best].vertex;
-                let from_best = graph.distances_from(best_vertex, f64::INFINITY).expect("geodesic");
+                let from_best = graph
+                    .distances_from(best_vertex, f64::INFINITY)
+                    .expect("geodesic");
                 let at = |u: usize| graph.index_of(table.candidates[u].vertex).unwrap();
                 let outcome = Outcome {
                     distance: from_best[at(truth)],
-                    orbit_distance: orbit.iter().map(|&u| from_best[at(u)]).fold(f64::INFINITY, f64::min),
+                    orbit_distance: orbit
+                        .iter()
+                        .map(|&u| from_best[at(u)])
+                        .fold(f64::INFINITY, f64::min),
                     rank: map.area_rank(truth),
-                    orbit_rank: orbit.iter().map(|&u| map.area_rank(u)).fold(f64::INFINITY, f64::min),
+                    orbit_rank: orbit
+                        .iter()
+                        .map(|&u| map.area_rank(u))
+                        .fold(f64::INFINITY, f64::min),
                     strength_error: map.strength / impulse - 1.0,
                     map_seconds,
                 };
@@ -339,7 +528,15 @@ fn main() {
             }
         }
         for (variant, out) in outcomes.into_iter().enumerate() {
-            rows.push(Row { mesh: name.clone(), variant: ["transfer", "no transfer"][variant], size, outcomes: out, modes_seconds, transfer_seconds, fit_seconds });
+            rows.push(Row {
+                mesh: name.clone(),
+                variant: ["transfer", "no transfer"][variant],
+                size,
+                outcomes: out,
+                modes_seconds,
+                transfer_seconds,
+                fit_seconds,
+            });
         }
         objects.push(ObjectRow {
             mesh: name.clone(),
@@ -353,7 +550,10 @@ fn main() {
             transfer_residual_median: quantile(&residuals, 0.5),
             orbit_size_median: quantile(&orbit_sizes, 0.5),
             orbit_extent_median: quantile(&orbit_extents, 0.5),
-            orbit_far_fraction: far.iter().map(|&c| c as f64 / pool.len().max(1) as f64).collect(),
+            orbit_far_fraction: far
+                .iter()
+                .map(|&c| c as f64 / pool.len().max(1) as f64)
+                .collect(),
         });
     }
     if !root {
@@ -409,7 +609,11 @@ fn main() {
             o.transfer_residual_median,
             o.orbit_size_median,
             100.0 * o.orbit_extent_median,
-            o.orbit_far_fraction.iter().map(|f| format!("{:.0} %", 100.0 * f)).collect::<Vec<_>>().join(" / ")
+            o.orbit_far_fraction
+                .iter()
+                .map(|f| format!("{:.0} %", 100.0 * f))
+                .collect::<Vec<_>>()
+                .join(" / ")
         );
     }
 }

@@ -28,14 +28,17 @@
 //! Markdown tables go to stdout, progress to stderr.
 use diffsound::assembly::{self, Assembled};
 use diffsound::audio::chain::{DampingModel, ModalChain, Strike};
+use diffsound::audio::stft::spectrogram_error;
 use diffsound::audio::synth::render_samples;
 use diffsound::eigen::reduced::PoissonBasis;
-use diffsound::audio::stft::spectrogram_error;
-use diffsound::random::SplitMix64;
 use diffsound::inverse::estimate::{estimate_modes, EstimateOptions};
-use diffsound::inverse::material::{rms_matched_log_gains, fit_material, render_channels, FitStep, MaterialFitSettings, MaterialProblem};
+use diffsound::inverse::material::{
+    fit_material, render_channels, rms_matched_log_gains, FitStep, MaterialFitSettings,
+    MaterialProblem,
+};
 use diffsound::mesh;
 use diffsound::petsc::{Petsc, PetscInt};
+use diffsound::random::SplitMix64;
 use serde_json::json;
 use std::time::Instant;
 
@@ -48,7 +51,9 @@ const BASIS_SAMPLES: [f64; 4] = [0.05, 0.2, 0.35, 0.45];
 const BASIS_MARGIN: usize = 8;
 
 fn fnv1a(s: &str) -> u64 {
-    s.bytes().fold(0xcbf2_9ce4_8422_2325, |h, b| (h ^ b as u64).wrapping_mul(0x100_0000_01b3))
+    s.bytes().fold(0xcbf2_9ce4_8422_2325, |h, b| {
+        (h ^ b as u64).wrapping_mul(0x100_0000_01b3)
+    })
 }
 
 fn object_seed(seed: u64, mesh_name: &str) -> u64 {
@@ -77,8 +82,18 @@ impl Variant {
         }
     }
     fn parse(s: &str) -> Option<Variant> {
-        let all = [(Order::P1, false), (Order::P2, false), (Order::P1, true), (Order::P2, true)];
-        all.into_iter().map(|(order, learn_poisson)| Variant { order, learn_poisson }).find(|v| v.name() == s)
+        let all = [
+            (Order::P1, false),
+            (Order::P2, false),
+            (Order::P1, true),
+            (Order::P2, true),
+        ];
+        all.into_iter()
+            .map(|(order, learn_poisson)| Variant {
+                order,
+                learn_poisson,
+            })
+            .find(|v| v.name() == s)
     }
 }
 
@@ -95,15 +110,38 @@ struct Args {
 }
 
 fn parse_args() -> Args {
-    let mut a = Args { meshes: Vec::new(), seeds: vec![1, 2, 3], modes: 16, max_steps: None, variants: Vec::new(), json: None, landscape: false, settings_toml: None };
+    let mut a = Args {
+        meshes: Vec::new(),
+        seeds: vec![1, 2, 3],
+        modes: 16,
+        max_steps: None,
+        variants: Vec::new(),
+        json: None,
+        landscape: false,
+        settings_toml: None,
+    };
     let mut it = std::env::args().skip(1);
     while let Some(arg) = it.next() {
         let mut value = |name: &str| it.next().unwrap_or_else(|| panic!("{name} needs a value"));
         match arg.as_str() {
-            "--seeds" => a.seeds = value("--seeds").split(',').map(|s| s.trim().parse().expect("seed: unsigned integer")).collect(),
+            "--seeds" => {
+                a.seeds = value("--seeds")
+                    .split(',')
+                    .map(|s| s.trim().parse().expect("seed: unsigned integer"))
+                    .collect()
+            }
             "--modes" => a.modes = value("--modes").parse().expect("--modes: integer"),
-            "--max-steps" => a.max_steps = Some(value("--max-steps").parse().expect("--max-steps: integer")),
-            "--variants" => a.variants = value("--variants").split(',').map(|s| Variant::parse(s.trim()).unwrap_or_else(|| panic!("unknown variant {s}"))).collect(),
+            "--max-steps" => {
+                a.max_steps = Some(value("--max-steps").parse().expect("--max-steps: integer"))
+            }
+            "--variants" => {
+                a.variants = value("--variants")
+                    .split(',')
+                    .map(|s| {
+                        Variant::parse(s.trim()).unwrap_or_else(|| panic!("unknown variant {s}"))
+                    })
+                    .collect()
+            }
             "--settings" => a.settings_toml = Some(value("--settings")),
             "--json" => a.json = Some(value("--json")),
             "--landscape" => a.landscape = true,
@@ -116,14 +154,16 @@ fn parse_args() -> Args {
         }
     }
     if a.variants.is_empty() {
-        a.variants = ["p1-fixed", "p2-fixed", "p1-learned", "p2-learned"].iter().map(|s| Variant::parse(s).unwrap()).collect();
+        a.variants = ["p1-fixed", "p2-fixed", "p1-learned", "p2-learned"]
+            .iter()
+            .map(|s| Variant::parse(s).unwrap())
+            .collect();
     }
     if a.meshes.is_empty() {
         a.meshes.push("examples/bowl/bowl.msh".into());
     }
     a
 }
-
 
 struct Model<'p> {
     asm: Assembled<'p>,
@@ -136,34 +176,58 @@ fn main() {
     let universe = mpi::initialize().unwrap();
     let petsc = Petsc::initialize(universe, "material_benchmark", &[]).unwrap();
     let n_modes = args.modes;
-    let damping = DampingModel::Rayleigh { alpha: ALPHA, beta: BETA };
+    let damping = DampingModel::Rayleigh {
+        alpha: ALPHA,
+        beta: BETA,
+    };
     let strike = Strike::default();
     let base_settings = {
-        let mut s: MaterialFitSettings = toml::from_str(args.settings_toml.as_deref().unwrap_or("")).expect("--settings: TOML of the [fit] section");
+        let mut s: MaterialFitSettings =
+            toml::from_str(args.settings_toml.as_deref().unwrap_or(""))
+                .expect("--settings: TOML of the [fit] section");
         if let Some(n) = args.max_steps {
             s.max_steps = n;
         }
         s
     };
-    eprintln!("seeds {:?}, {} modes, variants {:?}", args.seeds, n_modes, args.variants.iter().map(|v| v.name()).collect::<Vec<_>>());
+    eprintln!(
+        "seeds {:?}, {} modes, variants {:?}",
+        args.seeds,
+        n_modes,
+        args.variants.iter().map(|v| v.name()).collect::<Vec<_>>()
+    );
     let mut rows = Vec::new();
     let mut objects = Vec::new();
     for path in &args.meshes {
-        let name = std::path::Path::new(path).file_stem().unwrap().to_string_lossy().to_string();
-        let read = mesh::read_mesh(std::path::Path::new(path), &Default::default()).unwrap_or_else(|e| panic!("{path}: {e}"));
+        let name = std::path::Path::new(path)
+            .file_stem()
+            .unwrap()
+            .to_string_lossy()
+            .to_string();
+        let read = mesh::read_mesh(std::path::Path::new(path), &Default::default())
+            .unwrap_or_else(|e| panic!("{path}: {e}"));
         let linear = mesh::to_linear(&read.mesh);
         let quadratic = mesh::lift_to_quadratic(&linear);
         let (lo, hi) = quadratic.bounding_box();
         let size = (0..3).map(|d| (hi[d] - lo[d]).powi(2)).sum::<f64>().sqrt();
-        let point = quadratic.default_strike_point().expect("mesh without surface");
-        let vertex = quadratic.tet(point.tet)[point.barycentric.iter().position(|&b| b == 1.0).unwrap()];
+        let point = quadratic
+            .default_strike_point()
+            .expect("mesh without surface");
+        let vertex =
+            quadratic.tet(point.tet)[point.barycentric.iter().position(|&b| b == 1.0).unwrap()];
         let t_asm = Instant::now();
         let models: Vec<Model> = [&linear, &quadratic]
             .into_iter()
             .map(|m| {
                 let asm = assembly::assemble(&petsc, m).unwrap();
-                let probe = (0..3).map(|c| asm.layout.global_dof(vertex, c) as PetscInt).collect();
-                Model { asm, probe, n_nodes: m.n_nodes() }
+                let probe = (0..3)
+                    .map(|c| asm.layout.global_dof(vertex, c) as PetscInt)
+                    .collect();
+                Model {
+                    asm,
+                    probe,
+                    n_nodes: m.n_nodes(),
+                }
             })
             .collect();
         eprintln!("[{name}] {} tets, {} P1 / {} P2 nodes, size {:.3} m, strike vertex {vertex}, assembly {:.2} s", linear.n_tets(), models[0].n_nodes, models[1].n_nodes, size, t_asm.elapsed().as_secs_f64());
@@ -178,8 +242,13 @@ fn main() {
             // Target: full P2 solve.
             let t_target = Instant::now();
             let p2 = &models[1];
-            let (theta, vecs) = PoissonBasis::full_theta(&petsc, &p2.asm, size, nu_true, n_modes).unwrap();
-            let eig: Vec<f64> = theta.iter().take(n_modes).map(|t| e_true / RHO * t).collect();
+            let (theta, vecs) =
+                PoissonBasis::full_theta(&petsc, &p2.asm, size, nu_true, n_modes).unwrap();
+            let eig: Vec<f64> = theta
+                .iter()
+                .take(n_modes)
+                .map(|t| e_true / RHO * t)
+                .collect();
             let proj: Vec<f64> = vecs
                 .iter()
                 .take(n_modes)
@@ -197,8 +266,15 @@ fn main() {
             let target_seconds = t_target.elapsed().as_secs_f64();
             // The P1 discretisation bias: the E at which the P1 spectrum best matches the P2 one
             // (geometric mean of the eigenvalue ratios at the true ν); a P1 fit cannot beat it.
-            let (theta1, _) = PoissonBasis::full_theta(&petsc, &models[0].asm, size, nu_true, n_modes).unwrap();
-            let log_ratio = theta.iter().zip(&theta1).take(n_modes).map(|(t2, t1)| (t2 / t1).ln()).sum::<f64>() / n_modes as f64;
+            let (theta1, _) =
+                PoissonBasis::full_theta(&petsc, &models[0].asm, size, nu_true, n_modes).unwrap();
+            let log_ratio = theta
+                .iter()
+                .zip(&theta1)
+                .take(n_modes)
+                .map(|(t2, t1)| (t2 / t1).ln())
+                .sum::<f64>()
+                / n_modes as f64;
             let e_p1_best = e_true * log_ratio.exp();
             eprintln!(
                 "[{name} seed {seed} -> {oseed:#018x}] E {e_true:.4e} nu {nu_true:.4} start E0 {e0:.4e} (x{}) nu0 {nu0:.4}; target {:.1} s, freqs {:?}; P1 best E {e_p1_best:.4e}",
@@ -211,21 +287,62 @@ fn main() {
             let targets = vec![target];
             // The target's modes, found in its audio (as stage 1 would): the line-spectrum start.
             let t_estimate = Instant::now();
-            let estimate = estimate_modes(&targets, SAMPLE_RATE, &EstimateOptions::default()).unwrap();
+            let estimate =
+                estimate_modes(&targets, SAMPLE_RATE, &EstimateOptions::default()).unwrap();
             let target_modes_hz: Vec<f64> = estimate.modes.iter().map(|m| m.frequency_hz).collect();
             let estimate_seconds = t_estimate.elapsed().as_secs_f64();
-            let problem = MaterialProblem { targets: &targets, sample_rate: SAMPLE_RATE, density: RHO, damping: damping.clone(), strike, direction_weights: point.normal.to_vec(), max_frequency_hz: None, target_modes_hz };
+            let problem = MaterialProblem {
+                targets: &targets,
+                sample_rate: SAMPLE_RATE,
+                density: RHO,
+                damping: damping.clone(),
+                strike,
+                direction_weights: point.normal.to_vec(),
+                max_frequency_hz: None,
+                target_modes_hz,
+            };
             if args.landscape {
-                let mut basis = PoissonBasis::build(&petsc, &p2.asm, size, n_modes, BASIS_MARGIN, &BASIS_SAMPLES, p2.probe.clone()).unwrap();
-                landscape(&petsc, &p2.asm, &mut basis, &problem, &base_settings, &name, seed, (e_true, nu_true), (e0, nu0));
+                let mut basis = PoissonBasis::build(
+                    &petsc,
+                    &p2.asm,
+                    size,
+                    n_modes,
+                    BASIS_MARGIN,
+                    &BASIS_SAMPLES,
+                    p2.probe.clone(),
+                )
+                .unwrap();
+                landscape(
+                    &petsc,
+                    &p2.asm,
+                    &mut basis,
+                    &problem,
+                    &base_settings,
+                    &name,
+                    seed,
+                    (e_true, nu_true),
+                    (e0, nu0),
+                );
                 continue;
             }
             for variant in &args.variants {
                 let model = &models[if variant.order == Order::P1 { 0 } else { 1 }];
-                let settings = MaterialFitSettings { learn_poisson: variant.learn_poisson, ..base_settings.clone() };
+                let settings = MaterialFitSettings {
+                    learn_poisson: variant.learn_poisson,
+                    ..base_settings.clone()
+                };
                 let start = (e0, if variant.learn_poisson { nu0 } else { nu_true });
                 let t0 = Instant::now();
-                let mut basis = PoissonBasis::build(&petsc, &model.asm, size, n_modes, BASIS_MARGIN, &BASIS_SAMPLES, model.probe.clone()).unwrap();
+                let mut basis = PoissonBasis::build(
+                    &petsc,
+                    &model.asm,
+                    size,
+                    n_modes,
+                    BASIS_MARGIN,
+                    &BASIS_SAMPLES,
+                    model.probe.clone(),
+                )
+                .unwrap();
                 let basis_seconds = t0.elapsed().as_secs_f64();
                 let solves_before = basis.full_solves;
                 let t1 = Instant::now();
@@ -235,11 +352,23 @@ fn main() {
                     &problem,
                     start,
                     &settings,
-                    |b, nu| b.refresh_if_needed(&petsc, &model.asm, nu, settings.residual_tolerance, settings.min_sample_spacing).map_err(|e| e.to_string()),
+                    |b, nu| {
+                        b.refresh_if_needed(
+                            &petsc,
+                            &model.asm,
+                            nu,
+                            settings.residual_tolerance,
+                            settings.min_sample_spacing,
+                        )
+                        .map_err(|e| e.to_string())
+                    },
                     |s: &FitStep| {
                         if last_print.elapsed().as_secs_f64() > 10.0 {
                             last_print = Instant::now();
-                            eprintln!("    step {} {:?} loss {:.4e} E {:.5e} nu {:.5}", s.step, s.phase, s.loss, s.youngs, s.poisson);
+                            eprintln!(
+                                "    step {} {:?} loss {:.4e} E {:.5e} nu {:.5}",
+                                s.step, s.phase, s.loss, s.youngs, s.poisson
+                            );
                         }
                     },
                 );
@@ -252,17 +381,39 @@ fn main() {
                         continue;
                     }
                 };
-                let rendered = render_channels(&basis, &problem, fit.youngs, fit.poisson, &fit.log_gains, None).unwrap();
+                let rendered = render_channels(
+                    &basis,
+                    &problem,
+                    fit.youngs,
+                    fit.poisson,
+                    &fit.log_gains,
+                    None,
+                )
+                .unwrap();
                 let spec_err = spectrogram_error(&rendered[0], &targets[0]).unwrap();
                 // A full solve at the optimum against the reduced basis there.
                 let reduced = basis.solve(fit.poisson);
-                let (full, _) = PoissonBasis::full_theta(&petsc, &model.asm, size, fit.poisson, n_modes).unwrap();
-                let full_vs_reduced = reduced.theta.iter().zip(&full).map(|(r, f)| (r - f).abs() / f).fold(0.0, f64::max);
+                let (full, _) =
+                    PoissonBasis::full_theta(&petsc, &model.asm, size, fit.poisson, n_modes)
+                        .unwrap();
+                let full_vs_reduced = reduced
+                    .theta
+                    .iter()
+                    .zip(&full)
+                    .map(|(r, f)| (r - f).abs() / f)
+                    .fold(0.0, f64::max);
                 let rel_e = (fit.youngs - e_true).abs() / e_true;
-                let e_reference = if variant.order == Order::P1 { e_p1_best } else { e_true };
+                let e_reference = if variant.order == Order::P1 {
+                    e_p1_best
+                } else {
+                    e_true
+                };
                 let rel_e_reference = (fit.youngs - e_reference).abs() / e_reference;
                 let rel_nu = (fit.poisson - nu_true).abs() / nu_true;
-                let switch_loss = fit.switched_at.and_then(|s| fit.history.get(s)).map(|h| h.loss);
+                let switch_loss = fit
+                    .switched_at
+                    .and_then(|s| fit.history.get(s))
+                    .map(|h| h.loss);
                 eprintln!(
                     "  {:<10} E {:.5e} ({:.2e}) nu {:.4} ({:.2e}) spec {:.3} | basis {:.1} s + fit {:.1} s, {} steps, switch {:?}, extra solves {}, full-vs-reduced {:.1e}",
                     variant.name(),
@@ -317,7 +468,10 @@ fn print_markdown(args: &Args, rows: &[serde_json::Value], objects: &[serde_json
     println!("| mesh | seed | object seed | E true [Pa] | ν true | E₀ [Pa] | ν₀ | P1 ref E [Pa] | target f [Hz] |");
     println!("|---|---|---|---|---|---|---|---|---|");
     for o in objects {
-        let fr: Vec<f64> = o["target_frequencies_hz"].as_array().map(|a| a.iter().filter_map(|v| v.as_f64()).collect()).unwrap_or_default();
+        let fr: Vec<f64> = o["target_frequencies_hz"]
+            .as_array()
+            .map(|a| a.iter().filter_map(|v| v.as_f64()).collect())
+            .unwrap_or_default();
         println!(
             "| {} | {} | {:#018x} | {:.4e} | {:.4} | {:.4e} | {:.4} | {:.4e} | {:.0}–{:.0} |",
             o["name"].as_str().unwrap(),
@@ -337,7 +491,13 @@ fn print_markdown(args: &Args, rows: &[serde_json::Value], objects: &[serde_json
     println!("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|");
     for r in rows {
         if let Some(e) = r.get("error") {
-            println!("| {} | {} | {} | failed: {} ||||||||||||", r["mesh"].as_str().unwrap(), r["seed"], r["variant"].as_str().unwrap(), e);
+            println!(
+                "| {} | {} | {} | failed: {} ||||||||||||",
+                r["mesh"].as_str().unwrap(),
+                r["seed"],
+                r["variant"].as_str().unwrap(),
+                e
+            );
             continue;
         }
         println!(
@@ -363,8 +523,14 @@ fn print_markdown(args: &Args, rows: &[serde_json::Value], objects: &[serde_json
     println!("| variant | objects | E rel err | E rel err vs ref | ν rel err | spec err | time/object s | (basis + fit) s | E < 1% | ν < 5% | max full vs reduced |");
     println!("|---|---|---|---|---|---|---|---|---|---|---|");
     for v in &args.variants {
-        let ok: Vec<&serde_json::Value> = rows.iter().filter(|r| r["variant"] == v.name() && r.get("error").is_none()).collect();
-        let failed = rows.iter().filter(|r| r["variant"] == v.name() && r.get("error").is_some()).count();
+        let ok: Vec<&serde_json::Value> = rows
+            .iter()
+            .filter(|r| r["variant"] == v.name() && r.get("error").is_none())
+            .collect();
+        let failed = rows
+            .iter()
+            .filter(|r| r["variant"] == v.name() && r.get("error").is_some())
+            .count();
         if ok.is_empty() {
             println!("| {} | 0 ({failed} failed) |||||||||", v.name());
             continue;
@@ -372,7 +538,10 @@ fn print_markdown(args: &Args, rows: &[serde_json::Value], objects: &[serde_json
         let n = ok.len() as f64;
         let mean = |k: &str| ok.iter().map(|r| f(r, k)).sum::<f64>() / n;
         let count = |k: &str, tol: f64| ok.iter().filter(|r| f(r, k) < tol).count();
-        let worst = ok.iter().map(|r| f(r, "full_vs_reduced_max_rel")).fold(0.0, f64::max);
+        let worst = ok
+            .iter()
+            .map(|r| f(r, "full_vs_reduced_max_rel"))
+            .fold(0.0, f64::max);
         println!(
             "| {} | {}{} | {:.2e} | {:.2e} | {} | {:.3} | {:.1} | {:.1} + {:.1} | {}/{} | {} | {:.1e} |",
             v.name(),
@@ -411,7 +580,8 @@ fn landscape<'p>(
     use diffsound::audio::loss::{MultiScaleSpectralLoss, PeakTransportLoss};
     use diffsound::audio::synth::render_backward;
     let target = &problem.targets[0];
-    let transport = PeakTransportLoss::new(target, problem.sample_rate, settings.transport.clone()).unwrap();
+    let transport =
+        PeakTransportLoss::new(target, problem.sample_rate, settings.transport.clone()).unwrap();
     let spectral = MultiScaleSpectralLoss::new(target, settings.spectral.clone()).unwrap();
     // (loss, dL/d ln E) at (E, ν, gain); `which`: 0 transport, 1 spectral.
     let eval = |which: usize, youngs: f64, nu: f64, log_gain: f64| -> (f64, f64) {
@@ -420,24 +590,48 @@ fn landscape<'p>(
         let proj: Vec<f64> = (0..eig.len())
             .map(|k| {
                 let p = basis.probe(&modes, k);
-                let a: f64 = p.iter().zip(&problem.direction_weights).map(|(v, w)| v * w).sum();
+                let a: f64 = p
+                    .iter()
+                    .zip(&problem.direction_weights)
+                    .map(|(v, w)| v * w)
+                    .sum();
                 a * a / problem.density * log_gain.exp()
             })
             .collect();
-        let (bank, chain) = ModalChain::new(&eig, &proj, &problem.damping, &problem.strike).unwrap();
+        let (bank, chain) =
+            ModalChain::new(&eig, &proj, &problem.damping, &problem.strike).unwrap();
         let signal = render_samples(&bank, problem.sample_rate, target.len());
-        let (value, g) = if which == 0 { transport.value_and_gradient(&signal) } else { spectral.value_and_gradient(&signal) }.unwrap();
+        let (value, g) = if which == 0 {
+            transport.value_and_gradient(&signal)
+        } else {
+            spectral.value_and_gradient(&signal)
+        }
+        .unwrap();
         let cg = chain.backward(&render_backward(&bank, problem.sample_rate, &g));
-        (value, cg.eigenvalues.iter().zip(&eig).map(|(g, l)| g * l).sum())
+        (
+            value,
+            cg.eigenvalues.iter().zip(&eig).map(|(g, l)| g * l).sum(),
+        )
     };
     let rms_gain = |youngs: f64, nu: f64| {
         let r = render_channels(basis, problem, youngs, nu, &[0.0], None).unwrap();
         rms_matched_log_gains(&r, problem.targets)[0]
     };
-    println!("\n### Landscape: {name}, seed {seed}: E {:.4e}, ν {:.4}; start E₀/E = {:.3}, ν₀ = {:.4}\n", truth.0, truth.1, start.0 / truth.0, start.1);
+    println!(
+        "\n### Landscape: {name}, seed {seed}: E {:.4e}, ν {:.4}; start E₀/E = {:.3}, ν₀ = {:.4}\n",
+        truth.0,
+        truth.1,
+        start.0 / truth.0,
+        start.1
+    );
     for r in [0.2, start.1, truth.1, 0.45] {
         let res = basis.residuals(asm, &basis.solve(r)).unwrap();
-        println!("Ritz residual at ν = {r:.4}: max {:.2e} (tolerance {:.0e}), per mode {:?}", res.iter().fold(0.0_f64, |m, v| m.max(*v)), settings.residual_tolerance, res.iter().map(|v| format!("{v:.1e}")).collect::<Vec<_>>());
+        println!(
+            "Ritz residual at ν = {r:.4}: max {:.2e} (tolerance {:.0e}), per mode {:?}",
+            res.iter().fold(0.0_f64, |m, v| m.max(*v)),
+            settings.residual_tolerance,
+            res.iter().map(|v| format!("{v:.1e}")).collect::<Vec<_>>()
+        );
     }
     let h: f64 = 0.005;
     for nu in [truth.1, start.1] {
@@ -451,15 +645,22 @@ fn landscape<'p>(
             let ratio = (-(4.0_f64.ln()) + 2.0 * 4.0_f64.ln() * i as f64 / (n - 1) as f64).exp();
             let e = truth.0 * ratio;
             let (lt, gt) = eval(0, e, nu, gain0);
-            let fd_t = (eval(0, e * h.exp(), nu, gain0).0 - eval(0, e * (-h).exp(), nu, gain0).0) / (2.0 * h);
+            let fd_t = (eval(0, e * h.exp(), nu, gain0).0 - eval(0, e * (-h).exp(), nu, gain0).0)
+                / (2.0 * h);
             let g = rms_gain(e, nu);
             let (ls, gs) = eval(1, e, nu, g);
-            let fd_s = (eval(1, e * h.exp(), nu, g).0 - eval(1, e * (-h).exp(), nu, g).0) / (2.0 * h);
+            let fd_s =
+                (eval(1, e * h.exp(), nu, g).0 - eval(1, e * (-h).exp(), nu, g).0) / (2.0 * h);
             println!("| {ratio:.3} | {lt:.4} | {gt:+.3e} | {fd_t:+.3e} | {ls:.4} | {gs:+.3e} | {fd_s:+.3e} |");
         }
     }
     // Does adding ν_true as a sample bring its residual below the tolerance?
     basis.add_sample(petsc, asm, truth.1).unwrap();
     let res = basis.residuals(asm, &basis.solve(truth.1)).unwrap();
-    println!("\nAfter adding ν = {:.4} as a sample: max Ritz residual there {:.2e}, per mode {:?}", truth.1, res.iter().fold(0.0_f64, |m, v| m.max(*v)), res.iter().map(|v| format!("{v:.1e}")).collect::<Vec<_>>());
+    println!(
+        "\nAfter adding ν = {:.4} as a sample: max Ritz residual there {:.2e}, per mode {:?}",
+        truth.1,
+        res.iter().fold(0.0_f64, |m, v| m.max(*v)),
+        res.iter().map(|v| format!("{v:.1e}")).collect::<Vec<_>>()
+    );
 }

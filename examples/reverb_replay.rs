@@ -11,7 +11,9 @@
 
 use std::io::Read;
 
-use diffsound::diagnose::catalogue::{acceptance, CatalogueSettings, Effect, Evidence, OwnOutcome, ResidualEnvelopes, ReverbNoise};
+use diffsound::diagnose::catalogue::{
+    acceptance, CatalogueSettings, Effect, Evidence, OwnOutcome, ResidualEnvelopes, ReverbNoise,
+};
 
 #[derive(serde::Deserialize)]
 struct Case {
@@ -27,15 +29,34 @@ fn main() {
     let settings = CatalogueSettings::default();
     for c in cases {
         let truth = c.labels.iter().any(|l| l == "reverb");
-        let evidence = Evidence { fit: Vec::new(), held_out: None, simulated: Vec::new(), residual_envelopes: Some(c.env) };
-        let eval = ReverbNoise.evaluate_own(&evidence, &settings).expect("reverb evaluates itself");
+        let evidence = Evidence {
+            fit: Vec::new(),
+            held_out: None,
+            simulated: Vec::new(),
+            residual_envelopes: Some(c.env),
+        };
+        let eval = ReverbNoise
+            .evaluate_own(&evidence, &settings)
+            .expect("reverb evaluates itself");
         let line = match eval.outcome {
             OwnOutcome::NotEnoughData(why) => format!("not enough data: {why}"),
             OwnOutcome::Nothing { statistic, .. } => format!("nothing (z = {statistic:.1})"),
-            OwnOutcome::Fitted { statistic, delta_bic, held_out, params, detail, signature_missing, .. } => {
-                let accepted = signature_missing.is_none() && acceptance(delta_bic, Some(held_out), &settings).is_none();
+            OwnOutcome::Fitted {
+                statistic,
+                delta_bic,
+                held_out,
+                params,
+                detail,
+                signature_missing,
+                ..
+            } => {
+                let accepted = signature_missing.is_none()
+                    && acceptance(delta_bic, Some(held_out), &settings).is_none();
                 let (held_out_before, held_out_after) = (held_out.before, held_out.after);
-                let rho: Vec<String> = params[1..].iter().map(|p| format!("{:.1}", p.value / p.sigma.unwrap_or(f64::NAN).max(1e-300))).collect();
+                let rho: Vec<String> = params[1..]
+                    .iter()
+                    .map(|p| format!("{:.1}", p.value / p.sigma.unwrap_or(f64::NAN).max(1e-300)))
+                    .collect();
                 format!(
                     "{} z = {statistic:.1} ΔBIC {delta_bic:.1} held {held_out_before:.3} → {held_out_after:.3} T60 {:.3} ρ/σ [{}] | {detail} {}",
                     if accepted { "ACCEPT" } else { "reject" },
@@ -45,6 +66,10 @@ fn main() {
                 )
             }
         };
-        println!("{} {:<6} {line}", c.case, if truth { "REVERB" } else { "-" });
+        println!(
+            "{} {:<6} {line}",
+            c.case,
+            if truth { "REVERB" } else { "-" }
+        );
     }
 }

@@ -27,13 +27,17 @@
 //! through every replica of the finest three spacings: the grids' alignment noise averages
 //! over the replicas instead of riding on one alignment per spacing (module docs of
 //! `diffsound::inverse::shape`, "Grid bias").
-use diffsound::random::SplitMix64;
 use diffsound::fem::Material;
-use diffsound::inverse::shape::{answers_with_line, fit_morph, fit_thickness, normalise_surface, replica_levels, replica_line_levels, replica_shift, read_surface, reference_depth, union_box, FitEvaluation, SampledField, ShapeFamily, ShapeFit, ShapeFitSettings, SpectrumTarget};
+use diffsound::inverse::shape::{
+    answers_with_line, fit_morph, fit_thickness, normalise_surface, read_surface, reference_depth,
+    replica_levels, replica_line_levels, replica_shift, union_box, FitEvaluation, SampledField,
+    ShapeFamily, ShapeFit, ShapeFitSettings, SpectrumTarget,
+};
 use diffsound::mesh::{BackgroundGrid, MarchingOptions, SignedDistance, TriangleSurface};
 use diffsound::petsc::Petsc;
-use std::time::Instant;
+use diffsound::random::SplitMix64;
 use std::sync::Arc;
+use std::time::Instant;
 
 struct Args {
     task: String,
@@ -71,14 +75,22 @@ fn parse_args() -> Args {
         target_cells: if morph { 32 } else { 40 },
         modes: 8,
         seed: 1,
-        values: if morph { vec![0.0, 0.2, 0.4, 0.6, 0.8, 1.0] } else { vec![0.3, 0.4, 0.5, 0.6, 0.7] },
+        values: if morph {
+            vec![0.0, 0.2, 0.4, 0.6, 0.8, 1.0]
+        } else {
+            vec![0.3, 0.4, 0.5, 0.6, 0.7]
+        },
         extrapolate: None,
         free_scale: false,
         straight_boundary: false,
         json: None,
         inputs: Vec::new(),
     };
-    let list = |s: String| -> Vec<f64> { s.split(',').map(|v| v.parse().unwrap_or_else(|_| usage())).collect() };
+    let list = |s: String| -> Vec<f64> {
+        s.split(',')
+            .map(|v| v.parse().unwrap_or_else(|_| usage()))
+            .collect()
+    };
     while let Some(x) = it.next() {
         let mut value = || it.next().unwrap_or_else(|| usage());
         match x.as_str() {
@@ -87,7 +99,13 @@ fn parse_args() -> Args {
             "--modes" => a.modes = value().parse().unwrap_or_else(|_| usage()),
             "--seed" => a.seed = value().parse().unwrap_or_else(|_| usage()),
             "--values" => a.values = list(value()),
-            "--replicas" => a.replicas = value().parse().ok().filter(|&k| (1..=4).contains(&k)).unwrap_or_else(|| usage()),
+            "--replicas" => {
+                a.replicas = value()
+                    .parse()
+                    .ok()
+                    .filter(|&k| (1..=4).contains(&k))
+                    .unwrap_or_else(|| usage())
+            }
             "--no-extrapolate" => a.extrapolate = Some(false),
             "--extrapolate" => a.extrapolate = Some(true),
             "--free-scale" => a.free_scale = true,
@@ -107,8 +125,12 @@ fn parse_args() -> Args {
 }
 
 fn load(path: &str) -> (String, TriangleSurface, SignedDistance) {
-    let name = std::path::Path::new(path).file_stem().map(|s| s.to_string_lossy().trim_end_matches("_surf").to_string()).unwrap_or_default();
-    let (mut surface, _) = read_surface(std::path::Path::new(path)).unwrap_or_else(|e| panic!("{path}: {e}"));
+    let name = std::path::Path::new(path)
+        .file_stem()
+        .map(|s| s.to_string_lossy().trim_end_matches("_surf").to_string())
+        .unwrap_or_default();
+    let (mut surface, _) =
+        read_surface(std::path::Path::new(path)).unwrap_or_else(|e| panic!("{path}: {e}"));
     normalise_surface(&mut surface, 0.1).unwrap_or_else(|e| panic!("{path}: {e}"));
     let sdf = SignedDistance::new(&surface).unwrap_or_else(|e| panic!("{path}: {e}"));
     (name, surface, sdf)
@@ -131,7 +153,11 @@ fn main() {
     let material = Material::preset("ceramic").expect("preset");
     let options = MarchingOptions::default();
     let morph = args.task == "morph";
-    let mut settings = if morph { ShapeFitSettings::morph() } else { ShapeFitSettings::default() };
+    let mut settings = if morph {
+        ShapeFitSettings::morph()
+    } else {
+        ShapeFitSettings::default()
+    };
     settings.modes = args.modes;
     settings.extrapolate = args.extrapolate;
     settings.free_scale = args.free_scale;
@@ -139,8 +165,15 @@ fn main() {
     // from the line) on `replicas` grids: (cells, replica).
     let every_level = answers_with_line(args.extrapolate, !morph && !args.straight_boundary);
     let fit_levels = replica_levels(&args.levels, args.replicas, every_level);
-    settings.extrapolation_levels = replica_line_levels(settings.extrapolation_levels, args.replicas, every_level);
-    let level_name = |&(c, r): &(usize, usize)| if r == 0 { format!("@{c}") } else { format!("@{c}~{r}") };
+    settings.extrapolation_levels =
+        replica_line_levels(settings.extrapolation_levels, args.replicas, every_level);
+    let level_name = |&(c, r): &(usize, usize)| {
+        if r == 0 {
+            format!("@{c}")
+        } else {
+            format!("@{c}~{r}")
+        }
+    };
     let name_p = if morph { "c" } else { "t" };
     if root {
         println!(
@@ -157,27 +190,76 @@ fn main() {
             if args.free_scale { "on" } else { "off" },
             if args.straight_boundary { "straight (samples alone)" } else { "curved (exact crossings, curved P2 edges)" }
         );
-        let per_level: String = fit_levels.iter().map(|l| format!(" {name_p} {} |", level_name(l))).collect();
-        let timing: String = fit_levels.iter().map(|l| format!(" s/eval {0} (mesh/asm/solve/grad) | evals {0} |", level_name(l))).collect();
+        let per_level: String = fit_levels
+            .iter()
+            .map(|l| format!(" {name_p} {} |", level_name(l)))
+            .collect();
+        let timing: String = fit_levels
+            .iter()
+            .map(|l| {
+                format!(
+                    " s/eval {0} (mesh/asm/solve/grad) | evals {0} |",
+                    level_name(l)
+                )
+            })
+            .collect();
         println!("| shape | {name_p}* | {name_p} fit | abs err |{per_level} final-level abs err | line abs err |{timing} target s | fit s |");
-        println!("|---|---|---|---|{}---|---|{}---|---|", "---|".repeat(fit_levels.len()), "---|---|".repeat(fit_levels.len()));
+        println!(
+            "|---|---|---|---|{}---|---|{}---|---|",
+            "---|".repeat(fit_levels.len()),
+            "---|---|".repeat(fit_levels.len())
+        );
     }
     let mut rng = SplitMix64::new(args.seed);
     let mut records = Vec::new();
     let mut summary: Vec<(String, Vec<f64>, Vec<f64>, Vec<f64>, Vec<f64>)> = Vec::new();
     for input in &args.inputs {
         // One shape (thickness) or a pair A:B (morph) on common grids.
-        let (name, family_at, lo, hi): (String, Box<dyn Fn(&SampledField, Option<&SampledField>) -> ShapeFamily>, [f64; 3], [f64; 3]);
+        let (name, family_at, lo, hi): (
+            String,
+            Box<dyn Fn(&SampledField, Option<&SampledField>) -> ShapeFamily>,
+            [f64; 3],
+            [f64; 3],
+        );
         let sampled: Vec<(SampledField, Option<SampledField>)>;
         let sdfs: Vec<Arc<SignedDistance>>;
         if morph {
-            let (pa, pb) = input.split_once(':').unwrap_or_else(|| panic!("morph inputs are A.obj:B.obj, got {input}"));
+            let (pa, pb) = input
+                .split_once(':')
+                .unwrap_or_else(|| panic!("morph inputs are A.obj:B.obj, got {input}"));
             let (na, sa, da) = load(pa);
             let (nb, sb, db) = load(pb);
             (lo, hi) = union_box(&[&sa, &sb]);
             name = format!("{na}/{nb}");
-            sampled = fit_levels.iter().map(|&(n, r)| (SampledField::of_sdf_shifted(&da, lo, hi, n, replica_shift(r, args.replicas)).expect("field"), Some(SampledField::of_sdf_shifted(&db, lo, hi, n, replica_shift(r, args.replicas)).expect("field")))).collect();
-            family_at = Box::new(|a, b| ShapeFamily::Morph { a: a.values.clone(), b: b.expect("pair").values.clone() });
+            sampled = fit_levels
+                .iter()
+                .map(|&(n, r)| {
+                    (
+                        SampledField::of_sdf_shifted(
+                            &da,
+                            lo,
+                            hi,
+                            n,
+                            replica_shift(r, args.replicas),
+                        )
+                        .expect("field"),
+                        Some(
+                            SampledField::of_sdf_shifted(
+                                &db,
+                                lo,
+                                hi,
+                                n,
+                                replica_shift(r, args.replicas),
+                            )
+                            .expect("field"),
+                        ),
+                    )
+                })
+                .collect();
+            family_at = Box::new(|a, b| ShapeFamily::Morph {
+                a: a.values.clone(),
+                b: b.expect("pair").values.clone(),
+            });
             sdfs = vec![Arc::new(da), Arc::new(db)];
         } else {
             let (n, s, d) = load(input);
@@ -187,23 +269,53 @@ fn main() {
                 eprintln!("{n}: reference depth S = {:.5} mm", 1e3 * depth);
             }
             name = n;
-            sampled = fit_levels.iter().map(|&(c, r)| (SampledField::of_sdf_shifted(&d, lo, hi, c, replica_shift(r, args.replicas)).expect("field"), None)).collect();
+            sampled = fit_levels
+                .iter()
+                .map(|&(c, r)| {
+                    (
+                        SampledField::of_sdf_shifted(
+                            &d,
+                            lo,
+                            hi,
+                            c,
+                            replica_shift(r, args.replicas),
+                        )
+                        .expect("field"),
+                        None,
+                    )
+                })
+                .collect();
             let d = Arc::new(d);
             let surface = (!args.straight_boundary).then(|| Arc::clone(&d));
-            family_at = Box::new(move |a, _| ShapeFamily::Thickness { solid: a.values.clone(), depth, surface: surface.clone() });
+            family_at = Box::new(move |a, _| ShapeFamily::Thickness {
+                solid: a.values.clone(),
+                depth,
+                surface: surface.clone(),
+            });
             sdfs = vec![d];
         }
-        let (mut errors, mut finest_errors, mut line_errors, mut seconds) = (Vec::new(), Vec::new(), Vec::new(), Vec::new());
+        let (mut errors, mut finest_errors, mut line_errors, mut seconds) =
+            (Vec::new(), Vec::new(), Vec::new(), Vec::new());
         for &truth in &args.values {
             // The target: the true parameter on a finer, randomly shifted grid.
             let clock = Instant::now();
             let grid = shifted_grid(lo, hi, args.target_cells, &mut rng);
             let positions = grid.vertex_positions();
-            let fields: Vec<SampledField> = sdfs.iter().map(|d| SampledField { grid: grid.clone(), values: d.evaluate(&positions) }).collect();
+            let fields: Vec<SampledField> = sdfs
+                .iter()
+                .map(|d| SampledField {
+                    grid: grid.clone(),
+                    values: d.evaluate(&positions),
+                })
+                .collect();
             let family = family_at(&fields[0], fields.get(1));
-            let target_spectrum = family.spectrum(&petsc, &grid, truth, &options, &material, args.modes, false).map(|(s, _)| s);
+            let target_spectrum = family
+                .spectrum(&petsc, &grid, truth, &options, &material, args.modes, false)
+                .map(|(s, _)| s);
             let target_seconds = clock.elapsed().as_secs_f64();
-            let target = match target_spectrum.and_then(|t| SpectrumTarget::new(t.eigenvalues, settings.cluster_rtol)) {
+            let target = match target_spectrum
+                .and_then(|t| SpectrumTarget::new(t.eigenvalues, settings.cluster_rtol))
+            {
                 Ok(t) => t,
                 Err(e) => {
                     if root {
@@ -222,12 +334,38 @@ fn main() {
             };
             let h_target = grid.spacing()[0];
             let fit: Result<ShapeFit, _> = if morph {
-                let pairs: Vec<(SampledField, SampledField)> = sampled.iter().map(|(a, b)| (a.clone(), b.clone().expect("pair"))).collect();
-                fit_morph(&petsc, &pairs, &target, &options, &material, &settings, Some(h_target), on_eval)
+                let pairs: Vec<(SampledField, SampledField)> = sampled
+                    .iter()
+                    .map(|(a, b)| (a.clone(), b.clone().expect("pair")))
+                    .collect();
+                fit_morph(
+                    &petsc,
+                    &pairs,
+                    &target,
+                    &options,
+                    &material,
+                    &settings,
+                    Some(h_target),
+                    on_eval,
+                )
             } else {
                 let solids: Vec<SampledField> = sampled.iter().map(|(a, _)| a.clone()).collect();
-                let ShapeFamily::Thickness { depth, surface, .. } = family_at(&solids[0], None) else { unreachable!() };
-                fit_thickness(&petsc, &solids, depth, surface, &target, &options, &material, &settings, Some(h_target), on_eval)
+                let ShapeFamily::Thickness { depth, surface, .. } = family_at(&solids[0], None)
+                else {
+                    unreachable!()
+                };
+                fit_thickness(
+                    &petsc,
+                    &solids,
+                    depth,
+                    surface,
+                    &target,
+                    &options,
+                    &material,
+                    &settings,
+                    Some(h_target),
+                    on_eval,
+                )
             };
             let fit = match fit {
                 Ok(f) => f,
@@ -246,11 +384,23 @@ fn main() {
             line_errors.push(line);
             seconds.push(fit.seconds);
             if root {
-                let per_level: String = fit.levels.iter().map(|l| format!(" {:.4} |", l.parameter)).collect();
+                let per_level: String = fit
+                    .levels
+                    .iter()
+                    .map(|l| format!(" {:.4} |", l.parameter))
+                    .collect();
                 let timing: String = (0..fit.levels.len())
                     .map(|i| {
                         let t = fit.mean_timings(i);
-                        format!(" {:.1} ({:.2}/{:.2}/{:.1}/{:.2}) | {} |", t.total(), t.meshing, t.assembly, t.solve, t.gradient, fit.levels[i].evaluations)
+                        format!(
+                            " {:.1} ({:.2}/{:.2}/{:.1}/{:.2}) | {} |",
+                            t.total(),
+                            t.meshing,
+                            t.assembly,
+                            t.solve,
+                            t.gradient,
+                            fit.levels[i].evaluations
+                        )
                     })
                     .collect();
                 println!("| {name} | {truth} | {:.4} | {err:.4} |{per_level} {finest:.4} | {line:.4} |{timing} {target_seconds:.0} | {:.0} |", fit.parameter, fit.seconds);
@@ -264,10 +414,19 @@ fn main() {
         for (name, e, f, l, s) in &summary {
             let mean = |v: &[f64]| v.iter().sum::<f64>() / v.len().max(1) as f64;
             let max = |v: &[f64]| v.iter().cloned().fold(0.0, f64::max);
-            println!("| {name} | {:.4} | {:.4} | {:.4} | {:.4} | {:.0} | {:.0} |", mean(e), max(e), mean(f), mean(l), mean(s), max(s));
+            println!(
+                "| {name} | {:.4} | {:.4} | {:.4} | {:.4} | {:.0} | {:.0} |",
+                mean(e),
+                max(e),
+                mean(f),
+                mean(l),
+                mean(s),
+                max(s)
+            );
         }
         if let Some(path) = &args.json {
-            std::fs::write(path, serde_json::to_string_pretty(&records).expect("json")).unwrap_or_else(|e| panic!("{path}: {e}"));
+            std::fs::write(path, serde_json::to_string_pretty(&records).expect("json"))
+                .unwrap_or_else(|e| panic!("{path}: {e}"));
             eprintln!("wrote {path}");
         }
     }

@@ -30,7 +30,9 @@ use diffsound::mesh::{self, BackgroundGrid, MarchingOptions, SignedDistance, Tri
 use diffsound::petsc::Petsc;
 
 fn list<T: std::str::FromStr>(s: &str) -> Vec<T> {
-    s.split(',').map(|v| v.parse().ok().expect("a comma-separated list")).collect()
+    s.split(',')
+        .map(|v| v.parse().ok().expect("a comma-separated list"))
+        .collect()
 }
 
 fn main() {
@@ -69,7 +71,12 @@ fn main() {
                 path = "shell".into();
             }
             "--scan" => {
-                let v: Vec<f64> = it.next().unwrap().split(':').map(|v| v.parse().unwrap()).collect();
+                let v: Vec<f64> = it
+                    .next()
+                    .unwrap()
+                    .split(':')
+                    .map(|v| v.parse().unwrap())
+                    .collect();
                 scan = Some((v[0], v[1], v[2]));
             }
             _ => path = x,
@@ -79,14 +86,25 @@ fn main() {
     let petsc = Petsc::initialize(universe, "shape_probe", &[]).unwrap();
     let root = petsc.rank() == 0;
     let material = Material::preset("ceramic").unwrap();
-    let options = MarchingOptions { snap_fraction: snap, ..Default::default() };
+    let options = MarchingOptions {
+        snap_fraction: snap,
+        ..Default::default()
+    };
     // The marched bodies' slivers: MUMPS's workspace estimate falls short without this (as in
     // the shape module's own solves).
-    petsc.set_default_option("-st_mat_mumps_icntl_14", "100").unwrap();
+    petsc
+        .set_default_option("-st_mat_mumps_icntl_14", "100")
+        .unwrap();
     if let Some(radius) = analytic {
         // The solid sphere s = R − |x| against Lamb's frequencies: the order of the marching +
         // P2 discretisation on its own.
-        let lamb = diffsound::eigen::analytic::sphere_modes(radius, material.youngs_modulus, material.poisson_ratio, material.density, 1.2e5);
+        let lamb = diffsound::eigen::analytic::sphere_modes(
+            radius,
+            material.youngs_modulus,
+            material.poisson_ratio,
+            material.density,
+            1.2e5,
+        );
         let mut reference = Vec::new();
         for m in lamb.iter() {
             for _ in 0..m.multiplicity {
@@ -102,20 +120,54 @@ fn main() {
                 for &n in &cells {
                     let grid = BackgroundGrid::covering([-radius; 3], [radius; 3], n, 1.0).unwrap();
                     let depth = t * radius;
-                    let values: Vec<f64> = grid.vertex_positions().iter().map(|p| { let s = radius - (p[0] * p[0] + p[1] * p[1] + p[2] * p[2]).sqrt(); s.min(depth - s) }).collect();
+                    let values: Vec<f64> = grid
+                        .vertex_positions()
+                        .iter()
+                        .map(|p| {
+                            let s = radius - (p[0] * p[0] + p[1] * p[1] + p[2] * p[2]).sqrt();
+                            s.min(depth - s)
+                        })
+                        .collect();
                     let marched = mesh::march(&grid, &values, None, &options).unwrap();
-                    let f = |p: [f64; 3]| { let s = radius - (p[0] * p[0] + p[1] * p[1] + p[2] * p[2]).sqrt(); s.min(depth - s) };
-                    let linear = if exact { diffsound::inverse::shape::refine_crossings(&marched, &grid, &f, None, 0.01).0 } else { marched.mesh.clone() };
+                    let f = |p: [f64; 3]| {
+                        let s = radius - (p[0] * p[0] + p[1] * p[1] + p[2] * p[2]).sqrt();
+                        s.min(depth - s)
+                    };
+                    let linear = if exact {
+                        diffsound::inverse::shape::refine_crossings(&marched, &grid, &f, None, 0.01)
+                            .0
+                    } else {
+                        marched.mesh.clone()
+                    };
                     let quadratic = mesh::lift_to_quadratic(&linear);
-                    let quadratic = if curved { mesh::curve_boundary(&quadratic, &f, None, 0.5, 0.05).0 } else { quadratic };
+                    let quadratic = if curved {
+                        mesh::curve_boundary(&quadratic, &f, None, 0.5, 0.05).0
+                    } else {
+                        quadratic
+                    };
                     let assembled = diffsound::assembly::assemble(&petsc, &quadratic).unwrap();
                     let (k, m) = assembled.operators(&material).unwrap();
-                    let mut cfg = diffsound::eigen::EigenConfig::new(diffsound::eigen::ModeRequest::FirstN(modes), diffsound::eigen::spectrum_scale(material.lame_mu(), material.density, 2.0 * radius));
+                    let mut cfg = diffsound::eigen::EigenConfig::new(
+                        diffsound::eigen::ModeRequest::FirstN(modes),
+                        diffsound::eigen::spectrum_scale(
+                            material.lame_mu(),
+                            material.density,
+                            2.0 * radius,
+                        ),
+                    );
                     cfg.verify_count = false;
                     let solved = diffsound::eigen::solve_modes(&petsc, &k, &m, &cfg).unwrap();
-                    let exact_volume = 4.0 / 3.0 * std::f64::consts::PI * (radius.powi(3) - (radius - depth).powi(3));
-                    let f: Vec<f64> = solved.eigenvalues.iter().map(|l| l.sqrt() / (2.0 * std::f64::consts::PI)).collect();
-                    let mean = |r: std::ops::Range<usize>| r.clone().map(|k| f[k]).sum::<f64>() / r.len() as f64;
+                    let exact_volume = 4.0 / 3.0
+                        * std::f64::consts::PI
+                        * (radius.powi(3) - (radius - depth).powi(3));
+                    let f: Vec<f64> = solved
+                        .eigenvalues
+                        .iter()
+                        .map(|l| l.sqrt() / (2.0 * std::f64::consts::PI))
+                        .collect();
+                    let mean = |r: std::ops::Range<usize>| {
+                        r.clone().map(|k| f[k]).sum::<f64>() / r.len() as f64
+                    };
                     if root {
                         println!("shell t {t} grid {n:3} h {:.3} mm: {} tets, V/V_exact − 1 = {:+.3e}, clusters {:?}, mean f 0-4 {:.1}, 5-9 {:.1} Hz", 1e3 * grid.spacing()[0], linear.n_tets(), linear.volume() / exact_volume - 1.0, solved.clusters, mean(0..5), mean(5..10));
                     }
@@ -125,12 +177,23 @@ fn main() {
         }
         for &n in &cells {
             let grid = BackgroundGrid::covering([-radius; 3], [radius; 3], n, 1.0).unwrap();
-            let values: Vec<f64> = grid.vertex_positions().iter().map(|p| radius - (p[0] * p[0] + p[1] * p[1] + p[2] * p[2]).sqrt()).collect();
-            let sp = shape_spectrum(&petsc, &grid, &values, &options, &material, modes, false).unwrap();
+            let values: Vec<f64> = grid
+                .vertex_positions()
+                .iter()
+                .map(|p| radius - (p[0] * p[0] + p[1] * p[1] + p[2] * p[2]).sqrt())
+                .collect();
+            let sp =
+                shape_spectrum(&petsc, &grid, &values, &options, &material, modes, false).unwrap();
             let exact_volume = 4.0 / 3.0 * std::f64::consts::PI * radius.powi(3);
-            let f: Vec<f64> = sp.eigenvalues.iter().map(|l| l.sqrt() / (2.0 * std::f64::consts::PI)).collect();
+            let f: Vec<f64> = sp
+                .eigenvalues
+                .iter()
+                .map(|l| l.sqrt() / (2.0 * std::f64::consts::PI))
+                .collect();
             // Mean relative error over the first cluster (ℓ = 2 torsional, 5 modes) and the next.
-            let err = |r: std::ops::Range<usize>| r.clone().map(|k| f[k]).sum::<f64>() / r.len() as f64 / reference[r.start] - 1.0;
+            let err = |r: std::ops::Range<usize>| {
+                r.clone().map(|k| f[k]).sum::<f64>() / r.len() as f64 / reference[r.start] - 1.0
+            };
             if root {
                 println!("sphere grid {n:3} h {:.3} mm: {} tets, V/V_exact − 1 = {:+.3e}, snapped {}, modes 0-4 {:+.4e}, 5-9 {:+.4e}; solve {:.1} s", 1e3 * grid.spacing()[0], sp.tets, sp.volume / exact_volume - 1.0, sp.report.snapped_vertices, err(0..5), err(5..10), sp.timings.solve);
             }
@@ -167,7 +230,11 @@ fn main() {
         let s_grid = values.iter().cloned().fold(f64::MIN, f64::max);
         let mut order: Vec<usize> = (0..values.len()).collect();
         order.sort_by(|&a, &b| values[b].total_cmp(&values[a]));
-        let starts: Vec<[f64; 3]> = order.iter().take(8).map(|&v| grid.vertex_position(v)).collect();
+        let starts: Vec<[f64; 3]> = order
+            .iter()
+            .take(8)
+            .map(|&v| grid.vertex_position(v))
+            .collect();
         let t = std::time::Instant::now();
         let (p, s) = sdf.deepest_point(&starts, grid.spacing()[0], 1e-7);
         if root {
@@ -175,11 +242,16 @@ fn main() {
         }
         fields.push((n, grid, values, if grid_max { s_grid } else { s }));
     }
-    let spectrum = |g: &BackgroundGrid, v: &[f64], s: f64, t: f64| -> Result<ShapeSpectrum, String> {
+    let spectrum = |g: &BackgroundGrid,
+                    v: &[f64],
+                    s: f64,
+                    t: f64|
+     -> Result<ShapeSpectrum, String> {
         let depth = t * s;
         let shell: Vec<f64> = v.iter().map(|&x| x.min(depth - x)).collect();
         if !exact && !subdivide {
-            return shape_spectrum(&petsc, g, &shell, &options, &material, modes, false).map_err(|e| e.to_string());
+            return shape_spectrum(&petsc, g, &shell, &options, &material, modes, false)
+                .map_err(|e| e.to_string());
         }
         // Crossings moved onto the continuous shell's zero along their edges.
         let clock = std::time::Instant::now();
@@ -188,8 +260,16 @@ fn main() {
             let d = sdf.signed_distance(x);
             d.min(depth - d)
         };
-        let (linear, moved, kept) = if exact { diffsound::inverse::shape::refine_crossings(&marched, g, &f, None, 0.01) } else { (marched.mesh.clone(), Vec::new(), 0) };
-        let linear = if subdivide { split_in_eight(&linear) } else { linear };
+        let (linear, moved, kept) = if exact {
+            diffsound::inverse::shape::refine_crossings(&marched, g, &f, None, 0.01)
+        } else {
+            (marched.mesh.clone(), Vec::new(), 0)
+        };
+        let linear = if subdivide {
+            split_in_eight(&linear)
+        } else {
+            linear
+        };
         let quadratic = mesh::lift_to_quadratic(&linear);
         let quadratic = if curved {
             let (q, _, report) = mesh::curve_boundary(&quadratic, &f, None, 0.5, 0.05);
@@ -202,27 +282,41 @@ fn main() {
         };
         let meshing = clock.elapsed().as_secs_f64();
         let clock = std::time::Instant::now();
-        let assembled = diffsound::assembly::assemble(&petsc, &quadratic).map_err(|e| e.to_string())?;
+        let assembled =
+            diffsound::assembly::assemble(&petsc, &quadratic).map_err(|e| e.to_string())?;
         let (k, m) = assembled.operators(&material).map_err(|e| e.to_string())?;
         let assembly = clock.elapsed().as_secs_f64();
         let clock = std::time::Instant::now();
         let (lo, hi) = quadratic.bounding_box();
         let diagonal = (0..3).map(|d| (hi[d] - lo[d]).powi(2)).sum::<f64>().sqrt();
-        let mut cfg = diffsound::eigen::EigenConfig::new(diffsound::eigen::ModeRequest::FirstN(modes), diffsound::eigen::spectrum_scale(material.lame_mu(), material.density, diagonal));
+        let mut cfg = diffsound::eigen::EigenConfig::new(
+            diffsound::eigen::ModeRequest::FirstN(modes),
+            diffsound::eigen::spectrum_scale(material.lame_mu(), material.density, diagonal),
+        );
         cfg.verify_count = false;
-        let solved = diffsound::eigen::solve_modes(&petsc, &k, &m, &cfg).map_err(|e| e.to_string())?;
+        let solved =
+            diffsound::eigen::solve_modes(&petsc, &k, &m, &cfg).map_err(|e| e.to_string())?;
         let solve = clock.elapsed().as_secs_f64();
         if ab_deflation > 0 {
-            let rigid = diffsound::eigen::rigid_body_vectors(&k, &assembled.layout, &quadratic.nodes).map_err(|e| e.to_string())?;
+            let rigid =
+                diffsound::eigen::rigid_body_vectors(&k, &assembled.layout, &quadratic.nodes)
+                    .map_err(|e| e.to_string())?;
             let (mut plain_s, mut deflated_s) = (0.0, 0.0);
             for round in 0..ab_deflation {
                 let clock = std::time::Instant::now();
-                let plain = diffsound::eigen::solve_modes(&petsc, &k, &m, &cfg).map_err(|e| e.to_string())?;
+                let plain = diffsound::eigen::solve_modes(&petsc, &k, &m, &cfg)
+                    .map_err(|e| e.to_string())?;
                 let a = clock.elapsed().as_secs_f64();
                 let clock = std::time::Instant::now();
-                let deflated = diffsound::eigen::solve_modes_deflated(&petsc, &k, &m, &cfg, &rigid).map_err(|e| e.to_string())?;
+                let deflated = diffsound::eigen::solve_modes_deflated(&petsc, &k, &m, &cfg, &rigid)
+                    .map_err(|e| e.to_string())?;
                 let b = clock.elapsed().as_secs_f64();
-                let worst = (0..modes).map(|i| (plain.eigenvalues[i] - deflated.eigenvalues[i]).abs() / plain.eigenvalues[i]).fold(0.0, f64::max);
+                let worst = (0..modes)
+                    .map(|i| {
+                        (plain.eigenvalues[i] - deflated.eigenvalues[i]).abs()
+                            / plain.eigenvalues[i]
+                    })
+                    .fold(0.0, f64::max);
                 plain_s += a;
                 deflated_s += b;
                 if root {
@@ -234,7 +328,12 @@ fn main() {
             }
         }
         if root {
-            eprintln!("  exact crossings: {} moved, {} kept linear, {:.2} s", moved.len(), kept, meshing);
+            eprintln!(
+                "  exact crossings: {} moved, {} kept linear, {:.2} s",
+                moved.len(),
+                kept,
+                meshing
+            );
         }
         Ok(ShapeSpectrum {
             eigenvalues: solved.eigenvalues[..modes].to_vec(),
@@ -244,10 +343,20 @@ fn main() {
             tets: linear.n_tets(),
             p2_nodes: quadratic.n_nodes(),
             volume: linear.volume(),
-            timings: diffsound::inverse::shape::StepTimings { meshing, assembly, solve, gradient: 0.0 },
+            timings: diffsound::inverse::shape::StepTimings {
+                meshing,
+                assembly,
+                solve,
+                gradient: 0.0,
+            },
         })
     };
-    let hz = |l: &[f64]| l.iter().map(|&x| format!("{:8.1}", x.sqrt() / (2.0 * std::f64::consts::PI))).collect::<Vec<_>>().join(" ");
+    let hz = |l: &[f64]| {
+        l.iter()
+            .map(|&x| format!("{:8.1}", x.sqrt() / (2.0 * std::f64::consts::PI)))
+            .collect::<Vec<_>>()
+            .join(" ")
+    };
     for &t in &thickness {
         for (n, g, v, s) in &fields {
             match spectrum(g, v, *s, t) {
@@ -273,9 +382,23 @@ fn main() {
             let mut t = a;
             while t <= b + 1e-12 {
                 if let Ok(sp) = spectrum(g, v, *s, t) {
-                    let loss: f64 = sp.eigenvalues.iter().zip(&target).map(|(l, m)| (l / m).ln().powi(2)).sum();
+                    let loss: f64 = sp
+                        .eigenvalues
+                        .iter()
+                        .zip(&target)
+                        .map(|(l, m)| (l / m).ln().powi(2))
+                        .sum();
                     if root {
-                        println!("scan grid {n} t {t:.4} L {loss:.4e} tets {} | ln(λ/λ*) {}", sp.tets, sp.eigenvalues.iter().zip(&target).map(|(l, m)| format!("{:+.4}", (l / m).ln())).collect::<Vec<_>>().join(" "));
+                        println!(
+                            "scan grid {n} t {t:.4} L {loss:.4e} tets {} | ln(λ/λ*) {}",
+                            sp.tets,
+                            sp.eigenvalues
+                                .iter()
+                                .zip(&target)
+                                .map(|(l, m)| format!("{:+.4}", (l / m).ln()))
+                                .collect::<Vec<_>>()
+                                .join(" ")
+                        );
                     }
                     rows.push((t, sp.eigenvalues));
                 }
@@ -294,7 +417,10 @@ fn main() {
                     }
                     crossings.push(found.map_or("   -   ".into(), |x| format!("{:.4}", x)));
                 }
-                println!("grid {n}: t* = {t_true}: per-mode crossings {}", crossings.join(" "));
+                println!(
+                    "grid {n}: t* = {t_true}: per-mode crossings {}",
+                    crossings.join(" ")
+                );
             }
         }
     }
@@ -310,7 +436,8 @@ fn split_in_eight(linear: &mesh::TetMesh) -> mesh::TetMesh {
         let a = [0, 1, 2].map(|d| p[1][d] - p[0][d]);
         let b = [0, 1, 2].map(|d| p[2][d] - p[0][d]);
         let c = [0, 1, 2].map(|d| p[3][d] - p[0][d]);
-        a[0] * (b[1] * c[2] - b[2] * c[1]) - a[1] * (b[0] * c[2] - b[2] * c[0]) + a[2] * (b[0] * c[1] - b[1] * c[0])
+        a[0] * (b[1] * c[2] - b[2] * c[1]) - a[1] * (b[0] * c[2] - b[2] * c[0])
+            + a[2] * (b[0] * c[1] - b[1] * c[0])
     };
     let mut connectivity = Vec::new();
     for e in 0..quadratic.n_tets() {
@@ -339,5 +466,9 @@ fn split_in_eight(linear: &mesh::TetMesh) -> mesh::TetMesh {
             connectivity.extend_from_slice(&t);
         }
     }
-    mesh::TetMesh { nodes, connectivity, order: mesh::ElementOrder::Linear }
+    mesh::TetMesh {
+        nodes,
+        connectivity,
+        order: mesh::ElementOrder::Linear,
+    }
 }

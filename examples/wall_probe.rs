@@ -17,12 +17,17 @@
 //! that the spread reads as a thickness: spread / |d ln f/dt| per mode.
 
 use diffsound::fem::Material;
-use diffsound::inverse::shape::{curved_shell_spectrum, normalise_surface, read_surface, reference_depth, refine_unresolved, shifted_covering};
+use diffsound::inverse::shape::{
+    curved_shell_spectrum, normalise_surface, read_surface, reference_depth, refine_unresolved,
+    shifted_covering,
+};
 use diffsound::mesh::{MarchingOptions, SignedDistance};
 use diffsound::petsc::Petsc;
 
 fn list<T: std::str::FromStr>(s: &str) -> Vec<T> {
-    s.split(',').map(|v| v.parse().ok().expect("a comma-separated list")).collect()
+    s.split(',')
+        .map(|v| v.parse().ok().expect("a comma-separated list"))
+        .collect()
 }
 
 fn main() {
@@ -63,9 +68,14 @@ fn main() {
     let depth = reference_depth(&sdf, &surface).expect("depth");
     let (lo, hi) = surface.bounding_box();
     let mut rng = diffsound::random::SplitMix64::new(seed);
-    let shift_list: Vec<[f64; 3]> = std::iter::once([0.0; 3]).chain((0..shifts).map(|_| [0; 3].map(|_| rng.uniform(-0.5, 0.5)))).collect();
+    let shift_list: Vec<[f64; 3]> = std::iter::once([0.0; 3])
+        .chain((0..shifts).map(|_| [0; 3].map(|_| rng.uniform(-0.5, 0.5))))
+        .collect();
     if root {
-        println!("{path}: S = {:.4} mm, band ±{band}, {modes} modes, shifts {shift_list:.3?}", 1e3 * depth);
+        println!(
+            "{path}: S = {:.4} mm, band ±{band}, {modes} modes, shifts {shift_list:.3?}",
+            1e3 * depth
+        );
     }
     // (cells, t, level) → per alignment ln f.
     let mut table: Vec<((usize, usize, usize), Vec<Vec<f64>>)> = Vec::new();
@@ -83,11 +93,22 @@ fn main() {
                         "both" => vec![(0.0, 0.0), inner],
                         other => panic!("--where takes inner, outer or both, not {other}"),
                     };
-                    let (g, s) = if l == 0 { (grid.clone(), solid.clone()) } else { refine_unresolved(&grid, &solid, &sdf, &bands, l, tolerance).expect("refined") };
+                    let (g, s) = if l == 0 {
+                        (grid.clone(), solid.clone())
+                    } else {
+                        refine_unresolved(&grid, &solid, &sdf, &bands, l, tolerance)
+                            .expect("refined")
+                    };
                     let refine_s = clock.elapsed().as_secs_f64();
-                    match curved_shell_spectrum(&petsc, &g, &s, &sdf, depth, t, &options, &material, modes, false) {
+                    match curved_shell_spectrum(
+                        &petsc, &g, &s, &sdf, depth, t, &options, &material, modes, false,
+                    ) {
                         Ok((sp, _)) => {
-                            let f: Vec<f64> = sp.eigenvalues.iter().map(|l| l.sqrt() / (2.0 * std::f64::consts::PI)).collect();
+                            let f: Vec<f64> = sp
+                                .eigenvalues
+                                .iter()
+                                .map(|l| l.sqrt() / (2.0 * std::f64::consts::PI))
+                                .collect();
                             if root {
                                 println!("cells {n} shift {a} t {t:.3} L {l}: {} background tets, {} tets, {} P2 nodes; refine {refine_s:.2} s, mesh {:.2} s, assembly {:.2} s, solve {:.2} s | Hz {}", g.n_tets(), sp.tets, sp.p2_nodes, sp.timings.meshing, sp.timings.assembly, sp.timings.solve, f.iter().map(|x| format!("{x:.1}")).collect::<Vec<_>>().join(" "));
                             }
@@ -114,21 +135,46 @@ fn main() {
     println!("\nspread of ln f over the alignments (max − min per mode), and as a thickness (spread / |d ln f/dt|, d ln f/dt from the first two t on the centred grid):");
     for (key, rows) in &table {
         let (n, ti, l) = *key;
-        let per_mode: Vec<f64> = (0..modes).map(|k| rows.iter().map(|r| r[k]).fold(f64::NEG_INFINITY, f64::max) - rows.iter().map(|r| r[k]).fold(f64::INFINITY, f64::min)).collect();
+        let per_mode: Vec<f64> = (0..modes)
+            .map(|k| {
+                rows.iter().map(|r| r[k]).fold(f64::NEG_INFINITY, f64::max)
+                    - rows.iter().map(|r| r[k]).fold(f64::INFINITY, f64::min)
+            })
+            .collect();
         let worst = per_mode.iter().cloned().fold(0.0, f64::max);
         let mean = per_mode.iter().sum::<f64>() / modes as f64;
         // d ln f/dt between the first two thickness values on the centred grid, same size and L.
-        let centred = |t_index: usize| table.iter().find(|(k, _)| *k == (n, t_index, l)).map(|(_, r)| r[0].clone());
+        let centred = |t_index: usize| {
+            table
+                .iter()
+                .find(|(k, _)| *k == (n, t_index, l))
+                .map(|(_, r)| r[0].clone())
+        };
         let slope = match (thickness.len() >= 2, centred(0), centred(1)) {
-            (true, Some(a), Some(b)) => Some((0..modes).map(|k| (b[k] - a[k]) / (thickness[1] - thickness[0])).collect::<Vec<f64>>()),
+            (true, Some(a), Some(b)) => Some(
+                (0..modes)
+                    .map(|k| (b[k] - a[k]) / (thickness[1] - thickness[0]))
+                    .collect::<Vec<f64>>(),
+            ),
             _ => None,
         };
         let as_t = slope.map(|s| {
             // The Gauss–Newton reading of a common shift: Σ s_k δ_k / Σ s_k², with δ the spread.
             let num: f64 = (0..modes).map(|k| s[k].abs() * per_mode[k]).sum();
             let den: f64 = (0..modes).map(|k| s[k] * s[k]).sum();
-            format!(", mean |d ln f/dt| {:.4}, spread as t ≈ {:.4}", s.iter().map(|x| x.abs()).sum::<f64>() / modes as f64, num / den)
+            format!(
+                ", mean |d ln f/dt| {:.4}, spread as t ≈ {:.4}",
+                s.iter().map(|x| x.abs()).sum::<f64>() / modes as f64,
+                num / den
+            )
         });
-        println!("cells {n} t {:.3} L {l}: {} alignments, spread max {:.2e}, mean {:.2e}{}", thickness[ti], rows.len(), worst, mean, as_t.unwrap_or_default());
+        println!(
+            "cells {n} t {:.3} L {l}: {} alignments, spread max {:.2e}, mean {:.2e}{}",
+            thickness[ti],
+            rows.len(),
+            worst,
+            mean,
+            as_t.unwrap_or_default()
+        );
     }
 }

@@ -32,7 +32,9 @@ impl SplitMix64 {
     /// first draws of neighbouring streams visibly alike (seed 7, streams 0–5: 0.76–0.85).
     pub fn stream(seed: u64, stream: u64) -> Self {
         let base = mix64(seed.wrapping_add(GOLDEN_GAMMA));
-        SplitMix64::new(mix64(base.wrapping_add(stream.wrapping_add(1).wrapping_mul(GOLDEN_GAMMA))))
+        SplitMix64::new(mix64(
+            base.wrapping_add(stream.wrapping_add(1).wrapping_mul(GOLDEN_GAMMA)),
+        ))
     }
 
     pub fn next_u64(&mut self) -> u64 {

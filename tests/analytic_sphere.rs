@@ -37,8 +37,21 @@ fn p2_modes_of_a_free_sphere_converge_at_fourth_order() {
         let run = mpirun(
             2,
             &[
-                "modes", "--mesh", mesh.to_str().unwrap(), "--youngs", "72e9", "--poisson", "0.19", "--density", "2700",
-                "--modes", &n_modes.to_string(), "--out", out.to_str().unwrap(), "--timings-json", json.to_str().unwrap(),
+                "modes",
+                "--mesh",
+                mesh.to_str().unwrap(),
+                "--youngs",
+                "72e9",
+                "--poisson",
+                "0.19",
+                "--density",
+                "2700",
+                "--modes",
+                &n_modes.to_string(),
+                "--out",
+                out.to_str().unwrap(),
+                "--timings-json",
+                json.to_str().unwrap(),
             ],
             Duration::from_secs(300),
         );
@@ -52,18 +65,32 @@ fn p2_modes_of_a_free_sphere_converge_at_fourth_order() {
             let mean = group.iter().sum::<f64>() / group.len() as f64;
             // The cluster must be tight compared with the gap to its neighbours.
             let spread = group.last().unwrap() - group.first().unwrap();
-            assert!(spread < 1e-2 * m.frequency_hz, "h={h}: cluster {:?} ℓ={} spread {spread} Hz: {group:?}", m.family, m.degree);
+            assert!(
+                spread < 1e-2 * m.frequency_hz,
+                "h={h}: cluster {:?} ℓ={} spread {spread} Hz: {group:?}",
+                m.family,
+                m.degree
+            );
             errs.push((mean - m.frequency_hz).abs() / m.frequency_hz);
             start += m.multiplicity;
         }
-        println!("h = {h}: relative frequency errors per cluster {:?}", errs.iter().map(|e| format!("{e:.3e}")).collect::<Vec<_>>());
+        println!(
+            "h = {h}: relative frequency errors per cluster {:?}",
+            errs.iter().map(|e| format!("{e:.3e}")).collect::<Vec<_>>()
+        );
         errors.push(errs);
     }
     for (k, m) in clusters.iter().enumerate() {
         let (e1, e2) = (errors[1][k], errors[2][k]);
         let order = (e1 / e2).ln() / (sizes[1] / sizes[2]).ln();
-        println!("{:?} ℓ={} n={}: {:.4} Hz, finest error {:.2e}, observed order {order:.2}", m.family, m.degree, m.overtone, m.frequency_hz, e2);
+        println!(
+            "{:?} ℓ={} n={}: {:.4} Hz, finest error {:.2e}, observed order {order:.2}",
+            m.family, m.degree, m.overtone, m.frequency_hz, e2
+        );
         assert!(e2 < 2e-4, "finest mesh error {e2:e} too large for {m:?}");
-        assert!(order > 3.0, "observed convergence order {order} below 3 for {m:?} (errors {e1:e} → {e2:e})");
+        assert!(
+            order > 3.0,
+            "observed convergence order {order} below 3 for {m:?} (errors {e1:e} → {e2:e})"
+        );
     }
 }

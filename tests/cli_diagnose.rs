@@ -11,11 +11,21 @@ use std::process::Command;
 use std::time::Duration;
 
 fn accepted(report: &serde_json::Value) -> Vec<String> {
-    report["catalogue"]["accepted"].as_array().expect("accepted list").iter().map(|a| a["name"].as_str().expect("name").to_string()).collect()
+    report["catalogue"]["accepted"]
+        .as_array()
+        .expect("accepted list")
+        .iter()
+        .map(|a| a["name"].as_str().expect("name").to_string())
+        .collect()
 }
 
 fn true_effects(labels: &Path) -> Vec<String> {
-    read_json(labels)["effects"].as_array().expect("effects").iter().map(|e| e["effect"].as_str().expect("effect").to_string()).collect()
+    read_json(labels)["effects"]
+        .as_array()
+        .expect("effects")
+        .iter()
+        .map(|e| e["effect"].as_str().expect("effect").to_string())
+        .collect()
 }
 
 #[test]
@@ -23,10 +33,29 @@ fn diagnose_writes_a_consistent_report_and_agrees_across_ranks() {
     let dir = scratch("cli_diagnose");
     let mesh_path = dir.join("plate.msh");
     // A free 300 × 200 × 20 mm plate, 6 × 4 × 1 cells (lifted to P2).
-    diffsound::mesh::write_msh22_ascii(&diffsound::mesh::box_mesh([6, 4, 1], [0.3, 0.2, 0.02]), &mesh_path).unwrap();
+    diffsound::mesh::write_msh22_ascii(
+        &diffsound::mesh::box_mesh([6, 4, 1], [0.3, 0.2, 0.02]),
+        &mesh_path,
+    )
+    .unwrap();
     let bench = dir.join("bench");
     let mut cmd = Command::new("mpirun");
-    cmd.args(["-np", "1"]).arg(generator()).args(["--cases", "3", "--seed", "3", "--mics", "4", "--effects", "added_mass", "--mesh"]).arg(&mesh_path).arg("--out").arg(&bench);
+    cmd.args(["-np", "1"])
+        .arg(generator())
+        .args([
+            "--cases",
+            "3",
+            "--seed",
+            "3",
+            "--mics",
+            "4",
+            "--effects",
+            "added_mass",
+            "--mesh",
+        ])
+        .arg(&mesh_path)
+        .arg("--out")
+        .arg(&bench);
     let run = run_with_limit(cmd, Duration::from_secs(300));
     assert!(run.success(), "{}", run.describe());
 
@@ -39,28 +68,62 @@ fn diagnose_writes_a_consistent_report_and_agrees_across_ranks() {
         // The material as fit-material would give it (the diagnosis workflow): the generator's E
         // and ν. Case 0 (clean) finds its own by the line-spectrum match.
         let labels = read_json(&bench.join("labels").join(format!("{case}.json")));
-        let (e, nu) = (format!("{}", labels["youngs_modulus"].as_f64().unwrap()), format!("{}", labels["poisson_ratio"].as_f64().unwrap()));
-        let mut args = vec!["diagnose", "--case", meta.to_str().unwrap(), "--out", out.to_str().unwrap()];
+        let (e, nu) = (
+            format!("{}", labels["youngs_modulus"].as_f64().unwrap()),
+            format!("{}", labels["poisson_ratio"].as_f64().unwrap()),
+        );
+        let mut args = vec![
+            "diagnose",
+            "--case",
+            meta.to_str().unwrap(),
+            "--out",
+            out.to_str().unwrap(),
+        ];
         if case != "case_000" {
             args.extend(["--youngs", e.as_str(), "--poisson", nu.as_str()]);
         }
         let run = mpirun(2, &args, Duration::from_secs(600));
         assert!(run.success(), "{case}: {}", run.describe());
-        for suffix in ["diagnosis.h5", "diagnosis.json", "diagnosis_map.h5", "diagnosis_map.xdmf", "diagnosis_residuals.png", "diagnosis_timefreq.png", "diagnosis_envelopes.png"] {
+        for suffix in [
+            "diagnosis.h5",
+            "diagnosis.json",
+            "diagnosis_map.h5",
+            "diagnosis_map.xdmf",
+            "diagnosis_residuals.png",
+            "diagnosis_timefreq.png",
+            "diagnosis_envelopes.png",
+        ] {
             let p = bench.join(case).join(suffix);
-            assert!(p.is_file() && std::fs::metadata(&p).unwrap().len() > 0, "{case}: {} missing or empty", p.display());
+            assert!(
+                p.is_file() && std::fs::metadata(&p).unwrap().len() > 0,
+                "{case}: {} missing or empty",
+                p.display()
+            );
         }
         let report = read_json(&bench.join(case).join("diagnosis.json"));
         assert_eq!(report["format"], "diffsound.diagnose");
         let found = accepted(&report);
-        eprintln!("{case}: truth {truth:?}, diagnosed {found:?}\n{}", run.stdout);
+        eprintln!(
+            "{case}: truth {truth:?}, diagnosed {found:?}\n{}",
+            run.stdout
+        );
         let cat = &report["catalogue"];
-        assert!(cat["matching"]["pairs"].as_array().unwrap().len() >= 4, "{case}: too few matched modes");
+        assert!(
+            cat["matching"]["pairs"].as_array().unwrap().len() >= 4,
+            "{case}: too few matched modes"
+        );
         // Every catalogue effect is either accepted or rejected with a reason.
-        assert_eq!(found.len() + cat["rejected"].as_array().unwrap().len(), 8, "{case}");
+        assert_eq!(
+            found.len() + cat["rejected"].as_array().unwrap().len(),
+            8,
+            "{case}"
+        );
         if truth.is_empty() {
             clean_seen = true;
-            assert!(found.is_empty(), "{case}: clean case, yet {found:?} accepted");
+            assert!(
+                found.is_empty(),
+                "{case}: clean case, yet {found:?} accepted"
+            );
         } else {
             // Whether a 1–10 % mass on this plate is found depends on where it sits (measured: a
             // 4.9 % mass at a corner, which most modes move at, shifts them nearly uniformly and
@@ -68,26 +131,58 @@ fn diagnose_writes_a_consistent_report_and_agrees_across_ranks() {
             effect_seen = true;
         }
         for a in cat["accepted"].as_array().unwrap() {
-            let (before, after) = (a["held_out_before"].as_f64().unwrap(), a["held_out_after"].as_f64().unwrap());
+            let (before, after) = (
+                a["held_out_before"].as_f64().unwrap(),
+                a["held_out_after"].as_f64().unwrap(),
+            );
             assert!(a["delta_bic"].as_f64().unwrap() > 2.0 && after < before, "{case}: accepted {} without ΔBIC > 2 and a lower held-out error ({before} → {after})", a["name"]);
         }
     }
-    assert!(clean_seen && effect_seen, "seed 3 must give both a clean case and one with the effect");
+    assert!(
+        clean_seen && effect_seen,
+        "seed 3 must give both a clean case and one with the effect"
+    );
 
     // 1 rank vs 2 ranks on case 0: the same diagnosis.
     let meta = bench.join("case_000").join("metadata.toml");
     let one = bench.join("case_000").join("np1.h5");
-    let run = mpirun(1, &["diagnose", "--case", meta.to_str().unwrap(), "--out", one.to_str().unwrap()], Duration::from_secs(600));
+    let run = mpirun(
+        1,
+        &[
+            "diagnose",
+            "--case",
+            meta.to_str().unwrap(),
+            "--out",
+            one.to_str().unwrap(),
+        ],
+        Duration::from_secs(600),
+    );
     assert!(run.success(), "{}", run.describe());
-    let (a, b) = (read_json(&bench.join("case_000").join("np1.json")), read_json(&bench.join("case_000").join("diagnosis.json")));
+    let (a, b) = (
+        read_json(&bench.join("case_000").join("np1.json")),
+        read_json(&bench.join("case_000").join("diagnosis.json")),
+    );
     assert_eq!(accepted(&a), accepted(&b));
-    let params = |r: &serde_json::Value| -> Vec<f64> { r["catalogue"]["final_model"]["params"].as_array().unwrap().iter().map(|p| p["value"].as_f64().unwrap()).collect() };
+    let params = |r: &serde_json::Value| -> Vec<f64> {
+        r["catalogue"]["final_model"]["params"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|p| p["value"].as_f64().unwrap())
+            .collect()
+    };
     let (pa, pb) = (params(&a), params(&b));
     assert_eq!(pa.len(), pb.len());
     for (x, y) in pa.iter().zip(&pb) {
-        assert!((x - y).abs() <= 1e-6 * x.abs().max(1e-3), "final-model parameters differ between 1 and 2 ranks: {pa:?} vs {pb:?}");
+        assert!(
+            (x - y).abs() <= 1e-6 * x.abs().max(1e-3),
+            "final-model parameters differ between 1 and 2 ranks: {pa:?} vs {pb:?}"
+        );
     }
-    let (ea, eb) = (a["material"]["youngs_modulus"].as_f64().unwrap(), b["material"]["youngs_modulus"].as_f64().unwrap());
+    let (ea, eb) = (
+        a["material"]["youngs_modulus"].as_f64().unwrap(),
+        b["material"]["youngs_modulus"].as_f64().unwrap(),
+    );
     assert!((ea / eb - 1.0).abs() < 1e-6, "E {ea} vs {eb}");
 }
 
@@ -104,19 +199,119 @@ fn diagnose_rejects_bad_input_clearly() {
     std::fs::write(&config, "[model]\nloaded_mass_match = \"yes\"\n").unwrap();
     let config = config.to_str().unwrap();
     let cases: [(&[&str], &str); 7] = [
-        (&["diagnose", "--config", config, "--mesh", mesh, "--recording", wav, "--recording", wav, "--out", out], "loaded_mass_match"),
-        (&["diagnose", "--mesh", mesh, "--recording", wav, "--recording", wav, "--loaded-mass-match", "--no-loaded-mass-match", "--out", out], "cannot be used with"),
-        (&["diagnose", "--mesh", mesh, "--recording", "/nonexistent.wav", "--recording", wav, "--out", out], "does not exist"),
-        (&["diagnose", "--mesh", mesh, "--recording", wav, "--out", out], "held-out"),
-        (&["diagnose", "--mesh", mesh, "--recording", wav, "--recording", wav, "--held-out", "5", "--out", out], "held-out microphone 5 does not exist"),
-        (&["diagnose", "--mesh", mesh, "--recording", wav, "--recording", wav, "--youngs", "7e10", "--out", out], "go together"),
-        (&["diagnose", "--mesh", mesh, "--recording", wav, "--recording", wav, "--out", "/nonexistent-dir/d.h5"], "output directory"),
+        (
+            &[
+                "diagnose",
+                "--config",
+                config,
+                "--mesh",
+                mesh,
+                "--recording",
+                wav,
+                "--recording",
+                wav,
+                "--out",
+                out,
+            ],
+            "loaded_mass_match",
+        ),
+        (
+            &[
+                "diagnose",
+                "--mesh",
+                mesh,
+                "--recording",
+                wav,
+                "--recording",
+                wav,
+                "--loaded-mass-match",
+                "--no-loaded-mass-match",
+                "--out",
+                out,
+            ],
+            "cannot be used with",
+        ),
+        (
+            &[
+                "diagnose",
+                "--mesh",
+                mesh,
+                "--recording",
+                "/nonexistent.wav",
+                "--recording",
+                wav,
+                "--out",
+                out,
+            ],
+            "does not exist",
+        ),
+        (
+            &["diagnose", "--mesh", mesh, "--recording", wav, "--out", out],
+            "held-out",
+        ),
+        (
+            &[
+                "diagnose",
+                "--mesh",
+                mesh,
+                "--recording",
+                wav,
+                "--recording",
+                wav,
+                "--held-out",
+                "5",
+                "--out",
+                out,
+            ],
+            "held-out microphone 5 does not exist",
+        ),
+        (
+            &[
+                "diagnose",
+                "--mesh",
+                mesh,
+                "--recording",
+                wav,
+                "--recording",
+                wav,
+                "--youngs",
+                "7e10",
+                "--out",
+                out,
+            ],
+            "go together",
+        ),
+        (
+            &[
+                "diagnose",
+                "--mesh",
+                mesh,
+                "--recording",
+                wav,
+                "--recording",
+                wav,
+                "--out",
+                "/nonexistent-dir/d.h5",
+            ],
+            "output directory",
+        ),
     ];
     for (args, expect) in cases {
         let run = mpirun(2, args, Duration::from_secs(60));
-        assert!(!run.success() && !run.timed_out, "{args:?} should fail: {}", run.describe());
-        assert!(run.stderr.contains(expect), "{args:?}: expected {expect:?} in\n{}", run.stderr);
+        assert!(
+            !run.success() && !run.timed_out,
+            "{args:?} should fail: {}",
+            run.describe()
+        );
+        assert!(
+            run.stderr.contains(expect),
+            "{args:?}: expected {expect:?} in\n{}",
+            run.stderr
+        );
         assert!(!run.stderr.contains("panicked"), "{}", run.stderr);
     }
-    assert!(!dir.join("d.h5").exists() && !dir.join("d.json").exists(), "no output after a failed run");
+    assert!(
+        !dir.join("d.h5").exists() && !dir.join("d.json").exists(),
+        "no output after a failed run"
+    );
 }

@@ -11,28 +11,67 @@ use std::time::Duration;
 
 const LIMIT: Duration = Duration::from_secs(120);
 
-const TINY: [&str; 18] = ["--units", "mm", "--voxels", "6", "--cells", "10", "--target-cells", "14", "--modes", "4", "--steps", "3", "--prefit-steps", "300", "--hidden", "16,16", "--octaves", "2"];
+const TINY: [&str; 18] = [
+    "--units",
+    "mm",
+    "--voxels",
+    "6",
+    "--cells",
+    "10",
+    "--target-cells",
+    "14",
+    "--modes",
+    "4",
+    "--steps",
+    "3",
+    "--prefit-steps",
+    "300",
+    "--hidden",
+    "16,16",
+    "--octaves",
+    "2",
+];
 
 #[test]
 fn a_tiny_box_is_prefitted_refined_and_written() {
     let dir = scratch("cli_fit_geometry");
     let solid = box_obj(&dir, "box.obj", [60.0, 40.0, 30.0]);
     let out = dir.join("geometry.h5");
-    let mut args = vec!["fit-geometry", "--surface", s(&solid), "--out", s(&out), "-v"];
+    let mut args = vec![
+        "fit-geometry",
+        "--surface",
+        s(&solid),
+        "--out",
+        s(&out),
+        "-v",
+    ];
     args.extend(TINY);
     let run = mpirun(2, &args, LIMIT);
     assert!(run.success(), "{}", run.describe());
-    assert!(run.stderr.contains("pre-fit:") && run.stderr.contains("step   3:"), "progress on stderr:\n{}", run.stderr);
+    assert!(
+        run.stderr.contains("pre-fit:") && run.stderr.contains("step   3:"),
+        "progress on stderr:\n{}",
+        run.stderr
+    );
     // The default body has the curved boundary, and the settings say so.
     match diffsound::io::results::read_attribute(&out, "/", "settings_json").unwrap() {
-        diffsound::io::results::AttrValue::Text(json) => assert!(json.contains("\"curved_boundary\":true"), "{json}"),
+        diffsound::io::results::AttrValue::Text(json) => {
+            assert!(json.contains("\"curved_boundary\":true"), "{json}")
+        }
         other => panic!("settings_json is not text: {other:?}"),
     }
     // The box is 60 × 40 × 30 mm: every distance is a fraction of it, the IoU close to 1.
     for group in ["voxels", "before", "after", "floor"] {
         let g = format!("/metrics/{group}");
-        let (c, h, iou) = (number_attribute(&out, &g, "chamfer"), number_attribute(&out, &g, "hausdorff"), number_attribute(&out, &g, "iou"));
-        assert!(c.is_finite() && c >= 0.0 && c < 0.01, "{group}: Chamfer {c} m");
+        let (c, h, iou) = (
+            number_attribute(&out, &g, "chamfer"),
+            number_attribute(&out, &g, "hausdorff"),
+            number_attribute(&out, &g, "iou"),
+        );
+        assert!(
+            c.is_finite() && c >= 0.0 && c < 0.01,
+            "{group}: Chamfer {c} m"
+        );
         assert!(h >= c && h < 0.03, "{group}: Hausdorff {h} m");
         assert!(iou > 0.6 && iou <= 1.0, "{group}: IoU {iou}");
     }
@@ -49,24 +88,50 @@ fn a_tiny_box_is_prefitted_refined_and_written() {
     let best = number_attribute(&out, "/refine", "best_step") as usize;
     assert!(loss[best] <= loss[0]);
     // The check on the target's cell count decides between the refined and the pre-fitted field.
-    let (before, after) = (number_attribute(&out, "/check", "before_loss"), number_attribute(&out, "/check", "after_loss"));
-    assert!(before.is_finite() && after.is_finite() && before >= 0.0 && after >= 0.0, "{before} {after}");
+    let (before, after) = (
+        number_attribute(&out, "/check", "before_loss"),
+        number_attribute(&out, "/check", "after_loss"),
+    );
+    assert!(
+        before.is_finite() && after.is_finite() && before >= 0.0 && after >= 0.0,
+        "{before} {after}"
+    );
     if number_attribute(&out, "/check", "refined_kept") == 1.0 {
-        assert!(best > 0 && after < before, "kept: best step {best}, {before} → {after}");
+        assert!(
+            best > 0 && after < before,
+            "kept: best step {best}, {before} → {after}"
+        );
     } else {
         assert_eq!(best, 0, "not kept: the answer is the pre-fit");
     }
-    for column in ["eigen_loss", "voxel_loss", "eikonal_loss", "tets", "meshing_s", "assembly_s", "solve_s", "gradient_s", "network_s", "failed"] {
+    for column in [
+        "eigen_loss",
+        "voxel_loss",
+        "eikonal_loss",
+        "tets",
+        "meshing_s",
+        "assembly_s",
+        "solve_s",
+        "gradient_s",
+        "network_s",
+        "failed",
+    ] {
         let (v, _) = read_dataset(&out, &format!("/refine/history/{column}")).unwrap();
         assert_eq!(v.len(), 4, "{column}");
         if column.ends_with("_s") {
-            assert!(v.iter().all(|x| x.is_finite() && *x >= 0.0), "{column}: {v:?}");
+            assert!(
+                v.iter().all(|x| x.is_finite() && *x >= 0.0),
+                "{column}: {v:?}"
+            );
         }
     }
     let (target, _) = read_dataset(&out, "/modes/target_frequency_hz").unwrap();
     let (after, _) = read_dataset(&out, "/modes/after_frequency_hz").unwrap();
     assert_eq!((target.len(), after.len()), (4, 4));
-    assert!(target.windows(2).all(|w| w[0] <= w[1]) && target[0] > 1000.0, "{target:?}");
+    assert!(
+        target.windows(2).all(|w| w[0] <= w[1]) && target[0] > 1000.0,
+        "{target:?}"
+    );
     let (theta, _) = read_dataset(&out, "/network/parameters").unwrap();
     // 15 features → 16 → 16 → 1.
     assert_eq!(theta.len(), 15 * 16 + 16 + 16 * 16 + 16 + 16 + 1);
@@ -96,26 +161,107 @@ fn bad_input_fails_cleanly_without_output() {
     std::fs::write(&config, "[geometry]\nvoxles = 8\n").unwrap();
     let nowhere = dir.join("no/such/dir/x.h5");
     let cases: Vec<(Vec<&str>, &str)> = vec![
-        (vec!["fit-geometry", "--surface", s(&missing)], "does not exist"),
+        (
+            vec!["fit-geometry", "--surface", s(&missing)],
+            "does not exist",
+        ),
         (vec!["fit-geometry"], "no surface"),
-        (vec!["fit-geometry", "--surface", s(&solid), "--voxels", "1"], "voxels must lie in"),
-        (vec!["fit-geometry", "--surface", s(&solid), "--cells", "16", "--target-cells", "14"], "target grid at least as many as the fit grid"),
-        (vec!["fit-geometry", "--surface", s(&solid), "--learning-rate", "-1"], "learning_rate must be positive"),
-        (vec!["fit-geometry", "--surface", s(&solid), "--hidden", "0"], "hidden layers"),
-        (vec!["fit-geometry", "--surface", s(&solid), "--method", "newton"], "adam or gauss_newton"),
-        (vec!["fit-geometry", "--surface", s(&solid), "--damping", "0"], "damping must be positive"),
-        (vec!["fit-geometry", "--surface", s(&solid), "--free-scale", "--modes", "1"], "at least two modes"),
-        (vec!["fit-geometry", "--surface", s(&garbage)], "garbage.obj"),
-        (vec!["fit-geometry", "--config", s(&config), "--surface", s(&solid)], "voxles"),
-        (vec!["fit-geometry", "--surface", s(&solid), "--material", "cheese"], "unknown material"),
+        (
+            vec!["fit-geometry", "--surface", s(&solid), "--voxels", "1"],
+            "voxels must lie in",
+        ),
+        (
+            vec![
+                "fit-geometry",
+                "--surface",
+                s(&solid),
+                "--cells",
+                "16",
+                "--target-cells",
+                "14",
+            ],
+            "target grid at least as many as the fit grid",
+        ),
+        (
+            vec![
+                "fit-geometry",
+                "--surface",
+                s(&solid),
+                "--learning-rate",
+                "-1",
+            ],
+            "learning_rate must be positive",
+        ),
+        (
+            vec!["fit-geometry", "--surface", s(&solid), "--hidden", "0"],
+            "hidden layers",
+        ),
+        (
+            vec!["fit-geometry", "--surface", s(&solid), "--method", "newton"],
+            "adam or gauss_newton",
+        ),
+        (
+            vec!["fit-geometry", "--surface", s(&solid), "--damping", "0"],
+            "damping must be positive",
+        ),
+        (
+            vec![
+                "fit-geometry",
+                "--surface",
+                s(&solid),
+                "--free-scale",
+                "--modes",
+                "1",
+            ],
+            "at least two modes",
+        ),
+        (
+            vec!["fit-geometry", "--surface", s(&garbage)],
+            "garbage.obj",
+        ),
+        (
+            vec![
+                "fit-geometry",
+                "--config",
+                s(&config),
+                "--surface",
+                s(&solid),
+            ],
+            "voxles",
+        ),
+        (
+            vec![
+                "fit-geometry",
+                "--surface",
+                s(&solid),
+                "--material",
+                "cheese",
+            ],
+            "unknown material",
+        ),
     ];
     for (mut args, expected) in cases {
         args.extend(["--out", s(&out)]);
         let run = mpirun(2, &args, LIMIT);
         assert!(!run.success(), "{args:?} should fail");
-        assert!(run.stderr.contains(expected), "{args:?}: expected {expected:?} in\n{}", run.describe());
-        assert!(!out.exists() && !dir.join("never_mesh.h5").exists() && !dir.join("never.png").exists(), "{args:?} left output");
+        assert!(
+            run.stderr.contains(expected),
+            "{args:?}: expected {expected:?} in\n{}",
+            run.describe()
+        );
+        assert!(
+            !out.exists() && !dir.join("never_mesh.h5").exists() && !dir.join("never.png").exists(),
+            "{args:?} left output"
+        );
     }
-    let run = mpirun(1, &["fit-geometry", "--surface", s(&solid), "--out", s(&nowhere)], LIMIT);
-    assert!(!run.success() && run.stderr.contains("does not exist"), "{}", run.describe());
+    let run = mpirun(
+        1,
+        &["fit-geometry", "--surface", s(&solid), "--out", s(&nowhere)],
+        LIMIT,
+    );
+    assert!(
+        !run.success() && run.stderr.contains("does not exist"),
+        "{}",
+        run.describe()
+    );
 }

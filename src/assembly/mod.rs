@@ -33,7 +33,10 @@ pub use partition::{partition_nodes, NodePartition};
 #[derive(Debug, thiserror::Error)]
 pub enum AssemblyError {
     #[error("element {element} (0-based, in file order): {source}")]
-    Element { element: usize, source: ElementError },
+    Element {
+        element: usize,
+        source: ElementError,
+    },
     #[error("{0}")]
     Petsc(#[from] PetscError),
     #[error("the mesh has {0} degrees of freedom, more than PETSc's 32-bit indices can address")]
@@ -128,8 +131,17 @@ impl<'p> Assembled<'p> {
     }
 
     /// K and M built in place, releasing the split parts (for forward-only runs on big meshes).
-    pub fn into_operators(self, material: &Material) -> Result<(Mat<'p>, Mat<'p>, DofLayout, AssemblyStats), PetscError> {
-        let Assembled { mass_unit: mut m, k_lambda: mut k, k_mu, layout, stats } = self;
+    pub fn into_operators(
+        self,
+        material: &Material,
+    ) -> Result<(Mat<'p>, Mat<'p>, DofLayout, AssemblyStats), PetscError> {
+        let Assembled {
+            mass_unit: mut m,
+            k_lambda: mut k,
+            k_mu,
+            layout,
+            stats,
+        } = self;
         k.scale(material.lame_lambda())?;
         k.axpy(material.lame_mu(), &k_mu, NonzeroPattern::Same)?;
         drop(k_mu);
@@ -143,7 +155,13 @@ impl<'p> Assembled<'p> {
 /// Adds `values[c]` to diagonal entry (3n + c) of every node n of `nodes` (original numbering)
 /// and assembles: lumped point masses on M, point springs on K. Rank 0 inserts (each entry
 /// once), every rank assembles (collective). The diagonal is in every P2 pattern.
-pub fn add_nodal_diagonal(petsc: &Petsc, mat: &mut Mat<'_>, layout: &DofLayout, nodes: &[usize], values: [f64; 3]) -> Result<(), PetscError> {
+pub fn add_nodal_diagonal(
+    petsc: &Petsc,
+    mat: &mut Mat<'_>,
+    layout: &DofLayout,
+    nodes: &[usize],
+    values: [f64; 3],
+) -> Result<(), PetscError> {
     if petsc.rank() == 0 {
         for &n in nodes {
             for (c, &v) in values.iter().enumerate() {
@@ -196,17 +214,28 @@ pub fn local_pattern(mesh: &TetMesh, partition: &NodePartition, rank: usize) -> 
         list.sort_unstable();
         list.dedup();
     }
-    LocalPattern { owned, neighbours, elements }
+    LocalPattern {
+        owned,
+        neighbours,
+        elements,
+    }
 }
 
 /// Per-row nonzero counts (diagonal block, off-diagonal block) for this rank's rows.
-pub fn preallocation(mesh: &TetMesh, partition: &NodePartition, rank: usize) -> (Vec<PetscInt>, Vec<PetscInt>) {
+pub fn preallocation(
+    mesh: &TetMesh,
+    partition: &NodePartition,
+    rank: usize,
+) -> (Vec<PetscInt>, Vec<PetscInt>) {
     let pattern = local_pattern(mesh, partition, rank);
     let owned = pattern.owned;
     let mut diag = Vec::with_capacity(3 * owned.len());
     let mut offdiag = Vec::with_capacity(3 * owned.len());
     for list in &pattern.neighbours {
-        let inside = list.iter().filter(|&&b| owned.contains(&(b as usize))).count();
+        let inside = list
+            .iter()
+            .filter(|&&b| owned.contains(&(b as usize)))
+            .count();
         let outside = list.len() - inside;
         for _ in 0..3 {
             diag.push(3 * inside as PetscInt);
@@ -229,8 +258,16 @@ pub struct LocalCsr {
 
 /// Evaluates the element kernels of every element touching an owned node and sums the owned
 /// rows into CSR arrays. Pure and serial: no PETSc, no MPI (tested directly).
-pub fn assemble_local_csr(mesh: &TetMesh, partition: &NodePartition, rank: usize) -> Result<LocalCsr, AssemblyError> {
-    let LocalPattern { owned, neighbours, elements } = local_pattern(mesh, partition, rank);
+pub fn assemble_local_csr(
+    mesh: &TetMesh,
+    partition: &NodePartition,
+    rank: usize,
+) -> Result<LocalCsr, AssemblyError> {
+    let LocalPattern {
+        owned,
+        neighbours,
+        elements,
+    } = local_pattern(mesh, partition, rank);
     // Row 3a+c of owned node a holds the columns 3b+d of its neighbours b, in sorted order.
     let mut node_base = Vec::with_capacity(owned.len() + 1);
     let mut acc = 0usize;
@@ -261,7 +298,8 @@ pub fn assemble_local_csr(mesh: &TetMesh, partition: &NodePartition, rank: usize
     let n = 3 * npt;
     // One kernel serves straight and curved elements alike: it switches to the higher-degree
     // rule for elements whose mid-edge nodes are off the chord midpoints.
-    let kernel = ElementKernel::try_new(npt, false).map_err(|source| AssemblyError::Element { element: 0, source })?;
+    let kernel = ElementKernel::try_new(npt, false)
+        .map_err(|source| AssemblyError::Element { element: 0, source })?;
     let mut em = ElementMatrices::zeros(npt);
     let mut coords = vec![[0.0; 3]; npt];
     let mut new_ids = vec![0u32; npt];
@@ -275,7 +313,9 @@ pub fn assemble_local_csr(mesh: &TetMesh, partition: &NodePartition, rank: usize
         if npt == 10 && crate::fem::is_curved(&coords) {
             curved_elements += 1;
         }
-        kernel.matrices_into(&coords, &mut em).map_err(|source| AssemblyError::Element { element: e, source })?;
+        kernel
+            .matrices_into(&coords, &mut em)
+            .map_err(|source| AssemblyError::Element { element: e, source })?;
         for a in 0..npt {
             let node_a = new_ids[a] as usize;
             if !owned.contains(&node_a) {
@@ -285,7 +325,9 @@ pub fn assemble_local_csr(mesh: &TetMesh, partition: &NodePartition, rank: usize
             let list = &neighbours[local_a];
             let row_len = 3 * list.len();
             for b in 0..npt {
-                let j = list.binary_search(&new_ids[b]).expect("pattern contains every element neighbour");
+                let j = list
+                    .binary_search(&new_ids[b])
+                    .expect("pattern contains every element neighbour");
                 for c in 0..3 {
                     let dst = node_base[local_a] + c * row_len + 3 * j;
                     let src = (3 * a + c) * n + 3 * b;
@@ -298,7 +340,15 @@ pub fn assemble_local_csr(mesh: &TetMesh, partition: &NodePartition, rank: usize
             }
         }
     }
-    Ok(LocalCsr { row_ptr, cols, mass, k_lambda, k_mu, elements_evaluated: elements.len(), curved_elements })
+    Ok(LocalCsr {
+        row_ptr,
+        cols,
+        mass,
+        k_lambda,
+        k_mu,
+        elements_evaluated: elements.len(),
+        curved_elements,
+    })
 }
 
 /// Assembles M₁, K_λ and K_μ for `mesh` (P1 or P2, as given) over all ranks of `petsc`.
@@ -323,5 +373,11 @@ pub fn assemble<'p>(petsc: &'p Petsc, mesh: &TetMesh) -> Result<Assembled<'p>, A
         mallocs: m1 + m2 + m3,
         seconds: start.elapsed().as_secs_f64(),
     };
-    Ok(Assembled { mass_unit: mass, k_lambda, k_mu, layout: DofLayout { partition, rank }, stats })
+    Ok(Assembled {
+        mass_unit: mass,
+        k_lambda,
+        k_mu,
+        layout: DofLayout { partition, rank },
+        stats,
+    })
 }

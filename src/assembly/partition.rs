@@ -51,7 +51,11 @@ pub fn partition_nodes(nodes: &[[f64; 3]], n_parts: usize) -> NodePartition {
     for (new, &old) in old_of_new.iter().enumerate() {
         new_of_old[old] = new;
     }
-    NodePartition { new_of_old, old_of_new, offsets }
+    NodePartition {
+        new_of_old,
+        old_of_new,
+        offsets,
+    }
 }
 
 fn bisect(nodes: &[[f64; 3]], mut ids: Vec<usize>, n_parts: usize, out: &mut Vec<Vec<usize>>) {
@@ -67,7 +71,11 @@ fn bisect(nodes: &[[f64; 3]], mut ids: Vec<usize>, n_parts: usize, out: &mut Vec
     let axis = longest_axis(nodes, &ids);
     let split = ids.len() * left_parts / n_parts;
     let key = |&i: &usize| (nodes[i][axis], i);
-    ids.select_nth_unstable_by(split, |a, b| key(a).partial_cmp(&key(b)).unwrap_or(std::cmp::Ordering::Equal));
+    ids.select_nth_unstable_by(split, |a, b| {
+        key(a)
+            .partial_cmp(&key(b))
+            .unwrap_or(std::cmp::Ordering::Equal)
+    });
     let right = ids.split_off(split);
     bisect(nodes, ids, left_parts, out);
     bisect(nodes, right, n_parts - left_parts, out);
@@ -82,7 +90,13 @@ fn longest_axis(nodes: &[[f64; 3]], ids: &[usize]) -> usize {
             hi[d] = hi[d].max(nodes[i][d]);
         }
     }
-    (0..3).max_by(|&a, &b| (hi[a] - lo[a]).partial_cmp(&(hi[b] - lo[b])).unwrap_or(std::cmp::Ordering::Equal)).unwrap_or(0)
+    (0..3)
+        .max_by(|&a, &b| {
+            (hi[a] - lo[a])
+                .partial_cmp(&(hi[b] - lo[b]))
+                .unwrap_or(std::cmp::Ordering::Equal)
+        })
+        .unwrap_or(0)
 }
 
 #[cfg(test)]
@@ -93,7 +107,9 @@ mod tests {
         // Deterministic pseudo-random points in a 3 × 1 × 1 box.
         let mut s = 12345u64;
         let mut r = || {
-            s = s.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+            s = s
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
             (s >> 11) as f64 / (1u64 << 53) as f64
         };
         (0..n).map(|_| [3.0 * r(), r(), r()]).collect()
@@ -126,8 +142,14 @@ mod tests {
     fn two_parts_split_the_longest_axis() {
         let pts = cloud(500);
         let p = partition_nodes(&pts, 2);
-        let max_left = p.owned_range(0).map(|n| pts[p.old_of_new[n]][0]).fold(f64::MIN, f64::max);
-        let min_right = p.owned_range(1).map(|n| pts[p.old_of_new[n]][0]).fold(f64::MAX, f64::min);
+        let max_left = p
+            .owned_range(0)
+            .map(|n| pts[p.old_of_new[n]][0])
+            .fold(f64::MIN, f64::max);
+        let min_right = p
+            .owned_range(1)
+            .map(|n| pts[p.old_of_new[n]][0])
+            .fold(f64::MAX, f64::min);
         assert!(max_left <= min_right);
     }
 

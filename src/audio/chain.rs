@@ -68,21 +68,29 @@ impl DampingCurve {
                 decay_rates.len()
             ));
         }
-        let curve = DampingCurve { log_decay: decay_rates.iter().map(|d| d.ln()).collect(), frequencies_hz };
+        let curve = DampingCurve {
+            log_decay: decay_rates.iter().map(|d| d.ln()).collect(),
+            frequencies_hz,
+        };
         curve.validate()?;
         Ok(curve)
     }
 
     pub fn validate(&self) -> Result<(), String> {
         if self.frequencies_hz.is_empty() || self.frequencies_hz.len() != self.log_decay.len() {
-            return Err("a damping curve needs one ln-decay per knot frequency, at least one".into());
+            return Err(
+                "a damping curve needs one ln-decay per knot frequency, at least one".into(),
+            );
         }
         for (i, (&f, &t)) in self.frequencies_hz.iter().zip(&self.log_decay).enumerate() {
             if !(f > 0.0 && f.is_finite()) || !t.is_finite() {
                 return Err(format!("damping curve knot {i}: frequency {f} Hz and decay e^{t} must be finite and positive"));
             }
             if i > 0 && !(f > self.frequencies_hz[i - 1]) {
-                return Err(format!("damping curve knot {i}: frequencies must increase ({} then {f} Hz)", self.frequencies_hz[i - 1]));
+                return Err(format!(
+                    "damping curve knot {i}: frequencies must increase ({} then {f} Hz)",
+                    self.frequencies_hz[i - 1]
+                ));
             }
         }
         Ok(())
@@ -120,16 +128,27 @@ impl DampingModel {
         match self {
             DampingModel::Rayleigh { alpha, beta } => {
                 if !(alpha.is_finite() && beta.is_finite() && *alpha >= 0.0 && *beta >= 0.0) {
-                    return Err(format!("Rayleigh α = {alpha}, β = {beta} must be finite and ≥ 0"));
+                    return Err(format!(
+                        "Rayleigh α = {alpha}, β = {beta} must be finite and ≥ 0"
+                    ));
                 }
                 Ok(())
             }
             DampingModel::PerMode { decay_rates } => {
                 if decay_rates.len() != n_modes {
-                    return Err(format!("{} per-mode decay rates for {n_modes} modes", decay_rates.len()));
+                    return Err(format!(
+                        "{} per-mode decay rates for {n_modes} modes",
+                        decay_rates.len()
+                    ));
                 }
-                match decay_rates.iter().position(|d| !(d.is_finite() && *d >= 0.0)) {
-                    Some(i) => Err(format!("decay rate of mode {i} is {} (must be finite and ≥ 0)", decay_rates[i])),
+                match decay_rates
+                    .iter()
+                    .position(|d| !(d.is_finite() && *d >= 0.0))
+                {
+                    Some(i) => Err(format!(
+                        "decay rate of mode {i} is {} (must be finite and ≥ 0)",
+                        decay_rates[i]
+                    )),
                     None => Ok(()),
                 }
             }
@@ -160,7 +179,10 @@ pub struct Strike {
 
 impl Default for Strike {
     fn default() -> Self {
-        Strike { force: ContactForce::Impulse, response: Response::Acceleration }
+        Strike {
+            force: ContactForce::Impulse,
+            response: Response::Acceleration,
+        }
     }
 }
 
@@ -177,10 +199,17 @@ pub struct ChainGradient {
 /// dL/d(damping parameters), in the shape of the [`DampingModel`].
 #[derive(Clone, Debug, PartialEq)]
 pub enum DampingGradient {
-    Rayleigh { alpha: f64, beta: f64 },
-    PerMode { decay_rates: Vec<f64> },
+    Rayleigh {
+        alpha: f64,
+        beta: f64,
+    },
+    PerMode {
+        decay_rates: Vec<f64>,
+    },
     /// dL/dθ_i, θ_i = ln d_i.
-    Curve { log_decay: Vec<f64> },
+    Curve {
+        log_decay: Vec<f64>,
+    },
 }
 
 #[derive(Clone, Debug)]
@@ -205,9 +234,18 @@ pub struct ModalChain {
 
 impl ModalChain {
     /// The bank for eigenvalues λ_k and projections c_k, and the chain to differentiate it.
-    pub fn new(eigenvalues: &[f64], projections: &[f64], damping: &DampingModel, strike: &Strike) -> Result<(ModalBank, ModalChain), String> {
+    pub fn new(
+        eigenvalues: &[f64],
+        projections: &[f64],
+        damping: &DampingModel,
+        strike: &Strike,
+    ) -> Result<(ModalBank, ModalChain), String> {
         if eigenvalues.len() != projections.len() {
-            return Err(format!("{} eigenvalues but {} projections", eigenvalues.len(), projections.len()));
+            return Err(format!(
+                "{} eigenvalues but {} projections",
+                eigenvalues.len(),
+                projections.len()
+            ));
         }
         damping.validate(eigenvalues.len())?;
         strike.force.validate()?;
@@ -215,16 +253,38 @@ impl ModalChain {
         let mut bank = ModalBank::default();
         let mut links = Vec::with_capacity(eigenvalues.len());
         for (k, (&lambda, &c)) in eigenvalues.iter().zip(projections).enumerate() {
-            let (decay, ddecay_dlambda) = if lambda > 0.0 { damping.decay(k, lambda) } else { (0.0, 0.0) };
+            let (decay, ddecay_dlambda) = if lambda > 0.0 {
+                damping.decay(k, lambda)
+            } else {
+                (0.0, 0.0)
+            };
             let wd2 = lambda - decay * decay;
             let rings = lambda > 0.0 && wd2 > 0.0 && c.is_finite();
             let link = if rings {
                 let omega_d = wd2.sqrt();
                 let g = modal_factor(&strike.force, strike.response, decay, omega_d);
-                ModeLink { rings, omega_d, decay, ddecay_dlambda, projection: c, factor: g.value, dfactor_domega_d: g.d_omega_d, dfactor_ddecay: g.d_decay }
+                ModeLink {
+                    rings,
+                    omega_d,
+                    decay,
+                    ddecay_dlambda,
+                    projection: c,
+                    factor: g.value,
+                    dfactor_domega_d: g.d_omega_d,
+                    dfactor_ddecay: g.d_decay,
+                }
             } else {
                 let zero = Complex64::new(0.0, 0.0);
-                ModeLink { rings, omega_d: 0.0, decay: 0.0, ddecay_dlambda: 0.0, projection: c, factor: zero, dfactor_domega_d: zero, dfactor_ddecay: zero }
+                ModeLink {
+                    rings,
+                    omega_d: 0.0,
+                    decay: 0.0,
+                    ddecay_dlambda: 0.0,
+                    projection: c,
+                    factor: zero,
+                    dfactor_domega_d: zero,
+                    dfactor_ddecay: zero,
+                }
             };
             let z = link.factor * c;
             bank.frequencies_hz.push(link.omega_d / two_pi);
@@ -233,7 +293,14 @@ impl ModalChain {
             bank.phases.push(if rings { z.arg() } else { 0.0 });
             links.push(link);
         }
-        Ok((bank, ModalChain { damping: damping.clone(), eigenvalues: eigenvalues.to_vec(), links }))
+        Ok((
+            bank,
+            ModalChain {
+                damping: damping.clone(),
+                eigenvalues: eigenvalues.to_vec(),
+                links,
+            },
+        ))
     }
 
     /// dL/dλ, dL/dc and dL/d(damping) from the gradient of the bank this chain made.
@@ -258,15 +325,23 @@ impl ModalChain {
             let d_omega = grad.frequencies_hz[k] / two_pi + dot(link.dfactor_domega_d * c);
             let d_decay = grad.decay_rates[k] + dot(link.dfactor_ddecay * c);
             d_projection[k] = dot(link.factor);
-            d_lambda[k] = d_omega * (1.0 - 2.0 * link.decay * link.ddecay_dlambda) / (2.0 * link.omega_d) + d_decay * link.ddecay_dlambda;
+            d_lambda[k] = d_omega * (1.0 - 2.0 * link.decay * link.ddecay_dlambda)
+                / (2.0 * link.omega_d)
+                + d_decay * link.ddecay_dlambda;
             d_decay_total[k] = d_decay - d_omega * link.decay / link.omega_d;
         }
         let damping = match &self.damping {
             DampingModel::Rayleigh { .. } => DampingGradient::Rayleigh {
                 alpha: d_decay_total.iter().map(|g| 0.5 * g).sum(),
-                beta: d_decay_total.iter().zip(&self.eigenvalues).map(|(g, l)| 0.5 * l * g).sum(),
+                beta: d_decay_total
+                    .iter()
+                    .zip(&self.eigenvalues)
+                    .map(|(g, l)| 0.5 * l * g)
+                    .sum(),
             },
-            DampingModel::PerMode { .. } => DampingGradient::PerMode { decay_rates: d_decay_total },
+            DampingModel::PerMode { .. } => DampingGradient::PerMode {
+                decay_rates: d_decay_total,
+            },
             DampingModel::Curve(curve) => {
                 let mut log_decay = vec![0.0; curve.log_decay.len()];
                 for (k, link) in self.links.iter().enumerate() {
@@ -280,16 +355,32 @@ impl ModalChain {
                 DampingGradient::Curve { log_decay }
             }
         };
-        ChainGradient { eigenvalues: d_lambda, projections: d_projection, damping }
+        ChainGradient {
+            eigenvalues: d_lambda,
+            projections: d_projection,
+            damping,
+        }
     }
 }
 
 /// dL/dE [1/Pa], dL/dν, dL/dρ [m³/kg] from the chain gradient and the eigenvalue
 /// sensitivities (per mode, same order), including c_k ∝ ρ^(−½) (module docs). Modes past the
 /// end of the sensitivity vectors are ignored.
-pub fn material_gradient(grad: &ChainGradient, d_lambda_d_youngs: &[f64], d_lambda_d_poisson: &[f64], d_lambda_d_density: &[f64], projections: &[f64], density: f64) -> [f64; 3] {
+pub fn material_gradient(
+    grad: &ChainGradient,
+    d_lambda_d_youngs: &[f64],
+    d_lambda_d_poisson: &[f64],
+    d_lambda_d_density: &[f64],
+    projections: &[f64],
+    density: f64,
+) -> [f64; 3] {
     let dot = |a: &[f64], b: &[f64]| a.iter().zip(b).map(|(x, y)| x * y).sum::<f64>();
-    let shape_term: f64 = grad.projections.iter().zip(projections).map(|(g, c)| -g * c / (2.0 * density)).sum();
+    let shape_term: f64 = grad
+        .projections
+        .iter()
+        .zip(projections)
+        .map(|(g, c)| -g * c / (2.0 * density))
+        .sum();
     [
         dot(&grad.eigenvalues, d_lambda_d_youngs),
         dot(&grad.eigenvalues, d_lambda_d_poisson),

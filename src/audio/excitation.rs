@@ -68,13 +68,21 @@ impl std::str::FromStr for ContactForce {
         if s.eq_ignore_ascii_case("impulse") {
             return Ok(ContactForce::Impulse);
         }
-        if let Some(rest) = s.strip_prefix("half-sine:").or_else(|| s.strip_prefix("half_sine:")) {
-            let duration_s: f64 = rest.trim().parse().map_err(|_| format!("half-sine duration {rest:?} is not a number (seconds)"))?;
+        if let Some(rest) = s
+            .strip_prefix("half-sine:")
+            .or_else(|| s.strip_prefix("half_sine:"))
+        {
+            let duration_s: f64 = rest
+                .trim()
+                .parse()
+                .map_err(|_| format!("half-sine duration {rest:?} is not a number (seconds)"))?;
             let force = ContactForce::HalfSine { duration_s };
             force.validate()?;
             return Ok(force);
         }
-        Err(format!("unknown contact force {s:?}: use `impulse` or `half-sine:<seconds>`"))
+        Err(format!(
+            "unknown contact force {s:?}: use `impulse` or `half-sine:<seconds>`"
+        ))
     }
 }
 
@@ -85,7 +93,9 @@ impl std::str::FromStr for Response {
             "displacement" => Ok(Response::Displacement),
             "velocity" => Ok(Response::Velocity),
             "acceleration" => Ok(Response::Acceleration),
-            other => Err(format!("unknown response {other:?}: use displacement, velocity or acceleration")),
+            other => Err(format!(
+                "unknown response {other:?}: use displacement, velocity or acceleration"
+            )),
         }
     }
 }
@@ -95,8 +105,12 @@ impl ContactForce {
     pub fn validate(&self) -> Result<(), String> {
         match *self {
             ContactForce::Impulse => Ok(()),
-            ContactForce::HalfSine { duration_s } if duration_s > 0.0 && duration_s <= 1.0 => Ok(()),
-            ContactForce::HalfSine { duration_s } => Err(format!("half-sine duration {duration_s} s must lie in (0, 1]")),
+            ContactForce::HalfSine { duration_s } if duration_s > 0.0 && duration_s <= 1.0 => {
+                Ok(())
+            }
+            ContactForce::HalfSine { duration_s } => Err(format!(
+                "half-sine duration {duration_s} s must lie in (0, 1]"
+            )),
         }
     }
 
@@ -116,7 +130,8 @@ impl ContactForce {
                 let gain = 0.5 * p; // π/(2τ)
                 let e = (-s * tau).exp();
                 let value = gain * p * (1.0 + e) / denom;
-                let derivative = gain * p * ((-tau) * e * denom - (1.0 + e) * 2.0 * s) / (denom * denom);
+                let derivative =
+                    gain * p * ((-tau) * e * denom - (1.0 + e) * 2.0 * s) / (denom * denom);
                 (value, derivative)
             }
         }
@@ -148,13 +163,22 @@ pub struct ModalFactor {
 
 /// The complex amplitude per unit c_k of a mode with decay rate d [1/s] and damped angular
 /// frequency ω_d [rad/s] (ω_d > 0).
-pub fn modal_factor(force: &ContactForce, response: Response, decay: f64, omega_d: f64) -> ModalFactor {
+pub fn modal_factor(
+    force: &ContactForce,
+    response: Response,
+    decay: f64,
+    omega_d: f64,
+) -> ModalFactor {
     let s = Complex64::new(-decay, omega_d);
     let (f, df) = force.laplace(s);
     let m = response.order();
     let s_m = s.powi(m);
     let h = s_m * f;
-    let dh = if m == 0 { df } else { s.powi(m - 1) * f * m as f64 + s_m * df };
+    let dh = if m == 0 {
+        df
+    } else {
+        s.powi(m - 1) * f * m as f64 + s_m * df
+    };
     let i = Complex64::new(0.0, 1.0);
     ModalFactor {
         value: h / omega_d,
@@ -175,7 +199,13 @@ mod tests {
         let (omega, d, tau) = (2.0 * std::f64::consts::PI * 700.0, 15.0, 4e-4);
         let omega_d = (omega * omega - d * d).sqrt();
         let force = ContactForce::HalfSine { duration_s: tau };
-        let f = |t: f64| if t <= tau { 0.5 * std::f64::consts::PI / tau * (std::f64::consts::PI * t / tau).sin() } else { 0.0 };
+        let f = |t: f64| {
+            if t <= tau {
+                0.5 * std::f64::consts::PI / tau * (std::f64::consts::PI * t / tau).sin()
+            } else {
+                0.0
+            }
+        };
         let rhs = |t: f64, q: f64, v: f64| (v, f(t) - 2.0 * d * v - omega * omega * q);
         let dt = tau / 2000.0;
         let (mut t, mut q, mut v) = (0.0, 0.0, 0.0);
@@ -192,7 +222,10 @@ mod tests {
         for (response, simulated) in [(Response::Displacement, q), (Response::Velocity, v)] {
             let g = modal_factor(&force, response, d, omega_d).value;
             let closed = (g * (Complex64::new(-d, omega_d) * t).exp()).im;
-            assert!((closed - simulated).abs() < 1e-9 * simulated.abs().max(1e-12) + 1e-12, "{response:?}: {closed} vs {simulated}");
+            assert!(
+                (closed - simulated).abs() < 1e-9 * simulated.abs().max(1e-12) + 1e-12,
+                "{response:?}: {closed} vs {simulated}"
+            );
         }
     }
 
@@ -201,30 +234,58 @@ mod tests {
         // Impulse, velocity: z = s/ω_d, a unit-ish amplitude with phase just past π/2.
         let (d, omega_d) = (3.0, 2.0 * std::f64::consts::PI * 440.0);
         let g = modal_factor(&ContactForce::Impulse, Response::Velocity, d, omega_d).value;
-        let bank = ModalBank { frequencies_hz: vec![omega_d / (2.0 * std::f64::consts::PI)], decay_rates: vec![d], amplitudes: vec![g.norm()], phases: vec![g.arg()] };
+        let bank = ModalBank {
+            frequencies_hz: vec![omega_d / (2.0 * std::f64::consts::PI)],
+            decay_rates: vec![d],
+            amplitudes: vec![g.norm()],
+            phases: vec![g.arg()],
+        };
         let fs = 48_000.0;
         let x = render_samples(&bank, fs, 1000);
         for (n, &xn) in x.iter().enumerate() {
             let t = n as f64 / fs;
             // q̇ of h(t) = e^(−dt) sin(ω_d t)/ω_d.
-            let exact = (-d * t).exp() * (omega_d * (omega_d * t).cos() - d * (omega_d * t).sin()) / omega_d;
+            let exact = (-d * t).exp() * (omega_d * (omega_d * t).cos() - d * (omega_d * t).sin())
+                / omega_d;
             assert!((xn - exact).abs() < 1e-12, "sample {n}");
         }
     }
 
     #[test]
     fn factor_derivatives_match_finite_differences() {
-        for force in [ContactForce::Impulse, ContactForce::HalfSine { duration_s: 1e-3 }, ContactForce::HalfSine { duration_s: 1.0 / 1200.0 }] {
-            for response in [Response::Displacement, Response::Velocity, Response::Acceleration] {
+        for force in [
+            ContactForce::Impulse,
+            ContactForce::HalfSine { duration_s: 1e-3 },
+            ContactForce::HalfSine {
+                duration_s: 1.0 / 1200.0,
+            },
+        ] {
+            for response in [
+                Response::Displacement,
+                Response::Velocity,
+                Response::Acceleration,
+            ] {
                 // ω_d near π/τ for the second half-sine exercises the quadrature branch.
                 let (d, w) = (20.0, 2.0 * std::f64::consts::PI * 600.0);
                 let m = modal_factor(&force, response, d, w);
                 let h = 1e-4;
-                let fd_w = (modal_factor(&force, response, d, w + h).value - modal_factor(&force, response, d, w - h).value) / (2.0 * h);
-                let fd_d = (modal_factor(&force, response, d + h, w).value - modal_factor(&force, response, d - h, w).value) / (2.0 * h);
+                let fd_w = (modal_factor(&force, response, d, w + h).value
+                    - modal_factor(&force, response, d, w - h).value)
+                    / (2.0 * h);
+                let fd_d = (modal_factor(&force, response, d + h, w).value
+                    - modal_factor(&force, response, d - h, w).value)
+                    / (2.0 * h);
                 let scale = m.value.norm() / w;
-                assert!((fd_w - m.d_omega_d).norm() < 1e-6 * scale, "{force:?} {response:?} dω: {fd_w} vs {}", m.d_omega_d);
-                assert!((fd_d - m.d_decay).norm() < 1e-6 * scale, "{force:?} {response:?} dd: {fd_d} vs {}", m.d_decay);
+                assert!(
+                    (fd_w - m.d_omega_d).norm() < 1e-6 * scale,
+                    "{force:?} {response:?} dω: {fd_w} vs {}",
+                    m.d_omega_d
+                );
+                assert!(
+                    (fd_d - m.d_decay).norm() < 1e-6 * scale,
+                    "{force:?} {response:?} dd: {fd_d} vs {}",
+                    m.d_decay
+                );
             }
         }
     }
@@ -240,19 +301,32 @@ mod tests {
         assert!((dclosed - dquad).norm() < 1e-13 * tau);
         // At s = ip exactly the closed form is 0/0; the value must be finite and continuous.
         let (at, _) = ContactForce::HalfSine { duration_s: tau }.laplace(Complex64::new(0.0, p));
-        let (near, _) = ContactForce::HalfSine { duration_s: tau }.laplace(Complex64::new(0.0, p * 1.0001));
+        let (near, _) =
+            ContactForce::HalfSine { duration_s: tau }.laplace(Complex64::new(0.0, p * 1.0001));
         assert!(at.norm().is_finite() && (at - near).norm() < 1e-3 * at.norm());
     }
 
     #[test]
     fn half_sine_is_a_low_pass_and_parses() {
         let force: ContactForce = "half-sine:0.001".parse().unwrap();
-        let low = force.laplace(Complex64::new(0.0, 2.0 * std::f64::consts::PI * 100.0)).0.norm();
-        let high = force.laplace(Complex64::new(0.0, 2.0 * std::f64::consts::PI * 5000.0)).0.norm();
+        let low = force
+            .laplace(Complex64::new(0.0, 2.0 * std::f64::consts::PI * 100.0))
+            .0
+            .norm();
+        let high = force
+            .laplace(Complex64::new(0.0, 2.0 * std::f64::consts::PI * 5000.0))
+            .0
+            .norm();
         assert!((low - 1.0).abs() < 0.02 && high < 0.05, "{low} {high}");
         assert!("half-sine:0".parse::<ContactForce>().is_err());
         assert!("hammer".parse::<ContactForce>().is_err());
-        assert_eq!("impulse".parse::<ContactForce>().unwrap(), ContactForce::Impulse);
-        assert_eq!("Acceleration".parse::<Response>().unwrap(), Response::Acceleration);
+        assert_eq!(
+            "impulse".parse::<ContactForce>().unwrap(),
+            ContactForce::Impulse
+        );
+        assert_eq!(
+            "Acceleration".parse::<Response>().unwrap(),
+            Response::Acceleration
+        );
     }
 }

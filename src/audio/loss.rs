@@ -129,13 +129,21 @@ pub enum FrequencyAxis {
 
 impl Default for TransportLossConfig {
     fn default() -> Self {
-        TransportLossConfig { fft_size: 2048, hop_fraction: 0.25, relative_floor: 1e-9, axis: FrequencyAxis::Linear, log_floor_hz: 20.0 }
+        TransportLossConfig {
+            fft_size: 2048,
+            hop_fraction: 0.25,
+            relative_floor: 1e-9,
+            axis: FrequencyAxis::Linear,
+            log_floor_hz: 20.0,
+        }
     }
 }
 
 fn hop_of(n_fft: usize, fraction: f64) -> Result<usize, LossError> {
     if !(fraction > 0.0 && fraction <= 1.0) {
-        return Err(LossError::Setting(format!("hop_fraction {fraction} must lie in (0, 1]")));
+        return Err(LossError::Setting(format!(
+            "hop_fraction {fraction} must lie in (0, 1]"
+        )));
     }
     Ok(((n_fft as f64 * fraction).round() as usize).max(1))
 }
@@ -177,13 +185,21 @@ impl MultiScaleSpectralLoss {
         if config.fft_sizes.is_empty() {
             return Err(LossError::Setting("fft_sizes is empty".into()));
         }
-        for (name, w) in [("linear_weight", config.linear_weight), ("log_weight", config.log_weight)] {
+        for (name, w) in [
+            ("linear_weight", config.linear_weight),
+            ("log_weight", config.log_weight),
+        ] {
             if !(w >= 0.0 && w.is_finite()) {
-                return Err(LossError::Setting(format!("{name} {w} must be a finite number ≥ 0")));
+                return Err(LossError::Setting(format!(
+                    "{name} {w} must be a finite number ≥ 0"
+                )));
             }
         }
         let eps_ok = |v: f64| v >= 0.0 && v.is_finite();
-        if !(eps_ok(config.log_epsilon) && eps_ok(config.log_epsilon_relative) && config.log_epsilon + config.log_epsilon_relative > 0.0) {
+        if !(eps_ok(config.log_epsilon)
+            && eps_ok(config.log_epsilon_relative)
+            && config.log_epsilon + config.log_epsilon_relative > 0.0)
+        {
             return Err(LossError::Setting(format!(
                 "log_epsilon {} and log_epsilon_relative {} must be ≥ 0 and not both 0",
                 config.log_epsilon, config.log_epsilon_relative
@@ -197,12 +213,25 @@ impl MultiScaleSpectralLoss {
         let targets: Vec<Spectrogram> = plans.iter().map(|p| p.forward(target)).collect();
         let epsilons = targets
             .iter()
-            .map(|t| config.log_epsilon + config.log_epsilon_relative * t.magnitude.iter().fold(0.0_f64, |m, &v| m.max(v)))
+            .map(|t| {
+                config.log_epsilon
+                    + config.log_epsilon_relative
+                        * t.magnitude.iter().fold(0.0_f64, |m, &v| m.max(v))
+            })
             .collect::<Vec<f64>>();
         if let Some(i) = epsilons.iter().position(|e| !(*e > 0.0)) {
-            return Err(LossError::Setting(format!("the target is silent at FFT size {}: set an absolute log_epsilon", config.fft_sizes[i])));
+            return Err(LossError::Setting(format!(
+                "the target is silent at FFT size {}: set an absolute log_epsilon",
+                config.fft_sizes[i]
+            )));
         }
-        Ok(MultiScaleSpectralLoss { config, plans, targets, epsilons, target_len: target.len() })
+        Ok(MultiScaleSpectralLoss {
+            config,
+            plans,
+            targets,
+            epsilons,
+            target_len: target.len(),
+        })
     }
 
     pub fn config(&self) -> &SpectralLossConfig {
@@ -220,19 +249,34 @@ impl MultiScaleSpectralLoss {
 
     /// L(x) and dL/dx.
     pub fn value_and_gradient(&self, x: &[f64]) -> Result<(f64, Vec<f64>), LossError> {
-        self.evaluate(x, true).map(|(v, g)| (v, g.unwrap_or_default()))
+        self.evaluate(x, true)
+            .map(|(v, g)| (v, g.unwrap_or_default()))
     }
 
-    fn evaluate(&self, x: &[f64], with_gradient: bool) -> Result<(f64, Option<Vec<f64>>), LossError> {
+    fn evaluate(
+        &self,
+        x: &[f64],
+        with_gradient: bool,
+    ) -> Result<(f64, Option<Vec<f64>>), LossError> {
         if x.len() != self.target_len {
-            return Err(LossError::Length { got: x.len(), expected: self.target_len });
+            return Err(LossError::Length {
+                got: x.len(),
+                expected: self.target_len,
+            });
         }
         let scale = |plan: &StftPlan, target: &Spectrogram, eps: f64| -> (f64, Option<Vec<f64>>) {
             let spec = plan.forward(x);
             let count = spec.magnitude.len() as f64;
-            let (w_lin, w_log) = (self.config.linear_weight / count, self.config.log_weight / count);
+            let (w_lin, w_log) = (
+                self.config.linear_weight / count,
+                self.config.log_weight / count,
+            );
             let mut value = 0.0;
-            let mut grad_mag = if with_gradient { vec![0.0; spec.magnitude.len()] } else { Vec::new() };
+            let mut grad_mag = if with_gradient {
+                vec![0.0; spec.magnitude.len()]
+            } else {
+                Vec::new()
+            };
             for (i, (&s, &y)) in spec.magnitude.iter().zip(&target.magnitude).enumerate() {
                 let lin = s - y;
                 let log = (s + eps).ln() - (y + eps).ln();
@@ -251,17 +295,30 @@ impl MultiScaleSpectralLoss {
         // The scales are independent; two threads roughly halve the time on two cores.
         let threads = super::synth::worker_threads().min(self.plans.len()).max(1);
         let results: Vec<(f64, Option<Vec<f64>>)> = if threads == 1 {
-            self.plans.iter().zip(&self.targets).zip(&self.epsilons).map(|((p, t), &e)| scale(p, t, e)).collect()
+            self.plans
+                .iter()
+                .zip(&self.targets)
+                .zip(&self.epsilons)
+                .map(|((p, t), &e)| scale(p, t, e))
+                .collect()
         } else {
             let jobs: Vec<usize> = balanced_order(&self.config.fft_sizes);
-            let per_thread: Vec<Vec<usize>> = (0..threads).map(|r| jobs.iter().copied().skip(r).step_by(threads).collect()).collect();
+            let per_thread: Vec<Vec<usize>> = (0..threads)
+                .map(|r| jobs.iter().copied().skip(r).step_by(threads).collect())
+                .collect();
             let mut slots: Vec<Option<(f64, Option<Vec<f64>>)>> = vec![None; self.plans.len()];
             std::thread::scope(|s| {
                 let handles: Vec<_> = per_thread
                     .iter()
                     .map(|idx| {
                         let scale = &scale;
-                        s.spawn(move || idx.iter().map(|&i| (i, scale(&self.plans[i], &self.targets[i], self.epsilons[i]))).collect::<Vec<_>>())
+                        s.spawn(move || {
+                            idx.iter()
+                                .map(|&i| {
+                                    (i, scale(&self.plans[i], &self.targets[i], self.epsilons[i]))
+                                })
+                                .collect::<Vec<_>>()
+                        })
                     })
                     .collect();
                 for h in handles {
@@ -270,7 +327,10 @@ impl MultiScaleSpectralLoss {
                     }
                 }
             });
-            slots.into_iter().map(|r| r.expect("every scale evaluated")).collect()
+            slots
+                .into_iter()
+                .map(|r| r.expect("every scale evaluated"))
+                .collect()
         };
         let mut value = 0.0;
         let mut grad = with_gradient.then(|| vec![0.0; x.len()]);
@@ -343,20 +403,34 @@ pub struct TransportLoss {
 }
 
 impl TransportLoss {
-    pub fn new(target: &[f64], sample_rate: f64, config: TransportLossConfig) -> Result<Self, LossError> {
+    pub fn new(
+        target: &[f64],
+        sample_rate: f64,
+        config: TransportLossConfig,
+    ) -> Result<Self, LossError> {
         check_target(target)?;
         if !(sample_rate > 0.0 && sample_rate.is_finite()) {
-            return Err(LossError::Setting(format!("sample rate {sample_rate} must be > 0")));
+            return Err(LossError::Setting(format!(
+                "sample rate {sample_rate} must be > 0"
+            )));
         }
         if !(config.relative_floor > 0.0 && config.relative_floor < 1.0) {
-            return Err(LossError::Setting(format!("relative_floor {} must lie in (0, 1)", config.relative_floor)));
+            return Err(LossError::Setting(format!(
+                "relative_floor {} must lie in (0, 1)",
+                config.relative_floor
+            )));
         }
-        let plan = StftPlan::new(config.fft_size, hop_of(config.fft_size, config.hop_fraction)?)?;
+        let plan = StftPlan::new(
+            config.fft_size,
+            hop_of(config.fft_size, config.hop_fraction)?,
+        )?;
         let spec = plan.forward(target);
         let (n_frames, n_bins) = (spec.n_frames, spec.n_bins);
         let total: f64 = spec.magnitude.iter().sum();
         if !(total > 0.0) {
-            return Err(LossError::Setting("the target is silent: a transport loss needs some spectral mass".into()));
+            return Err(LossError::Setting(
+                "the target is silent: a transport loss needs some spectral mass".into(),
+            ));
         }
         let global_peak = spec.magnitude.iter().fold(0.0_f64, |m, &v| m.max(v));
         let mut target_cdf = Vec::with_capacity(n_frames * n_bins);
@@ -378,7 +452,11 @@ impl TransportLoss {
             // (∂phase/∂f = 2πt) and would swamp the transport gradient with ripple.
             let start = (t * plan.hop()) as isize - (config.fft_size / 2) as isize;
             let inside = start >= 0 && start as usize + config.fft_size <= target.len();
-            frame_weights.push(if inside { frame.iter().sum::<f64>() } else { 0.0 });
+            frame_weights.push(if inside {
+                frame.iter().sum::<f64>()
+            } else {
+                0.0
+            });
             frame_floors.push(floor);
         }
         let inside_total: f64 = frame_weights.iter().sum();
@@ -391,14 +469,25 @@ impl TransportLoss {
         }
         frame_weights.iter_mut().for_each(|w| *w /= inside_total);
         if config.axis == FrequencyAxis::Log && !(config.log_floor_hz > 0.0) {
-            return Err(LossError::Setting(format!("log_floor_hz {} must be > 0", config.log_floor_hz)));
+            return Err(LossError::Setting(format!(
+                "log_floor_hz {} must be > 0",
+                config.log_floor_hz
+            )));
         }
         let bin_hz = sample_rate / config.fft_size as f64;
         let position = |k: usize| match config.axis {
             FrequencyAxis::Linear => k as f64 * bin_hz,
             FrequencyAxis::Log => (k as f64 * bin_hz).max(config.log_floor_hz).ln(),
         };
-        let spacing = (0..n_bins).map(|k| if k + 1 < n_bins { position(k + 1) - position(k) } else { 0.0 }).collect();
+        let spacing = (0..n_bins)
+            .map(|k| {
+                if k + 1 < n_bins {
+                    position(k + 1) - position(k)
+                } else {
+                    0.0
+                }
+            })
+            .collect();
         Ok(TransportLoss {
             spacing,
             config,
@@ -421,17 +510,29 @@ impl TransportLoss {
 
     /// L_OT(x) in Hz and dL/dx.
     pub fn value_and_gradient(&self, x: &[f64]) -> Result<(f64, Vec<f64>), LossError> {
-        self.evaluate(x, true).map(|(v, g)| (v, g.unwrap_or_default()))
+        self.evaluate(x, true)
+            .map(|(v, g)| (v, g.unwrap_or_default()))
     }
 
-    fn evaluate(&self, x: &[f64], with_gradient: bool) -> Result<(f64, Option<Vec<f64>>), LossError> {
+    fn evaluate(
+        &self,
+        x: &[f64],
+        with_gradient: bool,
+    ) -> Result<(f64, Option<Vec<f64>>), LossError> {
         if x.len() != self.target_len {
-            return Err(LossError::Length { got: x.len(), expected: self.target_len });
+            return Err(LossError::Length {
+                got: x.len(),
+                expected: self.target_len,
+            });
         }
         let spec = self.plan.forward(x);
         let n_bins = spec.n_bins;
         let mut value = 0.0;
-        let mut grad_mag = if with_gradient { vec![0.0; spec.magnitude.len()] } else { Vec::new() };
+        let mut grad_mag = if with_gradient {
+            vec![0.0; spec.magnitude.len()]
+        } else {
+            Vec::new()
+        };
         let mut mass = vec![0.0; n_bins];
         let mut dw = vec![0.0; n_bins];
         for t in 0..spec.n_frames {
@@ -440,11 +541,22 @@ impl TransportLoss {
                 continue;
             }
             let floor = self.frame_floors[t];
-            mass.iter_mut().zip(spec.frame(t)).for_each(|(m, s)| *m = s + floor);
+            mass.iter_mut()
+                .zip(spec.frame(t))
+                .for_each(|(m, s)| *m = s + floor);
             let q_cdf = &self.target_cdf[t * n_bins..(t + 1) * n_bins];
-            value += weight * wasserstein_1d(&mass, q_cdf, &self.spacing, with_gradient.then_some(&mut dw[..]));
+            value += weight
+                * wasserstein_1d(
+                    &mass,
+                    q_cdf,
+                    &self.spacing,
+                    with_gradient.then_some(&mut dw[..]),
+                );
             if with_gradient {
-                grad_mag[t * n_bins..(t + 1) * n_bins].iter_mut().zip(&dw).for_each(|(g, d)| *g = weight * d);
+                grad_mag[t * n_bins..(t + 1) * n_bins]
+                    .iter_mut()
+                    .zip(&dw)
+                    .for_each(|(g, d)| *g = weight * d);
             }
         }
         let grad = with_gradient.then(|| {
@@ -470,7 +582,12 @@ pub struct PeakTransportConfig {
 
 impl Default for PeakTransportConfig {
     fn default() -> Self {
-        PeakTransportConfig { fft_size: 4096, hop_fraction: 0.25, range_db: 60.0, log_floor_hz: 20.0 }
+        PeakTransportConfig {
+            fft_size: 4096,
+            hop_fraction: 0.25,
+            range_db: 60.0,
+            log_floor_hz: 20.0,
+        }
     }
 }
 
@@ -503,20 +620,36 @@ pub struct PeakTransportLoss {
 }
 
 impl PeakTransportLoss {
-    pub fn new(target: &[f64], sample_rate: f64, config: PeakTransportConfig) -> Result<Self, LossError> {
+    pub fn new(
+        target: &[f64],
+        sample_rate: f64,
+        config: PeakTransportConfig,
+    ) -> Result<Self, LossError> {
         check_target(target)?;
         if !(sample_rate > 0.0 && config.range_db > 0.0 && config.log_floor_hz > 0.0) {
-            return Err(LossError::Setting("sample rate, range_db and log_floor_hz must be > 0".into()));
+            return Err(LossError::Setting(
+                "sample rate, range_db and log_floor_hz must be > 0".into(),
+            ));
         }
-        let plan = StftPlan::new(config.fft_size, hop_of(config.fft_size, config.hop_fraction)?)?;
+        let plan = StftPlan::new(
+            config.fft_size,
+            hop_of(config.fft_size, config.hop_fraction)?,
+        )?;
         let n = config.fft_size;
         let n_frames = plan.n_frames(target.len());
         // Frames t with t·H − N/2 ≥ 0 and t·H + N/2 ≤ len.
         let first = (n / 2).div_ceil(plan.hop());
-        let last = if target.len() >= n / 2 { (target.len() - n / 2) / plan.hop() + 1 } else { 0 };
+        let last = if target.len() >= n / 2 {
+            (target.len() - n / 2) / plan.hop() + 1
+        } else {
+            0
+        };
         let frames = first..last.min(n_frames);
         if frames.is_empty() {
-            return Err(LossError::Setting(format!("the target ({} samples) is shorter than one FFT of {n}", target.len())));
+            return Err(LossError::Setting(format!(
+                "the target ({} samples) is shorter than one FFT of {n}",
+                target.len()
+            )));
         }
         let mean = Self::mean_spectrum(&plan.forward(target), &frames);
         let reference = mean.iter().fold(0.0_f64, |m, &v| m.max(v));
@@ -526,22 +659,37 @@ impl PeakTransportLoss {
         let bin_hz = sample_rate / n as f64;
         let n_bins = n / 2 + 1;
         let x = |k: usize| (k as f64 * bin_hz).max(config.log_floor_hz).ln();
-        let spacing = (0..n_bins).map(|k| if k + 1 < n_bins { x(k + 1) - x(k) } else { 0.0 }).collect();
-        let mut loss = PeakTransportLoss { config, plan, frames, reference, target_cdf: Vec::new(), spacing, target_len: target.len() };
+        let spacing = (0..n_bins)
+            .map(|k| if k + 1 < n_bins { x(k + 1) - x(k) } else { 0.0 })
+            .collect();
+        let mut loss = PeakTransportLoss {
+            config,
+            plan,
+            frames,
+            reference,
+            target_cdf: Vec::new(),
+            spacing,
+            target_len: target.len(),
+        };
         let levels: Vec<f64> = mean.iter().map(|&m| loss.level(m)).collect();
         let total: f64 = levels.iter().sum();
         let mut cum = 0.0;
-        loss.target_cdf = levels.iter().map(|l| {
-            cum += l / total;
-            cum
-        }).collect();
+        loss.target_cdf = levels
+            .iter()
+            .map(|l| {
+                cum += l / total;
+                cum
+            })
+            .collect();
         Ok(loss)
     }
 
     fn mean_spectrum(spec: &Spectrogram, frames: &std::ops::Range<usize>) -> Vec<f64> {
         let mut mean = vec![0.0; spec.n_bins];
         for t in frames.clone() {
-            mean.iter_mut().zip(spec.frame(t)).for_each(|(m, s)| *m += s);
+            mean.iter_mut()
+                .zip(spec.frame(t))
+                .for_each(|(m, s)| *m += s);
         }
         let count = frames.len() as f64;
         mean.iter_mut().for_each(|m| *m /= count);
@@ -550,7 +698,11 @@ impl PeakTransportLoss {
 
     fn level(&self, m: f64) -> f64 {
         let db = 20.0 * (m / self.reference).log10() + self.config.range_db;
-        if db > 0.0 { db } else { 0.0 }
+        if db > 0.0 {
+            db
+        } else {
+            0.0
+        }
     }
 
     pub fn value(&self, x: &[f64]) -> Result<f64, LossError> {
@@ -558,12 +710,20 @@ impl PeakTransportLoss {
     }
 
     pub fn value_and_gradient(&self, x: &[f64]) -> Result<(f64, Vec<f64>), LossError> {
-        self.evaluate(x, true).map(|(v, g)| (v, g.unwrap_or_default()))
+        self.evaluate(x, true)
+            .map(|(v, g)| (v, g.unwrap_or_default()))
     }
 
-    fn evaluate(&self, x: &[f64], with_gradient: bool) -> Result<(f64, Option<Vec<f64>>), LossError> {
+    fn evaluate(
+        &self,
+        x: &[f64],
+        with_gradient: bool,
+    ) -> Result<(f64, Option<Vec<f64>>), LossError> {
         if x.len() != self.target_len {
-            return Err(LossError::Length { got: x.len(), expected: self.target_len });
+            return Err(LossError::Length {
+                got: x.len(),
+                expected: self.target_len,
+            });
         }
         let spec = self.plan.forward(x);
         let mean = Self::mean_spectrum(&spec, &self.frames);
@@ -577,7 +737,12 @@ impl PeakTransportLoss {
             return Ok((span, with_gradient.then(|| vec![0.0; x.len()])));
         }
         let mut dw = vec![0.0; n_bins];
-        let value = wasserstein_1d(&levels, &self.target_cdf, &self.spacing, with_gradient.then_some(&mut dw[..]));
+        let value = wasserstein_1d(
+            &levels,
+            &self.target_cdf,
+            &self.spacing,
+            with_gradient.then_some(&mut dw[..]),
+        );
         if !with_gradient {
             return Ok((value, None));
         }

@@ -30,8 +30,16 @@ pub use wav::{read_wav, write_wav, AudioError, WavFormat};
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub(crate) enum ChannelFault {
     NoChannels,
-    LengthMismatch { channel: usize, len: usize, expected: usize },
-    NonFiniteSample { channel: usize, index: usize, value: f64 },
+    LengthMismatch {
+        channel: usize,
+        len: usize,
+        expected: usize,
+    },
+    NonFiniteSample {
+        channel: usize,
+        index: usize,
+        value: f64,
+    },
 }
 
 /// The common length of `signals`, or the first fault: no channels, a channel whose length
@@ -41,10 +49,18 @@ pub(crate) fn check_parallel_channels(signals: &[&[f64]]) -> Result<usize, Chann
     let n = signals.first().ok_or(ChannelFault::NoChannels)?.len();
     for (channel, s) in signals.iter().enumerate() {
         if s.len() != n {
-            return Err(ChannelFault::LengthMismatch { channel, len: s.len(), expected: n });
+            return Err(ChannelFault::LengthMismatch {
+                channel,
+                len: s.len(),
+                expected: n,
+            });
         }
         if let Some(index) = s.iter().position(|v| !v.is_finite()) {
-            return Err(ChannelFault::NonFiniteSample { channel, index, value: s[index] });
+            return Err(ChannelFault::NonFiniteSample {
+                channel,
+                index,
+                value: s[index],
+            });
         }
     }
     Ok(n)
@@ -65,7 +81,12 @@ pub(crate) fn dot(a: &[f64], b: &[f64]) -> f64 {
     let mut partial = [0.0f64; 4];
     let chunks_a = a.chunks_exact(4);
     let chunks_b = b.chunks_exact(4);
-    let tail: f64 = chunks_a.remainder().iter().zip(chunks_b.remainder()).map(|(x, y)| x * y).sum();
+    let tail: f64 = chunks_a
+        .remainder()
+        .iter()
+        .zip(chunks_b.remainder())
+        .map(|(x, y)| x * y)
+        .sum();
     for (ca, cb) in chunks_a.zip(chunks_b) {
         for lane in 0..4 {
             partial[lane] += ca[lane] * cb[lane];

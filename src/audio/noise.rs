@@ -713,7 +713,6 @@ fn packing_scale(values: &[f64]) -> Option<f64> {
     Some(2f64.powi(-exponent))
 }
 
-
 fn check_len(what: &'static str, expected: usize, actual: usize) -> Result<(), NoiseError> {
     if expected == actual {
         Ok(())

@@ -140,23 +140,40 @@ pub struct Air {
 impl Default for Air {
     /// Air at about 20 °C: c = 343 m/s, ρ = 1.225 kg/m³.
     fn default() -> Self {
-        Air { speed_of_sound: 343.0, density: 1.225 }
+        Air {
+            speed_of_sound: 343.0,
+            density: 1.225,
+        }
     }
 }
 
 /// Everything that can be wrong with the input of the radiation model.
 #[derive(thiserror::Error, Debug, Clone, PartialEq)]
 pub enum RadiationError {
-    #[error("the mesh has no boundary faces (no tetrahedra?), so there is no surface to radiate from")]
+    #[error(
+        "the mesh has no boundary faces (no tetrahedra?), so there is no surface to radiate from"
+    )]
     NoSurface,
     #[error("the surface has zero total area: every sample weight is 0")]
     ZeroArea,
     #[error("mode vector has {got} values; the mesh has {n_nodes} nodes, so 3 x {n_nodes} = {expected} are needed (u_x, u_y, u_z per node)")]
-    ModeLength { got: usize, expected: usize, n_nodes: usize },
+    ModeLength {
+        got: usize,
+        expected: usize,
+        n_nodes: usize,
+    },
     #[error("{what} has {got} entries but the surface has {expected} sample points")]
-    LengthMismatch { what: &'static str, got: usize, expected: usize },
+    LengthMismatch {
+        what: &'static str,
+        got: usize,
+        expected: usize,
+    },
     #[error("{what} [{index}] is not finite ({value})")]
-    NonFinite { what: &'static str, index: usize, value: f64 },
+    NonFinite {
+        what: &'static str,
+        index: usize,
+        value: f64,
+    },
     #[error("sample weight [{index}] is negative ({value} m^2)")]
     NegativeWeight { index: usize, value: f64 },
     #[error("angular frequency must be positive and finite, got {0} rad/s")]
@@ -166,11 +183,19 @@ pub enum RadiationError {
     #[error("multipole degree {requested} is above the supported maximum {MAX_SUPPORTED_DEGREE}")]
     DegreeTooHigh { requested: usize },
     #[error("degree {degree} needs {unknowns} coefficients but the surface has only {points} sample points")]
-    TooFewPoints { degree: usize, unknowns: usize, points: usize },
+    TooFewPoints {
+        degree: usize,
+        unknowns: usize,
+        points: usize,
+    },
     #[error("gain tolerance must lie in [0, 1), got {0}")]
     BadGainTolerance(f64),
     #[error("point [{index}] ({point:?}) is at the expansion centre {centre:?}, where the multipoles are singular")]
-    AtCentre { index: usize, point: [f64; 3], centre: [f64; 3] },
+    AtCentre {
+        index: usize,
+        point: [f64; 3],
+        centre: [f64; 3],
+    },
     #[error("direction must be a non-zero finite vector, got {0:?}")]
     BadDirection([f64; 3]),
     #[error("radius must be positive and finite, got {0} m")]
@@ -235,7 +260,11 @@ fn spherical_bessel_j(n: usize, x: f64, sin: f64, cos: f64) -> Vec<f64> {
             }
         }
     }
-    let scale = if j0.abs() >= j1.abs() { j0 / f[0] } else { j1 / f[1] };
+    let scale = if j0.abs() >= j1.abs() {
+        j0 / f[0]
+    } else {
+        j1 / f[1]
+    };
     f.truncate(n + 1);
     f.iter_mut().for_each(|v| *v *= scale);
     f
@@ -256,7 +285,9 @@ pub fn multipole_index(l: usize, m: i64) -> usize {
 /// (l−m+1) Q_(l+1)m = (2l+1) z Q_lm − (l+m) r² Q_(l−1)m; the gradients follow by the product
 /// rule through the same recurrences.
 pub fn real_spherical_harmonics(l_max: usize, direction: [f64; 3]) -> (Vec<f64>, Vec<[f64; 3]>) {
-    let r = (direction[0] * direction[0] + direction[1] * direction[1] + direction[2] * direction[2]).sqrt();
+    let r =
+        (direction[0] * direction[0] + direction[1] * direction[1] + direction[2] * direction[2])
+            .sqrt();
     let [x, y, z] = direction.map(|c| c / r);
     let n_tri = (l_max + 1) * (l_max + 2) / 2;
     let tri = |l: usize, m: usize| l * (l + 1) / 2 + m;
@@ -279,7 +310,8 @@ pub fn real_spherical_harmonics(l_max: usize, direction: [f64; 3]) -> (Vec<f64>,
             let f = (2 * m + 1) as f64;
             let (prev, gprev) = (q[tri(m, m)], gq[tri(m, m)]);
             q[tri(m + 1, m)] = prev * z * f;
-            gq[tri(m + 1, m)] = std::array::from_fn(|d| (gprev[d] * z + if d == 2 { prev } else { zero }) * f);
+            gq[tri(m + 1, m)] =
+                std::array::from_fn(|d| (gprev[d] * z + if d == 2 { prev } else { zero }) * f);
         }
         for l in (m + 1)..l_max {
             let a = (2 * l + 1) as f64;
@@ -350,7 +382,9 @@ fn basis_with_gradient(l_max: usize, k: f64, d: [f64; 3]) -> (Vec<Complex64>, Ve
         let radial = (dh[l] * k - h[l] * (l as f64 / r)) * y[j];
         let tangential = h[l] / r;
         values.push(h[l] * y[j]);
-        grads.push(std::array::from_fn(|c| radial * unit[c] + tangential * grad_r[j][c]));
+        grads.push(std::array::from_fn(|c| {
+            radial * unit[c] + tangential * grad_r[j][c]
+        }));
     }
     (values, grads)
 }
@@ -403,16 +437,27 @@ impl SurfaceSamples {
             return Err(RadiationError::NoSurface);
         }
         if self.normals.len() != n {
-            return Err(RadiationError::LengthMismatch { what: "normals", got: self.normals.len(), expected: n });
+            return Err(RadiationError::LengthMismatch {
+                what: "normals",
+                got: self.normals.len(),
+                expected: n,
+            });
         }
         if self.weights.len() != n {
-            return Err(RadiationError::LengthMismatch { what: "weights", got: self.weights.len(), expected: n });
+            return Err(RadiationError::LengthMismatch {
+                what: "weights",
+                got: self.weights.len(),
+                expected: n,
+            });
         }
         check_finite("point coordinate", self.points.iter().flatten().copied())?;
         check_finite("normal component", self.normals.iter().flatten().copied())?;
         check_finite("weight", self.weights.iter().copied())?;
         if let Some(index) = self.weights.iter().position(|&w| w < 0.0) {
-            return Err(RadiationError::NegativeWeight { index, value: self.weights[index] });
+            return Err(RadiationError::NegativeWeight {
+                index,
+                value: self.weights[index],
+            });
         }
         if self.area() <= 0.0 {
             return Err(RadiationError::ZeroArea);
@@ -421,7 +466,10 @@ impl SurfaceSamples {
     }
 }
 
-fn check_finite(what: &'static str, values: impl Iterator<Item = f64>) -> Result<(), RadiationError> {
+fn check_finite(
+    what: &'static str,
+    values: impl Iterator<Item = f64>,
+) -> Result<(), RadiationError> {
     for (index, value) in values.enumerate() {
         if !value.is_finite() {
             return Err(RadiationError::NonFinite { what, index, value });
@@ -478,8 +526,10 @@ impl SurfaceQuadrature {
         let mut mid_node: HashMap<(usize, usize), usize> = HashMap::new();
         if quadratic {
             let key = |a: usize, b: usize| if a < b { (a, b) } else { (b, a) };
-            let boundary_edges: HashSet<(usize, usize)> =
-                faces.iter().flat_map(|f| [key(f[0], f[1]), key(f[1], f[2]), key(f[2], f[0])]).collect();
+            let boundary_edges: HashSet<(usize, usize)> = faces
+                .iter()
+                .flat_map(|f| [key(f[0], f[1]), key(f[1], f[2]), key(f[2], f[0])])
+                .collect();
             for e in 0..mesh.n_tets() {
                 let t = mesh.tet(e);
                 for (k, &(a, b)) in TET10_EDGES.iter().enumerate() {
@@ -523,7 +573,11 @@ impl SurfaceQuadrature {
                 }
                 let area_normal = cross(xs, xt);
                 let jacobian = norm(area_normal);
-                let normal = if jacobian > 0.0 { area_normal.map(|c| c / jacobian) } else { [0.0; 3] };
+                let normal = if jacobian > 0.0 {
+                    area_normal.map(|c| c / jacobian)
+                } else {
+                    [0.0; 3]
+                };
                 samples.points.push(position);
                 samples.normals.push(normal);
                 // Reference triangle area ½, rule weights sum to 1.
@@ -532,7 +586,13 @@ impl SurfaceQuadrature {
                 stencil_values.extend_from_slice(&values[..nodes_per_point]);
             }
         }
-        Ok(SurfaceQuadrature { samples, nodes_per_point, stencil_nodes, stencil_values, n_nodes: mesh.n_nodes() })
+        Ok(SurfaceQuadrature {
+            samples,
+            nodes_per_point,
+            stencil_nodes,
+            stencil_values,
+            n_nodes: mesh.n_nodes(),
+        })
     }
 
     /// The sample points, normals and weights.
@@ -544,7 +604,11 @@ impl SurfaceQuadrature {
     /// node-major), in the mode's length unit (m per unit modal amplitude).
     pub fn normal_displacement(&self, mode: &[f64]) -> Result<Vec<f64>, RadiationError> {
         if mode.len() != 3 * self.n_nodes {
-            return Err(RadiationError::ModeLength { got: mode.len(), expected: 3 * self.n_nodes, n_nodes: self.n_nodes });
+            return Err(RadiationError::ModeLength {
+                got: mode.len(),
+                expected: 3 * self.n_nodes,
+                n_nodes: self.n_nodes,
+            });
         }
         check_finite("mode value", mode.iter().copied())?;
         let k = self.nodes_per_point;
@@ -556,7 +620,16 @@ impl SurfaceQuadrature {
             .map(|(p, normal)| {
                 let nodes = &self.stencil_nodes[p * k..(p + 1) * k];
                 let values = &self.stencil_values[p * k..(p + 1) * k];
-                nodes.iter().zip(values).map(|(&node, &v)| v * dot(normal, [mode[3 * node], mode[3 * node + 1], mode[3 * node + 2]])).sum()
+                nodes
+                    .iter()
+                    .zip(values)
+                    .map(|(&node, &v)| {
+                        v * dot(
+                            normal,
+                            [mode[3 * node], mode[3 * node + 1], mode[3 * node + 2]],
+                        )
+                    })
+                    .sum()
             })
             .collect())
     }
@@ -567,12 +640,37 @@ impl SurfaceQuadrature {
 fn face_shape(quadratic: bool, l: [f64; 3]) -> ([f64; 6], [f64; 6], [f64; 6]) {
     let [la, lb, lc] = l;
     if !quadratic {
-        return ([la, lb, lc, 0.0, 0.0, 0.0], [-1.0, 1.0, 0.0, 0.0, 0.0, 0.0], [-1.0, 0.0, 1.0, 0.0, 0.0, 0.0]);
+        return (
+            [la, lb, lc, 0.0, 0.0, 0.0],
+            [-1.0, 1.0, 0.0, 0.0, 0.0, 0.0],
+            [-1.0, 0.0, 1.0, 0.0, 0.0, 0.0],
+        );
     }
     // ∂L_a/∂s = −1, ∂L_b/∂s = 1, ∂L_c/∂s = 0; ∂L_a/∂t = −1, ∂L_b/∂t = 0, ∂L_c/∂t = 1.
-    let values = [la * (2.0 * la - 1.0), lb * (2.0 * lb - 1.0), lc * (2.0 * lc - 1.0), 4.0 * la * lb, 4.0 * lb * lc, 4.0 * lc * la];
-    let d_ds = [-(4.0 * la - 1.0), 4.0 * lb - 1.0, 0.0, 4.0 * (la - lb), 4.0 * lc, -4.0 * lc];
-    let d_dt = [-(4.0 * la - 1.0), 0.0, 4.0 * lc - 1.0, -4.0 * lb, 4.0 * lb, 4.0 * (la - lc)];
+    let values = [
+        la * (2.0 * la - 1.0),
+        lb * (2.0 * lb - 1.0),
+        lc * (2.0 * lc - 1.0),
+        4.0 * la * lb,
+        4.0 * lb * lc,
+        4.0 * lc * la,
+    ];
+    let d_ds = [
+        -(4.0 * la - 1.0),
+        4.0 * lb - 1.0,
+        0.0,
+        4.0 * (la - lb),
+        4.0 * lc,
+        -4.0 * lc,
+    ];
+    let d_dt = [
+        -(4.0 * la - 1.0),
+        0.0,
+        4.0 * lc - 1.0,
+        -4.0 * lb,
+        4.0 * lb,
+        4.0 * (la - lc),
+    ];
     (values, d_ds, d_dt)
 }
 
@@ -596,7 +694,13 @@ pub struct MultipoleSettings {
 
 impl Default for MultipoleSettings {
     fn default() -> Self {
-        MultipoleSettings { air: Air::default(), max_degree: 6, degree: None, gain_tolerance: 1e-4, centre: None }
+        MultipoleSettings {
+            air: Air::default(),
+            max_degree: 6,
+            degree: None,
+            gain_tolerance: 1e-4,
+            centre: None,
+        }
     }
 }
 
@@ -639,7 +743,10 @@ pub fn fit_multipoles(
     angular_frequency: f64,
     settings: &MultipoleSettings,
 ) -> Result<MultipoleExpansion, RadiationError> {
-    let complex: Vec<Complex64> = normal_displacement.iter().map(|&u| Complex64::new(u, 0.0)).collect();
+    let complex: Vec<Complex64> = normal_displacement
+        .iter()
+        .map(|&u| Complex64::new(u, 0.0))
+        .collect();
     fit_multipoles_complex(samples, &complex, angular_frequency, settings)
 }
 
@@ -654,16 +761,33 @@ pub fn fit_multipoles_complex(
     samples.validate()?;
     let n = samples.len();
     if normal_displacement.len() != n {
-        return Err(RadiationError::LengthMismatch { what: "normal displacement", got: normal_displacement.len(), expected: n });
+        return Err(RadiationError::LengthMismatch {
+            what: "normal displacement",
+            got: normal_displacement.len(),
+            expected: n,
+        });
     }
-    check_finite("normal displacement (real part)", normal_displacement.iter().map(|u| u.re))?;
-    check_finite("normal displacement (imaginary part)", normal_displacement.iter().map(|u| u.im))?;
+    check_finite(
+        "normal displacement (real part)",
+        normal_displacement.iter().map(|u| u.re),
+    )?;
+    check_finite(
+        "normal displacement (imaginary part)",
+        normal_displacement.iter().map(|u| u.im),
+    )?;
     if !(angular_frequency.is_finite() && angular_frequency > 0.0) {
         return Err(RadiationError::BadFrequency(angular_frequency));
     }
     let air = settings.air;
-    if !(air.speed_of_sound.is_finite() && air.speed_of_sound > 0.0 && air.density.is_finite() && air.density > 0.0) {
-        return Err(RadiationError::BadAir { speed_of_sound: air.speed_of_sound, density: air.density });
+    if !(air.speed_of_sound.is_finite()
+        && air.speed_of_sound > 0.0
+        && air.density.is_finite()
+        && air.density > 0.0)
+    {
+        return Err(RadiationError::BadAir {
+            speed_of_sound: air.speed_of_sound,
+            density: air.density,
+        });
     }
     if !(settings.gain_tolerance >= 0.0 && settings.gain_tolerance < 1.0) {
         return Err(RadiationError::BadGainTolerance(settings.gain_tolerance));
@@ -676,10 +800,19 @@ pub fn fit_multipoles_complex(
         return Err(RadiationError::DegreeTooHigh { requested: l_max });
     }
     let l_max = match settings.degree {
-        Some(d) if (d + 1) * (d + 1) > n => return Err(RadiationError::TooFewPoints { degree: d, unknowns: (d + 1) * (d + 1), points: n }),
+        Some(d) if (d + 1) * (d + 1) > n => {
+            return Err(RadiationError::TooFewPoints {
+                degree: d,
+                unknowns: (d + 1) * (d + 1),
+                points: n,
+            })
+        }
         Some(d) => d,
         // Automatic: never more unknowns than points.
-        None => (0..=l_max).rev().find(|&l| (l + 1) * (l + 1) <= n).unwrap_or(0),
+        None => (0..=l_max)
+            .rev()
+            .find(|&l| (l + 1) * (l + 1) <= n)
+            .unwrap_or(0),
     };
     let centre = match settings.centre {
         Some(c) => {
@@ -697,7 +830,11 @@ pub fn fit_multipoles_complex(
     for (index, x) in samples.points.iter().enumerate() {
         let r = norm(sub(*x, centre));
         if r == 0.0 {
-            return Err(RadiationError::AtCentre { index, point: *x, centre });
+            return Err(RadiationError::AtCentre {
+                index,
+                point: *x,
+                centre,
+            });
         }
         source_radius = source_radius.max(r);
         mean_r2 += samples.weights[index] * r * r;
@@ -706,9 +843,14 @@ pub fn fit_multipoles_complex(
     // Column scale 1/|k h_l'(k r_ref)| keeps the columns O(1) whatever k r (h_l grows like
     // (kr)^−(l+1) at small kr); the coefficients are unscaled at the end.
     let (_, dh_ref) = spherical_hankel1(l_max, k * r_ref);
-    let column_scale: Vec<f64> = (0..p).map(|j| 1.0 / (k * dh_ref[degree_of(j)].norm())).collect();
+    let column_scale: Vec<f64> = (0..p)
+        .map(|j| 1.0 / (k * dh_ref[degree_of(j)].norm()))
+        .collect();
     if column_scale.iter().any(|s| !(s.is_finite() && *s > 0.0)) {
-        return Err(RadiationError::BasisOverflow { degree: l_max, kr: k * r_ref });
+        return Err(RadiationError::BasisOverflow {
+            degree: l_max,
+            kr: k * r_ref,
+        });
     }
 
     // Streaming least squares: rows √w (n·∇f_j) scale_j, right-hand side √w u_n (the factor ρω²
@@ -720,7 +862,13 @@ pub fn fit_multipoles_complex(
     // Σ w |u_n|² [m⁴]: the data norm (before the factor ρω²) and ∫|v_n|² dS / ω².
     let mut data_norm2 = 0.0;
     let mut row = vec![zero; p];
-    for (((x, normal), &w), &u) in samples.points.iter().zip(&samples.normals).zip(&samples.weights).zip(normal_displacement) {
+    for (((x, normal), &w), &u) in samples
+        .points
+        .iter()
+        .zip(&samples.normals)
+        .zip(&samples.weights)
+        .zip(normal_displacement)
+    {
         data_norm2 += w * u.norm_sqr();
         if w == 0.0 {
             continue;
@@ -731,7 +879,10 @@ pub fn fit_multipoles_complex(
             *slot = (g[0] * normal[0] + g[1] * normal[1] + g[2] * normal[2]) * (sw * scale);
         }
         if row.iter().any(|v| !(v.re.is_finite() && v.im.is_finite())) {
-            return Err(RadiationError::BasisOverflow { degree: l_max, kr: k * norm(sub(*x, centre)) });
+            return Err(RadiationError::BasisOverflow {
+                degree: l_max,
+                kr: k * norm(sub(*x, centre)),
+            });
         }
         let beta = givens_insert_row(&mut r_factor, &mut qb, &mut row, u * sw, p);
         leftover += beta.norm_sqr();
@@ -742,23 +893,36 @@ pub fn fit_multipoles_complex(
     let mut solutions = Vec::with_capacity(l_max + 1);
     for l in 0..=l_max {
         let pl = (l + 1) * (l + 1);
-        let (y, rank, misfit2) = solve_triangular_block(&r_factor, &qb, p, pl).ok_or(RadiationError::SvdFailed { degree: l })?;
+        let (y, rank, misfit2) = solve_triangular_block(&r_factor, &qb, p, pl)
+            .ok_or(RadiationError::SvdFailed { degree: l })?;
         let tail: f64 = qb[pl..].iter().map(|v| v.norm_sqr()).sum();
         residual2_by_degree.push(misfit2 + tail + leftover);
         solutions.push((y, rank));
     }
-    let relative = |r2: f64| if data_norm2 > 0.0 { (r2.max(0.0) / data_norm2).sqrt() } else { 0.0 };
+    let relative = |r2: f64| {
+        if data_norm2 > 0.0 {
+            (r2.max(0.0) / data_norm2).sqrt()
+        } else {
+            0.0
+        }
+    };
     let residual_by_degree: Vec<f64> = residual2_by_degree.iter().map(|&r2| relative(r2)).collect();
     let degree = match settings.degree {
         Some(d) => d,
         None => {
             let best = residual_by_degree[l_max].powi(2);
-            (0..=l_max).find(|&l| residual_by_degree[l].powi(2) - best <= settings.gain_tolerance).unwrap_or(l_max)
+            (0..=l_max)
+                .find(|&l| residual_by_degree[l].powi(2) - best <= settings.gain_tolerance)
+                .unwrap_or(l_max)
         }
     };
     let (y, rank) = solutions.swap_remove(degree);
     let rho_omega2 = air.density * angular_frequency * angular_frequency;
-    let coefficients: Vec<Complex64> = y.iter().enumerate().map(|(j, v)| v * (column_scale[j] * rho_omega2)).collect();
+    let coefficients: Vec<Complex64> = y
+        .iter()
+        .enumerate()
+        .map(|(j, v)| v * (column_scale[j] * rho_omega2))
+        .collect();
     Ok(MultipoleExpansion {
         centre,
         angular_frequency,
@@ -779,7 +943,13 @@ pub fn fit_multipoles_complex(
 /// the right-hand side, whose squared magnitude is this row's share of the residual no column
 /// can explain. With c = |r_jj|/ρ, s = (r_jj/|r_jj|) ā_j/ρ, ρ = √(|r_jj|² + |a_j|²) the
 /// rotation [c s; −s̄ c] maps (r_jj, a_j) to (ρ r_jj/|r_jj|, 0).
-fn givens_insert_row(r: &mut [Complex64], qb: &mut [Complex64], a: &mut [Complex64], mut beta: Complex64, p: usize) -> Complex64 {
+fn givens_insert_row(
+    r: &mut [Complex64],
+    qb: &mut [Complex64],
+    a: &mut [Complex64],
+    mut beta: Complex64,
+    p: usize,
+) -> Complex64 {
     for j in 0..p {
         let aj = a[j];
         let a_abs = aj.norm();
@@ -813,12 +983,27 @@ fn givens_insert_row(r: &mut [Complex64], qb: &mut [Complex64], a: &mut [Complex
 /// SVD of the column-normalised block, dropping singular values below 1e-10 of the largest
 /// (multipoles the data cannot distinguish get the minimum-norm value). Returns y, the rank
 /// and the squared misfit that remains inside the block; `None` if the SVD does not converge.
-fn solve_triangular_block(r: &[Complex64], qb: &[Complex64], p: usize, pl: usize) -> Option<(Vec<Complex64>, usize, f64)> {
-    let block = DMatrix::<Complex64>::from_fn(pl, pl, |i, j| if i <= j { r[i * p + j] } else { Complex64::new(0.0, 0.0) });
+fn solve_triangular_block(
+    r: &[Complex64],
+    qb: &[Complex64],
+    p: usize,
+    pl: usize,
+) -> Option<(Vec<Complex64>, usize, f64)> {
+    let block = DMatrix::<Complex64>::from_fn(pl, pl, |i, j| {
+        if i <= j {
+            r[i * p + j]
+        } else {
+            Complex64::new(0.0, 0.0)
+        }
+    });
     let scales: Vec<f64> = (0..pl)
         .map(|j| {
             let s = block.column(j).norm();
-            if s > 0.0 { 1.0 / s } else { 1.0 }
+            if s > 0.0 {
+                1.0 / s
+            } else {
+                1.0
+            }
         })
         .collect();
     let scaled = DMatrix::<Complex64>::from_fn(pl, pl, |i, j| block[(i, j)] * scales[j]);
@@ -826,12 +1011,17 @@ fn solve_triangular_block(r: &[Complex64], qb: &[Complex64], p: usize, pl: usize
     let svd = scaled.clone().try_svd(true, true, f64::EPSILON, 10_000)?;
     let sigma_max = svd.singular_values.iter().cloned().fold(0.0, f64::max);
     let cutoff = 1e-10 * sigma_max;
-    let rank = svd.singular_values.iter().filter(|&&s| s > cutoff && s > 0.0).count();
+    let rank = svd
+        .singular_values
+        .iter()
+        .filter(|&&s| s > cutoff && s > 0.0)
+        .count();
     let z = if rank == 0 {
         DVector::<Complex64>::zeros(pl)
     } else {
         // `solve` only fails when U or Vᵀ were not computed; both were requested.
-        svd.solve(&rhs, cutoff.max(f64::MIN_POSITIVE)).unwrap_or_else(|_| DVector::zeros(pl))
+        svd.solve(&rhs, cutoff.max(f64::MIN_POSITIVE))
+            .unwrap_or_else(|_| DVector::zeros(pl))
     };
     let misfit2 = (&scaled * &z - &rhs).norm_squared();
     let y = (0..pl).map(|j| z[j] * scales[j]).collect();
@@ -847,7 +1037,11 @@ impl MultipoleExpansion {
         check_finite("evaluation point coordinate", x.iter().copied())?;
         let d = sub(x, self.centre);
         if norm(d) == 0.0 {
-            return Err(RadiationError::AtCentre { index, point: x, centre: self.centre });
+            return Err(RadiationError::AtCentre {
+                index,
+                point: x,
+                centre: self.centre,
+            });
         }
         Ok(d)
     }
@@ -859,7 +1053,12 @@ impl MultipoleExpansion {
         let r = norm(d);
         let (h, _) = spherical_hankel1(self.degree, self.wavenumber * r);
         let (y, _) = real_spherical_harmonics(self.degree, d);
-        Ok(self.coefficients.iter().enumerate().map(|(j, c)| c * h[degree_of(j)] * y[j]).sum())
+        Ok(self
+            .coefficients
+            .iter()
+            .enumerate()
+            .map(|(j, c)| c * h[degree_of(j)] * y[j])
+            .sum())
     }
 
     /// ∇p(x) [Pa/m per unit modal amplitude]; the air's normal displacement is then
@@ -896,7 +1095,13 @@ impl MultipoleExpansion {
         }
         let (y, _) = real_spherical_harmonics(self.degree, direction);
         let minus_i = Complex64::new(0.0, -1.0);
-        Ok(self.coefficients.iter().enumerate().map(|(j, c)| c * minus_i.powu(degree_of(j) as u32 + 1) * y[j]).sum::<Complex64>() / self.wavenumber)
+        Ok(self
+            .coefficients
+            .iter()
+            .enumerate()
+            .map(|(j, c)| c * minus_i.powu(degree_of(j) as u32 + 1) * y[j])
+            .sum::<Complex64>()
+            / self.wavenumber)
     }
 
     /// W = (1/(2ρck²)) Σ |c_lm|² [W per unit modal amplitude²].
@@ -907,7 +1112,8 @@ impl MultipoleExpansion {
 
     /// σ = W / (½ρc ∫|v_n|² dS) (0 if the surface does not move).
     pub fn radiation_efficiency(&self) -> f64 {
-        let reference = 0.5 * self.air.density * self.air.speed_of_sound * self.surface_velocity_squared;
+        let reference =
+            0.5 * self.air.density * self.air.speed_of_sound * self.surface_velocity_squared;
         if reference > 0.0 {
             self.radiated_power() / reference
         } else {
@@ -922,14 +1128,23 @@ impl MultipoleExpansion {
             return Err(RadiationError::BadRadius(radius));
         }
         let (h, _) = spherical_hankel1(self.degree, self.wavenumber * radius);
-        let sum: f64 = self.coefficients.iter().enumerate().map(|(j, c)| c.norm_sqr() * h[degree_of(j)].norm_sqr()).sum();
+        let sum: f64 = self
+            .coefficients
+            .iter()
+            .enumerate()
+            .map(|(j, c)| c.norm_sqr() * h[degree_of(j)].norm_sqr())
+            .sum();
         Ok((sum / (4.0 * std::f64::consts::PI)).sqrt())
     }
 
     /// The fallback for unknown microphone positions (module docs): the direction-averaged
     /// pressure at distance `radius` [m], as a real value (phase unknown, 0) repeated for each
     /// of `n_microphones`, the same shape as [`Self::transfer`].
-    pub fn transfer_unknown_positions(&self, n_microphones: usize, radius: f64) -> Result<Vec<Complex64>, RadiationError> {
+    pub fn transfer_unknown_positions(
+        &self,
+        n_microphones: usize,
+        radius: f64,
+    ) -> Result<Vec<Complex64>, RadiationError> {
         let p = self.direction_averaged_pressure(radius)?;
         Ok(vec![Complex64::new(p, 0.0); n_microphones])
     }
@@ -948,7 +1163,11 @@ fn norm(a: [f64; 3]) -> f64 {
 }
 
 fn cross(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
-    [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]]
+    [
+        a[1] * b[2] - a[2] * b[1],
+        a[2] * b[0] - a[0] * b[2],
+        a[0] * b[1] - a[1] * b[0],
+    ]
 }
 
 #[cfg(test)]

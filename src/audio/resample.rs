@@ -346,7 +346,6 @@ fn dot_zero_padded(weights: &[f64], x: &[f64], first: i64) -> f64 {
     )
 }
 
-
 /// Modified Bessel function of the first kind, order 0, by its power series
 /// Σ ((x/2)^k / k!)², which converges for all x; here x ≤ β ≈ 10 and about
 /// 30 terms reach full double precision.

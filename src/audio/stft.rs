@@ -97,7 +97,12 @@ impl StftPlan {
             .map(|j| 0.5 - 0.5 * (2.0 * std::f64::consts::PI * j as f64 / n_fft as f64).cos())
             .collect();
         let fft = FftPlanner::new().plan_fft_forward(n_fft);
-        Ok(StftPlan { n_fft, hop, window, fft })
+        Ok(StftPlan {
+            n_fft,
+            hop,
+            window,
+            fft,
+        })
     }
 
     pub fn n_fft(&self) -> usize {
@@ -127,7 +132,11 @@ impl StftPlan {
             let second = t + 1 < n_frames;
             for (j, b) in buffer.iter_mut().enumerate() {
                 let re = self.windowed_sample(x, t, j);
-                let im = if second { self.windowed_sample(x, t + 1, j) } else { 0.0 };
+                let im = if second {
+                    self.windowed_sample(x, t + 1, j)
+                } else {
+                    0.0
+                };
                 *b = Complex64::new(re, im);
             }
             self.fft.process_with_scratch(&mut buffer, &mut scratch);
@@ -142,7 +151,14 @@ impl StftPlan {
             }
         }
         let magnitude = complex.iter().map(|c| c.norm()).collect();
-        Spectrogram { n_fft: n, hop: self.hop, n_frames, n_bins, magnitude, complex }
+        Spectrogram {
+            n_fft: n,
+            hop: self.hop,
+            n_frames,
+            n_bins,
+            magnitude,
+            complex,
+        }
     }
 
     /// w[j] · x[t·H + j − N/2], zero outside the signal.
@@ -165,8 +181,16 @@ impl StftPlan {
     pub fn backward(&self, spec: &Spectrogram, grad_magnitude: &[f64], grad_signal: &mut [f64]) {
         let n = self.n_fft;
         assert_eq!(spec.n_fft, n, "spectrogram from another FFT size");
-        assert_eq!(spec.n_frames, self.n_frames(grad_signal.len()), "spectrogram of another length");
-        assert_eq!(grad_magnitude.len(), spec.magnitude.len(), "one gradient per magnitude");
+        assert_eq!(
+            spec.n_frames,
+            self.n_frames(grad_signal.len()),
+            "spectrogram of another length"
+        );
+        assert_eq!(
+            grad_magnitude.len(),
+            spec.magnitude.len(),
+            "one gradient per magnitude"
+        );
         let n_bins = spec.n_bins;
         let mut buffer = vec![Complex64::new(0.0, 0.0); n];
         let mut scratch = vec![Complex64::new(0.0, 0.0); self.fft.get_inplace_scratch_len()];
@@ -187,7 +211,9 @@ impl StftPlan {
         let i_unit = Complex64::new(0.0, 1.0);
         for t in (0..spec.n_frames).step_by(2) {
             let second = t + 1 < spec.n_frames;
-            buffer.iter_mut().for_each(|b| *b = Complex64::new(0.0, 0.0));
+            buffer
+                .iter_mut()
+                .for_each(|b| *b = Complex64::new(0.0, 0.0));
             for (frame, factor) in [(t, Complex64::new(1.0, 0.0)), (t + 1, i_unit)] {
                 if frame == t + 1 && !second {
                     break;
@@ -241,7 +267,12 @@ pub fn spectrogram_error(prediction: &[f64], target: &[f64]) -> Result<f64, Stft
     if norm <= 0.0 {
         return Err(StftError::SilentTarget);
     }
-    Ok(p.magnitude.iter().zip(&t.magnitude).map(|(a, b)| (a - b).abs()).sum::<f64>() / norm)
+    Ok(p.magnitude
+        .iter()
+        .zip(&t.magnitude)
+        .map(|(a, b)| (a - b).abs())
+        .sum::<f64>()
+        / norm)
 }
 
 #[cfg(test)]
@@ -250,7 +281,11 @@ mod tests {
 
     fn test_signal(len: usize, seed: u64) -> Vec<f64> {
         let mut rng = crate::testing::Rng(seed);
-        (0..len).map(|i| (0.05 * i as f64).sin() * (-(i as f64) / 300.0).exp() + 0.1 * rng.uniform(-0.5, 0.5)).collect()
+        (0..len)
+            .map(|i| {
+                (0.05 * i as f64).sin() * (-(i as f64) / 300.0).exp() + 0.1 * rng.uniform(-0.5, 0.5)
+            })
+            .collect()
     }
 
     #[test]
@@ -259,12 +294,16 @@ mod tests {
         let plan = StftPlan::new(n, 64).unwrap();
         let k0 = 20;
         let f = k0 as f64 * fs / n as f64;
-        let x: Vec<f64> = (0..4096).map(|i| (2.0 * std::f64::consts::PI * f * i as f64 / fs).sin()).collect();
+        let x: Vec<f64> = (0..4096)
+            .map(|i| (2.0 * std::f64::consts::PI * f * i as f64 / fs).sin())
+            .collect();
         let s = plan.forward(&x);
         assert_eq!(s.n_frames, 4096 / 64 + 1);
         // An interior frame: |X| = A·Σw/2 = N/4 for the periodic Hann window.
         let frame = s.frame(30);
-        let peak = (0..s.n_bins).max_by(|&a, &b| frame[a].total_cmp(&frame[b])).unwrap();
+        let peak = (0..s.n_bins)
+            .max_by(|&a, &b| frame[a].total_cmp(&frame[b]))
+            .unwrap();
         assert_eq!(peak, k0);
         assert!((frame[k0] - n as f64 / 4.0).abs() < 1e-9 * n as f64);
         // Hann leaks only into the neighbouring bins for a bin-centred tone.
@@ -278,7 +317,14 @@ mod tests {
         let spec = plan.forward(&x);
         // L = Σ G ⊙ S with a fixed random G.
         let g = test_signal(spec.magnitude.len(), 9);
-        let loss = |x: &[f64]| -> f64 { plan.forward(x).magnitude.iter().zip(&g).map(|(s, g)| s * g).sum() };
+        let loss = |x: &[f64]| -> f64 {
+            plan.forward(x)
+                .magnitude
+                .iter()
+                .zip(&g)
+                .map(|(s, g)| s * g)
+                .sum()
+        };
         let mut grad = vec![0.0; x.len()];
         plan.backward(&spec, &g, &mut grad);
         let h = 1e-6;
@@ -309,6 +355,9 @@ mod tests {
         assert!((spectrogram_error(&vec![0.0; 8000], &x).unwrap() - 1.0).abs() < 1e-12);
         let half: Vec<f64> = x.iter().map(|v| 0.5 * v).collect();
         assert!((spectrogram_error(&half, &x).unwrap() - 0.5).abs() < 1e-12);
-        assert!(matches!(spectrogram_error(&x, &vec![0.0; 8000]), Err(StftError::SilentTarget)));
+        assert!(matches!(
+            spectrogram_error(&x, &vec![0.0; 8000]),
+            Err(StftError::SilentTarget)
+        ));
     }
 }

@@ -169,7 +169,10 @@ pub fn render_samples(bank: &ModalBank, sample_rate: f64, n_samples: usize) -> V
                 })
             })
             .collect();
-        handles.into_iter().map(|h| h.join().expect("synthesis worker panicked")).collect()
+        handles
+            .into_iter()
+            .map(|h| h.join().expect("synthesis worker panicked"))
+            .collect()
     });
     let mut partials = partials.into_iter();
     let mut out = partials.next().unwrap_or_else(|| vec![0.0; n_samples]);
@@ -228,13 +231,21 @@ impl BankGradient {
     /// # Panics
     /// If the two differ in length.
     pub fn accumulate(&mut self, other: &BankGradient) {
-        assert_eq!(self.len(), other.len(), "gradients of banks of different sizes");
+        assert_eq!(
+            self.len(),
+            other.len(),
+            "gradients of banks of different sizes"
+        );
         let add = |a: &mut Vec<f64>, b: &Vec<f64>| a.iter_mut().zip(b).for_each(|(x, y)| *x += y);
         add(&mut self.frequencies_hz, &other.frequencies_hz);
         add(&mut self.decay_rates, &other.decay_rates);
         add(&mut self.amplitudes, &other.amplitudes);
         add(&mut self.phases, &other.phases);
-        for (a, b) in self.complex_amplitudes.iter_mut().zip(&other.complex_amplitudes) {
+        for (a, b) in self
+            .complex_amplitudes
+            .iter_mut()
+            .zip(&other.complex_amplitudes)
+        {
             a[0] += b[0];
             a[1] += b[1];
         }
@@ -266,7 +277,9 @@ pub fn render_backward(bank: &ModalBank, sample_rate: f64, grad_output: &[f64]) 
                     scope.spawn(move || {
                         modes
                             .chunks(LANES)
-                            .flat_map(|group| Lanes::new(bank, group, sample_rate).correlate(grad_output))
+                            .flat_map(|group| {
+                                Lanes::new(bank, group, sample_rate).correlate(grad_output)
+                            })
                             .collect::<Vec<_>>()
                     })
                 })
@@ -300,12 +313,17 @@ pub fn worker_threads() -> usize {
     if chosen > 0 {
         return chosen;
     }
-    if let Some(n) = std::env::var("DIFFSOUND_THREADS").ok().and_then(|v| v.parse::<usize>().ok()) {
+    if let Some(n) = std::env::var("DIFFSOUND_THREADS")
+        .ok()
+        .and_then(|v| v.parse::<usize>().ok())
+    {
         if n > 0 {
             return n;
         }
     }
-    std::thread::available_parallelism().map(|n| n.get()).unwrap_or(1)
+    std::thread::available_parallelism()
+        .map(|n| n.get())
+        .unwrap_or(1)
 }
 
 /// Fixes the number of synthesis threads (0 = automatic). Under MPI with one rank per core
@@ -334,7 +352,11 @@ impl ModalBank {
     fn audible_modes(&self, sample_rate: f64) -> Vec<usize> {
         let nyquist = 0.5 * sample_rate;
         (0..self.len())
-            .filter(|&k| self.frequencies_hz[k] > 0.0 && self.frequencies_hz[k] < nyquist && self.amplitudes[k] != 0.0)
+            .filter(|&k| {
+                self.frequencies_hz[k] > 0.0
+                    && self.frequencies_hz[k] < nyquist
+                    && self.amplitudes[k] != 0.0
+            })
             .collect()
     }
 
@@ -398,7 +420,9 @@ impl Lanes {
         let mut re = [0.0; LANES];
         let mut im = [0.0; LANES];
         for l in 0..self.used {
-            let angle = 2.0 * std::f64::consts::PI * cycles_mod_one(self.freq[l], self.sample_rate, n) + self.phase[l];
+            let angle =
+                2.0 * std::f64::consts::PI * cycles_mod_one(self.freq[l], self.sample_rate, n)
+                    + self.phase[l];
             let envelope = amplitude[l] * (-self.decay[l] * (n as f64 / self.sample_rate)).exp();
             let (s, c) = angle.sin_cos();
             re[l] = envelope * c;
@@ -467,7 +491,9 @@ impl Lanes {
                 b_im[l] += start * s0_im[l] + s1_im[l];
             }
         }
-        (0..self.used).map(|l| (self.modes[l], [a_re[l], a_im[l], b_re[l], b_im[l]])).collect()
+        (0..self.used)
+            .map(|l| (self.modes[l], [a_re[l], a_im[l], b_re[l], b_im[l]]))
+            .collect()
     }
 }
 

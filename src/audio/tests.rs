@@ -290,17 +290,38 @@ fn threaded_synthesis_and_gradient_equal_the_single_threaded_ones() {
     let b = ModalBank {
         frequencies_hz: (0..n).map(|k| 50.0 + 311.7 * k as f64).collect(),
         decay_rates: (0..n).map(|k| 1.0 + 0.5 * k as f64).collect(),
-        amplitudes: (0..n).map(|k| if k == 5 { 0.0 } else { 1.0 / (1.0 + k as f64) }).collect(),
+        amplitudes: (0..n)
+            .map(|k| if k == 5 { 0.0 } else { 1.0 / (1.0 + k as f64) })
+            .collect(),
         phases: (0..n).map(|k| 0.1 * k as f64).collect(),
     };
-    let g: Vec<f64> = (0..5000).map(|i| ((i * 7919) % 101) as f64 / 101.0 - 0.5).collect();
+    let g: Vec<f64> = (0..5000)
+        .map(|i| ((i * 7919) % 101) as f64 / 101.0 - 0.5)
+        .collect();
     synth::set_worker_threads(1);
-    let one = (synth::render_samples(&b, 32000.0, 5000), synth::render_backward(&b, 32000.0, &g));
+    let one = (
+        synth::render_samples(&b, 32000.0, 5000),
+        synth::render_backward(&b, 32000.0, &g),
+    );
     synth::set_worker_threads(3);
-    let three = (synth::render_samples(&b, 32000.0, 5000), synth::render_backward(&b, 32000.0, &g));
+    let three = (
+        synth::render_samples(&b, 32000.0, 5000),
+        synth::render_backward(&b, 32000.0, &g),
+    );
     synth::set_worker_threads(0);
-    let worst = one.0.iter().zip(&three.0).map(|(a, b)| (a - b).abs()).fold(0.0, f64::max);
+    let worst = one
+        .0
+        .iter()
+        .zip(&three.0)
+        .map(|(a, b)| (a - b).abs())
+        .fold(0.0, f64::max);
     assert!(worst < 1e-13, "signals differ by {worst}");
-    assert_eq!(one.1, three.1, "per-mode gradients do not depend on the thread split");
-    assert!(one.1.amplitudes[5] != 0.0, "a silent mode still has an amplitude gradient");
+    assert_eq!(
+        one.1, three.1,
+        "per-mode gradients do not depend on the thread split"
+    );
+    assert!(
+        one.1.amplitudes[5] != 0.0,
+        "a silent mode still has an amplitude gradient"
+    );
 }

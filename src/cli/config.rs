@@ -70,8 +70,17 @@ impl MaterialConfig {
     /// the flags or the file set (a flag overrides the file), validated. Returns the material and
     /// its name (the preset's, with " (modified)" when any value was overridden).
     pub fn resolve(&self, flags: &MaterialConfig) -> Result<(Material, String), String> {
-        let name = flags.preset.clone().or_else(|| self.preset.clone()).unwrap_or_else(|| "ceramic".into());
-        let mut material = Material::preset(&name).ok_or_else(|| format!("unknown material preset '{name}'; known: {}", Material::preset_names().join(", ")))?;
+        let name = flags
+            .preset
+            .clone()
+            .or_else(|| self.preset.clone())
+            .unwrap_or_else(|| "ceramic".into());
+        let mut material = Material::preset(&name).ok_or_else(|| {
+            format!(
+                "unknown material preset '{name}'; known: {}",
+                Material::preset_names().join(", ")
+            )
+        })?;
         let mut modified = false;
         let mut set = |field: &mut f64, flag: Option<f64>, file: Option<f64>| {
             if let Some(v) = flag.or(file) {
@@ -79,13 +88,36 @@ impl MaterialConfig {
                 modified = true;
             }
         };
-        set(&mut material.youngs_modulus, flags.youngs_modulus, self.youngs_modulus);
-        set(&mut material.poisson_ratio, flags.poisson_ratio, self.poisson_ratio);
+        set(
+            &mut material.youngs_modulus,
+            flags.youngs_modulus,
+            self.youngs_modulus,
+        );
+        set(
+            &mut material.poisson_ratio,
+            flags.poisson_ratio,
+            self.poisson_ratio,
+        );
         set(&mut material.density, flags.density, self.density);
-        set(&mut material.rayleigh_alpha, flags.rayleigh_alpha, self.rayleigh_alpha);
-        set(&mut material.rayleigh_beta, flags.rayleigh_beta, self.rayleigh_beta);
+        set(
+            &mut material.rayleigh_alpha,
+            flags.rayleigh_alpha,
+            self.rayleigh_alpha,
+        );
+        set(
+            &mut material.rayleigh_beta,
+            flags.rayleigh_beta,
+            self.rayleigh_beta,
+        );
         material.validate().map_err(|e| format!("material: {e}"))?;
-        Ok((material, if modified { format!("{name} (modified)") } else { name }))
+        Ok((
+            material,
+            if modified {
+                format!("{name} (modified)")
+            } else {
+                name
+            },
+        ))
     }
 }
 
@@ -117,7 +149,8 @@ pub struct OutputConfig {
 
 impl FileConfig {
     pub fn load(path: &std::path::Path) -> Result<FileConfig, String> {
-        let text = std::fs::read_to_string(path).map_err(|e| format!("cannot read config file {}: {e}", path.display()))?;
+        let text = std::fs::read_to_string(path)
+            .map_err(|e| format!("cannot read config file {}: {e}", path.display()))?;
         toml::from_str(&text).map_err(|e| format!("config file {}: {e}", path.display()))
     }
 }

@@ -100,24 +100,37 @@ use crate::audio::chain::{DampingModel, Strike};
 use crate::audio::radiation::{fit_multipoles, MultipoleSettings, SurfaceQuadrature};
 use crate::audio::recording::{load_recording, GainPolicy, RecordingOptions};
 use crate::audio::stft::StftPlan;
-use crate::diagnose::catalogue::{self, CatalogueReport, CatalogueSettings, Evidence, ObservedMode, ResidualEnvelopes};
+use crate::diagnose::catalogue::{
+    self, CatalogueReport, CatalogueSettings, Evidence, ObservedMode, ResidualEnvelopes,
+};
 use crate::diagnose::evidence::{self, EnvelopeOptions, ObservedOptions};
-use crate::diagnose::extract::{extract_modes, fit_glides, ExtractOptions, GlideOptions, ModalExtraction};
+use crate::diagnose::extract::{
+    extract_modes, fit_glides, ExtractOptions, GlideOptions, ModalExtraction,
+};
 use crate::diagnose::inject;
 use crate::eigen::reduced::{lame_unit, AttachmentSolver, PoissonBasis};
 use crate::eigen::{self, EigenConfig, ModeRequest};
 use crate::fem::Material;
-use crate::inverse::loaded_match::{loaded_line_candidates, loaded_modes, scale_fit, loaded_modes_enriched, Enrichment, LoadedMatch, LoadedMatchProblem, LoadedMatchSettings, ModesAtPoisson};
-use crate::inverse::material::{line_match_targets, line_spectrum_start, LineSpectrumStart, MaterialFitSettings, MaterialProblem};
-use crate::io::plot::{line_plot_png, spectrogram_png, AxisScale, LineFigure, Marker, Series, SpectrogramFigure, SpectrogramPanel};
+use crate::inverse::loaded_match::{
+    loaded_line_candidates, loaded_modes, loaded_modes_enriched, scale_fit, Enrichment,
+    LoadedMatch, LoadedMatchProblem, LoadedMatchSettings, ModesAtPoisson,
+};
+use crate::inverse::material::{
+    line_match_targets, line_spectrum_start, LineSpectrumStart, MaterialFitSettings,
+    MaterialProblem,
+};
+use crate::io::plot::{
+    line_plot_png, spectrogram_png, AxisScale, LineFigure, Marker, Series, SpectrogramFigure,
+    SpectrogramPanel,
+};
 use crate::io::results::{read_attribute, AttrValue, ResultsFile};
-use crate::io::{write_modes, ModesFile, MaterialRecord, NodeField};
+use crate::io::{write_modes, MaterialRecord, ModesFile, NodeField};
 use crate::mesh::{self, ReadOptions, TetMesh};
 use crate::petsc::{Petsc, PetscInt};
 use clap::Args;
 use mpi::environment::Universe;
-use serde::{Deserialize, Serialize};
 use nalgebra::DMatrix;
+use serde::{Deserialize, Serialize};
 use std::cell::RefCell;
 use std::collections::HashMap;
 use std::path::{Path, PathBuf};
@@ -323,7 +336,9 @@ pub struct Job {
 fn unit_vector(v: [f64; 3], what: &str) -> Result<[f64; 3], String> {
     let n = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
     if !(n.is_finite() && n > 0.0) {
-        return Err(format!("{what} must be a non-zero finite vector, got {v:?}"));
+        return Err(format!(
+            "{what} must be a non-zero finite vector, got {v:?}"
+        ));
     }
     Ok(v.map(|c| c / n))
 }
@@ -337,16 +352,30 @@ pub(super) fn with_suffix(path: &Path, suffix: &str) -> PathBuf {
 /// Reads E, ν, ρ from a fit-material result.
 pub(super) fn read_fit_material(path: &Path) -> Result<(f64, f64, f64), String> {
     let number = |key: &str| -> Result<f64, String> {
-        match read_attribute(path, "/material", key).map_err(|e| format!("{}: {e}", path.display()))? {
+        match read_attribute(path, "/material", key)
+            .map_err(|e| format!("{}: {e}", path.display()))?
+        {
             AttrValue::Number(v) => Ok(v),
-            AttrValue::Text(t) => Err(format!("{}: /material {key} is text {t:?}, expected a number", path.display())),
+            AttrValue::Text(t) => Err(format!(
+                "{}: /material {key} is text {t:?}, expected a number",
+                path.display()
+            )),
         }
     };
     match read_attribute(path, "/", "format").map_err(|e| format!("{}: {e}", path.display()))? {
         AttrValue::Text(t) if t == "diffsound.fit_material" => {}
-        other => return Err(format!("{} is not a fit-material result (format {other:?})", path.display())),
+        other => {
+            return Err(format!(
+                "{} is not a fit-material result (format {other:?})",
+                path.display()
+            ))
+        }
     }
-    Ok((number("youngs_modulus")?, number("poisson_ratio")?, number("density")?))
+    Ok((
+        number("youngs_modulus")?,
+        number("poisson_ratio")?,
+        number("density")?,
+    ))
 }
 
 /// Merges defaults < case metadata < config file < flags and validates.
@@ -354,7 +383,8 @@ pub fn resolve(args: &DiagnoseArgs) -> Result<Job, String> {
     let file = match &args.config {
         Some(p) => {
             let text = std::fs::read_to_string(p).map_err(|e| format!("{}: {e}", p.display()))?;
-            toml::from_str::<DiagnoseFileConfig>(&text).map_err(|e| format!("{}: {e}", p.display()))?
+            toml::from_str::<DiagnoseFileConfig>(&text)
+                .map_err(|e| format!("{}: {e}", p.display()))?
         }
         None => DiagnoseFileConfig::default(),
     };
@@ -365,10 +395,23 @@ pub fn resolve(args: &DiagnoseArgs) -> Result<Job, String> {
         }
         None => None,
     };
-    let case_dir = args.case.as_ref().and_then(|p| p.parent()).map(Path::to_path_buf).unwrap_or_default();
+    let case_dir = args
+        .case
+        .as_ref()
+        .and_then(|p| p.parent())
+        .map(Path::to_path_buf)
+        .unwrap_or_default();
     let mesh_from_case = case.as_ref().map(|c| c.mesh.clone());
     let units_from_case = case.as_ref().map(|c| c.mesh_unit.clone());
-    let super::modes::MeshChoice { mesh, unit_scale, .. } = super::modes::resolve_mesh(&args.mesh, &file.mesh.clone().or(mesh_from_case), &args.units, &file.units.clone().or(units_from_case), Some(2))?;
+    let super::modes::MeshChoice {
+        mesh, unit_scale, ..
+    } = super::modes::resolve_mesh(
+        &args.mesh,
+        &file.mesh.clone().or(mesh_from_case),
+        &args.units,
+        &file.units.clone().or(units_from_case),
+        Some(2),
+    )?;
     if !mesh.is_file() {
         return Err(format!("mesh {} does not exist", mesh.display()));
     }
@@ -377,7 +420,10 @@ pub fn resolve(args: &DiagnoseArgs) -> Result<Job, String> {
     } else if !file.recordings.is_empty() {
         file.recordings.clone()
     } else if let Some(c) = &case {
-        c.microphone_files.iter().map(|f| case_dir.join(f)).collect()
+        c.microphone_files
+            .iter()
+            .map(|f| case_dir.join(f))
+            .collect()
     } else {
         Vec::new()
     };
@@ -390,9 +436,17 @@ pub fn resolve(args: &DiagnoseArgs) -> Result<Job, String> {
         }
     }
     let n_mics = recordings.len();
-    let held_channels: Vec<usize> = if !args.held_out.is_empty() { args.held_out.clone() } else { file.held_out_microphones.clone().unwrap_or_else(|| (1..n_mics).step_by(2).collect()) };
+    let held_channels: Vec<usize> = if !args.held_out.is_empty() {
+        args.held_out.clone()
+    } else {
+        file.held_out_microphones
+            .clone()
+            .unwrap_or_else(|| (1..n_mics).step_by(2).collect())
+    };
     if let Some(&bad) = held_channels.iter().find(|&&c| c >= n_mics) {
-        return Err(format!("held-out microphone {bad} does not exist ({n_mics} recordings, 0-based)"));
+        return Err(format!(
+            "held-out microphone {bad} does not exist ({n_mics} recordings, 0-based)"
+        ));
     }
     let mut sorted = held_channels.clone();
     sorted.sort_unstable();
@@ -407,25 +461,56 @@ pub fn resolve(args: &DiagnoseArgs) -> Result<Job, String> {
     if sorted.is_empty() && file.catalogue.require_held_out {
         return Err("no held-out microphone: diagnosis needs at least 2 recordings (one held out), or `[catalogue] require_held_out = false` to accept effects on ΔBIC alone".into());
     }
-    let sample_rate = file.recording.sample_rate.or(case.as_ref().map(|c| c.sample_rate_hz)).unwrap_or(48_000);
+    let sample_rate = file
+        .recording
+        .sample_rate
+        .or(case.as_ref().map(|c| c.sample_rate_hz))
+        .unwrap_or(48_000);
     if !(8_000..=192_000).contains(&sample_rate) {
-        return Err(format!("the sample rate must lie in 8000..=192000 Hz, got {sample_rate}"));
+        return Err(format!(
+            "the sample rate must lie in 8000..=192000 Hz, got {sample_rate}"
+        ));
     }
-    let duration = args.duration.or(file.recording.duration).or(case.as_ref().map(|c| c.duration_after_onset_s)).unwrap_or(1.0);
+    let duration = args
+        .duration
+        .or(file.recording.duration)
+        .or(case.as_ref().map(|c| c.duration_after_onset_s))
+        .unwrap_or(1.0);
     if !(0.1..=30.0).contains(&duration) {
-        return Err(format!("the duration must lie in [0.1, 30] s, got {duration}"));
+        return Err(format!(
+            "the duration must lie in [0.1, 30] s, got {duration}"
+        ));
     }
-    let pre_roll = file.recording.pre_roll.or(case.as_ref().map(|c| (c.onset_time_s - 0.02).max(0.0))).unwrap_or(0.2);
+    let pre_roll = file
+        .recording
+        .pre_roll
+        .or(case.as_ref().map(|c| (c.onset_time_s - 0.02).max(0.0)))
+        .unwrap_or(0.2);
     if !(0.0..=10.0).contains(&pre_roll) {
-        return Err(format!("the pre-roll must lie in [0, 10] s, got {pre_roll}"));
+        return Err(format!(
+            "the pre-roll must lie in [0, 10] s, got {pre_roll}"
+        ));
     }
-    let max_frequency_hz = args.fmax.or(file.recording.max_frequency_hz).unwrap_or(12_000.0);
+    let max_frequency_hz = args
+        .fmax
+        .or(file.recording.max_frequency_hz)
+        .unwrap_or(12_000.0);
     if !(max_frequency_hz > 100.0 && max_frequency_hz < 0.5 * f64::from(sample_rate)) {
-        return Err(format!("--fmax must lie in (100 Hz, Nyquist {} Hz), got {max_frequency_hz}", 0.5 * f64::from(sample_rate)));
+        return Err(format!(
+            "--fmax must lie in (100 Hz, Nyquist {} Hz), got {max_frequency_hz}",
+            0.5 * f64::from(sample_rate)
+        ));
     }
-    let mut density = args.density.or(file.model.density).or(case.as_ref().map(|c| c.density_kg_m3)).unwrap_or(2700.0);
+    let mut density = args
+        .density
+        .or(file.model.density)
+        .or(case.as_ref().map(|c| c.density_kg_m3))
+        .unwrap_or(2700.0);
     let material_path = args.material.clone().or(file.material_fit.clone());
-    let given = (args.youngs.or(file.model.youngs_modulus), args.poisson.or(file.model.poisson_ratio));
+    let given = (
+        args.youngs.or(file.model.youngs_modulus),
+        args.poisson.or(file.model.poisson_ratio),
+    );
     let (material, material_source) = match (material_path, given) {
         (Some(p), (None, None)) => {
             let (e, nu, rho) = read_fit_material(&p)?;
@@ -441,23 +526,59 @@ pub fn resolve(args: &DiagnoseArgs) -> Result<Job, String> {
         return Err(format!("the density must be positive, got {density}"));
     }
     if let Some((e, nu)) = material {
-        Material { youngs_modulus: e, poisson_ratio: nu, density, rayleigh_alpha: 0.0, rayleigh_beta: 0.0 }.validate().map_err(|e| format!("material: {e}"))?;
+        Material {
+            youngs_modulus: e,
+            poisson_ratio: nu,
+            density,
+            rayleigh_alpha: 0.0,
+            rayleigh_beta: 0.0,
+        }
+        .validate()
+        .map_err(|e| format!("material: {e}"))?;
     }
-    let strike_vertex = args.strike_vertex.or(file.model.strike_vertex).or(case.as_ref().map(|c| c.strike.vertex));
-    let strike_direction = match file.model.strike_direction.or(case.as_ref().map(|c| c.strike.direction)) {
+    let strike_vertex = args
+        .strike_vertex
+        .or(file.model.strike_vertex)
+        .or(case.as_ref().map(|c| c.strike.vertex));
+    let strike_direction = match file
+        .model
+        .strike_direction
+        .or(case.as_ref().map(|c| c.strike.direction))
+    {
         Some(d) => Some(unit_vector(d, "the strike direction")?),
         None => None,
     };
-    let support_direction = unit_vector(file.model.support_direction.or(case.as_ref().map(|c| c.support_direction)).unwrap_or([0.0, 0.0, -1.0]), "the support direction")?;
-    let microphones = file.model.microphone_positions.clone().or(case.as_ref().map(|c| c.microphone_positions_m.clone()));
+    let support_direction = unit_vector(
+        file.model
+            .support_direction
+            .or(case.as_ref().map(|c| c.support_direction))
+            .unwrap_or([0.0, 0.0, -1.0]),
+        "the support direction",
+    )?;
+    let microphones = file
+        .model
+        .microphone_positions
+        .clone()
+        .or(case.as_ref().map(|c| c.microphone_positions_m.clone()));
     if let Some(m) = &microphones {
         if m.len() != n_mics {
-            return Err(format!("{} microphone positions for {n_mics} recordings", m.len()));
+            return Err(format!(
+                "{} microphone positions for {n_mics} recordings",
+                m.len()
+            ));
         }
     }
     file.catalogue.validate().map_err(|e| e.to_string())?;
-    let out = args.out.clone().or(file.out.clone()).unwrap_or_else(|| PathBuf::from("diagnosis.h5"));
-    let plots = args.plots.clone().or(file.plots.clone()).unwrap_or_else(|| out.with_extension(""));
+    let out = args
+        .out
+        .clone()
+        .or(file.out.clone())
+        .unwrap_or_else(|| PathBuf::from("diagnosis.h5"));
+    let plots = args
+        .plots
+        .clone()
+        .or(file.plots.clone())
+        .unwrap_or_else(|| out.with_extension(""));
     super::modes::check_output_dir(&out)?;
     super::modes::check_output_dir(&plots)?;
     let mut petsc_options = file.solver.petsc_options.clone();
@@ -477,7 +598,8 @@ pub fn resolve(args: &DiagnoseArgs) -> Result<Job, String> {
         density,
         material,
         material_source,
-        loaded_mass_match: !args.no_loaded_mass_match && (args.loaded_mass_match || file.model.loaded_mass_match.unwrap_or(true)),
+        loaded_mass_match: !args.no_loaded_mass_match
+            && (args.loaded_mass_match || file.model.loaded_mass_match.unwrap_or(true)),
         strike_vertex,
         strike_direction,
         support_direction,
@@ -496,7 +618,8 @@ pub fn resolve(args: &DiagnoseArgs) -> Result<Job, String> {
 
 pub fn run(universe: Universe, args: DiagnoseArgs) -> Result<(), String> {
     let job = resolve(&args)?;
-    let petsc = Petsc::initialize(universe, "diffsound", &job.petsc_options).map_err(|e| e.to_string())?;
+    let petsc =
+        Petsc::initialize(universe, "diffsound", &job.petsc_options).map_err(|e| e.to_string())?;
     let (rank, size) = (petsc.rank(), petsc.size());
     match compute(&petsc, &job) {
         Ok(()) => Ok(()),
@@ -526,30 +649,63 @@ fn pick(channels: &[Vec<f64>], which: &[usize]) -> Vec<Vec<f64>> {
 
 fn measure(job: &Job, progress: &Progress) -> Result<Measured, String> {
     let t = Instant::now();
-    let options = RecordingOptions { target_rate: Some(job.sample_rate), pre_roll_s: job.pre_roll, duration_s: Some(job.pre_roll + job.duration), gain: GainPolicy::CommonPeak(0.5), ..Default::default() };
+    let options = RecordingOptions {
+        target_rate: Some(job.sample_rate),
+        pre_roll_s: job.pre_roll,
+        duration_s: Some(job.pre_roll + job.duration),
+        gain: GainPolicy::CommonPeak(0.5),
+        ..Default::default()
+    };
     let rec = load_recording(&job.recordings, &options).map_err(|e| e.to_string())?;
     let fs = f64::from(rec.sample_rate);
-    let onset = (((rec.onset_s - rec.start_s) * fs).round().max(0.0) as usize).min(rec.channels[0].len());
-    let (pre, post): (Vec<Vec<f64>>, Vec<Vec<f64>>) = rec.channels.iter().map(|c| (c[..onset].to_vec(), c[onset..].to_vec())).unzip();
+    let onset =
+        (((rec.onset_s - rec.start_s) * fs).round().max(0.0) as usize).min(rec.channels[0].len());
+    let (pre, post): (Vec<Vec<f64>>, Vec<Vec<f64>>) = rec
+        .channels
+        .iter()
+        .map(|c| (c[..onset].to_vec(), c[onset..].to_vec()))
+        .unzip();
     let n = post[0].len();
     if (n as f64) < 0.1 * fs {
-        return Err(format!("only {:.3} s of recording after the onset at {:.3} s", n as f64 / fs, rec.onset_s));
+        return Err(format!(
+            "only {:.3} s of recording after the onset at {:.3} s",
+            n as f64 / fs,
+            rec.onset_s
+        ));
     }
     progress.say(format!("{} channel(s) at {} Hz, onset at {:.4} s, {:.3} s pre-roll, {:.3} s after; fit microphones {:?}, held out {:?}", rec.channels.len(), rec.sample_rate, rec.onset_s, onset as f64 / fs, n as f64 / fs, job.fit_channels, job.held_channels));
     // Extraction, then the chirp-aware stage: a gliding mode comes out as one mode with its
     // glide instead of a cluster of constant poles (which would read as a split pair).
     let extract = |channels: &[Vec<f64>], what: &str| -> Result<ModalExtraction, String> {
         let t = Instant::now();
-        let ex = extract_modes(channels, fs, &job.extract).map_err(|e| format!("mode extraction ({what}): {e}"))?;
-        let stage = fit_glides(channels, &ex, &job.glide).map_err(|e| format!("glide stage ({what}): {e}"))?;
+        let ex = extract_modes(channels, fs, &job.extract)
+            .map_err(|e| format!("mode extraction ({what}): {e}"))?;
+        let stage = fit_glides(channels, &ex, &job.glide)
+            .map_err(|e| format!("glide stage ({what}): {e}"))?;
         let selected: Vec<_> = stage.decisions.iter().filter(|d| d.selected).collect();
         let merged: usize = selected.iter().map(|d| d.poles_hz.len()).sum();
         let gliding: usize = selected.iter().map(|d| d.f0_hz.len()).sum();
         progress.say(format!("extraction ({what}): {} modes, {} after the glide stage ({} groups tried, {} gliding modes from {} poles) in {:.1} s", ex.modes.len(), stage.extraction.modes.len(), stage.decisions.len(), gliding, merged, t.elapsed().as_secs_f64()));
         for d in &selected {
-            let round = |v: &[f64]| v.iter().map(|f| (f * 100.0).round() / 100.0).collect::<Vec<_>>();
-            let glides: Vec<String> = d.glide.iter().zip(&d.glide_sd).map(|(g, s)| format!("{g:.3e} ± {s:.1e}")).collect();
-            progress.say(format!("    glide: poles {:?} Hz → f₀ = {:?} Hz, d = {:?} 1/s, g = [{}] (ΔBIC {:.1})", round(&d.poles_hz), round(&d.f0_hz), round(&d.decay_rate), glides.join(", "), d.delta_bic));
+            let round = |v: &[f64]| {
+                v.iter()
+                    .map(|f| (f * 100.0).round() / 100.0)
+                    .collect::<Vec<_>>()
+            };
+            let glides: Vec<String> = d
+                .glide
+                .iter()
+                .zip(&d.glide_sd)
+                .map(|(g, s)| format!("{g:.3e} ± {s:.1e}"))
+                .collect();
+            progress.say(format!(
+                "    glide: poles {:?} Hz → f₀ = {:?} Hz, d = {:?} 1/s, g = [{}] (ΔBIC {:.1})",
+                round(&d.poles_hz),
+                round(&d.f0_hz),
+                round(&d.decay_rate),
+                glides.join(", "),
+                d.delta_bic
+            ));
         }
         Ok(stage.extraction)
     };
@@ -564,9 +720,17 @@ fn measure(job: &Job, progress: &Progress) -> Result<Measured, String> {
         (Vec::new(), None)
     } else {
         let held = extract(&pick(&post, &job.held_channels), "held-out microphones")?;
-        (in_band(evidence::observed_modes(&held, None, None, &job.observed)), Some(held))
+        (
+            in_band(evidence::observed_modes(&held, None, None, &job.observed)),
+            Some(held),
+        )
     };
-    let envelopes = match evidence::residual_envelopes(&fit_post, &pick(&pre, &job.fit_channels), &full, &job.envelopes) {
+    let envelopes = match evidence::residual_envelopes(
+        &fit_post,
+        &pick(&pre, &job.fit_channels),
+        &full,
+        &job.envelopes,
+    ) {
         Ok(e) => Some(e),
         Err(e) => {
             progress.say(format!("no residual envelopes: {e}"));
@@ -574,8 +738,23 @@ fn measure(job: &Job, progress: &Progress) -> Result<Measured, String> {
         }
     };
     let model0 = full.render_channel(0, n);
-    let plot_residual = fit_post[0].iter().zip(&model0).map(|(a, b)| a - b).collect();
-    Ok(Measured { names: rec.names, onset_s: rec.onset_s, fit, held_out, envelopes, extraction_fit: full, extraction_held, plot_signal: fit_post[0].clone(), plot_residual, seconds: t.elapsed().as_secs_f64() })
+    let plot_residual = fit_post[0]
+        .iter()
+        .zip(&model0)
+        .map(|(a, b)| a - b)
+        .collect();
+    Ok(Measured {
+        names: rec.names,
+        onset_s: rec.onset_s,
+        fit,
+        held_out,
+        envelopes,
+        extraction_fit: full,
+        extraction_held,
+        plot_signal: fit_post[0].clone(),
+        plot_residual,
+        seconds: t.elapsed().as_secs_f64(),
+    })
 }
 
 /// Per-mode features on rank 0 from the full shapes (original node order).
@@ -591,16 +770,29 @@ struct Features {
     strike_note: String,
 }
 
-fn features(job: &Job, mesh: &TetMesh, eigenvalues: &[f64], shapes: &[Vec<f64>], progress: &Progress) -> Result<Features, String> {
-    let along = |shape: &[f64], v: usize, n: [f64; 3]| (0..3).map(|c| shape[3 * v + c] * n[c]).sum::<f64>();
-    let normals: std::collections::HashMap<usize, [f64; 3]> = mesh.vertex_normals().into_iter().collect();
+fn features(
+    job: &Job,
+    mesh: &TetMesh,
+    eigenvalues: &[f64],
+    shapes: &[Vec<f64>],
+    progress: &Progress,
+) -> Result<Features, String> {
+    let along =
+        |shape: &[f64], v: usize, n: [f64; 3]| (0..3).map(|c| shape[3 * v + c] * n[c]).sum::<f64>();
+    let normals: std::collections::HashMap<usize, [f64; 3]> =
+        mesh.vertex_normals().into_iter().collect();
     let (drive, strike_note) = match job.strike_vertex {
         Some(v) => {
             let n = match job.strike_direction {
                 Some(d) => d,
-                None => normals.get(&v).map(|n| n.map(|c| -c)).ok_or_else(|| format!("strike vertex {v} is not a surface vertex of the mesh"))?,
+                None => normals.get(&v).map(|n| n.map(|c| -c)).ok_or_else(|| {
+                    format!("strike vertex {v} is not a surface vertex of the mesh")
+                })?,
             };
-            (shapes.iter().map(|s| along(s, v, n).abs()).collect(), format!("vertex {v}"))
+            (
+                shapes.iter().map(|s| along(s, v, n).abs()).collect(),
+                format!("vertex {v}"),
+            )
         }
         None => {
             // Unknown strike: the RMS drive over the vertices one can hit.
@@ -608,41 +800,116 @@ fn features(job: &Job, mesh: &TetMesh, eigenvalues: &[f64], shapes: &[Vec<f64>],
             if candidates.is_empty() {
                 return Err("no surface vertex can be struck (all face the support)".into());
             }
-            let d = shapes.iter().map(|s| (candidates.iter().map(|&(v, n)| along(s, v, n).powi(2)).sum::<f64>() / candidates.len() as f64).sqrt()).collect();
-            (d, format!("unknown: RMS over {} surface vertices", candidates.len()))
+            let d = shapes
+                .iter()
+                .map(|s| {
+                    (candidates
+                        .iter()
+                        .map(|&(v, n)| along(s, v, n).powi(2))
+                        .sum::<f64>()
+                        / candidates.len() as f64)
+                        .sqrt()
+                })
+                .collect();
+            (
+                d,
+                format!("unknown: RMS over {} surface vertices", candidates.len()),
+            )
         }
     };
     let support = inject::support_nodes(mesh, job.support_direction, 0.01, 3);
-    let frequencies_hz: Vec<f64> = eigenvalues.iter().map(|&l| eigen::frequency_hz(l)).collect();
+    let frequencies_hz: Vec<f64> = eigenvalues
+        .iter()
+        .map(|&l| eigen::frequency_hz(l))
+        .collect();
     let (lo, hi) = mesh.bounding_box();
-    let centre = [0.5 * (lo[0] + hi[0]), 0.5 * (lo[1] + hi[1]), 0.5 * (lo[2] + hi[2])];
-    let profiles: Vec<Vec<f64>> = shapes.iter().map(|s| evidence::axial_profile(s, &mesh.nodes, centre, job.support_direction, PROFILE_BINS)).collect();
-    let clusters = evidence::symmetric_cluster_ids(&frequencies_hz, &profiles, CLUSTER_RTOL, CLUSTER_PROFILE_DISTANCE);
-    let support_energy = evidence::cluster_region_energies(shapes, &frequencies_hz, &clusters, &support, false);
+    let centre = [
+        0.5 * (lo[0] + hi[0]),
+        0.5 * (lo[1] + hi[1]),
+        0.5 * (lo[2] + hi[2]),
+    ];
+    let profiles: Vec<Vec<f64>> = shapes
+        .iter()
+        .map(|s| {
+            evidence::axial_profile(s, &mesh.nodes, centre, job.support_direction, PROFILE_BINS)
+        })
+        .collect();
+    let clusters = evidence::symmetric_cluster_ids(
+        &frequencies_hz,
+        &profiles,
+        CLUSTER_RTOL,
+        CLUSTER_PROFILE_DISTANCE,
+    );
+    let support_energy =
+        evidence::cluster_region_energies(shapes, &frequencies_hz, &clusters, &support, false);
     let surface = mesh.surface_vertices();
-    let surface_energy = surface.iter().map(|&v| evidence::cluster_region_energies(shapes, &frequencies_hz, &clusters, &[v], true)).collect();
+    let surface_energy = surface
+        .iter()
+        .map(|&v| evidence::cluster_region_energies(shapes, &frequencies_hz, &clusters, &[v], true))
+        .collect();
     let transfer = match &job.microphones {
         None => None,
         Some(mics) => {
             let t = Instant::now();
             let quadrature = SurfaceQuadrature::new(mesh).map_err(|e| format!("radiation: {e}"))?;
-            let order: Vec<usize> = job.fit_channels.iter().chain(&job.held_channels).copied().collect();
+            let order: Vec<usize> = job
+                .fit_channels
+                .iter()
+                .chain(&job.held_channels)
+                .copied()
+                .collect();
             let positions: Vec<[f64; 3]> = order.iter().map(|&c| mics[c]).collect();
             let mut out = Vec::new();
             for (shape, &lambda) in shapes.iter().zip(eigenvalues) {
-                let un = quadrature.normal_displacement(shape).map_err(|e| format!("radiation: {e}"))?;
-                let fit = fit_multipoles(quadrature.samples(), &un, lambda.sqrt(), &MultipoleSettings::default()).map_err(|e| format!("radiation: {e}"))?;
-                let nearest = positions.iter().map(|x| (0..3).map(|d| (x[d] - fit.centre[d]).powi(2)).sum::<f64>().sqrt()).fold(f64::INFINITY, f64::min);
+                let un = quadrature
+                    .normal_displacement(shape)
+                    .map_err(|e| format!("radiation: {e}"))?;
+                let fit = fit_multipoles(
+                    quadrature.samples(),
+                    &un,
+                    lambda.sqrt(),
+                    &MultipoleSettings::default(),
+                )
+                .map_err(|e| format!("radiation: {e}"))?;
+                let nearest = positions
+                    .iter()
+                    .map(|x| {
+                        (0..3)
+                            .map(|d| (x[d] - fit.centre[d]).powi(2))
+                            .sum::<f64>()
+                            .sqrt()
+                    })
+                    .fold(f64::INFINITY, f64::min);
                 if nearest <= fit.source_radius {
                     return Err(format!("a microphone {nearest:.3} m from the radiation fit's centre lies inside its source sphere ({:.3} m); the transfer there is not defined", fit.source_radius));
                 }
-                out.push(fit.transfer(&positions).map_err(|e| e.to_string())?.iter().map(|p| p.norm()).collect());
+                out.push(
+                    fit.transfer(&positions)
+                        .map_err(|e| e.to_string())?
+                        .iter()
+                        .map(|p| p.norm())
+                        .collect(),
+                );
             }
-            progress.say(format!("acoustic transfer of {} modes to {} microphones in {:.1} s", shapes.len(), positions.len(), t.elapsed().as_secs_f64()));
+            progress.say(format!(
+                "acoustic transfer of {} modes to {} microphones in {:.1} s",
+                shapes.len(),
+                positions.len(),
+                t.elapsed().as_secs_f64()
+            ));
             Some(out)
         }
     };
-    Ok(Features { frequencies_hz, clusters, drive, support_energy, transfer, surface, surface_energy, strike_note })
+    Ok(Features {
+        frequencies_hz,
+        clusters,
+        drive,
+        support_energy,
+        transfer,
+        surface,
+        surface_energy,
+        strike_note,
+    })
 }
 
 /// The localisation and, when it points somewhere, the second catalogue run.
@@ -667,11 +934,23 @@ const MASS_REGION_VERTICES: usize = 5;
 const MASS_REGION_Z: f64 = 2.0;
 
 fn localise(report: &CatalogueReport, feats: &Features, mesh: &TetMesh) -> Localised {
-    let residuals: Vec<(Vec<usize>, f64)> = report.residuals.iter().filter(|r| r.before.ln_frequency.is_finite()).map(|r| (r.simulated.clone(), r.before.ln_frequency)).collect();
+    let residuals: Vec<(Vec<usize>, f64)> = report
+        .residuals
+        .iter()
+        .filter(|r| r.before.ln_frequency.is_finite())
+        .map(|r| (r.simulated.clone(), r.before.ln_frequency))
+        .collect();
     let map = evidence::localise_frequency_residuals(&feats.surface_energy, &residuals);
-    let best = map.iter().enumerate().filter(|(_, m)| m.1.is_finite()).max_by(|a, b| a.1 .1.total_cmp(&b.1 .1)).map(|(i, m)| (feats.surface[i], m.1));
+    let best = map
+        .iter()
+        .enumerate()
+        .filter(|(_, m)| m.1.is_finite())
+        .max_by(|a, b| a.1 .1.total_cmp(&b.1 .1))
+        .map(|(i, m)| (feats.surface[i], m.1));
     let region = match best {
-        Some((v, z)) if z > MASS_REGION_Z => inject::nearest_surface_vertices(mesh, v, MASS_REGION_VERTICES),
+        Some((v, z)) if z > MASS_REGION_Z => {
+            inject::nearest_surface_vertices(mesh, v, MASS_REGION_VERTICES)
+        }
         _ => Vec::new(),
     };
     Localised { map, best, region }
@@ -693,7 +972,12 @@ const LOADED_MATCH_DECISIVE_CUT: f64 = 4.0;
 /// 5): the catalogue accepted the carried mass (`accepted`), and it either leaves fewer recorded
 /// modes unmatched (`with` against `without`) or cut the plain line distance `cut` times, at
 /// least [`LOADED_MATCH_DECISIVE_CUT`]. Err: why not, for the report.
-fn loaded_model_verdict(accepted: bool, with: usize, without: usize, cut: f64) -> Result<(), String> {
+fn loaded_model_verdict(
+    accepted: bool,
+    with: usize,
+    without: usize,
+    cut: f64,
+) -> Result<(), String> {
     if !accepted {
         return Err("the catalogue rejected the carried mass".to_string());
     }
@@ -769,7 +1053,11 @@ fn farthest_points(points: &[[f64; 3]], n: usize) -> Vec<usize> {
     let mut chosen = vec![0];
     let mut nearest: Vec<f64> = points.iter().map(|x| d2(*x, points[0])).collect();
     while chosen.len() < n.min(points.len()) {
-        let (next, _) = nearest.iter().enumerate().fold((0, -1.0), |best, (j, &d)| if d > best.1 { (j, d) } else { best });
+        let (next, _) =
+            nearest.iter().enumerate().fold(
+                (0, -1.0),
+                |best, (j, &d)| if d > best.1 { (j, d) } else { best },
+            );
         chosen.push(next);
         for (j, x) in points.iter().enumerate() {
             nearest[j] = nearest[j].min(d2(*x, points[next]));
@@ -788,35 +1076,85 @@ fn farthest_points(points: &[[f64; 3]], n: usize) -> Vec<usize> {
 /// region whose enrichment fails falls back to the modes alone (counted in the report). The [`LOADED_MATCH_CANDIDATES`] best sites are each checked by a full solve.
 /// Collective: every rank runs the same search.
 #[allow(clippy::too_many_arguments)]
-fn loaded_match<'p>(petsc: &'p Petsc, assembled: &assembly::Assembled<'p>, basis: &PoissonBasis<'p>, mesh: &TetMesh, surface: &[usize], strike_petsc_dofs: &[PetscInt], problem: &MaterialProblem, start: &LineSpectrumStart, settings: &MaterialFitSettings, density: f64, progress: &Progress) -> Result<LoadedMass, String> {
+fn loaded_match<'p>(
+    petsc: &'p Petsc,
+    assembled: &assembly::Assembled<'p>,
+    basis: &PoissonBasis<'p>,
+    mesh: &TetMesh,
+    surface: &[usize],
+    strike_petsc_dofs: &[PetscInt],
+    problem: &MaterialProblem,
+    start: &LineSpectrumStart,
+    settings: &MaterialFitSettings,
+    density: f64,
+    progress: &Progress,
+) -> Result<LoadedMass, String> {
     let strike_dofs = strike_petsc_dofs.len();
     let points: Vec<[f64; 3]> = surface.iter().map(|&v| mesh.nodes[v]).collect();
     // Region r = (vertex r / k, the nearest LOADED_MATCH_REGION_SIZES[r % k] vertices).
     let sizes = LOADED_MATCH_REGION_SIZES.len();
-    let regions: Vec<Vec<usize>> = points.iter().flat_map(|&c| LOADED_MATCH_REGION_SIZES.iter().map(move |&n| (c, n))).map(|(c, n)| inject::nearest_points(&points, c, n)).collect();
-    let coarse: Vec<usize> = farthest_points(&points, LOADED_MATCH_COARSE_SITES).into_iter().map(|v| v * sizes).collect();
-    let neighbours = |r: usize| inject::nearest_points(&points, points[r / sizes], LOADED_MATCH_FINE_SITES).into_iter().flat_map(|v| (0..sizes).map(move |s| v * sizes + s)).collect::<Vec<usize>>();
+    let regions: Vec<Vec<usize>> = points
+        .iter()
+        .flat_map(|&c| LOADED_MATCH_REGION_SIZES.iter().map(move |&n| (c, n)))
+        .map(|(c, n)| inject::nearest_points(&points, c, n))
+        .collect();
+    let coarse: Vec<usize> = farthest_points(&points, LOADED_MATCH_COARSE_SITES)
+        .into_iter()
+        .map(|v| v * sizes)
+        .collect();
+    let neighbours = |r: usize| {
+        inject::nearest_points(&points, points[r / sizes], LOADED_MATCH_FINE_SITES)
+            .into_iter()
+            .flat_map(|v| (0..sizes).map(move |s| v * sizes + s))
+            .collect::<Vec<usize>>()
+    };
     let (target, ceiling) = line_match_targets(problem)?;
     let volume = mesh.volume();
     let weights = &problem.direction_weights;
     // Drive at the strike of column j of probe values (strike DOFs first), weighted as the
     // plain match weights them.
-    let strike_drive = |probes: &DMatrix<f64>, j: usize| -> f64 { (0..strike_dofs).map(|d| probes[(d, j)] * weights[d]).sum() };
+    let strike_drive = |probes: &DMatrix<f64>, j: usize| -> f64 {
+        (0..strike_dofs).map(|d| probes[(d, j)] * weights[d]).sum()
+    };
     // The attachment vectors: static responses at the plain ν, the shift a tenth of the lowest
     // elastic θ (it only makes the free body's operator definite).
     let t = Instant::now();
-    let lowest = basis.solve(start.poisson).theta.first().copied().ok_or("the reduced basis has no modes")?;
-    let attach_nu = std::env::var("DS_ATTACH_NU").ok().and_then(|v| v.parse::<f64>().ok()).unwrap_or(start.poisson);
-    let solver = basis.attachment_solver(petsc, assembled, &mesh.nodes, attach_nu, 0.1 * lowest).map_err(|e| format!("attachment solver: {e}"))?;
+    let lowest = basis
+        .solve(start.poisson)
+        .theta
+        .first()
+        .copied()
+        .ok_or("the reduced basis has no modes")?;
+    let attach_nu = std::env::var("DS_ATTACH_NU")
+        .ok()
+        .and_then(|v| v.parse::<f64>().ok())
+        .unwrap_or(start.poisson);
+    let solver = basis
+        .attachment_solver(petsc, assembled, &mesh.nodes, attach_nu, 0.1 * lowest)
+        .map_err(|e| format!("attachment solver: {e}"))?;
     let factor_seconds = t.elapsed().as_secs_f64();
-    let rigid_all = basis.rigid_probe_values(&solver).map_err(|e| format!("rigid motions: {e}"))?;
+    let rigid_all = basis
+        .rigid_probe_values(&solver)
+        .map_err(|e| format!("rigid motions: {e}"))?;
     let rigid = rigid_all.rows(strike_dofs, 3 * surface.len()).into_owned();
-    let rigid_strike: Vec<f64> = (0..rigid_all.ncols()).map(|j| strike_drive(&rigid_all, j)).collect();
+    let rigid_strike: Vec<f64> = (0..rigid_all.ncols())
+        .map(|j| strike_drive(&rigid_all, j))
+        .collect();
     let modes_at = |nu: f64| {
         let modes = basis.solve(nu);
         let all = basis.probe_all(&modes);
-        let strike = (0..modes.theta.len()).map(|k| strike_drive(&all, k)).collect();
-        ModesAtPoisson { theta: modes.theta.clone(), strike, values: all.rows(strike_dofs, 3 * surface.len()).into_owned(), lame: lame_unit(nu), coefficients: modes.coefficient_matrix(), rigid: rigid.clone(), rigid_strike: rigid_strike.clone() }
+        let strike = (0..modes.theta.len())
+            .map(|k| strike_drive(&all, k))
+            .collect();
+        ModesAtPoisson {
+            theta: modes.theta.clone(),
+            strike,
+            values: all.rows(strike_dofs, 3 * surface.len()).into_owned(),
+            lame: lame_unit(nu),
+            coefficients: modes.coefficient_matrix(),
+            rigid: rigid.clone(),
+            rigid_strike: rigid_strike.clone(),
+        }
     };
     // Enrichments by (region, anchor ν); the solver of the latest anchor other than the plain
     // one is kept (a re-anchored fine round asks for one anchor many times, then moves on).
@@ -850,16 +1188,34 @@ fn loaded_match<'p>(petsc: &'p Petsc, assembled: &assembly::Assembled<'p>, basis
             factorisations.set(factorisations.get() + 1);
             factor_total.set(factor_total.get() + t.elapsed().as_secs_f64());
         }
-        let loads: Vec<Vec<(PetscInt, f64)>> = (0..3).map(|c| regions[r].iter().map(|&i| (assembled.layout.global_dof(surface[i], c) as PetscInt, 1.0)).collect()).collect();
+        let loads: Vec<Vec<(PetscInt, f64)>> = (0..3)
+            .map(|c| {
+                regions[r]
+                    .iter()
+                    .map(|&i| (assembled.layout.global_dof(surface[i], c) as PetscInt, 1.0))
+                    .collect()
+            })
+            .collect();
         let held = anchored.borrow();
-        let use_solver = if plain { &solver } else { &held.as_ref().expect("factored above").1 };
-        let made = match basis.attachments(petsc, assembled, use_solver, &loads, ATTACHMENT_BLOCKS) {
+        let use_solver = if plain {
+            &solver
+        } else {
+            &held.as_ref().expect("factored above").1
+        };
+        let made = match basis.attachments(petsc, assembled, use_solver, &loads, ATTACHMENT_BLOCKS)
+        {
             Ok(projections) => {
                 let p = &projections.probe_values;
                 let na = p.ncols();
-                let region_values = DMatrix::from_fn(3 * regions[r].len(), na, |row, j| p[(strike_dofs + 3 * regions[r][row / 3] + row % 3, j)]);
+                let region_values = DMatrix::from_fn(3 * regions[r].len(), na, |row, j| {
+                    p[(strike_dofs + 3 * regions[r][row / 3] + row % 3, j)]
+                });
                 let strike = (0..na).map(|j| strike_drive(p, j)).collect();
-                Some(Rc::new(Enrichment { projections, region_values, strike }))
+                Some(Rc::new(Enrichment {
+                    projections,
+                    region_values,
+                    strike,
+                }))
             }
             Err(_) => {
                 failures.set(failures.get() + 1);
@@ -876,30 +1232,79 @@ fn loaded_match<'p>(petsc: &'p Petsc, assembled: &assembly::Assembled<'p>, basis
         }
         made
     };
-    let search = LoadedMatchProblem { target_ln_f: &target, ceiling_ln_f: ceiling, density, volume, regions: &regions, coarse: &coarse, neighbours: &neighbours, plain_youngs: start.youngs, enrichment: Some(&enrich), anchor_poisson: start.poisson };
-    let match_settings = LoadedMatchSettings { poisson_bounds: settings.poisson_bounds, cap: settings.line_match_cap, coarse_poisson_step: LOADED_MATCH_COARSE_POISSON_STEP, ..Default::default() };
-    let candidates = loaded_line_candidates(&search, &modes_at, &match_settings, LOADED_MATCH_CANDIDATES)?;
+    let search = LoadedMatchProblem {
+        target_ln_f: &target,
+        ceiling_ln_f: ceiling,
+        density,
+        volume,
+        regions: &regions,
+        coarse: &coarse,
+        neighbours: &neighbours,
+        plain_youngs: start.youngs,
+        enrichment: Some(&enrich),
+        anchor_poisson: start.poisson,
+    };
+    let match_settings = LoadedMatchSettings {
+        poisson_bounds: settings.poisson_bounds,
+        cap: settings.line_match_cap,
+        coarse_poisson_step: LOADED_MATCH_COARSE_POISSON_STEP,
+        ..Default::default()
+    };
+    let candidates =
+        loaded_line_candidates(&search, &modes_at, &match_settings, LOADED_MATCH_CANDIDATES)?;
     // Each candidate checked by a full solve with its mass: the answer is the best verified
     // one, and its distance is the verified one.
-    let top_hz = target.iter().copied().fold(f64::NEG_INFINITY, f64::max).exp();
+    let top_hz = target
+        .iter()
+        .copied()
+        .fold(f64::NEG_INFINITY, f64::max)
+        .exp();
     let (lo, hi) = mesh.bounding_box();
     let diagonal = (0..3).map(|d| (hi[d] - lo[d]).powi(2)).sum::<f64>().sqrt();
     let mut verified: Vec<(f64, f64, LoadedMatch)> = Vec::with_capacity(candidates.len());
     for cand in candidates {
-        let material = Material { youngs_modulus: cand.youngs, poisson_ratio: cand.poisson, density, rayleigh_alpha: 0.0, rayleigh_beta: 0.0 };
+        let material = Material {
+            youngs_modulus: cand.youngs,
+            poisson_ratio: cand.poisson,
+            density,
+            rayleigh_alpha: 0.0,
+            rayleigh_beta: 0.0,
+        };
         let (k, mut m) = assembled.operators(&material).map_err(|e| e.to_string())?;
         let nodes: Vec<usize> = regions[cand.region].iter().map(|&i| surface[i]).collect();
-        assembly::add_nodal_diagonal(petsc, &mut m, &assembled.layout, &nodes, [cand.mass_kg / nodes.len() as f64; 3]).map_err(|e| e.to_string())?;
+        assembly::add_nodal_diagonal(
+            petsc,
+            &mut m,
+            &assembled.layout,
+            &nodes,
+            [cand.mass_kg / nodes.len() as f64; 3],
+        )
+        .map_err(|e| e.to_string())?;
         m.set_symmetric().map_err(|e| e.to_string())?;
-        let cfg = EigenConfig::new(ModeRequest::UpTo { f_max_hz: 1.15 * top_hz }, eigen::spectrum_scale(material.lame_mu(), density, diagonal));
+        let cfg = EigenConfig::new(
+            ModeRequest::UpTo {
+                f_max_hz: 1.15 * top_hz,
+            },
+            eigen::spectrum_scale(material.lame_mu(), density, diagonal),
+        );
         let full = eigen::solve_modes(petsc, &k, &m, &cfg).map_err(|e| e.to_string())?;
         let mut loaded = Vec::with_capacity(full.eigenvalues.len());
         for (lambda, v) in full.eigenvalues.iter().zip(&full.vectors) {
-            let at_strike = v.gather_indices(strike_petsc_dofs).map_err(|e| e.to_string())?;
+            let at_strike = v
+                .gather_indices(strike_petsc_dofs)
+                .map_err(|e| e.to_string())?;
             let drive: f64 = at_strike.iter().zip(weights).map(|(x, w)| x * w).sum();
             loaded.push((lambda * density / cand.youngs, drive * drive));
         }
-        let (distance, youngs) = scale_fit(&target, ceiling, &loaded, density, cand.youngs, 0.02, &match_settings);
+        let (distance, youngs) = scale_fit(
+            &target,
+            ceiling,
+            &loaded,
+            density,
+            cand.youngs,
+            0.02,
+            &match_settings,
+        );
         progress.say(format!(
             "  loaded candidate: ν = {:.4} (attachments at ν = {:.3}), {:.2} % of the body at surface vertex {}: Ritz distance {:.2e}, full solve {:.2e} (E = {:.4e} Pa)",
             cand.poisson,
@@ -912,33 +1317,73 @@ fn loaded_match<'p>(petsc: &'p Petsc, assembled: &assembly::Assembled<'p>, basis
         ));
         verified.push((distance, youngs, cand));
     }
-    let (verified_distance, verified_youngs, found) = verified.into_iter().min_by(|a, b| a.0.total_cmp(&b.0)).ok_or("the loaded line match found no candidate")?;
+    let (verified_distance, verified_youngs, found) = verified
+        .into_iter()
+        .min_by(|a, b| a.0.total_cmp(&b.0))
+        .ok_or("the loaded line match found no candidate")?;
     let ritz_distance = found.distance;
-    let found = LoadedMatch { youngs: verified_youngs, distance: verified_distance, ..found };
+    let found = LoadedMatch {
+        youngs: verified_youngs,
+        distance: verified_distance,
+        ..found
+    };
     // The answer's loaded frequencies by the enriched Ritz model, for the check against the
     // full solve that carries the mass.
     let modes = modes_at(found.poisson);
     let alpha = found.mass_kg / density / regions[found.region].len() as f64;
     let loaded = match enrich(found.region, found.anchor_poisson) {
-        Some(extra) => loaded_modes_enriched(&modes, &regions[found.region], &extra, alpha).unwrap_or_default(),
+        Some(extra) => {
+            loaded_modes_enriched(&modes, &regions[found.region], &extra, alpha).unwrap_or_default()
+        }
         None => loaded_modes(&modes, &regions[found.region], alpha),
     };
-    let ritz_hz = loaded.iter().map(|(theta, _)| (found.youngs / density * theta).sqrt() / (2.0 * std::f64::consts::PI)).collect();
+    let ritz_hz = loaded
+        .iter()
+        .map(|(theta, _)| (found.youngs / density * theta).sqrt() / (2.0 * std::f64::consts::PI))
+        .collect();
     let region: Vec<usize> = regions[found.region].iter().map(|&i| surface[i]).collect();
-    let enrichment = EnrichmentStats { regions: cache.borrow().len(), failures: failures.get(), factorisations: factorisations.get(), factor_seconds: factor_total.get(), seconds: enrich_seconds.get() };
-    Ok(LoadedMass { mass_fraction: found.mass_kg / (density * volume), centre: surface[regions[found.region][0]], region, plain_distance: start.distance, used: false, rejected: None, matched: found, ritz_distance, ritz_hz, ritz_check: None, enrichment })
+    let enrichment = EnrichmentStats {
+        regions: cache.borrow().len(),
+        failures: failures.get(),
+        factorisations: factorisations.get(),
+        factor_seconds: factor_total.get(),
+        seconds: enrich_seconds.get(),
+    };
+    Ok(LoadedMass {
+        mass_fraction: found.mass_kg / (density * volume),
+        centre: surface[regions[found.region][0]],
+        region,
+        plain_distance: start.distance,
+        used: false,
+        rejected: None,
+        matched: found,
+        ritz_distance,
+        ritz_hz,
+        ritz_check: None,
+        enrichment,
+    })
 }
 
 fn compute(petsc: &Petsc, job: &Job) -> Result<(), String> {
     let total = Instant::now();
     let rank = petsc.rank();
     let progress = Progress::new(rank, job.verbose);
-    let read = mesh::read_mesh(&job.mesh, &ReadOptions { unit_scale: job.unit_scale, fix_inverted: false }).map_err(|e| e.to_string())?;
+    let read = mesh::read_mesh(
+        &job.mesh,
+        &ReadOptions {
+            unit_scale: job.unit_scale,
+            fix_inverted: false,
+        },
+    )
+    .map_err(|e| e.to_string())?;
     let mesh_model: TetMesh = mesh::lift_to_quadratic(&read.mesh);
     drop(read);
     if let Some(v) = job.strike_vertex {
         if v >= mesh_model.n_nodes() {
-            return Err(format!("strike vertex {v} does not exist ({} nodes)", mesh_model.n_nodes()));
+            return Err(format!(
+                "strike vertex {v} does not exist ({} nodes)",
+                mesh_model.n_nodes()
+            ));
         }
     }
 
@@ -946,9 +1391,17 @@ fn compute(petsc: &Petsc, job: &Job) -> Result<(), String> {
     let local = (rank == 0).then(|| measure(job, &progress));
     let measured: Measured = super::fit_material::broadcast_from_root(petsc, local)??;
     if measured.fit.len() < 4 {
-        return Err(format!("only {} modes found in the recording below {} Hz; the diagnosis needs at least 4", measured.fit.len(), job.max_frequency_hz));
+        return Err(format!(
+            "only {} modes found in the recording below {} Hz; the diagnosis needs at least 4",
+            measured.fit.len(),
+            job.max_frequency_hz
+        ));
     }
-    let top_observed = measured.fit.iter().map(|m| m.frequency_hz).fold(0.0_f64, f64::max);
+    let top_observed = measured
+        .fit
+        .iter()
+        .map(|m| m.frequency_hz)
+        .fold(0.0_f64, f64::max);
 
     // 3: the material.
     let t_material = Instant::now();
@@ -961,30 +1414,79 @@ fn compute(petsc: &Petsc, job: &Job) -> Result<(), String> {
         Some(m) => m,
         None => {
             let point = match job.strike_vertex {
-                Some(v) => mesh_model.surface_point_at_vertex(v).ok_or_else(|| format!("strike vertex {v} is not a surface corner node"))?,
-                None => mesh_model.default_strike_point().ok_or("the mesh has no surface")?,
+                Some(v) => mesh_model
+                    .surface_point_at_vertex(v)
+                    .ok_or_else(|| format!("strike vertex {v} is not a surface corner node"))?,
+                None => mesh_model
+                    .default_strike_point()
+                    .ok_or("the mesh has no surface")?,
             };
-            let normal = job.strike_direction.map(|d| d.map(|c| -c)).unwrap_or(point.normal);
-            let (mut dofs, w) = super::fit_material::probe_along(&mesh_model, &point, normal, &assembled.layout);
+            let normal = job
+                .strike_direction
+                .map(|d| d.map(|c| -c))
+                .unwrap_or(point.normal);
+            let (mut dofs, w) =
+                super::fit_material::probe_along(&mesh_model, &point, normal, &assembled.layout);
             // The basis also carries every surface vertex's values, for the loaded match.
             let strike_dofs = dofs.len();
-            let surface = if job.loaded_mass_match { mesh_model.surface_vertices() } else { Vec::new() };
-            dofs.extend(surface.iter().flat_map(|&v| (0..3).map(move |c| (v, c))).map(|(v, c)| assembled.layout.global_dof(v, c) as PetscInt));
+            let surface = if job.loaded_mass_match {
+                mesh_model.surface_vertices()
+            } else {
+                Vec::new()
+            };
+            dofs.extend(
+                surface
+                    .iter()
+                    .flat_map(|&v| (0..3).map(move |c| (v, c)))
+                    .map(|(v, c)| assembled.layout.global_dof(v, c) as PetscInt),
+            );
             // Enough modes to cover the recorded band; spurious weak poles (a reverberant tail) must
             // not inflate the solves, so the count is capped.
             let n_modes = (measured.fit.len() + 8).min(48);
             let samples = [0.1, 0.25, 0.4];
             progress.say(format!("material unknown: reduced basis in ν ({n_modes} modes at ν = {samples:?}) for the line-spectrum match"));
             let strike_petsc_dofs: Vec<PetscInt> = dofs[..strike_dofs].to_vec();
-            let basis = PoissonBasis::build(petsc, &assembled, diagonal, n_modes, 8, &samples, dofs).map_err(|e| e.to_string())?;
-            let problem = MaterialProblem { targets: &[], sample_rate: f64::from(job.sample_rate), density: job.density, damping: DampingModel::Rayleigh { alpha: 0.0, beta: 0.0 }, strike: Strike::default(), direction_weights: w, max_frequency_hz: Some(job.max_frequency_hz), target_modes_hz: measured.fit.iter().map(|m| m.frequency_hz).collect() };
-            let settings = MaterialFitSettings { youngs_search_factor: 8.0, ..Default::default() };
+            let basis =
+                PoissonBasis::build(petsc, &assembled, diagonal, n_modes, 8, &samples, dofs)
+                    .map_err(|e| e.to_string())?;
+            let problem = MaterialProblem {
+                targets: &[],
+                sample_rate: f64::from(job.sample_rate),
+                density: job.density,
+                damping: DampingModel::Rayleigh {
+                    alpha: 0.0,
+                    beta: 0.0,
+                },
+                strike: Strike::default(),
+                direction_weights: w,
+                max_frequency_hz: Some(job.max_frequency_hz),
+                target_modes_hz: measured.fit.iter().map(|m| m.frequency_hz).collect(),
+            };
+            let settings = MaterialFitSettings {
+                youngs_search_factor: 8.0,
+                ..Default::default()
+            };
             let start = line_spectrum_start(&basis, &problem, (7.2e10, 0.25), &settings)?;
-            progress.say(format!("line-spectrum match: E = {:.4e} Pa, ν = {:.4} (distance {:.2e})", start.youngs, start.poisson, start.distance));
+            progress.say(format!(
+                "line-spectrum match: E = {:.4e} Pa, ν = {:.4} (distance {:.2e})",
+                start.youngs, start.poisson, start.distance
+            ));
             line_start = Some(start);
             if job.loaded_mass_match && start.distance > LOADED_MATCH_MIN_DISTANCE {
                 let t = Instant::now();
-                let found = loaded_match(petsc, &assembled, &basis, &mesh_model, &surface, &strike_petsc_dofs, &problem, &start, &settings, job.density, &progress)?;
+                let found = loaded_match(
+                    petsc,
+                    &assembled,
+                    &basis,
+                    &mesh_model,
+                    &surface,
+                    &strike_petsc_dofs,
+                    &problem,
+                    &start,
+                    &settings,
+                    job.density,
+                    &progress,
+                )?;
                 let used = found.matched.distance < LOADED_MATCH_RATIO * start.distance;
                 progress.say(format!(
                     "loaded line match: E = {:.4e} Pa, ν = {:.4}, {:.2} g ({:.2} % of the body) at surface vertex {} (distance {:.2e} against {:.2e} without; {}) in {:.1} s ({} regions enriched in {:.1} s, {} failed, {} factorisations in {:.1} s)",
@@ -1031,7 +1533,11 @@ fn compute(petsc: &Petsc, job: &Job) -> Result<(), String> {
     // ([`LOADED_MATCH_DECISIVE_CUT`]) stands in for an unmatched mode; set2 case 024 cut it 2.1
     // times.
     let plain_material = (youngs, poisson);
-    let passes: Vec<bool> = if loaded.as_ref().is_some_and(|l| l.used) { vec![true, false] } else { vec![false] };
+    let passes: Vec<bool> = if loaded.as_ref().is_some_and(|l| l.used) {
+        vec![true, false]
+    } else {
+        vec![false]
+    };
     let mut results = Vec::with_capacity(passes.len());
     let mut solve_seconds_sum = 0.0;
     for &with_mass in &passes {
@@ -1043,27 +1549,64 @@ fn compute(petsc: &Petsc, job: &Job) -> Result<(), String> {
         };
         // 4: the simulated modes up to above the highest recorded frequency.
         let t_solve = Instant::now();
-        let material = Material { youngs_modulus: youngs, poisson_ratio: poisson, density: job.density, rayleigh_alpha: 0.0, rayleigh_beta: 0.0 };
+        let material = Material {
+            youngs_modulus: youngs,
+            poisson_ratio: poisson,
+            density: job.density,
+            rayleigh_alpha: 0.0,
+            rayleigh_beta: 0.0,
+        };
         let (k, mut m) = assembled.operators(&material).map_err(|e| e.to_string())?;
         if let Some(l) = &carried {
             // The candidate mass, lumped evenly on the region's vertices.
             let per_vertex = l.matched.mass_kg / l.region.len() as f64;
-            assembly::add_nodal_diagonal(petsc, &mut m, &assembled.layout, &l.region, [per_vertex; 3]).map_err(|e| e.to_string())?;
+            assembly::add_nodal_diagonal(
+                petsc,
+                &mut m,
+                &assembled.layout,
+                &l.region,
+                [per_vertex; 3],
+            )
+            .map_err(|e| e.to_string())?;
             m.set_symmetric().map_err(|e| e.to_string())?;
         }
-        let cfg = EigenConfig::new(ModeRequest::UpTo { f_max_hz: 1.15 * top_observed.max(1.0) }, eigen::spectrum_scale(material.lame_mu(), job.density, diagonal));
+        let cfg = EigenConfig::new(
+            ModeRequest::UpTo {
+                f_max_hz: 1.15 * top_observed.max(1.0),
+            },
+            eigen::spectrum_scale(material.lame_mu(), job.density, diagonal),
+        );
         let modes = eigen::solve_modes(petsc, &k, &m, &cfg).map_err(|e| e.to_string())?;
-        let shapes = assembled.layout.gather_original_order(&modes.vectors).map_err(|e| e.to_string())?;
+        let shapes = assembled
+            .layout
+            .gather_original_order(&modes.vectors)
+            .map_err(|e| e.to_string())?;
         let solve_seconds = t_solve.elapsed().as_secs_f64();
         solve_seconds_sum += solve_seconds;
         if let (Some(l), Some(record)) = (&carried, loaded.as_mut()) {
             // How well the loaded Ritz model predicted the full solve with the mass.
-            let full: Vec<f64> = modes.eigenvalues.iter().map(|&lambda| eigen::frequency_hz(lambda)).collect();
-            let worst = l.ritz_hz.iter().zip(&full).map(|(r, f)| (r / f - 1.0).abs()).fold(0.0_f64, f64::max);
+            let full: Vec<f64> = modes
+                .eigenvalues
+                .iter()
+                .map(|&lambda| eigen::frequency_hz(lambda))
+                .collect();
+            let worst = l
+                .ritz_hz
+                .iter()
+                .zip(&full)
+                .map(|(r, f)| (r / f - 1.0).abs())
+                .fold(0.0_f64, f64::max);
             record.ritz_check = Some(worst);
             progress.say(format!("loaded Ritz model against the full solve with the mass: largest frequency error {:.2} % over {} modes", 100.0 * worst, l.ritz_hz.len().min(full.len())));
         }
-        progress.say(format!("{} simulated modes up to {:.0} Hz at E = {:.4e} Pa, ν = {:.4} in {:.1} s", modes.eigenvalues.len(), 1.15 * top_observed, youngs, poisson, solve_seconds));
+        progress.say(format!(
+            "{} simulated modes up to {:.0} Hz at E = {:.4e} Pa, ν = {:.4} in {:.1} s",
+            modes.eigenvalues.len(),
+            1.15 * top_observed,
+            youngs,
+            poisson,
+            solve_seconds
+        ));
         for w in &modes.warnings {
             if rank == 0 {
                 eprintln!("warning: {w}");
@@ -1118,7 +1661,14 @@ fn compute(petsc: &Petsc, job: &Job) -> Result<(), String> {
         // Rank 0 keeps each pass's outcome (an error too: every rank must still take part in
         // the next pass's solve) with what writing it needs.
         if let Some(outcome) = outcome {
-            results.push((outcome, youngs, poisson, modes.eigenvalues.clone(), modes.rigid_eigenvalues.clone(), shapes));
+            results.push((
+                outcome,
+                youngs,
+                poisson,
+                modes.eigenvalues.clone(),
+                modes.rigid_eigenvalues.clone(),
+                shapes,
+            ));
         }
     }
     if rank != 0 {
@@ -1130,10 +1680,19 @@ fn compute(petsc: &Petsc, job: &Job) -> Result<(), String> {
     let chosen = match results.next() {
         None => first,
         Some(plain) => {
-            let (first_report, plain_report) = (first.0.as_ref().map_err(|e| e.clone())?, plain.0.as_ref().map_err(|e| e.clone())?);
-            let accepted = first_report.0.accepted.iter().any(|a| a.name == "added_mass");
+            let (first_report, plain_report) = (
+                first.0.as_ref().map_err(|e| e.clone())?,
+                plain.0.as_ref().map_err(|e| e.clone())?,
+            );
+            let accepted = first_report
+                .0
+                .accepted
+                .iter()
+                .any(|a| a.name == "added_mass");
             let (with, without) = (unmatched(&first_report.0), unmatched(&plain_report.0));
-            let cut = loaded.as_ref().map_or(1.0, |l| l.plain_distance / l.matched.distance);
+            let cut = loaded
+                .as_ref()
+                .map_or(1.0, |l| l.plain_distance / l.matched.distance);
             let verdict = loaded_model_verdict(accepted, with, without, cut);
             let keep = verdict.is_ok();
             let why = verdict.err().unwrap_or_default();
@@ -1141,7 +1700,10 @@ fn compute(petsc: &Petsc, job: &Job) -> Result<(), String> {
                 progress.say(format!("the carried mass stands: accepted by the catalogue, {with} recorded modes unmatched with it against {without} without, line distance cut {cut:.1} times"));
                 first
             } else {
-                progress.say(format!("{why}: the report is the plain model's (E = {:.4e} Pa, ν = {:.4})", plain.1, plain.2));
+                progress.say(format!(
+                    "{why}: the report is the plain model's (E = {:.4e} Pa, ν = {:.4})",
+                    plain.1, plain.2
+                ));
                 if let Some(record) = loaded.as_mut() {
                     record.used = false;
                     record.rejected = Some(why);
@@ -1154,10 +1716,49 @@ fn compute(petsc: &Petsc, job: &Job) -> Result<(), String> {
     let (report, localised, feats, evidence, final_settings, diagnose_seconds) = outcome?;
     let solve_seconds = solve_seconds_sum;
     print_report(job, &measured, &report, youngs, poisson, &feats, &localised);
-    let timings = [("measure", measured.seconds), ("material", material_seconds), ("solve", solve_seconds), ("catalogue", diagnose_seconds), ("total", total.elapsed().as_secs_f64())];
-    write_json(job, &measured, &report, youngs, poisson, line_start, loaded.as_ref(), &feats, &localised, &timings, (&evidence, &final_settings))?;
-    write_hdf5(job, petsc.size(), &measured, &evidence, &report, youngs, poisson, &localised, &feats, &timings)?;
-    write_map(job, &mesh_model, &eigenvalues, &shapes, &rigid_eigenvalues, youngs, poisson, &feats, &localised)?;
+    let timings = [
+        ("measure", measured.seconds),
+        ("material", material_seconds),
+        ("solve", solve_seconds),
+        ("catalogue", diagnose_seconds),
+        ("total", total.elapsed().as_secs_f64()),
+    ];
+    write_json(
+        job,
+        &measured,
+        &report,
+        youngs,
+        poisson,
+        line_start,
+        loaded.as_ref(),
+        &feats,
+        &localised,
+        &timings,
+        (&evidence, &final_settings),
+    )?;
+    write_hdf5(
+        job,
+        petsc.size(),
+        &measured,
+        &evidence,
+        &report,
+        youngs,
+        poisson,
+        &localised,
+        &feats,
+        &timings,
+    )?;
+    write_map(
+        job,
+        &mesh_model,
+        &eigenvalues,
+        &shapes,
+        &rigid_eigenvalues,
+        youngs,
+        poisson,
+        &feats,
+        &localised,
+    )?;
     write_plots(job, &measured, &report)?;
     Ok(())
 }
@@ -1169,9 +1770,27 @@ fn fmt_param(p: &catalogue::FittedParam) -> String {
     }
 }
 
-fn print_report(job: &Job, measured: &Measured, report: &CatalogueReport, youngs: f64, poisson: f64, feats: &Features, localised: &Localised) {
-    println!("diagnose: E = {youngs:.5e} Pa, ν = {poisson:.4}, ρ = {} kg/m³ ({:?}); strike {}", job.density, job.material_source, feats.strike_note);
-    println!("  recording: {} modes on {} fit microphones, {} on {} held-out, below {} Hz", measured.fit.len(), job.fit_channels.len(), measured.held_out.len(), job.held_channels.len(), job.max_frequency_hz);
+fn print_report(
+    job: &Job,
+    measured: &Measured,
+    report: &CatalogueReport,
+    youngs: f64,
+    poisson: f64,
+    feats: &Features,
+    localised: &Localised,
+) {
+    println!(
+        "diagnose: E = {youngs:.5e} Pa, ν = {poisson:.4}, ρ = {} kg/m³ ({:?}); strike {}",
+        job.density, job.material_source, feats.strike_note
+    );
+    println!(
+        "  recording: {} modes on {} fit microphones, {} on {} held-out, below {} Hz",
+        measured.fit.len(),
+        job.fit_channels.len(),
+        measured.held_out.len(),
+        job.held_channels.len(),
+        job.max_frequency_hz
+    );
     println!(
         "  matching: scale {:.5}, {} pairs, {} extra poles of matched partials, {} observed and {} simulated modes unmatched",
         report.matching.scale,
@@ -1181,17 +1800,40 @@ fn print_report(job: &Job, measured: &Measured, report: &CatalogueReport, youngs
         report.matching.unmatched_simulated.len()
     );
     for p in &report.matching.extra_poles {
-        println!("      extra pole {:.2} Hz of the partial at {:.2} Hz (simulated cluster {})", p.observed_hz, p.beside_hz, p.cluster);
+        println!(
+            "      extra pole {:.2} Hz of the partial at {:.2} Hz (simulated cluster {})",
+            p.observed_hz, p.beside_hz, p.cluster
+        );
     }
     let ho = |v: Option<f64>| v.map_or("n/a".to_string(), |v| format!("{v:.3}"));
     let gain = |g: Option<f64>| g.map_or(String::new(), |g| format!(" (Σz² gain {g:.1})"));
-    println!("  held-out error (RMS standardised residual): baseline {} → final {}", ho(report.baseline.held_out_error), ho(report.final_model.held_out_error));
-    println!("  floors (baseline → final): ln f {:.2e} → {:.2e}, ln d {:.3} → {:.3}, ln a {:.3} → {:.3}", report.baseline.floors.ln_frequency, report.final_model.floors.ln_frequency, report.baseline.floors.ln_decay, report.final_model.floors.ln_decay, report.baseline.floors.ln_amplitude, report.final_model.floors.ln_amplitude);
+    println!(
+        "  held-out error (RMS standardised residual): baseline {} → final {}",
+        ho(report.baseline.held_out_error),
+        ho(report.final_model.held_out_error)
+    );
+    println!(
+        "  floors (baseline → final): ln f {:.2e} → {:.2e}, ln d {:.3} → {:.3}, ln a {:.3} → {:.3}",
+        report.baseline.floors.ln_frequency,
+        report.final_model.floors.ln_frequency,
+        report.baseline.floors.ln_decay,
+        report.final_model.floors.ln_decay,
+        report.baseline.floors.ln_amplitude,
+        report.final_model.floors.ln_amplitude
+    );
     if report.accepted.is_empty() {
         println!("  accepted effects: none");
     }
     for a in &report.accepted {
-        println!("  ACCEPTED {} ({}): ΔBIC {:.1}, held-out {} → {}{}", a.name, a.variant, a.delta_bic, ho(a.held_out_before), ho(a.held_out_after), gain(a.held_out_gain));
+        println!(
+            "  ACCEPTED {} ({}): ΔBIC {:.1}, held-out {} → {}{}",
+            a.name,
+            a.variant,
+            a.delta_bic,
+            ho(a.held_out_before),
+            ho(a.held_out_after),
+            gain(a.held_out_gain)
+        );
         println!("      evidence: {}", a.detector);
         for p in &a.params {
             println!("      {}", fmt_param(p));
@@ -1199,7 +1841,10 @@ fn print_report(job: &Job, measured: &Measured, report: &CatalogueReport, youngs
     }
     for r in &report.rejected {
         let extra = match (r.delta_bic, r.held_out_before, r.held_out_after) {
-            (Some(d), Some(b), Some(a)) => format!(" (ΔBIC {d:.1}, held-out {b:.3} → {a:.3}{})", gain(r.held_out_gain)),
+            (Some(d), Some(b), Some(a)) => format!(
+                " (ΔBIC {d:.1}, held-out {b:.3} → {a:.3}{})",
+                gain(r.held_out_gain)
+            ),
             (Some(d), _, _) => format!(" (ΔBIC {d:.1})"),
             _ => String::new(),
         };
@@ -1208,10 +1853,19 @@ fn print_report(job: &Job, measured: &Measured, report: &CatalogueReport, youngs
     if !report.unexplained.is_empty() {
         println!("  unexplained ({}):", report.unexplained.len());
         for u in report.unexplained.iter().take(12) {
-            println!("      {:.2} Hz {:?}{}: {}", u.frequency_hz, u.quantity, u.z.map_or(String::new(), |z| format!(" z = {z:.1}")), u.reason);
+            println!(
+                "      {:.2} Hz {:?}{}: {}",
+                u.frequency_hz,
+                u.quantity,
+                u.z.map_or(String::new(), |z| format!(" z = {z:.1}")),
+                u.reason
+            );
         }
         if report.unexplained.len() > 12 {
-            println!("      … {} more in the report", report.unexplained.len() - 12);
+            println!(
+                "      … {} more in the report",
+                report.unexplained.len() - 12
+            );
         }
     }
     if let Some((v, z)) = localised.best {
@@ -1220,7 +1874,19 @@ fn print_report(job: &Job, measured: &Measured, report: &CatalogueReport, youngs
 }
 
 #[allow(clippy::too_many_arguments)]
-fn write_json(job: &Job, measured: &Measured, report: &CatalogueReport, youngs: f64, poisson: f64, line_start: Option<LineSpectrumStart>, loaded: Option<&LoadedMass>, feats: &Features, localised: &Localised, timings: &[(&str, f64)], catalogue_input: (&Evidence, &CatalogueSettings)) -> Result<(), String> {
+fn write_json(
+    job: &Job,
+    measured: &Measured,
+    report: &CatalogueReport,
+    youngs: f64,
+    poisson: f64,
+    line_start: Option<LineSpectrumStart>,
+    loaded: Option<&LoadedMass>,
+    feats: &Features,
+    localised: &Localised,
+    timings: &[(&str, f64)],
+    catalogue_input: (&Evidence, &CatalogueSettings),
+) -> Result<(), String> {
     let value = serde_json::json!({
         "format": "diffsound.diagnose",
         "format_version": 1,
@@ -1245,48 +1911,145 @@ fn write_json(job: &Job, measured: &Measured, report: &CatalogueReport, youngs: 
         "timings_s": timings.iter().map(|(k, v)| (k.to_string(), *v)).collect::<std::collections::BTreeMap<_, _>>(),
     });
     let text = serde_json::to_string_pretty(&value).map_err(|e| e.to_string())?;
-    crate::io::write_atomically(&job.json, |tmp| std::fs::write(tmp, &text).map_err(|source| crate::io::IoError::Fs { path: tmp.to_path_buf(), context: "writing the JSON report".into(), source })).map_err(|e| e.to_string())?;
+    crate::io::write_atomically(&job.json, |tmp| {
+        std::fs::write(tmp, &text).map_err(|source| crate::io::IoError::Fs {
+            path: tmp.to_path_buf(),
+            context: "writing the JSON report".into(),
+            source,
+        })
+    })
+    .map_err(|e| e.to_string())?;
     println!("wrote {}", job.json.display());
     Ok(())
 }
 
 #[allow(clippy::too_many_arguments)]
-fn write_hdf5(job: &Job, n_ranks: usize, measured: &Measured, evidence: &Evidence, report: &CatalogueReport, youngs: f64, poisson: f64, localised: &Localised, feats: &Features, timings: &[(&str, f64)]) -> Result<(), String> {
+fn write_hdf5(
+    job: &Job,
+    n_ranks: usize,
+    measured: &Measured,
+    evidence: &Evidence,
+    report: &CatalogueReport,
+    youngs: f64,
+    poisson: f64,
+    localised: &Localised,
+    feats: &Features,
+    timings: &[(&str, f64)],
+) -> Result<(), String> {
     let mut file = ResultsFile::new("diffsound.diagnose", 1);
     file.text("/", "mesh", &job.mesh.display().to_string())
-        .text("/", "recordings", &job.recordings.iter().map(|p| p.display().to_string()).collect::<Vec<_>>().join(", "))
+        .text(
+            "/",
+            "recordings",
+            &job.recordings
+                .iter()
+                .map(|p| p.display().to_string())
+                .collect::<Vec<_>>()
+                .join(", "),
+        )
         .text("/", "fit_microphones", &format!("{:?}", job.fit_channels))
-        .text("/", "held_out_microphones", &format!("{:?}", job.held_channels))
+        .text(
+            "/",
+            "held_out_microphones",
+            &format!("{:?}", job.held_channels),
+        )
         .number("/", "n_ranks", n_ranks as f64)
-        .text("/", "command", &std::env::args().collect::<Vec<_>>().join(" "))
+        .text(
+            "/",
+            "command",
+            &std::env::args().collect::<Vec<_>>().join(" "),
+        )
         .text("/", "version", env!("CARGO_PKG_VERSION"))
         .number("/material", "youngs_modulus", youngs)
         .number("/material", "poisson_ratio", poisson)
         .number("/material", "density", job.density)
         .text("/material", "source", &format!("{:?}", job.material_source));
-    for (group, modes) in [("/observed", &measured.fit), ("/held_out", &measured.held_out)] {
+    for (group, modes) in [
+        ("/observed", &measured.fit),
+        ("/held_out", &measured.held_out),
+    ] {
         if modes.is_empty() {
             continue;
         }
         let c = modes[0].amplitudes.len();
-        file.column(&format!("{group}/frequency_hz"), modes.iter().map(|m| m.frequency_hz).collect(), "Hz")
-            .column(&format!("{group}/frequency_sd_hz"), modes.iter().map(|m| m.sigma_frequency_hz).collect(), "Hz")
-            .column(&format!("{group}/decay_rate"), modes.iter().map(|m| m.decay_rate).collect(), "1/s")
-            .column(&format!("{group}/decay_rate_sd"), modes.iter().map(|m| m.sigma_decay_rate).collect(), "1/s")
-            .dataset(&format!("{group}/amplitudes"), &[modes.len(), c], modes.iter().flat_map(|m| m.amplitudes.clone()).collect(), "full scale");
+        file.column(
+            &format!("{group}/frequency_hz"),
+            modes.iter().map(|m| m.frequency_hz).collect(),
+            "Hz",
+        )
+        .column(
+            &format!("{group}/frequency_sd_hz"),
+            modes.iter().map(|m| m.sigma_frequency_hz).collect(),
+            "Hz",
+        )
+        .column(
+            &format!("{group}/decay_rate"),
+            modes.iter().map(|m| m.decay_rate).collect(),
+            "1/s",
+        )
+        .column(
+            &format!("{group}/decay_rate_sd"),
+            modes.iter().map(|m| m.sigma_decay_rate).collect(),
+            "1/s",
+        )
+        .dataset(
+            &format!("{group}/amplitudes"),
+            &[modes.len(), c],
+            modes.iter().flat_map(|m| m.amplitudes.clone()).collect(),
+            "full scale",
+        );
     }
     let s = &evidence.simulated;
-    file.column("/simulated/frequency_hz", s.iter().map(|m| m.frequency_hz).collect(), "Hz")
-        .column("/simulated/drive", s.iter().map(|m| m.drive).collect(), "kg^-1/2")
-        .column("/simulated/support_weight", s.iter().map(|m| m.support_weight).collect(), "1")
-        .column("/simulated/mass_weight", s.iter().map(|m| m.mass_weight).collect(), "1")
-        .column("/simulated/cluster", s.iter().map(|m| m.cluster as f64).collect(), "");
+    file.column(
+        "/simulated/frequency_hz",
+        s.iter().map(|m| m.frequency_hz).collect(),
+        "Hz",
+    )
+    .column(
+        "/simulated/drive",
+        s.iter().map(|m| m.drive).collect(),
+        "kg^-1/2",
+    )
+    .column(
+        "/simulated/support_weight",
+        s.iter().map(|m| m.support_weight).collect(),
+        "1",
+    )
+    .column(
+        "/simulated/mass_weight",
+        s.iter().map(|m| m.mass_weight).collect(),
+        "1",
+    )
+    .column(
+        "/simulated/cluster",
+        s.iter().map(|m| m.cluster as f64).collect(),
+        "",
+    );
     let pairs = &report.matching.pairs;
     if !pairs.is_empty() {
-        file.column("/matching/observed", pairs.iter().map(|p| p.observed as f64).collect(), "")
-            .column("/matching/simulated_first", pairs.iter().map(|p| p.simulated.first().map_or(-1.0, |&k| k as f64)).collect(), "")
-            .column("/matching/observed_hz", pairs.iter().map(|p| p.observed_hz).collect(), "Hz")
-            .column("/matching/simulated_hz", pairs.iter().map(|p| p.simulated_hz).collect(), "Hz");
+        file.column(
+            "/matching/observed",
+            pairs.iter().map(|p| p.observed as f64).collect(),
+            "",
+        )
+        .column(
+            "/matching/simulated_first",
+            pairs
+                .iter()
+                .map(|p| p.simulated.first().map_or(-1.0, |&k| k as f64))
+                .collect(),
+            "",
+        )
+        .column(
+            "/matching/observed_hz",
+            pairs.iter().map(|p| p.observed_hz).collect(),
+            "Hz",
+        )
+        .column(
+            "/matching/simulated_hz",
+            pairs.iter().map(|p| p.simulated_hz).collect(),
+            "Hz",
+        );
     }
     let rows = &report.residuals;
     if !rows.is_empty() {
@@ -1298,29 +2061,108 @@ fn write_hdf5(job: &Job, n_ranks: usize, measured: &Measured, evidence: &Evidenc
                 (v.iter().map(|x| x * x).sum::<f64>() / v.len() as f64).sqrt()
             }
         };
-        file.column("/residuals/frequency_hz", rows.iter().map(|r| r.frequency_hz).collect(), "Hz")
-            .column("/residuals/z_ln_f_before", rows.iter().map(|r| r.before.ln_frequency).collect(), "1")
-            .column("/residuals/z_ln_f_after", rows.iter().map(|r| r.after.ln_frequency).collect(), "1")
-            .column("/residuals/z_ln_d_before", rows.iter().map(|r| r.before.ln_decay.unwrap_or(f64::NAN)).collect(), "1")
-            .column("/residuals/z_ln_d_after", rows.iter().map(|r| r.after.ln_decay.unwrap_or(f64::NAN)).collect(), "1")
-            .column("/residuals/z_ln_a_before", rows.iter().map(|r| rms_a(&r.before)).collect(), "1")
-            .column("/residuals/z_ln_a_after", rows.iter().map(|r| rms_a(&r.after)).collect(), "1");
+        file.column(
+            "/residuals/frequency_hz",
+            rows.iter().map(|r| r.frequency_hz).collect(),
+            "Hz",
+        )
+        .column(
+            "/residuals/z_ln_f_before",
+            rows.iter().map(|r| r.before.ln_frequency).collect(),
+            "1",
+        )
+        .column(
+            "/residuals/z_ln_f_after",
+            rows.iter().map(|r| r.after.ln_frequency).collect(),
+            "1",
+        )
+        .column(
+            "/residuals/z_ln_d_before",
+            rows.iter()
+                .map(|r| r.before.ln_decay.unwrap_or(f64::NAN))
+                .collect(),
+            "1",
+        )
+        .column(
+            "/residuals/z_ln_d_after",
+            rows.iter()
+                .map(|r| r.after.ln_decay.unwrap_or(f64::NAN))
+                .collect(),
+            "1",
+        )
+        .column(
+            "/residuals/z_ln_a_before",
+            rows.iter().map(|r| rms_a(&r.before)).collect(),
+            "1",
+        )
+        .column(
+            "/residuals/z_ln_a_after",
+            rows.iter().map(|r| rms_a(&r.after)).collect(),
+            "1",
+        );
     }
     if let Some(env) = &measured.envelopes {
         file.column("/envelopes/times_s", env.times_s.clone(), "s")
             .column("/envelopes/band_edges_hz", env.band_edges_hz.clone(), "Hz")
-            .column("/envelopes/noise_floor", env.noise_floor_estimate.clone(), "full scale^2")
-            .dataset("/envelopes/energy", &[env.energy.len(), env.times_s.len()], env.energy.iter().flatten().copied().collect(), "full scale^2");
+            .column(
+                "/envelopes/noise_floor",
+                env.noise_floor_estimate.clone(),
+                "full scale^2",
+            )
+            .dataset(
+                "/envelopes/energy",
+                &[env.energy.len(), env.times_s.len()],
+                env.energy.iter().flatten().copied().collect(),
+                "full scale^2",
+            );
     }
-    file.text("/effects", "accepted", &report.accepted.iter().map(|a| format!("{} ({})", a.name, a.variant)).collect::<Vec<_>>().join(", "))
-        .text("/effects", "rejected", &report.rejected.iter().map(|r| format!("{}: {:?}", r.name, r.reason)).collect::<Vec<_>>().join(", "))
-        .number("/effects", "held_out_before", report.baseline.held_out_error.unwrap_or(f64::NAN))
-        .number("/effects", "held_out_after", report.final_model.held_out_error.unwrap_or(f64::NAN))
-        .number("/effects", "bic_baseline", report.baseline.bic)
-        .number("/effects", "bic_final", report.final_model.bic);
-    file.column("/localisation/vertex", feats.surface.iter().map(|&v| v as f64).collect(), "")
-        .column("/localisation/mu", localised.map.iter().map(|m| m.0).collect(), "1")
-        .column("/localisation/z", localised.map.iter().map(|m| m.1).collect(), "1");
+    file.text(
+        "/effects",
+        "accepted",
+        &report
+            .accepted
+            .iter()
+            .map(|a| format!("{} ({})", a.name, a.variant))
+            .collect::<Vec<_>>()
+            .join(", "),
+    )
+    .text(
+        "/effects",
+        "rejected",
+        &report
+            .rejected
+            .iter()
+            .map(|r| format!("{}: {:?}", r.name, r.reason))
+            .collect::<Vec<_>>()
+            .join(", "),
+    )
+    .number(
+        "/effects",
+        "held_out_before",
+        report.baseline.held_out_error.unwrap_or(f64::NAN),
+    )
+    .number(
+        "/effects",
+        "held_out_after",
+        report.final_model.held_out_error.unwrap_or(f64::NAN),
+    )
+    .number("/effects", "bic_baseline", report.baseline.bic)
+    .number("/effects", "bic_final", report.final_model.bic);
+    file.column(
+        "/localisation/vertex",
+        feats.surface.iter().map(|&v| v as f64).collect(),
+        "",
+    )
+    .column(
+        "/localisation/mu",
+        localised.map.iter().map(|m| m.0).collect(),
+        "1",
+    )
+    .column(
+        "/localisation/z",
+        localised.map.iter().map(|m| m.1).collect(),
+        "1",
+    );
     for (k, v) in timings {
         file.number("/timings", k, *v);
     }
@@ -1330,7 +2172,17 @@ fn write_hdf5(job: &Job, n_ranks: usize, measured: &Measured, evidence: &Evidenc
 }
 
 #[allow(clippy::too_many_arguments)]
-fn write_map(job: &Job, mesh: &TetMesh, eigenvalues: &[f64], shapes: &[Vec<f64>], rigid: &[f64], youngs: f64, poisson: f64, feats: &Features, localised: &Localised) -> Result<(), String> {
+fn write_map(
+    job: &Job,
+    mesh: &TetMesh,
+    eigenvalues: &[f64],
+    shapes: &[Vec<f64>],
+    rigid: &[f64],
+    youngs: f64,
+    poisson: f64,
+    feats: &Features,
+    localised: &Localised,
+) -> Result<(), String> {
     let mut field = vec![0.0; 3 * mesh.n_nodes()];
     for (&v, m) in feats.surface.iter().zip(&localised.map) {
         field[3 * v..3 * v + 3].fill(m.1);
@@ -1355,7 +2207,10 @@ fn write_map(job: &Job, mesh: &TetMesh, eigenvalues: &[f64], shapes: &[Vec<f64>]
         node_fields: vec![NodeField { name: "mass_region_z".into(), data: &field, units: "1 (z of the added-mass regression at this surface vertex; all three components equal)".into() }],
     };
     write_modes(&job.map, &file).map_err(|e| e.to_string())?;
-    println!("wrote {} and its .xdmf sidecar (ParaView: colour by mass_region_z)", job.map.display());
+    println!(
+        "wrote {} and its .xdmf sidecar (ParaView: colour by mass_region_z)",
+        job.map.display()
+    );
     Ok(())
 }
 
@@ -1365,18 +2220,36 @@ fn write_plots(job: &Job, measured: &Measured, report: &CatalogueReport) -> Resu
     let rows = &report.residuals;
     let f: Vec<f64> = rows.iter().map(|r| r.frequency_hz).collect();
     let mut series = Vec::new();
-    let pick = |g: &dyn Fn(&catalogue::ZScores) -> Option<f64>, after: bool| -> (Vec<f64>, Vec<f64>) {
-        rows.iter().filter_map(|r| g(if after { &r.after } else { &r.before }).filter(|v| v.is_finite()).map(|v| (r.frequency_hz, v))).unzip()
-    };
+    let pick =
+        |g: &dyn Fn(&catalogue::ZScores) -> Option<f64>, after: bool| -> (Vec<f64>, Vec<f64>) {
+            rows.iter()
+                .filter_map(|r| {
+                    g(if after { &r.after } else { &r.before })
+                        .filter(|v| v.is_finite())
+                        .map(|v| (r.frequency_hz, v))
+                })
+                .unzip()
+        };
     let quantities: [(&str, Box<dyn Fn(&catalogue::ZScores) -> Option<f64>>); 3] = [
-        ("ln f", Box::new(|z: &catalogue::ZScores| Some(z.ln_frequency))),
+        (
+            "ln f",
+            Box::new(|z: &catalogue::ZScores| Some(z.ln_frequency)),
+        ),
         ("ln d", Box::new(|z: &catalogue::ZScores| z.ln_decay)),
-        ("ln a (RMS over mics)", Box::new(|z: &catalogue::ZScores| {
-            let v: Vec<f64> = z.ln_amplitude.iter().flatten().copied().collect();
-            (!v.is_empty()).then(|| (v.iter().map(|x| x * x).sum::<f64>() / v.len() as f64).sqrt())
-        })),
+        (
+            "ln a (RMS over mics)",
+            Box::new(|z: &catalogue::ZScores| {
+                let v: Vec<f64> = z.ln_amplitude.iter().flatten().copied().collect();
+                (!v.is_empty())
+                    .then(|| (v.iter().map(|x| x * x).sum::<f64>() / v.len() as f64).sqrt())
+            }),
+        ),
     ];
-    let markers = [(Marker::Cross, Marker::Circle), (Marker::Plus, Marker::Square), (Marker::Cross, Marker::Diamond)];
+    let markers = [
+        (Marker::Cross, Marker::Circle),
+        (Marker::Plus, Marker::Square),
+        (Marker::Cross, Marker::Diamond),
+    ];
     for ((name, g), (mb, ma)) in quantities.iter().zip(markers) {
         let (xb, yb) = pick(g.as_ref(), false);
         let (xa, ya) = pick(g.as_ref(), true);
@@ -1385,18 +2258,48 @@ fn write_plots(job: &Job, measured: &Measured, report: &CatalogueReport) -> Resu
     }
     if !f.is_empty() {
         let accepted: Vec<String> = report.accepted.iter().map(|a| a.name.clone()).collect();
-        let mut fig = LineFigure::new(format!("standardised residuals per mode: baseline vs final ({})", if accepted.is_empty() { "no effect accepted".into() } else { accepted.join(", ") }), "observed frequency [Hz]", "z (residual / sigma incl. model floor)");
+        let mut fig = LineFigure::new(
+            format!(
+                "standardised residuals per mode: baseline vs final ({})",
+                if accepted.is_empty() {
+                    "no effect accepted".into()
+                } else {
+                    accepted.join(", ")
+                }
+            ),
+            "observed frequency [Hz]",
+            "z (residual / sigma incl. model floor)",
+        );
         fig.x_scale = AxisScale::Log;
         fig.series = series;
         line_plot_png(&plot_path(&job.plots, "_residuals.png"), &fig).map_err(|e| e.to_string())?;
     }
     // Time–frequency: the recording and what the modes leave.
     let plan = StftPlan::new(2048, 256).map_err(|e| e.to_string())?;
-    let signals: [(&str, &[f64]); 2] = [("recording (fit mic 0)", &measured.plot_signal), ("recording - modal resynthesis", &measured.plot_residual)];
+    let signals: [(&str, &[f64]); 2] = [
+        ("recording (fit mic 0)", &measured.plot_signal),
+        ("recording - modal resynthesis", &measured.plot_residual),
+    ];
     let specs: Vec<_> = signals.iter().map(|(_, s)| plan.forward(s)).collect();
     let peak = specs[0].magnitude.iter().fold(0.0_f64, |m, &v| m.max(v));
-    let dbs: Vec<Vec<f64>> = specs.iter().map(|s| s.decibels(peak.max(1e-300), -140.0)).collect();
-    let panels: Vec<SpectrogramPanel> = signals.iter().zip(&specs).zip(&dbs).map(|(((title, _), s), db)| SpectrogramPanel { title: title.to_string(), db, n_frames: s.n_frames, n_bins: s.n_bins, time_step_s: plan.hop() as f64 / fs, time_offset_s: 0.0, freq_step_hz: fs / plan.n_fft() as f64 }).collect();
+    let dbs: Vec<Vec<f64>> = specs
+        .iter()
+        .map(|s| s.decibels(peak.max(1e-300), -140.0))
+        .collect();
+    let panels: Vec<SpectrogramPanel> = signals
+        .iter()
+        .zip(&specs)
+        .zip(&dbs)
+        .map(|(((title, _), s), db)| SpectrogramPanel {
+            title: title.to_string(),
+            db,
+            n_frames: s.n_frames,
+            n_bins: s.n_bins,
+            time_step_s: plan.hop() as f64 / fs,
+            time_offset_s: 0.0,
+            freq_step_hz: fs / plan.n_fft() as f64,
+        })
+        .collect();
     let mut figure = SpectrogramFigure::new("where the modes do not explain the recording", panels);
     figure.max_freq_hz = Some((1.1 * job.max_frequency_hz).min(fs / 2.0));
     figure.db_max = Some(0.0);
@@ -1404,18 +2307,37 @@ fn write_plots(job: &Job, measured: &Measured, report: &CatalogueReport) -> Resu
     spectrogram_png(&plot_path(&job.plots, "_timefreq.png"), &figure).map_err(|e| e.to_string())?;
     // Residual energy per band over time against the pre-roll floor.
     if let Some(env) = &measured.envelopes {
-        let mut fig = LineFigure::new("residual energy per band (lines) vs pre-roll noise floor (flat)", "time after the strike [s]", "energy [full scale^2]");
+        let mut fig = LineFigure::new(
+            "residual energy per band (lines) vs pre-roll noise floor (flat)",
+            "time after the strike [s]",
+            "energy [full scale^2]",
+        );
         fig.y_scale = AxisScale::Log;
         for (b, band) in env.energy.iter().enumerate() {
-            let label = format!("{:.0}-{:.0} Hz", env.band_edges_hz[b], env.band_edges_hz[b + 1]);
-            fig.series.push(Series::line(label.clone(), env.times_s.clone(), band.iter().map(|e| e.max(1e-300)).collect()));
+            let label = format!(
+                "{:.0}-{:.0} Hz",
+                env.band_edges_hz[b],
+                env.band_edges_hz[b + 1]
+            );
+            fig.series.push(Series::line(
+                label.clone(),
+                env.times_s.clone(),
+                band.iter().map(|e| e.max(1e-300)).collect(),
+            ));
             if env.noise_floor_estimate[b] > 0.0 {
-                fig.series.push(Series::line(format!("floor {label}"), vec![env.times_s[0], *env.times_s.last().unwrap_or(&1.0)], vec![env.noise_floor_estimate[b]; 2]));
+                fig.series.push(Series::line(
+                    format!("floor {label}"),
+                    vec![env.times_s[0], *env.times_s.last().unwrap_or(&1.0)],
+                    vec![env.noise_floor_estimate[b]; 2],
+                ));
             }
         }
         line_plot_png(&plot_path(&job.plots, "_envelopes.png"), &fig).map_err(|e| e.to_string())?;
     }
-    println!("wrote {}_{{residuals,timefreq,envelopes}}.png", job.plots.display());
+    println!(
+        "wrote {}_{{residuals,timefreq,envelopes}}.png",
+        job.plots.display()
+    );
     Ok(())
 }
 
@@ -1432,7 +2354,9 @@ mod tests {
         assert_eq!(loaded_model_verdict(true, 0, 4, 2.4), Ok(()));
         let clean = loaded_model_verdict(true, 0, 0, 2.1).unwrap_err();
         assert!(clean.contains("2.1 times"), "{clean}");
-        assert!(loaded_model_verdict(false, 0, 5, 30.0).unwrap_err().contains("rejected"));
+        assert!(loaded_model_verdict(false, 0, 5, 30.0)
+            .unwrap_err()
+            .contains("rejected"));
         assert!(loaded_model_verdict(true, 1, 1, f64::NAN).is_err());
     }
 }

@@ -217,20 +217,31 @@ pub fn resolve(args: &FitGeometryArgs) -> Result<Job, String> {
     let file = match &args.config {
         Some(p) => {
             let text = std::fs::read_to_string(p).map_err(|e| format!("{}: {e}", p.display()))?;
-            toml::from_str::<GeometryFileConfig>(&text).map_err(|e| format!("{}: {e}", p.display()))?
+            toml::from_str::<GeometryFileConfig>(&text)
+                .map_err(|e| format!("{}: {e}", p.display()))?
         }
         None => GeometryFileConfig::default(),
     };
-    let surface = args.surface.clone().or(file.surface.clone()).ok_or("no surface given: use --surface FILE")?;
+    let surface = args
+        .surface
+        .clone()
+        .or(file.surface.clone())
+        .ok_or("no surface given: use --surface FILE")?;
     if !surface.is_file() {
         return Err(format!("surface {} does not exist", surface.display()));
     }
-    let units = args.units.clone().or(file.units.clone()).unwrap_or_else(|| "m".into());
+    let units = args
+        .units
+        .clone()
+        .or(file.units.clone())
+        .unwrap_or_else(|| "m".into());
     let unit_scale = mesh::parse_unit(&units).map_err(|e| e.to_string())?;
     let diagonal = args.diagonal.or(file.diagonal);
     if let Some(d) = diagonal {
         if !(d.is_finite() && d > 0.0) {
-            return Err(format!("--diagonal must be a positive length in metres, got {d}"));
+            return Err(format!(
+                "--diagonal must be a positive length in metres, got {d}"
+            ));
         }
     }
     let mut s = file.geometry.clone().unwrap_or_default();
@@ -298,23 +309,53 @@ pub fn resolve(args: &FitGeometryArgs) -> Result<Job, String> {
     }
     s.validate().map_err(|e| e.to_string())?;
 
-    let flags = super::config::MaterialConfig { preset: args.material.clone(), youngs_modulus: args.youngs, poisson_ratio: args.poisson, density: args.density, ..Default::default() };
+    let flags = super::config::MaterialConfig {
+        preset: args.material.clone(),
+        youngs_modulus: args.youngs,
+        poisson_ratio: args.poisson,
+        density: args.density,
+        ..Default::default()
+    };
     let material = file.material.resolve(&flags)?;
 
-    let out = args.out.clone().or(file.out.clone()).unwrap_or_else(|| PathBuf::from("fit_geometry.h5"));
+    let out = args
+        .out
+        .clone()
+        .or(file.out.clone())
+        .unwrap_or_else(|| PathBuf::from("fit_geometry.h5"));
     super::modes::check_output_dir(&out)?;
     let stem = out.with_extension("");
     let mesh_out = super::fit_material::plot_path(&stem, "_mesh.h5");
-    let png = args.png.clone().or(file.png.clone()).unwrap_or_else(|| super::fit_material::plot_path(&stem, ".png"));
+    let png = args
+        .png
+        .clone()
+        .or(file.png.clone())
+        .unwrap_or_else(|| super::fit_material::plot_path(&stem, ".png"));
     super::modes::check_output_dir(&png)?;
     let mut petsc_options = file.solver.petsc_options.clone();
     petsc_options.extend(args.petsc_options.iter().cloned());
-    Ok(Job { surface, unit_scale, diagonal, settings: s, material, out, mesh_out, png, petsc_options, verbose: args.verbose })
+    Ok(Job {
+        surface,
+        unit_scale,
+        diagonal,
+        settings: s,
+        material,
+        out,
+        mesh_out,
+        png,
+        petsc_options,
+        verbose: args.verbose,
+    })
 }
 
 /// Reads and places the surface (before PETSc starts: a bad file ends the job with its message).
-pub fn load_surface(path: &Path, unit_scale: f64, diagonal: Option<f64>) -> Result<(TriangleSurface, SignedDistance, Vec<String>), String> {
-    let (mut surface, warnings) = read_surface(path).map_err(|e| format!("{}: {e}", path.display()))?;
+pub fn load_surface(
+    path: &Path,
+    unit_scale: f64,
+    diagonal: Option<f64>,
+) -> Result<(TriangleSurface, SignedDistance, Vec<String>), String> {
+    let (mut surface, warnings) =
+        read_surface(path).map_err(|e| format!("{}: {e}", path.display()))?;
     for v in &mut surface.vertices {
         for x in v.iter_mut() {
             *x *= unit_scale;
@@ -322,9 +363,13 @@ pub fn load_surface(path: &Path, unit_scale: f64, diagonal: Option<f64>) -> Resu
     }
     let (lo, hi) = surface.bounding_box();
     let size = (0..3).map(|d| (hi[d] - lo[d]).powi(2)).sum::<f64>().sqrt();
-    normalise_surface(&mut surface, diagonal.unwrap_or(size)).map_err(|e| format!("{}: {e}", path.display()))?;
+    normalise_surface(&mut surface, diagonal.unwrap_or(size))
+        .map_err(|e| format!("{}: {e}", path.display()))?;
     if (0..3).any(|d| !(hi[d] > lo[d])) {
-        return Err(format!("{}: the surface is flat (no extent along some axis)", path.display()));
+        return Err(format!(
+            "{}: the surface is flat (no extent along some axis)",
+            path.display()
+        ));
     }
     let sdf = SignedDistance::new(&surface).map_err(|e| format!("{}: {e}", path.display()))?;
     Ok((surface, sdf, warnings))
@@ -333,7 +378,8 @@ pub fn load_surface(path: &Path, unit_scale: f64, diagonal: Option<f64>) -> Resu
 pub fn run(universe: Universe, args: FitGeometryArgs) -> Result<(), String> {
     let job = resolve(&args)?;
     let (surface, sdf, warnings) = load_surface(&job.surface, job.unit_scale, job.diagonal)?;
-    let petsc = Petsc::initialize(universe, "diffsound", &job.petsc_options).map_err(|e| e.to_string())?;
+    let petsc =
+        Petsc::initialize(universe, "diffsound", &job.petsc_options).map_err(|e| e.to_string())?;
     let (rank, size) = (petsc.rank(), petsc.size());
     if rank == 0 {
         for w in &warnings {
@@ -346,31 +392,74 @@ pub fn run(universe: Universe, args: FitGeometryArgs) -> Result<(), String> {
     }
 }
 
-fn compute(petsc: &Petsc, job: &Job, truth: &TriangleSurface, sdf: &SignedDistance) -> Result<(), String> {
+fn compute(
+    petsc: &Petsc,
+    job: &Job,
+    truth: &TriangleSurface,
+    sdf: &SignedDistance,
+) -> Result<(), String> {
     let total = std::time::Instant::now();
     let rank = petsc.rank();
     let progress = Progress::new(rank, job.verbose);
-    let fit = fit_geometry(petsc, truth, sdf, &job.material, &job.settings, |p| match p {
-        GeometryProgress::Message(m) => progress.say(m),
-        GeometryProgress::Step(s) => progress.say(step_line(s)),
-    })
+    let fit = fit_geometry(
+        petsc,
+        truth,
+        sdf,
+        &job.material,
+        &job.settings,
+        |p| match p {
+            GeometryProgress::Message(m) => progress.say(m),
+            GeometryProgress::Step(s) => progress.say(step_line(s)),
+        },
+    )
     .map_err(|e| format!("{}: {e}", job.surface.display()))?;
     // The refined body with its modes, for ParaView.
     let clock = std::time::Instant::now();
-    let net = crate::inverse::neural_sdf::NeuralSdf::from_parameters(fit.network.clone(), fit.refinement.best_parameters.clone()).map_err(|e| e.to_string())?;
+    let net = crate::inverse::neural_sdf::NeuralSdf::from_parameters(
+        fit.network.clone(),
+        fit.refinement.best_parameters.clone(),
+    )
+    .map_err(|e| e.to_string())?;
     let values = net.values(&fit.grid.vertex_positions());
     let body = if job.settings.refine.curved_boundary {
-        curved_field_modes(petsc, &fit.grid, &values, &|x| net.value(x), &MarchingOptions::default(), &job.material, job.settings.modes)
+        curved_field_modes(
+            petsc,
+            &fit.grid,
+            &values,
+            &|x| net.value(x),
+            &MarchingOptions::default(),
+            &job.material,
+            job.settings.modes,
+        )
     } else {
-        shape_modes(petsc, &fit.grid, &values, &MarchingOptions::default(), &job.material, job.settings.modes)
+        shape_modes(
+            petsc,
+            &fit.grid,
+            &values,
+            &MarchingOptions::default(),
+            &job.material,
+            job.settings.modes,
+        )
     }
     .map_err(|e| format!("the refined body: {e}"))?;
     let final_seconds = clock.elapsed().as_secs_f64();
     if rank == 0 {
         print_summary(&fit);
-        write_results(job, &fit, &body, final_seconds, total.elapsed().as_secs_f64(), petsc.size())?;
+        write_results(
+            job,
+            &fit,
+            &body,
+            final_seconds,
+            total.elapsed().as_secs_f64(),
+            petsc.size(),
+        )?;
         render_comparison(&job.png, &fit, truth, &format!("{}: {}^3 voxels -> pre-fit (before) -> refined by {} eigenvalues (after); C = Chamfer distance", job.surface.file_name().map_or(String::new(), |n| n.to_string_lossy().to_string()), job.settings.voxels, job.settings.modes))?;
-        println!("wrote {}, {} (+ .xdmf) and {}", job.out.display(), job.mesh_out.display(), job.png.display());
+        println!(
+            "wrote {}, {} (+ .xdmf) and {}",
+            job.out.display(),
+            job.mesh_out.display(),
+            job.png.display()
+        );
     }
     Ok(())
 }
@@ -389,80 +478,238 @@ pub fn step_line(s: &crate::inverse::geometry::RefineStep) -> String {
 
 fn print_summary(fit: &GeometryFit) {
     let mm = 1e3;
-    println!("fit-geometry: best step {} of {} (loss {:.4e} → {:.4e})", fit.refinement.best_step, fit.refinement.history.len() - 1, fit.refinement.history[0].loss, fit.refinement.best().loss);
-    println!("  {:<22} {:>12} {:>14} {:>8} {:>14}", "", "Chamfer mm", "Hausdorff mm", "IoU", "rms freq err");
-    println!("  {:<22} {:>12.3} {:>14.3} {:>8.4} {:>14}", "voxels", mm * fit.voxel_comparison.chamfer, mm * fit.voxel_comparison.hausdorff, fit.voxel_comparison.iou, "-");
-    for (name, a) in [("before (pre-fit)", &fit.before), ("after (refined)", &fit.after), ("true SDF, fit grid", &fit.floor)] {
-        println!("  {:<22} {:>12.3} {:>14.3} {:>8.4} {:>13.3}%", name, mm * a.comparison.chamfer, mm * a.comparison.hausdorff, a.comparison.iou, 100.0 * a.rms_frequency_error(&fit.target));
+    println!(
+        "fit-geometry: best step {} of {} (loss {:.4e} → {:.4e})",
+        fit.refinement.best_step,
+        fit.refinement.history.len() - 1,
+        fit.refinement.history[0].loss,
+        fit.refinement.best().loss
+    );
+    println!(
+        "  {:<22} {:>12} {:>14} {:>8} {:>14}",
+        "", "Chamfer mm", "Hausdorff mm", "IoU", "rms freq err"
+    );
+    println!(
+        "  {:<22} {:>12.3} {:>14.3} {:>8.4} {:>14}",
+        "voxels",
+        mm * fit.voxel_comparison.chamfer,
+        mm * fit.voxel_comparison.hausdorff,
+        fit.voxel_comparison.iou,
+        "-"
+    );
+    for (name, a) in [
+        ("before (pre-fit)", &fit.before),
+        ("after (refined)", &fit.after),
+        ("true SDF, fit grid", &fit.floor),
+    ] {
+        println!(
+            "  {:<22} {:>12.3} {:>14.3} {:>8.4} {:>13.3}%",
+            name,
+            mm * a.comparison.chamfer,
+            mm * a.comparison.hausdorff,
+            a.comparison.iou,
+            100.0 * a.rms_frequency_error(&fit.target)
+        );
     }
 }
 
 /// The voxels, the pre-fitted and refined bodies and the true surface side by side (two views,
 /// one scale), in millimetres.
-pub fn render_comparison(path: &Path, fit: &GeometryFit, truth: &TriangleSurface, title: &str) -> Result<(), String> {
-    let mm = |s: &TriangleSurface| s.vertices.iter().map(|v| v.map(|x| 1e3 * x)).collect::<Vec<_>>();
+pub fn render_comparison(
+    path: &Path,
+    fit: &GeometryFit,
+    truth: &TriangleSurface,
+    title: &str,
+) -> Result<(), String> {
+    let mm = |s: &TriangleSurface| {
+        s.vertices
+            .iter()
+            .map(|v| v.map(|x| 1e3 * x))
+            .collect::<Vec<_>>()
+    };
     let voxels = fit.voxels.boundary_surface();
     // The plot font is ASCII: "16^3", not "16³". Titles stay short enough for one cell.
-    let label = |name: &str, a: &crate::inverse::geometry::Assessed| format!("{name}: C {:.2} mm, IoU {:.3}", 1e3 * a.comparison.chamfer, a.comparison.iou);
+    let label = |name: &str, a: &crate::inverse::geometry::Assessed| {
+        format!(
+            "{name}: C {:.2} mm, IoU {:.3}",
+            1e3 * a.comparison.chamfer,
+            a.comparison.iou
+        )
+    };
     let panels = vec![
-        SurfacePanel::new(format!("{n}^3 voxels: C {:.2} mm", 1e3 * fit.voxel_comparison.chamfer, n = fit.voxels.resolution), mm(&voxels), voxels.triangles.clone()),
-        SurfacePanel::new(label("before", &fit.before), mm(&fit.before.surface), fit.before.surface.triangles.clone()),
-        SurfacePanel::new(label("after", &fit.after), mm(&fit.after.surface), fit.after.surface.triangles.clone()),
+        SurfacePanel::new(
+            format!(
+                "{n}^3 voxels: C {:.2} mm",
+                1e3 * fit.voxel_comparison.chamfer,
+                n = fit.voxels.resolution
+            ),
+            mm(&voxels),
+            voxels.triangles.clone(),
+        ),
+        SurfacePanel::new(
+            label("before", &fit.before),
+            mm(&fit.before.surface),
+            fit.before.surface.triangles.clone(),
+        ),
+        SurfacePanel::new(
+            label("after", &fit.after),
+            mm(&fit.after.surface),
+            fit.after.surface.triangles.clone(),
+        ),
         SurfacePanel::new("true", mm(truth), truth.triangles.clone()),
     ];
     let mut fig = SurfaceFigure::new(title, panels);
-    fig.views = vec![View::new(30.0, 25.0), View::new(210.0, 20.0), View::labelled(0.0, 89.0, "top")];
+    fig.views = vec![
+        View::new(30.0, 25.0),
+        View::new(210.0, 20.0),
+        View::labelled(0.0, 89.0, "top"),
+    ];
     fig.panel_size = 340;
     surface_png(path, &fig).map_err(|e| e.to_string())
 }
 
-fn write_results(job: &Job, fit: &GeometryFit, body: &crate::inverse::shape::ShapeModes, final_seconds: f64, total: f64, n_ranks: usize) -> Result<(), String> {
-    let hz = |v: &[f64]| v.iter().map(|&l| crate::eigen::frequency_hz(l)).collect::<Vec<f64>>();
+fn write_results(
+    job: &Job,
+    fit: &GeometryFit,
+    body: &crate::inverse::shape::ShapeModes,
+    final_seconds: f64,
+    total: f64,
+    n_ranks: usize,
+) -> Result<(), String> {
+    let hz = |v: &[f64]| {
+        v.iter()
+            .map(|&l| crate::eigen::frequency_hz(l))
+            .collect::<Vec<f64>>()
+    };
     let mut file = ResultsFile::new("diffsound.fit_geometry", 1);
     file.text("/", "surface", &job.surface.display().to_string())
-        .text("/", "command", &std::env::args().collect::<Vec<_>>().join(" "))
+        .text(
+            "/",
+            "command",
+            &std::env::args().collect::<Vec<_>>().join(" "),
+        )
         .text("/", "version", env!("CARGO_PKG_VERSION"))
-        .text("/", "settings_json", &serde_json::to_string(&job.settings).map_err(|e| e.to_string())?)
+        .text(
+            "/",
+            "settings_json",
+            &serde_json::to_string(&job.settings).map_err(|e| e.to_string())?,
+        )
         .number("/", "n_ranks", n_ranks as f64);
     let c = &fit.voxel_comparison;
-    file.number("/metrics/voxels", "chamfer", c.chamfer).number("/metrics/voxels", "hausdorff", c.hausdorff).number("/metrics/voxels", "iou", c.iou);
-    let loss_of = |a: &crate::inverse::geometry::Assessed| crate::inverse::geometry::eigenvalue_loss(&a.eigenvalues, &fit.target).map(|(l, _)| l).unwrap_or(f64::NAN);
-    for (name, a) in [("before", &fit.before), ("after", &fit.after), ("floor", &fit.floor)] {
+    file.number("/metrics/voxels", "chamfer", c.chamfer)
+        .number("/metrics/voxels", "hausdorff", c.hausdorff)
+        .number("/metrics/voxels", "iou", c.iou);
+    let loss_of = |a: &crate::inverse::geometry::Assessed| {
+        crate::inverse::geometry::eigenvalue_loss(&a.eigenvalues, &fit.target)
+            .map(|(l, _)| l)
+            .unwrap_or(f64::NAN)
+    };
+    for (name, a) in [
+        ("before", &fit.before),
+        ("after", &fit.after),
+        ("floor", &fit.floor),
+    ] {
         let g = format!("/metrics/{name}");
         file.number(&g, "chamfer", a.comparison.chamfer)
             .number(&g, "hausdorff", a.comparison.hausdorff)
             .number(&g, "iou", a.comparison.iou)
-            .number(&g, "rms_frequency_error", a.rms_frequency_error(&fit.target))
+            .number(
+                &g,
+                "rms_frequency_error",
+                a.rms_frequency_error(&fit.target),
+            )
             .number(&g, "eigen_loss", loss_of(a))
             .number(&g, "volume", a.volume);
-        file.column(&format!("/modes/{name}_eigenvalues"), a.eigenvalues.clone(), "rad^2/s^2")
-            .column(&format!("/modes/{name}_frequency_hz"), hz(&a.eigenvalues), "Hz")
-            .column(&format!("/modes/{name}_relative_frequency_error"), a.eigenvalues.iter().zip(&fit.target.eigenvalues).map(|(l, t)| (l / t).sqrt() - 1.0).collect(), "1");
+        file.column(
+            &format!("/modes/{name}_eigenvalues"),
+            a.eigenvalues.clone(),
+            "rad^2/s^2",
+        )
+        .column(
+            &format!("/modes/{name}_frequency_hz"),
+            hz(&a.eigenvalues),
+            "Hz",
+        )
+        .column(
+            &format!("/modes/{name}_relative_frequency_error"),
+            a.eigenvalues
+                .iter()
+                .zip(&fit.target.eigenvalues)
+                .map(|(l, t)| (l / t).sqrt() - 1.0)
+                .collect(),
+            "1",
+        );
     }
     if !fit.bias_correction.is_empty() {
         file.column("/modes/bias_correction", fit.bias_correction.clone(), "1");
     }
     if let Some(c) = &fit.check {
-        file.number("/check", "before_loss", c.before_loss).number("/check", "after_loss", c.after_loss).number("/check", "refined_kept", f64::from(u8::from(c.refined_kept)));
+        file.number("/check", "before_loss", c.before_loss)
+            .number("/check", "after_loss", c.after_loss)
+            .number(
+                "/check",
+                "refined_kept",
+                f64::from(u8::from(c.refined_kept)),
+            );
     }
-    file.column("/modes/target_eigenvalues", fit.target.eigenvalues.clone(), "rad^2/s^2").column("/modes/target_frequency_hz", hz(&fit.target.eigenvalues), "Hz").number("/modes", "target_spacing", fit.target_spacing);
+    file.column(
+        "/modes/target_eigenvalues",
+        fit.target.eigenvalues.clone(),
+        "rad^2/s^2",
+    )
+    .column(
+        "/modes/target_frequency_hz",
+        hz(&fit.target.eigenvalues),
+        "Hz",
+    )
+    .number("/modes", "target_spacing", fit.target_spacing);
     let h = &fit.refinement.history;
-    let col = |f: &dyn Fn(&crate::inverse::geometry::RefineStep) -> f64| h.iter().map(f).collect::<Vec<f64>>();
+    let col = |f: &dyn Fn(&crate::inverse::geometry::RefineStep) -> f64| {
+        h.iter().map(f).collect::<Vec<f64>>()
+    };
     file.column("/refine/history/step", col(&|s| s.step as f64), "")
         .column("/refine/history/loss", col(&|s| s.loss), "1")
         .column("/refine/history/eigen_loss", col(&|s| s.eigen_loss), "1")
         .column("/refine/history/voxel_loss", col(&|s| s.voxel_loss), "1")
-        .column("/refine/history/eikonal_loss", col(&|s| s.eikonal_loss), "1")
+        .column(
+            "/refine/history/eikonal_loss",
+            col(&|s| s.eikonal_loss),
+            "1",
+        )
         .column("/refine/history/tets", col(&|s| s.tets as f64), "")
         .column("/refine/history/p2_nodes", col(&|s| s.p2_nodes as f64), "")
-        .column("/refine/history/meshing_s", col(&|s| s.timings.meshing), "s")
-        .column("/refine/history/assembly_s", col(&|s| s.timings.assembly), "s")
+        .column(
+            "/refine/history/meshing_s",
+            col(&|s| s.timings.meshing),
+            "s",
+        )
+        .column(
+            "/refine/history/assembly_s",
+            col(&|s| s.timings.assembly),
+            "s",
+        )
         .column("/refine/history/solve_s", col(&|s| s.timings.solve), "s")
-        .column("/refine/history/gradient_s", col(&|s| s.timings.gradient), "s")
-        .column("/refine/history/network_s", col(&|s| s.network_seconds), "s")
+        .column(
+            "/refine/history/gradient_s",
+            col(&|s| s.timings.gradient),
+            "s",
+        )
+        .column(
+            "/refine/history/network_s",
+            col(&|s| s.network_seconds),
+            "s",
+        )
         .column("/refine/history/step_scale", col(&|s| s.step_scale), "1")
-        .column("/refine/history/backtracked", col(&|s| f64::from(u8::from(s.backtracked))), "")
-        .column("/refine/history/failed", col(&|s| f64::from(u8::from(s.failure.is_some()))), "")
+        .column(
+            "/refine/history/backtracked",
+            col(&|s| f64::from(u8::from(s.backtracked))),
+            "",
+        )
+        .column(
+            "/refine/history/failed",
+            col(&|s| f64::from(u8::from(s.failure.is_some()))),
+            "",
+        )
         .number("/refine", "best_step", fit.refinement.best_step as f64)
         .number("/refine", "seconds", fit.refinement.seconds);
     let (mean, network) = fit.refinement.mean_timings();
@@ -478,20 +725,54 @@ fn write_results(job: &Job, fit: &GeometryFit, body: &crate::inverse::shape::Sha
         .number("/prefit", "eikonal_loss", fit.prefit.eikonal_loss)
         .number("/prefit", "seconds", fit.prefit.seconds);
     let n = &fit.network;
-    file.column("/network/parameters", fit.refinement.best_parameters.clone(), "1")
-        .column("/network/prefit_parameters", fit.prefit_parameters.clone(), "1")
-        .number("/network", "octaves", n.octaves as f64)
-        .number("/network", "length", n.length)
-        .number("/network", "centre_x", n.centre[0])
-        .number("/network", "centre_y", n.centre[1])
-        .number("/network", "centre_z", n.centre[2])
-        .text("/network", "hidden", &n.hidden.iter().map(|w| w.to_string()).collect::<Vec<_>>().join(","))
-        .text("/network", "config_json", &serde_json::to_string(n).map_err(|e| e.to_string())?);
+    file.column(
+        "/network/parameters",
+        fit.refinement.best_parameters.clone(),
+        "1",
+    )
+    .column(
+        "/network/prefit_parameters",
+        fit.prefit_parameters.clone(),
+        "1",
+    )
+    .number("/network", "octaves", n.octaves as f64)
+    .number("/network", "length", n.length)
+    .number("/network", "centre_x", n.centre[0])
+    .number("/network", "centre_y", n.centre[1])
+    .number("/network", "centre_z", n.centre[2])
+    .text(
+        "/network",
+        "hidden",
+        &n.hidden
+            .iter()
+            .map(|w| w.to_string())
+            .collect::<Vec<_>>()
+            .join(","),
+    )
+    .text(
+        "/network",
+        "config_json",
+        &serde_json::to_string(n).map_err(|e| e.to_string())?,
+    );
     let v = &fit.voxels;
-    file.number("/voxels", "resolution", v.resolution as f64).number("/voxels", "occupied", v.occupied() as f64).number("/voxels", "edge_x", v.size[0]).number("/voxels", "edge_y", v.size[1]).number("/voxels", "edge_z", v.size[2]);
-    file.number("/material", "youngs_modulus", job.material.youngs_modulus).number("/material", "poisson_ratio", job.material.poisson_ratio).number("/material", "density", job.material.density);
+    file.number("/voxels", "resolution", v.resolution as f64)
+        .number("/voxels", "occupied", v.occupied() as f64)
+        .number("/voxels", "edge_x", v.size[0])
+        .number("/voxels", "edge_y", v.size[1])
+        .number("/voxels", "edge_z", v.size[2]);
+    file.number("/material", "youngs_modulus", job.material.youngs_modulus)
+        .number("/material", "poisson_ratio", job.material.poisson_ratio)
+        .number("/material", "density", job.material.density);
     let t = &fit.timings;
-    for (k, value) in [("voxelise", t.voxelise), ("prefit", t.prefit), ("target", t.target), ("refine", t.refine), ("assess", t.assess), ("final_body", final_seconds), ("total", total)] {
+    for (k, value) in [
+        ("voxelise", t.voxelise),
+        ("prefit", t.prefit),
+        ("target", t.target),
+        ("refine", t.refine),
+        ("assess", t.assess),
+        ("final_body", final_seconds),
+        ("total", total),
+    ] {
         file.number("/timings", k, value);
     }
     file.write(&job.out).map_err(|e| e.to_string())?;
@@ -501,7 +782,14 @@ fn write_results(job: &Job, fit: &GeometryFit, body: &crate::inverse::shape::Sha
         nodes: &body.mesh.nodes,
         connectivity: &body.mesh.connectivity,
         nodes_per_tet: body.mesh.nodes_per_tet(),
-        material: MaterialRecord { name: "refined geometry (MLP SDF)".into(), youngs_modulus: job.material.youngs_modulus, poisson_ratio: job.material.poisson_ratio, density: job.material.density, rayleigh_alpha: job.material.rayleigh_alpha, rayleigh_beta: job.material.rayleigh_beta },
+        material: MaterialRecord {
+            name: "refined geometry (MLP SDF)".into(),
+            youngs_modulus: job.material.youngs_modulus,
+            poisson_ratio: job.material.poisson_ratio,
+            density: job.material.density,
+            rayleigh_alpha: job.material.rayleigh_alpha,
+            rayleigh_beta: job.material.rayleigh_beta,
+        },
         eigenvalues: &body.eigenvalues,
         frequencies_hz: &frequencies,
         mode_shapes: &body.shapes,
@@ -511,7 +799,13 @@ fn write_results(job: &Job, fit: &GeometryFit, body: &crate::inverse::shape::Sha
         n_ranks,
         element_order: 2,
         timings: Vec::new(),
-        provenance: vec![("command".into(), std::env::args().collect::<Vec<_>>().join(" ")), ("fit".into(), job.out.display().to_string())],
+        provenance: vec![
+            (
+                "command".into(),
+                std::env::args().collect::<Vec<_>>().join(" "),
+            ),
+            ("fit".into(), job.out.display().to_string()),
+        ],
         extra_datasets: Vec::new(),
         node_fields: Vec::new(),
     };

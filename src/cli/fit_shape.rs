@@ -65,13 +65,17 @@
 //! `-v`, or on a terminal); only rank 0 writes.
 
 use super::{fail, Progress};
-use crate::random::SplitMix64;
 use crate::fem::Material;
-use crate::inverse::shape::{answers_with_line, fit_shape, normalise_surface, read_surface, reference_depth, replica_levels, replica_line_levels, replica_shift, shifted_covering, union_box, FitEvaluation, SearchPhase, ShapeFamily, ShapeFit, ShapeFitSettings, ShapeLevel, SpectrumTarget};
+use crate::inverse::shape::{
+    answers_with_line, fit_shape, normalise_surface, read_surface, reference_depth, replica_levels,
+    replica_line_levels, replica_shift, shifted_covering, union_box, FitEvaluation, SearchPhase,
+    ShapeFamily, ShapeFit, ShapeFitSettings, ShapeLevel, SpectrumTarget,
+};
 use crate::io::results::ResultsFile;
 use crate::io::{write_modes, MaterialRecord, ModesFile};
 use crate::mesh::{self, MarchingOptions, SignedDistance, TriangleSurface};
 use crate::petsc::Petsc;
+use crate::random::SplitMix64;
 use clap::Args;
 use mpi::environment::Universe;
 use serde::Deserialize;
@@ -275,7 +279,13 @@ impl MaterialConfig {
     /// The preset with the flags' and then the file's E, ν, ρ, validated: the shared
     /// resolution of [`super::config::MaterialConfig::resolve`] (shape fits take no damping).
     pub fn resolve(&self, flags: &super::config::MaterialConfig) -> Result<Material, String> {
-        let shared = super::config::MaterialConfig { preset: self.preset.clone(), youngs_modulus: self.youngs_modulus, poisson_ratio: self.poisson_ratio, density: self.density, ..Default::default() };
+        let shared = super::config::MaterialConfig {
+            preset: self.preset.clone(),
+            youngs_modulus: self.youngs_modulus,
+            poisson_ratio: self.poisson_ratio,
+            density: self.density,
+            ..Default::default()
+        };
         shared.resolve(flags).map(|(material, _)| material)
     }
 }
@@ -291,24 +301,42 @@ pub struct SolverConfig {
 /// levels) or on the finest alone (the answer is the finest spacing's mean: the curved
 /// thickness body unless told `--extrapolate`).
 fn replicate_every_level(task: &Task, settings: &ShapeFitSettings) -> bool {
-    answers_with_line(settings.extrapolate, matches!(task, Task::Thickness { curved: true, .. }))
+    answers_with_line(
+        settings.extrapolate,
+        matches!(task, Task::Thickness { curved: true, .. }),
+    )
 }
 
 /// Which parameter is fitted, and of what.
 #[derive(Clone, Debug)]
 pub enum Task {
     /// `curved`: exact crossings and a curved boundary on the continuous signed distance.
-    Thickness { surface: PathBuf, curved: bool },
-    Morph { a: PathBuf, b: PathBuf },
+    Thickness {
+        surface: PathBuf,
+        curved: bool,
+    },
+    Morph {
+        a: PathBuf,
+        b: PathBuf,
+    },
 }
 
 /// Where the target spectrum comes from.
 #[derive(Clone, Debug)]
 pub enum TargetSource {
     /// λ* [rad²/s²] from a file, and the spacing the extrapolation aims at.
-    Given { path: PathBuf, eigenvalues: Vec<f64>, spacing: f64 },
+    Given {
+        path: PathBuf,
+        eigenvalues: Vec<f64>,
+        spacing: f64,
+    },
     /// The true parameter on a shifted grid of `cells`.
-    Synthetic { value: f64, cells: usize, seed: u64, spacing: Option<f64> },
+    Synthetic {
+        value: f64,
+        cells: usize,
+        seed: u64,
+        spacing: Option<f64>,
+    },
 }
 
 /// Everything resolved and checked before PETSc starts.
@@ -351,12 +379,29 @@ pub fn parse_target(text: &str, path: &Path, hertz: bool) -> Result<Vec<f64>, St
     let mut values = Vec::new();
     for (line_no, line) in text.lines().enumerate() {
         let line = line.split('#').next().unwrap_or("");
-        for token in line.split(|c: char| c.is_whitespace() || c == ',').filter(|t| !t.is_empty()) {
-            let v: f64 = token.parse().map_err(|_| format!("{}: line {}: {token:?} is not a number", path.display(), line_no + 1))?;
+        for token in line
+            .split(|c: char| c.is_whitespace() || c == ',')
+            .filter(|t| !t.is_empty())
+        {
+            let v: f64 = token.parse().map_err(|_| {
+                format!(
+                    "{}: line {}: {token:?} is not a number",
+                    path.display(),
+                    line_no + 1
+                )
+            })?;
             if !(v.is_finite() && v > 0.0) {
-                return Err(format!("{}: line {}: target values must be positive, got {v}", path.display(), line_no + 1));
+                return Err(format!(
+                    "{}: line {}: target values must be positive, got {v}",
+                    path.display(),
+                    line_no + 1
+                ));
             }
-            values.push(if hertz { (2.0 * std::f64::consts::PI * v).powi(2) } else { v });
+            values.push(if hertz {
+                (2.0 * std::f64::consts::PI * v).powi(2)
+            } else {
+                v
+            });
         }
     }
     if values.is_empty() {
@@ -385,21 +430,42 @@ fn existing(path: Option<PathBuf>, what: &str, flag: &str) -> Result<PathBuf, St
 }
 
 /// Merges defaults < config file < flags and validates, for either command.
-fn resolve(task: Task, synthetic_value: Option<f64>, bounds: Option<(f64, f64)>, wall: (Option<usize>, Option<f64>, Option<f64>), common: &ShapeArgs, file: &ShapeFileConfig) -> Result<Job, String> {
-    let units = common.units.clone().or(file.units.clone()).unwrap_or_else(|| "m".into());
+fn resolve(
+    task: Task,
+    synthetic_value: Option<f64>,
+    bounds: Option<(f64, f64)>,
+    wall: (Option<usize>, Option<f64>, Option<f64>),
+    common: &ShapeArgs,
+    file: &ShapeFileConfig,
+) -> Result<Job, String> {
+    let units = common
+        .units
+        .clone()
+        .or(file.units.clone())
+        .unwrap_or_else(|| "m".into());
     let unit_scale = mesh::parse_unit(&units).map_err(|e| e.to_string())?;
     let diagonal = common.diagonal.or(file.diagonal);
     if let Some(d) = diagonal {
         if !(d.is_finite() && d > 0.0) {
-            return Err(format!("--diagonal must be a positive length in metres, got {d}"));
+            return Err(format!(
+                "--diagonal must be a positive length in metres, got {d}"
+            ));
         }
     }
-    let cells = if common.cells.is_empty() { file.cells.clone().unwrap_or_else(|| vec![20, 28]) } else { common.cells.clone() };
+    let cells = if common.cells.is_empty() {
+        file.cells.clone().unwrap_or_else(|| vec![20, 28])
+    } else {
+        common.cells.clone()
+    };
     if cells.is_empty() || cells.iter().any(|&c| !(4..=200).contains(&c)) {
-        return Err(format!("--cells must be one or more grid sizes in 4..=200, got {cells:?}"));
+        return Err(format!(
+            "--cells must be one or more grid sizes in 4..=200, got {cells:?}"
+        ));
     }
     if cells.windows(2).any(|w| w[0] >= w[1]) {
-        return Err(format!("--cells must increase from coarse to fine, got {cells:?}"));
+        return Err(format!(
+            "--cells must increase from coarse to fine, got {cells:?}"
+        ));
     }
     let replicas = common.replicas.or(file.replicas).unwrap_or(1);
     if !(1..=4).contains(&replicas) {
@@ -447,11 +513,21 @@ fn resolve(task: Task, synthetic_value: Option<f64>, bounds: Option<(f64, f64)>,
     }
     settings.validate().map_err(|e| e.to_string())?;
     // The line goes through the same number of spacings, each with all its replicas.
-    settings.extrapolation_levels = replica_line_levels(settings.extrapolation_levels, replicas, replicate_every_level(&task, &settings));
+    settings.extrapolation_levels = replica_line_levels(
+        settings.extrapolation_levels,
+        replicas,
+        replicate_every_level(&task, &settings),
+    );
     let (lo, hi) = settings.bounds;
     match task {
-        Task::Thickness { .. } if !(lo > 0.0 && hi <= 1.0) => return Err(format!("thickness bounds ({lo}, {hi}) must lie in (0, 1]")),
-        Task::Morph { .. } if !(lo >= 0.0 && hi <= 1.0) => return Err(format!("morph weight bounds ({lo}, {hi}) must lie in [0, 1]")),
+        Task::Thickness { .. } if !(lo > 0.0 && hi <= 1.0) => {
+            return Err(format!("thickness bounds ({lo}, {hi}) must lie in (0, 1]"))
+        }
+        Task::Morph { .. } if !(lo >= 0.0 && hi <= 1.0) => {
+            return Err(format!(
+                "morph weight bounds ({lo}, {hi}) must lie in [0, 1]"
+            ))
+        }
         _ => {}
     }
 
@@ -492,40 +568,92 @@ fn resolve(task: Task, synthetic_value: Option<f64>, bounds: Option<(f64, f64)>,
         }
     };
 
-    let flags = super::config::MaterialConfig { preset: common.material.clone(), youngs_modulus: common.youngs, poisson_ratio: common.poisson, density: common.density, ..Default::default() };
+    let flags = super::config::MaterialConfig {
+        preset: common.material.clone(),
+        youngs_modulus: common.youngs,
+        poisson_ratio: common.poisson,
+        density: common.density,
+        ..Default::default()
+    };
     let material = file.material.resolve(&flags)?;
 
-    let out = common.out.clone().or(file.out.clone()).unwrap_or_else(|| PathBuf::from(format!("fit_{}.h5", task.name())));
+    let out = common
+        .out
+        .clone()
+        .or(file.out.clone())
+        .unwrap_or_else(|| PathBuf::from(format!("fit_{}.h5", task.name())));
     super::modes::check_output_dir(&out)?;
     let mesh_out = super::fit_material::plot_path(&out.with_extension(""), "_mesh.h5");
     let mut petsc_options = file.solver.petsc_options.clone();
     petsc_options.extend(common.petsc_options.iter().cloned());
-    Ok(Job { task, unit_scale, diagonal, cells, replicas, target, material, settings, out, mesh_out, petsc_options, verbose: common.verbose })
+    Ok(Job {
+        task,
+        unit_scale,
+        diagonal,
+        cells,
+        replicas,
+        target,
+        material,
+        settings,
+        out,
+        mesh_out,
+        petsc_options,
+        verbose: common.verbose,
+    })
 }
 
 pub fn resolve_thickness(args: &FitThicknessArgs) -> Result<Job, String> {
     let file = load_config(&args.common.config)?;
     if file.shape_a.is_some() || file.shape_b.is_some() || file.target.weight.is_some() {
-        return Err("shape_a, shape_b and target.weight are fit-morph keys, not fit-thickness ones".into());
+        return Err(
+            "shape_a, shape_b and target.weight are fit-morph keys, not fit-thickness ones".into(),
+        );
     }
-    let surface = existing(args.surface.clone().or(file.surface.clone()), "surface", "--surface")?;
+    let surface = existing(
+        args.surface.clone().or(file.surface.clone()),
+        "surface",
+        "--surface",
+    )?;
     let bounds = match args.bounds.as_slice() {
         [] => None,
         [lo, hi] => Some((*lo, *hi)),
         other => return Err(format!("--bounds takes lo,hi, got {other:?}")),
     };
     let curved = !(args.straight_boundary || file.straight_boundary.unwrap_or(false));
-    resolve(Task::Thickness { surface, curved }, args.target_thickness.or(file.target.thickness), bounds, (args.wall_refinement, args.wall_band, args.wall_tolerance), &args.common, &file)
+    resolve(
+        Task::Thickness { surface, curved },
+        args.target_thickness.or(file.target.thickness),
+        bounds,
+        (args.wall_refinement, args.wall_band, args.wall_tolerance),
+        &args.common,
+        &file,
+    )
 }
 
 pub fn resolve_morph(args: &FitMorphArgs) -> Result<Job, String> {
     let file = load_config(&args.common.config)?;
-    if file.surface.is_some() || file.target.thickness.is_some() || file.straight_boundary.is_some() {
+    if file.surface.is_some() || file.target.thickness.is_some() || file.straight_boundary.is_some()
+    {
         return Err("surface, straight_boundary and target.thickness are fit-thickness keys, not fit-morph ones".into());
     }
-    let a = existing(args.shape_a.clone().or(file.shape_a.clone()), "shape A", "--shape-a")?;
-    let b = existing(args.shape_b.clone().or(file.shape_b.clone()), "shape B", "--shape-b")?;
-    resolve(Task::Morph { a, b }, args.target_weight.or(file.target.weight), None, (None, None, None), &args.common, &file)
+    let a = existing(
+        args.shape_a.clone().or(file.shape_a.clone()),
+        "shape A",
+        "--shape-a",
+    )?;
+    let b = existing(
+        args.shape_b.clone().or(file.shape_b.clone()),
+        "shape B",
+        "--shape-b",
+    )?;
+    resolve(
+        Task::Morph { a, b },
+        args.target_weight.or(file.target.weight),
+        None,
+        (None, None, None),
+        &args.common,
+        &file,
+    )
 }
 
 pub fn run_thickness(universe: Universe, args: FitThicknessArgs) -> Result<(), String> {
@@ -541,7 +669,8 @@ pub fn run_morph(universe: Universe, args: FitMorphArgs) -> Result<(), String> {
 fn run(universe: Universe, job: Job) -> Result<(), String> {
     // The shapes are read before PETSc starts: a bad file ends the job with its message.
     let shapes = load_shapes(&job)?;
-    let petsc = Petsc::initialize(universe, "diffsound", &job.petsc_options).map_err(|e| e.to_string())?;
+    let petsc =
+        Petsc::initialize(universe, "diffsound", &job.petsc_options).map_err(|e| e.to_string())?;
     let (rank, size) = (petsc.rank(), petsc.size());
     match compute(&petsc, &job, shapes) {
         Ok(()) => Ok(()),
@@ -559,7 +688,8 @@ struct Shape {
 }
 
 fn load_shape(path: &Path, job: &Job) -> Result<Shape, String> {
-    let (mut surface, warnings) = read_surface(path).map_err(|e| format!("{}: {e}", path.display()))?;
+    let (mut surface, warnings) =
+        read_surface(path).map_err(|e| format!("{}: {e}", path.display()))?;
     for v in &mut surface.vertices {
         for x in v.iter_mut() {
             *x *= job.unit_scale;
@@ -567,9 +697,15 @@ fn load_shape(path: &Path, job: &Job) -> Result<Shape, String> {
     }
     let (lo, hi) = surface.bounding_box();
     let size = (0..3).map(|d| (hi[d] - lo[d]).powi(2)).sum::<f64>().sqrt();
-    normalise_surface(&mut surface, job.diagonal.unwrap_or(size)).map_err(|e| format!("{}: {e}", path.display()))?;
+    normalise_surface(&mut surface, job.diagonal.unwrap_or(size))
+        .map_err(|e| format!("{}: {e}", path.display()))?;
     let sdf = SignedDistance::new(&surface).map_err(|e| format!("{}: {e}", path.display()))?;
-    Ok(Shape { path: path.to_path_buf(), surface, sdf: Arc::new(sdf), warnings })
+    Ok(Shape {
+        path: path.to_path_buf(),
+        surface,
+        sdf: Arc::new(sdf),
+        warnings,
+    })
 }
 
 fn load_shapes(job: &Job) -> Result<Vec<Shape>, String> {
@@ -583,8 +719,15 @@ fn load_shapes(job: &Job) -> Result<Vec<Shape>, String> {
 fn family_on(job: &Job, shapes: &[Shape], grid: &mesh::BackgroundGrid, depth: f64) -> ShapeFamily {
     let positions = grid.vertex_positions();
     match job.task {
-        Task::Thickness { curved, .. } => ShapeFamily::Thickness { solid: shapes[0].sdf.evaluate(&positions), depth, surface: curved.then(|| Arc::clone(&shapes[0].sdf)) },
-        Task::Morph { .. } => ShapeFamily::Morph { a: shapes[0].sdf.evaluate(&positions), b: shapes[1].sdf.evaluate(&positions) },
+        Task::Thickness { curved, .. } => ShapeFamily::Thickness {
+            solid: shapes[0].sdf.evaluate(&positions),
+            depth,
+            surface: curved.then(|| Arc::clone(&shapes[0].sdf)),
+        },
+        Task::Morph { .. } => ShapeFamily::Morph {
+            a: shapes[0].sdf.evaluate(&positions),
+            b: shapes[1].sdf.evaluate(&positions),
+        },
     }
 }
 
@@ -602,43 +745,101 @@ fn compute(petsc: &Petsc, job: &Job, shapes: Vec<Shape>) -> Result<(), String> {
     let options = MarchingOptions::default();
     let (lo, hi) = union_box(&shapes.iter().map(|s| &s.surface).collect::<Vec<_>>());
     let depth = match job.task {
-        Task::Thickness { .. } => reference_depth(&shapes[0].sdf, &shapes[0].surface).map_err(|e| format!("{}: {e}", shapes[0].path.display()))?,
+        Task::Thickness { .. } => reference_depth(&shapes[0].sdf, &shapes[0].surface)
+            .map_err(|e| format!("{}: {e}", shapes[0].path.display()))?,
         Task::Morph { .. } => f64::NAN,
     };
     let parameter_name = job.task.parameter_name();
     if matches!(job.task, Task::Thickness { .. }) {
-        progress.say(format!("{}: reference depth S = {:.4} mm (deepest point of the solid)", shapes[0].path.display(), 1e3 * depth));
+        progress.say(format!(
+            "{}: reference depth S = {:.4} mm (deepest point of the solid)",
+            shapes[0].path.display(),
+            1e3 * depth
+        ));
     }
     let mut levels = Vec::new();
-    for (cells, r) in replica_levels(&job.cells, job.replicas, replicate_every_level(&job.task, &job.settings)) {
-        let grid = shifted_covering(lo, hi, cells, replica_shift(r, job.replicas)).map_err(|e| e.to_string())?;
-        levels.push(ShapeLevel { family: family_on(job, &shapes, &grid, depth), grid });
+    for (cells, r) in replica_levels(
+        &job.cells,
+        job.replicas,
+        replicate_every_level(&job.task, &job.settings),
+    ) {
+        let grid = shifted_covering(lo, hi, cells, replica_shift(r, job.replicas))
+            .map_err(|e| e.to_string())?;
+        levels.push(ShapeLevel {
+            family: family_on(job, &shapes, &grid, depth),
+            grid,
+        });
     }
     let setup_seconds = total.elapsed().as_secs_f64();
 
     // The target.
     let clock = std::time::Instant::now();
     let (target_eigenvalues, target_spacing, truth) = match &job.target {
-        TargetSource::Given { eigenvalues, spacing, .. } => (eigenvalues.clone(), *spacing, None),
-        TargetSource::Synthetic { value, cells, seed, spacing } => {
+        TargetSource::Given {
+            eigenvalues,
+            spacing,
+            ..
+        } => (eigenvalues.clone(), *spacing, None),
+        TargetSource::Synthetic {
+            value,
+            cells,
+            seed,
+            spacing,
+        } => {
             let mut rng = SplitMix64::new(*seed);
             let shift = [0; 3].map(|_| rng.uniform(-0.5, 0.5));
             let grid = shifted_covering(lo, hi, *cells, shift).map_err(|e| e.to_string())?;
             progress.say(format!("synthesising the target: {parameter_name} {value} on a {cells}-cell grid shifted by {:.2?} cells", shift));
-            let plain = ShapeLevel { family: family_on(job, &shapes, &grid, depth), grid };
+            let plain = ShapeLevel {
+                family: family_on(job, &shapes, &grid, depth),
+                grid,
+            };
             // The target is refined at its own inner wall as the fit levels are at theirs.
-            let target_level = plain.near_wall(*value, job.settings.wall_band, job.settings.wall_refinement, job.settings.wall_tolerance).map_err(|e| format!("the synthesised target: {e}"))?.unwrap_or(plain);
+            let target_level = plain
+                .near_wall(
+                    *value,
+                    job.settings.wall_band,
+                    job.settings.wall_refinement,
+                    job.settings.wall_tolerance,
+                )
+                .map_err(|e| format!("the synthesised target: {e}"))?
+                .unwrap_or(plain);
             if target_level.grid.is_refined() {
-                progress.say(format!("target grid refined {} times near its walls: {} background tets", job.settings.wall_refinement, target_level.grid.n_tets()));
+                progress.say(format!(
+                    "target grid refined {} times near its walls: {} background tets",
+                    job.settings.wall_refinement,
+                    target_level.grid.n_tets()
+                ));
             }
             let (grid, family) = (&target_level.grid, &target_level.family);
-            let (spectrum, _) = family.spectrum(petsc, grid, *value, &options, &job.material, job.settings.modes, false).map_err(|e| format!("the synthesised target: {e}"))?;
-            (spectrum.eigenvalues, spacing.unwrap_or(grid.spacing()[0]), Some((*value, *cells)))
+            let (spectrum, _) = family
+                .spectrum(
+                    petsc,
+                    grid,
+                    *value,
+                    &options,
+                    &job.material,
+                    job.settings.modes,
+                    false,
+                )
+                .map_err(|e| format!("the synthesised target: {e}"))?;
+            (
+                spectrum.eigenvalues,
+                spacing.unwrap_or(grid.spacing()[0]),
+                Some((*value, *cells)),
+            )
         }
     };
-    let target = SpectrumTarget::new(target_eigenvalues, job.settings.cluster_rtol).map_err(|e| e.to_string())?;
+    let target = SpectrumTarget::new(target_eigenvalues, job.settings.cluster_rtol)
+        .map_err(|e| e.to_string())?;
     let target_seconds = clock.elapsed().as_secs_f64();
-    progress.say(format!("target: {} modes, {:.1} … {:.1} Hz, {} group(s)", target.len(), crate::eigen::frequency_hz(target.eigenvalues[0]), crate::eigen::frequency_hz(*target.eigenvalues.last().expect("non-empty")), target.groups.len()));
+    progress.say(format!(
+        "target: {} modes, {:.1} … {:.1} Hz, {} group(s)",
+        target.len(),
+        crate::eigen::frequency_hz(target.eigenvalues[0]),
+        crate::eigen::frequency_hz(*target.eigenvalues.last().expect("non-empty")),
+        target.groups.len()
+    ));
 
     // The fit.
     let clock = std::time::Instant::now();
@@ -657,47 +858,148 @@ fn compute(petsc: &Petsc, job: &Job, shapes: Vec<Shape>) -> Result<(), String> {
     let finest = levels.last().expect("at least one level");
     // Refined as the finest level was during the fit (around that level's start).
     let finest_refined = match fit.levels.last().and_then(|l| l.wall_centre) {
-        Some(p0) => finest.near_wall(p0, job.settings.wall_band, job.settings.wall_refinement, job.settings.wall_tolerance).map_err(|e| format!("the fitted body: {e}"))?,
+        Some(p0) => finest
+            .near_wall(
+                p0,
+                job.settings.wall_band,
+                job.settings.wall_refinement,
+                job.settings.wall_tolerance,
+            )
+            .map_err(|e| format!("the fitted body: {e}"))?,
         None => None,
     };
     let finest = finest_refined.as_ref().unwrap_or(finest);
-    let body = finest.family.modes(petsc, &finest.grid, fit.parameter, &options, &job.material, job.settings.modes).map_err(|e| format!("the fitted body: {e}"))?;
+    let body = finest
+        .family
+        .modes(
+            petsc,
+            &finest.grid,
+            fit.parameter,
+            &options,
+            &job.material,
+            job.settings.modes,
+        )
+        .map_err(|e| format!("the fitted body: {e}"))?;
     let final_seconds = clock.elapsed().as_secs_f64();
 
     if rank == 0 {
         let fitted = &fit.levels.last().expect("at least one level").eigenvalues;
         let answer = &body.eigenvalues[..job.settings.modes];
-        let hz = |v: &[f64]| v.iter().map(|&l| crate::eigen::frequency_hz(l)).collect::<Vec<f64>>();
+        let hz = |v: &[f64]| {
+            v.iter()
+                .map(|&l| crate::eigen::frequency_hz(l))
+                .collect::<Vec<f64>>()
+        };
         let (target_hz, fitted_hz, answer_hz) = (hz(&target.eigenvalues), hz(fitted), hz(answer));
-        println!("fit-{}: {parameter_name} = {:.5}{}", job.task.name(), fit.parameter, match truth {
-            Some((v, _)) => format!(" (true {v}, error {:+.5})", fit.parameter - v),
-            None => String::new(),
-        });
+        println!(
+            "fit-{}: {parameter_name} = {:.5}{}",
+            job.task.name(),
+            fit.parameter,
+            match truth {
+                Some((v, _)) => format!(" (true {v}, error {:+.5})", fit.parameter - v),
+                None => String::new(),
+            }
+        );
         for l in &fit.levels {
-            let refined = l.wall_centre.map(|p0| format!(", grid refined near the walls around {p0:.4} ({} background tets)", l.grid_tets)).unwrap_or_default();
+            let refined = l
+                .wall_centre
+                .map(|p0| {
+                    format!(
+                        ", grid refined near the walls around {p0:.4} ({} background tets)",
+                        l.grid_tets
+                    )
+                })
+                .unwrap_or_default();
             println!("  level {:>3} cells (h = {:.3} mm): {parameter_name} {:.5}, loss {:.3e}, {} evaluations, {:.1} s{refined}", l.cells, 1e3 * l.spacing, l.parameter, l.loss, l.evaluations, l.seconds);
         }
         if let Some(e) = fit.extrapolated {
-            println!("  extrapolated to the target spacing {:.3} mm: {e:.5}{}", 1e3 * target_spacing, if fit.extrapolation_used { "" } else { " (not used: the answer is the finest level's)" });
+            println!(
+                "  extrapolated to the target spacing {:.3} mm: {e:.5}{}",
+                1e3 * target_spacing,
+                if fit.extrapolation_used {
+                    ""
+                } else {
+                    " (not used: the answer is the finest level's)"
+                }
+            );
         }
-        println!("  {:>4} {:>12} {:>18} {:>9} {:>18}", "mode", "target Hz", "finest-level fit", "error", "answer, finest grid");
+        println!(
+            "  {:>4} {:>12} {:>18} {:>9} {:>18}",
+            "mode", "target Hz", "finest-level fit", "error", "answer, finest grid"
+        );
         for k in 0..target_hz.len() {
-            println!("  {k:>4} {:>12.2} {:>18.2} {:>8.3}% {:>18.2}", target_hz[k], fitted_hz[k], 100.0 * (fitted_hz[k] / target_hz[k] - 1.0), answer_hz[k]);
+            println!(
+                "  {k:>4} {:>12.2} {:>18.2} {:>8.3}% {:>18.2}",
+                target_hz[k],
+                fitted_hz[k],
+                100.0 * (fitted_hz[k] / target_hz[k] - 1.0),
+                answer_hz[k]
+            );
         }
-        write_results(job, &shapes, &fit, &target, fitted, depth, target_spacing, truth, &body, [setup_seconds, target_seconds, fit_seconds, final_seconds, total.elapsed().as_secs_f64()], petsc.size())?;
-        println!("wrote {} and {} (+ .xdmf)", job.out.display(), job.mesh_out.display());
+        write_results(
+            job,
+            &shapes,
+            &fit,
+            &target,
+            fitted,
+            depth,
+            target_spacing,
+            truth,
+            &body,
+            [
+                setup_seconds,
+                target_seconds,
+                fit_seconds,
+                final_seconds,
+                total.elapsed().as_secs_f64(),
+            ],
+            petsc.size(),
+        )?;
+        println!(
+            "wrote {} and {} (+ .xdmf)",
+            job.out.display(),
+            job.mesh_out.display()
+        );
     }
     Ok(())
 }
 
 #[allow(clippy::too_many_arguments)]
-fn write_results(job: &Job, shapes: &[Shape], fit: &ShapeFit, target: &SpectrumTarget, fitted: &[f64], depth: f64, target_spacing: f64, truth: Option<(f64, usize)>, body: &crate::inverse::shape::ShapeModes, [setup, target_s, fit_s, final_s, total]: [f64; 5], n_ranks: usize) -> Result<(), String> {
-    let hz = |v: &[f64]| v.iter().map(|&l| crate::eigen::frequency_hz(l)).collect::<Vec<f64>>();
+fn write_results(
+    job: &Job,
+    shapes: &[Shape],
+    fit: &ShapeFit,
+    target: &SpectrumTarget,
+    fitted: &[f64],
+    depth: f64,
+    target_spacing: f64,
+    truth: Option<(f64, usize)>,
+    body: &crate::inverse::shape::ShapeModes,
+    [setup, target_s, fit_s, final_s, total]: [f64; 5],
+    n_ranks: usize,
+) -> Result<(), String> {
+    let hz = |v: &[f64]| {
+        v.iter()
+            .map(|&l| crate::eigen::frequency_hz(l))
+            .collect::<Vec<f64>>()
+    };
     let mut file = ResultsFile::new("diffsound.fit_shape", 1);
     file.text("/", "task", job.task.name())
         .text("/", "parameter_name", job.task.parameter_name())
-        .text("/", "surfaces", &shapes.iter().map(|s| s.path.display().to_string()).collect::<Vec<_>>().join(", "))
-        .text("/", "command", &std::env::args().collect::<Vec<_>>().join(" "))
+        .text(
+            "/",
+            "surfaces",
+            &shapes
+                .iter()
+                .map(|s| s.path.display().to_string())
+                .collect::<Vec<_>>()
+                .join(", "),
+        )
+        .text(
+            "/",
+            "command",
+            &std::env::args().collect::<Vec<_>>().join(" "),
+        )
         .text("/", "version", env!("CARGO_PKG_VERSION"))
         .number("/", "n_ranks", n_ranks as f64);
     let finest = fit.levels.last().expect("at least one level");
@@ -711,56 +1013,191 @@ fn write_results(job: &Job, shapes: &[Shape], fit: &ShapeFit, target: &SpectrumT
         file.number("/fit", "extrapolated", e);
     }
     if let Some((value, cells)) = truth {
-        file.number("/fit", "true_parameter", value).number("/fit", "abs_error", (fit.parameter - value).abs()).number("/fit", "target_cells", cells as f64);
+        file.number("/fit", "true_parameter", value)
+            .number("/fit", "abs_error", (fit.parameter - value).abs())
+            .number("/fit", "target_cells", cells as f64);
     }
     let l = &fit.levels;
-    file.column("/fit/levels/cells", l.iter().map(|l| l.cells as f64).collect(), "")
-        .column("/fit/levels/spacing", l.iter().map(|l| l.spacing).collect(), "m")
-        .column("/fit/levels/parameter", l.iter().map(|l| l.parameter).collect(), "1")
-        .column("/fit/levels/loss", l.iter().map(|l| l.loss).collect(), "1")
-        .column("/fit/levels/log_stiffness_scale", l.iter().map(|l| l.log_scale).collect(), "1")
-        .column("/fit/levels/evaluations", l.iter().map(|l| l.evaluations as f64).collect(), "")
-        .column("/fit/levels/seconds", l.iter().map(|l| l.seconds).collect(), "s")
-        .column("/fit/levels/grid_tets", l.iter().map(|l| l.grid_tets as f64).collect(), "")
-        .column("/fit/levels/wall_centre", l.iter().map(|l| l.wall_centre.unwrap_or(f64::NAN)).collect(), "1");
-    file.number("/fit", "wall_refinement", job.settings.wall_refinement as f64).number("/fit", "wall_band", job.settings.wall_band).number("/fit", "wall_tolerance", job.settings.wall_tolerance);
+    file.column(
+        "/fit/levels/cells",
+        l.iter().map(|l| l.cells as f64).collect(),
+        "",
+    )
+    .column(
+        "/fit/levels/spacing",
+        l.iter().map(|l| l.spacing).collect(),
+        "m",
+    )
+    .column(
+        "/fit/levels/parameter",
+        l.iter().map(|l| l.parameter).collect(),
+        "1",
+    )
+    .column("/fit/levels/loss", l.iter().map(|l| l.loss).collect(), "1")
+    .column(
+        "/fit/levels/log_stiffness_scale",
+        l.iter().map(|l| l.log_scale).collect(),
+        "1",
+    )
+    .column(
+        "/fit/levels/evaluations",
+        l.iter().map(|l| l.evaluations as f64).collect(),
+        "",
+    )
+    .column(
+        "/fit/levels/seconds",
+        l.iter().map(|l| l.seconds).collect(),
+        "s",
+    )
+    .column(
+        "/fit/levels/grid_tets",
+        l.iter().map(|l| l.grid_tets as f64).collect(),
+        "",
+    )
+    .column(
+        "/fit/levels/wall_centre",
+        l.iter()
+            .map(|l| l.wall_centre.unwrap_or(f64::NAN))
+            .collect(),
+        "1",
+    );
+    file.number(
+        "/fit",
+        "wall_refinement",
+        job.settings.wall_refinement as f64,
+    )
+    .number("/fit", "wall_band", job.settings.wall_band)
+    .number("/fit", "wall_tolerance", job.settings.wall_tolerance);
     let h = &fit.history;
-    file.column("/fit/history/level", h.iter().map(|e| e.level as f64).collect(), "")
-        .column("/fit/history/cells", h.iter().map(|e| e.cells as f64).collect(), "")
-        .column("/fit/history/phase", h.iter().map(|e| if e.phase == SearchPhase::Scan { 0.0 } else { 1.0 }).collect(), "")
-        .column("/fit/history/parameter", h.iter().map(|e| e.parameter).collect(), "1")
-        .column("/fit/history/loss", h.iter().map(|e| e.loss).collect(), "1")
-        .column("/fit/history/gradient", h.iter().map(|e| e.gradient).collect(), "1")
-        .column("/fit/history/step", h.iter().map(|e| e.step).collect(), "1")
-        .column("/fit/history/tets", h.iter().map(|e| e.tets as f64).collect(), "")
-        .column("/fit/history/p2_nodes", h.iter().map(|e| e.p2_nodes as f64).collect(), "")
-        .column("/fit/history/meshing_s", h.iter().map(|e| e.timings.meshing).collect(), "s")
-        .column("/fit/history/assembly_s", h.iter().map(|e| e.timings.assembly).collect(), "s")
-        .column("/fit/history/solve_s", h.iter().map(|e| e.timings.solve).collect(), "s")
-        .column("/fit/history/gradient_s", h.iter().map(|e| e.timings.gradient).collect(), "s")
-        .column("/fit/history/failed", h.iter().map(|e| f64::from(u8::from(e.failure.is_some()))).collect(), "");
+    file.column(
+        "/fit/history/level",
+        h.iter().map(|e| e.level as f64).collect(),
+        "",
+    )
+    .column(
+        "/fit/history/cells",
+        h.iter().map(|e| e.cells as f64).collect(),
+        "",
+    )
+    .column(
+        "/fit/history/phase",
+        h.iter()
+            .map(|e| {
+                if e.phase == SearchPhase::Scan {
+                    0.0
+                } else {
+                    1.0
+                }
+            })
+            .collect(),
+        "",
+    )
+    .column(
+        "/fit/history/parameter",
+        h.iter().map(|e| e.parameter).collect(),
+        "1",
+    )
+    .column("/fit/history/loss", h.iter().map(|e| e.loss).collect(), "1")
+    .column(
+        "/fit/history/gradient",
+        h.iter().map(|e| e.gradient).collect(),
+        "1",
+    )
+    .column("/fit/history/step", h.iter().map(|e| e.step).collect(), "1")
+    .column(
+        "/fit/history/tets",
+        h.iter().map(|e| e.tets as f64).collect(),
+        "",
+    )
+    .column(
+        "/fit/history/p2_nodes",
+        h.iter().map(|e| e.p2_nodes as f64).collect(),
+        "",
+    )
+    .column(
+        "/fit/history/meshing_s",
+        h.iter().map(|e| e.timings.meshing).collect(),
+        "s",
+    )
+    .column(
+        "/fit/history/assembly_s",
+        h.iter().map(|e| e.timings.assembly).collect(),
+        "s",
+    )
+    .column(
+        "/fit/history/solve_s",
+        h.iter().map(|e| e.timings.solve).collect(),
+        "s",
+    )
+    .column(
+        "/fit/history/gradient_s",
+        h.iter().map(|e| e.timings.gradient).collect(),
+        "s",
+    )
+    .column(
+        "/fit/history/failed",
+        h.iter()
+            .map(|e| f64::from(u8::from(e.failure.is_some())))
+            .collect(),
+        "",
+    );
     let (target_hz, fitted_hz) = (hz(&target.eigenvalues), hz(fitted));
-    file.column("/modes/target_eigenvalues", target.eigenvalues.clone(), "rad^2/s^2")
-        .column("/modes/fitted_eigenvalues", fitted.to_vec(), "rad^2/s^2")
-        .column("/modes/relative_frequency_error", fitted_hz.iter().zip(&target_hz).map(|(f, t)| f / t - 1.0).collect(), "1")
-        .column("/modes/target_frequency_hz", target_hz, "Hz")
-        .column("/modes/fitted_frequency_hz", fitted_hz, "Hz")
-        .column("/modes/answer_frequency_hz", hz(&body.eigenvalues[..fitted.len()]), "Hz");
+    file.column(
+        "/modes/target_eigenvalues",
+        target.eigenvalues.clone(),
+        "rad^2/s^2",
+    )
+    .column("/modes/fitted_eigenvalues", fitted.to_vec(), "rad^2/s^2")
+    .column(
+        "/modes/relative_frequency_error",
+        fitted_hz
+            .iter()
+            .zip(&target_hz)
+            .map(|(f, t)| f / t - 1.0)
+            .collect(),
+        "1",
+    )
+    .column("/modes/target_frequency_hz", target_hz, "Hz")
+    .column("/modes/fitted_frequency_hz", fitted_hz, "Hz")
+    .column(
+        "/modes/answer_frequency_hz",
+        hz(&body.eigenvalues[..fitted.len()]),
+        "Hz",
+    );
     // ∫ det J over the P2 elements: the curved boundary's volume, not its chords' (det J is a
     // cubic, so the degree-4 rule is exact).
     let rule = crate::fem::tet_rule(4);
-    let volume = (0..body.mesh.n_tets()).map(|e| crate::fem::element_volume(&body.mesh.tet_coords(e), &rule)).sum::<Result<f64, _>>().map_err(|e| format!("the fitted body's volume: {e}"))?;
+    let volume = (0..body.mesh.n_tets())
+        .map(|e| crate::fem::element_volume(&body.mesh.tet_coords(e), &rule))
+        .sum::<Result<f64, _>>()
+        .map_err(|e| format!("the fitted body's volume: {e}"))?;
     let (lo, hi) = union_box(&shapes.iter().map(|s| &s.surface).collect::<Vec<_>>());
-    file.number("/shape", "diagonal", (0..3).map(|d| (hi[d] - lo[d]).powi(2)).sum::<f64>().sqrt())
-        .number("/shape", "finest_cells", finest.cells as f64)
-        .number("/shape", "tets", body.mesh.n_tets() as f64)
-        .number("/shape", "p2_nodes", body.mesh.n_nodes() as f64)
-        .number("/shape", "volume", volume);
+    file.number(
+        "/shape",
+        "diagonal",
+        (0..3).map(|d| (hi[d] - lo[d]).powi(2)).sum::<f64>().sqrt(),
+    )
+    .number("/shape", "finest_cells", finest.cells as f64)
+    .number("/shape", "tets", body.mesh.n_tets() as f64)
+    .number("/shape", "p2_nodes", body.mesh.n_nodes() as f64)
+    .number("/shape", "volume", volume);
     if let Task::Thickness { curved, .. } = job.task {
-        file.number("/shape", "reference_depth", depth).number("/shape", "curved_boundary", f64::from(u8::from(curved)));
+        file.number("/shape", "reference_depth", depth).number(
+            "/shape",
+            "curved_boundary",
+            f64::from(u8::from(curved)),
+        );
     }
-    file.number("/material", "youngs_modulus", job.material.youngs_modulus).number("/material", "poisson_ratio", job.material.poisson_ratio).number("/material", "density", job.material.density);
-    for (k, v) in [("setup", setup), ("target", target_s), ("fit", fit_s), ("final_body", final_s), ("total", total)] {
+    file.number("/material", "youngs_modulus", job.material.youngs_modulus)
+        .number("/material", "poisson_ratio", job.material.poisson_ratio)
+        .number("/material", "density", job.material.density);
+    for (k, v) in [
+        ("setup", setup),
+        ("target", target_s),
+        ("fit", fit_s),
+        ("final_body", final_s),
+        ("total", total),
+    ] {
         file.number("/timings", k, v);
     }
     file.write(&job.out).map_err(|e| e.to_string())?;
@@ -770,7 +1207,14 @@ fn write_results(job: &Job, shapes: &[Shape], fit: &ShapeFit, target: &SpectrumT
         nodes: &body.mesh.nodes,
         connectivity: &body.mesh.connectivity,
         nodes_per_tet: body.mesh.nodes_per_tet(),
-        material: MaterialRecord { name: format!("fitted {} = {:.5}", job.task.name(), fit.parameter), youngs_modulus: job.material.youngs_modulus, poisson_ratio: job.material.poisson_ratio, density: job.material.density, rayleigh_alpha: job.material.rayleigh_alpha, rayleigh_beta: job.material.rayleigh_beta },
+        material: MaterialRecord {
+            name: format!("fitted {} = {:.5}", job.task.name(), fit.parameter),
+            youngs_modulus: job.material.youngs_modulus,
+            poisson_ratio: job.material.poisson_ratio,
+            density: job.material.density,
+            rayleigh_alpha: job.material.rayleigh_alpha,
+            rayleigh_beta: job.material.rayleigh_beta,
+        },
         eigenvalues: &body.eigenvalues,
         frequencies_hz: &frequencies,
         mode_shapes: &body.shapes,
@@ -780,7 +1224,13 @@ fn write_results(job: &Job, shapes: &[Shape], fit: &ShapeFit, target: &SpectrumT
         n_ranks,
         element_order: 2,
         timings: Vec::new(),
-        provenance: vec![("command".into(), std::env::args().collect::<Vec<_>>().join(" ")), ("fit".into(), job.out.display().to_string())],
+        provenance: vec![
+            (
+                "command".into(),
+                std::env::args().collect::<Vec<_>>().join(" "),
+            ),
+            ("fit".into(), job.out.display().to_string()),
+        ],
         extra_datasets: Vec::new(),
         node_fields: Vec::new(),
     };
@@ -798,7 +1248,11 @@ mod tests {
         let w = |f: f64| (2.0 * std::f64::consts::PI * f).powi(2);
         assert_eq!(v, vec![w(100.0), w(200.0), w(300.0)]);
         assert_eq!(parse_target("4e6 1e6", p, false).unwrap(), vec![1e6, 4e6]);
-        for (bad, what) in [("1 x 2", "not a number"), ("-5", "positive"), ("# nothing", "no target values")] {
+        for (bad, what) in [
+            ("1 x 2", "not a number"),
+            ("-5", "positive"),
+            ("# nothing", "no target values"),
+        ] {
             let e = parse_target(bad, p, true).unwrap_err();
             assert!(e.contains(what) && e.contains("t.txt"), "{bad}: {e}");
         }

@@ -73,7 +73,10 @@ use crate::diagnose::evidence;
 use crate::diagnose::extract::{extract_modes, ExtractOptions};
 use crate::eigen::{self, EigenConfig, ModeRequest};
 use crate::fem::Material;
-use crate::inverse::impact::{self, AmplitudeFitOptions, ClusterAmplitudes, ForwardTable, ImpactMap, MapOptions, Pole, SurfaceGraph, Transfer};
+use crate::inverse::impact::{
+    self, AmplitudeFitOptions, ClusterAmplitudes, ForwardTable, ImpactMap, MapOptions, Pole,
+    SurfaceGraph, Transfer,
+};
 use crate::io::plot::{surface_png, SurfaceFigure, SurfaceMarker, SurfacePanel, View};
 use crate::io::results::{read_dataset, ResultsFile};
 use crate::io::{write_modes, MaterialRecord, ModesFile, NodeField};
@@ -273,8 +276,24 @@ pub fn resolve(args: &ImpactArgs) -> Result<Job, String> {
         None => ImpactFileConfig::default(),
     };
     let case: Option<CaseMeta> = args.case.as_deref().map(read_toml).transpose()?;
-    let case_dir = args.case.as_ref().and_then(|p| p.parent()).map(Path::to_path_buf).unwrap_or_default();
-    let super::modes::MeshChoice { mesh, unit_scale, .. } = super::modes::resolve_mesh(&args.mesh, &file.mesh.clone().or(case.as_ref().map(|c| c.mesh.clone())), &args.units, &file.units.clone().or(case.as_ref().map(|c| c.mesh_unit.clone())), Some(2))?;
+    let case_dir = args
+        .case
+        .as_ref()
+        .and_then(|p| p.parent())
+        .map(Path::to_path_buf)
+        .unwrap_or_default();
+    let super::modes::MeshChoice {
+        mesh, unit_scale, ..
+    } = super::modes::resolve_mesh(
+        &args.mesh,
+        &file.mesh.clone().or(case.as_ref().map(|c| c.mesh.clone())),
+        &args.units,
+        &file
+            .units
+            .clone()
+            .or(case.as_ref().map(|c| c.mesh_unit.clone())),
+        Some(2),
+    )?;
     if !mesh.is_file() {
         return Err(format!("mesh {} does not exist", mesh.display()));
     }
@@ -283,31 +302,52 @@ pub fn resolve(args: &ImpactArgs) -> Result<Job, String> {
     } else if !file.recordings.is_empty() {
         file.recordings.clone()
     } else if let Some(c) = &case {
-        c.microphone_files.iter().map(|f| case_dir.join(f)).collect()
+        c.microphone_files
+            .iter()
+            .map(|f| case_dir.join(f))
+            .collect()
     } else {
         return Err("no recordings given: use --recording FILE (repeatable), `recordings = [...]` in the config file, or --case".into());
     };
     if let Some(r) = recordings.iter().find(|r| !r.is_file()) {
         return Err(format!("recording {} does not exist", r.display()));
     }
-    let sample_rate = file.sample_rate.or(case.as_ref().map(|c| c.sample_rate_hz)).unwrap_or(48_000);
+    let sample_rate = file
+        .sample_rate
+        .or(case.as_ref().map(|c| c.sample_rate_hz))
+        .unwrap_or(48_000);
     if !(8_000..=192_000).contains(&sample_rate) {
-        return Err(format!("the sample rate must lie in 8000..=192000 Hz, got {sample_rate}"));
+        return Err(format!(
+            "the sample rate must lie in 8000..=192000 Hz, got {sample_rate}"
+        ));
     }
-    let pre_roll = file.pre_roll_s.or(case.as_ref().map(|c| (c.onset_time_s - 0.02).max(0.0))).unwrap_or(0.2);
+    let pre_roll = file
+        .pre_roll_s
+        .or(case.as_ref().map(|c| (c.onset_time_s - 0.02).max(0.0)))
+        .unwrap_or(0.2);
     if !(0.0..=10.0).contains(&pre_roll) {
-        return Err(format!("the pre-roll must lie in [0, 10] s, got {pre_roll}"));
+        return Err(format!(
+            "the pre-roll must lie in [0, 10] s, got {pre_roll}"
+        ));
     }
     let window = args.window.or(file.window_s).unwrap_or(0.5);
     if !(0.02..=30.0).contains(&window) {
-        return Err(format!("the amplitude window must lie in [0.02, 30] s, got {window}"));
+        return Err(format!(
+            "the amplitude window must lie in [0.02, 30] s, got {window}"
+        ));
     }
     let max_frequency_hz = args.fmax.or(file.max_frequency_hz).unwrap_or(12_000.0);
     if !(max_frequency_hz > 100.0 && max_frequency_hz < 0.5 * f64::from(sample_rate)) {
-        return Err(format!("--fmax must lie in (100 Hz, Nyquist {} Hz), got {max_frequency_hz}", 0.5 * f64::from(sample_rate)));
+        return Err(format!(
+            "--fmax must lie in (100 Hz, Nyquist {} Hz), got {max_frequency_hz}",
+            0.5 * f64::from(sample_rate)
+        ));
     }
     let material_path = args.material.clone().or(file.material_fit.clone());
-    let given = (args.youngs.or(file.youngs_modulus), args.poisson.or(file.poisson_ratio));
+    let given = (
+        args.youngs.or(file.youngs_modulus),
+        args.poisson.or(file.poisson_ratio),
+    );
     let (material, material_source, damping_curve) = match (material_path, given) {
         (Some(p), (None, None)) => {
             let (e, nu, rho) = read_fit_material(&p)?;
@@ -323,10 +363,17 @@ pub fn resolve(args: &ImpactArgs) -> Result<Job, String> {
         (None, _) => return Err("--youngs and --poisson go together".into()),
     };
     material.validate().map_err(|e| format!("material: {e}"))?;
-    let microphones = file.microphone_positions.clone().or(case.as_ref().map(|c| c.microphone_positions_m.clone()));
+    let microphones = file
+        .microphone_positions
+        .clone()
+        .or(case.as_ref().map(|c| c.microphone_positions_m.clone()));
     if let Some(m) = &microphones {
         if m.len() != recordings.len() {
-            return Err(format!("{} microphone positions for {} recordings", m.len(), recordings.len()));
+            return Err(format!(
+                "{} microphone positions for {} recordings",
+                m.len(),
+                recordings.len()
+            ));
         }
         if m.iter().flatten().any(|x| !x.is_finite()) {
             return Err("microphone positions must be finite".into());
@@ -334,17 +381,23 @@ pub fn resolve(args: &ImpactArgs) -> Result<Job, String> {
     }
     let assumed_distance_m = file.assumed_distance_m.unwrap_or(0.5);
     if !(assumed_distance_m.is_finite() && assumed_distance_m > 0.0) {
-        return Err(format!("assumed_distance_m must be positive, got {assumed_distance_m}"));
+        return Err(format!(
+            "assumed_distance_m must be positive, got {assumed_distance_m}"
+        ));
     }
     let contact_duration_s = args.contact_duration.or(file.contact_duration_s);
     if let Some(t) = contact_duration_s {
         if !(t.is_finite() && t > 0.0 && t < 0.05) {
-            return Err(format!("the contact duration must lie in (0, 0.05) s, got {t}"));
+            return Err(format!(
+                "the contact duration must lie in (0, 0.05) s, got {t}"
+            ));
         }
     }
     let match_tolerance = file.match_tolerance.unwrap_or(0.03);
     if !(match_tolerance > 0.0 && match_tolerance < 0.5) {
-        return Err(format!("match_tolerance must lie in (0, 0.5), got {match_tolerance}"));
+        return Err(format!(
+            "match_tolerance must lie in (0, 0.5), got {match_tolerance}"
+        ));
     }
     let mut map = file.map.clone();
     if let Some(k) = args.top {
@@ -352,7 +405,11 @@ pub fn resolve(args: &ImpactArgs) -> Result<Job, String> {
     }
     // Microphones are uncalibrated unless the file says otherwise (module docs, step 6).
     map.free_microphone_gains = !file.calibrated_microphones.unwrap_or(false);
-    let out = args.out.clone().or(file.out.clone()).unwrap_or_else(|| PathBuf::from("impact.h5"));
+    let out = args
+        .out
+        .clone()
+        .or(file.out.clone())
+        .unwrap_or_else(|| PathBuf::from("impact.h5"));
     super::modes::check_output_dir(&out)?;
     let mut petsc_options = file.petsc_options.clone();
     petsc_options.extend(args.petsc_options.iter().cloned());
@@ -375,7 +432,10 @@ pub fn resolve(args: &ImpactArgs) -> Result<Job, String> {
         assumed_distance_m,
         contact_duration_s,
         match_tolerance,
-        true_vertex: args.true_vertex.or(file.true_vertex).or(case.as_ref().map(|c| c.strike.vertex)),
+        true_vertex: args
+            .true_vertex
+            .or(file.true_vertex)
+            .or(case.as_ref().map(|c| c.strike.vertex)),
         extract: file.extract.clone(),
         map,
         out,
@@ -386,7 +446,8 @@ pub fn resolve(args: &ImpactArgs) -> Result<Job, String> {
 
 pub fn run(universe: Universe, args: ImpactArgs) -> Result<(), String> {
     let job = resolve(&args)?;
-    let petsc = Petsc::initialize(universe, "diffsound", &job.petsc_options).map_err(|e| e.to_string())?;
+    let petsc =
+        Petsc::initialize(universe, "diffsound", &job.petsc_options).map_err(|e| e.to_string())?;
     let (rank, size) = (petsc.rank(), petsc.size());
     match compute(&petsc, &job) {
         Ok(()) => Ok(()),
@@ -409,18 +470,42 @@ struct Measured {
 
 fn measure(job: &Job, progress: &Progress) -> Result<Measured, String> {
     let t = Instant::now();
-    let options = RecordingOptions { target_rate: Some(job.sample_rate), pre_roll_s: job.pre_roll, duration_s: Some(job.pre_roll + job.window), gain: GainPolicy::Unity, ..Default::default() };
+    let options = RecordingOptions {
+        target_rate: Some(job.sample_rate),
+        pre_roll_s: job.pre_roll,
+        duration_s: Some(job.pre_roll + job.window),
+        gain: GainPolicy::Unity,
+        ..Default::default()
+    };
     let rec = load_recording(&job.recordings, &options).map_err(|e| e.to_string())?;
     let fs = f64::from(rec.sample_rate);
-    let onset = (((rec.onset_s - rec.start_s) * fs).round().max(0.0) as usize).min(rec.channels[0].len());
+    let onset =
+        (((rec.onset_s - rec.start_s) * fs).round().max(0.0) as usize).min(rec.channels[0].len());
     let channels: Vec<Vec<f64>> = rec.channels.iter().map(|c| c[onset..].to_vec()).collect();
     if (channels[0].len() as f64) < 0.02 * fs {
-        return Err(format!("only {:.3} s of recording after the onset at {:.3} s", channels[0].len() as f64 / fs, rec.onset_s));
+        return Err(format!(
+            "only {:.3} s of recording after the onset at {:.3} s",
+            channels[0].len() as f64 / fs,
+            rec.onset_s
+        ));
     }
-    let ex = extract_modes(&channels, fs, &job.extract).map_err(|e| format!("mode extraction: {e}"))?;
-    let poles: Vec<(f64, f64, f64)> = ex.modes.iter().filter(|m| m.frequency_hz <= job.max_frequency_hz && m.decay_rate >= 0.0).map(|m| (m.frequency_hz, m.decay_rate, m.snr_db)).collect();
+    let ex =
+        extract_modes(&channels, fs, &job.extract).map_err(|e| format!("mode extraction: {e}"))?;
+    let poles: Vec<(f64, f64, f64)> = ex
+        .modes
+        .iter()
+        .filter(|m| m.frequency_hz <= job.max_frequency_hz && m.decay_rate >= 0.0)
+        .map(|m| (m.frequency_hz, m.decay_rate, m.snr_db))
+        .collect();
     progress.say(format!("{} channel(s) at {} Hz, onset at {:.4} s, {:.3} s fitted; {} recorded poles below {:.0} Hz", channels.len(), rec.sample_rate, rec.onset_s, channels[0].len() as f64 / fs, poles.len(), job.max_frequency_hz));
-    Ok(Measured { names: rec.names, onset_s: rec.onset_s, channels, sample_rate: fs, poles, seconds: t.elapsed().as_secs_f64() })
+    Ok(Measured {
+        names: rec.names,
+        onset_s: rec.onset_s,
+        channels,
+        sample_rate: fs,
+        poles,
+        seconds: t.elapsed().as_secs_f64(),
+    })
 }
 
 /// Near-degenerate simulated modes share a cluster (relative frequency tolerance).
@@ -439,7 +524,13 @@ struct PoleAssignment {
 }
 
 /// Matches recorded poles to clusters of simulated modes (module docs, step 3).
-fn assign_poles(measured: &Measured, sim_hz: &[f64], cluster_of: &[usize], decay_of: impl Fn(f64) -> f64, tolerance: f64) -> Result<PoleAssignment, String> {
+fn assign_poles(
+    measured: &Measured,
+    sim_hz: &[f64],
+    cluster_of: &[usize],
+    decay_of: impl Fn(f64) -> f64,
+    tolerance: f64,
+) -> Result<PoleAssignment, String> {
     let n_clusters = cluster_of.iter().max().map_or(0, |m| m + 1);
     // Cluster centres in the simulation.
     let mut centre = vec![(0.0, 0usize); n_clusters];
@@ -449,7 +540,16 @@ fn assign_poles(measured: &Measured, sim_hz: &[f64], cluster_of: &[usize], decay
     }
     let centre: Vec<f64> = centre.iter().map(|(s, n)| (s / *n as f64).exp()).collect();
     // Global scale: median ratio of each recorded pole to its nearest simulated cluster.
-    let mut ratios: Vec<f64> = measured.poles.iter().filter_map(|p| centre.iter().map(|c| (p.0 / c).ln()).min_by(|a, b| a.abs().total_cmp(&b.abs()))).collect();
+    let mut ratios: Vec<f64> = measured
+        .poles
+        .iter()
+        .filter_map(|p| {
+            centre
+                .iter()
+                .map(|c| (p.0 / c).ln())
+                .min_by(|a, b| a.abs().total_cmp(&b.abs()))
+        })
+        .collect();
     if ratios.is_empty() {
         return Err("no recorded pole to match against the simulated modes".into());
     }
@@ -459,8 +559,13 @@ fn assign_poles(measured: &Measured, sim_hz: &[f64], cluster_of: &[usize], decay
     let mut pole_cluster = Vec::new();
     let mut observed = vec![false; n_clusters];
     for &(f, d, _) in &measured.poles {
-        let nearest = (0..n_clusters).map(|c| (c, (f.ln() - ln_scale - centre[c].ln()).abs())).min_by(|a, b| a.1.total_cmp(&b.1));
-        poles.push(Pole { frequency_hz: f, decay_rate: d });
+        let nearest = (0..n_clusters)
+            .map(|c| (c, (f.ln() - ln_scale - centre[c].ln()).abs()))
+            .min_by(|a, b| a.1.total_cmp(&b.1));
+        poles.push(Pole {
+            frequency_hz: f,
+            decay_rate: d,
+        });
         match nearest {
             Some((c, dist)) if dist <= tolerance => {
                 observed[c] = true;
@@ -476,23 +581,41 @@ fn assign_poles(measured: &Measured, sim_hz: &[f64], cluster_of: &[usize], decay
             if f >= 0.95 * nyquist {
                 return Err(format!("simulated mode at {f:.0} Hz is too close to the recording's Nyquist frequency ({nyquist:.0} Hz); lower max_frequency_hz"));
             }
-            poles.push(Pole { frequency_hz: f, decay_rate: decay_of(f) });
+            poles.push(Pole {
+                frequency_hz: f,
+                decay_rate: decay_of(f),
+            });
             pole_cluster.push(Some(c));
         }
     }
-    Ok(PoleAssignment { scale: ln_scale.exp(), poles, pole_cluster, observed })
+    Ok(PoleAssignment {
+        scale: ln_scale.exp(),
+        poles,
+        pole_cluster,
+        observed,
+    })
 }
 
 fn compute(petsc: &Petsc, job: &Job) -> Result<(), String> {
     let total = Instant::now();
     let rank = petsc.rank();
     let progress = Progress::new(rank, job.verbose);
-    let read = mesh::read_mesh(&job.mesh, &ReadOptions { unit_scale: job.unit_scale, fix_inverted: false }).map_err(|e| e.to_string())?;
+    let read = mesh::read_mesh(
+        &job.mesh,
+        &ReadOptions {
+            unit_scale: job.unit_scale,
+            fix_inverted: false,
+        },
+    )
+    .map_err(|e| e.to_string())?;
     let mesh_model: TetMesh = mesh::lift_to_quadratic(&read.mesh);
     drop(read);
     if let Some(v) = job.true_vertex {
         if v >= mesh_model.n_nodes() {
-            return Err(format!("true strike vertex {v} does not exist ({} nodes)", mesh_model.n_nodes()));
+            return Err(format!(
+                "true strike vertex {v} does not exist ({} nodes)",
+                mesh_model.n_nodes()
+            ));
         }
     }
 
@@ -500,7 +623,11 @@ fn compute(petsc: &Petsc, job: &Job) -> Result<(), String> {
     let local = (rank == 0).then(|| measure(job, &progress));
     let measured: Measured = broadcast_from_root(petsc, local)??;
     if measured.poles.len() < 3 {
-        return Err(format!("only {} poles found in the recording below {} Hz; the map needs at least 3", measured.poles.len(), job.max_frequency_hz));
+        return Err(format!(
+            "only {} poles found in the recording below {} Hz; the map needs at least 3",
+            measured.poles.len(),
+            job.max_frequency_hz
+        ));
     }
 
     // 2: the modes at the fitted material.
@@ -513,11 +640,25 @@ fn compute(petsc: &Petsc, job: &Job) -> Result<(), String> {
     // Up to the band's top (a little beyond, for a recording a few % sharp of the model);
     // modes that land above it after the frequency scale are dropped below.
     let f_top = 1.05 * job.max_frequency_hz;
-    let cfg = EigenConfig::new(ModeRequest::UpTo { f_max_hz: f_top }, eigen::spectrum_scale(material.lame_mu(), material.density, diagonal));
+    let cfg = EigenConfig::new(
+        ModeRequest::UpTo { f_max_hz: f_top },
+        eigen::spectrum_scale(material.lame_mu(), material.density, diagonal),
+    );
     let modes = eigen::solve_modes(petsc, &k, &m, &cfg).map_err(|e| e.to_string())?;
-    let mut shapes = assembled.layout.gather_original_order(&modes.vectors).map_err(|e| e.to_string())?;
+    let mut shapes = assembled
+        .layout
+        .gather_original_order(&modes.vectors)
+        .map_err(|e| e.to_string())?;
     let solve_seconds = t_solve.elapsed().as_secs_f64();
-    progress.say(format!("{} simulated modes up to {:.0} Hz at E = {:.4e} Pa, ν = {:.4}, ρ = {} in {:.1} s", modes.eigenvalues.len(), f_top, material.youngs_modulus, material.poisson_ratio, material.density, solve_seconds));
+    progress.say(format!(
+        "{} simulated modes up to {:.0} Hz at E = {:.4e} Pa, ν = {:.4}, ρ = {} in {:.1} s",
+        modes.eigenvalues.len(),
+        f_top,
+        material.youngs_modulus,
+        material.poisson_ratio,
+        material.density,
+        solve_seconds
+    ));
     for w in &modes.warnings {
         if rank == 0 {
             eprintln!("warning: {w}");
@@ -537,54 +678,124 @@ fn compute(petsc: &Petsc, job: &Job) -> Result<(), String> {
         d.sort_by(f64::total_cmp);
         d[d.len() / 2]
     };
-    let decay_of = |f: f64| job.damping_curve.as_ref().map_or(median_decay, |c| c.decay(f));
-    let all_hz: Vec<f64> = modes.eigenvalues.iter().map(|&l| eigen::frequency_hz(l)).collect();
-    let first = assign_poles(&measured, &all_hz, &evidence::cluster_ids(&all_hz, CLUSTER_RTOL), decay_of, job.match_tolerance)?;
-    let in_band = all_hz.iter().take_while(|&&f| first.scale * f <= job.max_frequency_hz).count();
+    let decay_of = |f: f64| {
+        job.damping_curve
+            .as_ref()
+            .map_or(median_decay, |c| c.decay(f))
+    };
+    let all_hz: Vec<f64> = modes
+        .eigenvalues
+        .iter()
+        .map(|&l| eigen::frequency_hz(l))
+        .collect();
+    let first = assign_poles(
+        &measured,
+        &all_hz,
+        &evidence::cluster_ids(&all_hz, CLUSTER_RTOL),
+        decay_of,
+        job.match_tolerance,
+    )?;
+    let in_band = all_hz
+        .iter()
+        .take_while(|&&f| first.scale * f <= job.max_frequency_hz)
+        .count();
     if in_band == 0 {
-        return Err(format!("no simulated mode below {} Hz", job.max_frequency_hz));
+        return Err(format!(
+            "no simulated mode below {} Hz",
+            job.max_frequency_hz
+        ));
     }
     let eigenvalues = modes.eigenvalues[..in_band].to_vec();
     shapes.truncate(in_band);
     let sim_hz = all_hz[..in_band].to_vec();
     let cluster_of = evidence::cluster_ids(&sim_hz, CLUSTER_RTOL);
-    let assignment = assign_poles(&measured, &sim_hz, &cluster_of, decay_of, job.match_tolerance)?;
+    let assignment = assign_poles(
+        &measured,
+        &sim_hz,
+        &cluster_of,
+        decay_of,
+        job.match_tolerance,
+    )?;
     let n_observed = assignment.observed.iter().filter(|o| **o).count();
     progress.say(format!("frequency scale {:.5}; {} of {} simulated clusters matched by a recorded pole, {} recorded poles unclaimed", assignment.scale, n_observed, assignment.observed.len(), assignment.pole_cluster.iter().filter(|c| c.is_none()).count()));
 
     // 4: amplitudes with the poles known.
     let t_amp = Instant::now();
-    let fit = impact::fit_amplitudes(&measured.channels, measured.sample_rate, 0.0, &assignment.poles, &AmplitudeFitOptions { window_s: Some(job.window), ..Default::default() }).map_err(|e| format!("amplitude fit: {e}"))?;
+    let fit = impact::fit_amplitudes(
+        &measured.channels,
+        measured.sample_rate,
+        0.0,
+        &assignment.poles,
+        &AmplitudeFitOptions {
+            window_s: Some(job.window),
+            ..Default::default()
+        },
+    )
+    .map_err(|e| format!("amplitude fit: {e}"))?;
     // Unclaimed poles get ids past the clusters, then are dropped.
     let n_clusters = assignment.observed.len();
-    let ids: Vec<usize> = assignment.pole_cluster.iter().enumerate().map(|(i, c)| c.unwrap_or(n_clusters + i)).collect();
-    let all = impact::cluster_amplitudes(&fit, &ids).map_err(|e| format!("cluster amplitudes: {e}"))?;
+    let ids: Vec<usize> = assignment
+        .pole_cluster
+        .iter()
+        .enumerate()
+        .map(|(i, c)| c.unwrap_or(n_clusters + i))
+        .collect();
+    let all =
+        impact::cluster_amplitudes(&fit, &ids).map_err(|e| format!("cluster amplitudes: {e}"))?;
     let measured_clusters = keep_simulated_clusters(all, &ids, &cluster_of)?;
     let amplitude_seconds = t_amp.elapsed().as_secs_f64();
     if !fit.not_separable.is_empty() {
-        progress.say(format!("{} pole(s) not separable in the amplitude fit (their clusters count with infinite σ)", fit.not_separable.len()));
+        progress.say(format!(
+            "{} pole(s) not separable in the amplitude fit (their clusters count with infinite σ)",
+            fit.not_separable.len()
+        ));
     }
 
     // 5: the forward table.
     let t_table = Instant::now();
     let candidates = impact::surface_candidates(&mesh_model);
-    let decay_rates: Vec<f64> = (0..sim_hz.len()).map(|k| cluster_decay(&assignment, &fit, cluster_of[k]).unwrap_or_else(|| decay_of(sim_hz[k]))).collect();
+    let decay_rates: Vec<f64> = (0..sim_hz.len())
+        .map(|k| {
+            cluster_decay(&assignment, &fit, cluster_of[k]).unwrap_or_else(|| decay_of(sim_hz[k]))
+        })
+        .collect();
     let n_mics = measured.channels.len();
-    let (transfer_values, transfer_note) = transfers(job, &mesh_model, &eigenvalues, &shapes, n_mics, &progress)?;
+    let (transfer_values, transfer_note) =
+        transfers(job, &mesh_model, &eigenvalues, &shapes, n_mics, &progress)?;
     let transfer = match &transfer_values {
-        TransferValues::None => Transfer::None { microphones: n_mics },
+        TransferValues::None => Transfer::None {
+            microphones: n_mics,
+        },
         TransferValues::Complex(t) => Transfer::Directional(t),
     };
-    let response = if matches!(transfer_values, TransferValues::None) { Response::Acceleration } else { Response::Displacement };
-    let force = job.contact_duration_s.map_or(ContactForce::Impulse, |duration_s| ContactForce::HalfSine { duration_s });
+    let response = if matches!(transfer_values, TransferValues::None) {
+        Response::Acceleration
+    } else {
+        Response::Displacement
+    };
+    let force = job
+        .contact_duration_s
+        .map_or(ContactForce::Impulse, |duration_s| ContactForce::HalfSine {
+            duration_s,
+        });
     let strike = Strike { force, response };
-    let table = impact::forward_amplitudes(&shapes, &eigenvalues, &decay_rates, &strike, &candidates, &transfer, &cluster_of).map_err(|e| format!("forward amplitudes: {e}"))?;
+    let table = impact::forward_amplitudes(
+        &shapes,
+        &eigenvalues,
+        &decay_rates,
+        &strike,
+        &candidates,
+        &transfer,
+        &cluster_of,
+    )
+    .map_err(|e| format!("forward amplitudes: {e}"))?;
     let table_seconds = t_table.elapsed().as_secs_f64();
 
     // 6: the map.
     let t_map = Instant::now();
     let graph = SurfaceGraph::from_mesh(&mesh_model).map_err(|e| format!("surface graph: {e}"))?;
-    let map = impact::likelihood_map(&measured_clusters, &table, &graph, &job.map).map_err(|e| format!("likelihood map: {e}"))?;
+    let map = impact::likelihood_map(&measured_clusters, &table, &graph, &job.map)
+        .map_err(|e| format!("likelihood map: {e}"))?;
     let map_seconds = t_map.elapsed().as_secs_f64();
     let best = &table.candidates[map.best];
     progress.say(format!("map over {} surface vertices from {} cluster × microphone terms ({} below the detection limit) in {:.2} s; best vertex {} (strength {:.3e} ± {:.1e})", candidates.len(), map.terms, map.terms_below_limit, map_seconds, best.vertex, map.strength, map.strength_sd));
@@ -595,9 +806,38 @@ fn compute(petsc: &Petsc, job: &Job) -> Result<(), String> {
         None => None,
     };
 
-    let timings = [("recording", measured.seconds), ("modes", solve_seconds), ("amplitudes", amplitude_seconds), ("transfer_and_table", table_seconds), ("map", map_seconds), ("total", total.elapsed().as_secs_f64())];
-    print_summary(job, &mesh_model, &assignment, &table, &map, evaluation.as_ref(), &transfer_note);
-    let report = Report { job, measured: &measured, assignment: &assignment, sim_hz: &sim_hz, cluster_of: &cluster_of, fit_clusters: &measured_clusters, table: &table, map: &map, mesh: &mesh_model, evaluation: evaluation.as_ref(), transfer_note: &transfer_note, timings: &timings, n_ranks: petsc.size() };
+    let timings = [
+        ("recording", measured.seconds),
+        ("modes", solve_seconds),
+        ("amplitudes", amplitude_seconds),
+        ("transfer_and_table", table_seconds),
+        ("map", map_seconds),
+        ("total", total.elapsed().as_secs_f64()),
+    ];
+    print_summary(
+        job,
+        &mesh_model,
+        &assignment,
+        &table,
+        &map,
+        evaluation.as_ref(),
+        &transfer_note,
+    );
+    let report = Report {
+        job,
+        measured: &measured,
+        assignment: &assignment,
+        sim_hz: &sim_hz,
+        cluster_of: &cluster_of,
+        fit_clusters: &measured_clusters,
+        table: &table,
+        map: &map,
+        mesh: &mesh_model,
+        evaluation: evaluation.as_ref(),
+        transfer_note: &transfer_note,
+        timings: &timings,
+        n_ranks: petsc.size(),
+    };
     write_hdf5(&report)?;
     write_json(&report)?;
     write_map(&report, &eigenvalues, &shapes, &modes.rigid_eigenvalues)?;
@@ -608,21 +848,62 @@ fn compute(petsc: &Petsc, job: &Job) -> Result<(), String> {
 /// The cluster amplitudes of the simulated clusters only, relabelled with the simulated modes
 /// each cluster stands for (`cluster_of`), so that they line up with the forward table. Every
 /// simulated cluster has a pole (recorded or predicted), so the ids are 0..n_clusters in order.
-fn keep_simulated_clusters(all: ClusterAmplitudes, ids: &[usize], cluster_of: &[usize]) -> Result<ClusterAmplitudes, String> {
+fn keep_simulated_clusters(
+    all: ClusterAmplitudes,
+    ids: &[usize],
+    cluster_of: &[usize],
+) -> Result<ClusterAmplitudes, String> {
     let n_clusters = cluster_of.iter().max().map_or(0, |m| m + 1);
-    let keep: Vec<bool> = all.clusters.iter().map(|members| ids[members[0]] < n_clusters).collect();
-    let kept_ids: Vec<usize> = all.clusters.iter().map(|members| ids[members[0]]).filter(|&c| c < n_clusters).collect();
+    let keep: Vec<bool> = all
+        .clusters
+        .iter()
+        .map(|members| ids[members[0]] < n_clusters)
+        .collect();
+    let kept_ids: Vec<usize> = all
+        .clusters
+        .iter()
+        .map(|members| ids[members[0]])
+        .filter(|&c| c < n_clusters)
+        .collect();
     if kept_ids != (0..n_clusters).collect::<Vec<_>>() {
-        return Err(format!("internal: clusters {kept_ids:?} have poles, expected every one of 0..{n_clusters}"));
+        return Err(format!(
+            "internal: clusters {kept_ids:?} have poles, expected every one of 0..{n_clusters}"
+        ));
     }
-    let pick = |v: Vec<Vec<f64>>| v.into_iter().zip(&keep).filter(|(_, k)| **k).map(|(x, _)| x).collect::<Vec<_>>();
-    let below = all.below_limit.into_iter().zip(&keep).filter(|(_, k)| **k).map(|(x, _)| x).collect();
-    Ok(ClusterAmplitudes { clusters: impact::cluster_members(cluster_of), amplitude: pick(all.amplitude), sd: pick(all.sd), detection_limit: pick(all.detection_limit), below_limit: below })
+    let pick = |v: Vec<Vec<f64>>| {
+        v.into_iter()
+            .zip(&keep)
+            .filter(|(_, k)| **k)
+            .map(|(x, _)| x)
+            .collect::<Vec<_>>()
+    };
+    let below = all
+        .below_limit
+        .into_iter()
+        .zip(&keep)
+        .filter(|(_, k)| **k)
+        .map(|(x, _)| x)
+        .collect();
+    Ok(ClusterAmplitudes {
+        clusters: impact::cluster_members(cluster_of),
+        amplitude: pick(all.amplitude),
+        sd: pick(all.sd),
+        detection_limit: pick(all.detection_limit),
+        below_limit: below,
+    })
 }
 
 /// The decay rate of the (first) pole assigned to a cluster.
-fn cluster_decay(assignment: &PoleAssignment, fit: &impact::AmplitudeFit, cluster: usize) -> Option<f64> {
-    assignment.pole_cluster.iter().position(|c| *c == Some(cluster)).map(|i| fit.poles[i].decay_rate)
+fn cluster_decay(
+    assignment: &PoleAssignment,
+    fit: &impact::AmplitudeFit,
+    cluster: usize,
+) -> Option<f64> {
+    assignment
+        .pole_cluster
+        .iter()
+        .position(|c| *c == Some(cluster))
+        .map(|i| fit.poles[i].decay_rate)
 }
 
 enum TransferValues {
@@ -631,27 +912,58 @@ enum TransferValues {
 }
 
 /// The acoustic transfer of every mode to every microphone (module docs, step 5).
-fn transfers(job: &Job, mesh: &TetMesh, eigenvalues: &[f64], shapes: &[Vec<f64>], n_mics: usize, progress: &Progress) -> Result<(TransferValues, String), String> {
+fn transfers(
+    job: &Job,
+    mesh: &TetMesh,
+    eigenvalues: &[f64],
+    shapes: &[Vec<f64>],
+    n_mics: usize,
+    progress: &Progress,
+) -> Result<(TransferValues, String), String> {
     if job.transfer == TransferChoice::None {
-        return Ok((TransferValues::None, "none: |T| = 1, signal taken as surface acceleration".into()));
+        return Ok((
+            TransferValues::None,
+            "none: |T| = 1, signal taken as surface acceleration".into(),
+        ));
     }
     let t = Instant::now();
     let quadrature = SurfaceQuadrature::new(mesh).map_err(|e| format!("radiation: {e}"))?;
     let mut out = Vec::with_capacity(shapes.len());
     let mut worst_residual = 0.0f64;
     for (shape, &lambda) in shapes.iter().zip(eigenvalues) {
-        let un = quadrature.normal_displacement(shape).map_err(|e| format!("radiation: {e}"))?;
-        let fit = fit_multipoles(quadrature.samples(), &un, lambda.sqrt(), &MultipoleSettings::default()).map_err(|e| format!("radiation: {e}"))?;
+        let un = quadrature
+            .normal_displacement(shape)
+            .map_err(|e| format!("radiation: {e}"))?;
+        let fit = fit_multipoles(
+            quadrature.samples(),
+            &un,
+            lambda.sqrt(),
+            &MultipoleSettings::default(),
+        )
+        .map_err(|e| format!("radiation: {e}"))?;
         worst_residual = worst_residual.max(fit.residual);
         let row = match &job.microphones {
             Some(mics) => {
-                let nearest = mics.iter().map(|x| (0..3).map(|d| (x[d] - fit.centre[d]).powi(2)).sum::<f64>().sqrt()).fold(f64::INFINITY, f64::min);
+                let nearest = mics
+                    .iter()
+                    .map(|x| {
+                        (0..3)
+                            .map(|d| (x[d] - fit.centre[d]).powi(2))
+                            .sum::<f64>()
+                            .sqrt()
+                    })
+                    .fold(f64::INFINITY, f64::min);
                 if nearest <= fit.source_radius {
                     return Err(format!("a microphone {nearest:.3} m from the radiation fit's centre lies inside its source sphere ({:.3} m); the transfer there is not defined", fit.source_radius));
                 }
                 fit.transfer(mics).map_err(|e| e.to_string())?
             }
-            None => fit.transfer_unknown_positions(n_mics, job.assumed_distance_m.max(1.01 * fit.source_radius)).map_err(|e| e.to_string())?,
+            None => fit
+                .transfer_unknown_positions(
+                    n_mics,
+                    job.assumed_distance_m.max(1.01 * fit.source_radius),
+                )
+                .map_err(|e| e.to_string())?,
         };
         out.push(row);
     }
@@ -659,7 +971,11 @@ fn transfers(job: &Job, mesh: &TetMesh, eigenvalues: &[f64], shapes: &[Vec<f64>]
         Some(_) => format!("multipole transfer to the given microphone positions (largest boundary residual ε = {worst_residual:.2})"),
         None => format!("microphone positions unknown: direction-averaged multipole transfer at {} m (largest boundary residual ε = {worst_residual:.2}); right on average over directions, not for any one microphone", job.assumed_distance_m),
     };
-    progress.say(format!("acoustic transfer of {} modes in {:.1} s: {note}", shapes.len(), t.elapsed().as_secs_f64()));
+    progress.say(format!(
+        "acoustic transfer of {} modes in {:.1} s: {note}",
+        shapes.len(),
+        t.elapsed().as_secs_f64()
+    ));
     Ok((TransferValues::Complex(out), note))
 }
 
@@ -683,28 +999,77 @@ struct Evaluation {
 /// Relative tolerance of the drive signatures that makes two vertices one symmetry orbit.
 const ORBIT_RTOL: f64 = 0.05;
 
-fn evaluate(true_vertex: usize, table: &ForwardTable, map: &ImpactMap, graph: &SurfaceGraph) -> Result<Evaluation, String> {
-    let truth = table.candidates.iter().position(|c| c.vertex == true_vertex).ok_or_else(|| format!("true strike vertex {true_vertex} is not a surface vertex with a normal"))?;
+fn evaluate(
+    true_vertex: usize,
+    table: &ForwardTable,
+    map: &ImpactMap,
+    graph: &SurfaceGraph,
+) -> Result<Evaluation, String> {
+    let truth = table
+        .candidates
+        .iter()
+        .position(|c| c.vertex == true_vertex)
+        .ok_or_else(|| {
+            format!("true strike vertex {true_vertex} is not a surface vertex with a normal")
+        })?;
     let best = table.candidates[map.best].vertex;
-    let geodesic_error_m = graph.distance(true_vertex, best).map_err(|e| e.to_string())?;
+    let geodesic_error_m = graph
+        .distance(true_vertex, best)
+        .map_err(|e| e.to_string())?;
     let signatures = impact::drive_signatures(table);
-    let orbit = impact::symmetry_orbit(&signatures, truth, ORBIT_RTOL).map_err(|e| e.to_string())?;
+    let orbit =
+        impact::symmetry_orbit(&signatures, truth, ORBIT_RTOL).map_err(|e| e.to_string())?;
     let best_on_orbit = orbit.contains(&map.best);
-    let from_best = graph.distances_from(best, f64::INFINITY).map_err(|e| e.to_string())?;
-    let orbit_error_m = orbit.iter().filter_map(|&c| graph.index_of(table.candidates[c].vertex)).map(|slot| from_best[slot]).fold(f64::INFINITY, f64::min);
+    let from_best = graph
+        .distances_from(best, f64::INFINITY)
+        .map_err(|e| e.to_string())?;
+    let orbit_error_m = orbit
+        .iter()
+        .filter_map(|&c| graph.index_of(table.candidates[c].vertex))
+        .map(|slot| from_best[slot])
+        .fold(f64::INFINITY, f64::min);
     let area_rank = map.area_rank(truth);
-    Ok(Evaluation { true_vertex, best_vertex: best, geodesic_error_m, area_rank, in_top_percent: area_rank <= 0.01, orbit_size: orbit.len(), best_on_orbit, orbit_error_m })
+    Ok(Evaluation {
+        true_vertex,
+        best_vertex: best,
+        geodesic_error_m,
+        area_rank,
+        in_top_percent: area_rank <= 0.01,
+        orbit_size: orbit.len(),
+        best_on_orbit,
+        orbit_error_m,
+    })
 }
 
-fn print_summary(job: &Job, mesh: &TetMesh, assignment: &PoleAssignment, table: &ForwardTable, map: &ImpactMap, evaluation: Option<&Evaluation>, transfer_note: &str) {
+fn print_summary(
+    job: &Job,
+    mesh: &TetMesh,
+    assignment: &PoleAssignment,
+    table: &ForwardTable,
+    map: &ImpactMap,
+    evaluation: Option<&Evaluation>,
+    transfer_note: &str,
+) {
     let pos = |v: usize| mesh.nodes[v];
     println!("locate-impact: {} surface vertices, {} clusters ({} heard), {} microphones; E = {:.4e} Pa, ν = {:.4}, ρ = {} ({})", table.candidates.len(), table.clusters.len(), assignment.observed.iter().filter(|o| **o).count(), table.microphones, job.material.youngs_modulus, job.material.poisson_ratio, job.material.density, job.material_source);
     println!("  transfer: {transfer_note}");
     println!("  strength at the best vertex: {:.4e} ± {:.2e} (recording units per N·s of impulse; absolute only with calibrated microphones and known positions)", map.strength, map.strength_sd);
-    println!("  top candidates (posterior mass within {:.1} mm):", 1e3 * map.neighbourhood_m);
+    println!(
+        "  top candidates (posterior mass within {:.1} mm):",
+        1e3 * map.neighbourhood_m
+    );
     for (i, t) in map.top.iter().enumerate() {
         let p = pos(t.vertex);
-        println!("    {}. vertex {:>6} at ({:+.4}, {:+.4}, {:+.4}) m: mass {:.3}, ℓ = {:.2}", i + 1, t.vertex, p[0], p[1], p[2], t.neighbourhood_mass, t.log_likelihood);
+        println!(
+            "    {}. vertex {:>6} at ({:+.4}, {:+.4}, {:+.4}) m: mass {:.3}, ℓ = {:.2}",
+            i + 1,
+            t.vertex,
+            p[0],
+            p[1],
+            p[2],
+            t.neighbourhood_mass,
+            t.log_likelihood
+        );
     }
     if let Some(e) = evaluation {
         println!("  truth: vertex {}; best candidate {:.1} mm away along the surface; {:.2} % of the surface ranks at or above the truth ({}); symmetry orbit of {} vertices, best candidate {} ({:.1} mm from it)", e.true_vertex, 1e3 * e.geodesic_error_m, 100.0 * e.area_rank, if e.in_top_percent { "in the top 1 %" } else { "not in the top 1 %" }, e.orbit_size, if e.best_on_orbit { "on it" } else { "off it" }, 1e3 * e.orbit_error_m);
@@ -732,9 +1097,21 @@ fn write_hdf5(r: &Report) -> Result<(), String> {
     let best = table.candidates[map.best].vertex;
     let mut file = ResultsFile::new("diffsound.locate_impact", 1);
     file.text("/", "mesh", &job.mesh.display().to_string())
-        .text("/", "recordings", &job.recordings.iter().map(|p| p.display().to_string()).collect::<Vec<_>>().join(", "))
+        .text(
+            "/",
+            "recordings",
+            &job.recordings
+                .iter()
+                .map(|p| p.display().to_string())
+                .collect::<Vec<_>>()
+                .join(", "),
+        )
         .number("/", "n_ranks", r.n_ranks as f64)
-        .text("/", "command", &std::env::args().collect::<Vec<_>>().join(" "))
+        .text(
+            "/",
+            "command",
+            &std::env::args().collect::<Vec<_>>().join(" "),
+        )
         .text("/", "version", env!("CARGO_PKG_VERSION"))
         .number("/material", "youngs_modulus", job.material.youngs_modulus)
         .number("/material", "poisson_ratio", job.material.poisson_ratio)
@@ -743,43 +1120,128 @@ fn write_hdf5(r: &Report) -> Result<(), String> {
         .number("/impact", "best_vertex", best as f64)
         .number("/impact", "strength", map.strength)
         .number("/impact", "strength_sd", map.strength_sd)
-        .text("/impact", "strength_units", "recording units per N·s of impulse")
+        .text(
+            "/impact",
+            "strength_units",
+            "recording units per N·s of impulse",
+        )
         .number("/impact", "sigma_model_at_best", map.sigma_model[map.best])
         .number("/impact", "terms", map.terms as f64)
         .number("/impact", "terms_below_limit", map.terms_below_limit as f64)
         .number("/impact", "frequency_scale", r.assignment.scale)
         .text("/impact", "transfer", r.transfer_note)
-        .dataset("/impact/best_position", &[3], r.mesh.nodes[best].to_vec(), "m");
+        .dataset(
+            "/impact/best_position",
+            &[3],
+            r.mesh.nodes[best].to_vec(),
+            "m",
+        );
     let vertices: Vec<f64> = table.candidates.iter().map(|c| c.vertex as f64).collect();
     file.column("/map/vertex", vertices, "")
         .column("/map/posterior", map.posterior.clone(), "1")
         .column("/map/log_likelihood", map.log_likelihood.clone(), "1")
         .column("/map/cosine", map.cosine.clone(), "1")
         .column("/map/area_share", map.area_share.clone(), "1")
-        .column("/map/log_strength", map.log_strength.clone(), "ln(recording units per N·s)")
+        .column(
+            "/map/log_strength",
+            map.log_strength.clone(),
+            "ln(recording units per N·s)",
+        )
         .column("/map/sigma_model", map.sigma_model.clone(), "ln amplitude");
-    file.column("/top/vertex", map.top.iter().map(|t| t.vertex as f64).collect(), "")
-        .dataset("/top/position", &[map.top.len(), 3], map.top.iter().flat_map(|t| t.position).collect(), "m")
-        .column("/top/neighbourhood_mass", map.top.iter().map(|t| t.neighbourhood_mass).collect(), "1")
-        .column("/top/log_likelihood", map.top.iter().map(|t| t.log_likelihood).collect(), "1")
-        .column("/top/strength", map.top.iter().map(|t| t.strength).collect(), "recording units per N·s");
-    file.column("/modes/simulated_hz", r.sim_hz.to_vec(), "Hz").column("/modes/cluster", r.cluster_of.iter().map(|&c| c as f64).collect(), "");
-    file.column("/poles/frequency_hz", r.assignment.poles.iter().map(|p| p.frequency_hz).collect(), "Hz")
-        .column("/poles/decay_rate", r.assignment.poles.iter().map(|p| p.decay_rate).collect(), "1/s")
-        .column("/poles/cluster", r.assignment.pole_cluster.iter().map(|c| c.map_or(-1.0, |c| c as f64)).collect(), "");
+    file.column(
+        "/top/vertex",
+        map.top.iter().map(|t| t.vertex as f64).collect(),
+        "",
+    )
+    .dataset(
+        "/top/position",
+        &[map.top.len(), 3],
+        map.top.iter().flat_map(|t| t.position).collect(),
+        "m",
+    )
+    .column(
+        "/top/neighbourhood_mass",
+        map.top.iter().map(|t| t.neighbourhood_mass).collect(),
+        "1",
+    )
+    .column(
+        "/top/log_likelihood",
+        map.top.iter().map(|t| t.log_likelihood).collect(),
+        "1",
+    )
+    .column(
+        "/top/strength",
+        map.top.iter().map(|t| t.strength).collect(),
+        "recording units per N·s",
+    );
+    file.column("/modes/simulated_hz", r.sim_hz.to_vec(), "Hz")
+        .column(
+            "/modes/cluster",
+            r.cluster_of.iter().map(|&c| c as f64).collect(),
+            "",
+        );
+    file.column(
+        "/poles/frequency_hz",
+        r.assignment.poles.iter().map(|p| p.frequency_hz).collect(),
+        "Hz",
+    )
+    .column(
+        "/poles/decay_rate",
+        r.assignment.poles.iter().map(|p| p.decay_rate).collect(),
+        "1/s",
+    )
+    .column(
+        "/poles/cluster",
+        r.assignment
+            .pole_cluster
+            .iter()
+            .map(|c| c.map_or(-1.0, |c| c as f64))
+            .collect(),
+        "",
+    );
     let (nc, nm) = (table.clusters.len(), table.microphones);
     let flat = |v: &Vec<Vec<f64>>| v.iter().flatten().copied().collect::<Vec<f64>>();
-    let predicted: Vec<f64> = (0..nc).flat_map(|c| (0..nm).map(move |m| (c, m))).map(|(c, m)| table.amplitude(map.best, c, m) * map.strength).collect();
-    file.dataset("/clusters/measured_amplitude", &[nc, nm], flat(&r.fit_clusters.amplitude), "recording units")
-        .dataset("/clusters/measured_sd", &[nc, nm], flat(&r.fit_clusters.sd), "recording units")
-        .dataset("/clusters/predicted_at_best", &[nc, nm], predicted, "recording units")
-        .column("/clusters/heard", r.assignment.observed.iter().map(|&o| if o { 1.0 } else { 0.0 }).collect(), "");
+    let predicted: Vec<f64> = (0..nc)
+        .flat_map(|c| (0..nm).map(move |m| (c, m)))
+        .map(|(c, m)| table.amplitude(map.best, c, m) * map.strength)
+        .collect();
+    file.dataset(
+        "/clusters/measured_amplitude",
+        &[nc, nm],
+        flat(&r.fit_clusters.amplitude),
+        "recording units",
+    )
+    .dataset(
+        "/clusters/measured_sd",
+        &[nc, nm],
+        flat(&r.fit_clusters.sd),
+        "recording units",
+    )
+    .dataset(
+        "/clusters/predicted_at_best",
+        &[nc, nm],
+        predicted,
+        "recording units",
+    )
+    .column(
+        "/clusters/heard",
+        r.assignment
+            .observed
+            .iter()
+            .map(|&o| if o { 1.0 } else { 0.0 })
+            .collect(),
+        "",
+    );
     if let Some(e) = r.evaluation {
         file.number("/evaluation", "true_vertex", e.true_vertex as f64)
             .number("/evaluation", "geodesic_error_m", e.geodesic_error_m)
             .number("/evaluation", "area_rank", e.area_rank)
             .number("/evaluation", "orbit_size", e.orbit_size as f64)
-            .number("/evaluation", "best_on_orbit", if e.best_on_orbit { 1.0 } else { 0.0 })
+            .number(
+                "/evaluation",
+                "best_on_orbit",
+                if e.best_on_orbit { 1.0 } else { 0.0 },
+            )
             .number("/evaluation", "orbit_error_m", e.orbit_error_m);
     }
     for (k, v) in r.timings {
@@ -816,7 +1278,14 @@ fn write_json(r: &Report) -> Result<(), String> {
         "timings_s": r.timings.iter().map(|(k, v)| (k.to_string(), *v)).collect::<std::collections::BTreeMap<_, _>>(),
     });
     let text = serde_json::to_string_pretty(&value).map_err(|e| e.to_string())?;
-    crate::io::write_atomically(&job.json, |tmp| std::fs::write(tmp, &text).map_err(|source| crate::io::IoError::Fs { path: tmp.to_path_buf(), context: "writing the JSON summary".into(), source })).map_err(|e| e.to_string())?;
+    crate::io::write_atomically(&job.json, |tmp| {
+        std::fs::write(tmp, &text).map_err(|source| crate::io::IoError::Fs {
+            path: tmp.to_path_buf(),
+            context: "writing the JSON summary".into(),
+            source,
+        })
+    })
+    .map_err(|e| e.to_string())?;
     println!("wrote {}", job.json.display());
     Ok(())
 }
@@ -825,13 +1294,22 @@ fn write_json(r: &Report) -> Result<(), String> {
 fn node_fields(r: &Report) -> (Vec<f64>, Vec<f64>) {
     let (map, table) = (r.map, r.table);
     let n = r.mesh.n_nodes();
-    let density: Vec<f64> = map.posterior.iter().zip(&map.area_share).map(|(p, a)| if *a > 0.0 { p / a } else { 0.0 }).collect();
+    let density: Vec<f64> = map
+        .posterior
+        .iter()
+        .zip(&map.area_share)
+        .map(|(p, a)| if *a > 0.0 { p / a } else { 0.0 })
+        .collect();
     let top_density = density.iter().cloned().fold(0.0, f64::max);
     let top_ll = map.log_likelihood[map.best];
     let mut dens = vec![0.0; n];
     let mut ratio = vec![LOG_RATIO_FLOOR; n];
     for (i, c) in table.candidates.iter().enumerate() {
-        dens[c.vertex] = if top_density > 0.0 { density[i] / top_density } else { 0.0 };
+        dens[c.vertex] = if top_density > 0.0 {
+            density[i] / top_density
+        } else {
+            0.0
+        };
         ratio[c.vertex] = (map.log_likelihood[i] - top_ll).max(LOG_RATIO_FLOOR);
     }
     (dens, ratio)
@@ -840,7 +1318,12 @@ fn node_fields(r: &Report) -> (Vec<f64>, Vec<f64>) {
 /// Log-likelihood ratios below this are drawn at it (e^−50: no support).
 const LOG_RATIO_FLOOR: f64 = -50.0;
 
-fn write_map(r: &Report, eigenvalues: &[f64], shapes: &[Vec<f64>], rigid: &[f64]) -> Result<(), String> {
+fn write_map(
+    r: &Report,
+    eigenvalues: &[f64],
+    shapes: &[Vec<f64>],
+    rigid: &[f64],
+) -> Result<(), String> {
     let (dens, ratio) = node_fields(r);
     let triple = |v: &[f64]| v.iter().flat_map(|&x| [x, x, x]).collect::<Vec<f64>>();
     let (dens3, ratio3) = (triple(&dens), triple(&ratio));
@@ -881,15 +1364,43 @@ fn write_png(r: &Report) -> Result<(), String> {
         values[c.vertex] = ratio[c.vertex].max(-20.0);
     }
     let colours = [[214, 39, 40], [255, 127, 14], [255, 187, 120]];
-    let mut panel = SurfacePanel::new("log-likelihood ratio l - max l", r.mesh.nodes.clone(), triangles.clone()).with_values(values);
+    let mut panel = SurfacePanel::new(
+        "log-likelihood ratio l - max l",
+        r.mesh.nodes.clone(),
+        triangles.clone(),
+    )
+    .with_values(values);
     for (i, t) in r.map.top.iter().take(3).enumerate() {
-        panel = panel.with_marker(SurfaceMarker::new(r.mesh.nodes[t.vertex], format!("{}", i + 1), colours[i]));
+        panel = panel.with_marker(SurfaceMarker::new(
+            r.mesh.nodes[t.vertex],
+            format!("{}", i + 1),
+            colours[i],
+        ));
     }
     if let Some(e) = r.evaluation {
-        panel = panel.with_marker(SurfaceMarker::new(r.mesh.nodes[e.true_vertex], "true", [255, 255, 255]));
+        panel = panel.with_marker(SurfaceMarker::new(
+            r.mesh.nodes[e.true_vertex],
+            "true",
+            [255, 255, 255],
+        ));
     }
-    let mut fig = SurfaceFigure::new(format!("Where was it struck? {} (best vertex {})", r.job.mesh.file_name().map_or(String::new(), |n| n.to_string_lossy().to_string()), r.table.candidates[r.map.best].vertex), vec![panel]);
-    fig.views = vec![View::new(30.0, 35.0), View::new(210.0, 35.0), View::labelled(0.0, 89.0, "top"), View::labelled(0.0, -89.0, "below")];
+    let mut fig = SurfaceFigure::new(
+        format!(
+            "Where was it struck? {} (best vertex {})",
+            r.job
+                .mesh
+                .file_name()
+                .map_or(String::new(), |n| n.to_string_lossy().to_string()),
+            r.table.candidates[r.map.best].vertex
+        ),
+        vec![panel],
+    );
+    fig.views = vec![
+        View::new(30.0, 35.0),
+        View::new(210.0, 35.0),
+        View::labelled(0.0, 89.0, "top"),
+        View::labelled(0.0, -89.0, "below"),
+    ];
     fig.value_label = "l - max l".into();
     fig.value_range = Some((-20.0, 0.0));
     surface_png(&r.job.png, &fig).map_err(|e| e.to_string())?;

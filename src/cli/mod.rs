@@ -26,7 +26,11 @@ use std::io::IsTerminal;
 use std::path::PathBuf;
 
 #[derive(Parser, Debug)]
-#[command(name = "diffsound", version, about = "Physics-based modal sound: P2 tet FEM → SLEPc modes → HDF5 and audio")]
+#[command(
+    name = "diffsound",
+    version,
+    about = "Physics-based modal sound: P2 tet FEM → SLEPc modes → HDF5 and audio"
+)]
 pub struct Cli {
     #[command(subcommand)]
     pub command: Command,
@@ -152,11 +156,18 @@ pub struct Progress {
 
 impl Progress {
     pub fn new(rank: usize, verbose: bool) -> Self {
-        Progress { enabled: rank == 0 && (verbose || std::io::stderr().is_terminal()), start: std::time::Instant::now() }
+        Progress {
+            enabled: rank == 0 && (verbose || std::io::stderr().is_terminal()),
+            start: std::time::Instant::now(),
+        }
     }
     pub fn say(&self, msg: impl AsRef<str>) {
         if self.enabled {
-            eprintln!("[{:7.2} s] {}", self.start.elapsed().as_secs_f64(), msg.as_ref());
+            eprintln!(
+                "[{:7.2} s] {}",
+                self.start.elapsed().as_secs_f64(),
+                msg.as_ref()
+            );
         }
     }
 }
@@ -180,7 +191,9 @@ pub fn main() {
         Command::FitMaterial(args) => run_under_mpi(|universe| fit_material::run(universe, args)),
         Command::Diagnose(args) => run_under_mpi(|universe| diagnose::run(universe, args)),
         Command::LocateImpact(args) => run_under_mpi(|universe| impact::run(universe, args)),
-        Command::FitThickness(args) => run_under_mpi(|universe| fit_shape::run_thickness(universe, args)),
+        Command::FitThickness(args) => {
+            run_under_mpi(|universe| fit_shape::run_thickness(universe, args))
+        }
         Command::FitMorph(args) => run_under_mpi(|universe| fit_shape::run_morph(universe, args)),
         Command::FitGeometry(args) => run_under_mpi(|universe| fit_geometry::run(universe, args)),
         Command::Render(args) => run_serial(render::run(args)),
@@ -208,17 +221,25 @@ fn pin_blas_threads() {
     std::env::set_var(VAR, "1");
     if let Ok(exe) = std::env::current_exe() {
         use std::os::unix::process::CommandExt;
-        let err = std::process::Command::new(exe).args(std::env::args_os().skip(1)).exec();
+        let err = std::process::Command::new(exe)
+            .args(std::env::args_os().skip(1))
+            .exec();
         // exec only returns on failure; carry on with the threads OpenBLAS already started.
         eprintln!("warning: could not re-execute with {VAR}=1 ({err}); BLAS threads may compete with MPI ranks");
     }
 }
 
 fn print_materials() {
-    println!("{:<11} {:>12} {:>6} {:>9} {:>8} {:>9}", "preset", "E [Pa]", "nu", "rho", "alpha", "beta");
+    println!(
+        "{:<11} {:>12} {:>6} {:>9} {:>8} {:>9}",
+        "preset", "E [Pa]", "nu", "rho", "alpha", "beta"
+    );
     for name in crate::fem::Material::preset_names() {
         let m = crate::fem::Material::preset(name).expect("listed preset exists");
-        println!("{:<11} {:>12.3e} {:>6.3} {:>9.1} {:>8.3} {:>9.2e}", name, m.youngs_modulus, m.poisson_ratio, m.density, m.rayleigh_alpha, m.rayleigh_beta);
+        println!(
+            "{:<11} {:>12.3e} {:>6.3} {:>9.1} {:>8.3} {:>9.2e}",
+            name, m.youngs_modulus, m.poisson_ratio, m.density, m.rayleigh_alpha, m.rayleigh_beta
+        );
     }
 }
 

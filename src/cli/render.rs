@@ -90,18 +90,28 @@ struct CurveFile {
 pub fn read_damping_curve(path: &Path) -> Result<DampingCurve, String> {
     let text = std::fs::read_to_string(path).map_err(|e| format!("{}: {e}", path.display()))?;
     let file: CurveFile = toml::from_str(&text).map_err(|e| format!("{}: {e}", path.display()))?;
-    DampingCurve::new(file.frequencies_hz, &file.decay_rates).map_err(|e| format!("{}: {e}", path.display()))
+    DampingCurve::new(file.frequencies_hz, &file.decay_rates)
+        .map_err(|e| format!("{}: {e}", path.display()))
 }
 
 pub fn run(args: RenderArgs) -> Result<(), String> {
     if !(args.duration > 0.0 && args.duration <= 600.0) {
-        return Err(format!("--duration must lie in (0, 600] s, got {}", args.duration));
+        return Err(format!(
+            "--duration must lie in (0, 600] s, got {}",
+            args.duration
+        ));
     }
     if args.sample_rate < 1000 || args.sample_rate > 768_000 {
-        return Err(format!("--sample-rate must lie in [1000, 768000] Hz, got {}", args.sample_rate));
+        return Err(format!(
+            "--sample-rate must lie in [1000, 768000] Hz, got {}",
+            args.sample_rate
+        ));
     }
     if !(args.impulse.is_finite() && args.impulse != 0.0) {
-        return Err(format!("--impulse must be a finite non-zero number, got {}", args.impulse));
+        return Err(format!(
+            "--impulse must be a finite non-zero number, got {}",
+            args.impulse
+        ));
     }
     let format = match args.format.as_str() {
         "pcm16" => WavFormat::Pcm16,
@@ -110,11 +120,21 @@ pub fn run(args: RenderArgs) -> Result<(), String> {
     };
     let normalise = match args.normalise.as_str() {
         "none" => None,
-        v => Some(v.parse::<f64>().ok().filter(|p| *p > 0.0 && *p <= 1.0).ok_or_else(|| format!("--normalise must be a peak in (0, 1] or `none`, got {v:?}"))?),
+        v => Some(
+            v.parse::<f64>()
+                .ok()
+                .filter(|p| *p > 0.0 && *p <= 1.0)
+                .ok_or_else(|| {
+                    format!("--normalise must be a peak in (0, 1] or `none`, got {v:?}")
+                })?,
+        ),
     };
     if let Some(parent) = args.out.parent().filter(|p| !p.as_os_str().is_empty()) {
         if !parent.is_dir() {
-            return Err(format!("output directory {} does not exist", parent.display()));
+            return Err(format!(
+                "output directory {} does not exist",
+                parent.display()
+            ));
         }
     }
     let file = crate::io::read_modes(&args.modes).map_err(|e| e.to_string())?;
@@ -124,13 +144,29 @@ pub fn run(args: RenderArgs) -> Result<(), String> {
     let order = match file.nodes_per_tet {
         4 => ElementOrder::Linear,
         10 => ElementOrder::Quadratic,
-        n => return Err(format!("{}: {n} nodes per tet is not a tet mesh we know", args.modes.display())),
+        n => {
+            return Err(format!(
+                "{}: {n} nodes per tet is not a tet mesh we know",
+                args.modes.display()
+            ))
+        }
     };
-    let mesh = TetMesh { nodes: file.nodes.clone(), connectivity: file.connectivity.clone(), order };
+    let mesh = TetMesh {
+        nodes: file.nodes.clone(),
+        connectivity: file.connectivity.clone(),
+        order,
+    };
     let point = match (args.vertex, args.position) {
-        (Some(v), _) => mesh.surface_point_at_vertex(v).ok_or_else(|| format!("--vertex {v} is not a surface corner node of the mesh ({} nodes)", mesh.n_nodes()))?,
+        (Some(v), _) => mesh.surface_point_at_vertex(v).ok_or_else(|| {
+            format!(
+                "--vertex {v} is not a surface corner node of the mesh ({} nodes)",
+                mesh.n_nodes()
+            )
+        })?,
         (None, Some(p)) => {
-            let sp = mesh.closest_surface_point(p).ok_or("the mesh has no surface")?;
+            let sp = mesh
+                .closest_surface_point(p)
+                .ok_or("the mesh has no surface")?;
             let (lo, hi) = mesh.bounding_box();
             let diagonal = (0..3).map(|d| (hi[d] - lo[d]).powi(2)).sum::<f64>().sqrt();
             if sp.distance > 0.05 * diagonal {
@@ -141,7 +177,9 @@ pub fn run(args: RenderArgs) -> Result<(), String> {
             }
             sp
         }
-        (None, None) => mesh.default_strike_point().ok_or("the mesh has no surface")?,
+        (None, None) => mesh
+            .default_strike_point()
+            .ok_or("the mesh has no surface")?,
     };
     // The hammer pushes into the body: along −n unless told otherwise.
     let direction = match args.direction {
@@ -164,17 +202,29 @@ pub fn run(args: RenderArgs) -> Result<(), String> {
         .collect();
     let damping = match &args.damping_curve {
         Some(path) => DampingModel::Curve(read_damping_curve(path)?),
-        None => DampingModel::Rayleigh { alpha: args.alpha.unwrap_or(file.material.rayleigh_alpha), beta: args.beta.unwrap_or(file.material.rayleigh_beta) },
+        None => DampingModel::Rayleigh {
+            alpha: args.alpha.unwrap_or(file.material.rayleigh_alpha),
+            beta: args.beta.unwrap_or(file.material.rayleigh_beta),
+        },
     };
-    let strike = Strike { force: args.force, response: args.response };
+    let strike = Strike {
+        force: args.force,
+        response: args.response,
+    };
     let (bank, _) = ModalChain::new(&file.eigenvalues, &projections, &damping, &strike)?;
     let fs = f64::from(args.sample_rate);
-    let audible = bank.frequencies_hz.iter().zip(&bank.amplitudes).filter(|(f, a)| **f > 0.0 && **f < fs / 2.0 && **a > 0.0).count();
+    let audible = bank
+        .frequencies_hz
+        .iter()
+        .zip(&bank.amplitudes)
+        .filter(|(f, a)| **f > 0.0 && **f < fs / 2.0 && **a > 0.0)
+        .count();
     if audible == 0 {
         return Err(format!("no mode rings below the Nyquist frequency {} Hz at this strike point; nothing to render", fs / 2.0));
     }
     let samples = audio::render(&bank, fs, args.duration);
-    audio::write_wav(&args.out, &samples, args.sample_rate, format, normalise).map_err(|e| e.to_string())?;
+    audio::write_wav(&args.out, &samples, args.sample_rate, format, normalise)
+        .map_err(|e| e.to_string())?;
     let peak = samples.iter().fold(0.0_f64, |m, s| m.max(s.abs()));
     println!(
         "wrote {} ({:.2} s at {} Hz): {} of {} modes audible, strike at ({:.4}, {:.4}, {:.4}) m along ({:.3}, {:.3}, {:.3}), {:?}, {:?}, physical peak {:.3e}",

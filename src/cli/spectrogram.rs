@@ -64,21 +64,42 @@ struct PanelData {
 
 pub fn run(args: SpectrogramArgs) -> Result<(), String> {
     if !(args.range_db > 0.0 && args.range_db <= 300.0) {
-        return Err(format!("--range-db must lie in (0, 300], got {}", args.range_db));
+        return Err(format!(
+            "--range-db must lie in (0, 300], got {}",
+            args.range_db
+        ));
     }
-    let plan = StftPlan::new(args.fft, args.hop.unwrap_or(args.fft / 4).max(1)).map_err(|e| format!("--fft/--hop: {e}"))?;
+    let plan = StftPlan::new(args.fft, args.hop.unwrap_or(args.fft / 4).max(1))
+        .map_err(|e| format!("--fft/--hop: {e}"))?;
     let titles: Vec<String> = match &args.titles {
         Some(t) => t.split(',').map(|s| s.trim().to_string()).collect(),
-        None => args.inputs.iter().map(|p| p.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default()).collect(),
+        None => args
+            .inputs
+            .iter()
+            .map(|p| {
+                p.file_name()
+                    .map(|n| n.to_string_lossy().into_owned())
+                    .unwrap_or_default()
+            })
+            .collect(),
     };
     if titles.len() != args.inputs.len() {
-        return Err(format!("{} titles for {} input files", titles.len(), args.inputs.len()));
+        return Err(format!(
+            "{} titles for {} input files",
+            titles.len(),
+            args.inputs.len()
+        ));
     }
     let mut spectra = Vec::new();
     for (path, title) in args.inputs.iter().zip(titles) {
         let (channels, rate) = read_wav(path).map_err(|e| e.to_string())?;
         let Some(signal) = channels.get(args.channel) else {
-            return Err(format!("{}: no channel {} (the file has {})", path.display(), args.channel, channels.len()));
+            return Err(format!(
+                "{}: no channel {} (the file has {})",
+                path.display(),
+                args.channel,
+                channels.len()
+            ));
         };
         let fs = f64::from(rate);
         let mut start = 0;
@@ -99,7 +120,10 @@ pub fn run(args: SpectrogramArgs) -> Result<(), String> {
         }
         let piece = &signal[start..end.max(start)];
         if piece.is_empty() {
-            return Err(format!("{}: nothing left to show after trimming", path.display()));
+            return Err(format!(
+                "{}: nothing left to show after trimming",
+                path.display()
+            ));
         }
         let spec = plan.forward(piece);
         let peak = spec.magnitude.iter().fold(0.0_f64, |m, &v| m.max(v));
@@ -113,7 +137,11 @@ pub fn run(args: SpectrogramArgs) -> Result<(), String> {
     let panels_data: Vec<PanelData> = spectra
         .into_iter()
         .map(|(title, spec, peak, fs)| {
-            let reference = if args.each_own_peak && peak > 0.0 { peak } else { global_peak };
+            let reference = if args.each_own_peak && peak > 0.0 {
+                peak
+            } else {
+                global_peak
+            };
             PanelData {
                 title,
                 db: spec.decibels(reference, floor),
@@ -136,7 +164,10 @@ pub fn run(args: SpectrogramArgs) -> Result<(), String> {
             freq_step_hz: p.freq_step_hz,
         })
         .collect();
-    let mut figure = SpectrogramFigure::new(args.title.clone().unwrap_or_else(|| "spectrogram".into()), panels);
+    let mut figure = SpectrogramFigure::new(
+        args.title.clone().unwrap_or_else(|| "spectrogram".into()),
+        panels,
+    );
     figure.max_freq_hz = args.fmax;
     figure.db_max = Some(0.0);
     figure.db_min = Some(-args.range_db);

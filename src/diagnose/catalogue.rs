@@ -245,8 +245,9 @@ pub use beating_pair::{BeatingPair, PairSplits};
 pub use contact_duration::{half_sine_spectrum, ContactDuration, HalfSineContact};
 pub use matching::{match_modes, Matching, Unit};
 pub use model::{
-    fit, held_out_error, Fit, FloorVariances, ModeEntry, ModeKey, ModeResiduals, ModeTable, Model, Prediction,
-    Quantity, Role, Row, RowKind, SplitPair, LEVEL_FLOOR, N_FLOORS, own_members, DEFAULT_OWN_MEMBER_SPLIT_Z,
+    fit, held_out_error, own_members, Fit, FloorVariances, ModeEntry, ModeKey, ModeResiduals,
+    ModeTable, Model, Prediction, Quantity, Role, Row, RowKind, SplitPair,
+    DEFAULT_OWN_MEMBER_SPLIT_Z, LEVEL_FLOOR, N_FLOORS,
 };
 pub use non_rayleigh_damping::{NonRayleighDamping, ThreeKnotDamping};
 pub use pitch_glide::{EnergyGlide, PitchGlide};
@@ -411,7 +412,11 @@ impl CatalogueSettings {
             })
         };
         if !(self.match_tolerance > 0.0 && self.match_tolerance < 1.0) {
-            return bad("match_tolerance", self.match_tolerance, "must lie in (0, 1)");
+            return bad(
+                "match_tolerance",
+                self.match_tolerance,
+                "must lie in (0, 1)",
+            );
         }
         if !(self.max_pair_split > 0.0 && self.max_pair_split <= self.match_tolerance) {
             return bad(
@@ -427,16 +432,28 @@ impl CatalogueSettings {
             return bad("max_scale", self.max_scale, "must be finite and ≥ 1");
         }
         if !self.delta_bic_threshold.is_finite() {
-            return bad("delta_bic_threshold", self.delta_bic_threshold, "must be finite");
+            return bad(
+                "delta_bic_threshold",
+                self.delta_bic_threshold,
+                "must be finite",
+            );
         }
         if !(self.unexplained_z > 0.0) {
             return bad("unexplained_z", self.unexplained_z, "must be positive");
         }
         if !(self.own_member_split_z >= 0.0 && self.own_member_split_z.is_finite()) {
-            return bad("own_member_split_z", self.own_member_split_z, "must be finite and ≥ 0");
+            return bad(
+                "own_member_split_z",
+                self.own_member_split_z,
+                "must be finite and ≥ 0",
+            );
         }
         if !(self.min_held_out_gain >= 0.0 && self.min_held_out_gain.is_finite()) {
-            return bad("min_held_out_gain", self.min_held_out_gain, "must be finite and ≥ 0");
+            return bad(
+                "min_held_out_gain",
+                self.min_held_out_gain,
+                "must be finite and ≥ 0",
+            );
         }
         Ok(())
     }
@@ -512,7 +529,11 @@ fn validate_observed(set: &'static str, modes: &[ObservedMode]) -> Result<usize,
             })
         };
         if !(m.frequency_hz > 0.0 && m.frequency_hz.is_finite()) {
-            return bad("frequency_hz", m.frequency_hz, "must be positive and finite");
+            return bad(
+                "frequency_hz",
+                m.frequency_hz,
+                "must be positive and finite",
+            );
         }
         if !(m.sigma_frequency_hz > 0.0 && m.sigma_frequency_hz.is_finite()) {
             return bad(
@@ -598,7 +619,11 @@ impl Evidence {
                 })
             };
             if !(m.frequency_hz > 0.0 && m.frequency_hz.is_finite()) {
-                return bad("frequency_hz", m.frequency_hz, "must be positive and finite");
+                return bad(
+                    "frequency_hz",
+                    m.frequency_hz,
+                    "must be positive and finite",
+                );
             }
             if let Some(f) = m.match_frequency_hz {
                 if !(f > 0.0 && f.is_finite()) {
@@ -634,7 +659,11 @@ impl Evidence {
             if b == 0 {
                 return fail("need at least two band edges".into());
             }
-            if env.band_edges_hz.windows(2).any(|w| !(w[1] > w[0] && w[0] >= 0.0)) {
+            if env
+                .band_edges_hz
+                .windows(2)
+                .any(|w| !(w[1] > w[0] && w[0] >= 0.0))
+            {
                 return fail("band edges must be non-negative and increasing".into());
             }
             if env.energy.len() != b || env.noise_floor_estimate.len() != b {
@@ -644,7 +673,9 @@ impl Evidence {
                     env.noise_floor_estimate.len()
                 ));
             }
-            if env.times_s.windows(2).any(|w| !(w[1] > w[0])) || env.times_s.iter().any(|t| !t.is_finite()) {
+            if env.times_s.windows(2).any(|w| !(w[1] > w[0]))
+                || env.times_s.iter().any(|t| !t.is_finite())
+            {
                 return fail("frame times must be finite and increasing".into());
             }
             for (band, row) in env.energy.iter().enumerate() {
@@ -656,10 +687,16 @@ impl Evidence {
                     ));
                 }
                 if let Some(v) = row.iter().find(|v| !(**v >= 0.0 && v.is_finite())) {
-                    return fail(format!("band {band} has energy {v}; energies must be ≥ 0 and finite"));
+                    return fail(format!(
+                        "band {band} has energy {v}; energies must be ≥ 0 and finite"
+                    ));
                 }
             }
-            if let Some(v) = env.noise_floor_estimate.iter().find(|v| !(**v > 0.0 && v.is_finite())) {
+            if let Some(v) = env
+                .noise_floor_estimate
+                .iter()
+                .find(|v| !(**v > 0.0 && v.is_finite()))
+            {
                 return fail(format!("noise floor {v}; must be positive and finite"));
             }
         }
@@ -679,7 +716,13 @@ pub struct ParamSpec {
 }
 
 impl ParamSpec {
-    pub fn new(name: impl Into<String>, unit: &'static str, lower: f64, upper: f64, scale: f64) -> ParamSpec {
+    pub fn new(
+        name: impl Into<String>,
+        unit: &'static str,
+        lower: f64,
+        upper: f64,
+        scale: f64,
+    ) -> ParamSpec {
         ParamSpec {
             name: name.into(),
             unit,
@@ -713,7 +756,11 @@ pub trait Term: std::fmt::Debug + Send + Sync {
     /// For a held-out evaluation: a version of the term with its physical parameters `fitted`
     /// baked in and only per-channel nuisance parameters of the held-out set free, with their
     /// starting values. None (the default): everything is fixed.
-    fn held_out_nuisance(&self, _fitted: &[f64], _held: &ModeTable) -> Option<(Arc<dyn Term>, Vec<f64>)> {
+    fn held_out_nuisance(
+        &self,
+        _fitted: &[f64],
+        _held: &ModeTable,
+    ) -> Option<(Arc<dyn Term>, Vec<f64>)> {
         None
     }
     /// After the fit: why the fitted parameters `p` ± `sigma` lack the signature the effect's
@@ -763,16 +810,31 @@ impl HeldOutChange {
     /// compares the two at the same degrees of freedom, so a nuisance parameter the effect fits
     /// on the held-out data (the radiation factor model's v per held-out channel) earns nothing
     /// by itself: it lowers Σz² by about its share e² while the error e is unchanged.
-    pub fn new(chi2_before: f64, dof_before: f64, chi2_after: f64, dof_after: f64) -> HeldOutChange {
+    pub fn new(
+        chi2_before: f64,
+        dof_before: f64,
+        chi2_after: f64,
+        dof_after: f64,
+    ) -> HeldOutChange {
         HeldOutChange::with_dispersion(chi2_before, dof_before, chi2_after, dof_after, 1.0)
     }
 
     /// [`HeldOutChange::new`] with the gain divided by the over-dispersion ĉ ≥ 1 of the
     /// held-out rows before the effect ([`model::HeldOutChi2::dispersion`]; module docs,
     /// "Selection"): the quasi-likelihood form of the same test.
-    pub fn with_dispersion(chi2_before: f64, dof_before: f64, chi2_after: f64, dof_after: f64, dispersion: f64) -> HeldOutChange {
+    pub fn with_dispersion(
+        chi2_before: f64,
+        dof_before: f64,
+        chi2_after: f64,
+        dof_after: f64,
+        dispersion: f64,
+    ) -> HeldOutChange {
         let (e2_before, e2_after) = (chi2_before / dof_before, chi2_after / dof_after);
-        HeldOutChange { before: e2_before.sqrt(), after: e2_after.sqrt(), gain: dof_before * (e2_before - e2_after) / dispersion.max(1.0) }
+        HeldOutChange {
+            before: e2_before.sqrt(),
+            after: e2_after.sqrt(),
+            gain: dof_before * (e2_before - e2_after) / dispersion.max(1.0),
+        }
     }
 }
 
@@ -815,7 +877,11 @@ pub trait Effect: Send + Sync {
     fn detect(&self, table: &ModeTable, current: &Fit) -> Detection;
     /// Effects on data other than the modal table evaluate themselves once, independently of
     /// the modal model (Some), instead of being detected and refitted with it (None).
-    fn evaluate_own(&self, _evidence: &Evidence, _settings: &CatalogueSettings) -> Option<OwnEvaluation> {
+    fn evaluate_own(
+        &self,
+        _evidence: &Evidence,
+        _settings: &CatalogueSettings,
+    ) -> Option<OwnEvaluation> {
         None
     }
 }
@@ -836,7 +902,9 @@ pub fn catalogue() -> Vec<Box<dyn Effect>> {
 
 /// (smallest, largest) of per-mode weights; (∞, −∞) for none.
 pub(crate) fn weight_range(weights: impl Iterator<Item = f64>) -> (f64, f64) {
-    weights.fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), w| (lo.min(w), hi.max(w)))
+    weights.fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), w| {
+        (lo.min(w), hi.max(w))
+    })
 }
 
 /// Whether per-mode region weights (≥ 0) vary between the matched modes: by at least 5 % of
@@ -849,7 +917,9 @@ pub(crate) fn weights_vary(weights: impl Iterator<Item = f64>) -> bool {
 
 /// Weighted least-squares line through the origin for points (x, y, w): the slope and its
 /// z = slope / σ_slope (σ from the weights alone); `None` when Σ w x² is not positive.
-pub(crate) fn weighted_regression_through_origin(points: impl Iterator<Item = (f64, f64, f64)> + Clone) -> Option<(f64, f64)> {
+pub(crate) fn weighted_regression_through_origin(
+    points: impl Iterator<Item = (f64, f64, f64)> + Clone,
+) -> Option<(f64, f64)> {
     let sxx: f64 = points.clone().map(|p| p.2 * p.0 * p.0).sum();
     let sxy: f64 = points.map(|p| p.2 * p.0 * p.1).sum();
     (sxx > 0.0).then(|| (sxy / sxx, sxy / sxx.sqrt()))

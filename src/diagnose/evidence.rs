@@ -46,14 +46,20 @@
 //! `mass_region_search_params`).
 
 use crate::audio::stft::StftPlan;
-use crate::diagnose::catalogue::{weighted_regression, ObservedMode, ResidualEnvelopes, SimulatedMode};
+use crate::diagnose::catalogue::{
+    weighted_regression, ObservedMode, ResidualEnvelopes, SimulatedMode,
+};
 use crate::diagnose::extract::ModalExtraction;
 
 /// Everything that can be wrong with the input of this module.
 #[derive(Debug, thiserror::Error, Clone, PartialEq)]
 pub enum EvidenceError {
     #[error("{what}: {got} values, expected {expected}")]
-    LengthMismatch { what: &'static str, got: usize, expected: usize },
+    LengthMismatch {
+        what: &'static str,
+        got: usize,
+        expected: usize,
+    },
     #[error("{0}")]
     Invalid(String),
 }
@@ -70,7 +76,10 @@ pub struct ObservedOptions {
 
 impl Default for ObservedOptions {
     fn default() -> Self {
-        ObservedOptions { min_snr_db: 20.0, glide_match: 0.01 }
+        ObservedOptions {
+            min_snr_db: 20.0,
+            glide_match: 0.01,
+        }
     }
 }
 
@@ -107,16 +116,32 @@ pub fn mutual_nearest(from: &[f64], to: &[f64], rtol: f64) -> Vec<Option<usize>>
 
 /// The extraction's modes as catalogue observations (module docs). `early` / `late` are
 /// extractions of the same channels on the first / second half of the span.
-pub fn observed_modes(full: &ModalExtraction, early: Option<&ModalExtraction>, late: Option<&ModalExtraction>, options: &ObservedOptions) -> Vec<ObservedMode> {
-    let kept: Vec<_> = full.modes.iter().filter(|m| m.snr_db >= options.min_snr_db && m.frequency_hz > 0.0).collect();
+pub fn observed_modes(
+    full: &ModalExtraction,
+    early: Option<&ModalExtraction>,
+    late: Option<&ModalExtraction>,
+    options: &ObservedOptions,
+) -> Vec<ObservedMode> {
+    let kept: Vec<_> = full
+        .modes
+        .iter()
+        .filter(|m| m.snr_db >= options.min_snr_db && m.frequency_hz > 0.0)
+        .collect();
     let freqs: Vec<f64> = kept.iter().map(|m| m.frequency_hz).collect();
     let half = |ex: Option<&ModalExtraction>| -> Vec<Option<(f64, f64)>> {
         match ex {
             None => vec![None; kept.len()],
             Some(ex) => {
-                let other: Vec<_> = ex.modes.iter().filter(|m| m.snr_db >= options.min_snr_db && m.frequency_hz > 0.0).collect();
+                let other: Vec<_> = ex
+                    .modes
+                    .iter()
+                    .filter(|m| m.snr_db >= options.min_snr_db && m.frequency_hz > 0.0)
+                    .collect();
                 let of: Vec<f64> = other.iter().map(|m| m.frequency_hz).collect();
-                mutual_nearest(&freqs, &of, options.glide_match).into_iter().map(|j| j.map(|j| (other[j].frequency_hz, other[j].frequency_sd_hz))).collect()
+                mutual_nearest(&freqs, &of, options.glide_match)
+                    .into_iter()
+                    .map(|j| j.map(|j| (other[j].frequency_hz, other[j].frequency_sd_hz)))
+                    .collect()
             }
         }
     };
@@ -150,17 +175,28 @@ pub struct EnvelopeOptions {
 
 impl Default for EnvelopeOptions {
     fn default() -> Self {
-        EnvelopeOptions { band_edges_hz: vec![250.0, 500.0, 1000.0, 2000.0, 4000.0, 8000.0, 16000.0], frame: 1024, hop: 384 }
+        EnvelopeOptions {
+            band_edges_hz: vec![250.0, 500.0, 1000.0, 2000.0, 4000.0, 8000.0, 16000.0],
+            frame: 1024,
+            hop: 384,
+        }
     }
 }
 
 /// Band energies of one set of channels: [band][frame] and the frame centres (samples), full
 /// frames only.
-fn band_energies(channels: &[Vec<f64>], plan: &StftPlan, bins: &[std::ops::Range<usize>], frame: usize) -> (Vec<Vec<f64>>, Vec<usize>) {
+fn band_energies(
+    channels: &[Vec<f64>],
+    plan: &StftPlan,
+    bins: &[std::ops::Range<usize>],
+    frame: usize,
+) -> (Vec<Vec<f64>>, Vec<usize>) {
     let len = channels.first().map_or(0, Vec::len);
     let hop = plan.hop();
     // Frame t covers [tH − N/2, tH + N/2): full when tH ≥ N/2 and tH + N/2 ≤ len.
-    let frames: Vec<usize> = (0..plan.n_frames(len)).filter(|&t| t * hop >= frame / 2 && t * hop + frame / 2 <= len).collect();
+    let frames: Vec<usize> = (0..plan.n_frames(len))
+        .filter(|&t| t * hop >= frame / 2 && t * hop + frame / 2 <= len)
+        .collect();
     let mut energy = vec![vec![0.0; frames.len()]; bins.len()];
     for x in channels {
         let spec = plan.forward(x);
@@ -177,25 +213,60 @@ fn band_energies(channels: &[Vec<f64>], plan: &StftPlan, bins: &[std::ops::Range
 /// Energy envelopes of recording − modal resynthesis per band (module docs). `post`: the
 /// channels from the strike on (the extraction's channels, same order); `pre`: the same
 /// channels before the strike (may be short or empty: then the floor estimate is 0).
-pub fn residual_envelopes(post: &[Vec<f64>], pre: &[Vec<f64>], extraction: &ModalExtraction, options: &EnvelopeOptions) -> Result<ResidualEnvelopes, EvidenceError> {
+pub fn residual_envelopes(
+    post: &[Vec<f64>],
+    pre: &[Vec<f64>],
+    extraction: &ModalExtraction,
+    options: &EnvelopeOptions,
+) -> Result<ResidualEnvelopes, EvidenceError> {
     let fs = extraction.sample_rate;
-    let n_channels = extraction.modes.first().map_or(post.len(), |m| m.amplitudes.len());
+    let n_channels = extraction
+        .modes
+        .first()
+        .map_or(post.len(), |m| m.amplitudes.len());
     if post.len() != n_channels || post.is_empty() {
-        return Err(EvidenceError::LengthMismatch { what: "channels after the strike", got: post.len(), expected: n_channels });
+        return Err(EvidenceError::LengthMismatch {
+            what: "channels after the strike",
+            got: post.len(),
+            expected: n_channels,
+        });
     }
     if !pre.is_empty() && pre.len() != post.len() {
-        return Err(EvidenceError::LengthMismatch { what: "pre-roll channels", got: pre.len(), expected: post.len() });
+        return Err(EvidenceError::LengthMismatch {
+            what: "pre-roll channels",
+            got: pre.len(),
+            expected: post.len(),
+        });
     }
-    if options.frame < 16 || !options.frame.is_power_of_two() && options.frame % 2 != 0 || options.hop == 0 {
-        return Err(EvidenceError::Invalid(format!("envelope frame {} / hop {} invalid: the frame must be even and ≥ 16, the hop positive", options.frame, options.hop)));
+    if options.frame < 16
+        || !options.frame.is_power_of_two() && options.frame % 2 != 0
+        || options.hop == 0
+    {
+        return Err(EvidenceError::Invalid(format!(
+            "envelope frame {} / hop {} invalid: the frame must be even and ≥ 16, the hop positive",
+            options.frame, options.hop
+        )));
     }
-    let edges: Vec<f64> = options.band_edges_hz.iter().copied().filter(|&e| e < 0.5 * fs).collect();
+    let edges: Vec<f64> = options
+        .band_edges_hz
+        .iter()
+        .copied()
+        .filter(|&e| e < 0.5 * fs)
+        .collect();
     if edges.len() < 2 || edges.windows(2).any(|w| !(w[1] > w[0])) || edges[0] < 0.0 {
-        return Err(EvidenceError::Invalid(format!("band edges {:?} must be ≥ 2 increasing values below Nyquist {} Hz", options.band_edges_hz, 0.5 * fs)));
+        return Err(EvidenceError::Invalid(format!(
+            "band edges {:?} must be ≥ 2 increasing values below Nyquist {} Hz",
+            options.band_edges_hz,
+            0.5 * fs
+        )));
     }
-    let plan = StftPlan::new(options.frame, options.hop).map_err(|e| EvidenceError::Invalid(e.to_string()))?;
+    let plan = StftPlan::new(options.frame, options.hop)
+        .map_err(|e| EvidenceError::Invalid(e.to_string()))?;
     let df = fs / options.frame as f64;
-    let bins: Vec<std::ops::Range<usize>> = edges.windows(2).map(|w| ((w[0] / df).ceil() as usize)..((w[1] / df).ceil() as usize)).collect();
+    let bins: Vec<std::ops::Range<usize>> = edges
+        .windows(2)
+        .map(|w| ((w[0] / df).ceil() as usize)..((w[1] / df).ceil() as usize))
+        .collect();
     let n = post[0].len();
     let residual: Vec<Vec<f64>> = post
         .iter()
@@ -209,15 +280,27 @@ pub fn residual_envelopes(post: &[Vec<f64>], pre: &[Vec<f64>], extraction: &Moda
         .collect();
     let (energy, centres) = band_energies(&residual, &plan, &bins, options.frame);
     if centres.len() < 8 {
-        return Err(EvidenceError::Invalid(format!("{} samples after the strike give {} full frames of {}; at least 8 needed", n, centres.len(), options.frame)));
+        return Err(EvidenceError::Invalid(format!(
+            "{} samples after the strike give {} full frames of {}; at least 8 needed",
+            n,
+            centres.len(),
+            options.frame
+        )));
     }
     let noise_floor_estimate = if pre.is_empty() || pre[0].len() < options.frame {
         vec![0.0; bins.len()]
     } else {
         let (e, c) = band_energies(pre, &plan, &bins, options.frame);
-        e.iter().map(|band| band.iter().sum::<f64>() / c.len().max(1) as f64).collect()
+        e.iter()
+            .map(|band| band.iter().sum::<f64>() / c.len().max(1) as f64)
+            .collect()
     };
-    Ok(ResidualEnvelopes { times_s: centres.iter().map(|&s| s as f64 / fs).collect(), band_edges_hz: edges, energy, noise_floor_estimate })
+    Ok(ResidualEnvelopes {
+        times_s: centres.iter().map(|&s| s as f64 / fs).collect(),
+        band_edges_hz: edges,
+        energy,
+        noise_floor_estimate,
+    })
 }
 
 /// Cluster ids in frequency order: walking the modes by increasing frequency, mode k joins its
@@ -244,7 +327,9 @@ fn within(a: f64, b: f64, rtol: f64) -> bool {
 /// Clusters of near-degenerate modes: ids such that neighbours (in sorted frequency) within
 /// `rtol` share one; ids count up from 0 in frequency order.
 pub fn cluster_ids(frequencies_hz: &[f64], rtol: f64) -> Vec<usize> {
-    chain_clusters(frequencies_hz, |j, k| within(frequencies_hz[j], frequencies_hz[k], rtol))
+    chain_clusters(frequencies_hz, |j, k| {
+        within(frequencies_hz[j], frequencies_hz[k], rtol)
+    })
 }
 
 /// Where a mode moves, in a frame that a rotation about `axis` (through `centre`) leaves
@@ -252,7 +337,13 @@ pub fn cluster_ids(frequencies_hz: &[f64], rtol: f64) -> Vec<usize> {
 /// it (`bins` × `bins` cells over the nodes' extent), normalised to sum 1. The two members of a
 /// pair that is degenerate by rotational symmetry are rotated copies of each other and have the
 /// same profile; two unrelated modes that merely happen to lie close in frequency do not.
-pub fn axial_profile(shape: &[f64], nodes: &[[f64; 3]], centre: [f64; 3], axis: [f64; 3], bins: usize) -> Vec<f64> {
+pub fn axial_profile(
+    shape: &[f64],
+    nodes: &[[f64; 3]],
+    centre: [f64; 3],
+    axis: [f64; 3],
+    bins: usize,
+) -> Vec<f64> {
     let coords: Vec<(f64, f64)> = nodes
         .iter()
         .map(|x| {
@@ -262,9 +353,15 @@ pub fn axial_profile(shape: &[f64], nodes: &[[f64; 3]], centre: [f64; 3], axis: 
             (h, rho2.sqrt())
         })
         .collect();
-    let (h_lo, h_hi) = coords.iter().fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), c| (a.min(c.0), b.max(c.0)));
+    let (h_lo, h_hi) = coords
+        .iter()
+        .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), c| {
+            (a.min(c.0), b.max(c.0))
+        });
     let r_hi = coords.iter().fold(0.0_f64, |m, c| m.max(c.1));
-    let cell = |v: f64, lo: f64, hi: f64| (((v - lo) / (hi - lo).max(1e-300) * bins as f64) as usize).min(bins - 1);
+    let cell = |v: f64, lo: f64, hi: f64| {
+        (((v - lo) / (hi - lo).max(1e-300) * bins as f64) as usize).min(bins - 1)
+    };
     let mut out = vec![0.0; bins * bins];
     for (i, &(h, rho)) in coords.iter().enumerate() {
         out[cell(h, h_lo, h_hi) * bins + cell(rho, 0.0, r_hi)] += node_energy(shape, i);
@@ -279,9 +376,20 @@ pub fn axial_profile(shape: &[f64], nodes: &[[f64; 3]], centre: [f64; 3], axis: 
 /// Clusters of modes degenerate by symmetry: neighbours (in sorted frequency) within `rtol`
 /// whose [`axial_profile`]s differ by at most `max_profile_distance` in L1 (out of 2) are
 /// chained into one cluster; ids count up from 0 in frequency order.
-pub fn symmetric_cluster_ids(frequencies_hz: &[f64], profiles: &[Vec<f64>], rtol: f64, max_profile_distance: f64) -> Vec<usize> {
+pub fn symmetric_cluster_ids(
+    frequencies_hz: &[f64],
+    profiles: &[Vec<f64>],
+    rtol: f64,
+    max_profile_distance: f64,
+) -> Vec<usize> {
     chain_clusters(frequencies_hz, |j, k| {
-        within(frequencies_hz[j], frequencies_hz[k], rtol) && profiles[k].iter().zip(&profiles[j]).map(|(a, b)| (a - b).abs()).sum::<f64>() <= max_profile_distance
+        within(frequencies_hz[j], frequencies_hz[k], rtol)
+            && profiles[k]
+                .iter()
+                .zip(&profiles[j])
+                .map(|(a, b)| (a - b).abs())
+                .sum::<f64>()
+                <= max_profile_distance
     })
 }
 
@@ -304,9 +412,16 @@ pub fn region_energy(shape: &[f64], nodes: &[usize]) -> f64 {
 /// largest to the lowest-frequency member when the perturbation lowers frequencies (a mass,
 /// `lowers_frequency`), to the highest otherwise (a spring). Outside clusters this is
 /// [`region_energy`]. `clusters` as from [`cluster_ids`].
-pub fn cluster_region_energies(shapes: &[Vec<f64>], frequencies_hz: &[f64], clusters: &[usize], region: &[usize], lowers_frequency: bool) -> Vec<f64> {
+pub fn cluster_region_energies(
+    shapes: &[Vec<f64>],
+    frequencies_hz: &[f64],
+    clusters: &[usize],
+    region: &[usize],
+    lowers_frequency: bool,
+) -> Vec<f64> {
     let mut out: Vec<f64> = shapes.iter().map(|s| region_energy(s, region)).collect();
-    let mut members: std::collections::BTreeMap<usize, Vec<usize>> = std::collections::BTreeMap::new();
+    let mut members: std::collections::BTreeMap<usize, Vec<usize>> =
+        std::collections::BTreeMap::new();
     for (k, &c) in clusters.iter().enumerate().take(shapes.len()) {
         members.entry(c).or_default().push(k);
     }
@@ -314,10 +429,28 @@ pub fn cluster_region_energies(shapes: &[Vec<f64>], frequencies_hz: &[f64], clus
         ks.sort_by(|&a, &b| frequencies_hz[a].total_cmp(&frequencies_hz[b]));
         let m = ks.len();
         let a = nalgebra::DMatrix::from_fn(m, m, |p, q| {
-            region.iter().map(|&i| (0..3).map(|c| shapes[ks[p]][3 * i + c] * shapes[ks[q]][3 * i + c]).sum::<f64>()).sum::<f64>()
+            region
+                .iter()
+                .map(|&i| {
+                    (0..3)
+                        .map(|c| shapes[ks[p]][3 * i + c] * shapes[ks[q]][3 * i + c])
+                        .sum::<f64>()
+                })
+                .sum::<f64>()
         });
-        let mut values: Vec<f64> = a.symmetric_eigen().eigenvalues.iter().map(|v| v.max(0.0)).collect();
-        values.sort_by(|x, y| if lowers_frequency { y.total_cmp(x) } else { x.total_cmp(y) });
+        let mut values: Vec<f64> = a
+            .symmetric_eigen()
+            .eigenvalues
+            .iter()
+            .map(|v| v.max(0.0))
+            .collect();
+        values.sort_by(|x, y| {
+            if lowers_frequency {
+                y.total_cmp(x)
+            } else {
+                x.total_cmp(y)
+            }
+        });
         for (k, v) in ks.into_iter().zip(values) {
             out[k] = v;
         }
@@ -338,9 +471,26 @@ fn normalised(values: &[f64]) -> Vec<f64> {
 /// The catalogue's simulated modes (module docs): `drive[k]` = |φ_k(x_s)·n|,
 /// `support_energy[k]` and `mass_energy[k]` region energies ([`region_energy`]; `None`: no
 /// candidate region), `transfer[k]` |p_k| per microphone.
-pub fn simulated_modes(frequencies_hz: &[f64], drive: &[f64], support_energy: &[f64], mass_energy: Option<&[f64]>, transfer: Option<&[Vec<f64>]>, clusters: &[usize]) -> Result<Vec<SimulatedMode>, EvidenceError> {
+pub fn simulated_modes(
+    frequencies_hz: &[f64],
+    drive: &[f64],
+    support_energy: &[f64],
+    mass_energy: Option<&[f64]>,
+    transfer: Option<&[Vec<f64>]>,
+    clusters: &[usize],
+) -> Result<Vec<SimulatedMode>, EvidenceError> {
     let k = frequencies_hz.len();
-    let check = |what: &'static str, got: usize| if got == k { Ok(()) } else { Err(EvidenceError::LengthMismatch { what, got, expected: k }) };
+    let check = |what: &'static str, got: usize| {
+        if got == k {
+            Ok(())
+        } else {
+            Err(EvidenceError::LengthMismatch {
+                what,
+                got,
+                expected: k,
+            })
+        }
+    };
     check("drives", drive.len())?;
     check("support energies", support_energy.len())?;
     if let Some(m) = mass_energy {
@@ -368,11 +518,18 @@ pub fn simulated_modes(frequencies_hz: &[f64], drive: &[f64], support_energy: &[
 /// The map ζ(v) over candidate vertices (module docs): `vertex_energy[v][k]` = |φ_k(v)|² for
 /// the simulated modes, `residuals` = (simulated mode indices sharing the observation, z of its
 /// ln f residual). Returns (μ̂(v), ζ(v)) per vertex.
-pub fn localise_frequency_residuals(vertex_energy: &[Vec<f64>], residuals: &[(Vec<usize>, f64)]) -> Vec<(f64, f64)> {
+pub fn localise_frequency_residuals(
+    vertex_energy: &[Vec<f64>],
+    residuals: &[(Vec<usize>, f64)],
+) -> Vec<(f64, f64)> {
     vertex_energy
         .iter()
         .map(|energy| {
-            let top = residuals.iter().flat_map(|r| r.0.iter()).map(|&k| energy.get(k).copied().unwrap_or(0.0)).fold(0.0_f64, f64::max);
+            let top = residuals
+                .iter()
+                .flat_map(|r| r.0.iter())
+                .map(|&k| energy.get(k).copied().unwrap_or(0.0))
+                .fold(0.0_f64, f64::max);
             if top <= 0.0 {
                 return (0.0, 0.0);
             }
@@ -380,7 +537,12 @@ pub fn localise_frequency_residuals(vertex_energy: &[Vec<f64>], residuals: &[(Ve
                 .iter()
                 .filter(|r| !r.0.is_empty())
                 .map(|(modes, z)| {
-                    let w = modes.iter().map(|&k| energy.get(k).copied().unwrap_or(0.0)).sum::<f64>() / modes.len() as f64 / top;
+                    let w = modes
+                        .iter()
+                        .map(|&k| energy.get(k).copied().unwrap_or(0.0))
+                        .sum::<f64>()
+                        / modes.len() as f64
+                        / top;
                     (-0.5 * w, *z, 1.0)
                 })
                 .collect();
@@ -419,10 +581,24 @@ mod tests {
 
     #[test]
     fn simulated_features_normalise_and_check_lengths() {
-        let s = simulated_modes(&[100.0, 100.1, 300.0], &[-2.0, 1.0, 0.5], &[1.0, 4.0, 0.0], None, None, &cluster_ids(&[100.0, 100.1, 300.0], 0.005)).unwrap();
+        let s = simulated_modes(
+            &[100.0, 100.1, 300.0],
+            &[-2.0, 1.0, 0.5],
+            &[1.0, 4.0, 0.0],
+            None,
+            None,
+            &cluster_ids(&[100.0, 100.1, 300.0], 0.005),
+        )
+        .unwrap();
         assert_eq!(s[0].drive, 2.0);
-        assert_eq!(s.iter().map(|m| m.support_weight).collect::<Vec<_>>(), vec![0.25, 1.0, 0.0]);
-        assert_eq!(s.iter().map(|m| m.cluster).collect::<Vec<_>>(), vec![0, 0, 1]);
+        assert_eq!(
+            s.iter().map(|m| m.support_weight).collect::<Vec<_>>(),
+            vec![0.25, 1.0, 0.0]
+        );
+        assert_eq!(
+            s.iter().map(|m| m.cluster).collect::<Vec<_>>(),
+            vec![0, 0, 1]
+        );
         assert!(s.iter().all(|m| m.mass_weight == 0.0));
         assert!(simulated_modes(&[1.0, 2.0], &[1.0], &[1.0, 1.0], None, None, &[0, 1]).is_err());
     }
@@ -439,7 +615,13 @@ mod tests {
         let region = [0usize];
         let freqs = [100.0, 100.01, 300.0];
         let ids = cluster_ids(&freqs, 0.005);
-        let plain = cluster_region_energies(&[a.clone(), b.clone(), c.clone()], &freqs, &ids, &region, true);
+        let plain = cluster_region_energies(
+            &[a.clone(), b.clone(), c.clone()],
+            &freqs,
+            &ids,
+            &region,
+            true,
+        );
         assert_eq!(plain, vec![1.0, 0.0, 0.5]);
         for angle in [0.3_f64, 1.1, 2.5] {
             let (co, si) = (angle.cos(), angle.sin());
@@ -448,8 +630,17 @@ mod tests {
             // The naive energies depend on the angle; the cluster ones do not.
             assert!((region_energy(&r1, &region) - co * co).abs() < 1e-12);
             let e = cluster_region_energies(&[r1, r2, c.clone()], &freqs, &ids, &region, true);
-            assert!((e[0] - 1.0).abs() < 1e-12 && e[1].abs() < 1e-12 && (e[2] - 0.5).abs() < 1e-12, "{e:?}");
-            let spring = cluster_region_energies(&[a.clone(), b.clone(), c.clone()], &freqs, &ids, &region, false);
+            assert!(
+                (e[0] - 1.0).abs() < 1e-12 && e[1].abs() < 1e-12 && (e[2] - 0.5).abs() < 1e-12,
+                "{e:?}"
+            );
+            let spring = cluster_region_energies(
+                &[a.clone(), b.clone(), c.clone()],
+                &freqs,
+                &ids,
+                &region,
+                false,
+            );
             assert_eq!(spring, vec![0.0, 1.0, 0.5]);
         }
     }
@@ -459,26 +650,48 @@ mod tests {
     #[test]
     fn symmetric_clusters_need_alike_profiles() {
         // Four nodes on a ring about z at height 0, one on the axis at height 1.
-        let nodes = [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0], [0.0, 0.0, 1.0]];
+        let nodes = [
+            [1.0, 0.0, 0.0],
+            [0.0, 1.0, 0.0],
+            [-1.0, 0.0, 0.0],
+            [0.0, -1.0, 0.0],
+            [0.0, 0.0, 1.0],
+        ];
         let mode = |v: [f64; 5]| -> Vec<f64> { v.iter().flat_map(|&a| [a, 0.0, 0.0]).collect() };
         let a = mode([1.0, 0.0, -1.0, 0.0, 0.0]);
         let rotated = mode([0.0, 1.0, 0.0, -1.0, 0.0]);
         let other = mode([0.0, 0.0, 0.0, 0.0, 1.0]);
-        let p: Vec<Vec<f64>> = [&a, &rotated, &other].iter().map(|s| axial_profile(s, &nodes, [0.0; 3], [0.0, 0.0, 1.0], 4)).collect();
+        let p: Vec<Vec<f64>> = [&a, &rotated, &other]
+            .iter()
+            .map(|s| axial_profile(s, &nodes, [0.0; 3], [0.0, 0.0, 1.0], 4))
+            .collect();
         assert_eq!(p[0], p[1]);
         let ids = symmetric_cluster_ids(&[100.0, 100.1, 100.2], &p, 0.005, 0.2);
         assert_eq!(ids, vec![0, 0, 1]);
-        assert_eq!(symmetric_cluster_ids(&[100.0, 100.1, 100.2], &p, 0.0001, 0.2), vec![0, 1, 2]);
+        assert_eq!(
+            symmetric_cluster_ids(&[100.0, 100.1, 100.2], &p, 0.0001, 0.2),
+            vec![0, 1, 2]
+        );
     }
 
     #[test]
     fn localisation_peaks_where_the_low_modes_move() {
         // Three vertices, six modes; modes 0, 2, 4 move at vertex 1 and came out low (z < 0
         // means observed below predicted: a mass there would lower them).
-        let energy = vec![vec![1.0, 1.0, 1.0, 1.0, 1.0, 1.0], vec![1.0, 0.0, 0.9, 0.1, 1.0, 0.0], vec![0.0, 1.0, 0.1, 0.9, 0.0, 1.0]];
-        let residuals: Vec<(Vec<usize>, f64)> = (0..6).map(|k| (vec![k], if k % 2 == 0 { -3.0 } else { 0.5 })).collect();
+        let energy = vec![
+            vec![1.0, 1.0, 1.0, 1.0, 1.0, 1.0],
+            vec![1.0, 0.0, 0.9, 0.1, 1.0, 0.0],
+            vec![0.0, 1.0, 0.1, 0.9, 0.0, 1.0],
+        ];
+        let residuals: Vec<(Vec<usize>, f64)> = (0..6)
+            .map(|k| (vec![k], if k % 2 == 0 { -3.0 } else { 0.5 }))
+            .collect();
         let map = localise_frequency_residuals(&energy, &residuals);
-        assert_eq!(map[0], (0.0, 0.0), "a vertex every mode moves at explains nothing");
+        assert_eq!(
+            map[0],
+            (0.0, 0.0),
+            "a vertex every mode moves at explains nothing"
+        );
         assert!(map[1].0 > 0.0 && map[1].1 > 3.0, "{:?}", map[1]);
         assert!(map[2].0 < 0.0, "{:?}", map[2]);
     }
@@ -490,21 +703,38 @@ mod tests {
     fn residual_envelopes_sit_on_the_floor_and_show_a_missing_mode() {
         let fs = 16000.0;
         let n = 16000;
-        let bank = ModalBank { frequencies_hz: vec![700.0, 2300.0], decay_rates: vec![6.0, 9.0], amplitudes: vec![0.3, 0.2], phases: vec![0.3, -1.0] };
+        let bank = ModalBank {
+            frequencies_hz: vec![700.0, 2300.0],
+            decay_rates: vec![6.0, 9.0],
+            amplitudes: vec![0.3, 0.2],
+            phases: vec![0.3, -1.0],
+        };
         let mut rng = SplitMix64::new(5);
         let sigma = 1e-4;
         let clean = render_samples(&bank, fs, n);
         let post: Vec<Vec<f64>> = vec![clean.iter().map(|v| v + sigma * rng.normal()).collect()];
         let pre: Vec<Vec<f64>> = vec![(0..8000).map(|_| sigma * rng.normal()).collect()];
         let ex = extract_modes(&post, fs, &ExtractOptions::default()).unwrap();
-        assert_eq!(ex.modes.len(), 2, "{:?}", ex.modes.iter().map(|m| m.frequency_hz).collect::<Vec<_>>());
-        let options = EnvelopeOptions { band_edges_hz: vec![250.0, 1000.0, 4000.0], frame: 512, hop: 256 };
+        assert_eq!(
+            ex.modes.len(),
+            2,
+            "{:?}",
+            ex.modes.iter().map(|m| m.frequency_hz).collect::<Vec<_>>()
+        );
+        let options = EnvelopeOptions {
+            band_edges_hz: vec![250.0, 1000.0, 4000.0],
+            frame: 512,
+            hop: 256,
+        };
         let env = residual_envelopes(&post, &pre, &ex, &options).unwrap();
         assert_eq!(env.energy.len(), 2);
         for b in 0..2 {
             let mean = env.energy[b].iter().sum::<f64>() / env.energy[b].len() as f64;
             let ratio = mean / env.noise_floor_estimate[b];
-            assert!((0.8..1.25).contains(&ratio), "band {b}: residual / floor = {ratio}");
+            assert!(
+                (0.8..1.25).contains(&ratio),
+                "band {b}: residual / floor = {ratio}"
+            );
         }
         // Leave the 2300 Hz mode out of the model: band 1 (1–4 kHz) gains its decaying energy.
         let mut partial = ex.clone();
@@ -512,7 +742,10 @@ mod tests {
         let env = residual_envelopes(&post, &pre, &partial, &options).unwrap();
         let first = env.energy[1][0] / env.noise_floor_estimate[1];
         let last = env.energy[1].last().unwrap() / env.noise_floor_estimate[1];
-        assert!(first > 1e3 && first > 10.0 * last, "first {first}, last {last}");
+        assert!(
+            first > 1e3 && first > 10.0 * last,
+            "first {first}, last {last}"
+        );
         let low = env.energy[0][0] / env.noise_floor_estimate[0];
         assert!(low < 3.0, "band 0 unaffected: {low}");
     }
@@ -521,21 +754,40 @@ mod tests {
     fn observed_modes_take_mutual_early_and_late_frequencies() {
         let fs = 16000.0;
         let n = 16000;
-        let bank = ModalBank { frequencies_hz: vec![700.0, 2300.0], decay_rates: vec![3.0, 4.0], amplitudes: vec![0.3, 0.2], phases: vec![0.3, -1.0] };
+        let bank = ModalBank {
+            frequencies_hz: vec![700.0, 2300.0],
+            decay_rates: vec![3.0, 4.0],
+            amplitudes: vec![0.3, 0.2],
+            phases: vec![0.3, -1.0],
+        };
         let mut rng = SplitMix64::new(9);
-        let x: Vec<f64> = render_samples(&bank, fs, n).iter().map(|v| v + 1e-5 * rng.normal()).collect();
+        let x: Vec<f64> = render_samples(&bank, fs, n)
+            .iter()
+            .map(|v| v + 1e-5 * rng.normal())
+            .collect();
         let full = extract_modes(&[x.clone()], fs, &ExtractOptions::default()).unwrap();
         let early = extract_modes(&[x[..n / 2].to_vec()], fs, &ExtractOptions::default()).unwrap();
         let late = extract_modes(&[x[n / 2..].to_vec()], fs, &ExtractOptions::default()).unwrap();
-        let obs = observed_modes(&full, Some(&early), Some(&late), &ObservedOptions::default());
+        let obs = observed_modes(
+            &full,
+            Some(&early),
+            Some(&late),
+            &ObservedOptions::default(),
+        );
         assert_eq!(obs.len(), 2);
         for (o, f) in obs.iter().zip([700.0, 2300.0]) {
             let (fe, _) = o.early_frequency_hz.expect("early found");
             let (fl, _) = o.late_frequency_hz.expect("late found");
-            assert!((fe - f).abs() < 0.01 && (fl - f).abs() < 0.01, "{fe} {fl} vs {f}");
+            assert!(
+                (fe - f).abs() < 0.01 && (fl - f).abs() < 0.01,
+                "{fe} {fl} vs {f}"
+            );
             assert!(o.sigma_frequency_hz > 0.0 && o.amplitudes.len() == 1);
         }
-        let strict = ObservedOptions { min_snr_db: 500.0, ..Default::default() };
+        let strict = ObservedOptions {
+            min_snr_db: 500.0,
+            ..Default::default()
+        };
         assert!(observed_modes(&full, None, None, &strict).is_empty());
     }
 }

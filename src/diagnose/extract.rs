@@ -378,7 +378,15 @@ impl ModalExtraction {
         let mut out = crate::audio::synth::render_samples(&bank, self.sample_rate, n);
         for m in self.modes.iter().filter(|m| gliding(m)) {
             let g = m.glide.as_ref().map_or(0.0, |g| g.glide);
-            glide::add_gliding_mode(&mut out, self.sample_rate, m.frequency_hz, m.decay_rate, g, m.amplitudes[channel], m.phases[channel]);
+            glide::add_gliding_mode(
+                &mut out,
+                self.sample_rate,
+                m.frequency_hz,
+                m.decay_rate,
+                g,
+                m.amplitudes[channel],
+                m.phases[channel],
+            );
         }
         out
     }

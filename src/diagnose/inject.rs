@@ -163,9 +163,17 @@ pub enum InjectError {
     #[error("unknown effect {0:?}; known effects: non_rayleigh_damping, beating_pair, support_contact, contact_duration, reverb, radiation, added_mass, pitch_glide")]
     UnknownEffect(String),
     #[error("{what} must be {requirement}, got {value}")]
-    BadParameter { what: &'static str, requirement: &'static str, value: f64 },
+    BadParameter {
+        what: &'static str,
+        requirement: &'static str,
+        value: f64,
+    },
     #[error("{what}: {got} values, expected {expected}")]
-    LengthMismatch { what: &'static str, got: usize, expected: usize },
+    LengthMismatch {
+        what: &'static str,
+        got: usize,
+        expected: usize,
+    },
     #[error("{0}")]
     Empty(&'static str),
     #[error("labels: {0}")]
@@ -174,11 +182,20 @@ pub enum InjectError {
     Report(String),
 }
 
-fn require(ok: bool, what: &'static str, requirement: &'static str, value: f64) -> Result<(), InjectError> {
+fn require(
+    ok: bool,
+    what: &'static str,
+    requirement: &'static str,
+    value: f64,
+) -> Result<(), InjectError> {
     if ok && value.is_finite() {
         Ok(())
     } else {
-        Err(InjectError::BadParameter { what, requirement, value })
+        Err(InjectError::BadParameter {
+            what,
+            requirement,
+            value,
+        })
     }
 }
 
@@ -274,24 +291,42 @@ impl Effect {
 
     pub fn from_name(name: &str) -> Result<Effect, InjectError> {
         let name = name.trim();
-        Effect::ALL.into_iter().find(|e| e.name() == name).ok_or_else(|| InjectError::UnknownEffect(name.to_string()))
+        Effect::ALL
+            .into_iter()
+            .find(|e| e.name() == name)
+            .ok_or_else(|| InjectError::UnknownEffect(name.to_string()))
     }
 
     /// Effects that change K or M, so the modes must be solved again.
     pub fn changes_fem(self) -> bool {
-        matches!(self, Effect::BeatingPair | Effect::SupportContact | Effect::AddedMass)
+        matches!(
+            self,
+            Effect::BeatingPair | Effect::SupportContact | Effect::AddedMass
+        )
     }
 
     /// The realistic range of the effect's main parameter (module docs).
     pub fn strength_scale(self) -> StrengthScale {
-        let s = |parameter, unit, weakest, strongest, logarithmic| StrengthScale { parameter, unit, weakest, strongest, logarithmic, measured: false };
+        let s = |parameter, unit, weakest, strongest, logarithmic| StrengthScale {
+            parameter,
+            unit,
+            weakest,
+            strongest,
+            logarithmic,
+            measured: false,
+        };
         match self {
-            Effect::NonRayleighDamping => s("relaxation_strength / loss_factor", "-", 0.5, 5.0, true),
+            Effect::NonRayleighDamping => {
+                s("relaxation_strength / loss_factor", "-", 0.5, 5.0, true)
+            }
             Effect::BeatingPair => s("density_increase", "-", 0.002, 0.02, true),
             Effect::SupportContact => s("bounce_frequency", "Hz", 20.0, 150.0, true),
             Effect::ContactDuration => s("contact_duration", "s", 0.05e-3, 0.6e-3, true),
             Effect::Reverb => s("direct_to_reverberant_ratio", "dB", 15.0, 0.0, false),
-            Effect::Radiation => StrengthScale { measured: true, ..s("rank_one_level_misfit", "dB", 0.0, 10.0, false) },
+            Effect::Radiation => StrengthScale {
+                measured: true,
+                ..s("rank_one_level_misfit", "dB", 0.0, 10.0, false)
+            },
             Effect::AddedMass => s("mass_fraction", "-", 0.01, 0.10, true),
             Effect::PitchGlide => s("glide", "-", 0.0005, 0.005, true),
         }
@@ -331,8 +366,14 @@ pub fn schedule_effects(n_cases: usize, pool: &[Effect], rng: &mut SplitMix64) -
         return vec![Vec::new(); n_cases];
     }
     let n_clean = (0.3 * n_cases as f64).round() as usize;
-    let n_two = if pool.len() >= 2 { ((0.3 * n_cases as f64).round() as usize).min(n_cases - n_clean) } else { 0 };
-    let mut sizes: Vec<usize> = std::iter::repeat_n(0, n_clean).chain(std::iter::repeat_n(2, n_two)).collect();
+    let n_two = if pool.len() >= 2 {
+        ((0.3 * n_cases as f64).round() as usize).min(n_cases - n_clean)
+    } else {
+        0
+    };
+    let mut sizes: Vec<usize> = std::iter::repeat_n(0, n_clean)
+        .chain(std::iter::repeat_n(2, n_two))
+        .collect();
     sizes.resize(n_cases, 1);
     rng.shuffle(&mut sizes);
     let mut deck: Vec<Effect> = Vec::new();
@@ -389,23 +430,59 @@ impl ZenerDamping {
 
     /// The law with Δ = `ratio`·η and corner `corner_hz` whose decay at `reference_hz` equals
     /// `reference_decay` [1/s].
-    pub fn matched(reference_hz: f64, reference_decay: f64, ratio: f64, corner_hz: f64) -> Result<ZenerDamping, InjectError> {
-        require(reference_hz > 0.0, "reference frequency", "positive (Hz)", reference_hz)?;
-        require(reference_decay > 0.0, "reference decay rate", "positive (1/s)", reference_decay)?;
-        require(ratio >= 0.0, "relaxation strength / loss factor", "≥ 0", ratio)?;
-        require(corner_hz > 0.0, "corner frequency", "positive (Hz)", corner_hz)?;
+    pub fn matched(
+        reference_hz: f64,
+        reference_decay: f64,
+        ratio: f64,
+        corner_hz: f64,
+    ) -> Result<ZenerDamping, InjectError> {
+        require(
+            reference_hz > 0.0,
+            "reference frequency",
+            "positive (Hz)",
+            reference_hz,
+        )?;
+        require(
+            reference_decay > 0.0,
+            "reference decay rate",
+            "positive (1/s)",
+            reference_decay,
+        )?;
+        require(
+            ratio >= 0.0,
+            "relaxation strength / loss factor",
+            "≥ 0",
+            ratio,
+        )?;
+        require(
+            corner_hz > 0.0,
+            "corner frequency",
+            "positive (Hz)",
+            corner_hz,
+        )?;
         let x = reference_hz / corner_hz;
         let loss_factor = reference_decay / (PI * reference_hz * (1.0 + ratio * x / (1.0 + x * x)));
-        Ok(ZenerDamping { loss_factor, relaxation_strength: ratio * loss_factor, corner_hz })
+        Ok(ZenerDamping {
+            loss_factor,
+            relaxation_strength: ratio * loss_factor,
+            corner_hz,
+        })
     }
 }
 
 /// The best Rayleigh law for decays `decays` [1/s] at undamped frequencies `frequencies_hz`:
 /// (α [1/s], β [s], RMS of ln(d_fit/d)). Minimises Σ ((α + βω²)/2 − d)²/d² (relative error)
 /// over α, β ≥ 0 (the 2 × 2 normal equations, then each bound if violated).
-pub fn rayleigh_fit(frequencies_hz: &[f64], decays: &[f64]) -> Result<(f64, f64, f64), InjectError> {
+pub fn rayleigh_fit(
+    frequencies_hz: &[f64],
+    decays: &[f64],
+) -> Result<(f64, f64, f64), InjectError> {
     if frequencies_hz.len() != decays.len() {
-        return Err(InjectError::LengthMismatch { what: "decay rates", got: decays.len(), expected: frequencies_hz.len() });
+        return Err(InjectError::LengthMismatch {
+            what: "decay rates",
+            got: decays.len(),
+            expected: frequencies_hz.len(),
+        });
     }
     if frequencies_hz.is_empty() {
         return Err(InjectError::Empty("no modes to fit a Rayleigh law to"));
@@ -416,8 +493,16 @@ pub fn rayleigh_fit(frequencies_hz: &[f64], decays: &[f64]) -> Result<(f64, f64,
     }
     // Rows (½/d, ½ω²/(d ω_r²)) against 1, with ω_r² the mean ω² so that both columns are of
     // one scale (the second unknown is β ω_r²).
-    let omega_r2 = frequencies_hz.iter().map(|f| (2.0 * PI * f).powi(2)).sum::<f64>() / frequencies_hz.len() as f64;
-    let rows: Vec<(f64, f64)> = frequencies_hz.iter().zip(decays).map(|(&f, &d)| (0.5 / d, 0.5 * (2.0 * PI * f).powi(2) / (d * omega_r2))).collect();
+    let omega_r2 = frequencies_hz
+        .iter()
+        .map(|f| (2.0 * PI * f).powi(2))
+        .sum::<f64>()
+        / frequencies_hz.len() as f64;
+    let rows: Vec<(f64, f64)> = frequencies_hz
+        .iter()
+        .zip(decays)
+        .map(|(&f, &d)| (0.5 / d, 0.5 * (2.0 * PI * f).powi(2) / (d * omega_r2)))
+        .collect();
     let (mut s11, mut s12, mut s22, mut b1, mut b2) = (0.0, 0.0, 0.0, 0.0, 0.0);
     for &(a, b) in &rows {
         s11 += a * a;
@@ -433,7 +518,11 @@ pub fn rayleigh_fit(frequencies_hz: &[f64], decays: &[f64]) -> Result<(f64, f64,
     }
     candidates.push((b1 / s11, 0.0));
     candidates.push((0.0, b2 / s22));
-    let misfit = |alpha: f64, beta: f64| rows.iter().map(|&(a, b)| (alpha * a + beta * b - 1.0).powi(2)).sum::<f64>();
+    let misfit = |alpha: f64, beta: f64| {
+        rows.iter()
+            .map(|&(a, b)| (alpha * a + beta * b - 1.0).powi(2))
+            .sum::<f64>()
+    };
     let (alpha, beta_scaled) = candidates
         .into_iter()
         .filter(|&(a, b)| a >= 0.0 && b >= 0.0)
@@ -443,7 +532,11 @@ pub fn rayleigh_fit(frequencies_hz: &[f64], decays: &[f64]) -> Result<(f64, f64,
     let log_rms = (frequencies_hz
         .iter()
         .zip(decays)
-        .map(|(&f, &d)| (0.5 * (alpha + beta * (2.0 * PI * f).powi(2)) / d).ln().powi(2))
+        .map(|(&f, &d)| {
+            (0.5 * (alpha + beta * (2.0 * PI * f).powi(2)) / d)
+                .ln()
+                .powi(2)
+        })
         .sum::<f64>()
         / decays.len() as f64)
         .sqrt();
@@ -466,7 +559,12 @@ pub struct HertzPulse {
 
 impl HertzPulse {
     pub fn new(duration_s: f64) -> Result<HertzPulse, InjectError> {
-        require(duration_s > 0.0 && duration_s <= 0.1, "contact duration", "in (0, 0.1] s", duration_s)?;
+        require(
+            duration_s > 0.0 && duration_s <= 0.1,
+            "contact duration",
+            "in (0, 0.1] s",
+            duration_s,
+        )?;
         Ok(HertzPulse { duration_s })
     }
 
@@ -525,14 +623,39 @@ pub use super::extract::glide::glide_phase;
 /// with relative pitch glide g (`glide`, module docs) or without (then each channel is a
 /// [`crate::audio::synth`] bank). Modes whose highest frequency f₀(1 + g) is not strictly
 /// between 0 and the Nyquist frequency are skipped, as the synthesiser does.
-pub fn render_tracks(tracks: &[ModeTrack], n_channels: usize, sample_rate: f64, n_samples: usize, glide: Option<f64>) -> Result<Vec<Vec<f64>>, InjectError> {
-    require(sample_rate > 0.0, "sample rate", "positive (Hz)", sample_rate)?;
+pub fn render_tracks(
+    tracks: &[ModeTrack],
+    n_channels: usize,
+    sample_rate: f64,
+    n_samples: usize,
+    glide: Option<f64>,
+) -> Result<Vec<Vec<f64>>, InjectError> {
+    require(
+        sample_rate > 0.0,
+        "sample rate",
+        "positive (Hz)",
+        sample_rate,
+    )?;
     for t in tracks {
         if t.amplitudes.len() != n_channels {
-            return Err(InjectError::LengthMismatch { what: "mode amplitudes per channel", got: t.amplitudes.len(), expected: n_channels });
+            return Err(InjectError::LengthMismatch {
+                what: "mode amplitudes per channel",
+                got: t.amplitudes.len(),
+                expected: n_channels,
+            });
         }
-        require(t.decay_rate >= 0.0, "decay rate", "finite and ≥ 0 (1/s)", t.decay_rate)?;
-        require(t.frequency_hz.is_finite(), "mode frequency", "finite (Hz)", t.frequency_hz)?;
+        require(
+            t.decay_rate >= 0.0,
+            "decay rate",
+            "finite and ≥ 0 (1/s)",
+            t.decay_rate,
+        )?;
+        require(
+            t.frequency_hz.is_finite(),
+            "mode frequency",
+            "finite (Hz)",
+            t.frequency_hz,
+        )?;
     }
     let glide = match glide {
         None => {
@@ -588,15 +711,39 @@ pub struct RoomResponse {
 impl RoomResponse {
     /// One realisation at `sample_rate` [Hz], at most `max_len` samples (and at most the
     /// pre-delay + 1.5 T60).
-    pub fn impulse_response(&self, sample_rate: f64, max_len: usize, rng: &mut SplitMix64) -> Result<Vec<f64>, InjectError> {
-        require(sample_rate > 0.0, "sample rate", "positive (Hz)", sample_rate)?;
+    pub fn impulse_response(
+        &self,
+        sample_rate: f64,
+        max_len: usize,
+        rng: &mut SplitMix64,
+    ) -> Result<Vec<f64>, InjectError> {
+        require(
+            sample_rate > 0.0,
+            "sample rate",
+            "positive (Hz)",
+            sample_rate,
+        )?;
         require(self.t60_s > 0.0, "T60", "positive (s)", self.t60_s)?;
-        require(self.predelay_s >= 0.0, "pre-delay", "≥ 0 (s)", self.predelay_s)?;
-        require(true, "direct-to-reverberant ratio", "finite (dB)", self.direct_to_reverberant_db)?;
+        require(
+            self.predelay_s >= 0.0,
+            "pre-delay",
+            "≥ 0 (s)",
+            self.predelay_s,
+        )?;
+        require(
+            true,
+            "direct-to-reverberant ratio",
+            "finite (dB)",
+            self.direct_to_reverberant_db,
+        )?;
         let start = ((self.predelay_s * sample_rate).round() as usize).max(1);
         let len = (start + (1.5 * self.t60_s * sample_rate).ceil() as usize).min(max_len);
         if len <= start {
-            return Err(InjectError::BadParameter { what: "room response length", requirement: "longer than the pre-delay", value: max_len as f64 });
+            return Err(InjectError::BadParameter {
+                what: "room response length",
+                requirement: "longer than the pre-delay",
+                value: max_len as f64,
+            });
         }
         let rate = 3.0 * 10f64.ln() / (self.t60_s * sample_rate); // amplitude decay per sample
         let mut h = vec![0.0; len];
@@ -636,9 +783,17 @@ pub fn convolve_truncated(x: &[f64], h: &[f64]) -> Vec<f64> {
 /// T60 [s] of an impulse response from the slope of its Schroeder energy decay curve
 /// EDC(n) = Σ_{m≥n} h[m]² (from `start`), fitted by least squares between `from_db` and
 /// `to_db` below its start (e.g. −5 and −35: T30) and extrapolated to −60 dB.
-pub fn schroeder_t60(h: &[f64], sample_rate: f64, start: usize, from_db: f64, to_db: f64) -> Result<f64, InjectError> {
+pub fn schroeder_t60(
+    h: &[f64],
+    sample_rate: f64,
+    start: usize,
+    from_db: f64,
+    to_db: f64,
+) -> Result<f64, InjectError> {
     if start >= h.len() {
-        return Err(InjectError::Empty("no samples after the start of the decay"));
+        return Err(InjectError::Empty(
+            "no samples after the start of the decay",
+        ));
     }
     let mut edc = vec![0.0; h.len() - start];
     let mut acc = 0.0;
@@ -663,7 +818,9 @@ pub fn schroeder_t60(h: &[f64], sample_rate: f64, start: usize, from_db: f64, to
         }
     }
     if count < 2.0 {
-        return Err(InjectError::Empty("the decay curve does not span the fitting range"));
+        return Err(InjectError::Empty(
+            "the decay curve does not span the fitting range",
+        ));
     }
     let slope = (count * sxy - sx * sy) / (count * sxx - sx * sx); // dB/s
     Ok(-60.0 / slope)
@@ -681,7 +838,12 @@ pub enum NoiseColour {
 pub const PINK_FLOOR_HZ: f64 = 20.0;
 
 /// `n` samples of zero-mean noise of unit RMS (module docs).
-pub fn coloured_noise(n: usize, colour: NoiseColour, sample_rate: f64, rng: &mut SplitMix64) -> Vec<f64> {
+pub fn coloured_noise(
+    n: usize,
+    colour: NoiseColour,
+    sample_rate: f64,
+    rng: &mut SplitMix64,
+) -> Vec<f64> {
     let mut x: Vec<f64> = (0..n).map(|_| rng.normal()).collect();
     if colour == NoiseColour::Pink && n > 1 {
         let mut planner = rustfft::FftPlanner::<f64>::new();
@@ -689,7 +851,11 @@ pub fn coloured_noise(n: usize, colour: NoiseColour, sample_rate: f64, rng: &mut
         planner.plan_fft_forward(n).process(&mut spec);
         for (k, v) in spec.iter_mut().enumerate() {
             let f = k.min(n - k) as f64 * sample_rate / n as f64;
-            *v *= if k == 0 { 0.0 } else { 1.0 / f.max(PINK_FLOOR_HZ).sqrt() };
+            *v *= if k == 0 {
+                0.0
+            } else {
+                1.0 / f.max(PINK_FLOOR_HZ).sqrt()
+            };
         }
         planner.plan_fft_inverse(n).process(&mut spec);
         x = spec.iter().map(|v| v.re).collect();
@@ -704,24 +870,43 @@ pub fn coloured_noise(n: usize, colour: NoiseColour, sample_rate: f64, rng: &mut
 /// Adds independent noise of one level to every channel so that the mean signal power over
 /// `signal` (sample range, averaged over channels) is `snr_db` above the noise power. Returns
 /// the noise RMS.
-pub fn add_noise(channels: &mut [Vec<f64>], signal: std::ops::Range<usize>, snr_db: f64, colour: NoiseColour, sample_rate: f64, rng: &mut SplitMix64) -> Result<f64, InjectError> {
+pub fn add_noise(
+    channels: &mut [Vec<f64>],
+    signal: std::ops::Range<usize>,
+    snr_db: f64,
+    colour: NoiseColour,
+    sample_rate: f64,
+    rng: &mut SplitMix64,
+) -> Result<f64, InjectError> {
     require(true, "SNR", "finite (dB)", snr_db)?;
     if channels.is_empty() {
         return Err(InjectError::Empty("no channels to add noise to"));
     }
     let len = channels[0].len();
     if let Some(c) = channels.iter().find(|c| c.len() != len) {
-        return Err(InjectError::LengthMismatch { what: "channel samples", got: c.len(), expected: len });
+        return Err(InjectError::LengthMismatch {
+            what: "channel samples",
+            got: c.len(),
+            expected: len,
+        });
     }
     if signal.start >= signal.end || signal.end > len {
-        return Err(InjectError::Empty("the signal window is empty or outside the channels"));
+        return Err(InjectError::Empty(
+            "the signal window is empty or outside the channels",
+        ));
     }
-    let power = channels.iter().map(|c| c[signal.clone()].iter().map(|v| v * v).sum::<f64>() / signal.len() as f64).sum::<f64>() / channels.len() as f64;
+    let power = channels
+        .iter()
+        .map(|c| c[signal.clone()].iter().map(|v| v * v).sum::<f64>() / signal.len() as f64)
+        .sum::<f64>()
+        / channels.len() as f64;
     require(power > 0.0, "signal power", "positive", power)?;
     let noise_rms = (power / 10f64.powf(snr_db / 10.0)).sqrt();
     for c in channels.iter_mut() {
         let noise = coloured_noise(len, colour, sample_rate, rng);
-        c.iter_mut().zip(&noise).for_each(|(v, n)| *v += noise_rms * n);
+        c.iter_mut()
+            .zip(&noise)
+            .for_each(|(v, n)| *v += noise_rms * n);
     }
     Ok(noise_rms)
 }
@@ -754,7 +939,10 @@ fn heights(mesh: &TetMesh, down: [f64; 3]) -> (Vec<f64>, f64) {
 pub fn strike_candidates(mesh: &TetMesh, down: [f64; 3], clearance: f64) -> Vec<(usize, [f64; 3])> {
     let (h, extent) = heights(mesh, down);
     let down = unit(down);
-    mesh.vertex_normals().into_iter().filter(|&(v, n)| dot(n, down) < 0.5 && h[v] > clearance * extent).collect()
+    mesh.vertex_normals()
+        .into_iter()
+        .filter(|&(v, n)| dot(n, down) < 0.5 && h[v] > clearance * extent)
+        .collect()
 }
 
 /// The contact points of an object resting on a support below it: the surface vertices within
@@ -763,7 +951,10 @@ pub fn support_nodes(mesh: &TetMesh, down: [f64; 3], band: f64, min_nodes: usize
     let (h, extent) = heights(mesh, down);
     let mut surface = mesh.surface_vertices();
     surface.sort_by(|&a, &b| h[a].total_cmp(&h[b]).then(a.cmp(&b)));
-    let within = surface.iter().take_while(|&&v| h[v] <= band * extent).count();
+    let within = surface
+        .iter()
+        .take_while(|&&v| h[v] <= band * extent)
+        .count();
     surface.truncate(within.max(min_nodes).min(surface.len()));
     surface.sort_unstable();
     surface
@@ -774,14 +965,19 @@ pub fn nearest_surface_vertices(mesh: &TetMesh, centre: usize, n: usize) -> Vec<
     let surface = mesh.surface_vertices();
     let points: Vec<[f64; 3]> = surface.iter().map(|&v| mesh.nodes[v]).collect();
     // `surface` is ascending, so ties at equal distance go to the lower node, as before.
-    let mut near: Vec<usize> = nearest_points(&points, mesh.nodes[centre], n).into_iter().map(|i| surface[i]).collect();
+    let mut near: Vec<usize> = nearest_points(&points, mesh.nodes[centre], n)
+        .into_iter()
+        .map(|i| surface[i])
+        .collect();
     near.sort_unstable();
     near
 }
 
 /// Indices of the `n` of `points` nearest to `centre`, nearest first (ties: lower index).
 pub fn nearest_points(points: &[[f64; 3]], centre: [f64; 3], n: usize) -> Vec<usize> {
-    let d2 = |x: &[f64; 3]| (x[0] - centre[0]).powi(2) + (x[1] - centre[1]).powi(2) + (x[2] - centre[2]).powi(2);
+    let d2 = |x: &[f64; 3]| {
+        (x[0] - centre[0]).powi(2) + (x[1] - centre[1]).powi(2) + (x[2] - centre[2]).powi(2)
+    };
     let mut order: Vec<(f64, usize)> = points.iter().map(d2).zip(0..).collect();
     let n = n.min(order.len());
     let by_distance = |a: &(f64, usize), b: &(f64, usize)| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1));
@@ -808,12 +1004,30 @@ pub fn nearest_points(points: &[[f64; 3]], centre: [f64; 3], n: usize) -> Vec<us
 /// (`examples/bowl`) stiffening a sector by 1.5 % left its lowest pair's split at 3.49 Hz (the
 /// strain energy of those bending modes is nearly even in ψ), while the kinetic energy, mostly
 /// radial motion ∝ cos² nψ, is not.
-pub fn sector_mesh(mesh: &TetMesh, point: [f64; 3], axis: [f64; 3], start: f64, width: f64) -> TetMesh {
+pub fn sector_mesh(
+    mesh: &TetMesh,
+    point: [f64; 3],
+    axis: [f64; 3],
+    start: f64,
+    width: f64,
+) -> TetMesh {
     let a = unit(axis);
-    let reference = if a[0].abs() < 0.9 { [1.0, 0.0, 0.0] } else { [0.0, 1.0, 0.0] };
+    let reference = if a[0].abs() < 0.9 {
+        [1.0, 0.0, 0.0]
+    } else {
+        [0.0, 1.0, 0.0]
+    };
     let along = dot(reference, a);
-    let e1 = unit([reference[0] - along * a[0], reference[1] - along * a[1], reference[2] - along * a[2]]);
-    let e2 = [a[1] * e1[2] - a[2] * e1[1], a[2] * e1[0] - a[0] * e1[2], a[0] * e1[1] - a[1] * e1[0]];
+    let e1 = unit([
+        reference[0] - along * a[0],
+        reference[1] - along * a[1],
+        reference[2] - along * a[2],
+    ]);
+    let e2 = [
+        a[1] * e1[2] - a[2] * e1[1],
+        a[2] * e1[0] - a[0] * e1[2],
+        a[0] * e1[1] - a[1] * e1[0],
+    ];
     let npt = mesh.nodes_per_tet();
     let mut connectivity = Vec::new();
     for e in 0..mesh.n_tets() {
@@ -824,13 +1038,22 @@ pub fn sector_mesh(mesh: &TetMesh, point: [f64; 3], axis: [f64; 3], start: f64, 
             connectivity.extend_from_slice(&mesh.connectivity[e * npt..(e + 1) * npt]);
         }
     }
-    TetMesh { nodes: mesh.nodes.clone(), connectivity, order: mesh.order }
+    TetMesh {
+        nodes: mesh.nodes.clone(),
+        connectivity,
+        order: mesh.order,
+    }
 }
 
 /// Δd = ½ Σ_i (c_n (φ_i·v)² + c_t (|φ_i|² − (φ_i·v)²)) [1/s] for one mass-normalised mode with
 /// displacement `values` [kg^(−½)] at the support nodes, normal dashpot `c_normal` and
 /// tangential `c_tangential` per node [N·s/m], v the unit support direction.
-pub fn support_damping(values: &[[f64; 3]], c_normal: f64, c_tangential: f64, down: [f64; 3]) -> f64 {
+pub fn support_damping(
+    values: &[[f64; 3]],
+    c_normal: f64,
+    c_tangential: f64,
+    down: [f64; 3],
+) -> f64 {
     let v = unit(down);
     0.5 * values
         .iter()
@@ -847,18 +1070,33 @@ pub fn support_damping(values: &[[f64; 3]], c_normal: f64, c_tangential: f64, do
 /// weighted least squares (converges in a few sweeps for this two-way layout).
 pub fn rank_one_level_misfit_db(levels: &[Vec<f64>], weights: &[f64]) -> Result<f64, InjectError> {
     if levels.len() != weights.len() {
-        return Err(InjectError::LengthMismatch { what: "mode weights", got: weights.len(), expected: levels.len() });
+        return Err(InjectError::LengthMismatch {
+            what: "mode weights",
+            got: weights.len(),
+            expected: levels.len(),
+        });
     }
     let n_c = levels.first().map_or(0, Vec::len);
     if n_c == 0 {
         return Err(InjectError::Empty("no modes or no channels"));
     }
     if let Some(row) = levels.iter().find(|r| r.len() != n_c) {
-        return Err(InjectError::LengthMismatch { what: "channel levels", got: row.len(), expected: n_c });
+        return Err(InjectError::LengthMismatch {
+            what: "channel levels",
+            got: row.len(),
+            expected: n_c,
+        });
     }
     let total_w: f64 = weights.iter().sum();
     require(total_w > 0.0, "total mode weight", "positive", total_w)?;
-    let db: Vec<Vec<f64>> = levels.iter().map(|r| r.iter().map(|&h| 20.0 * h.abs().max(1e-300).log10()).collect()).collect();
+    let db: Vec<Vec<f64>> = levels
+        .iter()
+        .map(|r| {
+            r.iter()
+                .map(|&h| 20.0 * h.abs().max(1e-300).log10())
+                .collect()
+        })
+        .collect();
     let mut a = vec![0.0; levels.len()];
     let mut b = vec![0.0; n_c];
     for _ in 0..50 {
@@ -866,10 +1104,27 @@ pub fn rank_one_level_misfit_db(levels: &[Vec<f64>], weights: &[f64]) -> Result<
             a[k] = row.iter().zip(&b).map(|(y, bc)| y - bc).sum::<f64>() / n_c as f64;
         }
         for c in 0..n_c {
-            b[c] = db.iter().zip(&a).zip(weights).map(|((row, ak), w)| w * (row[c] - ak)).sum::<f64>() / total_w;
+            b[c] = db
+                .iter()
+                .zip(&a)
+                .zip(weights)
+                .map(|((row, ak), w)| w * (row[c] - ak))
+                .sum::<f64>()
+                / total_w;
         }
     }
-    let ss: f64 = db.iter().zip(&a).zip(weights).map(|((row, ak), w)| w * row.iter().zip(&b).map(|(y, bc)| (y - ak - bc).powi(2)).sum::<f64>()).sum();
+    let ss: f64 = db
+        .iter()
+        .zip(&a)
+        .zip(weights)
+        .map(|((row, ak), w)| {
+            w * row
+                .iter()
+                .zip(&b)
+                .map(|(y, bc)| (y - ak - bc).powi(2))
+                .sum::<f64>()
+        })
+        .sum();
     Ok((ss / (total_w * n_c as f64)).sqrt())
 }
 
@@ -924,9 +1179,17 @@ pub struct Score {
 
 /// Scores `detected` effects per case against the sealed `truth` (same order), with recall in
 /// `strength_bins` bins.
-pub fn score(truth: &[CaseTruth], detected: &[Vec<Effect>], strength_bins: usize) -> Result<Score, InjectError> {
+pub fn score(
+    truth: &[CaseTruth],
+    detected: &[Vec<Effect>],
+    strength_bins: usize,
+) -> Result<Score, InjectError> {
     if truth.len() != detected.len() {
-        return Err(InjectError::LengthMismatch { what: "detections (one list per case)", got: detected.len(), expected: truth.len() });
+        return Err(InjectError::LengthMismatch {
+            what: "detections (one list per case)",
+            got: detected.len(),
+            expected: truth.len(),
+        });
     }
     let bins = strength_bins.max(1);
     let mut per_effect = Vec::new();
@@ -959,11 +1222,22 @@ pub fn score(truth: &[CaseTruth], detected: &[Vec<Effect>], strength_bins: usize
             precision: ratio(tp, tp + fp),
             recall: ratio(tp, tp + fn_),
             f1: ratio(2 * tp, 2 * tp + fp + fn_),
-            recall_by_strength: by_bin.iter().enumerate().map(|(i, &(hit, n))| (i as f64 / bins as f64, (i + 1) as f64 / bins as f64, hit, n)).collect(),
+            recall_by_strength: by_bin
+                .iter()
+                .enumerate()
+                .map(|(i, &(hit, n))| {
+                    (i as f64 / bins as f64, (i + 1) as f64 / bins as f64, hit, n)
+                })
+                .collect(),
         });
     }
     let f1s: Vec<f64> = per_effect.iter().filter_map(|s| s.f1).collect();
-    let clean: Vec<usize> = truth.iter().enumerate().filter(|(_, t)| t.effects.is_empty()).map(|(i, _)| i).collect();
+    let clean: Vec<usize> = truth
+        .iter()
+        .enumerate()
+        .filter(|(_, t)| t.effects.is_empty())
+        .map(|(i, _)| i)
+        .collect();
     let alarms = clean.iter().filter(|&&i| !detected[i].is_empty()).count();
     Ok(Score {
         per_effect,
@@ -1096,30 +1370,50 @@ pub fn contact_shape_ratios() -> ContactShapeRatios {
 /// (the channel gains absorb constants), y_k = attenuation_k ln 10 / 20, unweighted. Grid
 /// of 400 log-spaced T over [10⁻⁴ T_max, T_max], then golden section between the best point's
 /// neighbours.
-pub fn equivalent_half_sine_duration(frequencies_hz: &[f64], attenuation_db: &[f64]) -> Result<f64, InjectError> {
+pub fn equivalent_half_sine_duration(
+    frequencies_hz: &[f64],
+    attenuation_db: &[f64],
+) -> Result<f64, InjectError> {
     use crate::diagnose::catalogue::half_sine_spectrum;
     if frequencies_hz.len() != attenuation_db.len() {
-        return Err(InjectError::LengthMismatch { what: "mode attenuations", got: attenuation_db.len(), expected: frequencies_hz.len() });
+        return Err(InjectError::LengthMismatch {
+            what: "mode attenuations",
+            got: attenuation_db.len(),
+            expected: frequencies_hz.len(),
+        });
     }
     if frequencies_hz.len() < 2 {
-        return Err(InjectError::Empty("at least two modes are needed to fit a contact duration"));
+        return Err(InjectError::Empty(
+            "at least two modes are needed to fit a contact duration",
+        ));
     }
     for (&f, &a) in frequencies_hz.iter().zip(attenuation_db) {
         require(f > 0.0, "mode frequency", "positive (Hz)", f)?;
         require(true, "mode attenuation", "finite (dB)", a)?;
     }
     let omega: Vec<f64> = frequencies_hz.iter().map(|f| 2.0 * PI * f).collect();
-    let y: Vec<f64> = attenuation_db.iter().map(|a| a * 10f64.ln() / 20.0).collect();
+    let y: Vec<f64> = attenuation_db
+        .iter()
+        .map(|a| a * 10f64.ln() / 20.0)
+        .collect();
     let cost = |ln_t: f64| {
         let t = ln_t.exp();
-        let r: Vec<f64> = omega.iter().zip(&y).map(|(w, yk)| yk - half_sine_spectrum(w * t).max(1e-15).ln()).collect();
+        let r: Vec<f64> = omega
+            .iter()
+            .zip(&y)
+            .map(|(w, yk)| yk - half_sine_spectrum(w * t).max(1e-15).ln())
+            .collect();
         let mean = r.iter().sum::<f64>() / r.len() as f64;
         r.iter().map(|v| (v - mean).powi(2)).sum::<f64>()
     };
     let t_max = 2.9 * PI / omega.iter().copied().fold(0.0, f64::max);
     let n = 400;
-    let grid: Vec<f64> = (0..n).map(|i| (t_max * 1e-4).ln() + (i as f64 / (n - 1) as f64) * 1e4f64.ln()).collect();
-    let best = (0..n).min_by(|&a, &b| cost(grid[a]).total_cmp(&cost(grid[b]))).expect("grid is not empty");
+    let grid: Vec<f64> = (0..n)
+        .map(|i| (t_max * 1e-4).ln() + (i as f64 / (n - 1) as f64) * 1e4f64.ln())
+        .collect();
+    let best = (0..n)
+        .min_by(|&a, &b| cost(grid[a]).total_cmp(&cost(grid[b])))
+        .expect("grid is not empty");
     let (mut lo, mut hi) = (grid[best.saturating_sub(1)], grid[(best + 1).min(n - 1)]);
     let phi = 0.5 * (5f64.sqrt() - 1.0);
     let (mut a, mut b) = (hi - phi * (hi - lo), lo + phi * (hi - lo));
@@ -1155,7 +1449,11 @@ fn glide_regression_mean(decay: f64, h: f64) -> f64 {
         for (x, w) in nodes.iter().zip(&weights) {
             let tau = span * (p as f64 + x) / panels as f64;
             let two_d_tau = 2.0 * decay * tau;
-            let phi = if two_d_tau.abs() < 1e-300 { tau } else { tau * (-(-two_d_tau).exp_m1() / two_d_tau) };
+            let phi = if two_d_tau.abs() < 1e-300 {
+                tau
+            } else {
+                tau * (-(-two_d_tau).exp_m1() / two_d_tau)
+            };
             points.push((tau, phi, (-two_d_tau).exp() * w * span / panels as f64));
         }
     }
@@ -1180,11 +1478,27 @@ pub fn glide_half_contrast(decay: f64, span_s: f64) -> Result<f64, InjectError> 
 /// and a late window [`early_end_s`, `late_end_s`] after the onset: a window [a, a + h] gives
 /// f/f₀ = 1 + g e^(−2da) E(h), so the contrast is E(T₁) − e^(−2dT₁) E(T₂ − T₁) (the halves of L
 /// are T₁ = L/2, T₂ = L).
-pub fn glide_window_contrast(decay: f64, early_end_s: f64, late_end_s: f64) -> Result<f64, InjectError> {
+pub fn glide_window_contrast(
+    decay: f64,
+    early_end_s: f64,
+    late_end_s: f64,
+) -> Result<f64, InjectError> {
     require(decay >= 0.0, "decay rate", "finite and ≥ 0 (1/s)", decay)?;
-    require(early_end_s > 0.0, "end of the early window", "positive (s)", early_end_s)?;
-    require(late_end_s > early_end_s, "end of the late window", "after the early window's end (s)", late_end_s)?;
-    Ok(glide_regression_mean(decay, early_end_s) - (-2.0 * decay * early_end_s).exp() * glide_regression_mean(decay, late_end_s - early_end_s))
+    require(
+        early_end_s > 0.0,
+        "end of the early window",
+        "positive (s)",
+        early_end_s,
+    )?;
+    require(
+        late_end_s > early_end_s,
+        "end of the late window",
+        "after the early window's end (s)",
+        late_end_s,
+    )?;
+    Ok(glide_regression_mean(decay, early_end_s)
+        - (-2.0 * decay * early_end_s).exp()
+            * glide_regression_mean(decay, late_end_s - early_end_s))
 }
 
 /// (f_base/f)² − 1: the added modal mass of a mode relative to its own, from its frequency
@@ -1210,7 +1524,11 @@ pub fn zener_knot_rms_error(law: &ZenerDamping, knots: &[(f64, f64)]) -> Result<
 
 /// One-to-one pairs (truth index, detected index) of frequencies within `tolerance` in
 /// |ln(f_detected/f_truth)|, nearest first; sorted by the detected index.
-pub fn pair_by_frequency(truth_hz: &[f64], detected_hz: &[f64], tolerance: f64) -> Vec<(usize, usize)> {
+pub fn pair_by_frequency(
+    truth_hz: &[f64],
+    detected_hz: &[f64],
+    tolerance: f64,
+) -> Vec<(usize, usize)> {
     let mut candidates: Vec<(f64, usize, usize)> = Vec::new();
     for (i, &t) in truth_hz.iter().enumerate() {
         for (j, &d) in detected_hz.iter().enumerate() {
@@ -1239,7 +1557,13 @@ pub fn pair_by_frequency(truth_hz: &[f64], detected_hz: &[f64], tolerance: f64) 
 /// 1662.5).
 pub fn frequency_in_name(name: &str) -> Option<f64> {
     let head = name[..name.rfind("Hz")?].trim_end();
-    let start = head.rfind(|c: char| !(c.is_ascii_digit() || c == '.' || c == 'e' || c == 'E' || c == '+' || c == '-')).map_or(0, |i| i + head[i..].chars().next().map_or(1, char::len_utf8));
+    let start = head
+        .rfind(|c: char| {
+            !(c.is_ascii_digit() || c == '.' || c == 'e' || c == 'E' || c == '+' || c == '-')
+        })
+        .map_or(0, |i| {
+            i + head[i..].chars().next().map_or(1, char::len_utf8)
+        });
     let value: f64 = head[start..].parse().ok()?;
     (value > 0.0 && value.is_finite()).then_some(value)
 }
@@ -1252,7 +1576,11 @@ pub fn median(values: &[f64]) -> Option<f64> {
     }
     v.sort_by(f64::total_cmp);
     let n = v.len();
-    Some(if n % 2 == 1 { v[n / 2] } else { 0.5 * (v[n / 2 - 1] + v[n / 2]) })
+    Some(if n % 2 == 1 {
+        v[n / 2]
+    } else {
+        0.5 * (v[n / 2 - 1] + v[n / 2])
+    })
 }
 
 /// Relative errors of one parameter over the cases.
@@ -1271,7 +1599,12 @@ impl ErrorSummary {
     pub fn of(errors: &[f64]) -> Option<ErrorSummary> {
         let finite: Vec<f64> = errors.iter().copied().filter(|e| e.is_finite()).collect();
         let abs: Vec<f64> = finite.iter().map(|e| e.abs()).collect();
-        Some(ErrorSummary { n: finite.len(), median_abs: median(&abs)?, max_abs: abs.iter().copied().fold(0.0, f64::max), median: median(&finite)? })
+        Some(ErrorSummary {
+            n: finite.len(),
+            median_abs: median(&abs)?,
+            max_abs: abs.iter().copied().fold(0.0, f64::max),
+            median: median(&finite)?,
+        })
     }
 }
 
@@ -1290,7 +1623,11 @@ pub struct HeldOutSummary {
 
 impl HeldOutSummary {
     pub fn of(before_after: &[(f64, f64)]) -> HeldOutSummary {
-        let valid: Vec<(f64, f64)> = before_after.iter().copied().filter(|&(b, a)| b > 0.0 && b.is_finite() && a.is_finite()).collect();
+        let valid: Vec<(f64, f64)> = before_after
+            .iter()
+            .copied()
+            .filter(|&(b, a)| b > 0.0 && b.is_finite() && a.is_finite())
+            .collect();
         let dropped = valid.iter().filter(|(b, a)| a < b).count();
         let drops: Vec<f64> = valid.iter().map(|(b, a)| (b - a) / b).collect();
         HeldOutSummary {
@@ -1318,12 +1655,25 @@ pub struct ComparedValue {
 }
 
 impl ComparedValue {
-    fn new(quantity: impl Into<String>, unit: &str, truth: Option<f64>, expected: Option<f64>, detected: Option<f64>) -> ComparedValue {
+    fn new(
+        quantity: impl Into<String>,
+        unit: &str,
+        truth: Option<f64>,
+        expected: Option<f64>,
+        detected: Option<f64>,
+    ) -> ComparedValue {
         let relative_error = match (expected, detected) {
             (Some(e), Some(d)) if e != 0.0 => Some(d / e - 1.0),
             _ => None,
         };
-        ComparedValue { quantity: quantity.into(), unit: unit.to_string(), truth, expected, detected, relative_error }
+        ComparedValue {
+            quantity: quantity.into(),
+            unit: unit.to_string(),
+            truth,
+            expected,
+            detected,
+            relative_error,
+        }
     }
 }
 
@@ -1365,7 +1715,11 @@ pub const MATCHED_MODE_TOLERANCE: f64 = 0.01;
 impl ScoringContext {
     /// Whether a rendered mode at `undamped_hz` is one the detector matched.
     fn seen(&self, undamped_hz: f64) -> bool {
-        self.matched_hz.is_empty() || self.matched_hz.iter().any(|&f| (undamped_hz / f).ln().abs() <= MATCHED_MODE_TOLERANCE)
+        self.matched_hz.is_empty()
+            || self
+                .matched_hz
+                .iter()
+                .any(|&f| (undamped_hz / f).ln().abs() <= MATCHED_MODE_TOLERANCE)
     }
 }
 
@@ -1388,23 +1742,36 @@ fn label_err(what: impl Into<String>) -> InjectError {
 }
 
 fn label_f64(v: &serde_json::Value, key: &str) -> Result<f64, InjectError> {
-    v.get(key).and_then(serde_json::Value::as_f64).ok_or_else(|| label_err(format!("no number {key:?}")))
+    v.get(key)
+        .and_then(serde_json::Value::as_f64)
+        .ok_or_else(|| label_err(format!("no number {key:?}")))
 }
 
 fn label_f64_list(v: &serde_json::Value, key: &str) -> Result<Vec<f64>, InjectError> {
     v.get(key)
         .and_then(serde_json::Value::as_array)
-        .and_then(|a| a.iter().map(serde_json::Value::as_f64).collect::<Option<Vec<f64>>>())
+        .and_then(|a| {
+            a.iter()
+                .map(serde_json::Value::as_f64)
+                .collect::<Option<Vec<f64>>>()
+        })
         .ok_or_else(|| label_err(format!("no list of numbers {key:?}")))
 }
 
 fn label_modes(labels: &serde_json::Value) -> Result<Vec<LabelMode>, InjectError> {
-    let modes = labels.get("modes").and_then(serde_json::Value::as_array).ok_or_else(|| label_err("no \"modes\" list"))?;
+    let modes = labels
+        .get("modes")
+        .and_then(serde_json::Value::as_array)
+        .ok_or_else(|| label_err("no \"modes\" list"))?;
     modes
         .iter()
         .enumerate()
         .map(|(i, m)| {
-            let index = m.get("index").and_then(serde_json::Value::as_u64).ok_or_else(|| label_err(format!("mode {i}: no \"index\"")))? as usize;
+            let index = m
+                .get("index")
+                .and_then(serde_json::Value::as_u64)
+                .ok_or_else(|| label_err(format!("mode {i}: no \"index\"")))?
+                as usize;
             Ok(LabelMode {
                 index,
                 undamped_hz: label_f64(m, "undamped_hz")?,
@@ -1417,16 +1784,28 @@ fn label_modes(labels: &serde_json::Value) -> Result<Vec<LabelMode>, InjectError
 }
 
 fn label_effects(labels: &serde_json::Value) -> Result<Vec<EffectLabel>, InjectError> {
-    let effects = labels.get("effects").ok_or_else(|| label_err("no \"effects\""))?;
+    let effects = labels
+        .get("effects")
+        .ok_or_else(|| label_err("no \"effects\""))?;
     serde_json::from_value(effects.clone()).map_err(|e| label_err(format!("effects: {e}")))
 }
 
 /// The accepted effect's parameter whose name starts with `prefix`.
-fn detected_param<'a>(accepted: &'a AcceptedEffect, prefix: &str) -> Result<&'a FittedParam, InjectError> {
-    accepted.params.iter().find(|p| p.name.starts_with(prefix)).ok_or_else(|| {
-        let names: Vec<&str> = accepted.params.iter().map(|p| p.name.as_str()).collect();
-        InjectError::Report(format!("{}: no parameter named {prefix:?}… (has {names:?})", accepted.name))
-    })
+fn detected_param<'a>(
+    accepted: &'a AcceptedEffect,
+    prefix: &str,
+) -> Result<&'a FittedParam, InjectError> {
+    accepted
+        .params
+        .iter()
+        .find(|p| p.name.starts_with(prefix))
+        .ok_or_else(|| {
+            let names: Vec<&str> = accepted.params.iter().map(|p| p.name.as_str()).collect();
+            InjectError::Report(format!(
+                "{}: no parameter named {prefix:?}… (has {names:?})",
+                accepted.name
+            ))
+        })
 }
 
 /// Compares the parameters of an `accepted` effect of the catalogue with the sealed `labels`
@@ -1434,40 +1813,96 @@ fn detected_param<'a>(accepted: &'a AcceptedEffect, prefix: &str) -> Result<&'a 
 /// that holds the effect. The mapping of each effect is in the module docs ("Comparing
 /// parameters"). Fails if the effect is not in the labels, a label field is missing, or the
 /// report lacks the parameter the mapping reads.
-pub fn compare_parameters(labels: &serde_json::Value, accepted: &AcceptedEffect, context: &ScoringContext) -> Result<ParameterComparison, InjectError> {
+pub fn compare_parameters(
+    labels: &serde_json::Value,
+    accepted: &AcceptedEffect,
+    context: &ScoringContext,
+) -> Result<ParameterComparison, InjectError> {
     let effect = Effect::from_catalogue_name(&accepted.name)?;
     let effects = label_effects(labels)?;
-    let label = effects.iter().find(|l| l.effect == effect).ok_or_else(|| label_err(format!("the case does not hold {effect}")))?;
+    let label = effects
+        .iter()
+        .find(|l| l.effect == effect)
+        .ok_or_else(|| label_err(format!("the case does not hold {effect}")))?;
     let p = &label.parameters;
-    let mut out = ParameterComparison { effect, variant: accepted.variant.clone(), values: Vec::new(), errors: Vec::new(), not_comparable: None };
+    let mut out = ParameterComparison {
+        effect,
+        variant: accepted.variant.clone(),
+        values: Vec::new(),
+        errors: Vec::new(),
+        not_comparable: None,
+    };
     match effect {
         Effect::NonRayleighDamping => {
-            let law = ZenerDamping { loss_factor: label_f64(p, "loss_factor")?, relaxation_strength: label_f64(p, "relaxation_strength")?, corner_hz: label_f64(p, "corner_hz")? };
+            let law = ZenerDamping {
+                loss_factor: label_f64(p, "loss_factor")?,
+                relaxation_strength: label_f64(p, "relaxation_strength")?,
+                corner_hz: label_f64(p, "corner_hz")?,
+            };
             let mut knots = Vec::new();
-            for q in accepted.params.iter().filter(|q| q.name.starts_with("decay rate at")) {
-                let f = frequency_in_name(&q.name).ok_or_else(|| InjectError::Report(format!("cannot read a frequency in {:?}", q.name)))?;
+            for q in accepted
+                .params
+                .iter()
+                .filter(|q| q.name.starts_with("decay rate at"))
+            {
+                let f = frequency_in_name(&q.name).ok_or_else(|| {
+                    InjectError::Report(format!("cannot read a frequency in {:?}", q.name))
+                })?;
                 knots.push((f, q.value));
-                out.values.push(ComparedValue::new(format!("decay rate at {f:.0} Hz (Zener law)"), "1/s", Some(law.decay(f)), Some(law.decay(f)), Some(q.value)));
+                out.values.push(ComparedValue::new(
+                    format!("decay rate at {f:.0} Hz (Zener law)"),
+                    "1/s",
+                    Some(law.decay(f)),
+                    Some(law.decay(f)),
+                    Some(q.value),
+                ));
             }
             if knots.is_empty() {
-                return Err(InjectError::Report(format!("{}: no \"decay rate at … Hz\" knots", accepted.name)));
+                return Err(InjectError::Report(format!(
+                    "{}: no \"decay rate at … Hz\" knots",
+                    accepted.name
+                )));
             }
             out.errors.push(zener_knot_rms_error(&law, &knots)?);
         }
         Effect::BeatingPair => {
             let modes = label_modes(labels)?;
             let base = label_f64_list(labels, "base_undamped_hz")?;
-            let clusters = p.get("clusters").and_then(serde_json::Value::as_array).ok_or_else(|| label_err("beating_pair: no \"clusters\""))?;
+            let clusters = p
+                .get("clusters")
+                .and_then(serde_json::Value::as_array)
+                .ok_or_else(|| label_err("beating_pair: no \"clusters\""))?;
             // (centre Hz, relative split, split Hz) of every labelled cluster.
             let mut truth = Vec::new();
             for c in clusters {
-                let ends: Vec<usize> = c.get("modes").and_then(serde_json::Value::as_array).map(|a| a.iter().filter_map(|v| v.as_u64().map(|u| u as usize)).collect()).unwrap_or_default();
+                let ends: Vec<usize> = c
+                    .get("modes")
+                    .and_then(serde_json::Value::as_array)
+                    .map(|a| {
+                        a.iter()
+                            .filter_map(|v| v.as_u64().map(|u| u as usize))
+                            .collect()
+                    })
+                    .unwrap_or_default();
                 if ends.len() != 2 {
-                    return Err(label_err("beating_pair: a cluster without its two end modes"));
+                    return Err(label_err(
+                        "beating_pair: a cluster without its two end modes",
+                    ));
                 }
                 let split = label_f64(c, "split_hz")?;
-                let at = |i: usize| modes.iter().find(|m| m.index == i).map(|m| m.undamped_hz).or_else(|| base.get(i).copied());
-                let (lo, hi) = (at(ends[0]).ok_or_else(|| label_err(format!("no frequency of mode {}", ends[0])))?, at(ends[1]).ok_or_else(|| label_err(format!("no frequency of mode {}", ends[1])))?);
+                let at = |i: usize| {
+                    modes
+                        .iter()
+                        .find(|m| m.index == i)
+                        .map(|m| m.undamped_hz)
+                        .or_else(|| base.get(i).copied())
+                };
+                let (lo, hi) = (
+                    at(ends[0])
+                        .ok_or_else(|| label_err(format!("no frequency of mode {}", ends[0])))?,
+                    at(ends[1])
+                        .ok_or_else(|| label_err(format!("no frequency of mode {}", ends[1])))?,
+                );
                 let centre = 0.5 * (lo + hi);
                 truth.push((centre, split / centre, split));
             }
@@ -1475,27 +1910,68 @@ pub fn compare_parameters(labels: &serde_json::Value, accepted: &AcceptedEffect,
                 .params
                 .iter()
                 .filter(|q| q.name.starts_with("relative split"))
-                .map(|q| frequency_in_name(&q.name).map(|f| (f, q.value)).ok_or_else(|| InjectError::Report(format!("cannot read a frequency in {:?}", q.name))))
+                .map(|q| {
+                    frequency_in_name(&q.name)
+                        .map(|f| (f, q.value))
+                        .ok_or_else(|| {
+                            InjectError::Report(format!("cannot read a frequency in {:?}", q.name))
+                        })
+                })
                 .collect::<Result<_, _>>()?;
-            let pairs = pair_by_frequency(&truth.iter().map(|t| t.0).collect::<Vec<_>>(), &detected.iter().map(|d| d.0).collect::<Vec<_>>(), SPLIT_PAIRING_TOLERANCE);
+            let pairs = pair_by_frequency(
+                &truth.iter().map(|t| t.0).collect::<Vec<_>>(),
+                &detected.iter().map(|d| d.0).collect::<Vec<_>>(),
+                SPLIT_PAIRING_TOLERANCE,
+            );
             for &(i, j) in &pairs {
-                let v = ComparedValue::new(format!("relative split δf/f of the cluster at {:.1} Hz (true split {:.2} Hz)", truth[i].0, truth[i].2), "1", Some(truth[i].1), Some(truth[i].1), Some(detected[j].1));
+                let v = ComparedValue::new(
+                    format!(
+                        "relative split δf/f of the cluster at {:.1} Hz (true split {:.2} Hz)",
+                        truth[i].0, truth[i].2
+                    ),
+                    "1",
+                    Some(truth[i].1),
+                    Some(truth[i].1),
+                    Some(detected[j].1),
+                );
                 out.errors.extend(v.relative_error);
                 out.values.push(v);
             }
-            let unpaired: Vec<String> = (0..detected.len()).filter(|j| !pairs.iter().any(|p| p.1 == *j)).map(|j| format!("{:.1} Hz", detected[j].0)).collect();
+            let unpaired: Vec<String> = (0..detected.len())
+                .filter(|j| !pairs.iter().any(|p| p.1 == *j))
+                .map(|j| format!("{:.1} Hz", detected[j].0))
+                .collect();
             if !unpaired.is_empty() {
-                out.not_comparable = Some(format!("detected split(s) at {} match no labelled cluster within {:.1} %", unpaired.join(", "), 100.0 * SPLIT_PAIRING_TOLERANCE));
+                out.not_comparable = Some(format!(
+                    "detected split(s) at {} match no labelled cluster within {:.1} %",
+                    unpaired.join(", "),
+                    100.0 * SPLIT_PAIRING_TOLERANCE
+                ));
             }
         }
         Effect::SupportContact => {
             let gamma = detected_param(accepted, "support damping")?.value;
-            out.values.push(ComparedValue::new("support damping γ (Δd at support weight w = 1)", "1/s", None, None, Some(gamma)));
+            out.values.push(ComparedValue::new(
+                "support damping γ (Δd at support weight w = 1)",
+                "1/s",
+                None,
+                None,
+                Some(gamma),
+            ));
             let extra = label_f64_list(p, "added_decay_per_mode")?;
             let modes = label_modes(labels)?;
-            let rendered: Vec<f64> = modes.iter().filter_map(|m| extra.get(m.index).copied()).collect();
+            let rendered: Vec<f64> = modes
+                .iter()
+                .filter_map(|m| extra.get(m.index).copied())
+                .collect();
             let largest = rendered.iter().copied().fold(f64::NAN, f64::max);
-            out.values.push(ComparedValue::new("largest injected Δd over the rendered modes", "1/s", Some(largest), None, None));
+            out.values.push(ComparedValue::new(
+                "largest injected Δd over the rendered modes",
+                "1/s",
+                Some(largest),
+                None,
+                None,
+            ));
             out.not_comparable = Some(
                 "the detector's Δd_k = γ w_k needs the support weights w_k of the simulated modes the CLI gave the catalogue, which the report does not carry; γ (Δd at w = 1) and the labels' Δd_k = ½Σ c φ² are listed side by side".into(),
             );
@@ -1505,22 +1981,52 @@ pub fn compare_parameters(labels: &serde_json::Value, accepted: &AcceptedEffect,
             let attenuation = label_f64_list(p, "mode_attenuation_db")?;
             let modes = label_modes(labels)?;
             if attenuation.len() != modes.len() {
-                return Err(InjectError::LengthMismatch { what: "contact_duration mode_attenuation_db (one per rendered mode)", got: attenuation.len(), expected: modes.len() });
+                return Err(InjectError::LengthMismatch {
+                    what: "contact_duration mode_attenuation_db (one per rendered mode)",
+                    got: attenuation.len(),
+                    expected: modes.len(),
+                });
             }
-            let (mut freqs, mut att): (Vec<f64>, Vec<f64>) = modes.iter().zip(&attenuation).filter(|(m, _)| context.seen(m.undamped_hz)).map(|(m, a)| (m.frequency_hz, *a)).unzip();
+            let (mut freqs, mut att): (Vec<f64>, Vec<f64>) = modes
+                .iter()
+                .zip(&attenuation)
+                .filter(|(m, _)| context.seen(m.undamped_hz))
+                .map(|(m, a)| (m.frequency_hz, *a))
+                .unzip();
             if freqs.len() < 2 {
-                (freqs, att) = (modes.iter().map(|m| m.frequency_hz).collect(), attenuation.clone());
+                (freqs, att) = (
+                    modes.iter().map(|m| m.frequency_hz).collect(),
+                    attenuation.clone(),
+                );
             }
             let expected = equivalent_half_sine_duration(&freqs, &att)?;
             let t = detected_param(accepted, "contact duration")?.value;
-            let v = ComparedValue::new("contact duration T (half-sine fitted to the case's Hertz attenuations)", "s", Some(t_hertz), Some(expected), Some(t));
+            let v = ComparedValue::new(
+                "contact duration T (half-sine fitted to the case's Hertz attenuations)",
+                "s",
+                Some(t_hertz),
+                Some(expected),
+                Some(t),
+            );
             out.errors.extend(v.relative_error);
             out.values.push(v);
-            out.values.push(ComparedValue::new("T_half-sine / T_Hertz", "1", None, Some(expected / t_hertz), Some(t / t_hertz)));
+            out.values.push(ComparedValue::new(
+                "T_half-sine / T_Hertz",
+                "1",
+                None,
+                Some(expected / t_hertz),
+                Some(t / t_hertz),
+            ));
         }
         Effect::Reverb => {
             let t60 = label_f64(p, "t60_s")?;
-            let v = ComparedValue::new("reverberation time T60", "s", Some(t60), Some(t60), Some(detected_param(accepted, "reverberation time")?.value));
+            let v = ComparedValue::new(
+                "reverberation time T60",
+                "s",
+                Some(t60),
+                Some(t60),
+                Some(detected_param(accepted, "reverberation time")?.value),
+            );
             out.errors.extend(v.relative_error);
             out.values.push(v);
         }
@@ -1538,23 +2044,61 @@ pub fn compare_parameters(labels: &serde_json::Value, accepted: &AcceptedEffect,
         }
         Effect::AddedMass => {
             let fraction = label_f64(p, "mass_fraction")?;
-            let mu = accepted.params.first().ok_or_else(|| InjectError::Report("added_mass: no parameter".into()))?.value;
-            let others: Vec<&str> = effects.iter().filter(|l| l.effect != effect && l.effect.changes_fem()).map(|l| l.effect.name()).collect();
+            let mu = accepted
+                .params
+                .first()
+                .ok_or_else(|| InjectError::Report("added_mass: no parameter".into()))?
+                .value;
+            let others: Vec<&str> = effects
+                .iter()
+                .filter(|l| l.effect != effect && l.effect.changes_fem())
+                .map(|l| l.effect.name())
+                .collect();
             if !others.is_empty() {
-                out.values.push(ComparedValue::new("added-mass ratio", "1", Some(fraction), None, Some(mu)));
+                out.values.push(ComparedValue::new(
+                    "added-mass ratio",
+                    "1",
+                    Some(fraction),
+                    None,
+                    Some(mu),
+                ));
                 out.not_comparable = Some(format!("{} also moved the frequencies, so the labels' frequency drops are not the mass's alone", others.join(", ")));
                 return Ok(out);
             }
             let base = label_f64_list(labels, "base_undamped_hz")?;
-            let loads: Vec<(f64, f64)> = label_modes(labels)?.iter().filter(|m| m.index < base.len()).map(|m| (m.undamped_hz, modal_mass_loading(base[m.index], m.undamped_hz))).collect();
+            let loads: Vec<(f64, f64)> = label_modes(labels)?
+                .iter()
+                .filter(|m| m.index < base.len())
+                .map(|m| {
+                    (
+                        m.undamped_hz,
+                        modal_mass_loading(base[m.index], m.undamped_hz),
+                    )
+                })
+                .collect();
             if loads.is_empty() {
-                return Err(label_err("added_mass: no rendered mode with a base frequency"));
+                return Err(label_err(
+                    "added_mass: no rendered mode with a base frequency",
+                ));
             }
             let (quantity, expected) = if accepted.variant == "fluid_loading" {
-                let lowest = loads.iter().min_by(|a, b| a.0.total_cmp(&b.0)).expect("not empty");
-                (format!("fluid added-mass ratio μ_f (true loading of the lowest mode, {:.0} Hz)", lowest.0), lowest.1)
+                let lowest = loads
+                    .iter()
+                    .min_by(|a, b| a.0.total_cmp(&b.0))
+                    .expect("not empty");
+                (
+                    format!(
+                        "fluid added-mass ratio μ_f (true loading of the lowest mode, {:.0} Hz)",
+                        lowest.0
+                    ),
+                    lowest.1,
+                )
             } else {
-                ("added-mass ratio μ (largest true loading (f_base/f)² − 1 over the modes)".to_string(), loads.iter().map(|l| l.1).fold(f64::NEG_INFINITY, f64::max))
+                (
+                    "added-mass ratio μ (largest true loading (f_base/f)² − 1 over the modes)"
+                        .to_string(),
+                    loads.iter().map(|l| l.1).fold(f64::NEG_INFINITY, f64::max),
+                )
             };
             let v = ComparedValue::new(quantity, "1", Some(fraction), Some(expected), Some(mu));
             out.errors.extend(v.relative_error);
@@ -1566,7 +2110,13 @@ pub fn compare_parameters(labels: &serde_json::Value, accepted: &AcceptedEffect,
             if context.glide_offset_at_onset {
                 // Same quantity on both sides: the offset at t = 0 of f₀(1 + g e^(−2dt)), the
                 // same for every mode in the generator (so for the detector's reference mode).
-                let v = ComparedValue::new("relative glide g at the onset, f(t) = f₀(1 + g e^(−2dt))", "1", Some(g), Some(g), Some(detected));
+                let v = ComparedValue::new(
+                    "relative glide g at the onset, f(t) = f₀(1 + g e^(−2dt))",
+                    "1",
+                    Some(g),
+                    Some(g),
+                    Some(detected),
+                );
                 out.errors.extend(v.relative_error);
                 out.values.push(v);
                 return Ok(out);
@@ -1576,17 +2126,37 @@ pub fn compare_parameters(labels: &serde_json::Value, accepted: &AcceptedEffect,
                 (Some(w), _) => w,
                 (None, Some(span)) => (0.5 * span, span),
                 (None, None) => {
-                    out.values.push(ComparedValue::new("relative glide g", "1", Some(g), None, Some(detected)));
-                    out.not_comparable = Some("no analysis span known for the early/late halves".into());
+                    out.values.push(ComparedValue::new(
+                        "relative glide g",
+                        "1",
+                        Some(g),
+                        None,
+                        Some(detected),
+                    ));
+                    out.not_comparable =
+                        Some("no analysis span known for the early/late halves".into());
                     return Ok(out);
                 }
             };
             // The detector's reference: the mode with the largest mean_c a² / ω².
             let modes = label_modes(labels)?;
-            let energy = |m: &LabelMode| m.amplitudes.iter().map(|a| a * a).sum::<f64>() / (m.amplitudes.len().max(1) as f64 * (2.0 * PI * m.frequency_hz).powi(2));
-            let seen: Vec<&LabelMode> = modes.iter().filter(|m| context.seen(m.undamped_hz)).collect();
-            let pool = if seen.is_empty() { modes.iter().collect() } else { seen };
-            let reference = *pool.iter().max_by(|a, b| energy(a).total_cmp(&energy(b))).ok_or_else(|| label_err("no rendered modes"))?;
+            let energy = |m: &LabelMode| {
+                m.amplitudes.iter().map(|a| a * a).sum::<f64>()
+                    / (m.amplitudes.len().max(1) as f64 * (2.0 * PI * m.frequency_hz).powi(2))
+            };
+            let seen: Vec<&LabelMode> = modes
+                .iter()
+                .filter(|m| context.seen(m.undamped_hz))
+                .collect();
+            let pool = if seen.is_empty() {
+                modes.iter().collect()
+            } else {
+                seen
+            };
+            let reference = *pool
+                .iter()
+                .max_by(|a, b| energy(a).total_cmp(&energy(b)))
+                .ok_or_else(|| label_err("no rendered modes"))?;
             let expected = g * glide_window_contrast(reference.decay_rate, t1, t2)?;
             let v = ComparedValue::new(
                 format!("relative glide (f_early − f_late)/f of the most energetic mode ({:.0} Hz, d = {:.1} 1/s, windows 0–{t1} s and {t1}–{t2} s)", reference.frequency_hz, reference.decay_rate),
@@ -1614,32 +2184,69 @@ mod tests {
             // Unit area (F̃(0) = 1) and the closed-form shape area.
             assert!((pulse.laplace(Complex64::new(0.0, 0.0)).re - 1.0).abs() < 1e-12);
             let (nodes, weights) = crate::fem::quadrature::gauss_legendre_01(40);
-            let plain: f64 = nodes.iter().zip(&weights).map(|(u, w)| w * (PI * u).sin().powf(1.5)).sum();
-            assert!((plain - HERTZ_SHAPE_AREA).abs() < 2e-5, "plain Gauss–Legendre {plain}");
+            let plain: f64 = nodes
+                .iter()
+                .zip(&weights)
+                .map(|(u, w)| w * (PI * u).sin().powf(1.5))
+                .sum();
+            assert!(
+                (plain - HERTZ_SHAPE_AREA).abs() < 2e-5,
+                "plain Gauss–Legendre {plain}"
+            );
             // The pulse sampled at 4096 points over T and zero-padded to N: X[k]·dt ≈ F̃(iω_k),
             // a Riemann sum accurate to ~5e-10 here (the sampled
             // function vanishes smoothly, like t^(3/2), at both ends).
             let n_pulse = 4096;
             let dt = tau / n_pulse as f64;
             let n = 1 << 18;
-            let mut buf: Vec<Complex64> = (0..n).map(|i| Complex64::new(if i <= n_pulse { pulse.force(i as f64 * dt) } else { 0.0 }, 0.0)).collect();
-            rustfft::FftPlanner::<f64>::new().plan_fft_forward(n).process(&mut buf);
+            let mut buf: Vec<Complex64> = (0..n)
+                .map(|i| {
+                    Complex64::new(
+                        if i <= n_pulse {
+                            pulse.force(i as f64 * dt)
+                        } else {
+                            0.0
+                        },
+                        0.0,
+                    )
+                })
+                .collect();
+            rustfft::FftPlanner::<f64>::new()
+                .plan_fft_forward(n)
+                .process(&mut buf);
             for f in [100.0, 1000.0, 3000.0, 7000.0, 12000.0, 20000.0] {
                 let k = (f * n as f64 * dt).round() as usize;
                 let omega = 2.0 * PI * k as f64 / (n as f64 * dt);
                 let fft = buf[k] * dt;
                 let quad = pulse.laplace(Complex64::new(0.0, omega));
-                assert!((fft - quad).norm() < 1e-8, "T {tau} f {f}: fft {fft} quad {quad}");
+                assert!(
+                    (fft - quad).norm() < 1e-8,
+                    "T {tau} f {f}: fft {fft} quad {quad}"
+                );
             }
             // Damped poles: against a fine midpoint sum of the same integral.
             let s = Complex64::new(-40.0, 2.0 * PI * 5000.0);
             let m = 200_000;
-            let mid: Complex64 = (0..m).map(|i| (i as f64 + 0.5) * tau / m as f64).map(|t| (-s * t).exp() * pulse.force(t)).sum::<Complex64>() * (tau / m as f64);
-            assert!((mid - pulse.laplace(s)).norm() < 1e-8, "{mid} vs {}", pulse.laplace(s));
+            let mid: Complex64 = (0..m)
+                .map(|i| (i as f64 + 0.5) * tau / m as f64)
+                .map(|t| (-s * t).exp() * pulse.force(t))
+                .sum::<Complex64>()
+                * (tau / m as f64);
+            assert!(
+                (mid - pulse.laplace(s)).norm() < 1e-8,
+                "{mid} vs {}",
+                pulse.laplace(s)
+            );
         }
         // A low pass: longer contacts suppress a high mode more.
-        let short = HertzPulse::new(0.05e-3).unwrap().laplace(Complex64::new(0.0, 2.0 * PI * 8000.0)).norm();
-        let long = HertzPulse::new(0.6e-3).unwrap().laplace(Complex64::new(0.0, 2.0 * PI * 8000.0)).norm();
+        let short = HertzPulse::new(0.05e-3)
+            .unwrap()
+            .laplace(Complex64::new(0.0, 2.0 * PI * 8000.0))
+            .norm();
+        let long = HertzPulse::new(0.6e-3)
+            .unwrap()
+            .laplace(Complex64::new(0.0, 2.0 * PI * 8000.0))
+            .norm();
         assert!(short > 0.8 && short < 1.0 && long < 0.05, "{short} {long}");
         assert!(HertzPulse::new(0.0).is_err() && HertzPulse::new(f64::NAN).is_err());
     }
@@ -1649,14 +2256,26 @@ mod tests {
         let fs = 48_000.0;
         let n = 9600;
         let tracks = vec![
-            ModeTrack { frequency_hz: 1234.5, decay_rate: 6.0, amplitudes: vec![Complex64::new(0.3, -0.2), Complex64::new(-0.1, 0.05)] },
-            ModeTrack { frequency_hz: 7010.0, decay_rate: 40.0, amplitudes: vec![Complex64::new(0.0, 0.5), Complex64::new(0.2, 0.2)] },
+            ModeTrack {
+                frequency_hz: 1234.5,
+                decay_rate: 6.0,
+                amplitudes: vec![Complex64::new(0.3, -0.2), Complex64::new(-0.1, 0.05)],
+            },
+            ModeTrack {
+                frequency_hz: 7010.0,
+                decay_rate: 40.0,
+                amplitudes: vec![Complex64::new(0.0, 0.5), Complex64::new(0.2, 0.2)],
+            },
         ];
         // g = 0 is the synthesiser's bank.
         let plain = render_tracks(&tracks, 2, fs, n, None).unwrap();
         let zero = render_tracks(&tracks, 2, fs, n, Some(0.0)).unwrap();
         for c in 0..2 {
-            let err = plain[c].iter().zip(&zero[c]).map(|(a, b)| (a - b).abs()).fold(0.0, f64::max);
+            let err = plain[c]
+                .iter()
+                .zip(&zero[c])
+                .map(|(a, b)| (a - b).abs())
+                .fold(0.0, f64::max);
             assert!(err < 1e-9, "channel {c}: {err}");
         }
         // Small g: the phase from a fine trapezoid integration of 2π f(t) (64 sub-steps per
@@ -1682,14 +2301,27 @@ mod tests {
             }
         }
         for c in 0..2 {
-            let err = glided[c].iter().zip(&reference[c]).map(|(a, b)| (a - b).abs()).fold(0.0, f64::max);
-            let diff = glided[c].iter().zip(&plain[c]).map(|(a, b)| (a - b).abs()).fold(0.0, f64::max);
+            let err = glided[c]
+                .iter()
+                .zip(&reference[c])
+                .map(|(a, b)| (a - b).abs())
+                .fold(0.0, f64::max);
+            let diff = glided[c]
+                .iter()
+                .zip(&plain[c])
+                .map(|(a, b)| (a - b).abs())
+                .fold(0.0, f64::max);
             assert!(err < 1e-6, "channel {c}: closed form vs integration {err}");
-            assert!(diff > 1e-3, "channel {c}: the glide must change the sound ({diff})");
+            assert!(
+                diff > 1e-3,
+                "channel {c}: the glide must change the sound ({diff})"
+            );
         }
         // The instantaneous frequency of the phase: f₀(1 + g) at the start, f₀ late.
         let (f0, d) = (1000.0, 5.0);
-        let dphi = |t: f64| (glide_phase(f0, d, g, t + 1e-6) - glide_phase(f0, d, g, t - 1e-6)) / (2e-6 * 2.0 * PI);
+        let dphi = |t: f64| {
+            (glide_phase(f0, d, g, t + 1e-6) - glide_phase(f0, d, g, t - 1e-6)) / (2e-6 * 2.0 * PI)
+        };
         assert!((dphi(1e-6) / f0 - 1.0 - g).abs() < 1e-6 && (dphi(2.0) / f0 - 1.0).abs() < 1e-6);
         assert!((glide_phase(f0, 0.0, g, 0.5) - 2.0 * PI * f0 * (1.0 + g) * 0.5).abs() < 1e-9);
         assert!(render_tracks(&tracks, 3, fs, n, Some(g)).is_err());
@@ -1699,21 +2331,39 @@ mod tests {
     fn room_response_has_the_requested_decay_and_direct_to_reverberant_ratio() {
         let fs = 48_000.0;
         for (i, &(t60, drr)) in [(0.2, 0.0), (0.5, 7.0), (1.0, 15.0)].iter().enumerate() {
-            let room = RoomResponse { t60_s: t60, direct_to_reverberant_db: drr, predelay_s: 0.004 };
-            let h = room.impulse_response(fs, 10 * fs as usize, &mut SplitMix64::new(40 + i as u64)).unwrap();
+            let room = RoomResponse {
+                t60_s: t60,
+                direct_to_reverberant_db: drr,
+                predelay_s: 0.004,
+            };
+            let h = room
+                .impulse_response(fs, 10 * fs as usize, &mut SplitMix64::new(40 + i as u64))
+                .unwrap();
             let start = (0.004 * fs) as usize;
             assert_eq!(h[1..start].iter().filter(|v| **v != 0.0).count(), 0);
             let tail: f64 = h[start..].iter().map(|v| v * v).sum();
             assert!((10.0 * (1.0 / tail).log10() - drr).abs() < 1e-9);
             let measured = schroeder_t60(&h, fs, start, -5.0, -35.0).unwrap();
-            assert!((measured / t60 - 1.0).abs() < 0.05, "T60 {t60}: measured {measured}");
+            assert!(
+                (measured / t60 - 1.0).abs() < 0.05,
+                "T60 {t60}: measured {measured}"
+            );
         }
         // Convolution: a delayed impulse shifts, the tail is cut at the signal's length.
         let x: Vec<f64> = (0..100).map(|i| (i as f64 * 0.1).sin()).collect();
         let y = convolve_truncated(&x, &[0.0, 0.0, 2.0]);
         assert_eq!(y.len(), 100);
-        assert!(y.iter().enumerate().all(|(i, v)| (v - if i >= 2 { 2.0 * x[i - 2] } else { 0.0 }).abs() < 1e-12));
-        assert!(RoomResponse { t60_s: 0.0, direct_to_reverberant_db: 3.0, predelay_s: 0.0 }.impulse_response(fs, 1000, &mut SplitMix64::new(1)).is_err());
+        assert!(y
+            .iter()
+            .enumerate()
+            .all(|(i, v)| (v - if i >= 2 { 2.0 * x[i - 2] } else { 0.0 }).abs() < 1e-12));
+        assert!(RoomResponse {
+            t60_s: 0.0,
+            direct_to_reverberant_db: 3.0,
+            predelay_s: 0.0
+        }
+        .impulse_response(fs, 1000, &mut SplitMix64::new(1))
+        .is_err());
     }
 
     #[test]
@@ -1724,20 +2374,37 @@ mod tests {
         // Loss factor η(f) = 2d/ω: η + Δ/2 at the corner; η far below and far above it.
         let eta = |f: f64| law.decay(f) / (PI * f);
         assert!((eta(2000.0) - law.loss_factor - 0.5 * law.relaxation_strength).abs() < 1e-15);
-        assert!((eta(2.0) - law.loss_factor) / law.loss_factor < 0.01 && (eta(2e6) - law.loss_factor) / law.loss_factor < 0.01);
+        assert!(
+            (eta(2.0) - law.loss_factor) / law.loss_factor < 0.01
+                && (eta(2e6) - law.loss_factor) / law.loss_factor < 0.01
+        );
         // The other form of the module docs: π η f + A f²/(1 + (f/f_c)²), A = πΔ/f_c.
         let a = PI * law.relaxation_strength / law.corner_hz;
         let f = 4321.0;
-        assert!((law.decay(f) - (PI * law.loss_factor * f + a * f * f / (1.0 + (f / law.corner_hz).powi(2)))).abs() < 1e-12);
+        assert!(
+            (law.decay(f)
+                - (PI * law.loss_factor * f + a * f * f / (1.0 + (f / law.corner_hz).powi(2))))
+            .abs()
+                < 1e-12
+        );
         // A Rayleigh law is fitted exactly, the Zener law is not.
         let freqs: Vec<f64> = (0..20).map(|i| 800.0 * 1.15f64.powi(i)).collect();
-        let rayleigh: Vec<f64> = freqs.iter().map(|f| 0.5 * (5.0 + 3e-8 * (2.0 * PI * f).powi(2))).collect();
+        let rayleigh: Vec<f64> = freqs
+            .iter()
+            .map(|f| 0.5 * (5.0 + 3e-8 * (2.0 * PI * f).powi(2)))
+            .collect();
         let (alpha, beta, misfit) = rayleigh_fit(&freqs, &rayleigh).unwrap();
         assert!((alpha - 5.0).abs() < 1e-9 && (beta / 3e-8 - 1.0).abs() < 1e-9 && misfit < 1e-9);
         let zener: Vec<f64> = freqs.iter().map(|&f| law.decay(f)).collect();
         let (_, _, misfit) = rayleigh_fit(&freqs, &zener).unwrap();
-        assert!(misfit > 0.1, "Rayleigh should miss the Zener law by > 10 %: {misfit}");
-        assert!(ZenerDamping::matched(0.0, 1.0, 1.0, 1.0).is_err() && rayleigh_fit(&[1.0], &[]).is_err());
+        assert!(
+            misfit > 0.1,
+            "Rayleigh should miss the Zener law by > 10 %: {misfit}"
+        );
+        assert!(
+            ZenerDamping::matched(0.0, 1.0, 1.0, 1.0).is_err()
+                && rayleigh_fit(&[1.0], &[]).is_err()
+        );
     }
 
     #[test]
@@ -1745,22 +2412,46 @@ mod tests {
         let fs = 48_000.0;
         let mut rng = SplitMix64::new(3);
         let n = 1 << 16;
-        let signal: Vec<f64> = (0..n).map(|i| if i >= n / 4 { (i as f64 * 0.05).sin() } else { 0.0 }).collect();
+        let signal: Vec<f64> = (0..n)
+            .map(|i| {
+                if i >= n / 4 {
+                    (i as f64 * 0.05).sin()
+                } else {
+                    0.0
+                }
+            })
+            .collect();
         let mut channels = vec![signal.clone(), signal.iter().map(|v| 2.0 * v).collect()];
         // Mean power over the window, averaged over the channels (the second is 4× the first).
         let power = 2.5 * signal[n / 4..].iter().map(|v| v * v).sum::<f64>() / (n - n / 4) as f64;
-        let rms = add_noise(&mut channels, n / 4..n, 60.0, NoiseColour::White, fs, &mut rng).unwrap();
+        let rms = add_noise(
+            &mut channels,
+            n / 4..n,
+            60.0,
+            NoiseColour::White,
+            fs,
+            &mut rng,
+        )
+        .unwrap();
         assert!((20.0 * (power.sqrt() / rms).log10() - 60.0).abs() < 1e-9);
         let measured = crate::audio::rms(&channels[0][..n / 4]);
-        assert!((measured / rms - 1.0).abs() < 0.03, "pre-roll noise RMS {measured} vs {rms}");
+        assert!(
+            (measured / rms - 1.0).abs() < 0.03,
+            "pre-roll noise RMS {measured} vs {rms}"
+        );
         // Pink: band powers fall by 10 dB per decade (octave bands from 100 Hz to 12.8 kHz).
         let np = 1 << 18;
         let pink = coloured_noise(np, NoiseColour::Pink, fs, &mut rng);
         assert!((crate::audio::rms(&pink) - 1.0).abs() < 1e-12);
         let mut spec: Vec<Complex64> = pink.iter().map(|&v| Complex64::new(v, 0.0)).collect();
-        rustfft::FftPlanner::<f64>::new().plan_fft_forward(np).process(&mut spec);
+        rustfft::FftPlanner::<f64>::new()
+            .plan_fft_forward(np)
+            .process(&mut spec);
         let band = |lo: f64| {
-            let (a, b) = ((lo * np as f64 / fs) as usize, (2.0 * lo * np as f64 / fs) as usize);
+            let (a, b) = (
+                (lo * np as f64 / fs) as usize,
+                (2.0 * lo * np as f64 / fs) as usize,
+            );
             spec[a..b].iter().map(|v| v.norm_sqr()).sum::<f64>()
         };
         // Octave bands of 1/f noise hold equal power; per-Hz density falls 3 dB per octave.
@@ -1770,8 +2461,15 @@ mod tests {
         }
         let white = coloured_noise(n, NoiseColour::White, fs, &mut rng);
         let mut spec_w: Vec<Complex64> = white.iter().map(|&v| Complex64::new(v, 0.0)).collect();
-        rustfft::FftPlanner::<f64>::new().plan_fft_forward(n).process(&mut spec_w);
-        let band_w = |lo: f64| spec_w[(lo * n as f64 / fs) as usize..(2.0 * lo * n as f64 / fs) as usize].iter().map(|v| v.norm_sqr()).sum::<f64>();
+        rustfft::FftPlanner::<f64>::new()
+            .plan_fft_forward(n)
+            .process(&mut spec_w);
+        let band_w = |lo: f64| {
+            spec_w[(lo * n as f64 / fs) as usize..(2.0 * lo * n as f64 / fs) as usize]
+                .iter()
+                .map(|v| v.norm_sqr())
+                .sum::<f64>()
+        };
         assert!((10.0 * (band_w(3200.0) / band_w(1600.0)).log10() - 3.01).abs() < 0.5);
         assert!(add_noise(&mut channels, 10..5, 60.0, NoiseColour::White, fs, &mut rng).is_err());
     }
@@ -1781,17 +2479,32 @@ mod tests {
         // First draws of 4000 neighbouring streams: uniform mean ½, mean |u_i − u_(i+1)| = ⅓
         // and no lag-1 correlation, for several seeds (standard errors ≈ 0.005).
         for seed in [0u64, 1, 7, 12345, u64::MAX] {
-            let u: Vec<f64> = (0..4000).map(|i| SplitMix64::stream(seed, i).unit()).collect();
+            let u: Vec<f64> = (0..4000)
+                .map(|i| SplitMix64::stream(seed, i).unit())
+                .collect();
             let n = u.len() as f64;
             let mean = u.iter().sum::<f64>() / n;
             let step = u.windows(2).map(|w| (w[0] - w[1]).abs()).sum::<f64>() / (n - 1.0);
-            let corr = u.windows(2).map(|w| (w[0] - mean) * (w[1] - mean)).sum::<f64>() / u.iter().map(|v| (v - mean).powi(2)).sum::<f64>();
-            assert!((mean - 0.5).abs() < 0.025 && (step - 1.0 / 3.0).abs() < 0.02 && corr.abs() < 0.06, "seed {seed}: mean {mean} step {step} corr {corr}");
+            let corr = u
+                .windows(2)
+                .map(|w| (w[0] - mean) * (w[1] - mean))
+                .sum::<f64>()
+                / u.iter().map(|v| (v - mean).powi(2)).sum::<f64>();
+            assert!(
+                (mean - 0.5).abs() < 0.025 && (step - 1.0 / 3.0).abs() < 0.02 && corr.abs() < 0.06,
+                "seed {seed}: mean {mean} step {step} corr {corr}"
+            );
         }
         let mut rng = SplitMix64::new(5);
         let z: Vec<f64> = (0..20000).map(|_| rng.normal()).collect();
-        let (m, v) = (z.iter().sum::<f64>() / 2e4, z.iter().map(|x| x * x).sum::<f64>() / 2e4);
-        assert!(m.abs() < 0.03 && (v - 1.0).abs() < 0.04, "normal: mean {m} variance {v}");
+        let (m, v) = (
+            z.iter().sum::<f64>() / 2e4,
+            z.iter().map(|x| x * x).sum::<f64>() / 2e4,
+        );
+        assert!(
+            m.abs() < 0.03 && (v - 1.0).abs() < 0.04,
+            "normal: mean {m} variance {v}"
+        );
     }
 
     #[test]
@@ -1800,16 +2513,26 @@ mod tests {
         let plan = schedule_effects(100, &Effect::ALL, &mut rng);
         let count = |k: usize| plan.iter().filter(|p| p.len() == k).count();
         assert_eq!((count(0), count(1), count(2)), (30, 40, 30));
-        assert!(plan.iter().all(|p| p.len() < 2 || p[0] != p[1]), "two different effects");
+        assert!(
+            plan.iter().all(|p| p.len() < 2 || p[0] != p[1]),
+            "two different effects"
+        );
         for e in Effect::ALL {
             let n = plan.iter().filter(|p| p.contains(&e)).count();
             assert!((11..=13).contains(&n), "{e}: {n} cases"); // 100 effects over 8
         }
         let small = schedule_effects(3, &[Effect::SupportContact, Effect::AddedMass], &mut rng);
         assert_eq!(small.iter().map(Vec::len).sum::<usize>(), 3);
-        assert!(small.iter().any(|p| p == &vec![Effect::SupportContact, Effect::AddedMass]));
-        assert!(schedule_effects(4, &[Effect::Reverb], &mut rng).iter().all(|p| p.len() <= 1));
-        assert_eq!(parse_effect_list("reverb, added_mass,reverb").unwrap(), vec![Effect::Reverb, Effect::AddedMass]);
+        assert!(small
+            .iter()
+            .any(|p| p == &vec![Effect::SupportContact, Effect::AddedMass]));
+        assert!(schedule_effects(4, &[Effect::Reverb], &mut rng)
+            .iter()
+            .all(|p| p.len() <= 1));
+        assert_eq!(
+            parse_effect_list("reverb, added_mass,reverb").unwrap(),
+            vec![Effect::Reverb, Effect::AddedMass]
+        );
         assert!(parse_effect_list("reverb,echo").is_err());
         // The strength scales run through their documented ranges.
         let s = Effect::ContactDuration.strength_scale();
@@ -1828,8 +2551,17 @@ mod tests {
         assert_eq!(bottom.len(), 5 * 4);
         assert!(bottom.iter().all(|&v| mesh.nodes[v][2] == 0.0));
         let strike = strike_candidates(&mesh, down, 0.05);
-        assert!(!strike.is_empty() && strike.iter().all(|&(v, n)| mesh.nodes[v][2] > 0.004 && n[2] > -0.5));
-        let corner = mesh.nodes.iter().position(|x| *x == [0.4, 0.3, 0.1]).unwrap();
+        assert!(
+            !strike.is_empty()
+                && strike
+                    .iter()
+                    .all(|&(v, n)| mesh.nodes[v][2] > 0.004 && n[2] > -0.5)
+        );
+        let corner = mesh
+            .nodes
+            .iter()
+            .position(|x| *x == [0.4, 0.3, 0.1])
+            .unwrap();
         let near = nearest_surface_vertices(&mesh, corner, 4);
         assert!(near.contains(&corner) && near.len() == 4);
         // On a square plate, the quadrant x > 0.2, y > 0.2 about the vertical axis through the
@@ -1840,17 +2572,32 @@ mod tests {
         let quadrant = sector_mesh(&plate, centre, up, 0.0, 0.5 * PI);
         assert_eq!(quadrant.n_tets() * 4, plate.n_tets());
         assert_eq!(quadrant.n_nodes(), plate.n_nodes());
-        assert!((0..quadrant.n_tets()).all(|e| quadrant.corner_coords(e).iter().all(|x| x[0] >= 0.2 && x[1] >= 0.2)));
+        assert!((0..quadrant.n_tets()).all(|e| quadrant
+            .corner_coords(e)
+            .iter()
+            .all(|x| x[0] >= 0.2 && x[1] >= 0.2)));
         let left = sector_mesh(&plate, centre, up, 0.5 * PI, PI);
         assert_eq!(left.n_tets() * 2, plate.n_tets());
         assert!((0..left.n_tets()).all(|e| left.corner_coords(e).iter().all(|x| x[0] <= 0.2)));
         let wrap = sector_mesh(&plate, centre, up, 1.5 * PI, PI);
-        assert!(wrap.n_tets() * 2 == plate.n_tets() && (0..wrap.n_tets()).all(|e| wrap.corner_coords(e).iter().all(|x| x[0] >= 0.2)));
+        assert!(
+            wrap.n_tets() * 2 == plate.n_tets()
+                && (0..wrap.n_tets()).all(|e| wrap.corner_coords(e).iter().all(|x| x[0] >= 0.2))
+        );
         // Dashpot damping: ½ c_n for a unit normal motion at one node, ½ c_t for a tangential one.
         assert!((support_damping(&[[0.0, 0.0, 1.0]], 4.0, 1.0, down) - 2.0).abs() < 1e-15);
-        assert!((support_damping(&[[1.0, 0.0, 0.0], [0.0, 2.0, 0.0]], 4.0, 1.0, down) - 2.5).abs() < 1e-15);
+        assert!(
+            (support_damping(&[[1.0, 0.0, 0.0], [0.0, 2.0, 0.0]], 4.0, 1.0, down) - 2.5).abs()
+                < 1e-15
+        );
         // Level misfit: exactly rank-1 levels give 0; one deviating entry gives > 0.
-        let levels: Vec<Vec<f64>> = (0..5).map(|k| (0..4).map(|c| (k as f64 + 1.0) * (1.0 + c as f64)).collect()).collect();
+        let levels: Vec<Vec<f64>> = (0..5)
+            .map(|k| {
+                (0..4)
+                    .map(|c| (k as f64 + 1.0) * (1.0 + c as f64))
+                    .collect()
+            })
+            .collect();
         assert!(rank_one_level_misfit_db(&levels, &[1.0; 5]).unwrap() < 1e-9);
         let mut off = levels.clone();
         off[2][1] *= 10.0;
@@ -1859,21 +2606,63 @@ mod tests {
 
     #[test]
     fn scorer_counts_hits_false_alarms_and_recall_by_strength() {
-        let label = |e: Effect, s: f64| EffectLabel { effect: e, strength: s, parameters: serde_json::Value::Null };
+        let label = |e: Effect, s: f64| EffectLabel {
+            effect: e,
+            strength: s,
+            parameters: serde_json::Value::Null,
+        };
         let truth = vec![
-            CaseTruth { case: "a".into(), effects: vec![] },
-            CaseTruth { case: "b".into(), effects: vec![label(Effect::Reverb, 0.9)] },
-            CaseTruth { case: "c".into(), effects: vec![label(Effect::Reverb, 0.1), label(Effect::AddedMass, 0.5)] },
-            CaseTruth { case: "d".into(), effects: vec![] },
+            CaseTruth {
+                case: "a".into(),
+                effects: vec![],
+            },
+            CaseTruth {
+                case: "b".into(),
+                effects: vec![label(Effect::Reverb, 0.9)],
+            },
+            CaseTruth {
+                case: "c".into(),
+                effects: vec![label(Effect::Reverb, 0.1), label(Effect::AddedMass, 0.5)],
+            },
+            CaseTruth {
+                case: "d".into(),
+                effects: vec![],
+            },
         ];
-        let detected = vec![vec![Effect::PitchGlide], vec![Effect::Reverb], vec![Effect::AddedMass], vec![]];
+        let detected = vec![
+            vec![Effect::PitchGlide],
+            vec![Effect::Reverb],
+            vec![Effect::AddedMass],
+            vec![],
+        ];
         let s = score(&truth, &detected, 2).unwrap();
-        let reverb = s.per_effect.iter().find(|e| e.effect == Effect::Reverb).unwrap();
-        assert_eq!((reverb.true_positives, reverb.false_positives, reverb.false_negatives), (1, 0, 1));
+        let reverb = s
+            .per_effect
+            .iter()
+            .find(|e| e.effect == Effect::Reverb)
+            .unwrap();
+        assert_eq!(
+            (
+                reverb.true_positives,
+                reverb.false_positives,
+                reverb.false_negatives
+            ),
+            (1, 0, 1)
+        );
         assert_eq!((reverb.precision, reverb.recall), (Some(1.0), Some(0.5)));
-        assert_eq!(reverb.recall_by_strength, vec![(0.0, 0.5, 0, 1), (0.5, 1.0, 1, 1)]);
-        let glide = s.per_effect.iter().find(|e| e.effect == Effect::PitchGlide).unwrap();
-        assert_eq!((glide.precision, glide.recall, glide.f1), (Some(0.0), None, Some(0.0)));
+        assert_eq!(
+            reverb.recall_by_strength,
+            vec![(0.0, 0.5, 0, 1), (0.5, 1.0, 1, 1)]
+        );
+        let glide = s
+            .per_effect
+            .iter()
+            .find(|e| e.effect == Effect::PitchGlide)
+            .unwrap();
+        assert_eq!(
+            (glide.precision, glide.recall, glide.f1),
+            (Some(0.0), None, Some(0.0))
+        );
         assert_eq!(s.clean_cases, 2);
         assert_eq!(s.clean_false_positive_rate, Some(0.5));
         // F1: reverb 2/3, added mass 1, pitch glide 0; the others have none.
@@ -1887,20 +2676,37 @@ mod tests {
         let catalan = 0.915_965_594_177_219;
         assert!((sine_power_pulse_variance(1.0) - (0.25 - 2.0 / (PI * PI))).abs() < 1e-12);
         let hertz = (PI * PI - 8.0 * catalan - 16.0 / 9.0) / (2.0 * PI * PI);
-        assert!((sine_power_pulse_variance(1.5) - hertz).abs() < 1e-10, "{} vs {hertz}", sine_power_pulse_variance(1.5));
+        assert!(
+            (sine_power_pulse_variance(1.5) - hertz).abs() < 1e-10,
+            "{} vs {hertz}",
+            sine_power_pulse_variance(1.5)
+        );
         let r = contact_shape_ratios();
         // First zeros at (ν + 2)π.
-        assert!((r.hertz_first_zero_x - 3.5 * PI).abs() < 1e-9, "{}", r.hertz_first_zero_x);
+        assert!(
+            (r.hertz_first_zero_x - 3.5 * PI).abs() < 1e-9,
+            "{}",
+            r.hertz_first_zero_x
+        );
         assert!((r.ratio_first_zero - 6.0 / 7.0).abs() < 1e-9);
         // The −3 dB points are −3 dB points, and the half-sine's lies where its closed form says.
         let half = crate::diagnose::catalogue::half_sine_spectrum(r.half_sine_minus_3db_x);
         assert!((half - std::f64::consts::FRAC_1_SQRT_2).abs() < 1e-12);
-        assert!((hertz_amplitude(r.hertz_minus_3db_x) - std::f64::consts::FRAC_1_SQRT_2).abs() < 1e-9);
+        assert!(
+            (hertz_amplitude(r.hertz_minus_3db_x) - std::f64::consts::FRAC_1_SQRT_2).abs() < 1e-9
+        );
         let t = 1e-3;
-        let magnitude = HertzPulse::new(t).unwrap().laplace(Complex64::new(0.0, r.hertz_minus_3db_x / t)).norm();
+        let magnitude = HertzPulse::new(t)
+            .unwrap()
+            .laplace(Complex64::new(0.0, r.hertz_minus_3db_x / t))
+            .norm();
         assert!((magnitude - std::f64::consts::FRAC_1_SQRT_2).abs() < 1e-9);
         assert!((r.ratio_low_frequency - (hertz / (0.25 - 2.0 / (PI * PI))).sqrt()).abs() < 1e-9);
-        assert!((r.ratio_minus_3db - 0.9008).abs() < 1e-4 && (r.ratio_low_frequency - 0.9041).abs() < 1e-4, "{r:?}");
+        assert!(
+            (r.ratio_minus_3db - 0.9008).abs() < 1e-4
+                && (r.ratio_low_frequency - 0.9041).abs() < 1e-4,
+            "{r:?}"
+        );
     }
 
     #[test]
@@ -1909,7 +2715,10 @@ mod tests {
         let freqs: Vec<f64> = (0..12).map(|i| 1500.0 * 1.2f64.powi(i)).collect();
         // A half-sine low-pass with a gain offset of 3 dB: its own T back.
         for t0 in [0.02e-3, 0.08e-3] {
-            let att: Vec<f64> = freqs.iter().map(|f| 3.0 + 20.0 * half_sine_spectrum(2.0 * PI * f * t0).log10()).collect();
+            let att: Vec<f64> = freqs
+                .iter()
+                .map(|f| 3.0 + 20.0 * half_sine_spectrum(2.0 * PI * f * t0).log10())
+                .collect();
             let t = equivalent_half_sine_duration(&freqs, &att).unwrap();
             assert!((t / t0 - 1.0).abs() < 1e-6, "T {t0}: {t}");
         }
@@ -1917,10 +2726,22 @@ mod tests {
         let ratios = contact_shape_ratios();
         let hertz_att = |t_h: f64| -> Vec<f64> {
             let pulse = HertzPulse::new(t_h).unwrap();
-            freqs.iter().map(|f| 20.0 * pulse.laplace(Complex64::new(-5.0, 2.0 * PI * f)).norm().log10()).collect()
+            freqs
+                .iter()
+                .map(|f| {
+                    20.0 * pulse
+                        .laplace(Complex64::new(-5.0, 2.0 * PI * f))
+                        .norm()
+                        .log10()
+                })
+                .collect()
         };
         let t = equivalent_half_sine_duration(&freqs, &hertz_att(0.03e-3)).unwrap();
-        assert!((t / 0.03e-3 / ratios.ratio_low_frequency - 1.0).abs() < 0.005, "ratio {}", t / 0.03e-3);
+        assert!(
+            (t / 0.03e-3 / ratios.ratio_low_frequency - 1.0).abs() < 0.005,
+            "ratio {}",
+            t / 0.03e-3
+        );
         // A long one (the high modes beyond its first zero): the detector's bound 2.9π/ω_max.
         let t = equivalent_half_sine_duration(&freqs, &hertz_att(0.6e-3)).unwrap();
         let bound = 2.9 * PI / (2.0 * PI * freqs[11]);
@@ -1937,7 +2758,10 @@ mod tests {
         let (fs, f0, g, span) = (48_000.0, 1000.0, 0.003, 1.0);
         let slope = |d: f64, from: usize, to: usize| {
             let end = |n: usize| if n == from || n == to { 0.5 } else { 1.0 };
-            let pts: Vec<(f64, f64, f64)> = (from..=to).map(|n| (n as f64 / fs, end(n))).map(|(t, e)| (t, glide_phase(f0, d, g, t), e * (-2.0 * d * t).exp())).collect();
+            let pts: Vec<(f64, f64, f64)> = (from..=to)
+                .map(|n| (n as f64 / fs, end(n)))
+                .map(|(t, e)| (t, glide_phase(f0, d, g, t), e * (-2.0 * d * t).exp()))
+                .collect();
             let sw: f64 = pts.iter().map(|p| p.2).sum();
             let mt = pts.iter().map(|p| p.2 * p.0).sum::<f64>() / sw;
             let my = pts.iter().map(|p| p.2 * p.1).sum::<f64>() / sw;
@@ -1949,13 +2773,20 @@ mod tests {
         for d in [0.5, 5.0, 30.0] {
             let discrete = (slope(d, 0, n / 2) - slope(d, n / 2, n)) / g;
             let contrast = glide_half_contrast(d, span).unwrap();
-            assert!((discrete - contrast).abs() < 1e-5 * contrast, "d {d}: discrete {discrete} vs {contrast}");
+            assert!(
+                (discrete - contrast).abs() < 1e-5 * contrast,
+                "d {d}: discrete {discrete} vs {contrast}"
+            );
         }
         // Limits: no decay, no contrast; fast decay, ¼ (module docs).
         assert_eq!(glide_half_contrast(0.0, 1.0).unwrap(), 0.0);
         for d in [0.5, 3.0, 20.0] {
             let halves = glide_half_contrast(d, 1.0).unwrap();
-            assert!((glide_window_contrast(d, 0.5, 1.0).unwrap() - halves).abs() < 1e-9 * halves.max(1e-12), "{d}");
+            assert!(
+                (glide_window_contrast(d, 0.5, 1.0).unwrap() - halves).abs()
+                    < 1e-9 * halves.max(1e-12),
+                "{d}"
+            );
         }
         assert!(glide_window_contrast(3.0, 0.2, 0.2).is_err());
         assert!((glide_half_contrast(500.0, 1.0).unwrap() - 0.25).abs() < 1e-9);
@@ -1965,8 +2796,14 @@ mod tests {
     #[test]
     fn scorer_helpers_read_names_pair_clusters_and_summarise() {
         assert_eq!(frequency_in_name("decay rate at 1234 Hz"), Some(1234.0));
-        assert_eq!(frequency_in_name("relative split δf/f of cluster 3 (1662.5 Hz)"), Some(1662.5));
-        assert_eq!(frequency_in_name("reverberant excess ρ = R/N at t = 0, band 250–500 Hz"), Some(500.0));
+        assert_eq!(
+            frequency_in_name("relative split δf/f of cluster 3 (1662.5 Hz)"),
+            Some(1662.5)
+        );
+        assert_eq!(
+            frequency_in_name("reverberant excess ρ = R/N at t = 0, band 250–500 Hz"),
+            Some(500.0)
+        );
         assert_eq!(frequency_in_name("contact duration T"), None);
         assert_eq!(frequency_in_name("at Hz"), None);
         // Nearest first, one to one, beyond the tolerance unpaired.
@@ -1979,18 +2816,50 @@ mod tests {
         assert_eq!((e.n, e.max_abs), (3, 0.3));
         assert!((e.median_abs - 0.2).abs() < 1e-15 && (e.median - 0.1).abs() < 1e-15);
         assert!(ErrorSummary::of(&[f64::NAN]).is_none());
-        let h = HeldOutSummary::of(&[(2.0, 1.0), (1.0, 1.5), (1.0, 1.0), (f64::NAN, 1.0), (4.0, 3.0)]);
+        let h = HeldOutSummary::of(&[
+            (2.0, 1.0),
+            (1.0, 1.5),
+            (1.0, 1.0),
+            (f64::NAN, 1.0),
+            (4.0, 3.0),
+        ]);
         assert_eq!((h.cases, h.dropped, h.not_dropped, h.invalid), (5, 2, 2, 1));
         // Drops 0.5, −0.5, 0, 0.25: median 0.125.
         assert!((h.median_relative_drop.unwrap() - 0.125).abs() < 1e-15);
-        assert!((modal_mass_loading(1000.0, 950.0) - (1000.0f64 / 950.0).powi(2) + 1.0).abs() < 1e-15);
-        let law = ZenerDamping { loss_factor: 1e-3, relaxation_strength: 2e-3, corner_hz: 3000.0 };
-        assert!(zener_knot_rms_error(&law, &[(1000.0, law.decay(1000.0)), (5000.0, law.decay(5000.0))]).unwrap() < 1e-15);
-        let off = zener_knot_rms_error(&law, &[(1000.0, 1.1 * law.decay(1000.0)), (5000.0, 0.7 * law.decay(5000.0))]).unwrap();
+        assert!(
+            (modal_mass_loading(1000.0, 950.0) - (1000.0f64 / 950.0).powi(2) + 1.0).abs() < 1e-15
+        );
+        let law = ZenerDamping {
+            loss_factor: 1e-3,
+            relaxation_strength: 2e-3,
+            corner_hz: 3000.0,
+        };
+        assert!(
+            zener_knot_rms_error(
+                &law,
+                &[(1000.0, law.decay(1000.0)), (5000.0, law.decay(5000.0))]
+            )
+            .unwrap()
+                < 1e-15
+        );
+        let off = zener_knot_rms_error(
+            &law,
+            &[
+                (1000.0, 1.1 * law.decay(1000.0)),
+                (5000.0, 0.7 * law.decay(5000.0)),
+            ],
+        )
+        .unwrap();
         assert!((off - (0.5f64 * (0.01 + 0.09)).sqrt()).abs() < 1e-12);
         assert!(zener_knot_rms_error(&law, &[]).is_err());
-        assert_eq!(Effect::from_catalogue_name("reverb_noise").unwrap(), Effect::Reverb);
-        assert_eq!(Effect::from_catalogue_name("added_mass").unwrap(), Effect::AddedMass);
+        assert_eq!(
+            Effect::from_catalogue_name("reverb_noise").unwrap(),
+            Effect::Reverb
+        );
+        assert_eq!(
+            Effect::from_catalogue_name("added_mass").unwrap(),
+            Effect::AddedMass
+        );
         assert!(Effect::from_catalogue_name("echo").is_err());
     }
 
@@ -2007,17 +2876,32 @@ mod tests {
             held_out_before: Some(2.0),
             held_out_after: Some(1.5),
             held_out_gain: Some(20.0),
-            params: params.iter().map(|(n, v)| FittedParam::new(*n, "", *v, 0.0)).collect(),
+            params: params
+                .iter()
+                .map(|(n, v)| FittedParam::new(*n, "", *v, 0.0))
+                .collect(),
         }
     }
 
     #[test]
     fn compare_parameters_maps_each_effect_onto_the_detectors_quantity() {
         use crate::diagnose::catalogue::half_sine_spectrum;
-        let law = ZenerDamping { loss_factor: 1e-3, relaxation_strength: 2e-3, corner_hz: 3000.0 };
+        let law = ZenerDamping {
+            loss_factor: 1e-3,
+            relaxation_strength: 2e-3,
+            corner_hz: 3000.0,
+        };
         let t_contact = 0.05e-3;
-        let modes = [(0, 950.0, 3.0), (1, 1001.0, 4.0), (2, 1003.0, 4.0), (3, 1990.0, 8.0)];
-        let att: Vec<f64> = modes.iter().map(|m| 20.0 * half_sine_spectrum(2.0 * PI * m.1 * t_contact).log10()).collect();
+        let modes = [
+            (0, 950.0, 3.0),
+            (1, 1001.0, 4.0),
+            (2, 1003.0, 4.0),
+            (3, 1990.0, 8.0),
+        ];
+        let att: Vec<f64> = modes
+            .iter()
+            .map(|m| 20.0 * half_sine_spectrum(2.0 * PI * m.1 * t_contact).log10())
+            .collect();
         let labels = |effects: serde_json::Value| {
             serde_json::json!({
                 "case": "x", "effects": effects, "base_undamped_hz": [1000.0, 1001.0, 1003.0, 2000.0],
@@ -2035,64 +2919,229 @@ mod tests {
             {"effect": "support_contact", "strength": 0.5, "parameters": {"added_decay_per_mode": [0.5, 0.1, 0.2, 0.0]}},
             {"effect": "radiation", "strength": 0.5, "parameters": {}},
         ]));
-        let ctx = ScoringContext { glide_span_s: Some(1.0), glide_windows_s: None, glide_offset_at_onset: false, matched_hz: vec![] };
+        let ctx = ScoringContext {
+            glide_span_s: Some(1.0),
+            glide_windows_s: None,
+            glide_offset_at_onset: false,
+            matched_hz: vec![],
+        };
         let only_error = |c: &ParameterComparison| {
             assert_eq!(c.errors.len(), 1, "{c:?}");
             c.errors[0]
         };
-        let c = compare_parameters(&all, &accepted("reverb_noise", "shared_t60", &[("reverberation time T60", 0.55), ("reverberant excess ρ", 3.0)]), &ctx).unwrap();
+        let c = compare_parameters(
+            &all,
+            &accepted(
+                "reverb_noise",
+                "shared_t60",
+                &[
+                    ("reverberation time T60", 0.55),
+                    ("reverberant excess ρ", 3.0),
+                ],
+            ),
+            &ctx,
+        )
+        .unwrap();
         assert_eq!(c.effect, Effect::Reverb);
         assert!((only_error(&c) - 0.1).abs() < 1e-12);
         // Largest loading: mode 0, (1000/950)² − 1; the fluid variant takes the lowest mode (the same here).
         let mu = (1000.0f64 / 950.0).powi(2) - 1.0;
-        let mass_only = labels(serde_json::json!([{"effect": "added_mass", "strength": 0.5, "parameters": {"mass_fraction": 0.03}}]));
+        let mass_only = labels(
+            serde_json::json!([{"effect": "added_mass", "strength": 0.5, "parameters": {"mass_fraction": 0.03}}]),
+        );
         for variant in ["added_mass", "fluid_loading"] {
-            let c = compare_parameters(&mass_only, &accepted("added_mass", variant, &[("added-mass ratio μ", 1.2 * mu)]), &ctx).unwrap();
+            let c = compare_parameters(
+                &mass_only,
+                &accepted("added_mass", variant, &[("added-mass ratio μ", 1.2 * mu)]),
+                &ctx,
+            )
+            .unwrap();
             assert!((only_error(&c) - 0.2).abs() < 1e-12 && c.not_comparable.is_none());
         }
         // Glide: the most energetic mode is mode 0 (d = 3).
         let expected = 0.002 * glide_half_contrast(3.0, 1.0).unwrap();
-        let c = compare_parameters(&all, &accepted("pitch_glide", "energy_squared", &[("relative glide g of the most energetic mode", 2.0 * expected)]), &ctx).unwrap();
+        let c = compare_parameters(
+            &all,
+            &accepted(
+                "pitch_glide",
+                "energy_squared",
+                &[(
+                    "relative glide g of the most energetic mode",
+                    2.0 * expected,
+                )],
+            ),
+            &ctx,
+        )
+        .unwrap();
         assert!((only_error(&c) - 1.0).abs() < 1e-12);
         // … and mode 1 (equal amplitudes: the lowest of the rest, d = 4) when the detector
         // matched only modes 1–3.
-        let matched = ScoringContext { glide_span_s: Some(1.0), glide_windows_s: None, glide_offset_at_onset: false, matched_hz: vec![1001.0, 1003.0, 1995.0] };
+        let matched = ScoringContext {
+            glide_span_s: Some(1.0),
+            glide_windows_s: None,
+            glide_offset_at_onset: false,
+            matched_hz: vec![1001.0, 1003.0, 1995.0],
+        };
         let expected1 = 0.002 * glide_half_contrast(4.0, 1.0).unwrap();
-        let c = compare_parameters(&all, &accepted("pitch_glide", "energy_squared", &[("relative glide g of the most energetic mode", expected1)]), &matched).unwrap();
+        let c = compare_parameters(
+            &all,
+            &accepted(
+                "pitch_glide",
+                "energy_squared",
+                &[("relative glide g of the most energetic mode", expected1)],
+            ),
+            &matched,
+        )
+        .unwrap();
         assert!(only_error(&c).abs() < 1e-12, "{c:?}");
-        let c = compare_parameters(&all, &accepted("pitch_glide", "energy_squared", &[("relative glide g", 1e-3)]), &ScoringContext::default()).unwrap();
+        let c = compare_parameters(
+            &all,
+            &accepted(
+                "pitch_glide",
+                "energy_squared",
+                &[("relative glide g", 1e-3)],
+            ),
+            &ScoringContext::default(),
+        )
+        .unwrap();
         assert!(c.errors.is_empty() && c.not_comparable.is_some());
         // A chirp-fit report detects the labels' g itself, whatever the windows or the span.
-        let onset = ScoringContext { glide_offset_at_onset: true, ..ctx.clone() };
-        let c = compare_parameters(&all, &accepted("pitch_glide", "uniform", &[("relative glide g (offset at the onset) of every mode", 0.0022)]), &onset).unwrap();
-        assert!((only_error(&c) - 0.1).abs() < 1e-9 && c.not_comparable.is_none(), "{c:?}");
+        let onset = ScoringContext {
+            glide_offset_at_onset: true,
+            ..ctx.clone()
+        };
+        let c = compare_parameters(
+            &all,
+            &accepted(
+                "pitch_glide",
+                "uniform",
+                &[(
+                    "relative glide g (offset at the onset) of every mode",
+                    0.0022,
+                )],
+            ),
+            &onset,
+        )
+        .unwrap();
+        assert!(
+            (only_error(&c) - 0.1).abs() < 1e-9 && c.not_comparable.is_none(),
+            "{c:?}"
+        );
         // Damping knots 10 % high at 1000 Hz, exact at 2000 Hz: RMS √(0.01/2).
-        let knots = [("decay rate at 1000 Hz", 1.1 * law.decay(1000.0)), ("decay rate at 2000 Hz", law.decay(2000.0))];
-        let c = compare_parameters(&all, &accepted("non_rayleigh_damping", "three_knot_log_log", &knots), &ctx).unwrap();
+        let knots = [
+            ("decay rate at 1000 Hz", 1.1 * law.decay(1000.0)),
+            ("decay rate at 2000 Hz", law.decay(2000.0)),
+        ];
+        let c = compare_parameters(
+            &all,
+            &accepted("non_rayleigh_damping", "three_knot_log_log", &knots),
+            &ctx,
+        )
+        .unwrap();
         assert!((only_error(&c) - 0.005f64.sqrt()).abs() < 1e-12);
         // Split of 2 Hz at 1002 Hz seen 10 % small; a second detected split pairs with nothing.
-        let c = compare_parameters(&all, &accepted("beating_pair", "split_per_cluster", &[("relative split δf/f of cluster 4 (1002.1 Hz)", 0.9 * 2.0 / 1002.0), ("relative split δf/f of cluster 9 (3000.0 Hz)", 1e-3)]), &ctx).unwrap();
-        assert!((only_error(&c) + 0.1).abs() < 1e-12 && c.not_comparable.as_deref().unwrap().contains("3000.0 Hz"));
+        let c = compare_parameters(
+            &all,
+            &accepted(
+                "beating_pair",
+                "split_per_cluster",
+                &[
+                    (
+                        "relative split δf/f of cluster 4 (1002.1 Hz)",
+                        0.9 * 2.0 / 1002.0,
+                    ),
+                    ("relative split δf/f of cluster 9 (3000.0 Hz)", 1e-3),
+                ],
+            ),
+            &ctx,
+        )
+        .unwrap();
+        assert!(
+            (only_error(&c) + 0.1).abs() < 1e-12
+                && c.not_comparable.as_deref().unwrap().contains("3000.0 Hz")
+        );
         // Contact: attenuations of a half-sine give back its duration.
-        let c = compare_parameters(&all, &accepted("contact_duration", "half_sine", &[("contact duration T", t_contact)]), &ctx).unwrap();
+        let c = compare_parameters(
+            &all,
+            &accepted(
+                "contact_duration",
+                "half_sine",
+                &[("contact duration T", t_contact)],
+            ),
+            &ctx,
+        )
+        .unwrap();
         assert!(only_error(&c).abs() < 1e-6, "{c:?}");
         // Not comparable: support (the weights are the CLI's), radiation's factor variant.
-        let c = compare_parameters(&all, &accepted("support_contact", "damping_only", &[("support damping γ", 2.0)]), &ctx).unwrap();
-        assert!(c.errors.is_empty() && c.not_comparable.is_some() && c.values[1].truth == Some(0.5));
-        let c = compare_parameters(&all, &accepted("radiation", "transfer", &[("transfer exponent η", 0.98)]), &ctx).unwrap();
+        let c = compare_parameters(
+            &all,
+            &accepted(
+                "support_contact",
+                "damping_only",
+                &[("support damping γ", 2.0)],
+            ),
+            &ctx,
+        )
+        .unwrap();
+        assert!(
+            c.errors.is_empty() && c.not_comparable.is_some() && c.values[1].truth == Some(0.5)
+        );
+        let c = compare_parameters(
+            &all,
+            &accepted("radiation", "transfer", &[("transfer exponent η", 0.98)]),
+            &ctx,
+        )
+        .unwrap();
         assert!((only_error(&c) + 0.02).abs() < 1e-12, "{c:?}");
-        let c = compare_parameters(&all, &accepted("radiation", "factor", &[("directivity u of cluster 0 slot 0", 1.0)]), &ctx).unwrap();
+        let c = compare_parameters(
+            &all,
+            &accepted(
+                "radiation",
+                "factor",
+                &[("directivity u of cluster 0 slot 0", 1.0)],
+            ),
+            &ctx,
+        )
+        .unwrap();
         assert!(c.errors.is_empty() && c.not_comparable.is_some());
         // Added mass next to another FEM effect: the frequency drops are not the mass's alone.
         let mixed = labels(serde_json::json!([
             {"effect": "added_mass", "strength": 0.5, "parameters": {"mass_fraction": 0.03}},
             {"effect": "beating_pair", "strength": 0.5, "parameters": {"clusters": []}},
         ]));
-        let c = compare_parameters(&mixed, &accepted("added_mass", "added_mass", &[("added-mass ratio μ", 0.1)]), &ctx).unwrap();
+        let c = compare_parameters(
+            &mixed,
+            &accepted("added_mass", "added_mass", &[("added-mass ratio μ", 0.1)]),
+            &ctx,
+        )
+        .unwrap();
         assert!(c.errors.is_empty() && c.not_comparable.unwrap().contains("beating_pair"));
         // Errors: an effect the case does not hold, a parameter the report lacks, bad labels.
-        assert!(matches!(compare_parameters(&mixed, &accepted("reverb_noise", "shared_t60", &[("reverberation time T60", 0.5)]), &ctx), Err(InjectError::Label(_))));
-        assert!(matches!(compare_parameters(&all, &accepted("reverb_noise", "shared_t60", &[("T60", 0.5)]), &ctx), Err(InjectError::Report(_))));
-        assert!(compare_parameters(&serde_json::json!({"effects": 3}), &accepted("reverb_noise", "", &[]), &ctx).is_err());
+        assert!(matches!(
+            compare_parameters(
+                &mixed,
+                &accepted(
+                    "reverb_noise",
+                    "shared_t60",
+                    &[("reverberation time T60", 0.5)]
+                ),
+                &ctx
+            ),
+            Err(InjectError::Label(_))
+        ));
+        assert!(matches!(
+            compare_parameters(
+                &all,
+                &accepted("reverb_noise", "shared_t60", &[("T60", 0.5)]),
+                &ctx
+            ),
+            Err(InjectError::Report(_))
+        ));
+        assert!(compare_parameters(
+            &serde_json::json!({"effects": 3}),
+            &accepted("reverb_noise", "", &[]),
+            &ctx
+        )
+        .is_err());
     }
 }

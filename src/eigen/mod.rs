@@ -49,7 +49,10 @@ pub mod reduced;
 pub mod sensitivity;
 
 use crate::assembly::DofLayout;
-use crate::petsc::factor::{self, FactorError, FactorLog, FactorUse, Inertia, MumpsCholesky, MumpsFailure, MumpsStatus, ScopedOption};
+use crate::petsc::factor::{
+    self, FactorError, FactorLog, FactorUse, Inertia, MumpsCholesky, MumpsFailure, MumpsStatus,
+    ScopedOption,
+};
 use crate::petsc::{self, Eps, EpsWhich, Mat, NonzeroPattern, Petsc, PetscError, Vector};
 
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -115,9 +118,18 @@ pub enum EigenError {
     #[error("{0}")]
     Petsc(#[from] PetscError),
     #[error("SLEPc converged only {converged} of the {wanted} eigenpairs requested (reason code {reason}); try a larger -eps_ncv or -eps_max_it")]
-    NotConverged { converged: usize, wanted: usize, reason: i32 },
+    NotConverged {
+        converged: usize,
+        wanted: usize,
+        reason: i32,
+    },
     #[error("inertia check failed: {below} eigenvalues lie below {threshold:.6e} rad²/s² but the solver returned {found}, even after {attempts} attempts")]
-    MissedModes { below: usize, found: usize, threshold: f64, attempts: usize },
+    MissedModes {
+        below: usize,
+        found: usize,
+        threshold: f64,
+        attempts: usize,
+    },
     #[error("invalid request: {0}")]
     BadRequest(String),
     #[error("{0}")]
@@ -148,7 +160,10 @@ impl Modes<'_> {
     /// The value of one solver setting in force (`settings`), such as `"iterations"` (SLEPc's
     /// restarts).
     pub fn setting(&self, name: &str) -> Option<&str> {
-        self.settings.iter().find(|(k, _)| k == name).map(|(_, v)| v.as_str())
+        self.settings
+            .iter()
+            .find(|(k, _)| k == name)
+            .map(|(_, v)| v.as_str())
     }
 }
 
@@ -163,7 +178,12 @@ struct RawPairs<'p> {
 }
 
 /// Computes the modes requested in `cfg` for stiffness `k` and mass `m` (both symmetric).
-pub fn solve_modes<'p>(petsc: &'p Petsc, k: &Mat<'p>, m: &Mat<'p>, cfg: &EigenConfig) -> Result<Modes<'p>, EigenError> {
+pub fn solve_modes<'p>(
+    petsc: &'p Petsc,
+    k: &Mat<'p>,
+    m: &Mat<'p>,
+    cfg: &EigenConfig,
+) -> Result<Modes<'p>, EigenError> {
     solve_modes_deflated(petsc, k, m, cfg, &[])
 }
 
@@ -171,19 +191,30 @@ pub fn solve_modes<'p>(petsc: &'p Petsc, k: &Mat<'p>, m: &Mat<'p>, cfg: &EigenCo
 /// `layout`'s ordering): unit translations along x, y, z and the rotations about the axes through
 /// the nodes' centroid c, u(x) = e_i × (x − c) / L with L the bounding-box diagonal [m] so that
 /// all six have entries of order 1. `nodes` [m] are the mesh's nodes in original order.
-pub fn rigid_body_vectors<'p>(like: &Mat<'p>, layout: &DofLayout, nodes: &[[f64; 3]]) -> Result<Vec<Vector<'p>>, EigenError> {
+pub fn rigid_body_vectors<'p>(
+    like: &Mat<'p>,
+    layout: &DofLayout,
+    nodes: &[[f64; 3]],
+) -> Result<Vec<Vector<'p>>, EigenError> {
     if nodes.len() != layout.n_nodes() {
-        return Err(EigenError::BadRequest(format!("{} node positions for a layout of {} nodes", nodes.len(), layout.n_nodes())));
+        return Err(EigenError::BadRequest(format!(
+            "{} node positions for a layout of {} nodes",
+            nodes.len(),
+            layout.n_nodes()
+        )));
     }
     if nodes.iter().flatten().any(|x| !x.is_finite()) {
-        return Err(EigenError::BadRequest("a node position is not finite".into()));
+        return Err(EigenError::BadRequest(
+            "a node position is not finite".into(),
+        ));
     }
     let (lo, hi) = crate::mesh::bounding_box_of(nodes);
     let diagonal = (0..3).map(|d| (hi[d] - lo[d]).powi(2)).sum::<f64>().sqrt();
     if !(diagonal > 0.0) {
         return Err(EigenError::BadRequest("the nodes span no volume".into()));
     }
-    let centroid: [f64; 3] = std::array::from_fn(|d| nodes.iter().map(|x| x[d]).sum::<f64>() / nodes.len() as f64);
+    let centroid: [f64; 3] =
+        std::array::from_fn(|d| nodes.iter().map(|x| x[d]).sum::<f64>() / nodes.len() as f64);
     let owned = layout.owned_nodes();
     let mut out = Vec::with_capacity(6);
     for motion in 0..6 {
@@ -210,11 +241,20 @@ pub fn rigid_body_vectors<'p>(like: &Mat<'p>, layout: &DofLayout, nodes: &[[f64;
 /// [`solve_modes`] in the complement of known rigid-body motions `deflate` (module docs; empty:
 /// no deflation). Only for [`ModeRequest::FirstN`]. The deflated motions' Rayleigh quotients
 /// come first among [`Modes::rigid_eigenvalues`].
-pub fn solve_modes_deflated<'p>(petsc: &'p Petsc, k: &Mat<'p>, m: &Mat<'p>, cfg: &EigenConfig, deflate: &[Vector<'p>]) -> Result<Modes<'p>, EigenError> {
+pub fn solve_modes_deflated<'p>(
+    petsc: &'p Petsc,
+    k: &Mat<'p>,
+    m: &Mat<'p>,
+    cfg: &EigenConfig,
+    deflate: &[Vector<'p>],
+) -> Result<Modes<'p>, EigenError> {
     let start = std::time::Instant::now();
     let shift = cfg.effective_shift();
     if !(cfg.spectrum_scale.is_finite() && cfg.spectrum_scale > 0.0) {
-        return Err(EigenError::BadRequest(format!("spectrum scale must be positive, got {}", cfg.spectrum_scale)));
+        return Err(EigenError::BadRequest(format!(
+            "spectrum scale must be positive, got {}",
+            cfg.spectrum_scale
+        )));
     }
     if !shift.is_finite() || shift.abs() > 1e6 * cfg.spectrum_scale {
         return Err(EigenError::BadRequest(format!(
@@ -236,7 +276,9 @@ pub fn solve_modes_deflated<'p>(petsc: &'p Petsc, k: &Mat<'p>, m: &Mat<'p>, cfg:
     let rigid_limit = cfg.rigid_threshold * cfg.spectrum_scale;
     let mut warnings = Vec::new();
     if !deflate.is_empty() && !matches!(cfg.request, ModeRequest::FirstN(_)) {
-        return Err(EigenError::BadRequest("rigid-mode deflation applies to a request for the first N modes only".into()));
+        return Err(EigenError::BadRequest(
+            "rigid-mode deflation applies to a request for the first N modes only".into(),
+        ));
     }
     // A deflated vector that is not in K's null space would take a true mode away unseen.
     let mut deflated = Vec::with_capacity(deflate.len());
@@ -255,10 +297,16 @@ pub fn solve_modes_deflated<'p>(petsc: &'p Petsc, k: &Mat<'p>, m: &Mat<'p>, cfg:
 
     // The upper end of the interval for spectrum slicing, λ_max = (2π f_max)².
     let interval_upper = match cfg.request {
-        ModeRequest::FirstN(0) => return Err(EigenError::BadRequest("number of modes must be at least 1".into())),
+        ModeRequest::FirstN(0) => {
+            return Err(EigenError::BadRequest(
+                "number of modes must be at least 1".into(),
+            ))
+        }
         ModeRequest::FirstN(_) => None,
         ModeRequest::UpTo { f_max_hz } if !(f_max_hz.is_finite() && f_max_hz > 0.0) => {
-            return Err(EigenError::BadRequest(format!("frequency limit must be positive, got {f_max_hz}")));
+            return Err(EigenError::BadRequest(format!(
+                "frequency limit must be positive, got {f_max_hz}"
+            )));
         }
         ModeRequest::UpTo { f_max_hz } => Some((2.0 * std::f64::consts::PI * f_max_hz).powi(2)),
     };
@@ -268,17 +316,30 @@ pub fn solve_modes_deflated<'p>(petsc: &'p Petsc, k: &Mat<'p>, m: &Mat<'p>, cfg:
     };
 
     let nev_cap = dofs.saturating_sub(deflate.len());
-    let mut nev = (wanted + cfg.expected_rigid.saturating_sub(deflate.len()) + 4.max(wanted / 10)).min(nev_cap);
+    let mut nev = (wanted + cfg.expected_rigid.saturating_sub(deflate.len()) + 4.max(wanted / 10))
+        .min(nev_cap);
     let max_attempts = 3;
     let mut attempt = 0;
     let mut solve_log = FactorLog::default();
     loop {
         attempt += 1;
-        let pairs = solve_with_workspace(petsc, &mut solve_log, &mut warnings, |petsc| match interval_upper {
-            Some(upper) => solve_interval(petsc, k, m, shift, upper, cfg),
-            None => solve_nearest(petsc, k, m, shift, nev, cfg, deflate),
-        })?;
-        let RawPairs { values, vectors, residuals, scaled_residuals, mut settings } = pairs;
+        let pairs =
+            solve_with_workspace(
+                petsc,
+                &mut solve_log,
+                &mut warnings,
+                |petsc| match interval_upper {
+                    Some(upper) => solve_interval(petsc, k, m, shift, upper, cfg),
+                    None => solve_nearest(petsc, k, m, shift, nev, cfg, deflate),
+                },
+            )?;
+        let RawPairs {
+            values,
+            vectors,
+            residuals,
+            scaled_residuals,
+            mut settings,
+        } = pairs;
         let mut order: Vec<usize> = (0..values.len()).collect();
         order.sort_by(|&a, &b| values[a].total_cmp(&values[b]));
         let mut vectors: Vec<Option<Vector<'p>>> = vectors.into_iter().map(Some).collect();
@@ -306,10 +367,16 @@ pub fn solve_modes_deflated<'p>(petsc: &'p Petsc, k: &Mat<'p>, m: &Mat<'p>, cfg:
                         nev = (nev + n).min(nev_cap);
                         continue;
                     }
-                    return Err(EigenError::NotConverged { converged: elastic.len() + rigid.len(), wanted: n + cfg.expected_rigid, reason: 0 });
+                    return Err(EigenError::NotConverged {
+                        converged: elastic.len() + rigid.len(),
+                        wanted: n + cfg.expected_rigid,
+                        reason: 0,
+                    });
                 }
                 let mut keep = n;
-                while keep < elastic.len() && relative_gap(elastic[keep - 1], elastic[keep]) <= cfg.cluster_rtol {
+                while keep < elastic.len()
+                    && relative_gap(elastic[keep - 1], elastic[keep]) <= cfg.cluster_rtol
+                {
                     keep += 1;
                 }
                 if keep == elastic.len() && keep > n && attempt < max_attempts {
@@ -331,7 +398,12 @@ pub fn solve_modes_deflated<'p>(petsc: &'p Petsc, k: &Mat<'p>, m: &Mat<'p>, cfg:
                 None if keep < elastic.len() => 0.5 * (elastic[keep - 1] + elastic[keep]),
                 None => elastic[keep - 1] * (1.0 + 10.0 * cfg.cluster_rtol),
             };
-            let returned = Returned { n_rigid: rigid.len(), elastic: &elastic, residuals: &elastic_scaled, keep };
+            let returned = Returned {
+                n_rigid: rigid.len(),
+                elastic: &elastic,
+                residuals: &elastic_scaled,
+                keep,
+            };
             let check = prove_count(petsc, k, m, threshold, &returned)?;
             warnings.extend(check.factor_log.retry_notes("inertia matrix K − τM"));
             match &check.verdict {
@@ -344,9 +416,16 @@ pub fn solve_modes_deflated<'p>(petsc: &'p Petsc, k: &Mat<'p>, m: &Mat<'p>, cfg:
                         nev = (nev.max(check.below + 4) + 4).min(nev_cap);
                         continue;
                     }
-                    return Err(EigenError::MissedModes { below: check.below, found: check.found, threshold: check.threshold, attempts: attempt });
+                    return Err(EigenError::MissedModes {
+                        below: check.below,
+                        found: check.found,
+                        threshold: check.threshold,
+                        attempts: attempt,
+                    });
                 }
-                CountVerdict::Unproven(why) => warnings.push(format!("the mode count is not proven: {why}")),
+                CountVerdict::Unproven(why) => {
+                    warnings.push(format!("the mode count is not proven: {why}"))
+                }
                 CountVerdict::Complete => {}
             }
             Some(check)
@@ -424,7 +503,11 @@ fn solve_with_workspace<'p>(
     let mut tries = FactorLog::default();
     let outcome = loop {
         let _raised = match percent {
-            Some(p) => Some(ScopedOption::set(petsc, ST_WORKSPACE_OPTION, &p.to_string())?),
+            Some(p) => Some(ScopedOption::set(
+                petsc,
+                ST_WORKSPACE_OPTION,
+                &p.to_string(),
+            )?),
             None => None,
         };
         match run(petsc) {
@@ -440,11 +523,15 @@ fn solve_with_workspace<'p>(
             Err(SolveFailure::Other(e)) => break Err(e),
             Err(SolveFailure::Factor { status }) => {
                 tries.record(status.icntl14, status.infog1, status.infog2);
-                if status.failure() == Some(MumpsFailure::Workspace) && tries.retries() < factor::MAX_WORKSPACE_RETRIES {
+                if status.failure() == Some(MumpsFailure::Workspace)
+                    && tries.retries() < factor::MAX_WORKSPACE_RETRIES
+                {
                     percent = Some(factor::next_workspace_percent(status.icntl14));
                     continue;
                 }
-                break Err(FactorError::from_status("shift-invert matrix K − σM", &status, &tries).into());
+                break Err(
+                    FactorError::from_status("shift-invert matrix K − σM", &status, &tries).into(),
+                );
             }
         }
     };
@@ -457,7 +544,11 @@ const ST_WORKSPACE_OPTION: &str = "-st_mat_mumps_icntl_14";
 
 /// The ST factor's ICNTL(14) in the options database (the user's, or a retry's while it lasts).
 fn st_workspace_percent(petsc: &Petsc) -> Option<i32> {
-    petsc.option_value(ST_WORKSPACE_OPTION).ok().flatten().and_then(|v| v.trim().parse().ok())
+    petsc
+        .option_value(ST_WORKSPACE_OPTION)
+        .ok()
+        .flatten()
+        .and_then(|v| v.trim().parse().ok())
 }
 
 /// MUMPS's ICNTL(14) when nobody set it (MUMPS 5.5 users' guide), for the log of a solve whose
@@ -467,10 +558,17 @@ const MUMPS_DEFAULT_ICNTL14: i32 = 20;
 /// The failure of `eps.solve()` classified: MUMPS's status read from the ST's factor, or (inside
 /// spectrum slicing, whose factors SLEPc keeps to itself) parsed from PETSc's message.
 fn classify_solve_error(petsc: &Petsc, eps: &Eps<'_>, error: PetscError) -> SolveFailure {
-    let from_pc = eps.st().ok().and_then(|st| st.pc().ok().and_then(|pc| pc.mumps_status())).filter(|s| s.infog1 < 0);
+    let from_pc = eps
+        .st()
+        .ok()
+        .and_then(|st| st.pc().ok().and_then(|pc| pc.mumps_status()))
+        .filter(|s| s.infog1 < 0);
     let status = from_pc.or_else(|| {
-        factor::mumps_code_in(&error).map(|(infog1, infog2)| {
-            MumpsStatus { infog1, infog2, icntl14: st_workspace_percent(petsc).unwrap_or(MUMPS_DEFAULT_ICNTL14), ..MumpsStatus::default() }
+        factor::mumps_code_in(&error).map(|(infog1, infog2)| MumpsStatus {
+            infog1,
+            infog2,
+            icntl14: st_workspace_percent(petsc).unwrap_or(MUMPS_DEFAULT_ICNTL14),
+            ..MumpsStatus::default()
         })
     });
     match status {
@@ -540,26 +638,57 @@ struct Returned<'a> {
 /// Counts the eigenvalues below τ twice (at τ and at τ₂ in the widest gap of the returned
 /// spectrum below it) and judges the returned pairs against both counts (module docs of
 /// [`crate::petsc::factor`] for what MUMPS's count guarantees).
-fn prove_count<'p>(petsc: &'p Petsc, k: &Mat<'p>, m: &Mat<'p>, tau: f64, returned: &Returned<'_>) -> Result<InertiaCheck, EigenError> {
+fn prove_count<'p>(
+    petsc: &'p Petsc,
+    k: &Mat<'p>,
+    m: &Mat<'p>,
+    tau: f64,
+    returned: &Returned<'_>,
+) -> Result<InertiaCheck, EigenError> {
     let t0 = std::time::Instant::now();
-    let &Returned { n_rigid, elastic, residuals, keep } = returned;
+    let &Returned {
+        n_rigid,
+        elastic,
+        residuals,
+        keep,
+    } = returned;
     let found_below = |t: f64| n_rigid + elastic.iter().filter(|&&l| l < t).count();
-    let proven_below = |t: f64| n_rigid + elastic.iter().zip(residuals).filter(|&(&l, &r)| l < t && r <= PROVEN_RESIDUAL).count();
+    let proven_below = |t: f64| {
+        n_rigid
+            + elastic
+                .iter()
+                .zip(residuals)
+                .filter(|&(&l, &r)| l < t && r <= PROVEN_RESIDUAL)
+                .count()
+    };
     let mut log = FactorLog::default();
     let first = inertia_below(petsc, k, m, tau, &mut log)?;
     let (found, proven) = (found_below(tau), proven_below(tau));
 
     // τ₂ in the widest relative gap among the kept modes below τ (between the rigid modes and the
     // first elastic one when only one is kept): far from any eigenvalue, so its count is robust.
-    let kept: Vec<f64> = elastic[..keep].iter().copied().filter(|&l| l < tau).collect();
+    let kept: Vec<f64> = elastic[..keep]
+        .iter()
+        .copied()
+        .filter(|&l| l < tau)
+        .collect();
     let tau2 = if kept.len() >= 2 {
-        let j = (0..kept.len() - 1).max_by(|&a, &b| relative_gap(kept[a], kept[a + 1]).total_cmp(&relative_gap(kept[b], kept[b + 1]))).expect("two or more");
+        let j = (0..kept.len() - 1)
+            .max_by(|&a, &b| {
+                relative_gap(kept[a], kept[a + 1]).total_cmp(&relative_gap(kept[b], kept[b + 1]))
+            })
+            .expect("two or more");
         Some(0.5 * (kept[j] + kept[j + 1]))
     } else {
         kept.first().map(|&l| 0.5 * l)
     };
     let second = match tau2 {
-        Some(t2) => Some((t2, inertia_below(petsc, k, m, t2, &mut log)?, found_below(t2), proven_below(t2))),
+        Some(t2) => Some((
+            t2,
+            inertia_below(petsc, k, m, t2, &mut log)?,
+            found_below(t2),
+            proven_below(t2),
+        )),
         None => None,
     };
 
@@ -575,7 +704,10 @@ fn prove_count<'p>(petsc: &'p Petsc, k: &Mat<'p>, m: &Mat<'p>, tau: f64, returne
     }
     if let Some((t2, c2, f2, p2)) = second {
         if c2.zero > 0 {
-            doubts.push(format!("MUMPS flagged {} null pivots at the second threshold τ₂ = {t2:.6e}", c2.zero));
+            doubts.push(format!(
+                "MUMPS flagged {} null pivots at the second threshold τ₂ = {t2:.6e}",
+                c2.zero
+            ));
         } else if c2.negative < p2 {
             doubts.push(format!("the second count at τ₂ = {t2:.6e} gives {} eigenvalues, fewer than the {p2} proven pairs below it", c2.negative));
         } else if c2.negative > f2 && first.negative <= found {
@@ -590,7 +722,13 @@ fn prove_count<'p>(petsc: &'p Petsc, k: &Mat<'p>, m: &Mat<'p>, tau: f64, returne
     } else if first.negative == found {
         CountVerdict::Complete
     } else {
-        let unproven: Vec<String> = elastic.iter().zip(residuals).enumerate().filter(|&(_, (&l, &r))| l < tau && r > PROVEN_RESIDUAL).map(|(i, (_, r))| format!("mode {} (residual {r:.1e})", i + 1)).collect();
+        let unproven: Vec<String> = elastic
+            .iter()
+            .zip(residuals)
+            .enumerate()
+            .filter(|&(_, (&l, &r))| l < tau && r > PROVEN_RESIDUAL)
+            .map(|(i, (_, r))| format!("mode {} (residual {r:.1e})", i + 1))
+            .collect();
         CountVerdict::Unproven(format!(
             "{} eigenvalues lie below τ = {tau:.6e} but {found} pairs were returned; of those only {proven} are proven by their residuals, and the unproven ones may be spurious: {}",
             first.negative,
@@ -610,7 +748,13 @@ fn prove_count<'p>(petsc: &'p Petsc, k: &Mat<'p>, m: &Mat<'p>, tau: f64, returne
 }
 
 /// The inertia of K − τM through the one factor path (workspace retries logged in `log`).
-fn inertia_below<'p>(petsc: &'p Petsc, k: &Mat<'p>, m: &Mat<'p>, tau: f64, log: &mut FactorLog) -> Result<Inertia, EigenError> {
+fn inertia_below<'p>(
+    petsc: &'p Petsc,
+    k: &Mat<'p>,
+    m: &Mat<'p>,
+    tau: f64,
+    log: &mut FactorLog,
+) -> Result<Inertia, EigenError> {
     let mut a = k.duplicate()?;
     a.axpy(-tau, m, NonzeroPattern::Same)?;
     a.set_symmetric()?;
@@ -639,7 +783,12 @@ pub fn find_clusters(sorted: &[f64], rtol: f64) -> Vec<std::ops::Range<usize>> {
 }
 
 /// Common defaults: GHEP, Krylov–Schur, shift-invert with MUMPS Cholesky, no purification.
-fn configure_common<'p>(petsc: &'p Petsc, k: &Mat<'p>, m: &Mat<'p>, cfg: &EigenConfig) -> Result<Eps<'p>, PetscError> {
+fn configure_common<'p>(
+    petsc: &'p Petsc,
+    k: &Mat<'p>,
+    m: &Mat<'p>,
+    cfg: &EigenConfig,
+) -> Result<Eps<'p>, PetscError> {
     let mut eps = Eps::new(petsc)?;
     eps.set_operators_ghep(k, m)?;
     eps.set_type(petsc::sys::EPSKRYLOVSCHUR)?;
@@ -654,7 +803,15 @@ fn configure_common<'p>(petsc: &'p Petsc, k: &Mat<'p>, m: &Mat<'p>, cfg: &EigenC
     Ok(eps)
 }
 
-fn solve_nearest<'p>(petsc: &'p Petsc, k: &Mat<'p>, m: &Mat<'p>, shift: f64, nev: usize, cfg: &EigenConfig, deflate: &[Vector<'p>]) -> Result<RawPairs<'p>, SolveFailure> {
+fn solve_nearest<'p>(
+    petsc: &'p Petsc,
+    k: &Mat<'p>,
+    m: &Mat<'p>,
+    shift: f64,
+    nev: usize,
+    cfg: &EigenConfig,
+    deflate: &[Vector<'p>],
+) -> Result<RawPairs<'p>, SolveFailure> {
     let mut eps = configure_common(petsc, k, m, cfg)?;
     eps.set_which(EpsWhich::TargetMagnitude)?;
     eps.set_target(shift)?;
@@ -671,7 +828,14 @@ fn solve_nearest<'p>(petsc: &'p Petsc, k: &Mat<'p>, m: &Mat<'p>, shift: f64, nev
     Ok(collect(&eps, k, m, wanted)?)
 }
 
-fn solve_interval<'p>(petsc: &'p Petsc, k: &Mat<'p>, m: &Mat<'p>, lower: f64, upper: f64, cfg: &EigenConfig) -> Result<RawPairs<'p>, SolveFailure> {
+fn solve_interval<'p>(
+    petsc: &'p Petsc,
+    k: &Mat<'p>,
+    m: &Mat<'p>,
+    lower: f64,
+    upper: f64,
+    cfg: &EigenConfig,
+) -> Result<RawPairs<'p>, SolveFailure> {
     // MUMPS reports the inertia that slicing relies on only with ICNTL(13)=1 (no ScaLAPACK root)
     // and PETSc wants null-pivot detection (ICNTL(24)=1) with it. The factor inherits the ST's
     // options prefix, hence `-st_`.
@@ -692,10 +856,19 @@ fn solve_interval<'p>(petsc: &'p Petsc, k: &Mat<'p>, m: &Mat<'p>, lower: f64, up
 /// calling EPSComputeError: after a spectrum-slicing solve on 2 ranks (SLEPc 3.18, Debian 12)
 /// that call desynchronised the ranks for some pairs (one rank in its MatMult, the other already
 /// in its VecNorm), and the job hung in stage 4 of `diagnose` on a 34-mode interval.
-fn collect<'p>(eps: &Eps<'p>, k: &Mat<'p>, m: &Mat<'p>, wanted: usize) -> Result<RawPairs<'p>, EigenError> {
+fn collect<'p>(
+    eps: &Eps<'p>,
+    k: &Mat<'p>,
+    m: &Mat<'p>,
+    wanted: usize,
+) -> Result<RawPairs<'p>, EigenError> {
     let n = eps.converged()?;
     if n < wanted {
-        return Err(EigenError::NotConverged { converged: n, wanted, reason: eps.converged_reason()? });
+        return Err(EigenError::NotConverged {
+            converged: n,
+            wanted,
+            reason: eps.converged_reason()?,
+        });
     }
     let mut values = Vec::with_capacity(n);
     let mut vectors = Vec::with_capacity(n);
@@ -717,7 +890,13 @@ fn collect<'p>(eps: &Eps<'p>, k: &Mat<'p>, m: &Mat<'p>, wanted: usize) -> Result
         residuals.push(r_norm / (scale * norm));
         scaled_residuals.push(r_norm / (scale * m_norm));
     }
-    Ok(RawPairs { values, vectors, residuals, scaled_residuals, settings: describe(eps)? })
+    Ok(RawPairs {
+        values,
+        vectors,
+        residuals,
+        scaled_residuals,
+        settings: describe(eps)?,
+    })
 }
 
 fn describe(eps: &Eps<'_>) -> Result<Vec<(String, String)>, PetscError> {
@@ -756,8 +935,14 @@ mod tests {
     fn clusters_group_close_neighbours_only() {
         let l = [1.0, 1.004, 2.0, 3.0, 3.00001, 3.00002, 5.0];
         assert_eq!(find_clusters(&l, 1e-2), vec![0..2, 3..6]);
-        assert_eq!(find_clusters(&l, 1e-6), Vec::<std::ops::Range<usize>>::new());
-        assert_eq!(find_clusters(&[], 1e-2), Vec::<std::ops::Range<usize>>::new());
+        assert_eq!(
+            find_clusters(&l, 1e-6),
+            Vec::<std::ops::Range<usize>>::new()
+        );
+        assert_eq!(
+            find_clusters(&[], 1e-2),
+            Vec::<std::ops::Range<usize>>::new()
+        );
     }
 
     #[test]

@@ -59,7 +59,10 @@ pub fn lame_unit(nu: f64) -> (f64, f64) {
 pub fn lame_unit_derivative(nu: f64) -> (f64, f64) {
     let d = (1.0 + nu) * (1.0 - 2.0 * nu);
     // d/dν [ν/d] = (d − ν d')/d², d' = (1 − 2ν) − 2(1 + ν) = −1 − 4ν.
-    ((d - nu * (-1.0 - 4.0 * nu)) / (d * d), -0.5 / ((1.0 + nu) * (1.0 + nu)))
+    (
+        (d - nu * (-1.0 - 4.0 * nu)) / (d * d),
+        -0.5 / ((1.0 + nu) * (1.0 + nu)),
+    )
 }
 
 /// Ritz values at one ν.
@@ -158,12 +161,24 @@ impl<'p> PoissonBasis<'p> {
     /// Solves at each ν in `samples` for `n_modes + margin` modes and projects. `size` [m] is
     /// the body's size for the solver's spectrum scale; `probe_dofs` are PETSc indices whose
     /// values of each mode [`Self::probe`] returns (e.g. the DOFs of the strike element).
-    pub fn build(petsc: &'p Petsc, assembled: &Assembled<'p>, size: f64, n_modes: usize, margin: usize, samples: &[f64], probe_dofs: Vec<PetscInt>) -> Result<Self, ReducedError> {
+    pub fn build(
+        petsc: &'p Petsc,
+        assembled: &Assembled<'p>,
+        size: f64,
+        n_modes: usize,
+        margin: usize,
+        samples: &[f64],
+        probe_dofs: Vec<PetscInt>,
+    ) -> Result<Self, ReducedError> {
         if samples.is_empty() || n_modes == 0 {
-            return Err(ReducedError::Invalid("a reduced basis needs at least one sample ν and one mode".into()));
+            return Err(ReducedError::Invalid(
+                "a reduced basis needs at least one sample ν and one mode".into(),
+            ));
         }
         if let Some(nu) = samples.iter().find(|nu| !(**nu > -0.99 && **nu < 0.499)) {
-            return Err(ReducedError::Invalid(format!("sample ν = {nu} outside (−1, 0.5)")));
+            return Err(ReducedError::Invalid(format!(
+                "sample ν = {nu} outside (−1, 0.5)"
+            )));
         }
         let mut basis = PoissonBasis {
             vectors: Vec::new(),
@@ -197,13 +212,22 @@ impl<'p> PoissonBasis<'p> {
     }
 
     /// Full eigenvalues (E = ρ = 1) at ν by SLEPc, for checks; ascending, first `n`.
-    pub fn full_theta(petsc: &'p Petsc, assembled: &Assembled<'p>, size: f64, nu: f64, n: usize) -> Result<(Vec<f64>, Vec<Vector<'p>>), ReducedError> {
+    pub fn full_theta(
+        petsc: &'p Petsc,
+        assembled: &Assembled<'p>,
+        size: f64,
+        nu: f64,
+        n: usize,
+    ) -> Result<(Vec<f64>, Vec<Vector<'p>>), ReducedError> {
         let (a, b) = lame_unit(nu);
         let mut k = assembled.k_lambda.duplicate()?;
         k.scale(a)?;
         k.axpy(b, &assembled.k_mu, crate::petsc::NonzeroPattern::Same)?;
         k.set_symmetric()?;
-        let mut cfg = EigenConfig::new(ModeRequest::FirstN(n + cfg_rigid_spare()), spectrum_scale(b, 1.0, size));
+        let mut cfg = EigenConfig::new(
+            ModeRequest::FirstN(n + cfg_rigid_spare()),
+            spectrum_scale(b, 1.0, size),
+        );
         cfg.verify_count = false;
         let modes = solve_modes(petsc, &k, &assembled.mass_unit, &cfg)?;
         let (mut values, mut vectors) = (modes.eigenvalues, modes.vectors);
@@ -211,22 +235,38 @@ impl<'p> PoissonBasis<'p> {
         // bowl under 2 ranks: three at 10⁻³–10⁻¹ of the first elastic θ, 221–518 Hz below 1672 Hz).
         // They are the missing ones of the expected six, well below the first elastic mode: drop
         // those under a quarter of it.
-        let missing = cfg.expected_rigid.saturating_sub(modes.rigid_eigenvalues.len()).min(values.len().saturating_sub(1));
+        let missing = cfg
+            .expected_rigid
+            .saturating_sub(modes.rigid_eigenvalues.len())
+            .min(values.len().saturating_sub(1));
         let first_elastic = values.get(missing).copied().unwrap_or(0.0);
-        let spurious = values.iter().take(missing).take_while(|v| **v < 0.25 * first_elastic).count();
+        let spurious = values
+            .iter()
+            .take(missing)
+            .take_while(|v| **v < 0.25 * first_elastic)
+            .count();
         values.drain(..spurious);
         vectors.drain(..spurious);
         values.truncate(n);
         vectors.truncate(n);
         if values.len() < n {
-            return Err(ReducedError::Invalid(format!("the full solve at ν = {nu} gave {} elastic modes, {n} wanted", values.len())));
+            return Err(ReducedError::Invalid(format!(
+                "the full solve at ν = {nu} gave {} elastic modes, {n} wanted",
+                values.len()
+            )));
         }
         Ok((values, vectors))
     }
 
-    fn solve_and_append(&mut self, petsc: &'p Petsc, assembled: &Assembled<'p>, nu: f64) -> Result<(), ReducedError> {
+    fn solve_and_append(
+        &mut self,
+        petsc: &'p Petsc,
+        assembled: &Assembled<'p>,
+        nu: f64,
+    ) -> Result<(), ReducedError> {
         let start = std::time::Instant::now();
-        let (theta, vectors) = Self::full_theta(petsc, assembled, self.size, nu, self.n_modes + self.margin)?;
+        let (theta, vectors) =
+            Self::full_theta(petsc, assembled, self.size, nu, self.n_modes + self.margin)?;
         if let Some(first) = theta.iter().copied().filter(|t| *t > 0.0).reduce(f64::min) {
             self.theta_floor = self.theta_floor.min(1e-2 * first);
         }
@@ -238,14 +278,23 @@ impl<'p> PoissonBasis<'p> {
     }
 
     /// Adds the modes at ν (one full solve) and re-projects.
-    pub fn add_sample(&mut self, petsc: &'p Petsc, assembled: &Assembled<'p>, nu: f64) -> Result<(), ReducedError> {
+    pub fn add_sample(
+        &mut self,
+        petsc: &'p Petsc,
+        assembled: &Assembled<'p>,
+        nu: f64,
+    ) -> Result<(), ReducedError> {
         self.solve_and_append(petsc, assembled, nu)?;
         self.project(petsc, assembled)
     }
 
     fn project(&mut self, petsc: &'p Petsc, assembled: &Assembled<'p>) -> Result<(), ReducedError> {
         let nb = self.vectors.len();
-        let local: Vec<Vec<f64>> = self.vectors.iter().map(|v| v.local_values()).collect::<Result<_, _>>()?;
+        let local: Vec<Vec<f64>> = self
+            .vectors
+            .iter()
+            .map(|v| v.local_values())
+            .collect::<Result<_, _>>()?;
         let mut work = self.vectors[0].duplicate()?;
         let gram = |mat: &Mat<'p>, work: &mut Vector<'p>| -> Result<DMatrix<f64>, ReducedError> {
             let mut local_gram = vec![0.0; nb * nb];
@@ -257,7 +306,9 @@ impl<'p> PoissonBasis<'p> {
                 }
             }
             let mut global = vec![0.0; nb * nb];
-            petsc.world().all_reduce_into(&local_gram[..], &mut global[..], SystemOperation::sum());
+            petsc
+                .world()
+                .all_reduce_into(&local_gram[..], &mut global[..], SystemOperation::sum());
             let g = DMatrix::from_row_slice(nb, nb, &global);
             Ok((&g + g.transpose()) * 0.5)
         };
@@ -266,7 +317,9 @@ impl<'p> PoissonBasis<'p> {
         let g_mass = gram(&assembled.mass_unit, &mut work)?;
         let eig = SymmetricEigen::new(g_mass);
         let largest = eig.eigenvalues.iter().fold(0.0_f64, |m, v| m.max(*v));
-        let kept: Vec<usize> = (0..nb).filter(|&i| eig.eigenvalues[i] > WHITENING_FLOOR * largest).collect();
+        let kept: Vec<usize> = (0..nb)
+            .filter(|&i| eig.eigenvalues[i] > WHITENING_FLOOR * largest)
+            .collect();
         let mut w = DMatrix::zeros(nb, kept.len());
         for (c, &i) in kept.iter().enumerate() {
             let scale = 1.0 / eig.eigenvalues[i].sqrt();
@@ -295,9 +348,19 @@ impl<'p> PoissonBasis<'p> {
     /// residual measure is pessimistic (a residual of 2·10⁻³ went with eigenvalue errors of
     /// 2·10⁻⁸ against a full solve), and on some meshes it stays above the tolerance right at a
     /// sample. Collective. Returns the largest residual before any refresh.
-    pub fn refresh_if_needed(&mut self, petsc: &'p Petsc, assembled: &Assembled<'p>, nu: f64, tolerance: f64, min_spacing: f64) -> Result<f64, ReducedError> {
+    pub fn refresh_if_needed(
+        &mut self,
+        petsc: &'p Petsc,
+        assembled: &Assembled<'p>,
+        nu: f64,
+        tolerance: f64,
+        min_spacing: f64,
+    ) -> Result<f64, ReducedError> {
         let modes = self.solve(nu);
-        let worst = self.residuals(assembled, &modes)?.into_iter().fold(0.0_f64, f64::max);
+        let worst = self
+            .residuals(assembled, &modes)?
+            .into_iter()
+            .fold(0.0_f64, f64::max);
         if worst > tolerance && self.samples.iter().all(|s| (s - nu).abs() >= min_spacing) {
             self.add_sample(petsc, assembled, nu)?;
         }
@@ -310,8 +373,14 @@ impl<'p> PoissonBasis<'p> {
         let (da, db) = lame_unit_derivative(nu);
         let matrix = &self.a_lambda * a + &self.a_mu * b;
         let eig = SymmetricEigen::new((&matrix + matrix.transpose()) * 0.5);
-        let floor = if self.theta_floor.is_finite() { self.theta_floor } else { 0.0 };
-        let mut order: Vec<usize> = (0..eig.eigenvalues.len()).filter(|&i| eig.eigenvalues[i] > floor).collect();
+        let floor = if self.theta_floor.is_finite() {
+            self.theta_floor
+        } else {
+            0.0
+        };
+        let mut order: Vec<usize> = (0..eig.eigenvalues.len())
+            .filter(|&i| eig.eigenvalues[i] > floor)
+            .collect();
         order.sort_by(|&i, &j| eig.eigenvalues[i].total_cmp(&eig.eigenvalues[j]));
         let dmatrix = &self.a_lambda * da + &self.a_mu * db;
         let n = self.n_modes.min(order.len());
@@ -324,13 +393,20 @@ impl<'p> PoissonBasis<'p> {
             dtheta.push(z.dot(&(&dmatrix * &z)));
             coefficients.push(z);
         }
-        ReducedModes { poisson_ratio: nu, theta, dtheta_dnu: dtheta, coefficients }
+        ReducedModes {
+            poisson_ratio: nu,
+            theta,
+            dtheta_dnu: dtheta,
+            coefficients,
+        }
     }
 
     /// Mode k's values at the probe DOFs (mass-normalised for ρ = 1; divide by √ρ otherwise).
     pub fn probe(&self, modes: &ReducedModes, k: usize) -> Vec<f64> {
         let coeff = &self.whitening * &modes.coefficients[k];
-        (0..self.probe_values.ncols()).map(|c| self.probe_values.column(c).dot(&coeff)).collect()
+        (0..self.probe_values.ncols())
+            .map(|c| self.probe_values.column(c).dot(&coeff))
+            .collect()
     }
 
     /// Every mode's values at the probe DOFs: probes × modes (mass-normalised for ρ = 1).
@@ -345,19 +421,46 @@ impl<'p> PoissonBasis<'p> {
     /// Factors a(ν)K_λ + b(ν)K_μ + σM₁ (σ > 0 makes the free body's operator definite) and
     /// builds the six rigid-body motions of `nodes` (original order), M₁-orthonormalised.
     /// Collective.
-    pub fn attachment_solver(&self, petsc: &'p Petsc, assembled: &Assembled<'p>, nodes: &[[f64; 3]], nu: f64, shift: f64) -> Result<AttachmentSolver<'p>, ReducedError> {
+    pub fn attachment_solver(
+        &self,
+        petsc: &'p Petsc,
+        assembled: &Assembled<'p>,
+        nodes: &[[f64; 3]],
+        nu: f64,
+        shift: f64,
+    ) -> Result<AttachmentSolver<'p>, ReducedError> {
         if !(shift > 0.0) || nodes.len() != assembled.layout.n_nodes() {
-            return Err(ReducedError::Invalid(format!("attachment solver: shift {shift} must be positive and {} nodes given for {}", nodes.len(), assembled.layout.n_nodes())));
+            return Err(ReducedError::Invalid(format!(
+                "attachment solver: shift {shift} must be positive and {} nodes given for {}",
+                nodes.len(),
+                assembled.layout.n_nodes()
+            )));
         }
         let (a, b) = lame_unit(nu);
         let mut operator = assembled.k_lambda.duplicate()?;
         operator.scale(a)?;
         operator.axpy(b, &assembled.k_mu, crate::petsc::NonzeroPattern::Same)?;
-        operator.axpy(shift, &assembled.mass_unit, crate::petsc::NonzeroPattern::Subset)?;
+        operator.axpy(
+            shift,
+            &assembled.mass_unit,
+            crate::petsc::NonzeroPattern::Subset,
+        )?;
         operator.set_symmetric()?;
-        let solver = crate::petsc::MumpsCholesky::factor(petsc, &operator, crate::petsc::FactorUse::Solve, "attachment operator a(ν)K_λ + b(ν)K_μ + σM₁").map_err(PetscError::from)?;
+        let solver = crate::petsc::MumpsCholesky::factor(
+            petsc,
+            &operator,
+            crate::petsc::FactorUse::Solve,
+            "attachment operator a(ν)K_λ + b(ν)K_μ + σM₁",
+        )
+        .map_err(PetscError::from)?;
         let n = nodes.len();
-        let centre = nodes.iter().fold([0.0; 3], |acc, x| [acc[0] + x[0] / n as f64, acc[1] + x[1] / n as f64, acc[2] + x[2] / n as f64]);
+        let centre = nodes.iter().fold([0.0; 3], |acc, x| {
+            [
+                acc[0] + x[0] / n as f64,
+                acc[1] + x[1] / n as f64,
+                acc[2] + x[2] / n as f64,
+            ]
+        });
         let mut rigid: Vec<Vector<'p>> = Vec::with_capacity(6);
         let mut rigid_mass: Vec<Vector<'p>> = Vec::with_capacity(6);
         for motion in 0..6 {
@@ -390,13 +493,25 @@ impl<'p> PoissonBasis<'p> {
             rigid.push(v);
             rigid_mass.push(mv);
         }
-        let local_basis = self.vectors.iter().map(|v| v.local_values()).collect::<Result<_, _>>()?;
-        Ok(AttachmentSolver { solver, rigid, rigid_mass, local_basis })
+        let local_basis = self
+            .vectors
+            .iter()
+            .map(|v| v.local_values())
+            .collect::<Result<_, _>>()?;
+        Ok(AttachmentSolver {
+            solver,
+            rigid,
+            rigid_mass,
+            local_basis,
+        })
     }
 
     /// The six rigid-body motions (M₁-orthonormal, ρ = 1) at the probe DOFs (probes × 6).
     /// Collective.
-    pub fn rigid_probe_values(&self, solver: &AttachmentSolver<'p>) -> Result<DMatrix<f64>, ReducedError> {
+    pub fn rigid_probe_values(
+        &self,
+        solver: &AttachmentSolver<'p>,
+    ) -> Result<DMatrix<f64>, ReducedError> {
         let mut out = DMatrix::zeros(self.probe_dofs.len(), solver.rigid.len());
         for (j, q) in solver.rigid.iter().enumerate() {
             for (c, x) in q.gather_indices(&self.probe_dofs)?.into_iter().enumerate() {
@@ -410,7 +525,14 @@ impl<'p> PoissonBasis<'p> {
     /// entries it owns) and their projections. With `blocks` > 1, each further block is the
     /// next Krylov term (K + σM₁)⁻¹ M₁ x of the previous one (the inertia of the static
     /// response), treated the same way. Collective: every rank passes the same loads.
-    pub fn attachments(&self, petsc: &'p Petsc, assembled: &Assembled<'p>, solver: &AttachmentSolver<'p>, loads: &[Vec<(PetscInt, f64)>], blocks: usize) -> Result<AttachmentProjections, ReducedError> {
+    pub fn attachments(
+        &self,
+        petsc: &'p Petsc,
+        assembled: &Assembled<'p>,
+        solver: &AttachmentSolver<'p>,
+        loads: &[Vec<(PetscInt, f64)>],
+        blocks: usize,
+    ) -> Result<AttachmentProjections, ReducedError> {
         let (lo, hi) = self.vectors[0].ownership_range()?;
         let mut columns: Vec<Vector<'p>> = Vec::with_capacity(blocks.max(1) * loads.len());
         let mut mx = self.vectors[0].duplicate()?;
@@ -443,7 +565,9 @@ impl<'p> PoissonBasis<'p> {
                 assembled.mass_unit.mult(&x, &mut mx)?;
                 let norm = x.dot(&mx)?.sqrt();
                 if !(norm > 0.0 && norm.is_finite()) {
-                    return Err(ReducedError::Invalid("an attachment vector vanished (a load on no DOF?)".into()));
+                    return Err(ReducedError::Invalid(
+                        "an attachment vector vanished (a load on no DOF?)".into(),
+                    ));
                 }
                 x.scale(1.0 / norm)?;
                 if block + 1 < blocks {
@@ -458,7 +582,10 @@ impl<'p> PoissonBasis<'p> {
         let na = columns.len();
         let nb = self.vectors.len();
         let mut work = self.vectors[0].duplicate()?;
-        let local_columns: Vec<Vec<f64>> = columns.iter().map(|v| v.local_values()).collect::<Result<_, _>>()?;
+        let local_columns: Vec<Vec<f64>> = columns
+            .iter()
+            .map(|v| v.local_values())
+            .collect::<Result<_, _>>()?;
         let dot = |x: &[f64], y: &[f64]| x.iter().zip(y).map(|(a, b)| a * b).sum::<f64>();
         let mut project = |mat: &Mat<'p>| -> Result<(DMatrix<f64>, DMatrix<f64>), ReducedError> {
             // Local sums, then one reduction: (nb + na) × na entries, column-major.
@@ -474,11 +601,16 @@ impl<'p> PoissonBasis<'p> {
                 }
             }
             let mut global = vec![0.0; local.len()];
-            petsc.world().all_reduce_into(&local[..], &mut global[..], SystemOperation::sum());
+            petsc
+                .world()
+                .all_reduce_into(&local[..], &mut global[..], SystemOperation::sum());
             let all = DMatrix::from_column_slice(nb + na, na, &global);
             let cross = all.rows(0, nb).into_owned();
             let own = all.rows(nb, na).into_owned();
-            Ok((self.whitening.transpose() * cross, (&own + own.transpose()) * 0.5))
+            Ok((
+                self.whitening.transpose() * cross,
+                (&own + own.transpose()) * 0.5,
+            ))
         };
         let (cross_lambda, self_lambda) = project(&assembled.k_lambda)?;
         let (cross_mu, self_mu) = project(&assembled.k_mu)?;
@@ -489,13 +621,29 @@ impl<'p> PoissonBasis<'p> {
                 probe_values[(c, j)] = x;
             }
         }
-        Ok(AttachmentProjections { cross_lambda, cross_mu, cross_mass, self_lambda, self_mu, self_mass, probe_values })
+        Ok(AttachmentProjections {
+            cross_lambda,
+            cross_mu,
+            cross_mass,
+            self_lambda,
+            self_mu,
+            self_mass,
+            probe_values,
+        })
     }
 
     /// Relative residual of each Ritz pair (module docs). Collective.
-    pub fn residuals(&self, assembled: &Assembled<'p>, modes: &ReducedModes) -> Result<Vec<f64>, ReducedError> {
+    pub fn residuals(
+        &self,
+        assembled: &Assembled<'p>,
+        modes: &ReducedModes,
+    ) -> Result<Vec<f64>, ReducedError> {
         let (a, b) = lame_unit(modes.poisson_ratio);
-        let local: Vec<Vec<f64>> = self.vectors.iter().map(|v| v.local_values()).collect::<Result<_, _>>()?;
+        let local: Vec<Vec<f64>> = self
+            .vectors
+            .iter()
+            .map(|v| v.local_values())
+            .collect::<Result<_, _>>()?;
         let n_local = local.first().map_or(0, |v| v.len());
         let mut x = self.vectors[0].duplicate()?;
         let mut kl = x.duplicate()?;

@@ -67,7 +67,13 @@ pub struct ClusterSplit {
 }
 
 /// dλ/dE, dλ/dν, dλ/dρ for every mode, from the split stiffness K_λ, K_μ and unit mass M₁.
-pub fn material_sensitivities<'p>(k_lambda: &Mat<'p>, k_mu: &Mat<'p>, mass_unit: &Mat<'p>, modes: &Modes<'p>, material: &Material) -> Result<MaterialSensitivities, PetscError> {
+pub fn material_sensitivities<'p>(
+    k_lambda: &Mat<'p>,
+    k_mu: &Mat<'p>,
+    mass_unit: &Mat<'p>,
+    modes: &Modes<'p>,
+    material: &Material,
+) -> Result<MaterialSensitivities, PetscError> {
     let n = modes.eigenvalues.len();
     let (dl_de, dm_de) = material.dlame_dE();
     let (dl_dnu, dm_dnu) = material.dlame_dnu();
@@ -76,7 +82,11 @@ pub fn material_sensitivities<'p>(k_lambda: &Mat<'p>, k_mu: &Mat<'p>, mass_unit:
     let in_cluster = |i: usize| modes.clusters.iter().find(|r| r.contains(&i)).cloned();
     let mut w = k_lambda.create_vector()?;
     let mut diag = vec![(0.0, 0.0, 0.0); n]; // (φᵀK_λφ, φᵀK_μφ, φᵀM₁φ)
-    let mut blocks: Vec<(std::ops::Range<usize>, Vec<[f64; 3]>)> = modes.clusters.iter().map(|r| (r.clone(), vec![[0.0; 3]; r.len() * r.len()])).collect();
+    let mut blocks: Vec<(std::ops::Range<usize>, Vec<[f64; 3]>)> = modes
+        .clusters
+        .iter()
+        .map(|r| (r.clone(), vec![[0.0; 3]; r.len() * r.len()]))
+        .collect();
     for j in 0..n {
         let phi_j = &modes.vectors[j];
         let cluster = in_cluster(j);
@@ -89,17 +99,34 @@ pub fn material_sensitivities<'p>(k_lambda: &Mat<'p>, k_mu: &Mat<'p>, mass_unit:
                 _ => diag[j].2 = value,
             }
             if let Some(r) = &cluster {
-                let (_, block) = blocks.iter_mut().find(|(br, _)| br == r).expect("cluster block exists");
+                let (_, block) = blocks
+                    .iter_mut()
+                    .find(|(br, _)| br == r)
+                    .expect("cluster block exists");
                 for i in r.clone() {
-                    let v = if i == j { value } else { modes.vectors[i].dot(&w)? };
+                    let v = if i == j {
+                        value
+                    } else {
+                        modes.vectors[i].dot(&w)?
+                    };
                     block[(i - r.start) * r.len() + (j - r.start)][slot] = v;
                 }
             }
         }
     }
-    let per_mode_youngs: Vec<f64> = diag.iter().map(|&(kl, km, _)| dl_de * kl + dm_de * km).collect();
-    let per_mode_poisson: Vec<f64> = diag.iter().map(|&(kl, km, _)| dl_dnu * kl + dm_dnu * km).collect();
-    let per_mode_density: Vec<f64> = diag.iter().zip(&modes.eigenvalues).map(|(&(_, _, m1), &l)| -l * m1).collect();
+    let per_mode_youngs: Vec<f64> = diag
+        .iter()
+        .map(|&(kl, km, _)| dl_de * kl + dm_de * km)
+        .collect();
+    let per_mode_poisson: Vec<f64> = diag
+        .iter()
+        .map(|&(kl, km, _)| dl_dnu * kl + dm_dnu * km)
+        .collect();
+    let per_mode_density: Vec<f64> = diag
+        .iter()
+        .zip(&modes.eigenvalues)
+        .map(|(&(_, _, m1), &l)| -l * m1)
+        .collect();
     let mut out = MaterialSensitivities {
         d_youngs: per_mode_youngs.clone(),
         d_poisson: per_mode_poisson.clone(),
@@ -117,7 +144,9 @@ pub fn material_sensitivities<'p>(k_lambda: &Mat<'p>, k_mu: &Mat<'p>, mass_unit:
             v[r.clone()].iter_mut().for_each(|x| *x = mean);
         }
         let split = |f: &dyn Fn(&[f64; 3]) -> f64| -> Vec<f64> {
-            let m = nalgebra::DMatrix::from_fn(k, k, |a, b| 0.5 * (f(&block[a * k + b]) + f(&block[b * k + a])));
+            let m = nalgebra::DMatrix::from_fn(k, k, |a, b| {
+                0.5 * (f(&block[a * k + b]) + f(&block[b * k + a]))
+            });
             let mut e: Vec<f64> = m.symmetric_eigenvalues().iter().copied().collect();
             e.sort_by(f64::total_cmp);
             e
@@ -143,20 +172,39 @@ pub enum ClusterTreatment {
 
 /// dλ_i/dx for every mode and node, on rank 0 (`None` elsewhere): `[mode][3·node + d]` in the
 /// original node order [rad²/(s²·m)]. Collective over all ranks.
-pub fn node_gradients<'p>(petsc: &'p Petsc, mesh: &TetMesh, layout: &DofLayout, modes: &Modes<'p>, material: &Material, clusters: ClusterTreatment) -> Result<Option<Vec<Vec<f64>>>, SensitivityError> {
+pub fn node_gradients<'p>(
+    petsc: &'p Petsc,
+    mesh: &TetMesh,
+    layout: &DofLayout,
+    modes: &Modes<'p>,
+    material: &Material,
+    clusters: ClusterTreatment,
+) -> Result<Option<Vec<Vec<f64>>>, SensitivityError> {
     let rank = petsc.rank();
     let npt = mesh.nodes_per_tet();
     let m = modes.eigenvalues.len();
-    let owned: Vec<usize> = (0..mesh.n_tets()).filter(|&e| element_owner(mesh, &layout.partition, e) == rank).collect();
+    let owned: Vec<usize> = (0..mesh.n_tets())
+        .filter(|&e| element_owner(mesh, &layout.partition, e) == rank)
+        .collect();
     // Global dofs this rank needs: every dof of every owned element, sorted and unique.
-    let mut needed: Vec<PetscInt> = owned.iter().flat_map(|&e| mesh.tet(e).iter().flat_map(|&node| (0..3).map(move |c| (3 * layout.partition.new_of_old[node] + c) as PetscInt))).collect();
+    let mut needed: Vec<PetscInt> = owned
+        .iter()
+        .flat_map(|&e| {
+            mesh.tet(e).iter().flat_map(|&node| {
+                (0..3).map(move |c| (3 * layout.partition.new_of_old[node] + c) as PetscInt)
+            })
+        })
+        .collect();
     needed.sort_unstable();
     needed.dedup();
     let mut values = Vec::with_capacity(m);
     for v in &modes.vectors {
         values.push(v.gather_indices(&needed)?);
     }
-    let kernel = SensitivityKernel::try_new(npt, false).map_err(|e| SensitivityError::Element { element: 0, message: e.to_string() })?;
+    let kernel = SensitivityKernel::try_new(npt, false).map_err(|e| SensitivityError::Element {
+        element: 0,
+        message: e.to_string(),
+    })?;
     let coef = ElasticCoefficients::from_material(material);
     let mut local = vec![0.0; m * 3 * mesh.n_nodes()];
     let mut coords = vec![[0.0; 3]; npt];
@@ -170,7 +218,9 @@ pub fn node_gradients<'p>(petsc: &'p Petsc, mesh: &TetMesh, layout: &DofLayout, 
             for (a, &node) in tet.iter().enumerate() {
                 coords[a] = mesh.nodes[node];
                 let g = (3 * layout.partition.new_of_old[node]) as PetscInt;
-                pos[a] = needed.binary_search(&g).expect("owned element dofs were gathered");
+                pos[a] = needed
+                    .binary_search(&g)
+                    .expect("owned element dofs were gathered");
             }
             for k in 0..m {
                 for a in 0..npt {
@@ -179,7 +229,12 @@ pub fn node_gradients<'p>(petsc: &'p Petsc, mesh: &TetMesh, layout: &DofLayout, 
                     }
                 }
             }
-            kernel.gradients_into(&coords, &phi_e, &modes.eigenvalues, coef, &mut grad, None).map_err(|err| SensitivityError::Element { element: e, message: err.to_string() })?;
+            kernel
+                .gradients_into(&coords, &phi_e, &modes.eigenvalues, coef, &mut grad, None)
+                .map_err(|err| SensitivityError::Element {
+                    element: e,
+                    message: err.to_string(),
+                })?;
             for k in 0..m {
                 for (a, &node) in tet.iter().enumerate() {
                     for c in 0..3 {
@@ -191,7 +246,8 @@ pub fn node_gradients<'p>(petsc: &'p Petsc, mesh: &TetMesh, layout: &DofLayout, 
         Ok(())
     };
     let outcome = element_loop();
-    crate::petsc::collective::agree(petsc, outcome.map_err(|e| e.to_string())).map_err(SensitivityError::Collective)?;
+    crate::petsc::collective::agree(petsc, outcome.map_err(|e| e.to_string()))
+        .map_err(SensitivityError::Collective)?;
     let reduced = {
         use mpi::collective::{Root, SystemOperation};
         use mpi::topology::Communicator;
@@ -208,11 +264,17 @@ pub fn node_gradients<'p>(petsc: &'p Petsc, mesh: &TetMesh, layout: &DofLayout, 
     Ok(reduced.map(|sum| {
         let len = 3 * mesh.n_nodes();
         let mut per_mode: Vec<Vec<f64>> = sum.chunks_exact(len).map(<[f64]>::to_vec).collect();
-        let averaged: &[std::ops::Range<usize>] = if clusters == ClusterTreatment::Mean { &modes.clusters } else { &[] };
+        let averaged: &[std::ops::Range<usize>] = if clusters == ClusterTreatment::Mean {
+            &modes.clusters
+        } else {
+            &[]
+        };
         for r in averaged {
             let mut mean = vec![0.0; len];
             for k in r.clone() {
-                mean.iter_mut().zip(&per_mode[k]).for_each(|(a, b)| *a += b / r.len() as f64);
+                mean.iter_mut()
+                    .zip(&per_mode[k])
+                    .for_each(|(a, b)| *a += b / r.len() as f64);
             }
             for k in r.clone() {
                 per_mode[k].clone_from(&mean);
@@ -289,10 +351,13 @@ mod tests {
         let f = |l: f64, a: f64, b: f64| damped_chain(l, a, b).unwrap();
         let rel = |x: f64, y: f64| (x - y).abs() / y.abs().max(1e-300);
         let h = 1e-6;
-        let fd = |g: &dyn Fn(f64) -> f64, x: f64| (g(x * (1.0 + h)) - g(x * (1.0 - h))) / (2.0 * x * h);
+        let fd =
+            |g: &dyn Fn(f64) -> f64, x: f64| (g(x * (1.0 + h)) - g(x * (1.0 - h))) / (2.0 * x * h);
         // ω_d barely moves with α or β (relative 1e-13 at h = 1e-6), so those use a larger step.
         let h_damp = 1e-3;
-        let fd_damp = |g: &dyn Fn(f64) -> f64, x: f64| (g(x * (1.0 + h_damp)) - g(x * (1.0 - h_damp))) / (2.0 * x * h_damp);
+        let fd_damp = |g: &dyn Fn(f64) -> f64, x: f64| {
+            (g(x * (1.0 + h_damp)) - g(x * (1.0 - h_damp))) / (2.0 * x * h_damp)
+        };
         assert!(rel(fd(&|x| f(x, a, b).frequency_hz, l), c.dfreq_dlambda) < 1e-7);
         assert!(rel(fd(&|x| f(x, a, b).omega_d, l), c.domega_d_dlambda) < 1e-7);
         assert!(rel(fd_damp(&|x| f(l, x, b).omega_d, a), c.domega_d_dalpha) < 1e-5);

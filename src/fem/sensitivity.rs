@@ -89,7 +89,10 @@
 //! [`ElementKernel`]: super::element::ElementKernel
 //! [`is_curved`]: super::element::is_curved
 
-use super::element::{affine_jacobian, check_nodes, default_rule, det3, inv_transpose, is_curved, is_positive, matvec, ElementError, Tables, jacobian};
+use super::element::{
+    affine_jacobian, check_nodes, default_rule, det3, inv_transpose, is_curved, is_positive,
+    jacobian, matvec, ElementError, Tables,
+};
 use super::material::Material;
 use super::quadrature::{tet_rule, QuadratureRule};
 

@@ -1309,8 +1309,24 @@ impl From<crate::audio::ChannelFault> for DampingError {
         use crate::audio::ChannelFault as F;
         match fault {
             F::NoChannels => DampingError::NoChannels,
-            F::LengthMismatch { channel, len, expected } => DampingError::LengthMismatch { channel, len, expected },
-            F::NonFiniteSample { channel, index, value } => DampingError::NonFiniteSample { channel, index, value },
+            F::LengthMismatch {
+                channel,
+                len,
+                expected,
+            } => DampingError::LengthMismatch {
+                channel,
+                len,
+                expected,
+            },
+            F::NonFiniteSample {
+                channel,
+                index,
+                value,
+            } => DampingError::NonFiniteSample {
+                channel,
+                index,
+                value,
+            },
         }
     }
 }

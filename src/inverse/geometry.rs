@@ -327,11 +327,16 @@
 
 use super::neural_sdf::{NeuralSdf, NeuralSdfConfig, NeuralSdfError};
 use super::optim::Adam;
-use super::shape::{curved_field_spectrum, refine_crossings, shape_spectrum, shifted_covering, PointGradient, ShapeError, ShapeSpectrum, SpectrumTarget, StepTimings};
-use crate::random::SplitMix64;
+use super::shape::{
+    curved_field_spectrum, refine_crossings, shape_spectrum, shifted_covering, PointGradient,
+    ShapeError, ShapeSpectrum, SpectrumTarget, StepTimings,
+};
 use crate::fem::Material;
-use crate::mesh::{self, BackgroundGrid, MarchingOptions, ShapeComparison, SignedDistance, TriangleSurface};
+use crate::mesh::{
+    self, BackgroundGrid, MarchingOptions, ShapeComparison, SignedDistance, TriangleSurface,
+};
 use crate::petsc::{collective, Petsc};
+use crate::random::SplitMix64;
 use std::collections::HashMap;
 
 /// Why the geometry task failed.
@@ -368,17 +373,31 @@ pub struct Voxels {
 
 impl Voxels {
     /// Voxelises the solid of `sdf` over the box [lo, hi] with `resolution` voxels per axis.
-    pub fn of_sdf(sdf: &SignedDistance, lo: [f64; 3], hi: [f64; 3], resolution: usize) -> Result<Voxels, GeometryError> {
+    pub fn of_sdf(
+        sdf: &SignedDistance,
+        lo: [f64; 3],
+        hi: [f64; 3],
+        resolution: usize,
+    ) -> Result<Voxels, GeometryError> {
         if !(2..=256).contains(&resolution) {
-            return invalid(format!("the voxelisation needs 2 to 256 voxels per axis, got {resolution}"));
+            return invalid(format!(
+                "the voxelisation needs 2 to 256 voxels per axis, got {resolution}"
+            ));
         }
         if (0..3).any(|d| !(hi[d] - lo[d] > 0.0 && lo[d].is_finite() && hi[d].is_finite())) {
-            return invalid(format!("the box {lo:?}..{hi:?} must have a positive extent along every axis"));
+            return invalid(format!(
+                "the box {lo:?}..{hi:?} must have a positive extent along every axis"
+            ));
         }
         let size = [0, 1, 2].map(|d| (hi[d] - lo[d]) / resolution as f64);
         let origin = [0, 1, 2].map(|d| lo[d] - size[d]);
         let m = resolution + 2;
-        let mut voxels = Voxels { origin, size, resolution, inside: vec![false; m * m * m] };
+        let mut voxels = Voxels {
+            origin,
+            size,
+            resolution,
+            inside: vec![false; m * m * m],
+        };
         for k in 1..=resolution {
             for j in 1..=resolution {
                 for i in 1..=resolution {
@@ -428,7 +447,10 @@ impl Voxels {
 
     /// y_v: +1 occupied, −1 empty.
     pub fn labels(&self) -> Vec<f64> {
-        self.inside.iter().map(|&b| if b { 1.0 } else { -1.0 }).collect()
+        self.inside
+            .iter()
+            .map(|&b| if b { 1.0 } else { -1.0 })
+            .collect()
     }
 
     /// The smallest voxel edge e_min [m].
@@ -439,7 +461,10 @@ impl Voxels {
     /// The padded box (ring included) [m].
     pub fn padded_box(&self) -> ([f64; 3], [f64; 3]) {
         let m = self.per_axis() as f64;
-        (self.origin, [0, 1, 2].map(|d| self.origin[d] + m * self.size[d]))
+        (
+            self.origin,
+            [0, 1, 2].map(|d| self.origin[d] + m * self.size[d]),
+        )
     }
 
     pub fn occupied(&self) -> usize {
@@ -492,7 +517,12 @@ impl Voxels {
                         p[cc] += uc;
                         p
                     };
-                    let mut quad = [point(corner(0, 0)), point(corner(1, 0)), point(corner(1, 1)), point(corner(0, 1))];
+                    let mut quad = [
+                        point(corner(0, 0)),
+                        point(corner(1, 0)),
+                        point(corner(1, 1)),
+                        point(corner(0, 1)),
+                    ];
                     if !positive {
                         quad.reverse();
                     }
@@ -501,27 +531,48 @@ impl Voxels {
                 }
             }
         }
-        TriangleSurface { vertices, triangles }
+        TriangleSurface {
+            vertices,
+            triangles,
+        }
     }
 }
 
 // ------------------------------------------------------------------ loss terms (pure)
 
 /// L_λ and ∂L_λ/∂λ_k (module docs) for the model's first `target.len()` eigenvalues.
-pub fn eigenvalue_loss(eigenvalues: &[f64], target: &SpectrumTarget) -> Result<(f64, Vec<f64>), GeometryError> {
+pub fn eigenvalue_loss(
+    eigenvalues: &[f64],
+    target: &SpectrumTarget,
+) -> Result<(f64, Vec<f64>), GeometryError> {
     eigenvalue_loss_with(eigenvalues, target, false)
 }
 
 /// [`eigenvalue_loss`], with the common level of the log-ratios profiled out if `free_scale`
 /// (module docs, "Free scale"): r_G − ᾱ in place of r_G, and ∂L_λ/∂λ_k = 2 (r_G − ᾱ)/λ_k.
-pub fn eigenvalue_loss_with(eigenvalues: &[f64], target: &SpectrumTarget, free_scale: bool) -> Result<(f64, Vec<f64>), GeometryError> {
+pub fn eigenvalue_loss_with(
+    eigenvalues: &[f64],
+    target: &SpectrumTarget,
+    free_scale: bool,
+) -> Result<(f64, Vec<f64>), GeometryError> {
     let n = target.len();
-    if eigenvalues.len() < n || eigenvalues[..n].iter().any(|l| !(l.is_finite() && *l > 0.0)) {
-        return invalid(format!("{} model eigenvalues (all must be positive) for {n} targets", eigenvalues.len()));
+    if eigenvalues.len() < n
+        || eigenvalues[..n]
+            .iter()
+            .any(|l| !(l.is_finite() && *l > 0.0))
+    {
+        return invalid(format!(
+            "{} model eigenvalues (all must be positive) for {n} targets",
+            eigenvalues.len()
+        ));
     }
     let mut loss = 0.0;
     let mut d = vec![0.0; n];
-    for (g, r) in target.groups.iter().zip(group_residuals(eigenvalues, target, free_scale)) {
+    for (g, r) in target
+        .groups
+        .iter()
+        .zip(group_residuals(eigenvalues, target, free_scale))
+    {
         loss += g.len() as f64 * r * r;
         for k in g.clone() {
             d[k] = 2.0 * r / eigenvalues[k];
@@ -533,7 +584,10 @@ pub fn eigenvalue_loss_with(eigenvalues: &[f64], target: &SpectrumTarget, free_s
 /// mean_{k∈G} ln(a_k/b_k) for every group G: the residual r_G of the eigenvalue loss for
 /// (model, target), and the grid bias for (fit grid, finer grid).
 fn group_log_ratios(a: &[f64], b: &[f64], groups: &[std::ops::Range<usize>]) -> Vec<f64> {
-    groups.iter().map(|g| g.clone().map(|k| (a[k] / b[k]).ln()).sum::<f64>() / g.len() as f64).collect()
+    groups
+        .iter()
+        .map(|g| g.clone().map(|k| (a[k] / b[k]).ln()).sum::<f64>() / g.len() as f64)
+        .collect()
 }
 
 /// The residuals r_G of the eigenvalue loss, less their |G|-weighted mean ᾱ if `free_scale`.
@@ -549,7 +603,12 @@ fn group_residuals(eigenvalues: &[f64], target: &SpectrumTarget, free_scale: boo
 /// Σ_G |G| x_G / Σ_G |G|.
 fn weighted_group_mean(groups: &[std::ops::Range<usize>], x: impl Fn(usize) -> f64) -> f64 {
     let total: usize = groups.iter().map(|g| g.len()).sum();
-    groups.iter().enumerate().map(|(i, g)| g.len() as f64 * x(i)).sum::<f64>() / total.max(1) as f64
+    groups
+        .iter()
+        .enumerate()
+        .map(|(i, g)| g.len() as f64 * x(i))
+        .sum::<f64>()
+        / total.max(1) as f64
 }
 
 /// mean_p softplus(−y_p s_p/τ) and its derivative in s.
@@ -627,14 +686,20 @@ fn central_gradient(v: &[f64], step: f64) -> ([f64; 3], f64) {
 }
 
 /// The eikonal term at `points` (stencil step `step` [m]) and its gradient in θ.
-fn eikonal_term(net: &NeuralSdf, points: &[[f64; 3]], step: f64) -> Result<(f64, Vec<f64>), GeometryError> {
+fn eikonal_term(
+    net: &NeuralSdf,
+    points: &[[f64; 3]],
+    step: f64,
+) -> Result<(f64, Vec<f64>), GeometryError> {
     let around = stencil(points, step);
     let (loss, d) = eikonal_loss(&net.values(&around), step);
     Ok((loss, net.vjp(&around, &d)?))
 }
 
 fn uniform_points(lo: [f64; 3], hi: [f64; 3], n: usize, rng: &mut SplitMix64) -> Vec<[f64; 3]> {
-    (0..n).map(|_| [0, 1, 2].map(|d| rng.uniform(lo[d], hi[d]))).collect()
+    (0..n)
+        .map(|_| [0, 1, 2].map(|d| rng.uniform(lo[d], hi[d])))
+        .collect()
 }
 
 fn add_scaled(into: &mut [f64], weight: f64, g: &[f64]) {
@@ -668,22 +733,43 @@ pub struct PrefitSettings {
 
 impl Default for PrefitSettings {
     fn default() -> Self {
-        PrefitSettings { steps: 1000, batch: 512, eikonal_batch: 128, learning_rate: 5e-3, final_learning_rate: 5e-4, margin: 0.25, eikonal_weight: 0.1, eikonal_step: 0.25, seed: 1 }
+        PrefitSettings {
+            steps: 1000,
+            batch: 512,
+            eikonal_batch: 128,
+            learning_rate: 5e-3,
+            final_learning_rate: 5e-4,
+            margin: 0.25,
+            eikonal_weight: 0.1,
+            eikonal_step: 0.25,
+            seed: 1,
+        }
     }
 }
 
 impl PrefitSettings {
     pub fn validate(&self) -> Result<(), GeometryError> {
         if self.steps == 0 || self.batch == 0 || self.eikonal_batch == 0 {
-            return invalid(format!("pre-fit steps, batch and eikonal batch must be positive, got {}, {}, {}", self.steps, self.batch, self.eikonal_batch));
+            return invalid(format!(
+                "pre-fit steps, batch and eikonal batch must be positive, got {}, {}, {}",
+                self.steps, self.batch, self.eikonal_batch
+            ));
         }
-        for (name, v) in [("learning_rate", self.learning_rate), ("final_learning_rate", self.final_learning_rate), ("margin", self.margin), ("eikonal_step", self.eikonal_step)] {
+        for (name, v) in [
+            ("learning_rate", self.learning_rate),
+            ("final_learning_rate", self.final_learning_rate),
+            ("margin", self.margin),
+            ("eikonal_step", self.eikonal_step),
+        ] {
             if !(v.is_finite() && v > 0.0) {
                 return invalid(format!("pre-fit {name} must be positive, got {v}"));
             }
         }
         if !(self.eikonal_weight.is_finite() && self.eikonal_weight >= 0.0) {
-            return invalid(format!("pre-fit eikonal_weight must be ≥ 0, got {}", self.eikonal_weight));
+            return invalid(format!(
+                "pre-fit eikonal_weight must be ≥ 0, got {}",
+                self.eikonal_weight
+            ));
         }
         Ok(())
     }
@@ -703,7 +789,11 @@ pub struct PrefitReport {
 }
 
 /// Fits `net` to the voxels (module docs). Serial and deterministic.
-pub fn prefit(net: &mut NeuralSdf, voxels: &Voxels, settings: &PrefitSettings) -> Result<PrefitReport, GeometryError> {
+pub fn prefit(
+    net: &mut NeuralSdf,
+    voxels: &Voxels,
+    settings: &PrefitSettings,
+) -> Result<PrefitReport, GeometryError> {
     settings.validate()?;
     let clock = std::time::Instant::now();
     let e = voxels.min_edge();
@@ -711,7 +801,8 @@ pub fn prefit(net: &mut NeuralSdf, voxels: &Voxels, settings: &PrefitSettings) -
     let (lo, hi) = voxels.padded_box();
     let mut theta = net.parameters().to_vec();
     let mut adam = Adam::new(vec![settings.learning_rate; theta.len()]);
-    let decay = (settings.final_learning_rate / settings.learning_rate).powf(1.0 / settings.steps.max(2).saturating_sub(1) as f64);
+    let decay = (settings.final_learning_rate / settings.learning_rate)
+        .powf(1.0 / settings.steps.max(2).saturating_sub(1) as f64);
     let mut rng = SplitMix64::new(settings.seed);
     let mut history = Vec::with_capacity(settings.steps);
     let (mut last_sign, mut last_eik) = (f64::NAN, f64::NAN);
@@ -736,8 +827,18 @@ pub fn prefit(net: &mut NeuralSdf, voxels: &Voxels, settings: &PrefitSettings) -
         net.set_parameters(&theta)?;
     }
     let centre_values = net.values(&voxels.centres());
-    let right = centre_values.iter().zip(&voxels.inside).filter(|(s, &inside)| (**s > 0.0) == inside).count();
-    Ok(PrefitReport { loss: history, sign_loss: last_sign, eikonal_loss: last_eik, centre_accuracy: right as f64 / voxels.len() as f64, seconds: clock.elapsed().as_secs_f64() })
+    let right = centre_values
+        .iter()
+        .zip(&voxels.inside)
+        .filter(|(s, &inside)| (**s > 0.0) == inside)
+        .count();
+    Ok(PrefitReport {
+        loss: history,
+        sign_loss: last_sign,
+        eikonal_loss: last_eik,
+        centre_accuracy: right as f64 / voxels.len() as f64,
+        seconds: clock.elapsed().as_secs_f64(),
+    })
 }
 
 // ------------------------------------------------------------------ refinement (collective)
@@ -790,35 +891,65 @@ impl std::str::FromStr for RefineMethod {
         match s {
             "adam" => Ok(RefineMethod::Adam),
             "gauss_newton" | "gauss-newton" | "gn" => Ok(RefineMethod::GaussNewton),
-            _ => Err(format!("unknown refinement method {s:?}: adam or gauss_newton")),
+            _ => Err(format!(
+                "unknown refinement method {s:?}: adam or gauss_newton"
+            )),
         }
     }
 }
 
 impl Default for RefineSettings {
     fn default() -> Self {
-        RefineSettings { steps: 30, learning_rate: 5e-4, voxel_weight: 1.0, eikonal_weight: 0.1, eikonal_points: 512, eikonal_step: 0.25, max_field_change: 0.2, seed: 2, method: RefineMethod::GaussNewton, damping: 1e-3, free_scale: false, curved_boundary: true }
+        RefineSettings {
+            steps: 30,
+            learning_rate: 5e-4,
+            voxel_weight: 1.0,
+            eikonal_weight: 0.1,
+            eikonal_points: 512,
+            eikonal_step: 0.25,
+            max_field_change: 0.2,
+            seed: 2,
+            method: RefineMethod::GaussNewton,
+            damping: 1e-3,
+            free_scale: false,
+            curved_boundary: true,
+        }
     }
 }
 
 impl RefineSettings {
     pub fn validate(&self) -> Result<(), GeometryError> {
         if !(self.learning_rate.is_finite() && self.learning_rate > 0.0) {
-            return invalid(format!("the refinement's learning_rate must be positive, got {}", self.learning_rate));
+            return invalid(format!(
+                "the refinement's learning_rate must be positive, got {}",
+                self.learning_rate
+            ));
         }
-        for (name, v) in [("voxel_weight", self.voxel_weight), ("eikonal_weight", self.eikonal_weight)] {
+        for (name, v) in [
+            ("voxel_weight", self.voxel_weight),
+            ("eikonal_weight", self.eikonal_weight),
+        ] {
             if !(v.is_finite() && v >= 0.0) {
                 return invalid(format!("the refinement's {name} must be ≥ 0, got {v}"));
             }
         }
         if !(self.max_field_change.is_finite() && self.max_field_change > 0.0) {
-            return invalid(format!("the refinement's max_field_change must be positive, got {}", self.max_field_change));
+            return invalid(format!(
+                "the refinement's max_field_change must be positive, got {}",
+                self.max_field_change
+            ));
         }
         if !(self.damping.is_finite() && self.damping > 0.0) {
-            return invalid(format!("the refinement's damping must be positive, got {}", self.damping));
+            return invalid(format!(
+                "the refinement's damping must be positive, got {}",
+                self.damping
+            ));
         }
         if !(self.eikonal_step.is_finite() && self.eikonal_step > 0.0) || self.eikonal_points == 0 {
-            return invalid(format!("the refinement's eikonal_step and eikonal_points must be positive, got {} and {}", self.eikonal_step, self.eikonal_points));
+            return invalid(format!(
+                "the refinement's eikonal_step and eikonal_points must be positive, got {} and {}",
+                self.eikonal_step, self.eikonal_points
+            ));
         }
         Ok(())
     }
@@ -879,7 +1010,11 @@ impl Refinement {
 
     /// Mean seconds per successful evaluation, split like [`StepTimings`], and the network's.
     pub fn mean_timings(&self) -> (StepTimings, f64) {
-        let ok: Vec<&RefineStep> = self.history.iter().filter(|s| s.failure.is_none()).collect();
+        let ok: Vec<&RefineStep> = self
+            .history
+            .iter()
+            .filter(|s| s.failure.is_none())
+            .collect();
         let n = ok.len().max(1) as f64;
         let t = StepTimings {
             meshing: ok.iter().map(|s| s.timings.meshing).sum::<f64>() / n,
@@ -918,7 +1053,18 @@ enum Derivatives {
 /// √(w_vox/n_vox) max(0, −y_v s(c_v)/e_min) per violated voxel (the others have zero residual
 /// and zero derivative), √(w_eik/n_q) (|D s(q)| − 1) per eikonal point.
 #[allow(clippy::too_many_arguments)]
-fn least_squares(backprop: &RowBackprop, net: &NeuralSdf, points: &[[f64; 3]], per_mode: &[Vec<f64>], eigenvalues: &[f64], target: &SpectrumTarget, voxels: &Voxels, eik_points: &[[f64; 3]], delta: f64, settings: &RefineSettings) -> Result<LeastSquares, GeometryError> {
+fn least_squares(
+    backprop: &RowBackprop,
+    net: &NeuralSdf,
+    points: &[[f64; 3]],
+    per_mode: &[Vec<f64>],
+    eigenvalues: &[f64],
+    target: &SpectrumTarget,
+    voxels: &Voxels,
+    eik_points: &[[f64; 3]],
+    delta: f64,
+    settings: &RefineSettings,
+) -> Result<LeastSquares, GeometryError> {
     let mut residuals = Vec::new();
     let mut rows = Vec::new();
     // J_G = ∂r_G/∂θ per group; with the free scale, the rows are √|G| (J_G − J̄) (module docs).
@@ -933,10 +1079,19 @@ fn least_squares(backprop: &RowBackprop, net: &NeuralSdf, points: &[[f64; 3]], p
     }
     let mut group_rows = backprop(net, points, &group_values)?;
     if settings.free_scale {
-        let mean_row: Vec<f64> = (0..group_rows.first().map_or(0, Vec::len)).map(|j| weighted_group_mean(&target.groups, |i| group_rows[i][j])).collect();
-        group_rows.iter_mut().for_each(|row| add_scaled(row, -1.0, &mean_row));
+        let mean_row: Vec<f64> = (0..group_rows.first().map_or(0, Vec::len))
+            .map(|j| weighted_group_mean(&target.groups, |i| group_rows[i][j]))
+            .collect();
+        group_rows
+            .iter_mut()
+            .for_each(|row| add_scaled(row, -1.0, &mean_row));
     }
-    for ((g, r), mut row) in target.groups.iter().zip(group_residuals(eigenvalues, target, settings.free_scale)).zip(group_rows) {
+    for ((g, r), mut row) in target
+        .groups
+        .iter()
+        .zip(group_residuals(eigenvalues, target, settings.free_scale))
+        .zip(group_rows)
+    {
         let root = (g.len() as f64).sqrt();
         row.iter_mut().for_each(|x| *x *= root);
         residuals.push(root * r);
@@ -976,14 +1131,20 @@ fn least_squares(backprop: &RowBackprop, net: &NeuralSdf, points: &[[f64; 3]], p
 
 /// How [`least_squares`] backpropagates the eigenvalue groups' rows: [`vjp_rows_across_ranks`]
 /// in the fit, [`NeuralSdf::vjp_rows`] on one process in the unit tests.
-type RowBackprop<'a> = dyn Fn(&NeuralSdf, &[[f64; 3]], &[Vec<f64>]) -> Result<Vec<Vec<f64>>, GeometryError> + 'a;
+type RowBackprop<'a> =
+    dyn Fn(&NeuralSdf, &[[f64; 3]], &[Vec<f64>]) -> Result<Vec<Vec<f64>>, GeometryError> + 'a;
 
 /// [`NeuralSdf::vjp_rows`] shared out over the ranks: each backpropagates a contiguous share of
 /// the points and the sums are added across ranks (every rank gets the same rows; they differ
 /// from one rank's only by the order of the additions). The eigenvalue groups' rows run through
 /// every grid vertex, moved point and turn point, 28 000 points on spot at 16 cells, which one
 /// rank alone took about 2 s per step for.
-fn vjp_rows_across_ranks(petsc: &Petsc, net: &NeuralSdf, points: &[[f64; 3]], rows: &[Vec<f64>]) -> Result<Vec<Vec<f64>>, GeometryError> {
+fn vjp_rows_across_ranks(
+    petsc: &Petsc,
+    net: &NeuralSdf,
+    points: &[[f64; 3]],
+    rows: &[Vec<f64>],
+) -> Result<Vec<Vec<f64>>, GeometryError> {
     use mpi::collective::{CommunicatorCollectives, SystemOperation};
     let (rank, size) = (petsc.rank() as usize, petsc.size() as usize);
     if size == 1 || rows.is_empty() {
@@ -994,10 +1155,21 @@ fn vjp_rows_across_ranks(petsc: &Petsc, net: &NeuralSdf, points: &[[f64; 3]], ro
     let local_rows: Vec<Vec<f64>> = rows.iter().map(|r| r[share.clone()].to_vec()).collect();
     // A share that fails on one rank (a non-finite weight in its points) must stop every rank
     // before the reduction.
-    let local = collective::agree(petsc, net.vjp_rows(&points[share], &local_rows).map_err(|e| e.to_string())).map_err(GeometryError::Invalid)?.concat();
+    let local = collective::agree(
+        petsc,
+        net.vjp_rows(&points[share], &local_rows)
+            .map_err(|e| e.to_string()),
+    )
+    .map_err(GeometryError::Invalid)?
+    .concat();
     let mut total = vec![0.0; local.len()];
-    petsc.world().all_reduce_into(&local[..], &mut total[..], SystemOperation::sum());
-    Ok(total.chunks(net.n_parameters()).map(<[f64]>::to_vec).collect())
+    petsc
+        .world()
+        .all_reduce_into(&local[..], &mut total[..], SystemOperation::sum());
+    Ok(total
+        .chunks(net.n_parameters())
+        .map(<[f64]>::to_vec)
+        .collect())
 }
 
 /// The minimum-norm Levenberg step δθ = −Jᵀ (J Jᵀ + μ I)⁻¹ r, μ = `damping` × mean diag(J Jᵀ).
@@ -1010,7 +1182,11 @@ fn minimum_norm_step(system: &LeastSquares, damping: f64) -> Result<Vec<f64>, Ge
     let mut a = DMatrix::<f64>::zeros(n, n);
     for i in 0..n {
         for j in 0..=i {
-            let dot: f64 = system.rows[i].iter().zip(&system.rows[j]).map(|(x, y)| x * y).sum();
+            let dot: f64 = system.rows[i]
+                .iter()
+                .zip(&system.rows[j])
+                .map(|(x, y)| x * y)
+                .sum();
             a[(i, j)] = dot;
             a[(j, i)] = dot;
         }
@@ -1020,7 +1196,9 @@ fn minimum_norm_step(system: &LeastSquares, damping: f64) -> Result<Vec<f64>, Ge
     for i in 0..n {
         a[(i, i)] += mu;
     }
-    let chol = a.cholesky().ok_or_else(|| GeometryError::Invalid("the Gauss–Newton system J Jᵀ + μI is not positive definite".into()))?;
+    let chol = a.cholesky().ok_or_else(|| {
+        GeometryError::Invalid("the Gauss–Newton system J Jᵀ + μI is not positive definite".into())
+    })?;
     let coefficients = chol.solve(&DVector::from_column_slice(&system.residuals));
     let mut step = vec![0.0; p];
     for (row, c) in system.rows.iter().zip(coefficients.iter()) {
@@ -1033,25 +1211,93 @@ fn minimum_norm_step(system: &LeastSquares, damping: f64) -> Result<Vec<f64>, Ge
 /// curved boundary or from the samples alone, and, if asked, dλ_k as weights at points
 /// ([`PointGradient`]: ∂λ_k/∂θ = Σ_j w_kj ∂f(x_j)/∂θ, the network's backpropagation).
 #[allow(clippy::too_many_arguments)]
-pub fn field_spectrum(petsc: &Petsc, grid: &BackgroundGrid, values: &[f64], f: &dyn Fn([f64; 3]) -> f64, curved: bool, options: &MarchingOptions, material: &Material, n_modes: usize, with_gradient: bool) -> Result<(ShapeSpectrum, Option<PointGradient>), ShapeError> {
+pub fn field_spectrum(
+    petsc: &Petsc,
+    grid: &BackgroundGrid,
+    values: &[f64],
+    f: &dyn Fn([f64; 3]) -> f64,
+    curved: bool,
+    options: &MarchingOptions,
+    material: &Material,
+    n_modes: usize,
+    with_gradient: bool,
+) -> Result<(ShapeSpectrum, Option<PointGradient>), ShapeError> {
     if curved {
-        return curved_field_spectrum(petsc, grid, values, f, options, material, n_modes, with_gradient);
+        return curved_field_spectrum(
+            petsc,
+            grid,
+            values,
+            f,
+            options,
+            material,
+            n_modes,
+            with_gradient,
+        );
     }
-    let mut spectrum = shape_spectrum(petsc, grid, values, options, material, n_modes, with_gradient)?;
-    let gradient = spectrum.gradient.take().map(|per_mode| PointGradient { points: grid.vertex_positions(), per_mode });
+    let mut spectrum = shape_spectrum(
+        petsc,
+        grid,
+        values,
+        options,
+        material,
+        n_modes,
+        with_gradient,
+    )?;
+    let gradient = spectrum.gradient.take().map(|per_mode| PointGradient {
+        points: grid.vertex_positions(),
+        per_mode,
+    });
     Ok((spectrum, gradient))
 }
 
 /// The loss and, if asked, its derivatives at the network's current θ. The eikonal points are
 /// drawn from stream `eikonal_stream` of the refinement's seed.
 #[allow(clippy::too_many_arguments)]
-fn evaluate(petsc: &Petsc, net: &NeuralSdf, grid_points: &[[f64; 3]], grid: &BackgroundGrid, voxels: &Voxels, target: &SpectrumTarget, options: &MarchingOptions, material: &Material, settings: &RefineSettings, step: usize, eikonal_stream: u64, want: Derivative) -> (RefineStep, Option<Derivatives>) {
-    let mut record = RefineStep { step, loss: f64::NAN, eigen_loss: f64::NAN, voxel_loss: f64::NAN, eikonal_loss: f64::NAN, eigenvalues: Vec::new(), tets: 0, p2_nodes: 0, timings: StepTimings::default(), network_seconds: 0.0, step_scale: f64::NAN, backtracked: false, failure: None, parameters: net.parameters().to_vec() };
+fn evaluate(
+    petsc: &Petsc,
+    net: &NeuralSdf,
+    grid_points: &[[f64; 3]],
+    grid: &BackgroundGrid,
+    voxels: &Voxels,
+    target: &SpectrumTarget,
+    options: &MarchingOptions,
+    material: &Material,
+    settings: &RefineSettings,
+    step: usize,
+    eikonal_stream: u64,
+    want: Derivative,
+) -> (RefineStep, Option<Derivatives>) {
+    let mut record = RefineStep {
+        step,
+        loss: f64::NAN,
+        eigen_loss: f64::NAN,
+        voxel_loss: f64::NAN,
+        eikonal_loss: f64::NAN,
+        eigenvalues: Vec::new(),
+        tets: 0,
+        p2_nodes: 0,
+        timings: StepTimings::default(),
+        network_seconds: 0.0,
+        step_scale: f64::NAN,
+        backtracked: false,
+        failure: None,
+        parameters: net.parameters().to_vec(),
+    };
     let clock = std::time::Instant::now();
     let values = net.values(grid_points);
     let mut network = clock.elapsed().as_secs_f64();
     let field = |x: [f64; 3]| net.value(x);
-    let (spectrum, point_gradient) = match field_spectrum(petsc, grid, &values, &field, settings.curved_boundary, options, material, target.len(), want != Derivative::None) {
+    let (spectrum, point_gradient) = match field_spectrum(
+        petsc,
+        grid,
+        &values,
+        &field,
+        settings.curved_boundary,
+        options,
+        material,
+        target.len(),
+        want != Derivative::None,
+    ) {
         Ok(s) => s,
         Err(e) => {
             record.failure = Some(e.to_string());
@@ -1065,14 +1311,24 @@ fn evaluate(petsc: &Petsc, net: &NeuralSdf, grid_points: &[[f64; 3]], grid: &Bac
     record.eigenvalues = spectrum.eigenvalues.clone();
     let result = (|| -> Result<Option<Derivatives>, GeometryError> {
         let clock = std::time::Instant::now();
-        let (le, d_lambda) = eigenvalue_loss_with(&spectrum.eigenvalues, target, settings.free_scale)?;
+        let (le, d_lambda) =
+            eigenvalue_loss_with(&spectrum.eigenvalues, target, settings.free_scale)?;
         let centres = voxels.centres();
         let (lv, dv) = hinge_loss(&net.values(&centres), &voxels.labels(), voxels.min_edge());
         let (lo, hi) = voxels.padded_box();
-        let eik_points = uniform_points(lo, hi, settings.eikonal_points, &mut SplitMix64::stream(settings.seed, eikonal_stream));
+        let eik_points = uniform_points(
+            lo,
+            hi,
+            settings.eikonal_points,
+            &mut SplitMix64::stream(settings.seed, eikonal_stream),
+        );
         let delta = settings.eikonal_step * voxels.min_edge();
         record.eikonal_loss = eikonal_loss(&net.values(&stencil(&eik_points, delta)), delta).0;
-        let gradient = || point_gradient.as_ref().ok_or_else(|| GeometryError::Invalid("the spectrum came without its gradient".into()));
+        let gradient = || {
+            point_gradient.as_ref().ok_or_else(|| {
+                GeometryError::Invalid("the spectrum came without its gradient".into())
+            })
+        };
         let derivatives = match want {
             Derivative::None => None,
             Derivative::Gradient => {
@@ -1087,11 +1343,23 @@ fn evaluate(petsc: &Petsc, net: &NeuralSdf, grid_points: &[[f64; 3]], grid: &Bac
                 add_scaled(&mut grad, settings.eikonal_weight, &gk);
                 Some(Derivatives::Gradient(grad))
             }
-            Derivative::Rows => Some(Derivatives::Rows(least_squares(&|n, p, r| vjp_rows_across_ranks(petsc, n, p, r), net, &gradient()?.points, &gradient()?.per_mode, &spectrum.eigenvalues, target, voxels, &eik_points, delta, settings)?)),
+            Derivative::Rows => Some(Derivatives::Rows(least_squares(
+                &|n, p, r| vjp_rows_across_ranks(petsc, n, p, r),
+                net,
+                &gradient()?.points,
+                &gradient()?.per_mode,
+                &spectrum.eigenvalues,
+                target,
+                voxels,
+                &eik_points,
+                delta,
+                settings,
+            )?)),
         };
         record.eigen_loss = le;
         record.voxel_loss = lv;
-        record.loss = le + settings.voxel_weight * lv + settings.eikonal_weight * record.eikonal_loss;
+        record.loss =
+            le + settings.voxel_weight * lv + settings.eikonal_weight * record.eikonal_loss;
         network += clock.elapsed().as_secs_f64();
         Ok(derivatives)
     })();
@@ -1107,7 +1375,17 @@ fn evaluate(petsc: &Petsc, net: &NeuralSdf, grid_points: &[[f64; 3]], grid: &Bac
 
 /// Refines `net` (module docs); leaves it at the best θ. Collective.
 #[allow(clippy::too_many_arguments)]
-pub fn refine(petsc: &Petsc, net: &mut NeuralSdf, grid: &BackgroundGrid, voxels: &Voxels, target: &SpectrumTarget, options: &MarchingOptions, material: &Material, settings: &RefineSettings, mut on_step: impl FnMut(&RefineStep)) -> Result<Refinement, GeometryError> {
+pub fn refine(
+    petsc: &Petsc,
+    net: &mut NeuralSdf,
+    grid: &BackgroundGrid,
+    voxels: &Voxels,
+    target: &SpectrumTarget,
+    options: &MarchingOptions,
+    material: &Material,
+    settings: &RefineSettings,
+    mut on_step: impl FnMut(&RefineStep),
+) -> Result<Refinement, GeometryError> {
     settings.validate()?;
     let clock = std::time::Instant::now();
     let grid_points = grid.vertex_positions();
@@ -1120,7 +1398,8 @@ pub fn refine(petsc: &Petsc, net: &mut NeuralSdf, grid: &BackgroundGrid, voxels:
     let mut history: Vec<RefineStep> = Vec::with_capacity(settings.steps + 1);
     let (mut best_step, mut best_theta, mut best_loss) = (0usize, theta.clone(), f64::INFINITY);
     let mut best_derivatives: Option<Derivatives> = None;
-    let cap = settings.max_field_change * grid.spacing().iter().copied().fold(f64::INFINITY, f64::min);
+    let cap =
+        settings.max_field_change * grid.spacing().iter().copied().fold(f64::INFINITY, f64::min);
     for step in 0..=settings.steps {
         let last = step == settings.steps;
         let want = match (last, gauss_newton) {
@@ -1131,7 +1410,20 @@ pub fn refine(petsc: &Petsc, net: &mut NeuralSdf, grid: &BackgroundGrid, voxels:
         // Gauss–Newton compares the loss between steps to accept or reject them, so its
         // eikonal points stay fixed; Adam draws fresh ones every step (a stochastic term).
         let stream = if gauss_newton { 0 } else { step as u64 };
-        let (mut record, derivatives) = evaluate(petsc, net, &grid_points, grid, voxels, target, options, material, settings, step, stream, want);
+        let (mut record, derivatives) = evaluate(
+            petsc,
+            net,
+            &grid_points,
+            grid,
+            voxels,
+            target,
+            options,
+            material,
+            settings,
+            step,
+            stream,
+            want,
+        );
         let failed = record.failure.is_some();
         if failed && step == 0 {
             on_step(&record);
@@ -1160,13 +1452,20 @@ pub fn refine(petsc: &Petsc, net: &mut NeuralSdf, grid: &BackgroundGrid, voxels:
                 let mut proposal = theta.clone();
                 match d {
                     Derivatives::Gradient(g) => adam.step(&mut proposal, g),
-                    Derivatives::Rows(system) => add_scaled(&mut proposal, 1.0, &minimum_norm_step(system, damping)?),
+                    Derivatives::Rows(system) => {
+                        add_scaled(&mut proposal, 1.0, &minimum_norm_step(system, damping)?)
+                    }
                 }
                 // The step cap (module docs): shorten the update along its direction.
                 net.set_parameters(&theta)?;
                 let now = net.values(&grid_points);
                 net.set_parameters(&proposal)?;
-                let change = net.values(&grid_points).iter().zip(&now).map(|(a, b)| (a - b).abs()).fold(0.0, f64::max);
+                let change = net
+                    .values(&grid_points)
+                    .iter()
+                    .zip(&now)
+                    .map(|(a, b)| (a - b).abs())
+                    .fold(0.0, f64::max);
                 let scale = if change > cap { cap / change } else { 1.0 };
                 for (t, p) in theta.iter_mut().zip(&proposal) {
                     *t += scale * (p - *t);
@@ -1183,7 +1482,12 @@ pub fn refine(petsc: &Petsc, net: &mut NeuralSdf, grid: &BackgroundGrid, voxels:
         net.set_parameters(&theta)?;
     }
     net.set_parameters(&best_theta)?;
-    Ok(Refinement { best_step, best_parameters: best_theta, history, seconds: clock.elapsed().as_secs_f64() })
+    Ok(Refinement {
+        best_step,
+        best_parameters: best_theta,
+        history,
+        seconds: clock.elapsed().as_secs_f64(),
+    })
 }
 
 // ------------------------------------------------------------------ the whole task (collective)
@@ -1228,31 +1532,65 @@ pub struct GeometrySettings {
 
 impl Default for GeometrySettings {
     fn default() -> Self {
-        GeometrySettings { voxels: 16, cells: 20, target_cells: 32, target_seed: 1, bias_correction: true, target_grid_check: true, modes: 12, cluster_rtol: 1e-2, octaves: 3, hidden: vec![32, 32, 32], network_seed: 1, prefit: PrefitSettings::default(), refine: RefineSettings::default(), surface_samples: 20_000, volume_samples: 100_000, metric_seed: 7 }
+        GeometrySettings {
+            voxels: 16,
+            cells: 20,
+            target_cells: 32,
+            target_seed: 1,
+            bias_correction: true,
+            target_grid_check: true,
+            modes: 12,
+            cluster_rtol: 1e-2,
+            octaves: 3,
+            hidden: vec![32, 32, 32],
+            network_seed: 1,
+            prefit: PrefitSettings::default(),
+            refine: RefineSettings::default(),
+            surface_samples: 20_000,
+            volume_samples: 100_000,
+            metric_seed: 7,
+        }
     }
 }
 
 impl GeometrySettings {
     pub fn validate(&self) -> Result<(), GeometryError> {
         if !(2..=256).contains(&self.voxels) {
-            return invalid(format!("voxels must lie in 2..=256 per axis, got {}", self.voxels));
+            return invalid(format!(
+                "voxels must lie in 2..=256 per axis, got {}",
+                self.voxels
+            ));
         }
-        if !(4..=200).contains(&self.cells) || self.target_cells < self.cells || self.target_cells > 200 {
+        if !(4..=200).contains(&self.cells)
+            || self.target_cells < self.cells
+            || self.target_cells > 200
+        {
             return invalid(format!("the fit grid needs 4..=200 cells and the target grid at least as many as the fit grid (at most 200), got {} and {}", self.cells, self.target_cells));
         }
         if self.modes == 0 {
             return invalid("at least one mode must be compared".into());
         }
         if self.refine.free_scale && self.modes < 2 {
-            return invalid("free_scale compares the spectrum's shape: it needs at least two modes".into());
+            return invalid(
+                "free_scale compares the spectrum's shape: it needs at least two modes".into(),
+            );
         }
         if !(self.cluster_rtol.is_finite() && self.cluster_rtol >= 0.0) {
-            return invalid(format!("cluster_rtol must be ≥ 0, got {}", self.cluster_rtol));
+            return invalid(format!(
+                "cluster_rtol must be ≥ 0, got {}",
+                self.cluster_rtol
+            ));
         }
         if self.surface_samples == 0 || self.volume_samples == 0 {
             return invalid("surface_samples and volume_samples must be positive".into());
         }
-        NeuralSdfConfig { centre: [0.0; 3], length: 1.0, octaves: self.octaves, hidden: self.hidden.clone() }.validate()?;
+        NeuralSdfConfig {
+            centre: [0.0; 3],
+            length: 1.0,
+            octaves: self.octaves,
+            hidden: self.hidden.clone(),
+        }
+        .validate()?;
         self.prefit.validate()?;
         self.refine.validate()
     }
@@ -1280,7 +1618,13 @@ impl Assessed {
 /// √(mean_k (√(λ_k/λ*_k) − 1)²) over the first `target.len()` modes.
 pub fn rms_frequency_error(eigenvalues: &[f64], target: &[f64]) -> f64 {
     let n = target.len().min(eigenvalues.len()).max(1);
-    (eigenvalues.iter().zip(target).map(|(l, t)| ((l / t).sqrt() - 1.0).powi(2)).sum::<f64>() / n as f64).sqrt()
+    (eigenvalues
+        .iter()
+        .zip(target)
+        .map(|(l, t)| ((l / t).sqrt() - 1.0).powi(2))
+        .sum::<f64>()
+        / n as f64)
+        .sqrt()
 }
 
 /// Seconds per stage of [`fit_geometry`].
@@ -1329,27 +1673,78 @@ fn pick<'a>(curved: bool, f: &'a dyn Fn([f64; 3]) -> f64) -> Option<&'a dyn Fn([
 /// Marches `values` on `grid` and compares the body with `truth`. With the continuous field
 /// `f` (the curved boundary) the crossings sit on its zero along their grid edges, as in the
 /// body the spectrum was solved on; its surface is that mesh's (flat-faced) boundary.
-pub fn assess(grid: &BackgroundGrid, values: &[f64], f: Option<&dyn Fn([f64; 3]) -> f64>, eigenvalues: Vec<f64>, truth: &TriangleSurface, settings: &GeometrySettings) -> Result<Assessed, GeometryError> {
-    let marched = mesh::march(grid, values, None, &MarchingOptions::default()).map_err(ShapeError::from)?;
+pub fn assess(
+    grid: &BackgroundGrid,
+    values: &[f64],
+    f: Option<&dyn Fn([f64; 3]) -> f64>,
+    eigenvalues: Vec<f64>,
+    truth: &TriangleSurface,
+    settings: &GeometrySettings,
+) -> Result<Assessed, GeometryError> {
+    let marched =
+        mesh::march(grid, values, None, &MarchingOptions::default()).map_err(ShapeError::from)?;
     let linear = match f {
         Some(f) => refine_crossings(&marched, grid, f, None, 0.01).0,
         None => marched.mesh,
     };
     let surface = TriangleSurface::from_mesh_boundary(&linear);
-    let comparison = mesh::compare_shapes(&surface, truth, settings.surface_samples, settings.volume_samples, settings.metric_seed)?;
-    Ok(Assessed { surface, comparison, eigenvalues, volume: linear.volume() })
+    let comparison = mesh::compare_shapes(
+        &surface,
+        truth,
+        settings.surface_samples,
+        settings.volume_samples,
+        settings.metric_seed,
+    )?;
+    Ok(Assessed {
+        surface,
+        comparison,
+        eigenvalues,
+        volume: linear.volume(),
+    })
 }
 
 /// The grid bias of the marched spectrum, estimated on the pre-fitted field `net` (module docs,
 /// "Grid bias"): ln λ_k on the fit grid minus ln λ_k on a centred grid of `bias_cells`, averaged
 /// over each of the target's groups, one value per mode.
 #[allow(clippy::too_many_arguments)]
-fn grid_bias(petsc: &Petsc, net: &NeuralSdf, grid: &BackgroundGrid, lo: [f64; 3], hi: [f64; 3], bias_cells: usize, target: &SpectrumTarget, curved: bool, options: &MarchingOptions, material: &Material) -> Result<(Vec<f64>, Vec<f64>), GeometryError> {
+fn grid_bias(
+    petsc: &Petsc,
+    net: &NeuralSdf,
+    grid: &BackgroundGrid,
+    lo: [f64; 3],
+    hi: [f64; 3],
+    bias_cells: usize,
+    target: &SpectrumTarget,
+    curved: bool,
+    options: &MarchingOptions,
+    material: &Material,
+) -> Result<(Vec<f64>, Vec<f64>), GeometryError> {
     let n = target.len();
-    let fine = centred_grid_spectrum(petsc, net, lo, hi, bias_cells, n, curved, options, material).map_err(|e| GeometryError::Invalid(format!("the grid-bias reference (pre-fitted field on {bias_cells} cells): {e}")))?;
-    let coarse = field_spectrum(petsc, grid, &net.values(&grid.vertex_positions()), &|x| net.value(x), curved, options, material, n, false)?.0;
+    let fine = centred_grid_spectrum(petsc, net, lo, hi, bias_cells, n, curved, options, material)
+        .map_err(|e| {
+            GeometryError::Invalid(format!(
+                "the grid-bias reference (pre-fitted field on {bias_cells} cells): {e}"
+            ))
+        })?;
+    let coarse = field_spectrum(
+        petsc,
+        grid,
+        &net.values(&grid.vertex_positions()),
+        &|x| net.value(x),
+        curved,
+        options,
+        material,
+        n,
+        false,
+    )?
+    .0;
     let mut correction = vec![0.0; n];
-    for (g, c) in target.groups.iter().zip(group_log_ratios(&coarse.eigenvalues, &fine, &target.groups)) {
+    for (g, c) in
+        target
+            .groups
+            .iter()
+            .zip(group_log_ratios(&coarse.eigenvalues, &fine, &target.groups))
+    {
         for k in g.clone() {
             correction[k] = c;
         }
@@ -1359,9 +1754,31 @@ fn grid_bias(petsc: &Petsc, net: &NeuralSdf, grid: &BackgroundGrid, lo: [f64; 3]
 
 /// The first `n` eigenvalues of `net`'s body on a centred grid of `cells` over [lo, hi].
 #[allow(clippy::too_many_arguments)]
-fn centred_grid_spectrum(petsc: &Petsc, net: &NeuralSdf, lo: [f64; 3], hi: [f64; 3], cells: usize, n: usize, curved: bool, options: &MarchingOptions, material: &Material) -> Result<Vec<f64>, GeometryError> {
+fn centred_grid_spectrum(
+    petsc: &Petsc,
+    net: &NeuralSdf,
+    lo: [f64; 3],
+    hi: [f64; 3],
+    cells: usize,
+    n: usize,
+    curved: bool,
+    options: &MarchingOptions,
+    material: &Material,
+) -> Result<Vec<f64>, GeometryError> {
     let grid = BackgroundGrid::covering(lo, hi, cells, 1.0).map_err(ShapeError::from)?;
-    Ok(field_spectrum(petsc, &grid, &net.values(&grid.vertex_positions()), &|x| net.value(x), curved, options, material, n, false)?.0.eigenvalues)
+    Ok(field_spectrum(
+        petsc,
+        &grid,
+        &net.values(&grid.vertex_positions()),
+        &|x| net.value(x),
+        curved,
+        options,
+        material,
+        n,
+        false,
+    )?
+    .0
+    .eigenvalues)
 }
 
 /// The check of the refined field on the target's grid (module docs).
@@ -1386,7 +1803,14 @@ pub enum GeometryProgress<'a> {
 
 /// The whole task on a placed surface (module docs): voxelise, pre-fit, synthesise the target,
 /// refine, assess. Collective.
-pub fn fit_geometry(petsc: &Petsc, truth: &TriangleSurface, sdf: &SignedDistance, material: &Material, settings: &GeometrySettings, mut progress: impl FnMut(GeometryProgress)) -> Result<GeometryFit, GeometryError> {
+pub fn fit_geometry(
+    petsc: &Petsc,
+    truth: &TriangleSurface,
+    sdf: &SignedDistance,
+    material: &Material,
+    settings: &GeometrySettings,
+    mut progress: impl FnMut(GeometryProgress),
+) -> Result<GeometryFit, GeometryError> {
     settings.validate()?;
     let total = std::time::Instant::now();
     let mut timings = GeometryTimings::default();
@@ -1396,7 +1820,13 @@ pub fn fit_geometry(petsc: &Petsc, truth: &TriangleSurface, sdf: &SignedDistance
     let clock = std::time::Instant::now();
     let voxels = Voxels::of_sdf(sdf, lo, hi, settings.voxels)?;
     let voxel_surface = voxels.boundary_surface();
-    let voxel_comparison = mesh::compare_shapes(&voxel_surface, truth, settings.surface_samples, settings.volume_samples, settings.metric_seed)?;
+    let voxel_comparison = mesh::compare_shapes(
+        &voxel_surface,
+        truth,
+        settings.surface_samples,
+        settings.volume_samples,
+        settings.metric_seed,
+    )?;
     timings.voxelise = clock.elapsed().as_secs_f64();
     progress(GeometryProgress::Message(format!("{n}³ voxels ({} occupied): Chamfer {:.3} mm, Hausdorff {:.3} mm, IoU {:.4} against the true surface", voxels.occupied(), 1e3 * voxel_comparison.chamfer, 1e3 * voxel_comparison.hausdorff, voxel_comparison.iou, n = settings.voxels)));
 
@@ -1420,7 +1850,24 @@ pub fn fit_geometry(petsc: &Petsc, truth: &TriangleSurface, sdf: &SignedDistance
     let target_values = sdf.evaluate(&target_grid.vertex_positions());
     let curved = settings.refine.curved_boundary;
     let true_field = |x: [f64; 3]| sdf.signed_distance(x);
-    let target_spectrum = field_spectrum(petsc, &target_grid, &target_values, &true_field, curved, &options, material, settings.modes, false).map(|s| s.0).map_err(|e| GeometryError::Invalid(format!("the target (true shape on the {}-cell grid): {e}", settings.target_cells)))?;
+    let target_spectrum = field_spectrum(
+        petsc,
+        &target_grid,
+        &target_values,
+        &true_field,
+        curved,
+        &options,
+        material,
+        settings.modes,
+        false,
+    )
+    .map(|s| s.0)
+    .map_err(|e| {
+        GeometryError::Invalid(format!(
+            "the target (true shape on the {}-cell grid): {e}",
+            settings.target_cells
+        ))
+    })?;
     let target = SpectrumTarget::new(target_spectrum.eigenvalues, settings.cluster_rtol)?;
     let target_spacing = target_grid.spacing()[0];
     timings.target = clock.elapsed().as_secs_f64();
@@ -1429,16 +1876,52 @@ pub fn fit_geometry(petsc: &Petsc, truth: &TriangleSurface, sdf: &SignedDistance
     let clock = std::time::Instant::now();
     let grid = BackgroundGrid::covering(lo, hi, settings.cells, 1.0).map_err(ShapeError::from)?;
     let mut before_fine_loss = None;
-    let (fit_target, bias_correction) = if settings.bias_correction && settings.target_cells > settings.cells {
-        let (correction, fine) = grid_bias(petsc, &net, &grid, lo, hi, settings.target_cells, &target, curved, &options, material)?;
-        before_fine_loss = Some(eigenvalue_loss(&fine, &target)?.0);
-        let corrected = target.eigenvalues.iter().zip(&correction).map(|(l, c)| l * c.exp()).collect();
-        progress(GeometryProgress::Message(format!("grid bias of the pre-fitted field, {} against {} cells: ln λ shifts {:+.4?}", settings.cells, settings.target_cells, correction)));
-        (SpectrumTarget { eigenvalues: corrected, groups: target.groups.clone() }, correction)
-    } else {
-        (target.clone(), Vec::new())
-    };
-    let mut refinement = refine(petsc, &mut net, &grid, &voxels, &fit_target, &options, material, &settings.refine, |s| progress(GeometryProgress::Step(s)))?;
+    let (fit_target, bias_correction) =
+        if settings.bias_correction && settings.target_cells > settings.cells {
+            let (correction, fine) = grid_bias(
+                petsc,
+                &net,
+                &grid,
+                lo,
+                hi,
+                settings.target_cells,
+                &target,
+                curved,
+                &options,
+                material,
+            )?;
+            before_fine_loss = Some(eigenvalue_loss(&fine, &target)?.0);
+            let corrected = target
+                .eigenvalues
+                .iter()
+                .zip(&correction)
+                .map(|(l, c)| l * c.exp())
+                .collect();
+            progress(GeometryProgress::Message(format!(
+                "grid bias of the pre-fitted field, {} against {} cells: ln λ shifts {:+.4?}",
+                settings.cells, settings.target_cells, correction
+            )));
+            (
+                SpectrumTarget {
+                    eigenvalues: corrected,
+                    groups: target.groups.clone(),
+                },
+                correction,
+            )
+        } else {
+            (target.clone(), Vec::new())
+        };
+    let mut refinement = refine(
+        petsc,
+        &mut net,
+        &grid,
+        &voxels,
+        &fit_target,
+        &options,
+        material,
+        &settings.refine,
+        |s| progress(GeometryProgress::Step(s)),
+    )?;
     // The refined field must also match the target better than the pre-fitted one on the
     // target's own cell count, where no correction is involved (module docs).
     let mut check = None;
@@ -1448,10 +1931,25 @@ pub fn fit_geometry(petsc: &Petsc, truth: &TriangleSurface, sdf: &SignedDistance
         let after_loss = if refinement.best_step == 0 {
             before_loss
         } else {
-            match centred_grid_spectrum(petsc, &net, lo, hi, settings.target_cells, target.len(), curved, &options, material).and_then(|fine| Ok(eigenvalue_loss(&fine, &target)?.0)) {
+            match centred_grid_spectrum(
+                petsc,
+                &net,
+                lo,
+                hi,
+                settings.target_cells,
+                target.len(),
+                curved,
+                &options,
+                material,
+            )
+            .and_then(|fine| Ok(eigenvalue_loss(&fine, &target)?.0))
+            {
                 Ok(loss) => loss,
                 Err(e) => {
-                    progress(GeometryProgress::Message(format!("check on {} cells: the refined field fails there: {e}", settings.target_cells)));
+                    progress(GeometryProgress::Message(format!(
+                        "check on {} cells: the refined field fails there: {e}",
+                        settings.target_cells
+                    )));
                     f64::NAN
                 }
             }
@@ -1463,7 +1961,11 @@ pub fn fit_geometry(petsc: &Petsc, truth: &TriangleSurface, sdf: &SignedDistance
             refinement.best_parameters = prefit_parameters.clone();
             net.set_parameters(&prefit_parameters)?;
         }
-        check = Some(TargetGridCheck { before_loss, after_loss, refined_kept });
+        check = Some(TargetGridCheck {
+            before_loss,
+            after_loss,
+            refined_kept,
+        });
     }
     timings.refine = clock.elapsed().as_secs_f64();
 
@@ -1472,14 +1974,62 @@ pub fn fit_geometry(petsc: &Petsc, truth: &TriangleSurface, sdf: &SignedDistance
     let before_net = NeuralSdf::from_parameters(config.clone(), prefit_parameters.clone())?;
     let before_field = |x: [f64; 3]| before_net.value(x);
     let after_field = |x: [f64; 3]| net.value(x);
-    let before = assess(&grid, &before_net.values(&grid_points), pick(curved, &before_field), refinement.history[0].eigenvalues.clone(), truth, settings)?;
-    let after = assess(&grid, &net.values(&grid_points), pick(curved, &after_field), refinement.best().eigenvalues.clone(), truth, settings)?;
+    let before = assess(
+        &grid,
+        &before_net.values(&grid_points),
+        pick(curved, &before_field),
+        refinement.history[0].eigenvalues.clone(),
+        truth,
+        settings,
+    )?;
+    let after = assess(
+        &grid,
+        &net.values(&grid_points),
+        pick(curved, &after_field),
+        refinement.best().eigenvalues.clone(),
+        truth,
+        settings,
+    )?;
     let true_values = sdf.evaluate(&grid_points);
-    let floor_spectrum = field_spectrum(petsc, &grid, &true_values, &true_field, curved, &options, material, settings.modes, false)?.0;
-    let floor = assess(&grid, &true_values, pick(curved, &true_field), floor_spectrum.eigenvalues, truth, settings)?;
+    let floor_spectrum = field_spectrum(
+        petsc,
+        &grid,
+        &true_values,
+        &true_field,
+        curved,
+        &options,
+        material,
+        settings.modes,
+        false,
+    )?
+    .0;
+    let floor = assess(
+        &grid,
+        &true_values,
+        pick(curved, &true_field),
+        floor_spectrum.eigenvalues,
+        truth,
+        settings,
+    )?;
     timings.assess = clock.elapsed().as_secs_f64();
     timings.total = total.elapsed().as_secs_f64();
-    Ok(GeometryFit { voxels, voxel_comparison, grid, target, bias_correction, check, target_spacing, network: config, prefit: prefit_report, prefit_parameters, refinement, before, after, floor, timings })
+    Ok(GeometryFit {
+        voxels,
+        voxel_comparison,
+        grid,
+        target,
+        bias_correction,
+        check,
+        target_spacing,
+        network: config,
+        prefit: prefit_report,
+        prefit_parameters,
+        refinement,
+        before,
+        after,
+        floor,
+        timings,
+    })
 }
 
 #[cfg(test)]

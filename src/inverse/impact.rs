@@ -252,49 +252,95 @@ pub enum ImpactError {
     #[error("no recording channels")]
     NoChannels,
     #[error("channel {channel} has {len} samples, channel 0 has {expected}: the channels must be one strike recorded in parallel")]
-    ChannelLength { channel: usize, len: usize, expected: usize },
+    ChannelLength {
+        channel: usize,
+        len: usize,
+        expected: usize,
+    },
     #[error("channel {channel}, sample {index} is not finite ({value})")]
-    NonFiniteSample { channel: usize, index: usize, value: f64 },
+    NonFiniteSample {
+        channel: usize,
+        index: usize,
+        value: f64,
+    },
     #[error("sample rate must be positive and finite, got {0} Hz")]
     BadSampleRate(f64),
     #[error("no modes given")]
     NoModes,
     #[error("pole {index}: frequency {frequency_hz} Hz must lie in (0, {nyquist_hz}) (the Nyquist frequency) and decay rate {decay_rate} 1/s must be finite and >= 0")]
-    BadPole { index: usize, frequency_hz: f64, decay_rate: f64, nyquist_hz: f64 },
-    #[error("start time {start_s} s is negative, not finite, or not inside the {duration_s} s record")]
+    BadPole {
+        index: usize,
+        frequency_hz: f64,
+        decay_rate: f64,
+        nyquist_hz: f64,
+    },
+    #[error(
+        "start time {start_s} s is negative, not finite, or not inside the {duration_s} s record"
+    )]
     BadStart { start_s: f64, duration_s: f64 },
     #[error("the fit window holds {samples} samples but {unknowns} real amplitudes are unknown: it needs more samples than unknowns")]
     WindowTooShort { samples: usize, unknowns: usize },
     #[error("option {name} = {value} is invalid: {reason}")]
-    BadOption { name: &'static str, value: f64, reason: &'static str },
+    BadOption {
+        name: &'static str,
+        value: f64,
+        reason: &'static str,
+    },
     #[error("{what}: {got} values, expected {expected}")]
-    LengthMismatch { what: &'static str, got: usize, expected: usize },
+    LengthMismatch {
+        what: &'static str,
+        got: usize,
+        expected: usize,
+    },
     #[error("{what} [{index}] is not finite ({value})")]
-    NonFinite { what: &'static str, index: usize, value: f64 },
+    NonFinite {
+        what: &'static str,
+        index: usize,
+        value: f64,
+    },
     #[error("mode shape 0 has {0} values, not a positive multiple of 3 (u_x, u_y, u_z per node)")]
     ShapeLength(usize),
     #[error("strike: {0}")]
     BadStrike(String),
     #[error("no candidate strike points")]
     NoCandidates,
-    #[error("candidate {index}: vertex {vertex} does not exist (the mode shapes have {n_nodes} nodes)")]
-    BadVertex { index: usize, vertex: usize, n_nodes: usize },
+    #[error(
+        "candidate {index}: vertex {vertex} does not exist (the mode shapes have {n_nodes} nodes)"
+    )]
+    BadVertex {
+        index: usize,
+        vertex: usize,
+        n_nodes: usize,
+    },
     #[error("candidate {index}: strike direction {direction:?} must be a non-zero finite vector")]
     BadDirection { index: usize, direction: [f64; 3] },
     #[error("candidate {index}: vertex {vertex} appears twice (candidate {first})")]
-    DuplicateCandidate { index: usize, vertex: usize, first: usize },
+    DuplicateCandidate {
+        index: usize,
+        vertex: usize,
+        first: usize,
+    },
     #[error("candidate {index}: vertex {vertex} is not a vertex of the surface")]
     NotOnSurface { index: usize, vertex: usize },
     #[error("the surface has no triangles")]
     NoSurface,
     #[error("triangle {index} refers to point {point}, but there are only {n_points} points")]
-    BadTriangle { index: usize, point: usize, n_points: usize },
+    BadTriangle {
+        index: usize,
+        point: usize,
+        n_points: usize,
+    },
     #[error("vertex {0} is not a vertex of the surface")]
     UnknownVertex(usize),
     #[error("measured amplitudes have {measured} microphones but the forward table {table}")]
     MicrophoneMismatch { measured: usize, table: usize },
     #[error("measured amplitudes have {measured} clusters {measured_members:?}… but the forward table has {table} {table_members:?}…: they must be built from the same cluster ids")]
-    ClusterMismatch { measured: usize, table: usize, measured_members: Vec<usize>, table_members: Vec<usize> },
+    ClusterMismatch {
+        measured: usize,
+        table: usize,
+        measured_members: Vec<usize>,
+        table_members: Vec<usize>,
+    },
     #[error("no (cluster, microphone) amplitude can be compared: every one is unresolved or predicted zero at every candidate")]
     NothingToCompare,
 }
@@ -302,8 +348,24 @@ pub enum ImpactError {
 fn channel_error(fault: ChannelFault) -> ImpactError {
     match fault {
         ChannelFault::NoChannels => ImpactError::NoChannels,
-        ChannelFault::LengthMismatch { channel, len, expected } => ImpactError::ChannelLength { channel, len, expected },
-        ChannelFault::NonFiniteSample { channel, index, value } => ImpactError::NonFiniteSample { channel, index, value },
+        ChannelFault::LengthMismatch {
+            channel,
+            len,
+            expected,
+        } => ImpactError::ChannelLength {
+            channel,
+            len,
+            expected,
+        },
+        ChannelFault::NonFiniteSample {
+            channel,
+            index,
+            value,
+        } => ImpactError::NonFiniteSample {
+            channel,
+            index,
+            value,
+        },
     }
 }
 
@@ -320,7 +382,11 @@ fn check_len(what: &'static str, got: usize, expected: usize) -> Result<(), Impa
     if got == expected {
         Ok(())
     } else {
-        Err(ImpactError::LengthMismatch { what, got, expected })
+        Err(ImpactError::LengthMismatch {
+            what,
+            got,
+            expected,
+        })
     }
 }
 
@@ -352,7 +418,11 @@ pub struct AmplitudeFitOptions {
 
 impl Default for AmplitudeFitOptions {
     fn default() -> Self {
-        AmplitudeFitOptions { window_s: None, rcond: 1e-10, max_variance_inflation: 100.0 }
+        AmplitudeFitOptions {
+            window_s: None,
+            rcond: 1e-10,
+            max_variance_inflation: 100.0,
+        }
     }
 }
 
@@ -392,7 +462,10 @@ impl AmplitudeFit {
     pub fn covariance(&self, channel: usize, j: usize, k: usize) -> [[f64; 2]; 2] {
         let v = self.noise_rms[channel].powi(2);
         let c = &self.unit_covariance;
-        [[v * c[(2 * j, 2 * k)], v * c[(2 * j, 2 * k + 1)]], [v * c[(2 * j + 1, 2 * k)], v * c[(2 * j + 1, 2 * k + 1)]]]
+        [
+            [v * c[(2 * j, 2 * k)], v * c[(2 * j, 2 * k + 1)]],
+            [v * c[(2 * j + 1, 2 * k)], v * c[(2 * j + 1, 2 * k + 1)]],
+        ]
     }
 
     /// Number of channels.
@@ -404,7 +477,13 @@ impl AmplitudeFit {
 /// Fits the complex amplitude of every mode with the given poles in every channel, from the
 /// samples after `start_s` (module docs, section 1). `channels` are one strike recorded in
 /// parallel (equal lengths) at `sample_rate` Hz.
-pub fn fit_amplitudes(channels: &[Vec<f64>], sample_rate: f64, start_s: f64, poles: &[Pole], options: &AmplitudeFitOptions) -> Result<AmplitudeFit, ImpactError> {
+pub fn fit_amplitudes(
+    channels: &[Vec<f64>],
+    sample_rate: f64,
+    start_s: f64,
+    poles: &[Pole],
+    options: &AmplitudeFitOptions,
+) -> Result<AmplitudeFit, ImpactError> {
     let signals: Vec<&[f64]> = channels.iter().map(|c| c.as_slice()).collect();
     let len = crate::audio::check_parallel_channels(&signals).map_err(channel_error)?;
     if !(sample_rate.is_finite() && sample_rate > 0.0) {
@@ -415,47 +494,88 @@ pub fn fit_amplitudes(channels: &[Vec<f64>], sample_rate: f64, start_s: f64, pol
     }
     let nyquist_hz = 0.5 * sample_rate;
     for (index, p) in poles.iter().enumerate() {
-        let ok = p.frequency_hz > 0.0 && p.frequency_hz < nyquist_hz && p.decay_rate.is_finite() && p.decay_rate >= 0.0;
+        let ok = p.frequency_hz > 0.0
+            && p.frequency_hz < nyquist_hz
+            && p.decay_rate.is_finite()
+            && p.decay_rate >= 0.0;
         if !ok {
-            return Err(ImpactError::BadPole { index, frequency_hz: p.frequency_hz, decay_rate: p.decay_rate, nyquist_hz });
+            return Err(ImpactError::BadPole {
+                index,
+                frequency_hz: p.frequency_hz,
+                decay_rate: p.decay_rate,
+                nyquist_hz,
+            });
         }
     }
     if !(options.rcond > 0.0 && options.rcond < 1.0) {
-        return Err(ImpactError::BadOption { name: "rcond", value: options.rcond, reason: "must lie in (0, 1)" });
+        return Err(ImpactError::BadOption {
+            name: "rcond",
+            value: options.rcond,
+            reason: "must lie in (0, 1)",
+        });
     }
     if options.max_variance_inflation.is_nan() || options.max_variance_inflation < 1.0 {
-        return Err(ImpactError::BadOption { name: "max_variance_inflation", value: options.max_variance_inflation, reason: "must be at least 1" });
+        return Err(ImpactError::BadOption {
+            name: "max_variance_inflation",
+            value: options.max_variance_inflation,
+            reason: "must be at least 1",
+        });
     }
     let duration_s = len as f64 / sample_rate;
     let first = (start_s * sample_rate - 1e-9).ceil();
     if !(start_s.is_finite() && start_s >= 0.0 && first < len as f64) {
-        return Err(ImpactError::BadStart { start_s, duration_s });
+        return Err(ImpactError::BadStart {
+            start_s,
+            duration_s,
+        });
     }
     let first = first.max(0.0) as usize;
     let mut n = len - first;
     if let Some(w) = options.window_s {
         if !(w.is_finite() && w > 0.0) {
-            return Err(ImpactError::BadOption { name: "window_s", value: w, reason: "must be a positive number of seconds" });
+            return Err(ImpactError::BadOption {
+                name: "window_s",
+                value: w,
+                reason: "must be a positive number of seconds",
+            });
         }
         n = n.min((w * sample_rate).round() as usize);
     }
     let k_modes = poles.len();
     let dim = 2 * k_modes;
     if n <= dim {
-        return Err(ImpactError::WindowTooShort { samples: n, unknowns: dim });
+        return Err(ImpactError::WindowTooShort {
+            samples: n,
+            unknowns: dim,
+        });
     }
     let window: Vec<&[f64]> = signals.iter().map(|s| &s[first..first + n]).collect();
     let two_pi = 2.0 * std::f64::consts::PI;
-    let log_z: Vec<Complex64> = poles.iter().map(|p| Complex64::new(-p.decay_rate, two_pi * p.frequency_hz) / sample_rate).collect();
+    let log_z: Vec<Complex64> = poles
+        .iter()
+        .map(|p| Complex64::new(-p.decay_rate, two_pi * p.frequency_hz) / sample_rate)
+        .collect();
 
     // Normal equations in the basis of the estimate's full-rate fit: unknowns (Re c, Im c) of
     // x = Im(c zⁿ), n counted from the window's first sample.
     let (gram, rhs) = lsq::normal_equations(&window, &log_z);
-    let scale: Vec<f64> = (0..dim).map(|i| if gram[(i, i)] > 0.0 && gram[(i, i)].is_finite() { 1.0 / gram[(i, i)].sqrt() } else { 1.0 }).collect();
+    let scale: Vec<f64> = (0..dim)
+        .map(|i| {
+            if gram[(i, i)] > 0.0 && gram[(i, i)].is_finite() {
+                1.0 / gram[(i, i)].sqrt()
+            } else {
+                1.0
+            }
+        })
+        .collect();
     let scaled = DMatrix::from_fn(dim, dim, |i, j| gram[(i, j)] * scale[i] * scale[j]);
     let eig = SymmetricEigen::new(scaled);
     let top = eig.eigenvalues.iter().cloned().fold(0.0, f64::max);
-    let keep: Vec<bool> = eig.eigenvalues.iter().map(|&l| l > options.rcond * top && l > 0.0).collect();
+    let keep: Vec<bool> = eig
+        .eigenvalues
+        .iter()
+        .map(|&l| l > options.rcond * top && l > 0.0)
+        .collect();
     let rank = keep.iter().filter(|&&k| k).count();
     let v = &eig.eigenvectors;
     // (D GᵀG D)⁺ and the weight of every unknown in the dropped directions.
@@ -477,16 +597,33 @@ pub fn fit_amplitudes(channels: &[Vec<f64>], sample_rate: f64, start_s: f64, pol
         }
     }
     let variance_inflation: Vec<f64> = (0..k_modes)
-        .map(|k| if dropped[2 * k] + dropped[2 * k + 1] > UNRESOLVED_WEIGHT { f64::INFINITY } else { pinv[(2 * k, 2 * k)].max(pinv[(2 * k + 1, 2 * k + 1)]) })
+        .map(|k| {
+            if dropped[2 * k] + dropped[2 * k + 1] > UNRESOLVED_WEIGHT {
+                f64::INFINITY
+            } else {
+                pinv[(2 * k, 2 * k)].max(pinv[(2 * k + 1, 2 * k + 1)])
+            }
+        })
         .collect();
-    let not_separable: Vec<usize> = (0..k_modes).filter(|&k| variance_inflation[k] > options.max_variance_inflation).collect();
+    let not_separable: Vec<usize> = (0..k_modes)
+        .filter(|&k| variance_inflation[k] > options.max_variance_inflation)
+        .collect();
     // Unit covariance and solution in the c coordinates.
     let cov_c = DMatrix::from_fn(dim, dim, |i, j| pinv[(i, j)] * scale[i] * scale[j]);
     let x = &cov_c * &rhs;
-    let coeffs: Vec<Vec<Complex64>> = (0..k_modes).map(|k| (0..window.len()).map(|c| Complex64::new(x[(2 * k, c)], x[(2 * k + 1, c)])).collect()).collect();
+    let coeffs: Vec<Vec<Complex64>> = (0..k_modes)
+        .map(|k| {
+            (0..window.len())
+                .map(|c| Complex64::new(x[(2 * k, c)], x[(2 * k + 1, c)]))
+                .collect()
+        })
+        .collect();
     let residuals = lsq::residuals(&window, &log_z, &coeffs);
     let dof = (n - rank) as f64;
-    let noise_rms: Vec<f64> = residuals.iter().map(|r| (r.iter().map(|v| v * v).sum::<f64>() / dof).sqrt()).collect();
+    let noise_rms: Vec<f64> = residuals
+        .iter()
+        .map(|r| (r.iter().map(|v| v * v).sum::<f64>() / dof).sqrt())
+        .collect();
 
     // From c (Im convention, at the window's first sample) to a (Re convention, at t₀):
     // Im(c zⁿ) = Re(−i c zⁿ), and a e^(s(t − t₀)) = a e^(sδ) zⁿ with δ = n₀/f_s − t₀, so
@@ -534,11 +671,17 @@ pub fn fit_amplitudes(channels: &[Vec<f64>], sample_rate: f64, start_s: f64, pol
                         return f64::INFINITY;
                     }
                     let var = sigma * sigma;
-                    let (cxx, cxy, cyy) = (var * unit_covariance[(2 * k, 2 * k)], var * unit_covariance[(2 * k, 2 * k + 1)], var * unit_covariance[(2 * k + 1, 2 * k + 1)]);
+                    let (cxx, cxy, cyy) = (
+                        var * unit_covariance[(2 * k, 2 * k)],
+                        var * unit_covariance[(2 * k, 2 * k + 1)],
+                        var * unit_covariance[(2 * k + 1, 2 * k + 1)],
+                    );
                     let r = a.norm();
                     if r > 0.0 {
                         let (ux, uy) = (a.re / r, a.im / r);
-                        (ux * ux * cxx + 2.0 * ux * uy * cxy + uy * uy * cyy).max(0.0).sqrt()
+                        (ux * ux * cxx + 2.0 * ux * uy * cxy + uy * uy * cyy)
+                            .max(0.0)
+                            .sqrt()
                     } else {
                         (0.5 * (cxx + cyy)).max(0.0).sqrt()
                     }
@@ -593,23 +736,39 @@ pub struct ClusterAmplitudes {
 }
 
 /// The measured cluster amplitudes from a fit and one cluster id per mode of the fit.
-pub fn cluster_amplitudes(fit: &AmplitudeFit, clusters: &[usize]) -> Result<ClusterAmplitudes, ImpactError> {
+pub fn cluster_amplitudes(
+    fit: &AmplitudeFit,
+    clusters: &[usize],
+) -> Result<ClusterAmplitudes, ImpactError> {
     let k_modes = fit.poles.len();
     check_len("cluster ids", clusters.len(), k_modes)?;
     let members = cluster_members(clusters);
     let channels = fit.channels();
-    let mut out = ClusterAmplitudes { clusters: members.clone(), amplitude: vec![], sd: vec![], detection_limit: vec![], below_limit: vec![] };
+    let mut out = ClusterAmplitudes {
+        clusters: members.clone(),
+        amplitude: vec![],
+        sd: vec![],
+        detection_limit: vec![],
+        below_limit: vec![],
+    };
     for ks in &members {
         let unresolved = ks.iter().any(|&k| fit.variance_inflation[k].is_infinite());
         let dim = 2 * ks.len();
-        let unit = DMatrix::from_fn(dim, dim, |i, j| fit.unit_covariance[(2 * ks[i / 2] + i % 2, 2 * ks[j / 2] + j % 2)]);
+        let unit = DMatrix::from_fn(dim, dim, |i, j| {
+            fit.unit_covariance[(2 * ks[i / 2] + i % 2, 2 * ks[j / 2] + j % 2)]
+        });
         let (mut amp, mut sd, mut limit, mut below) = (vec![], vec![], vec![], vec![]);
         for c in 0..channels {
             let cov = &unit * fit.noise_rms[c].powi(2);
-            let x = nalgebra::DVector::from_iterator(dim, ks.iter().flat_map(|&k| [fit.amplitudes[c][k].re, fit.amplitudes[c][k].im]));
+            let x = nalgebra::DVector::from_iterator(
+                dim,
+                ks.iter()
+                    .flat_map(|&k| [fit.amplitudes[c][k].re, fit.amplitudes[c][k].im]),
+            );
             let trace = cov.trace();
             let energy = x.norm_squared() - trace;
-            let var_energy = 4.0 * (x.transpose() * &cov * &x)[(0, 0)] + 2.0 * (&cov * &cov).trace();
+            let var_energy =
+                4.0 * (x.transpose() * &cov * &x)[(0, 0)] + 2.0 * (&cov * &cov).trace();
             let d = DETECTION_SIGMAS * trace.max(0.0).sqrt();
             limit.push(d);
             if unresolved {
@@ -652,7 +811,10 @@ pub fn surface_candidates(mesh: &TetMesh) -> Vec<Candidate> {
     mesh.vertex_normals()
         .into_iter()
         .filter(|(_, n)| n.iter().any(|c| *c != 0.0))
-        .map(|(vertex, n)| Candidate { vertex, direction: n.map(|c| -c) })
+        .map(|(vertex, n)| Candidate {
+            vertex,
+            direction: n.map(|c| -c),
+        })
         .collect()
 }
 
@@ -679,7 +841,11 @@ impl Transfer<'_> {
     fn validate(&self, k_modes: usize) -> Result<usize, ImpactError> {
         let m = self.microphones();
         if m == 0 {
-            return Err(ImpactError::BadOption { name: "microphones", value: 0.0, reason: "at least one microphone is needed" });
+            return Err(ImpactError::BadOption {
+                name: "microphones",
+                value: 0.0,
+                reason: "at least one microphone is needed",
+            });
         }
         match self {
             Transfer::None { .. } => {}
@@ -696,7 +862,10 @@ impl Transfer<'_> {
                     check_len("transfer microphones", row.len(), m)?;
                 }
                 check_finite("transfer (real part)", t.iter().flatten().map(|z| z.re))?;
-                check_finite("transfer (imaginary part)", t.iter().flatten().map(|z| z.im))?;
+                check_finite(
+                    "transfer (imaginary part)",
+                    t.iter().flatten().map(|z| z.im),
+                )?;
             }
         }
         Ok(m)
@@ -730,7 +899,9 @@ impl ForwardTable {
     /// The predicted amplitude of one mode, |a_vkm| = |φ_k(v)·n_v| |G_k| |T_km| (before any
     /// clustering), for candidate index `candidate`.
     pub fn mode_amplitude(&self, candidate: usize, mode: usize, microphone: usize) -> f64 {
-        self.drive[candidate][mode].abs() * self.modal_factors[mode].norm() * self.transfer_magnitude[mode][microphone]
+        self.drive[candidate][mode].abs()
+            * self.modal_factors[mode].norm()
+            * self.transfer_magnitude[mode][microphone]
     }
 
     /// All Â of one candidate, `[cluster][microphone]` flattened.
@@ -794,7 +965,10 @@ pub fn forward_amplitudes(
         .iter()
         .map(|c| {
             let v = c.vertex;
-            shapes.iter().map(|s| (0..3).map(|i| s[3 * v + i] * c.direction[i]).sum()).collect()
+            shapes
+                .iter()
+                .map(|s| (0..3).map(|i| s[3 * v + i] * c.direction[i]).sum())
+                .collect()
         })
         .collect();
     let mut amplitude = Vec::with_capacity(candidates.len() * members.len() * microphones);
@@ -807,28 +981,57 @@ pub fn forward_amplitudes(
     }
     let transfer_magnitude = match transfer {
         Transfer::None { .. } => vec![vec![1.0; microphones]; k_modes],
-        Transfer::Magnitude(t) => t.iter().map(|r| r.iter().map(|v| v.abs()).collect()).collect(),
-        Transfer::Directional(t) => t.iter().map(|r| r.iter().map(|v| v.norm()).collect()).collect(),
+        Transfer::Magnitude(t) => t
+            .iter()
+            .map(|r| r.iter().map(|v| v.abs()).collect())
+            .collect(),
+        Transfer::Directional(t) => t
+            .iter()
+            .map(|r| r.iter().map(|v| v.norm()).collect())
+            .collect(),
     };
-    Ok(ForwardTable { candidates, clusters: members, microphones, modal_factors, drive, transfer_magnitude, amplitude })
+    Ok(ForwardTable {
+        candidates,
+        clusters: members,
+        microphones,
+        modal_factors,
+        drive,
+        transfer_magnitude,
+        amplitude,
+    })
 }
 
 /// Â²_cm for one candidate (module docs, section 2): `drive[k]` = φ_k·n, `gain[k]` = |G_k|.
-fn cluster_prediction(members: &[usize], drive: &[f64], gain: &[f64], transfer: &Transfer, m: usize) -> f64 {
+fn cluster_prediction(
+    members: &[usize],
+    drive: &[f64],
+    gain: &[f64],
+    transfer: &Transfer,
+    m: usize,
+) -> f64 {
     match transfer {
         Transfer::None { .. } => members.iter().map(|&k| (drive[k] * gain[k]).powi(2)).sum(),
-        Transfer::Magnitude(t) => members.iter().map(|&k| (drive[k] * gain[k] * t[k][m]).powi(2)).sum(),
+        Transfer::Magnitude(t) => members
+            .iter()
+            .map(|&k| (drive[k] * gain[k] * t[k][m]).powi(2))
+            .sum(),
         Transfer::Directional(t) => {
             let n = members.len() as f64;
             let g2: f64 = members.iter().map(|&k| (drive[k] * gain[k]).powi(2)).sum();
             let t2: f64 = members.iter().map(|&k| t[k][m].norm_sqr()).sum();
-            let coherent: Complex64 = members.iter().map(|&k| t[k][m] * (drive[k] * gain[k])).sum();
+            let coherent: Complex64 = members
+                .iter()
+                .map(|&k| t[k][m] * (drive[k] * gain[k]))
+                .sum();
             (g2 * t2 + 2.0 * coherent.norm_sqr()) / (n + 2.0)
         }
     }
 }
 
-fn normalised_candidates(candidates: &[Candidate], n_nodes: usize) -> Result<Vec<Candidate>, ImpactError> {
+fn normalised_candidates(
+    candidates: &[Candidate],
+    n_nodes: usize,
+) -> Result<Vec<Candidate>, ImpactError> {
     if candidates.is_empty() {
         return Err(ImpactError::NoCandidates);
     }
@@ -838,17 +1041,31 @@ fn normalised_candidates(candidates: &[Candidate], n_nodes: usize) -> Result<Vec
         .enumerate()
         .map(|(index, c)| {
             if c.vertex >= n_nodes {
-                return Err(ImpactError::BadVertex { index, vertex: c.vertex, n_nodes });
+                return Err(ImpactError::BadVertex {
+                    index,
+                    vertex: c.vertex,
+                    n_nodes,
+                });
             }
             if let Some(&first) = seen.get(&c.vertex) {
-                return Err(ImpactError::DuplicateCandidate { index, vertex: c.vertex, first });
+                return Err(ImpactError::DuplicateCandidate {
+                    index,
+                    vertex: c.vertex,
+                    first,
+                });
             }
             seen.insert(c.vertex, index);
             let len = c.direction.iter().map(|v| v * v).sum::<f64>().sqrt();
             if !(len.is_finite() && len > 0.0) {
-                return Err(ImpactError::BadDirection { index, direction: c.direction });
+                return Err(ImpactError::BadDirection {
+                    index,
+                    direction: c.direction,
+                });
             }
-            Ok(Candidate { vertex: c.vertex, direction: c.direction.map(|v| v / len) })
+            Ok(Candidate {
+                vertex: c.vertex,
+                direction: c.direction.map(|v| v / len),
+            })
         })
         .collect()
 }
@@ -891,7 +1108,17 @@ pub struct MapOptions {
 
 impl Default for MapOptions {
     fn default() -> Self {
-        MapOptions { sigma_model: SigmaModel::Profiled { min: 1e-3, max: 3.0 }, prediction_floor: 1e-3, top_k: 5, min_separation_m: None, neighbourhood_m: None, free_microphone_gains: false }
+        MapOptions {
+            sigma_model: SigmaModel::Profiled {
+                min: 1e-3,
+                max: 3.0,
+            },
+            prediction_floor: 1e-3,
+            top_k: 5,
+            min_separation_m: None,
+            neighbourhood_m: None,
+            free_microphone_gains: false,
+        }
     }
 }
 
@@ -950,7 +1177,13 @@ impl ImpactMap {
     pub fn area_rank(&self, candidate: usize) -> f64 {
         let l = self.log_likelihood[candidate];
         let total: f64 = self.area_share.iter().sum();
-        let above: f64 = self.log_likelihood.iter().zip(&self.area_share).filter(|(x, _)| **x >= l).map(|(_, a)| a).sum();
+        let above: f64 = self
+            .log_likelihood
+            .iter()
+            .zip(&self.area_share)
+            .filter(|(x, _)| **x >= l)
+            .map(|(_, a)| a)
+            .sum();
         above / total
     }
 }
@@ -970,24 +1203,50 @@ struct Term {
 
 /// The likelihood map over the table's candidates (module docs, section 3). `graph` supplies the
 /// area shares and geodesic distances; every candidate must be one of its vertices.
-pub fn likelihood_map(measured: &ClusterAmplitudes, table: &ForwardTable, graph: &SurfaceGraph, options: &MapOptions) -> Result<ImpactMap, ImpactError> {
+pub fn likelihood_map(
+    measured: &ClusterAmplitudes,
+    table: &ForwardTable,
+    graph: &SurfaceGraph,
+    options: &MapOptions,
+) -> Result<ImpactMap, ImpactError> {
     check_map_options(options)?;
     let microphones = table.microphones;
     if measured.amplitude.first().map_or(microphones, |r| r.len()) != microphones {
-        return Err(ImpactError::MicrophoneMismatch { measured: measured.amplitude[0].len(), table: microphones });
+        return Err(ImpactError::MicrophoneMismatch {
+            measured: measured.amplitude[0].len(),
+            table: microphones,
+        });
     }
     if measured.clusters != table.clusters {
-        let head = |c: &[Vec<usize>]| c.iter().take(3).flat_map(|m| m.iter().copied()).collect::<Vec<_>>();
-        return Err(ImpactError::ClusterMismatch { measured: measured.clusters.len(), table: table.clusters.len(), measured_members: head(&measured.clusters), table_members: head(&table.clusters) });
+        let head = |c: &[Vec<usize>]| {
+            c.iter()
+                .take(3)
+                .flat_map(|m| m.iter().copied())
+                .collect::<Vec<_>>()
+        };
+        return Err(ImpactError::ClusterMismatch {
+            measured: measured.clusters.len(),
+            table: table.clusters.len(),
+            measured_members: head(&measured.clusters),
+            table_members: head(&table.clusters),
+        });
     }
     let n_cand = table.candidates.len();
     let slots: Vec<usize> = table
         .candidates
         .iter()
         .enumerate()
-        .map(|(index, c)| graph.index_of(c.vertex).ok_or(ImpactError::NotOnSurface { index, vertex: c.vertex }))
+        .map(|(index, c)| {
+            graph.index_of(c.vertex).ok_or(ImpactError::NotOnSurface {
+                index,
+                vertex: c.vertex,
+            })
+        })
         .collect::<Result<_, _>>()?;
-    let area_share: Vec<f64> = slots.iter().map(|&s| graph.areas[s] / graph.total_area).collect();
+    let area_share: Vec<f64> = slots
+        .iter()
+        .map(|&s| graph.areas[s] / graph.total_area)
+        .collect();
 
     // The terms: resolved and predicted somewhere.
     let width = table.clusters.len() * microphones;
@@ -1007,7 +1266,13 @@ pub fn likelihood_map(measured: &ClusterAmplitudes, table: &ForwardTable, graph:
                 continue;
             }
             below += usize::from(measured.below_limit[c][m]);
-            terms.push(Term { log_measured: a.ln(), tau2: (sd / a).powi(2), slot, floor: options.prediction_floor * peak[slot], limit: measured.detection_limit[c][m] });
+            terms.push(Term {
+                log_measured: a.ln(),
+                tau2: (sd / a).powi(2),
+                slot,
+                floor: options.prediction_floor * peak[slot],
+                limit: measured.detection_limit[c][m],
+            });
         }
     }
     if terms.is_empty() {
@@ -1016,17 +1281,25 @@ pub fn likelihood_map(measured: &ClusterAmplitudes, table: &ForwardTable, graph:
 
     // First pass (ε floor only) for ŝ₀, then the detection limits in model units.
     let gains = options.free_microphone_gains.then_some(microphones);
-    let first = (0..n_cand).map(|v| score_vertex(&terms, table.amplitudes_of(v), &options.sigma_model, gains)).collect::<Vec<_>>();
+    let first = (0..n_cand)
+        .map(|v| score_vertex(&terms, table.amplitudes_of(v), &options.sigma_model, gains))
+        .collect::<Vec<_>>();
     let best0 = argmax(first.iter().map(|s| s.log_likelihood));
     let s0 = first[best0].log_strength.exp();
     for t in terms.iter_mut() {
         t.floor = t.floor.max(t.limit / s0);
     }
-    let scores: Vec<VertexScore> = (0..n_cand).map(|v| score_vertex(&terms, table.amplitudes_of(v), &options.sigma_model, gains)).collect();
+    let scores: Vec<VertexScore> = (0..n_cand)
+        .map(|v| score_vertex(&terms, table.amplitudes_of(v), &options.sigma_model, gains))
+        .collect();
     let log_likelihood: Vec<f64> = scores.iter().map(|s| s.log_likelihood).collect();
     let best = argmax(log_likelihood.iter().copied());
     let top_l = log_likelihood[best];
-    let mut posterior: Vec<f64> = log_likelihood.iter().zip(&area_share).map(|(l, w)| w * (l - top_l).exp()).collect();
+    let mut posterior: Vec<f64> = log_likelihood
+        .iter()
+        .zip(&area_share)
+        .map(|(l, w)| w * (l - top_l).exp())
+        .collect();
     let total: f64 = posterior.iter().sum();
     posterior.iter_mut().for_each(|p| *p /= total);
     let cosine: Vec<f64> = (0..n_cand)
@@ -1039,13 +1312,27 @@ pub fn likelihood_map(measured: &ClusterAmplitudes, table: &ForwardTable, graph:
                 nm += a * a;
                 np += p * p;
             }
-            if np > 0.0 { dot / (nm.sqrt() * np.sqrt()) } else { 0.0 }
+            if np > 0.0 {
+                dot / (nm.sqrt() * np.sqrt())
+            } else {
+                0.0
+            }
         })
         .collect();
 
     let min_separation_m = options.min_separation_m.unwrap_or(0.1 * graph.diagonal());
     let neighbourhood_m = options.neighbourhood_m.unwrap_or(0.5 * min_separation_m);
-    let top = top_candidates(table, graph, &slots, &log_likelihood, &posterior, &scores, options.top_k, min_separation_m, neighbourhood_m);
+    let top = top_candidates(
+        table,
+        graph,
+        &slots,
+        &log_likelihood,
+        &posterior,
+        &scores,
+        options.top_k,
+        min_separation_m,
+        neighbourhood_m,
+    );
     let sb = &scores[best];
     let strength = sb.log_strength.exp();
     Ok(ImpactMap {
@@ -1068,11 +1355,21 @@ pub fn likelihood_map(measured: &ClusterAmplitudes, table: &ForwardTable, graph:
 }
 
 fn check_map_options(options: &MapOptions) -> Result<(), ImpactError> {
-    let bad = |name, value, reason| Err(ImpactError::BadOption { name, value, reason });
+    let bad = |name, value, reason| {
+        Err(ImpactError::BadOption {
+            name,
+            value,
+            reason,
+        })
+    };
     match options.sigma_model {
         SigmaModel::Profiled { min, max } => {
             if !(min > 0.0 && max > min && max.is_finite()) {
-                return bad("sigma_model.min", min, "the profiled range needs 0 < min < max < ∞");
+                return bad(
+                    "sigma_model.min",
+                    min,
+                    "the profiled range needs 0 < min < max < ∞",
+                );
             }
         }
         SigmaModel::Fixed { value } => {
@@ -1082,9 +1379,16 @@ fn check_map_options(options: &MapOptions) -> Result<(), ImpactError> {
         }
     }
     if !(options.prediction_floor > 0.0 && options.prediction_floor < 1.0) {
-        return bad("prediction_floor", options.prediction_floor, "must lie in (0, 1)");
+        return bad(
+            "prediction_floor",
+            options.prediction_floor,
+            "must lie in (0, 1)",
+        );
     }
-    for (name, v) in [("min_separation_m", options.min_separation_m), ("neighbourhood_m", options.neighbourhood_m)] {
+    for (name, v) in [
+        ("min_separation_m", options.min_separation_m),
+        ("neighbourhood_m", options.neighbourhood_m),
+    ] {
         if let Some(x) = v {
             if !(x >= 0.0 && x.is_finite()) {
                 return bad(name, x, "must be a finite distance ≥ 0");
@@ -1104,7 +1408,10 @@ fn argmax(values: impl Iterator<Item = f64>) -> usize {
         return values.iter().position(|v| *v == top).unwrap_or(0);
     }
     let tolerance = 1e-9 * top.abs().max(1.0);
-    values.iter().position(|v| *v >= top - tolerance).unwrap_or(0)
+    values
+        .iter()
+        .position(|v| *v >= top - tolerance)
+        .unwrap_or(0)
 }
 
 #[derive(Clone, Copy, Debug)]
@@ -1118,7 +1425,12 @@ struct VertexScore {
 /// ℓ, ln ŝ, σ(ln ŝ) at one vertex for a given σ_model² (strength profiled; with
 /// `microphones = Some(M)` one gain per microphone, the microphone of a term being its slot
 /// modulo M).
-fn profile_at(terms: &[Term], log_pred: &[f64], sigma2: f64, microphones: Option<usize>) -> (f64, f64, f64) {
+fn profile_at(
+    terms: &[Term],
+    log_pred: &[f64],
+    sigma2: f64,
+    microphones: Option<usize>,
+) -> (f64, f64, f64) {
     let (mut sw, mut swy) = (0.0, 0.0);
     let groups = microphones.unwrap_or(1);
     let (mut sw_m, mut swy_m) = (vec![0.0; groups], vec![0.0; groups]);
@@ -1141,18 +1453,34 @@ fn profile_at(terms: &[Term], log_pred: &[f64], sigma2: f64, microphones: Option
     (l, ls, sw.powf(-0.5))
 }
 
-fn score_vertex(terms: &[Term], row: &[f64], sigma: &SigmaModel, microphones: Option<usize>) -> VertexScore {
-    let log_pred: Vec<f64> = terms.iter().map(|t| row[t.slot].max(t.floor).ln()).collect();
+fn score_vertex(
+    terms: &[Term],
+    row: &[f64],
+    sigma: &SigmaModel,
+    microphones: Option<usize>,
+) -> VertexScore {
+    let log_pred: Vec<f64> = terms
+        .iter()
+        .map(|t| row[t.slot].max(t.floor).ln())
+        .collect();
     let eval = |ln_sigma: f64| profile_at(terms, &log_pred, (2.0 * ln_sigma).exp(), microphones);
     let (ln_sigma, (l, ls, sd)) = match *sigma {
-        SigmaModel::Fixed { value } => (value.ln(), profile_at(terms, &log_pred, value * value, microphones)),
+        SigmaModel::Fixed { value } => (
+            value.ln(),
+            profile_at(terms, &log_pred, value * value, microphones),
+        ),
         SigmaModel::Profiled { min, max } => {
             let (lo, hi) = (min.ln(), max.ln());
             let step = (hi - lo) / (SIGMA_GRID_POINTS - 1) as f64;
-            let grid: Vec<f64> = (0..SIGMA_GRID_POINTS).map(|i| eval(lo + step * i as f64).0).collect();
+            let grid: Vec<f64> = (0..SIGMA_GRID_POINTS)
+                .map(|i| eval(lo + step * i as f64).0)
+                .collect();
             let i = argmax(grid.iter().copied());
             // Golden section on [x_(i−1), x_(i+1)] (clamped to the range).
-            let (mut a, mut b) = ((lo + step * (i as f64 - 1.0)).max(lo), (lo + step * (i as f64 + 1.0)).min(hi));
+            let (mut a, mut b) = (
+                (lo + step * (i as f64 - 1.0)).max(lo),
+                (lo + step * (i as f64 + 1.0)).min(hi),
+            );
             let g = 0.5 * (5f64.sqrt() - 1.0);
             let (mut x1, mut x2) = (b - g * (b - a), a + g * (b - a));
             let (mut f1, mut f2) = (eval(x1).0, eval(x2).0);
@@ -1176,10 +1504,19 @@ fn score_vertex(terms: &[Term], row: &[f64], sigma: &SigmaModel, microphones: Op
             // The grid point wins when the optimum sits on the range's edge.
             let edge = lo + step * i as f64;
             let at_grid = eval(edge);
-            if at_grid.0 > inner.0 { (edge, at_grid) } else { (x, inner) }
+            if at_grid.0 > inner.0 {
+                (edge, at_grid)
+            } else {
+                (x, inner)
+            }
         }
     };
-    VertexScore { log_likelihood: l, log_strength: ls, log_strength_sd: sd, sigma_model: ln_sigma.exp() }
+    VertexScore {
+        log_likelihood: l,
+        log_strength: ls,
+        log_strength_sd: sd,
+        sigma_model: ln_sigma.exp(),
+    }
 }
 
 #[allow(clippy::too_many_arguments)]
@@ -1195,7 +1532,11 @@ fn top_candidates(
     neighbourhood_m: f64,
 ) -> Vec<TopCandidate> {
     let mut order: Vec<usize> = (0..log_likelihood.len()).collect();
-    order.sort_by(|&a, &b| log_likelihood[b].total_cmp(&log_likelihood[a]).then(a.cmp(&b)));
+    order.sort_by(|&a, &b| {
+        log_likelihood[b]
+            .total_cmp(&log_likelihood[a])
+            .then(a.cmp(&b))
+    });
     // Graph vertex → candidate.
     let mut candidate_at = vec![usize::MAX; graph.len()];
     for (c, &s) in slots.iter().enumerate() {
@@ -1293,14 +1634,22 @@ impl SurfaceGraph {
         }
         for (index, t) in triangles.iter().enumerate() {
             if let Some(&point) = t.iter().find(|&&p| p >= points.len()) {
-                return Err(ImpactError::BadTriangle { index, point, n_points: points.len() });
+                return Err(ImpactError::BadTriangle {
+                    index,
+                    point,
+                    n_points: points.len(),
+                });
             }
         }
         let mut nodes: Vec<usize> = triangles.iter().flatten().copied().collect();
         nodes.sort_unstable();
         nodes.dedup();
-        check_finite("surface point coordinate", nodes.iter().flat_map(|&n| points[n]))?;
-        let slot_of: HashMap<usize, usize> = nodes.iter().enumerate().map(|(s, &n)| (n, s)).collect();
+        check_finite(
+            "surface point coordinate",
+            nodes.iter().flat_map(|&n| points[n]),
+        )?;
+        let slot_of: HashMap<usize, usize> =
+            nodes.iter().enumerate().map(|(s, &n)| (n, s)).collect();
         let positions: Vec<[f64; 3]> = nodes.iter().map(|&n| points[n]).collect();
         let mut areas = vec![0.0; nodes.len()];
         let mut edges: Vec<(usize, usize)> = Vec::with_capacity(6 * triangles.len());
@@ -1328,9 +1677,21 @@ impl SurfaceGraph {
             offsets[i + 1] += offsets[i];
         }
         let neighbours: Vec<usize> = edges.iter().map(|e| e.1).collect();
-        let lengths: Vec<f64> = edges.iter().map(|&(i, j)| norm(sub(positions[i], positions[j]))).collect();
+        let lengths: Vec<f64> = edges
+            .iter()
+            .map(|&(i, j)| norm(sub(positions[i], positions[j])))
+            .collect();
         let total_area = areas.iter().sum();
-        Ok(SurfaceGraph { nodes, slot_of, positions, offsets, neighbours, lengths, areas, total_area })
+        Ok(SurfaceGraph {
+            nodes,
+            slot_of,
+            positions,
+            offsets,
+            neighbours,
+            lengths,
+            areas,
+            total_area,
+        })
     }
 
     /// The graph of the boundary faces of a tet mesh (corner nodes; node ids are the mesh's).
@@ -1364,7 +1725,8 @@ impl SurfaceGraph {
 
     /// The vertex's share of the surface area (a third of its triangles' areas over the total).
     pub fn area_share(&self, vertex: usize) -> Option<f64> {
-        self.index_of(vertex).map(|s| self.areas[s] / self.total_area)
+        self.index_of(vertex)
+            .map(|s| self.areas[s] / self.total_area)
     }
 
     /// Diagonal of the vertices' bounding box [m].
@@ -1383,14 +1745,20 @@ impl SurfaceGraph {
     /// Edge-path distance [m] from `source` to every point in [`Self::vertices`] order, ∞ beyond
     /// `limit` [m] (pass `f64::INFINITY` for all) or in another connected piece.
     pub fn distances_from(&self, source: usize, limit: f64) -> Result<Vec<f64>, ImpactError> {
-        let s = self.index_of(source).ok_or(ImpactError::UnknownVertex(source))?;
+        let s = self
+            .index_of(source)
+            .ok_or(ImpactError::UnknownVertex(source))?;
         Ok(self.distances_from_slot(s, limit))
     }
 
     /// The surface points joined to `vertex` by an edge.
     pub fn neighbours(&self, vertex: usize) -> Result<Vec<usize>, ImpactError> {
-        let s = self.index_of(vertex).ok_or(ImpactError::UnknownVertex(vertex))?;
-        Ok((self.offsets[s]..self.offsets[s + 1]).map(|e| self.nodes[self.neighbours[e]]).collect())
+        let s = self
+            .index_of(vertex)
+            .ok_or(ImpactError::UnknownVertex(vertex))?;
+        Ok((self.offsets[s]..self.offsets[s + 1])
+            .map(|e| self.nodes[self.neighbours[e]])
+            .collect())
     }
 
     /// Edge-path distance [m] between two surface points.
@@ -1422,15 +1790,37 @@ impl SurfaceGraph {
 
 /// S_c(v) = √(Σ_{k∈c} (φ_k(v)·n_v)²) per candidate and cluster (module docs, section 4).
 pub fn drive_signatures(table: &ForwardTable) -> Vec<Vec<f64>> {
-    table.drive.iter().map(|d| table.clusters.iter().map(|ks| ks.iter().map(|&k| d[k] * d[k]).sum::<f64>().sqrt()).collect()).collect()
+    table
+        .drive
+        .iter()
+        .map(|d| {
+            table
+                .clusters
+                .iter()
+                .map(|ks| ks.iter().map(|&k| d[k] * d[k]).sum::<f64>().sqrt())
+                .collect()
+        })
+        .collect()
 }
 
 /// The candidates equivalent to candidate `of`: ‖S(u) − S(of)‖ ≤ rtol ‖S(of)‖ (module docs,
 /// section 4), ascending, `of` included.
-pub fn symmetry_orbit(signatures: &[Vec<f64>], of: usize, rtol: f64) -> Result<Vec<usize>, ImpactError> {
-    let reference = signatures.get(of).ok_or(ImpactError::BadOption { name: "orbit candidate", value: of as f64, reason: "is not a candidate index" })?;
+pub fn symmetry_orbit(
+    signatures: &[Vec<f64>],
+    of: usize,
+    rtol: f64,
+) -> Result<Vec<usize>, ImpactError> {
+    let reference = signatures.get(of).ok_or(ImpactError::BadOption {
+        name: "orbit candidate",
+        value: of as f64,
+        reason: "is not a candidate index",
+    })?;
     if !(rtol >= 0.0 && rtol.is_finite()) {
-        return Err(ImpactError::BadOption { name: "rtol", value: rtol, reason: "must be finite and ≥ 0" });
+        return Err(ImpactError::BadOption {
+            name: "rtol",
+            value: rtol,
+            reason: "must be finite and ≥ 0",
+        });
     }
     for s in signatures {
         check_len("signature", s.len(), reference.len())?;
@@ -1439,7 +1829,14 @@ pub fn symmetry_orbit(signatures: &[Vec<f64>], of: usize, rtol: f64) -> Result<V
     Ok(signatures
         .iter()
         .enumerate()
-        .filter(|(_, s)| s.iter().zip(reference).map(|(a, b)| (a - b).powi(2)).sum::<f64>().sqrt() <= rtol * scale)
+        .filter(|(_, s)| {
+            s.iter()
+                .zip(reference)
+                .map(|(a, b)| (a - b).powi(2))
+                .sum::<f64>()
+                .sqrt()
+                <= rtol * scale
+        })
         .map(|(u, _)| u)
         .collect())
 }
@@ -1449,7 +1846,11 @@ fn sub(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
 }
 
 fn cross(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
-    [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]]
+    [
+        a[1] * b[2] - a[2] * b[1],
+        a[2] * b[0] - a[0] * b[2],
+        a[0] * b[1] - a[1] * b[0],
+    ]
 }
 
 fn norm(a: [f64; 3]) -> f64 {

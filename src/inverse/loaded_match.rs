@@ -66,9 +66,9 @@ use std::rc::Rc;
 
 use crate::eigen::reduced::AttachmentProjections;
 
-use super::material::{line_distance, LinePattern, AUDIBLE_FRACTION};
 #[cfg(test)]
 use super::material::capped_nearest;
+use super::material::{line_distance, LinePattern, AUDIBLE_FRACTION};
 
 /// The unloaded Ritz modes at one ν, as the search needs them.
 #[derive(Clone, Debug)]
@@ -133,7 +133,11 @@ impl RegionProblem {
         let n = modes.theta.len();
         let na = extra.map_or(0, |e| e.projections.self_mass.ncols());
         let nr = modes.rigid.ncols();
-        if modes.strike.len() != n || modes.values.ncols() != n || (nr > 0 && (modes.rigid.nrows() != modes.values.nrows() || modes.rigid_strike.len() != nr)) {
+        if modes.strike.len() != n
+            || modes.values.ncols() != n
+            || (nr > 0
+                && (modes.rigid.nrows() != modes.values.nrows() || modes.rigid_strike.len() != nr))
+        {
             return None;
         }
         let size = n + na + nr;
@@ -145,9 +149,13 @@ impl RegionProblem {
         let mut at_region = DMatrix::zeros(3 * region.len(), size);
         for (i, &v) in region.iter().enumerate() {
             for c in 0..3 {
-                at_region.view_mut((3 * i + c, 0), (1, n)).copy_from(&modes.values.row(3 * v + c));
+                at_region
+                    .view_mut((3 * i + c, 0), (1, n))
+                    .copy_from(&modes.values.row(3 * v + c));
                 if nr > 0 {
-                    at_region.view_mut((3 * i + c, n + na), (1, nr)).copy_from(&modes.rigid.row(3 * v + c));
+                    at_region
+                        .view_mut((3 * i + c, n + na), (1, nr))
+                        .copy_from(&modes.rigid.row(3 * v + c));
                 }
             }
         }
@@ -155,24 +163,42 @@ impl RegionProblem {
         if let Some(extra) = extra {
             let p = &extra.projections;
             let z = &modes.coefficients;
-            if z.ncols() != n || z.nrows() != p.cross_mass.nrows() || extra.region_values.nrows() != 3 * region.len() || extra.region_values.ncols() != na || extra.strike.len() != na {
+            if z.ncols() != n
+                || z.nrows() != p.cross_mass.nrows()
+                || extra.region_values.nrows() != 3 * region.len()
+                || extra.region_values.ncols() != na
+                || extra.strike.len() != na
+            {
                 return None;
             }
             let (a, b) = modes.lame;
             let cross_k = z.transpose() * (&p.cross_lambda * a + &p.cross_mu * b);
             let cross_m = z.transpose() * &p.cross_mass;
             stiffness.view_mut((0, n), (n, na)).copy_from(&cross_k);
-            stiffness.view_mut((n, 0), (na, n)).copy_from(&cross_k.transpose());
-            stiffness.view_mut((n, n), (na, na)).copy_from(&(&p.self_lambda * a + &p.self_mu * b));
+            stiffness
+                .view_mut((n, 0), (na, n))
+                .copy_from(&cross_k.transpose());
+            stiffness
+                .view_mut((n, n), (na, na))
+                .copy_from(&(&p.self_lambda * a + &p.self_mu * b));
             mass.view_mut((0, n), (n, na)).copy_from(&cross_m);
-            mass.view_mut((n, 0), (na, n)).copy_from(&cross_m.transpose());
+            mass.view_mut((n, 0), (na, n))
+                .copy_from(&cross_m.transpose());
             mass.view_mut((n, n), (na, na)).copy_from(&p.self_mass);
-            at_region.view_mut((0, n), (3 * region.len(), na)).copy_from(&extra.region_values);
+            at_region
+                .view_mut((0, n), (3 * region.len(), na))
+                .copy_from(&extra.region_values);
             strike.extend_from_slice(&extra.strike);
         }
         strike.extend_from_slice(&modes.rigid_strike[..nr]);
         let gram = at_region.transpose() * &at_region;
-        Some(RegionProblem { stiffness, mass, gram, strike: DVector::from_vec(strike), keep: n })
+        Some(RegionProblem {
+            stiffness,
+            mass,
+            gram,
+            strike: DVector::from_vec(strike),
+            keep: n,
+        })
     }
 
     /// The lowest `keep` loaded Ritz values θ' ascending with their drives (Σ_j y_j s_j)²;
@@ -195,7 +221,12 @@ impl RegionProblem {
         // Rigid-body traces the extra vectors might still carry would sit near 0, far below any
         // elastic loaded value (a mass of 16 % lowers none by more than a few times): drop
         // values under 10⁻⁶ of the largest diagonal entry of K.
-        let floor = 1e-6 * self.stiffness.diagonal().iter().fold(0.0_f64, |m, v| m.max(*v));
+        let floor = 1e-6
+            * self
+                .stiffness
+                .diagonal()
+                .iter()
+                .fold(0.0_f64, |m, v| m.max(*v));
         let mut out: Vec<(f64, f64)> = (0..eig.eigenvalues.len())
             .filter(|&k| eig.eigenvalues[k] > floor)
             .map(|k| {
@@ -216,12 +247,19 @@ impl RegionProblem {
 /// The modes (and the rigid motions, if `modes` has them) form the basis. Empty if `modes` is
 /// inconsistent.
 pub fn loaded_modes(modes: &ModesAtPoisson, region: &[usize], alpha: f64) -> Vec<(f64, f64)> {
-    RegionProblem::new(modes, region, None).map(|p| p.solve(alpha)).unwrap_or_default()
+    RegionProblem::new(modes, region, None)
+        .map(|p| p.solve(alpha))
+        .unwrap_or_default()
 }
 
 /// As [`loaded_modes`], in the basis enriched by the region's attachment vectors
 /// ([`Enrichment`]); `None` if the enrichment does not fit the modes.
-pub fn loaded_modes_enriched(modes: &ModesAtPoisson, region: &[usize], extra: &Enrichment, alpha: f64) -> Option<Vec<(f64, f64)>> {
+pub fn loaded_modes_enriched(
+    modes: &ModesAtPoisson,
+    region: &[usize],
+    extra: &Enrichment,
+    alpha: f64,
+) -> Option<Vec<(f64, f64)>> {
     RegionProblem::new(modes, region, Some(extra)).map(|p| p.solve(alpha))
 }
 
@@ -269,7 +307,9 @@ pub struct LoadedMatchSettings {
 impl Default for LoadedMatchSettings {
     fn default() -> Self {
         LoadedMatchSettings {
-            mass_fractions: vec![0.005, 0.0075, 0.01, 0.015, 0.02, 0.03, 0.04, 0.05, 0.065, 0.08, 0.10, 0.13, 0.16],
+            mass_fractions: vec![
+                0.005, 0.0075, 0.01, 0.015, 0.02, 0.03, 0.04, 0.05, 0.065, 0.08, 0.10, 0.13, 0.16,
+            ],
             poisson_bounds: (0.0, 0.49),
             coarse_poisson_step: 0.01,
             shift_window: (0.05, 0.15),
@@ -327,8 +367,15 @@ pub struct LoadedMatchProblem<'a> {
 }
 
 /// Runs the search (module docs). `modes_at(ν)` gives the unloaded Ritz modes.
-pub fn loaded_line_match(problem: &LoadedMatchProblem, modes_at: &dyn Fn(f64) -> ModesAtPoisson, settings: &LoadedMatchSettings) -> Result<LoadedMatch, String> {
-    loaded_line_candidates(problem, modes_at, settings, 1)?.into_iter().next().ok_or_else(|| "the loaded line match found no candidate".to_string())
+pub fn loaded_line_match(
+    problem: &LoadedMatchProblem,
+    modes_at: &dyn Fn(f64) -> ModesAtPoisson,
+    settings: &LoadedMatchSettings,
+) -> Result<LoadedMatch, String> {
+    loaded_line_candidates(problem, modes_at, settings, 1)?
+        .into_iter()
+        .next()
+        .ok_or_else(|| "the loaded line match found no candidate".to_string())
 }
 
 /// The search's `candidates` best answers at distinct sites, best first: the best coarse
@@ -336,8 +383,18 @@ pub fn loaded_line_match(problem: &LoadedMatchProblem, modes_at: &dyn Fn(f64) ->
 /// pass. A caller that can afford full solves checks them ([`scale_fit`]): the Ritz model's
 /// error grows with the mass and away from the attachment vectors' ν, and a search over
 /// thousands of configurations finds the places where it errs in its favour.
-pub fn loaded_line_candidates(problem: &LoadedMatchProblem, modes_at: &dyn Fn(f64) -> ModesAtPoisson, settings: &LoadedMatchSettings, candidates: usize) -> Result<Vec<LoadedMatch>, String> {
-    let mut target: Vec<f64> = problem.target_ln_f.iter().copied().filter(|x| x.is_finite()).collect();
+pub fn loaded_line_candidates(
+    problem: &LoadedMatchProblem,
+    modes_at: &dyn Fn(f64) -> ModesAtPoisson,
+    settings: &LoadedMatchSettings,
+    candidates: usize,
+) -> Result<Vec<LoadedMatch>, String> {
+    let mut target: Vec<f64> = problem
+        .target_ln_f
+        .iter()
+        .copied()
+        .filter(|x| x.is_finite())
+        .collect();
     if target.is_empty() {
         return Err("the loaded line match needs the target's mode frequencies".into());
     }
@@ -345,61 +402,84 @@ pub fn loaded_line_candidates(problem: &LoadedMatchProblem, modes_at: &dyn Fn(f6
         return Err("the loaded line match needs at least one candidate region".into());
     }
     if !(problem.density > 0.0 && problem.volume > 0.0 && problem.plain_youngs > 0.0) {
-        return Err(format!("density {}, volume {} and E {} must be positive", problem.density, problem.volume, problem.plain_youngs));
+        return Err(format!(
+            "density {}, volume {} and E {} must be positive",
+            problem.density, problem.volume, problem.plain_youngs
+        ));
     }
     target.sort_by(f64::total_cmp);
     let two_pi_ln = (2.0 * std::f64::consts::PI).ln();
     let c_plain = 0.5 * (problem.plain_youngs / problem.density).ln() - two_pi_ln;
     let cap = settings.cap;
     let ceiling = problem.ceiling_ln_f;
-    let distance = |u: &LinePattern, c: f64| line_distance(&target, u, c, ceiling, cap, settings.audible);
+    let distance =
+        |u: &LinePattern, c: f64| line_distance(&target, u, c, ceiling, cap, settings.audible);
     let pattern = |loaded: &[(f64, f64)]| LinePattern::new(loaded.iter().copied());
     // Best scale for a pattern over c_plain − below … c_plain + above, by `step`, then ten
     // times finer around the best.
-    let best_shift = |u: &LinePattern, centre: f64, below: f64, above: f64, step: f64| -> (f64, f64, usize) {
-        let mut best = (f64::INFINITY, centre);
-        let n = ((below + above) / step).ceil() as usize;
-        let mut evals = 0;
-        for i in 0..=n {
-            let c = centre - below + i as f64 * step;
-            let d = distance(u, c);
-            evals += 1;
-            if d < best.0 {
-                best = (d, c);
+    let best_shift =
+        |u: &LinePattern, centre: f64, below: f64, above: f64, step: f64| -> (f64, f64, usize) {
+            let mut best = (f64::INFINITY, centre);
+            let n = ((below + above) / step).ceil() as usize;
+            let mut evals = 0;
+            for i in 0..=n {
+                let c = centre - below + i as f64 * step;
+                let d = distance(u, c);
+                evals += 1;
+                if d < best.0 {
+                    best = (d, c);
+                }
             }
-        }
-        let c0 = best.1;
-        for i in -10..=10 {
-            let c = c0 + i as f64 * step / 10.0;
-            let d = distance(u, c);
-            evals += 1;
-            if d < best.0 {
-                best = (d, c);
+            let c0 = best.1;
+            for i in -10..=10 {
+                let c = c0 + i as f64 * step / 10.0;
+                let d = distance(u, c);
+                evals += 1;
+                if d < best.0 {
+                    best = (d, c);
+                }
             }
-        }
-        (best.0, best.1, evals)
-    };
+            (best.0, best.1, evals)
+        };
     let body_mass = problem.density * problem.volume;
-    let alpha_of = |fraction: f64, region: usize| fraction * problem.volume / problem.regions[region].len().max(1) as f64;
+    let alpha_of = |fraction: f64, region: usize| {
+        fraction * problem.volume / problem.regions[region].len().max(1) as f64
+    };
     let region_problem = |modes: &ModesAtPoisson, r: usize, anchor: f64| -> Option<RegionProblem> {
         let region = &problem.regions[r];
         let extra = problem.enrichment.and_then(|enrich| enrich(r, anchor));
-        extra.and_then(|extra| RegionProblem::new(modes, region, Some(&extra))).or_else(|| RegionProblem::new(modes, region, None))
+        extra
+            .and_then(|extra| RegionProblem::new(modes, region, Some(&extra)))
+            .or_else(|| RegionProblem::new(modes, region, None))
     };
 
     // The best (distance, c, ν, region, fraction) of each coarse region, for the candidates.
-    let mut per_region: Vec<(f64, f64, f64, usize, f64)> = problem.coarse.iter().map(|&r| (f64::INFINITY, c_plain, settings.poisson_bounds.0, r, 0.0)).collect();
+    let mut per_region: Vec<(f64, f64, f64, usize, f64)> = problem
+        .coarse
+        .iter()
+        .map(|&r| (f64::INFINITY, c_plain, settings.poisson_bounds.0, r, 0.0))
+        .collect();
     let evaluations = std::cell::Cell::new(0usize);
     let (lo, hi) = settings.poisson_bounds;
-    let n_nu = ((hi - lo) / settings.coarse_poisson_step.max(1e-4)).ceil().max(1.0) as usize;
+    let n_nu = ((hi - lo) / settings.coarse_poisson_step.max(1e-4))
+        .ceil()
+        .max(1.0) as usize;
     for i in 0..=n_nu {
         let nu = lo + (hi - lo) * i as f64 / n_nu as f64;
         let modes = modes_at(nu);
         for (slot, &r) in problem.coarse.iter().enumerate() {
-            let Some(reduced) = region_problem(&modes, r, problem.anchor_poisson) else { continue };
+            let Some(reduced) = region_problem(&modes, r, problem.anchor_poisson) else {
+                continue;
+            };
             for &fraction in &settings.mass_fractions {
                 let u = pattern(&reduced.solve(alpha_of(fraction, r)));
-                let (d, c, e) = best_shift(&u, c_plain, settings.shift_window.0, settings.shift_window.1, 1e-3);
+                let (d, c, e) = best_shift(
+                    &u,
+                    c_plain,
+                    settings.shift_window.0,
+                    settings.shift_window.1,
+                    1e-3,
+                );
                 evaluations.set(evaluations.get() + e);
                 if d < per_region[slot].0 {
                     per_region[slot] = (d, c, nu, r, fraction);
@@ -426,9 +506,18 @@ pub fn loaded_line_candidates(problem: &LoadedMatchProblem, modes_at: &dyn Fn(f6
     // One fine pass around `from` with the attachment vectors at `anchor`: ν ± `half` by
     // `step`, the first `limit` regions next to `from`'s, the mass ± 15 %. With `keep`, `from` itself stands
     // (its distance is by the same model); otherwise only this pass's points compete.
-    let fine_pass = |from: (f64, f64, f64, usize, f64), anchor: f64, half: f64, step: f64, keep: bool, limit: usize| {
+    let fine_pass = |from: (f64, f64, f64, usize, f64),
+                     anchor: f64,
+                     half: f64,
+                     step: f64,
+                     keep: bool,
+                     limit: usize| {
         let (_, c0, nu0, r0, fraction0) = from;
-        let mut best = if keep { from } else { (f64::INFINITY, c0, nu0, r0, fraction0) };
+        let mut best = if keep {
+            from
+        } else {
+            (f64::INFINITY, c0, nu0, r0, fraction0)
+        };
         let mut regions = (problem.neighbours)(r0);
         regions.truncate(limit.max(1));
         let steps = (half / step).round() as i64;
@@ -436,7 +525,9 @@ pub fn loaded_line_candidates(problem: &LoadedMatchProblem, modes_at: &dyn Fn(f6
             let nu = (nu0 + j as f64 * step).clamp(lo, hi);
             let modes = modes_at(nu);
             for &r in &regions {
-                let Some(reduced) = region_problem(&modes, r, anchor) else { continue };
+                let Some(reduced) = region_problem(&modes, r, anchor) else {
+                    continue;
+                };
                 for s in -3..=3 {
                     let fraction = fraction0 * (1.0 + 0.05 * s as f64);
                     let u = pattern(&reduced.solve(alpha_of(fraction, r)));
@@ -448,9 +539,19 @@ pub fn loaded_line_candidates(problem: &LoadedMatchProblem, modes_at: &dyn Fn(f6
                 }
             }
         }
-        if best.0.is_finite() { best } else { from }
+        if best.0.is_finite() {
+            best
+        } else {
+            from
+        }
     };
-    let snap = |nu: f64| if settings.anchor_step > 0.0 { (nu / settings.anchor_step).round() * settings.anchor_step } else { nu };
+    let snap = |nu: f64| {
+        if settings.anchor_step > 0.0 {
+            (nu / settings.anchor_step).round() * settings.anchor_step
+        } else {
+            nu
+        }
+    };
     let mut out = Vec::with_capacity(seeds.len());
     for seed in seeds {
         let mut best = fine_pass(seed, problem.anchor_poisson, 0.01, 0.001, true, usize::MAX);
@@ -462,11 +563,26 @@ pub fn loaded_line_candidates(problem: &LoadedMatchProblem, modes_at: &dyn Fn(f6
                     break;
                 }
                 anchor = next;
-                best = fine_pass(best, anchor, settings.reanchor_window, settings.reanchor_step, false, settings.reanchor_regions);
+                best = fine_pass(
+                    best,
+                    anchor,
+                    settings.reanchor_window,
+                    settings.reanchor_step,
+                    false,
+                    settings.reanchor_regions,
+                );
             }
         }
         let (d, c, nu, r, fraction) = best;
-        out.push(LoadedMatch { youngs: problem.density * (2.0 * (c + two_pi_ln)).exp(), poisson: nu, mass_kg: fraction * body_mass, region: r, distance: d, evaluations: evaluations.get(), anchor_poisson: anchor });
+        out.push(LoadedMatch {
+            youngs: problem.density * (2.0 * (c + two_pi_ln)).exp(),
+            poisson: nu,
+            mass_kg: fraction * body_mass,
+            region: r,
+            distance: d,
+            evaluations: evaluations.get(),
+            anchor_poisson: anchor,
+        });
     }
     out.sort_by(|a, b| a.distance.total_cmp(&b.distance));
     Ok(out)
@@ -475,15 +591,31 @@ pub fn loaded_line_candidates(problem: &LoadedMatchProblem, modes_at: &dyn Fn(f6
 /// The line match of a given loaded spectrum (θ'_k for E/ρ = 1 with their drives, e.g. from a
 /// full solve): its distance and E at the best scale within `window` (ln f, below and above)
 /// of `youngs_centre`, with the search's cap and audibility.
-pub fn scale_fit(target_ln_f: &[f64], ceiling_ln_f: f64, loaded: &[(f64, f64)], density: f64, youngs_centre: f64, window: f64, settings: &LoadedMatchSettings) -> (f64, f64) {
-    let mut target: Vec<f64> = target_ln_f.iter().copied().filter(|x| x.is_finite()).collect();
+pub fn scale_fit(
+    target_ln_f: &[f64],
+    ceiling_ln_f: f64,
+    loaded: &[(f64, f64)],
+    density: f64,
+    youngs_centre: f64,
+    window: f64,
+    settings: &LoadedMatchSettings,
+) -> (f64, f64) {
+    let mut target: Vec<f64> = target_ln_f
+        .iter()
+        .copied()
+        .filter(|x| x.is_finite())
+        .collect();
     target.sort_by(f64::total_cmp);
     let u = LinePattern::new(loaded.iter().copied());
     let two_pi_ln = (2.0 * std::f64::consts::PI).ln();
     let centre = 0.5 * (youngs_centre / density).ln() - two_pi_ln;
     let mut best = (f64::INFINITY, centre);
     for step in [1e-3, 1e-4] {
-        let (lo, n) = if step > 5e-4 { (centre - window, (2.0 * window / step).ceil() as i64) } else { (best.1 - 1e-3, 20) };
+        let (lo, n) = if step > 5e-4 {
+            (centre - window, (2.0 * window / step).ceil() as i64)
+        } else {
+            (best.1 - 1e-3, 20)
+        };
         for i in 0..=n {
             let c = lo + i as f64 * step;
             let d = line_distance(&target, &u, c, ceiling_ln_f, settings.cap, settings.audible);
@@ -506,7 +638,15 @@ mod tests {
         let mut values = DMatrix::zeros(6, 3);
         values[(0, 0)] = 2.0; // vertex 0, x: mode 0
         values[(4, 2)] = 1.0; // vertex 1, y: mode 2
-        ModesAtPoisson { theta: vec![1.0, 1.0, 4.0], strike: vec![1.0, 1.0, 1.0], values, lame: (0.0, 0.0), coefficients: DMatrix::zeros(0, 3), rigid: DMatrix::zeros(0, 0), rigid_strike: Vec::new() }
+        ModesAtPoisson {
+            theta: vec![1.0, 1.0, 4.0],
+            strike: vec![1.0, 1.0, 1.0],
+            values,
+            lame: (0.0, 0.0),
+            coefficients: DMatrix::zeros(0, 3),
+            rigid: DMatrix::zeros(0, 0),
+            rigid_strike: Vec::new(),
+        }
     }
 
     #[test]
@@ -521,7 +661,10 @@ mod tests {
         }
         // Without mass the values are θ.
         let none = loaded_modes(&modes, &[0], 0.0);
-        assert!(none.iter().zip([1.0, 1.0, 4.0]).all(|(g, w)| (g.0 - w).abs() < 1e-12));
+        assert!(none
+            .iter()
+            .zip([1.0, 1.0, 4.0])
+            .all(|(g, w)| (g.0 - w).abs() < 1e-12));
     }
 
     #[test]
@@ -532,7 +675,15 @@ mod tests {
         for (i, x) in values.iter_mut().enumerate() {
             *x = ((i * 37 % 11) as f64 - 5.0) / 7.0;
         }
-        let modes = ModesAtPoisson { theta: vec![1.0, 1.3, 2.0, 2.2, 3.5], strike: vec![0.3, -0.2, 0.5, 0.1, 0.4], values, lame: (0.0, 0.0), coefficients: DMatrix::zeros(0, n), rigid: DMatrix::zeros(0, 0), rigid_strike: Vec::new() };
+        let modes = ModesAtPoisson {
+            theta: vec![1.0, 1.3, 2.0, 2.2, 3.5],
+            strike: vec![0.3, -0.2, 0.5, 0.1, 0.4],
+            values,
+            lame: (0.0, 0.0),
+            coefficients: DMatrix::zeros(0, n),
+            rigid: DMatrix::zeros(0, 0),
+            rigid_strike: Vec::new(),
+        };
         let gram = region_gram(&modes, &[0, 1]);
         let alpha = 0.07;
         let loaded = loaded_modes(&modes, &[0, 1], alpha);
@@ -555,7 +706,11 @@ mod tests {
         let l = m.clone().cholesky().unwrap().l();
         let li = l.clone().try_inverse().unwrap();
         let a = &li * k * li.transpose();
-        let mut v: Vec<f64> = SymmetricEigen::new((&a + a.transpose()) * 0.5).eigenvalues.iter().copied().collect();
+        let mut v: Vec<f64> = SymmetricEigen::new((&a + a.transpose()) * 0.5)
+            .eigenvalues
+            .iter()
+            .copied()
+            .collect();
         v.sort_by(f64::total_cmp);
         v.truncate(n);
         v
@@ -563,7 +718,10 @@ mod tests {
 
     /// A free chain of `size` DOFs: spring i has moduli (λ_i, μ_i) = `moduli(i)` in K_λ and
     /// K_μ, and the diagonal M₁ = 1 + 0.2 (i mod 3). Returns (K_λ, K_μ, M₁).
-    fn chain(size: usize, moduli: impl Fn(usize) -> (f64, f64)) -> (DMatrix<f64>, DMatrix<f64>, DMatrix<f64>) {
+    fn chain(
+        size: usize,
+        moduli: impl Fn(usize) -> (f64, f64),
+    ) -> (DMatrix<f64>, DMatrix<f64>, DMatrix<f64>) {
         let mut k_lambda = DMatrix::zeros(size, size);
         let mut k_mu = DMatrix::zeros(size, size);
         for i in 0..size - 1 {
@@ -575,13 +733,21 @@ mod tests {
                 mat[(i + 1, i)] -= k;
             }
         }
-        let mass1 = DMatrix::from_diagonal(&DVector::from_iterator(size, (0..size).map(|i| 1.0 + 0.2 * ((i % 3) as f64))));
+        let mass1 = DMatrix::from_diagonal(&DVector::from_iterator(
+            size,
+            (0..size).map(|i| 1.0 + 0.2 * ((i % 3) as f64)),
+        ));
         (k_lambda, k_mu, mass1)
     }
 
     /// Attachment vectors of the chain: static responses of K + 10⁻³M₁ to unit loads on DOFs
     /// `first..first + 3`, the rigid translation projected out, M₁-normalised.
-    fn chain_attachments(k: &DMatrix<f64>, mass1: &DMatrix<f64>, rigid: &DMatrix<f64>, first: usize) -> DMatrix<f64> {
+    fn chain_attachments(
+        k: &DMatrix<f64>,
+        mass1: &DMatrix<f64>,
+        rigid: &DMatrix<f64>,
+        first: usize,
+    ) -> DMatrix<f64> {
         let mut loads = DMatrix::zeros(k.nrows(), 3);
         for c in 0..3 {
             loads[(first + c, c)] = 1.0;
@@ -603,7 +769,12 @@ mod tests {
         // modes at ν, the candidate region DOFs 30..33 ("vertex" 10), a heavy mass there, the
         // strike at DOF 59.
         let size = 60;
-        let (k_lambda, k_mu, mass1) = chain(size, |i| (1.0 + 0.3 * ((i * 7 % 5) as f64), 2.0 + 0.5 * ((i * 3 % 4) as f64)));
+        let (k_lambda, k_mu, mass1) = chain(size, |i| {
+            (
+                1.0 + 0.3 * ((i * 7 % 5) as f64),
+                2.0 + 0.5 * ((i * 3 % 4) as f64),
+            )
+        });
         let (a, b) = crate::eigen::reduced::lame_unit(0.3);
         let k = &k_lambda * a + &k_mu * b;
         let l = mass1.clone().cholesky().unwrap().l();
@@ -616,13 +787,30 @@ mod tests {
         order.sort_by(|&i, &j| eig.eigenvalues[i].total_cmp(&eig.eigenvalues[j]));
         // order[0] is the rigid translation (θ = 0); the basis is the next 6, M₁-orthonormal.
         let n = 6;
-        let basis = DMatrix::from_columns(&order[1..=n].iter().map(|&i| li.transpose() * eig.eigenvectors.column(i)).collect::<Vec<_>>());
+        let basis = DMatrix::from_columns(
+            &order[1..=n]
+                .iter()
+                .map(|&i| li.transpose() * eig.eigenvectors.column(i))
+                .collect::<Vec<_>>(),
+        );
         let theta: Vec<f64> = order[1..=n].iter().map(|&i| eig.eigenvalues[i]).collect();
         let total: f64 = mass1.diagonal().sum();
         let rigid = DMatrix::from_element(size, 1, 1.0 / total.sqrt());
         let values = basis.clone();
-        let with_rigid = ModesAtPoisson { theta, strike: basis.row(size - 1).iter().copied().collect(), values, lame: (a, b), coefficients: DMatrix::identity(n, n), rigid: rigid.clone(), rigid_strike: vec![rigid[(size - 1, 0)]] };
-        let without_rigid = ModesAtPoisson { rigid: DMatrix::zeros(0, 0), rigid_strike: Vec::new(), ..with_rigid.clone() };
+        let with_rigid = ModesAtPoisson {
+            theta,
+            strike: basis.row(size - 1).iter().copied().collect(),
+            values,
+            lame: (a, b),
+            coefficients: DMatrix::identity(n, n),
+            rigid: rigid.clone(),
+            rigid_strike: vec![rigid[(size - 1, 0)]],
+        };
+        let without_rigid = ModesAtPoisson {
+            rigid: DMatrix::zeros(0, 0),
+            rigid_strike: Vec::new(),
+            ..with_rigid.clone()
+        };
         let region = [10usize];
         // Attachment vectors at the region's DOFs.
         let attach = chain_attachments(&k, &mass1, &rigid, 30);
@@ -635,7 +823,11 @@ mod tests {
             self_mass: attach.transpose() * &mass1 * &attach,
             probe_values: DMatrix::zeros(0, 3),
         };
-        let extra = Enrichment { projections, region_values: attach.rows(30, 3).into_owned(), strike: attach.row(size - 1).iter().copied().collect() };
+        let extra = Enrichment {
+            projections,
+            region_values: attach.rows(30, 3).into_owned(),
+            strike: attach.row(size - 1).iter().copied().collect(),
+        };
         let alpha = 8.0;
         let enriched = loaded_modes_enriched(&with_rigid, &region, &extra, alpha).unwrap();
         let modal = loaded_modes(&with_rigid, &region, alpha);
@@ -647,27 +839,62 @@ mod tests {
         }
         let full: Vec<f64> = dense_generalised(&k, &loaded_mass, n + 1)[1..].to_vec();
         // The enriched values equal the dense projection on [Φ, A, R] (its rigid value dropped) …
-        let u = DMatrix::from_fn(size, n + 4, |r, c| if c < n { basis[(r, c)] } else if c < n + 3 { attach[(r, c - n)] } else { rigid[(r, 0)] });
-        let projected = dense_generalised(&(u.transpose() * &k * &u), &(u.transpose() * &loaded_mass * &u), n + 1)[1..].to_vec();
+        let u = DMatrix::from_fn(size, n + 4, |r, c| {
+            if c < n {
+                basis[(r, c)]
+            } else if c < n + 3 {
+                attach[(r, c - n)]
+            } else {
+                rigid[(r, 0)]
+            }
+        });
+        let projected = dense_generalised(
+            &(u.transpose() * &k * &u),
+            &(u.transpose() * &loaded_mass * &u),
+            n + 1,
+        )[1..]
+            .to_vec();
         assert_eq!(enriched.len(), n);
         for (e, p) in enriched.iter().zip(&projected) {
-            assert!((e.0 / p - 1.0).abs() < 1e-9, "enriched {enriched:?} against projected {projected:?}");
+            assert!(
+                (e.0 / p - 1.0).abs() < 1e-9,
+                "enriched {enriched:?} against projected {projected:?}"
+            );
         }
         // … bound the full values from above, below the modal values, and are several times
         // closer to the full solve.
         let (mut modal_error, mut enriched_error) = (0.0_f64, 0.0_f64);
         for ((e, m), f) in enriched.iter().zip(&modal).zip(&full) {
-            assert!(e.0 >= f * (1.0 - 1e-9) && e.0 <= m.0 * (1.0 + 1e-9), "full {f}, enriched {}, modal {}", e.0, m.0);
+            assert!(
+                e.0 >= f * (1.0 - 1e-9) && e.0 <= m.0 * (1.0 + 1e-9),
+                "full {f}, enriched {}, modal {}",
+                e.0,
+                m.0
+            );
             modal_error = modal_error.max(m.0 / f - 1.0);
             enriched_error = enriched_error.max(e.0 / f - 1.0);
         }
-        assert!(modal_error > 1e-2, "the test case must be hard for the modes alone: {modal_error}");
-        assert!(enriched_error < 0.2 * modal_error, "enriched error {enriched_error} against modal {modal_error}");
+        assert!(
+            modal_error > 1e-2,
+            "the test case must be hard for the modes alone: {modal_error}"
+        );
+        assert!(
+            enriched_error < 0.2 * modal_error,
+            "enriched error {enriched_error} against modal {modal_error}"
+        );
         // Without the rigid motion the basis anchors the body: the first value falls below
         // the full solve's (no bound), which is why the basis carries it.
-        assert!(anchored[0].0 < full[0] * (1.0 - 1e-3), "anchored {} against full {}", anchored[0].0, full[0]);
+        assert!(
+            anchored[0].0 < full[0] * (1.0 - 1e-3),
+            "anchored {} against full {}",
+            anchored[0].0,
+            full[0]
+        );
         // A mismatched enrichment is refused, not misused.
-        let wrong = Enrichment { strike: vec![0.0; 2], ..extra };
+        let wrong = Enrichment {
+            strike: vec![0.0; 2],
+            ..extra
+        };
         assert!(loaded_modes_enriched(&with_rigid, &region, &wrong, alpha).is_none());
     }
 
@@ -680,7 +907,12 @@ mod tests {
         // the plain match's ν, the first anchor, is 0.05. (On this chain the fixed anchor's
         // search still lands near the true ν; on the bowl it did not, module docs.)
         let size = 60;
-        let (k_lambda, k_mu, mass1) = chain(size, |i| (0.2 + 1.5 * ((i * 7 % 5) as f64), 2.0 + 0.5 * ((i * 3 % 4) as f64)));
+        let (k_lambda, k_mu, mass1) = chain(size, |i| {
+            (
+                0.2 + 1.5 * ((i * 7 % 5) as f64),
+                2.0 + 0.5 * ((i * 3 % 4) as f64),
+            )
+        });
         let total: f64 = mass1.diagonal().sum();
         let stiffness_at = |nu: f64| {
             let (a, b) = crate::eigen::reduced::lame_unit(nu);
@@ -695,8 +927,20 @@ mod tests {
             let mut order: Vec<usize> = (0..eig.eigenvalues.len()).collect();
             order.sort_by(|&i, &j| eig.eigenvalues[i].total_cmp(&eig.eigenvalues[j]));
             let floor = 1e-9 * eig.eigenvalues.amax();
-            let keep: Vec<usize> = order.into_iter().filter(|&i| eig.eigenvalues[i] > floor).take(n).collect();
-            (keep.iter().map(|&i| eig.eigenvalues[i]).collect(), DMatrix::from_columns(&keep.iter().map(|&i| li.transpose() * eig.eigenvectors.column(i)).collect::<Vec<_>>()))
+            let keep: Vec<usize> = order
+                .into_iter()
+                .filter(|&i| eig.eigenvalues[i] > floor)
+                .take(n)
+                .collect();
+            (
+                keep.iter().map(|&i| eig.eigenvalues[i]).collect(),
+                DMatrix::from_columns(
+                    &keep
+                        .iter()
+                        .map(|&i| li.transpose() * eig.eigenvectors.column(i))
+                        .collect::<Vec<_>>(),
+                ),
+            )
         };
         let n = 6;
         // V: the first n modes at ν = 0.1, 0.25, 0.4, M-orthonormalised (Gram–Schmidt twice).
@@ -719,9 +963,21 @@ mod tests {
         }
         let space = DMatrix::from_columns(&columns);
         let modes_at = |nu: f64| -> ModesAtPoisson {
-            let (theta, z) = elastic(&(space.transpose() * stiffness_at(nu) * &space), &DMatrix::identity(space.ncols(), space.ncols()), n);
+            let (theta, z) = elastic(
+                &(space.transpose() * stiffness_at(nu) * &space),
+                &DMatrix::identity(space.ncols(), space.ncols()),
+                n,
+            );
             let values = &space * &z;
-            ModesAtPoisson { theta, strike: values.row(size - 1).iter().copied().collect(), values, lame: crate::eigen::reduced::lame_unit(nu), coefficients: z, rigid: rigid.clone(), rigid_strike: vec![rigid[(size - 1, 0)]] }
+            ModesAtPoisson {
+                theta,
+                strike: values.row(size - 1).iter().copied().collect(),
+                values,
+                lame: crate::eigen::reduced::lame_unit(nu),
+                coefficients: z,
+                rigid: rigid.clone(),
+                rigid_strike: vec![rigid[(size - 1, 0)]],
+            }
         };
         let candidates = [4usize, 10, 15];
         let regions: Vec<Vec<usize>> = candidates.iter().map(|&v| vec![v]).collect();
@@ -740,7 +996,11 @@ mod tests {
                 self_mass: attach.transpose() * &mass1 * &attach,
                 probe_values: DMatrix::zeros(0, 3),
             };
-            Some(Rc::new(Enrichment { projections, region_values: attach.rows(3 * v, 3).into_owned(), strike: attach.row(size - 1).iter().copied().collect() }))
+            Some(Rc::new(Enrichment {
+                projections,
+                region_values: attach.rows(3 * v, 3).into_owned(),
+                strike: attach.row(size - 1).iter().copied().collect(),
+            }))
         };
         // The full loaded solve, as θ' (E/ρ = 1) with drives, and its line frequencies.
         let (density, youngs) = (2700.0_f64, 7e10_f64);
@@ -751,34 +1011,90 @@ mod tests {
                 loaded[(3 * vertex + c, 3 * vertex + c)] += fraction * total;
             }
             let (theta, phi) = elastic(&stiffness_at(nu), &loaded, n);
-            theta.into_iter().enumerate().map(|(k, t)| (t, phi[(size - 1, k)].powi(2))).collect()
+            theta
+                .into_iter()
+                .enumerate()
+                .map(|(k, t)| (t, phi[(size - 1, k)].powi(2)))
+                .collect()
         };
         let (truth_nu, truth_fraction) = (0.32, 0.10);
-        let target: Vec<f64> = full_solve(truth_nu, 10, truth_fraction).iter().map(|p| 0.5 * p.0.ln() + 0.5 * (youngs / density).ln() - two_pi_ln).collect();
+        let target: Vec<f64> = full_solve(truth_nu, 10, truth_fraction)
+            .iter()
+            .map(|p| 0.5 * p.0.ln() + 0.5 * (youngs / density).ln() - two_pi_ln)
+            .collect();
         let neighbours = |r: usize| vec![r];
-        let problem = LoadedMatchProblem { target_ln_f: &target, ceiling_ln_f: f64::INFINITY, density, volume: total, regions: &regions, coarse: &[0, 1, 2], neighbours: &neighbours, plain_youngs: youngs, enrichment: Some(&enrich), anchor_poisson: 0.05 };
+        let problem = LoadedMatchProblem {
+            target_ln_f: &target,
+            ceiling_ln_f: f64::INFINITY,
+            density,
+            volume: total,
+            regions: &regions,
+            coarse: &[0, 1, 2],
+            neighbours: &neighbours,
+            plain_youngs: youngs,
+            enrichment: Some(&enrich),
+            anchor_poisson: 0.05,
+        };
         let run = |rounds: usize| {
             anchors_asked.borrow_mut().clear();
-            let settings = LoadedMatchSettings { poisson_bounds: (0.0, 0.45), coarse_poisson_step: 0.02, reanchor_rounds: rounds, ..Default::default() };
-            let found = loaded_line_candidates(&problem, &modes_at, &settings, 3).unwrap().into_iter().find(|c| c.region == 1).expect("a candidate at the true site");
+            let settings = LoadedMatchSettings {
+                poisson_bounds: (0.0, 0.45),
+                coarse_poisson_step: 0.02,
+                reanchor_rounds: rounds,
+                ..Default::default()
+            };
+            let found = loaded_line_candidates(&problem, &modes_at, &settings, 3)
+                .unwrap()
+                .into_iter()
+                .find(|c| c.region == 1)
+                .expect("a candidate at the true site");
             // The answer judged as the caller judges it, by a full solve at its ν, site and mass.
-            let checked = scale_fit(&target, f64::INFINITY, &full_solve(found.poisson, 10, found.mass_kg / (density * total)), density, found.youngs, 0.02, &settings).0;
+            let checked = scale_fit(
+                &target,
+                f64::INFINITY,
+                &full_solve(found.poisson, 10, found.mass_kg / (density * total)),
+                density,
+                found.youngs,
+                0.02,
+                &settings,
+            )
+            .0;
             (found, checked, anchors_asked.borrow().clone())
         };
         let (fixed, fixed_checked, fixed_anchors) = run(0);
         let (moved, moved_checked, moved_anchors) = run(3);
         // Without re-anchoring every enrichment is at the plain ν; with it, the answer's
         // attachment vectors are solved within one anchor step of the ν it reached.
-        assert!(fixed_anchors.iter().all(|&a| a == 0.05) && fixed.anchor_poisson == 0.05, "{fixed:?}");
-        assert!(moved_anchors.iter().any(|&a| a != 0.05), "{moved_anchors:?}");
-        assert!((moved.anchor_poisson - moved.poisson).abs() <= 0.005 + 1e-12, "{moved:?}");
+        assert!(
+            fixed_anchors.iter().all(|&a| a == 0.05) && fixed.anchor_poisson == 0.05,
+            "{fixed:?}"
+        );
+        assert!(
+            moved_anchors.iter().any(|&a| a != 0.05),
+            "{moved_anchors:?}"
+        );
+        assert!(
+            (moved.anchor_poisson - moved.poisson).abs() <= 0.005 + 1e-12,
+            "{moved:?}"
+        );
         // Far from its anchor the enriched model misjudges the answer (here 24 times the full
         // solve's distance); anchored where the search ends, its distance is the full solve's
         // within a factor 2, so the search compares configurations by a faithful model.
-        assert!((moved.poisson - truth_nu).abs() < 0.01, "re-anchored {moved:?}");
+        assert!(
+            (moved.poisson - truth_nu).abs() < 0.01,
+            "re-anchored {moved:?}"
+        );
         let faithful = |ritz: f64, full: f64| (ritz / full).ln().abs() < 2f64.ln();
-        assert!(faithful(moved.distance, moved_checked), "re-anchored: Ritz {:.3e} against full {moved_checked:.3e}", moved.distance);
-        assert!(!faithful(fixed.distance, fixed_checked), "the test needs a misled fixed anchor: Ritz {:.3e} against full {fixed_checked:.3e}", fixed.distance);
+        assert!(
+            faithful(moved.distance, moved_checked),
+            "re-anchored: Ritz {:.3e} against full {moved_checked:.3e}",
+            moved.distance
+        );
+        assert!(
+            !faithful(fixed.distance, fixed_checked),
+            "the test needs a misled fixed anchor: Ritz {:.3e} against full {fixed_checked:.3e}",
+            fixed.distance
+        );
     }
 
     #[test]
@@ -791,22 +1107,56 @@ mod tests {
         values[(0, 2)] = 80.0;
         values[(4, 1)] = 120.0;
         values[(3, 4)] = 50.0;
-        let theta: Vec<f64> = [1.0_f64, 1.0, 2.6, 2.6, 5.1, 7.3].iter().map(|t| t * 1e7).collect();
-        let modes = ModesAtPoisson { theta, strike: vec![1.0; n], values, lame: (0.0, 0.0), coefficients: DMatrix::zeros(0, n), rigid: DMatrix::zeros(0, 0), rigid_strike: Vec::new() };
+        let theta: Vec<f64> = [1.0_f64, 1.0, 2.6, 2.6, 5.1, 7.3]
+            .iter()
+            .map(|t| t * 1e7)
+            .collect();
+        let modes = ModesAtPoisson {
+            theta,
+            strike: vec![1.0; n],
+            values,
+            lame: (0.0, 0.0),
+            coefficients: DMatrix::zeros(0, n),
+            rigid: DMatrix::zeros(0, 0),
+            rigid_strike: Vec::new(),
+        };
         let (density, volume) = (2700.0_f64, 1e-4);
         let truth_youngs = 7e10_f64;
         let regions = vec![vec![0], vec![1]];
         let alpha = 0.04 * volume;
         let two_pi_ln = (2.0 * std::f64::consts::PI).ln();
-        let target: Vec<f64> = loaded_modes(&modes, &regions[0], alpha).iter().map(|p| 0.5 * p.0.ln() + 0.5 * (truth_youngs / density).ln() - two_pi_ln).collect();
+        let target: Vec<f64> = loaded_modes(&modes, &regions[0], alpha)
+            .iter()
+            .map(|p| 0.5 * p.0.ln() + 0.5 * (truth_youngs / density).ln() - two_pi_ln)
+            .collect();
         let neighbours = |_r: usize| vec![0, 1];
-        let problem = LoadedMatchProblem { target_ln_f: &target, ceiling_ln_f: f64::INFINITY, density, volume, regions: &regions, coarse: &[0, 1], neighbours: &neighbours, plain_youngs: 0.9 * truth_youngs, enrichment: None, anchor_poisson: 0.25 };
-        let settings = LoadedMatchSettings { poisson_bounds: (0.2, 0.3), ..Default::default() };
+        let problem = LoadedMatchProblem {
+            target_ln_f: &target,
+            ceiling_ln_f: f64::INFINITY,
+            density,
+            volume,
+            regions: &regions,
+            coarse: &[0, 1],
+            neighbours: &neighbours,
+            plain_youngs: 0.9 * truth_youngs,
+            enrichment: None,
+            anchor_poisson: 0.25,
+        };
+        let settings = LoadedMatchSettings {
+            poisson_bounds: (0.2, 0.3),
+            ..Default::default()
+        };
         let found = loaded_line_match(&problem, &|_nu| modes.clone(), &settings).unwrap();
         assert_eq!(found.region, 0, "{found:?}");
         assert!(found.distance < 1e-4, "{found:?}");
-        assert!((found.mass_kg / (density * volume) - 0.04).abs() < 0.003, "{found:?}");
-        assert!((found.youngs / truth_youngs - 1.0).abs() < 2e-3, "{found:?}");
+        assert!(
+            (found.mass_kg / (density * volume) - 0.04).abs() < 0.003,
+            "{found:?}"
+        );
+        assert!(
+            (found.youngs / truth_youngs - 1.0).abs() < 2e-3,
+            "{found:?}"
+        );
         // The plain pattern (no mass) cannot match the split.
         let plain: Vec<f64> = modes.theta.iter().map(|t| 0.5 * t.ln()).collect();
         let c = 0.5 * (truth_youngs / density).ln() - two_pi_ln;
@@ -818,9 +1168,34 @@ mod tests {
         let modes = toy();
         let regions = vec![vec![0]];
         let neighbours = |_r: usize| vec![0];
-        let problem = LoadedMatchProblem { target_ln_f: &[], ceiling_ln_f: 10.0, density: 2700.0, volume: 1e-4, regions: &regions, coarse: &[0], neighbours: &neighbours, plain_youngs: 7e10, enrichment: None, anchor_poisson: 0.25 };
-        assert!(loaded_line_match(&problem, &|_nu| modes.clone(), &LoadedMatchSettings::default()).is_err());
-        let problem = LoadedMatchProblem { target_ln_f: &[7.0], coarse: &[], ..problem };
-        assert!(loaded_line_match(&problem, &|_nu| modes.clone(), &LoadedMatchSettings::default()).is_err());
+        let problem = LoadedMatchProblem {
+            target_ln_f: &[],
+            ceiling_ln_f: 10.0,
+            density: 2700.0,
+            volume: 1e-4,
+            regions: &regions,
+            coarse: &[0],
+            neighbours: &neighbours,
+            plain_youngs: 7e10,
+            enrichment: None,
+            anchor_poisson: 0.25,
+        };
+        assert!(loaded_line_match(
+            &problem,
+            &|_nu| modes.clone(),
+            &LoadedMatchSettings::default()
+        )
+        .is_err());
+        let problem = LoadedMatchProblem {
+            target_ln_f: &[7.0],
+            coarse: &[],
+            ..problem
+        };
+        assert!(loaded_line_match(
+            &problem,
+            &|_nu| modes.clone(),
+            &LoadedMatchSettings::default()
+        )
+        .is_err());
     }
 }

@@ -40,7 +40,10 @@
 //! against a full solve instead.
 
 use crate::audio::chain::{DampingModel, ModalChain, Strike};
-use crate::audio::loss::{HybridSchedule, LossPhase, MultiScaleSpectralLoss, PeakTransportConfig, PeakTransportLoss, SpectralLossConfig};
+use crate::audio::loss::{
+    HybridSchedule, LossPhase, MultiScaleSpectralLoss, PeakTransportConfig, PeakTransportLoss,
+    SpectralLossConfig,
+};
 use crate::audio::synth::{render_backward, render_samples, BankGradient};
 use crate::eigen::reduced::{PoissonBasis, ReducedModes};
 
@@ -172,18 +175,35 @@ pub struct MaterialFit {
 }
 
 /// (φ_k(x)·n)² for ρ = 1: mode k's driving-point weight at the strike (module docs).
-fn driving_point_weight(basis: &PoissonBasis, modes: &ReducedModes, problem: &MaterialProblem, k: usize) -> f64 {
-    let along: f64 = basis.probe(modes, k).iter().zip(&problem.direction_weights).map(|(v, w)| v * w).sum();
+fn driving_point_weight(
+    basis: &PoissonBasis,
+    modes: &ReducedModes,
+    problem: &MaterialProblem,
+    k: usize,
+) -> f64 {
+    let along: f64 = basis
+        .probe(modes, k)
+        .iter()
+        .zip(&problem.direction_weights)
+        .map(|(v, w)| v * w)
+        .sum();
     along * along
 }
 
 /// Projections c_k (without gain) and the eigenvalues at (E, ν).
-fn modal_inputs(basis: &PoissonBasis, modes: &ReducedModes, problem: &MaterialProblem, youngs: f64) -> (Vec<f64>, Vec<f64>) {
+fn modal_inputs(
+    basis: &PoissonBasis,
+    modes: &ReducedModes,
+    problem: &MaterialProblem,
+    youngs: f64,
+) -> (Vec<f64>, Vec<f64>) {
     let eigenvalues = modes.eigenvalues(youngs, problem.density);
     let projections = (0..modes.theta.len())
         .map(|k| {
             let f = eigenvalues[k].max(0.0).sqrt() / (2.0 * std::f64::consts::PI);
-            band_weight(f, problem.max_frequency_hz) * driving_point_weight(basis, modes, problem, k) / problem.density
+            band_weight(f, problem.max_frequency_hz)
+                * driving_point_weight(basis, modes, problem, k)
+                / problem.density
         })
         .collect();
     (eigenvalues, projections)
@@ -207,7 +227,14 @@ pub fn rms_matched_log_gains(rendered: &[Vec<f64>], targets: &[Vec<f64>]) -> Vec
 }
 
 /// Renders every channel at (E, ν, gains, and per mode·channel log-amplitude offsets if given).
-pub fn render_channels(basis: &PoissonBasis, problem: &MaterialProblem, youngs: f64, poisson: f64, log_gains: &[f64], offsets: Option<&[f64]>) -> Result<Vec<Vec<f64>>, String> {
+pub fn render_channels(
+    basis: &PoissonBasis,
+    problem: &MaterialProblem,
+    youngs: f64,
+    poisson: f64,
+    log_gains: &[f64],
+    offsets: Option<&[f64]>,
+) -> Result<Vec<Vec<f64>>, String> {
     let modes = basis.solve(poisson);
     let (eigenvalues, projections) = modal_inputs(basis, &modes, problem, youngs);
     let n = problem.targets[0].len();
@@ -216,7 +243,11 @@ pub fn render_channels(basis: &PoissonBasis, problem: &MaterialProblem, youngs: 
         .iter()
         .enumerate()
         .map(|(ch, g)| {
-            let c: Vec<f64> = projections.iter().enumerate().map(|(k, p)| p * (g + offsets.map_or(0.0, |o| o[k * n_channels + ch])).exp()).collect();
+            let c: Vec<f64> = projections
+                .iter()
+                .enumerate()
+                .map(|(k, p)| p * (g + offsets.map_or(0.0, |o| o[k * n_channels + ch])).exp())
+                .collect();
             let (bank, _) = ModalChain::new(&eigenvalues, &c, &problem.damping, &problem.strike)?;
             Ok(render_samples(&bank, problem.sample_rate, n))
         })
@@ -231,7 +262,14 @@ enum Losses {
 /// The ν on a grid of `poisson_scan` points over the bounds with the lowest spectral loss at
 /// fixed σ and gains: a global search in one dimension, which makes the fit independent of
 /// the starting ν, at the cost of a few hundred cheap reduced solves.
-fn scan_poisson(basis: &PoissonBasis, problem: &MaterialProblem, spectral: &[MultiScaleSpectralLoss], sigma: f64, log_gains: &[f64], settings: &MaterialFitSettings) -> Result<f64, String> {
+fn scan_poisson(
+    basis: &PoissonBasis,
+    problem: &MaterialProblem,
+    spectral: &[MultiScaleSpectralLoss],
+    sigma: f64,
+    log_gains: &[f64],
+    settings: &MaterialFitSettings,
+) -> Result<f64, String> {
     let (lo, hi) = settings.poisson_bounds;
     let n = settings.poisson_scan.max(2);
     let mut best = (f64::INFINITY, lo);
@@ -291,7 +329,12 @@ pub(crate) fn capped_nearest(from: &[f64], to: &[f64], shift: f64, cap: f64) -> 
 /// ascending, and the ceiling (ln Hz) above which simulated partials are not compared: 1.02 ×
 /// the highest target mode, or the band limit if lower.
 pub(crate) fn line_match_targets(problem: &MaterialProblem) -> Result<(Vec<f64>, f64), String> {
-    let mut target: Vec<f64> = problem.target_modes_hz.iter().filter(|f| f.is_finite() && **f > 0.0).map(|f| f.ln()).collect();
+    let mut target: Vec<f64> = problem
+        .target_modes_hz
+        .iter()
+        .filter(|f| f.is_finite() && **f > 0.0)
+        .map(|f| f.ln())
+        .collect();
     if target.is_empty() {
         return Err("the line-spectrum start needs the target's mode frequencies".into());
     }
@@ -318,17 +361,29 @@ pub(crate) struct LinePattern {
 impl LinePattern {
     /// From (θ_k, weight_k) in any order; θ ≤ 0 (rigid traces) is dropped.
     pub(crate) fn new(partials: impl IntoIterator<Item = (f64, f64)>) -> Self {
-        let mut kept: Vec<(f64, f64)> = partials.into_iter().filter(|p| p.0 > 0.0).map(|(theta, w)| (0.5 * theta.ln(), w)).collect();
+        let mut kept: Vec<(f64, f64)> = partials
+            .into_iter()
+            .filter(|p| p.0 > 0.0)
+            .map(|(theta, w)| (0.5 * theta.ln(), w))
+            .collect();
         kept.sort_by(|a, b| a.0.total_cmp(&b.0));
-        LinePattern { u: kept.iter().map(|p| p.0).collect(), weight: kept.iter().map(|p| p.1).collect() }
+        LinePattern {
+            u: kept.iter().map(|p| p.0).collect(),
+            weight: kept.iter().map(|p| p.1).collect(),
+        }
     }
 
     /// u of the partials the recording should hold at `shift`: at or below `ceiling` (ln Hz)
     /// and at least `audible` × the loudest of those.
     pub(crate) fn heard(&self, shift: f64, ceiling: f64, audible: f64) -> Vec<f64> {
         let in_band = self.u.partition_point(|x| x + shift <= ceiling);
-        let loudest = self.weight[..in_band].iter().fold(0.0_f64, |m, w| m.max(*w));
-        (0..in_band).filter(|&k| self.weight[k] >= audible * loudest).map(|k| self.u[k]).collect()
+        let loudest = self.weight[..in_band]
+            .iter()
+            .fold(0.0_f64, |m, w| m.max(*w));
+        (0..in_band)
+            .filter(|&k| self.weight[k] >= audible * loudest)
+            .map(|k| self.u[k])
+            .collect()
     }
 }
 
@@ -336,7 +391,14 @@ impl LinePattern {
 /// `pattern` shifted by `shift` (module docs of [`line_spectrum_start`]): the capped nearest
 /// distance of every target line to any partial, plus that of every partial the recording
 /// should hold ([`LinePattern::heard`]) to the nearest target line.
-pub(crate) fn line_distance(target: &[f64], pattern: &LinePattern, shift: f64, ceiling: f64, cap: f64, audible: f64) -> f64 {
+pub(crate) fn line_distance(
+    target: &[f64],
+    pattern: &LinePattern,
+    shift: f64,
+    ceiling: f64,
+    cap: f64,
+    audible: f64,
+) -> f64 {
     let heard = pattern.heard(shift, ceiling, audible);
     capped_nearest(target, &pattern.u, shift, cap) + capped_nearest(&heard, target, -shift, cap)
 }
@@ -362,12 +424,19 @@ pub(crate) fn line_distance(target: &[f64], pattern: &LinePattern, shift: f64, c
 /// the 4.49 and 8.00 kHz pairs were "inaudible", the true E scored 1.37·10⁻² and E = 521 GPa
 /// (one model pair on the recorded 4.49 kHz pair, nothing else in band) 1.34·10⁻², and the
 /// diagnosis stopped with two matched modes.
-pub fn line_spectrum_start(basis: &PoissonBasis, problem: &MaterialProblem, start: (f64, f64), settings: &MaterialFitSettings) -> Result<LineSpectrumStart, String> {
+pub fn line_spectrum_start(
+    basis: &PoissonBasis,
+    problem: &MaterialProblem,
+    start: (f64, f64),
+    settings: &MaterialFitSettings,
+) -> Result<LineSpectrumStart, String> {
     let (target, ceiling) = line_match_targets(problem)?;
     let (lo, hi) = settings.poisson_bounds;
     let nus: Vec<f64> = if settings.learn_poisson {
         let n = ((hi - lo) / 0.0025).ceil().max(1.0) as usize;
-        (0..=n).map(|i| lo + (hi - lo) * i as f64 / n as f64).collect()
+        (0..=n)
+            .map(|i| lo + (hi - lo) * i as f64 / n as f64)
+            .collect()
     } else {
         vec![start.1.clamp(lo, hi)]
     };
@@ -379,9 +448,15 @@ pub fn line_spectrum_start(basis: &PoissonBasis, problem: &MaterialProblem, star
     // The partials at ν with their driving-point weights.
     let pattern = |nu: f64| -> LinePattern {
         let modes = basis.solve(nu);
-        LinePattern::new((0..modes.theta.len()).map(|k| (modes.theta[k], driving_point_weight(basis, &modes, problem, k))))
+        LinePattern::new((0..modes.theta.len()).map(|k| {
+            (
+                modes.theta[k],
+                driving_point_weight(basis, &modes, problem, k),
+            )
+        }))
     };
-    let distance = |u: &LinePattern, c: f64| line_distance(&target, u, c, ceiling, cap, AUDIBLE_FRACTION);
+    let distance =
+        |u: &LinePattern, c: f64| line_distance(&target, u, c, ceiling, cap, AUDIBLE_FRACTION);
     let mut evaluations = 0;
     let mut best = (f64::INFINITY, c_lo, nus[0]);
     let coarse = 5e-4;
@@ -416,7 +491,12 @@ pub fn line_spectrum_start(basis: &PoissonBasis, problem: &MaterialProblem, star
         }
     }
     let youngs = problem.density * (2.0 * (best.1 + two_pi_ln)).exp();
-    Ok(LineSpectrumStart { youngs, poisson: best.2, distance: best.0, evaluations })
+    Ok(LineSpectrumStart {
+        youngs,
+        poisson: best.2,
+        distance: best.0,
+        evaluations,
+    })
 }
 
 /// Fits E (and ν) from `start = (E, ν)`. `on_step` sees every step (progress display).
@@ -431,8 +511,15 @@ pub fn fit_material<'p>(
     mut on_step: impl FnMut(&FitStep),
 ) -> Result<MaterialFit, String> {
     let n_channels = problem.targets.len();
-    if n_channels == 0 || problem.targets.iter().any(|t| t.len() != problem.targets[0].len() || t.is_empty()) {
-        return Err("the material fit needs one or more target channels of equal, non-zero length".into());
+    if n_channels == 0
+        || problem
+            .targets
+            .iter()
+            .any(|t| t.len() != problem.targets[0].len() || t.is_empty())
+    {
+        return Err(
+            "the material fit needs one or more target channels of equal, non-zero length".into(),
+        );
     }
     let transport: Vec<PeakTransportLoss> = problem
         .targets
@@ -441,35 +528,83 @@ pub fn fit_material<'p>(
         .collect::<Result<_, _>>()
         .map_err(|e| e.to_string())?;
     let mut losses = Losses::Transport(transport);
-    let mut schedule = HybridSchedule::new(settings.schedule_patience, settings.schedule_min_improvement);
+    let mut schedule = HybridSchedule::new(
+        settings.schedule_patience,
+        settings.schedule_min_improvement,
+    );
     let spectral_losses = || -> Result<Vec<MultiScaleSpectralLoss>, String> {
-        problem.targets.iter().map(|t| MultiScaleSpectralLoss::new(t, settings.spectral.clone())).collect::<Result<_, _>>().map_err(|e| e.to_string())
+        problem
+            .targets
+            .iter()
+            .map(|t| MultiScaleSpectralLoss::new(t, settings.spectral.clone()))
+            .collect::<Result<_, _>>()
+            .map_err(|e| e.to_string())
     };
 
     // Parameters: [σ, ν, γ_0 … γ_(C−1)] with σ = ln E + m(ν), m(ν) = mean_k ln θ_k(ν): the
     // mean log-eigenvalue up to ln ρ. At fixed σ a change of ν keeps the spectrum's overall
     // scale and only changes its spacing, so ν cannot stand in for E while E is still far off.
     let (lo, hi) = settings.poisson_bounds;
-    let mean_log_theta = |modes: &ReducedModes| modes.theta.iter().map(|t| t.ln()).sum::<f64>() / modes.theta.len() as f64;
-    let line_start = if settings.line_spectrum_start && !problem.target_modes_hz.is_empty() { Some(line_spectrum_start(basis, problem, start, settings)?) } else { None };
+    let mean_log_theta = |modes: &ReducedModes| {
+        modes.theta.iter().map(|t| t.ln()).sum::<f64>() / modes.theta.len() as f64
+    };
+    let line_start = if settings.line_spectrum_start && !problem.target_modes_hz.is_empty() {
+        Some(line_spectrum_start(basis, problem, start, settings)?)
+    } else {
+        None
+    };
     let start = line_start.map_or(start, |l| (l.youngs, l.poisson));
     let start_nu = start.1.clamp(lo, hi);
-    let mut params = vec![start.0.ln() + mean_log_theta(&basis.solve(start_nu)), start_nu];
+    let mut params = vec![
+        start.0.ln() + mean_log_theta(&basis.solve(start_nu)),
+        start_nu,
+    ];
     // Gains that match each channel's RMS at the start.
-    let first = render_channels(basis, problem, start.0, params[1], &vec![0.0; n_channels], None)?;
+    let first = render_channels(
+        basis,
+        problem,
+        start.0,
+        params[1],
+        &vec![0.0; n_channels],
+        None,
+    )?;
     params.extend(rms_matched_log_gains(&first, problem.targets));
     let n_modes = basis.solve(start_nu).theta.len();
-    let n_offsets = if settings.free_amplitudes { n_modes * n_channels } else { 0 };
+    let n_offsets = if settings.free_amplitudes {
+        n_modes * n_channels
+    } else {
+        0
+    };
     let offsets_at = 2 + n_channels;
     params.extend(std::iter::repeat_n(0.0, n_offsets));
-    let steps: Vec<f64> = [settings.step_log_youngs, if settings.learn_poisson { settings.step_poisson } else { 0.0 }]
-        .into_iter()
-        .chain(std::iter::repeat_n(settings.step_log_gain, n_channels + n_offsets))
-        .collect();
-    let spectral_steps: Vec<f64> = [settings.spectral_step_log_youngs, if settings.learn_poisson { settings.spectral_step_poisson } else { 0.0 }]
-        .into_iter()
-        .chain(std::iter::repeat_n(settings.step_log_gain, n_channels + n_offsets))
-        .collect();
+    let steps: Vec<f64> = [
+        settings.step_log_youngs,
+        if settings.learn_poisson {
+            settings.step_poisson
+        } else {
+            0.0
+        },
+    ]
+    .into_iter()
+    .chain(std::iter::repeat_n(
+        settings.step_log_gain,
+        n_channels + n_offsets,
+    ))
+    .collect();
+    let spectral_steps: Vec<f64> = [
+        settings.spectral_step_log_youngs,
+        if settings.learn_poisson {
+            settings.spectral_step_poisson
+        } else {
+            0.0
+        },
+    ]
+    .into_iter()
+    .chain(std::iter::repeat_n(
+        settings.step_log_gain,
+        n_channels + n_offsets,
+    ))
+    .collect();
     let mut lower = vec![f64::NEG_INFINITY; params.len()];
     let mut upper = vec![f64::INFINITY; params.len()];
     lower[1] = lo;
@@ -503,9 +638,20 @@ pub fn fit_material<'p>(
         let mut grad = vec![0.0; params.len()];
         let mut total = 0.0;
         for c in 0..n_channels {
-            let offset = |k: usize| if n_offsets > 0 { params[offsets_at + k * n_channels + c] } else { 0.0 };
-            let proj: Vec<f64> = projections.iter().enumerate().map(|(k, p)| p * (params[2 + c] + offset(k)).exp()).collect();
-            let (bank, chain) = ModalChain::new(&eigenvalues, &proj, &problem.damping, &problem.strike)?;
+            let offset = |k: usize| {
+                if n_offsets > 0 {
+                    params[offsets_at + k * n_channels + c]
+                } else {
+                    0.0
+                }
+            };
+            let proj: Vec<f64> = projections
+                .iter()
+                .enumerate()
+                .map(|(k, p)| p * (params[2 + c] + offset(k)).exp())
+                .collect();
+            let (bank, chain) =
+                ModalChain::new(&eigenvalues, &proj, &problem.damping, &problem.strike)?;
             let signal = render_samples(&bank, problem.sample_rate, n);
             let (value, g_signal) = match &losses {
                 Losses::Transport(l) => l[c].value_and_gradient(&signal),
@@ -525,7 +671,13 @@ pub fn fit_material<'p>(
             }
         }
         // From (ln E, ν) to (σ, ν): dL/dσ = dL/dlnE, dL/dν|σ = dL/dν|E − dL/dlnE · m'(ν).
-        let dm_dnu = modes.theta.iter().zip(&modes.dtheta_dnu).map(|(t, d)| d / t).sum::<f64>() / modes.theta.len() as f64;
+        let dm_dnu = modes
+            .theta
+            .iter()
+            .zip(&modes.dtheta_dnu)
+            .map(|(t, d)| d / t)
+            .sum::<f64>()
+            / modes.theta.len() as f64;
         grad[1] -= grad[0] * dm_dnu;
         if schedule.phase() == LossPhase::Transport {
             // ν waits for the scan at the switch, and the gains keep their RMS match: the
@@ -534,7 +686,13 @@ pub fn fit_material<'p>(
             grad[1] = 0.0;
             grad[2..].iter_mut().for_each(|g| *g = 0.0);
         }
-        let record = FitStep { step, phase: schedule.phase(), loss: total, youngs, poisson: nu };
+        let record = FitStep {
+            step,
+            phase: schedule.phase(),
+            loss: total,
+            youngs,
+            poisson: nu,
+        };
         on_step(&record);
         history.push(record);
         adam.step(&mut params, &grad);
@@ -543,7 +701,14 @@ pub fn fit_material<'p>(
         if before == LossPhase::Transport && after == LossPhase::Spectral {
             let spectral = spectral_losses()?;
             if settings.learn_poisson && line_start.is_none() && settings.poisson_scan > 0 {
-                params[1] = scan_poisson(basis, problem, &spectral, params[0], &params[2..offsets_at], settings)?;
+                params[1] = scan_poisson(
+                    basis,
+                    problem,
+                    &spectral,
+                    params[0],
+                    &params[2..offsets_at],
+                    settings,
+                )?;
             }
             losses = Losses::Spectral(spectral);
             adam.reset_moments();
@@ -554,7 +719,10 @@ pub fn fit_material<'p>(
             if recent.len() > settings.patience {
                 recent.pop_front();
                 let (e0, n0) = recent[0];
-                let moved = recent.iter().map(|(e, n)| ((e - e0).abs()).max((n - n0).abs())).fold(0.0, f64::max);
+                let moved = recent
+                    .iter()
+                    .map(|(e, n)| ((e - e0).abs()).max((n - n0).abs()))
+                    .fold(0.0, f64::max);
                 if moved < settings.tolerance {
                     break;
                 }
@@ -571,7 +739,11 @@ pub fn fit_material<'p>(
         youngs,
         poisson: params[1],
         log_gains: params[2..offsets_at].to_vec(),
-        log_amplitude_offsets: if n_offsets > 0 { params[offsets_at..].to_vec() } else { vec![0.0; n_modes * n_channels] },
+        log_amplitude_offsets: if n_offsets > 0 {
+            params[offsets_at..].to_vec()
+        } else {
+            vec![0.0; n_modes * n_channels]
+        },
         steps: history.len(),
         history,
         switched_at: schedule.switched_at(),
@@ -618,20 +790,36 @@ mod tests {
             (16743.8, 8.723e1),
         ];
         let pattern = LinePattern::new(partials.iter().map(|&(f, w): &(f64, f64)| (f * f, w)));
-        let target: Vec<f64> = [1791.98, 1795.76, 4493.03, 4495.90, 8001.12, 8002.79].iter().map(|f: &f64| f.ln()).collect();
+        let target: Vec<f64> = [1791.98, 1795.76, 4493.03, 4495.90, 8001.12, 8002.79]
+            .iter()
+            .map(|f: &f64| f.ln())
+            .collect();
         let ceiling = (1.02_f64 * 8002.79).ln();
         let d = |c: f64| line_distance(&target, &pattern, c, ceiling, 0.02, AUDIBLE_FRACTION);
         // At the truth every recorded line has a partner and every heard partial one too; the
         // weak 8.0 kHz pair (below 10⁻³ of the band's loudest) may pair without being required.
         assert!(d(0.0) < 1e-3, "distance at the truth {}", d(0.0));
         let heard = pattern.heard(0.0, ceiling, AUDIBLE_FRACTION);
-        assert_eq!(heard.len(), 3, "heard {:?}", heard.iter().map(|u| u.exp()).collect::<Vec<_>>());
+        assert_eq!(
+            heard.len(),
+            3,
+            "heard {:?}",
+            heard.iter().map(|u| u.exp()).collect::<Vec<_>>()
+        );
         // The scale that put the lowest model pair on the recorded 4.49 kHz pair loses.
         let wrong = (4493.0_f64 / 1795.7).ln();
-        assert!(d(wrong) > 10.0 * d(0.0), "wrong {} truth {}", d(wrong), d(0.0));
+        assert!(
+            d(wrong) > 10.0 * d(0.0),
+            "wrong {} truth {}",
+            d(wrong),
+            d(0.0)
+        );
         // A scan over E within a factor 8 either way lands at the truth.
         let half = 0.5 * 8.0_f64.ln();
-        let best = (0..=4200).map(|i| -half + i as f64 * 2.0 * half / 4200.0).min_by(|a, b| d(*a).total_cmp(&d(*b))).unwrap();
+        let best = (0..=4200)
+            .map(|i| -half + i as f64 * 2.0 * half / 4200.0)
+            .min_by(|a, b| d(*a).total_cmp(&d(*b)))
+            .unwrap();
         assert!(best.abs() < 1e-3, "best shift {best}");
     }
 

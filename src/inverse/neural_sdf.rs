@@ -82,9 +82,21 @@ pub struct NeuralSdfConfig {
 
 impl NeuralSdfConfig {
     /// A network over the box [lo, hi] (c its centre, ℓ half its longest side).
-    pub fn for_box(lo: [f64; 3], hi: [f64; 3], octaves: usize, hidden: Vec<usize>) -> Result<NeuralSdfConfig, NeuralSdfError> {
-        let longest = (0..3).map(|d| hi[d] - lo[d]).fold(f64::NEG_INFINITY, f64::max);
-        let config = NeuralSdfConfig { centre: [0, 1, 2].map(|d| 0.5 * (lo[d] + hi[d])), length: 0.5 * longest, octaves, hidden };
+    pub fn for_box(
+        lo: [f64; 3],
+        hi: [f64; 3],
+        octaves: usize,
+        hidden: Vec<usize>,
+    ) -> Result<NeuralSdfConfig, NeuralSdfError> {
+        let longest = (0..3)
+            .map(|d| hi[d] - lo[d])
+            .fold(f64::NEG_INFINITY, f64::max);
+        let config = NeuralSdfConfig {
+            centre: [0, 1, 2].map(|d| 0.5 * (lo[d] + hi[d])),
+            length: 0.5 * longest,
+            octaves,
+            hidden,
+        };
         config.validate()?;
         Ok(config)
     }
@@ -93,16 +105,25 @@ impl NeuralSdfConfig {
     pub fn validate(&self) -> Result<(), NeuralSdfError> {
         let bad = |m: String| Err(NeuralSdfError::Invalid(m));
         if !(self.length.is_finite() && self.length > 0.0) {
-            return bad(format!("the box's half-length ℓ must be positive, got {}", self.length));
+            return bad(format!(
+                "the box's half-length ℓ must be positive, got {}",
+                self.length
+            ));
         }
         if self.centre.iter().any(|c| !c.is_finite()) {
             return bad(format!("the box centre {:?} is not finite", self.centre));
         }
         if self.octaves > 12 {
-            return bad(format!("at most 12 octaves (2^12 π is finer than any grid here), got {}", self.octaves));
+            return bad(format!(
+                "at most 12 octaves (2^12 π is finer than any grid here), got {}",
+                self.octaves
+            ));
         }
         if self.hidden.is_empty() || self.hidden.iter().any(|&w| !(1..=1024).contains(&w)) {
-            return bad(format!("hidden layers must be one or more widths in 1..=1024, got {:?}", self.hidden));
+            return bad(format!(
+                "hidden layers must be one or more widths in 1..=1024, got {:?}",
+                self.hidden
+            ));
         }
         Ok(())
     }
@@ -183,14 +204,25 @@ impl NeuralSdf {
                 *w = rng.uniform(-limit, limit);
             }
         }
-        Ok(NeuralSdf { config, parameters, layers })
+        Ok(NeuralSdf {
+            config,
+            parameters,
+            layers,
+        })
     }
 
     /// A network with the given θ (e.g. read back from a result file).
-    pub fn from_parameters(config: NeuralSdfConfig, parameters: Vec<f64>) -> Result<NeuralSdf, NeuralSdfError> {
+    pub fn from_parameters(
+        config: NeuralSdfConfig,
+        parameters: Vec<f64>,
+    ) -> Result<NeuralSdf, NeuralSdfError> {
         config.validate()?;
         let layers = Self::layout(&config);
-        let mut net = NeuralSdf { config, parameters: Vec::new(), layers };
+        let mut net = NeuralSdf {
+            config,
+            parameters: Vec::new(),
+            layers,
+        };
         net.set_parameters(&parameters)?;
         Ok(net)
     }
@@ -201,7 +233,12 @@ impl NeuralSdf {
             .layer_shapes()
             .into_iter()
             .map(|(n_in, n_out)| {
-                let layer = Layer { n_in, n_out, weights: offset, biases: offset + n_in * n_out };
+                let layer = Layer {
+                    n_in,
+                    n_out,
+                    weights: offset,
+                    biases: offset + n_in * n_out,
+                };
                 offset += n_in * n_out + n_out;
                 layer
             })
@@ -225,10 +262,16 @@ impl NeuralSdf {
     pub fn set_parameters(&mut self, parameters: &[f64]) -> Result<(), NeuralSdfError> {
         let n = self.config.n_parameters();
         if parameters.len() != n {
-            return Err(NeuralSdfError::Invalid(format!("{} parameters for a network of {n}", parameters.len())));
+            return Err(NeuralSdfError::Invalid(format!(
+                "{} parameters for a network of {n}",
+                parameters.len()
+            )));
         }
         if let Some(i) = parameters.iter().position(|p| !p.is_finite()) {
-            return Err(NeuralSdfError::Invalid(format!("parameter {i} is {}", parameters[i])));
+            return Err(NeuralSdfError::Invalid(format!(
+                "parameter {i} is {}",
+                parameters[i]
+            )));
         }
         self.parameters = parameters.to_vec();
         Ok(())
@@ -253,12 +296,23 @@ impl NeuralSdf {
     /// The forward pass at x: y (dimensionless) and, if asked, the trace for backpropagation.
     fn forward(&self, x: [f64; 3], keep: bool) -> (f64, Option<Trace>) {
         let mut a = self.encode(x);
-        let mut trace = keep.then(|| Trace { activations: Vec::with_capacity(self.layers.len()), pre: Vec::with_capacity(self.layers.len()) });
+        let mut trace = keep.then(|| Trace {
+            activations: Vec::with_capacity(self.layers.len()),
+            pre: Vec::with_capacity(self.layers.len()),
+        });
         let (hidden, output) = self.layers.split_at(self.layers.len() - 1);
         for l in hidden {
             let w = &self.parameters[l.weights..l.weights + l.n_in * l.n_out];
             let b = &self.parameters[l.biases..l.biases + l.n_out];
-            let z: Vec<f64> = (0..l.n_out).map(|i| b[i] + w[i * l.n_in..(i + 1) * l.n_in].iter().zip(&a).map(|(wi, ai)| wi * ai).sum::<f64>()).collect();
+            let z: Vec<f64> = (0..l.n_out)
+                .map(|i| {
+                    b[i] + w[i * l.n_in..(i + 1) * l.n_in]
+                        .iter()
+                        .zip(&a)
+                        .map(|(wi, ai)| wi * ai)
+                        .sum::<f64>()
+                })
+                .collect();
             let next: Vec<f64> = z.iter().map(|&zi| softplus(zi)).collect();
             if let Some(t) = trace.as_mut() {
                 t.activations.push(std::mem::replace(&mut a, next));
@@ -268,7 +322,12 @@ impl NeuralSdf {
             }
         }
         let o = output[0];
-        let y = self.parameters[o.biases] + self.parameters[o.weights..o.weights + o.n_in].iter().zip(&a).map(|(w, ai)| w * ai).sum::<f64>();
+        let y = self.parameters[o.biases]
+            + self.parameters[o.weights..o.weights + o.n_in]
+                .iter()
+                .zip(&a)
+                .map(|(w, ai)| w * ai)
+                .sum::<f64>();
         if let Some(t) = trace.as_mut() {
             t.activations.push(a);
         }
@@ -287,20 +346,34 @@ impl NeuralSdf {
 
     /// dL/dθ = Σ_p (dL/ds_p) ∂s_p/∂θ for `d_values` = dL/ds at `points` (module docs).
     pub fn vjp(&self, points: &[[f64; 3]], d_values: &[f64]) -> Result<Vec<f64>, NeuralSdfError> {
-        Ok(self.vjp_rows(points, &[d_values])?.pop().expect("one row in, one gradient out"))
+        Ok(self
+            .vjp_rows(points, &[d_values])?
+            .pop()
+            .expect("one row in, one gradient out"))
     }
 
     /// [`Self::vjp`] for several rows of dL/ds at the same points at once: one forward pass
     /// per point serves every row (the geometry task backpropagates a dozen eigenvalue groups
     /// through the same points).
-    pub fn vjp_rows<R: AsRef<[f64]>>(&self, points: &[[f64; 3]], rows: &[R]) -> Result<Vec<Vec<f64>>, NeuralSdfError> {
+    pub fn vjp_rows<R: AsRef<[f64]>>(
+        &self,
+        points: &[[f64; 3]],
+        rows: &[R],
+    ) -> Result<Vec<Vec<f64>>, NeuralSdfError> {
         let rows: Vec<&[f64]> = rows.iter().map(AsRef::as_ref).collect();
         for (r, d_values) in rows.iter().enumerate() {
             if points.len() != d_values.len() {
-                return Err(NeuralSdfError::Invalid(format!("{} points and {} values of dL/ds in row {r}", points.len(), d_values.len())));
+                return Err(NeuralSdfError::Invalid(format!(
+                    "{} points and {} values of dL/ds in row {r}",
+                    points.len(),
+                    d_values.len()
+                )));
             }
             if let Some(i) = d_values.iter().position(|v| !v.is_finite()) {
-                return Err(NeuralSdfError::Invalid(format!("dL/ds at point {i} of row {r} is {}", d_values[i])));
+                return Err(NeuralSdfError::Invalid(format!(
+                    "dL/ds at point {i} of row {r} is {}",
+                    d_values[i]
+                )));
             }
         }
         let mut grads = vec![vec![0.0; self.parameters.len()]; rows.len()];
@@ -356,8 +429,15 @@ impl NeuralSdf {
         let last = self.layers.len() - 1;
         let mut out = Vec::new();
         for (j, l) in self.layers.iter().enumerate() {
-            let name = if j == last { "output".to_string() } else { format!("hidden {j}") };
-            out.push((format!("{name} weights"), l.weights..l.weights + l.n_in * l.n_out));
+            let name = if j == last {
+                "output".to_string()
+            } else {
+                format!("hidden {j}")
+            };
+            out.push((
+                format!("{name} weights"),
+                l.weights..l.weights + l.n_in * l.n_out,
+            ));
             out.push((format!("{name} biases"), l.biases..l.biases + l.n_out));
         }
         out
@@ -370,7 +450,9 @@ mod tests {
     use crate::testing::Rng;
 
     fn net(seed: u64) -> NeuralSdf {
-        let config = NeuralSdfConfig::for_box([-0.03, -0.02, -0.01], [0.05, 0.04, 0.02], 3, vec![16, 12]).unwrap();
+        let config =
+            NeuralSdfConfig::for_box([-0.03, -0.02, -0.01], [0.05, 0.04, 0.02], 3, vec![16, 12])
+                .unwrap();
         NeuralSdf::new(config, seed).unwrap()
     }
 
@@ -379,11 +461,29 @@ mod tests {
         let mut net = net(7);
         // Biases of 0 would leave every softplus at the same point: perturb θ for a generic test.
         let mut rng = Rng(3);
-        let theta: Vec<f64> = net.parameters().iter().map(|p| p + rng.uniform(-0.2, 0.2)).collect();
+        let theta: Vec<f64> = net
+            .parameters()
+            .iter()
+            .map(|p| p + rng.uniform(-0.2, 0.2))
+            .collect();
         net.set_parameters(&theta).unwrap();
-        let points: Vec<[f64; 3]> = (0..9).map(|_| [rng.uniform(-0.03, 0.05), rng.uniform(-0.02, 0.04), rng.uniform(-0.01, 0.02)]).collect();
+        let points: Vec<[f64; 3]> = (0..9)
+            .map(|_| {
+                [
+                    rng.uniform(-0.03, 0.05),
+                    rng.uniform(-0.02, 0.04),
+                    rng.uniform(-0.01, 0.02),
+                ]
+            })
+            .collect();
         let weights = rng.uniform_vec(points.len(), -1.0, 1.0);
-        let loss = |n: &NeuralSdf| n.values(&points).iter().zip(&weights).map(|(s, w)| s * w).sum::<f64>();
+        let loss = |n: &NeuralSdf| {
+            n.values(&points)
+                .iter()
+                .zip(&weights)
+                .map(|(s, w)| s * w)
+                .sum::<f64>()
+        };
         let grad = net.vjp(&points, &weights).unwrap();
         let blocks = net.blocks();
         assert_eq!(blocks.len(), 6);
@@ -401,7 +501,11 @@ mod tests {
                 minus.set_parameters(&p).unwrap();
                 let fd = (loss(&plus) - loss(&minus)) / (2.0 * h);
                 // Central differences: O(h²) truncation, rounding ~1e-16·|L|/h.
-                assert!((fd - grad[i]).abs() <= 1e-7 * (1.0 + grad[i].abs()), "{name} θ[{i}]: vjp {} vs FD {fd}", grad[i]);
+                assert!(
+                    (fd - grad[i]).abs() <= 1e-7 * (1.0 + grad[i].abs()),
+                    "{name} θ[{i}]: vjp {} vs FD {fd}",
+                    grad[i]
+                );
             }
         }
     }
@@ -436,9 +540,19 @@ mod tests {
     fn vjp_rows_equal_one_vjp_per_row() {
         let net = net(5);
         let mut rng = Rng(17);
-        let points: Vec<[f64; 3]> = (0..40).map(|_| [rng.uniform(-0.03, 0.05), rng.uniform(-0.02, 0.04), rng.uniform(-0.01, 0.02)]).collect();
+        let points: Vec<[f64; 3]> = (0..40)
+            .map(|_| {
+                [
+                    rng.uniform(-0.03, 0.05),
+                    rng.uniform(-0.02, 0.04),
+                    rng.uniform(-0.01, 0.02),
+                ]
+            })
+            .collect();
         // Rows with zeros in different places, one all zero.
-        let mut rows: Vec<Vec<f64>> = (0..4).map(|_| rng.uniform_vec(points.len(), -1.0, 1.0)).collect();
+        let mut rows: Vec<Vec<f64>> = (0..4)
+            .map(|_| rng.uniform_vec(points.len(), -1.0, 1.0))
+            .collect();
         rows[1].iter_mut().step_by(3).for_each(|v| *v = 0.0);
         rows[2] = vec![0.0; points.len()];
         let together = net.vjp_rows(&points, &rows).unwrap();

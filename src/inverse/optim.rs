@@ -46,8 +46,14 @@ impl Adam {
     /// # Panics
     /// If the lengths differ from the number of parameters or some lo > hi.
     pub fn with_bounds(mut self, lower: Vec<f64>, upper: Vec<f64>) -> Adam {
-        assert!(lower.len() == self.m.len() && upper.len() == self.m.len(), "one bound per parameter");
-        assert!(lower.iter().zip(&upper).all(|(l, u)| l <= u), "lower bound above upper bound");
+        assert!(
+            lower.len() == self.m.len() && upper.len() == self.m.len(),
+            "one bound per parameter"
+        );
+        assert!(
+            lower.iter().zip(&upper).all(|(l, u)| l <= u),
+            "lower bound above upper bound"
+        );
         self.lower = lower;
         self.upper = upper;
         self
@@ -76,7 +82,11 @@ impl Adam {
     /// # Panics
     /// If the length differs from the number of parameters.
     pub fn set_step_sizes(&mut self, step_sizes: Vec<f64>) {
-        assert_eq!(step_sizes.len(), self.step_sizes.len(), "one step size per parameter");
+        assert_eq!(
+            step_sizes.len(),
+            self.step_sizes.len(),
+            "one step size per parameter"
+        );
         self.step_sizes = step_sizes;
     }
 
@@ -94,7 +104,10 @@ impl Adam {
     /// # Panics
     /// If `params` or `grad` have the wrong length.
     pub fn step(&mut self, params: &mut [f64], grad: &[f64]) {
-        assert!(params.len() == self.m.len() && grad.len() == self.m.len(), "one gradient per parameter");
+        assert!(
+            params.len() == self.m.len() && grad.len() == self.m.len(),
+            "one gradient per parameter"
+        );
         self.t += 1;
         let c1 = 1.0 - self.beta1.powi(self.t);
         let c2 = 1.0 - self.beta2.powi(self.t);
@@ -102,7 +115,8 @@ impl Adam {
             let g = if grad[i].is_finite() { grad[i] } else { 0.0 };
             self.m[i] = self.beta1 * self.m[i] + (1.0 - self.beta1) * g;
             self.v[i] = self.beta2 * self.v[i] + (1.0 - self.beta2) * g * g;
-            let step = self.step_sizes[i] * (self.m[i] / c1) / ((self.v[i] / c2).sqrt() + self.epsilon);
+            let step =
+                self.step_sizes[i] * (self.m[i] / c1) / ((self.v[i] / c2).sqrt() + self.epsilon);
             params[i] = (params[i] - step).clamp(self.lower[i], self.upper[i]);
         }
     }
@@ -121,7 +135,10 @@ mod tests {
             let g = [2.0 * (p[0] - 3.0), 2e6 * (p[1] + 1.0)];
             adam.step(&mut p, &g);
         }
-        assert!((p[0] - 3.0).abs() < 1e-2 && (p[1] + 1.0).abs() < 1e-2, "{p:?}");
+        assert!(
+            (p[0] - 3.0).abs() < 1e-2 && (p[1] + 1.0).abs() < 1e-2,
+            "{p:?}"
+        );
         let mut q = [0.0];
         let mut bounded = Adam::new(vec![0.1]).with_bounds(vec![-1.0], vec![2.0]);
         for _ in 0..500 {
@@ -136,6 +153,9 @@ mod tests {
         let mut p = [1.0, 1.0, 1.0];
         let mut adam = Adam::new(vec![0.5, 0.01, 0.3]);
         adam.step(&mut p, &[1e-12, -1e9, f64::NAN]);
-        assert!((p[0] - 0.5).abs() < 1e-9 && (p[1] - 1.01).abs() < 1e-9 && p[2] == 1.0, "{p:?}");
+        assert!(
+            (p[0] - 0.5).abs() < 1e-9 && (p[1] - 1.01).abs() < 1e-9 && p[2] == 1.0,
+            "{p:?}"
+        );
     }
 }

@@ -406,7 +406,10 @@ use crate::assembly;
 use crate::eigen::sensitivity::{node_gradients, ClusterTreatment};
 use crate::eigen::{self, EigenConfig, ModeRequest};
 use crate::fem::Material;
-use crate::mesh::{self, lift_to_quadratic, linear_node_gradient, BackgroundGrid, MarchingOptions, MarchingReport, SignedDistance, TetMesh, TriangleSurface};
+use crate::mesh::{
+    self, lift_to_quadratic, linear_node_gradient, BackgroundGrid, MarchingOptions, MarchingReport,
+    SignedDistance, TetMesh, TriangleSurface,
+};
 use crate::petsc::{collective, Petsc};
 use std::ops::Range;
 use std::path::Path;
@@ -462,7 +465,15 @@ pub struct ShapeSpectrum {
 
 /// Meshes the field, solves the first `n_modes` elastic modes, and (if asked) their gradients
 /// with respect to the field values. Collective: every rank passes the same field.
-pub fn shape_spectrum(petsc: &Petsc, grid: &BackgroundGrid, values: &[f64], options: &MarchingOptions, material: &Material, n_modes: usize, with_gradient: bool) -> Result<ShapeSpectrum, ShapeError> {
+pub fn shape_spectrum(
+    petsc: &Petsc,
+    grid: &BackgroundGrid,
+    values: &[f64],
+    options: &MarchingOptions,
+    material: &Material,
+    n_modes: usize,
+    with_gradient: bool,
+) -> Result<ShapeSpectrum, ShapeError> {
     if values.iter().all(|v| *v <= 0.0) {
         return Err(ShapeError::Empty);
     }
@@ -476,14 +487,28 @@ pub fn shape_spectrum(petsc: &Petsc, grid: &BackgroundGrid, values: &[f64], opti
     let to_samples = |per_node: &[Vec<f64>]| -> Result<Vec<f64>, ShapeError> {
         let mut flat = Vec::with_capacity(per_node.len() * grid.n_vertices());
         for g in per_node {
-            let corners = linear_node_gradient(linear, &quadratic, g).map_err(|e| ShapeError::Solver(e.to_string()))?;
+            let corners = linear_node_gradient(linear, &quadratic, g)
+                .map_err(|e| ShapeError::Solver(e.to_string()))?;
             flat.extend(marched.vjp(&corners)?.values);
         }
         Ok(flat)
     };
-    let carry = with_gradient.then_some(Carry { len: grid.n_vertices(), map: &to_samples });
-    let (eigenvalues, clusters, gradient) = solve_and_carry(petsc, &quadratic, material, n_modes, &mut timings, carry)?;
-    Ok(ShapeSpectrum { eigenvalues, gradient, clusters, report: marched.report.clone(), tets: linear.n_tets(), p2_nodes: quadratic.n_nodes(), volume: linear.volume(), timings })
+    let carry = with_gradient.then_some(Carry {
+        len: grid.n_vertices(),
+        map: &to_samples,
+    });
+    let (eigenvalues, clusters, gradient) =
+        solve_and_carry(petsc, &quadratic, material, n_modes, &mut timings, carry)?;
+    Ok(ShapeSpectrum {
+        eigenvalues,
+        gradient,
+        clusters,
+        report: marched.report.clone(),
+        tets: linear.n_tets(),
+        p2_nodes: quadratic.n_nodes(),
+        volume: linear.volume(),
+        timings,
+    })
 }
 
 /// How rank 0's node gradients of the first n modes (3 per P2 node each) become numbers of the
@@ -498,18 +523,40 @@ struct Carry<'a> {
 /// 0's node gradients to the field there (only rank 0 holds them) and shares the rows, one per
 /// mode. Adds the assembly, solve and gradient times to `timings`. Collective.
 #[allow(clippy::type_complexity)]
-fn solve_and_carry(petsc: &Petsc, quadratic: &TetMesh, material: &Material, n_modes: usize, timings: &mut StepTimings, carry: Option<Carry>) -> Result<(Vec<f64>, Vec<Range<usize>>, Option<Vec<Vec<f64>>>), ShapeError> {
+fn solve_and_carry(
+    petsc: &Petsc,
+    quadratic: &TetMesh,
+    material: &Material,
+    n_modes: usize,
+    timings: &mut StepTimings,
+    carry: Option<Carry>,
+) -> Result<(Vec<f64>, Vec<Range<usize>>, Option<Vec<Vec<f64>>>), ShapeError> {
     let (assembled, modes) = assemble_and_solve(petsc, quadratic, material, n_modes, timings)?;
     let mut eigenvalues: Vec<f64> = modes.eigenvalues[..n_modes].to_vec();
     collective::broadcast_slice(petsc, &mut eigenvalues);
-    let clusters = modes.clusters.iter().filter(|r| r.start < n_modes).map(|r| r.start..r.end.min(n_modes)).collect();
+    let clusters = modes
+        .clusters
+        .iter()
+        .filter(|r| r.start < n_modes)
+        .map(|r| r.start..r.end.min(n_modes))
+        .collect();
     let rows = match carry {
         Some(carry) => {
             let clock = std::time::Instant::now();
-            let per_node = node_gradients(petsc, quadratic, &assembled.layout, &modes, material, ClusterTreatment::Mean).map_err(|e| ShapeError::Solver(e.to_string()))?;
+            let per_node = node_gradients(
+                petsc,
+                quadratic,
+                &assembled.layout,
+                &modes,
+                material,
+                ClusterTreatment::Mean,
+            )
+            .map_err(|e| ShapeError::Solver(e.to_string()))?;
             // Only rank 0 carries; its failure must reach the ranks waiting for its rows.
-            let carried = per_node.map(|per_node| (carry.map)(&per_node[..n_modes]).map_err(|e| e.to_string()));
-            let flat = collective::share_from_root(petsc, carried, n_modes * carry.len).map_err(ShapeError::Solver)?;
+            let carried = per_node
+                .map(|per_node| (carry.map)(&per_node[..n_modes]).map_err(|e| e.to_string()));
+            let flat = collective::share_from_root(petsc, carried, n_modes * carry.len)
+                .map_err(ShapeError::Solver)?;
             timings.gradient = clock.elapsed().as_secs_f64();
             Some(flat.chunks(carry.len.max(1)).map(<[f64]>::to_vec).collect())
         }
@@ -536,11 +583,19 @@ pub struct ExactCrossing {
 /// root kept at least `margin` from either end so that no piece degenerates). A crossing whose
 /// move would invert or flatten a tet keeps its linear position. Returns the moved linear mesh,
 /// the moved crossings and how many were kept linear.
-pub fn refine_crossings(marched: &mesh::MarchedMesh, grid: &BackgroundGrid, f: &dyn Fn([f64; 3]) -> f64, gradient: Option<mesh::FieldGradient>, margin: f64) -> (TetMesh, Vec<ExactCrossing>, usize) {
+pub fn refine_crossings(
+    marched: &mesh::MarchedMesh,
+    grid: &BackgroundGrid,
+    f: &dyn Fn([f64; 3]) -> f64,
+    gradient: Option<mesh::FieldGradient>,
+    margin: f64,
+) -> (TetMesh, Vec<ExactCrossing>, usize) {
     let mut out = marched.mesh.clone();
     let mut moved = Vec::new();
     for (node, origin) in marched.origins.iter().enumerate() {
-        let mesh::VertexOrigin::Crossing { a, b, t } = *origin else { continue };
+        let mesh::VertexOrigin::Crossing { a, b, t } = *origin else {
+            continue;
+        };
         let (xa, xb) = (grid.vertex_position(a), grid.vertex_position(b));
         let edge = [0, 1, 2].map(|d| xb[d] - xa[d]);
         let at = |u: f64| f([0, 1, 2].map(|d| xa[d] + u * edge[d]));
@@ -578,17 +633,27 @@ pub fn refine_crossings(marched: &mesh::MarchedMesh, grid: &BackgroundGrid, f: &
             Some(g) => (0..3).map(|d| g[d] * edge[d]).sum(),
             None => {
                 let h = 1e-4;
-                (at((u + h).min(1.0)) - at((u - h).max(0.0))) / ((u + h).min(1.0) - (u - h).max(0.0))
+                (at((u + h).min(1.0)) - at((u - h).max(0.0)))
+                    / ((u + h).min(1.0) - (u - h).max(0.0))
             }
         };
         out.nodes[node] = position;
-        moved.push(ExactCrossing { node, position, edge, slope });
+        moved.push(ExactCrossing {
+            node,
+            position,
+            edge,
+            slope,
+        });
     }
     // Undo the moves around any tet that lost its orientation.
     let mut kept_linear = 0;
     let tol = mesh::ZERO_VOLUME_RELATIVE_TOLERANCE * {
         let (lo, hi) = marched.mesh.bounding_box();
-        (0..3).map(|d| (hi[d] - lo[d]).powi(2)).sum::<f64>().sqrt().powi(3)
+        (0..3)
+            .map(|d| (hi[d] - lo[d]).powi(2))
+            .sum::<f64>()
+            .sqrt()
+            .powi(3)
     };
     let mut revert = vec![false; out.nodes.len()];
     for e in 0..out.n_tets() {
@@ -655,23 +720,56 @@ pub struct FieldWeights {
 /// creases (module docs, "Curved boundary"); a general field's direction turns with the field
 /// too (the geometry task's network: 0.3 % of Σ G·dx/dp on a wavy field without it). `gradient`,
 /// f's exact gradient where known, also serves ∇f at the crossings and the curved nodes' roots.
-pub fn curved_body(grid: &BackgroundGrid, values: &[f64], f: &dyn Fn([f64; 3]) -> f64, gradient: Option<mesh::FieldGradient>, options: &MarchingOptions, hessians: bool) -> Result<CurvedBody, ShapeError> {
+pub fn curved_body(
+    grid: &BackgroundGrid,
+    values: &[f64],
+    f: &dyn Fn([f64; 3]) -> f64,
+    gradient: Option<mesh::FieldGradient>,
+    options: &MarchingOptions,
+    hessians: bool,
+) -> Result<CurvedBody, ShapeError> {
     if values.iter().all(|v| *v <= 0.0) {
         return Err(ShapeError::Empty);
     }
     let marched = mesh::march(grid, values, None, options)?;
-    let (linear, crossings, crossings_kept_linear) = refine_crossings(&marched, grid, f, gradient, 0.01);
+    let (linear, crossings, crossings_kept_linear) =
+        refine_crossings(&marched, grid, f, gradient, 0.01);
     let straight = lift_to_quadratic(&linear);
-    let (quadratic, curved, curving) = mesh::curve_boundary(&straight, f, gradient, CURVE_MAX_FRACTION, CURVE_MIN_JACOBIAN_RATIO);
-    let hessians = hessians.then(|| curved.iter().map(|c| difference_hessian(f, gradient, c.origin, c.difference_step)).collect());
-    Ok(CurvedBody { marched, linear, crossings, crossings_kept_linear, quadratic, curved, curving, hessians })
+    let (quadratic, curved, curving) = mesh::curve_boundary(
+        &straight,
+        f,
+        gradient,
+        CURVE_MAX_FRACTION,
+        CURVE_MIN_JACOBIAN_RATIO,
+    );
+    let hessians = hessians.then(|| {
+        curved
+            .iter()
+            .map(|c| difference_hessian(f, gradient, c.origin, c.difference_step))
+            .collect()
+    });
+    Ok(CurvedBody {
+        marched,
+        linear,
+        crossings,
+        crossings_kept_linear,
+        quadratic,
+        curved,
+        curving,
+        hessians,
+    })
 }
 
 /// ∂D_d/∂p_e of the central difference D_d(p) = (f(p + δ e_d) − f(p − δ e_d))/(2δ) at p:
 /// with the exact gradient, (∂_e f(p + δ e_d) − ∂_e f(p − δ e_d))/(2δ), exact also where a
 /// crease of f passes between the stencil's points; otherwise by central differences of step
 /// δ again (symmetric).
-fn difference_hessian(f: &dyn Fn([f64; 3]) -> f64, gradient: Option<mesh::FieldGradient>, p: [f64; 3], step: f64) -> [[f64; 3]; 3] {
+fn difference_hessian(
+    f: &dyn Fn([f64; 3]) -> f64,
+    gradient: Option<mesh::FieldGradient>,
+    p: [f64; 3],
+    step: f64,
+) -> [[f64; 3]; 3] {
     if let Some(gradient) = gradient {
         let at = |d: usize, sign: f64| {
             let mut q = p;
@@ -682,7 +780,9 @@ fn difference_hessian(f: &dyn Fn([f64; 3]) -> f64, gradient: Option<mesh::FieldG
         let mut exact = true;
         for (d, row) in h.iter_mut().enumerate() {
             match (at(d, 1.0), at(d, -1.0)) {
-                (Some(plus), Some(minus)) => *row = [0, 1, 2].map(|e| (plus[e] - minus[e]) / (2.0 * step)),
+                (Some(plus), Some(minus)) => {
+                    *row = [0, 1, 2].map(|e| (plus[e] - minus[e]) / (2.0 * step))
+                }
                 _ => exact = false,
             }
         }
@@ -703,7 +803,11 @@ fn difference_hessian(f: &dyn Fn([f64; 3]) -> f64, gradient: Option<mesh::FieldG
         // D_d at p ± δ e_d differs by (f(p + 2δ e_d) − 2 f(p) + f(p − 2δ e_d))/(2δ).
         h[d][d] = (at(&[(d, 2.0)]) - 2.0 * centre + at(&[(d, -2.0)])) / (4.0 * step * step);
         for e in d + 1..3 {
-            let v = (at(&[(d, 1.0), (e, 1.0)]) - at(&[(d, 1.0), (e, -1.0)]) - at(&[(d, -1.0), (e, 1.0)]) + at(&[(d, -1.0), (e, -1.0)])) / (4.0 * step * step);
+            let v = (at(&[(d, 1.0), (e, 1.0)])
+                - at(&[(d, 1.0), (e, -1.0)])
+                - at(&[(d, -1.0), (e, 1.0)])
+                + at(&[(d, -1.0), (e, -1.0)]))
+                / (4.0 * step * step);
             h[d][e] = v;
             h[e][d] = v;
         }
@@ -719,7 +823,11 @@ const CURVE_MIN_JACOBIAN_RATIO: f64 = 0.05;
 impl CurvedBody {
     /// The moved crossings, then the moved mid-edge nodes: where [`FieldWeights`] apply.
     pub fn moved_points(&self) -> Vec<[f64; 3]> {
-        self.crossings.iter().map(|c| c.position).chain(self.curved.iter().map(|c| c.position)).collect()
+        self.crossings
+            .iter()
+            .map(|c| c.position)
+            .chain(self.curved.iter().map(|c| c.position))
+            .collect()
     }
 
     /// A mode's P2 node gradient `node_gradient` (3 per node, [rad²/(s²·m)]) carried to the
@@ -738,7 +846,8 @@ impl CurvedBody {
             curved.push(-along);
             let rest = [0, 1, 2].map(|d| gm[d] - along * c.gradient[d]);
             let normal: f64 = (0..3).map(|d| rest[d] * c.direction[d]).sum();
-            let turn = [0, 1, 2].map(|d| c.offset * (rest[d] - normal * c.direction[d]) / c.origin_gradient_norm);
+            let turn = [0, 1, 2]
+                .map(|d| c.offset * (rest[d] - normal * c.direction[d]) / c.origin_gradient_norm);
             // The turn as p₀ moves: b·(∂D/∂p₀) dp₀ goes to p₀ with the rest.
             let to_origin = match &self.hessians {
                 Some(h) => {
@@ -752,7 +861,8 @@ impl CurvedBody {
                 g[3 * c.node + d] = to_origin[d];
             }
         }
-        let mut corners = linear_node_gradient(&self.linear, &self.quadratic, &g).map_err(|e| ShapeError::Solver(e.to_string()))?;
+        let mut corners = linear_node_gradient(&self.linear, &self.quadratic, &g)
+            .map_err(|e| ShapeError::Solver(e.to_string()))?;
         let mut crossings = Vec::with_capacity(self.crossings.len());
         for c in &self.crossings {
             let gc = &mut corners[3 * c.node..3 * c.node + 3];
@@ -761,7 +871,12 @@ impl CurvedBody {
             gc.iter_mut().for_each(|x| *x = 0.0);
         }
         let back = self.marched.vjp(&corners)?;
-        Ok(FieldWeights { grid: back.values, crossings, curved, turns })
+        Ok(FieldWeights {
+            grid: back.values,
+            crossings,
+            curved,
+            turns,
+        })
     }
 
     /// p₀ ± δ e_d for every moved mid-edge node, in the order of [`Self::turn_weights`].
@@ -802,7 +917,14 @@ pub struct CurvedShell {
 /// Meshes the shell of relative thickness `t` of the solid whose signed distance is `sdf`
 /// (sampled on `grid` as `solid`) with reference depth `depth` = S [m]: [`curved_body`] of
 /// the samples of g = min(s, t·S − s) with the continuous g.
-pub fn curved_shell(grid: &BackgroundGrid, solid: &[f64], sdf: &SignedDistance, depth: f64, t: f64, options: &MarchingOptions) -> Result<CurvedShell, ShapeError> {
+pub fn curved_shell(
+    grid: &BackgroundGrid,
+    solid: &[f64],
+    sdf: &SignedDistance,
+    depth: f64,
+    t: f64,
+    options: &MarchingOptions,
+) -> Result<CurvedShell, ShapeError> {
     let shell = mesh::shell_of_depth(solid, t, depth)?;
     let wall = t * depth;
     let g = |x: [f64; 3]| {
@@ -830,13 +952,35 @@ impl CurvedShell {
     /// there) and 0 on the outer one, and the samples' share through the shell. The mid-edge
     /// nodes' directions turn with their corners (the body's Hessians), not with t directly:
     /// ∂g/∂t is the same at p₀ ± δ e_d, so the turn points carry no weight.
-    fn thickness_derivatives(&self, sdf: &SignedDistance, depth: f64, per_node: &[Vec<f64>]) -> Result<Vec<f64>, ShapeError> {
+    fn thickness_derivatives(
+        &self,
+        sdf: &SignedDistance,
+        depth: f64,
+        per_node: &[Vec<f64>],
+    ) -> Result<Vec<f64>, ShapeError> {
         let wall = self.shell.thickness * depth;
-        let dg_dt: Vec<f64> = self.body.moved_points().into_iter().map(|x| if sdf.signed_distance(x) > 0.5 * wall { depth } else { 0.0 }).collect();
+        let dg_dt: Vec<f64> = self
+            .body
+            .moved_points()
+            .into_iter()
+            .map(|x| {
+                if sdf.signed_distance(x) > 0.5 * wall {
+                    depth
+                } else {
+                    0.0
+                }
+            })
+            .collect();
         let mut out = Vec::with_capacity(per_node.len());
         for g in per_node {
             let w = self.body.field_weights(g)?;
-            let direct: f64 = w.crossings.iter().chain(&w.curved).zip(&dg_dt).map(|(a, b)| a * b).sum();
+            let direct: f64 = w
+                .crossings
+                .iter()
+                .chain(&w.curved)
+                .zip(&dg_dt)
+                .map(|(a, b)| a * b)
+                .sum();
             out.push(direct + self.shell.vjp(&w.grid)?.thickness);
         }
         Ok(out)
@@ -845,20 +989,58 @@ impl CurvedShell {
 
 /// The spectrum of [`curved_shell`] and, if asked, dλ_k/dt. Collective.
 #[allow(clippy::too_many_arguments)]
-pub fn curved_shell_spectrum(petsc: &Petsc, grid: &BackgroundGrid, solid: &[f64], sdf: &SignedDistance, depth: f64, t: f64, options: &MarchingOptions, material: &Material, n_modes: usize, with_gradient: bool) -> Result<(ShapeSpectrum, Option<Vec<f64>>), ShapeError> {
+pub fn curved_shell_spectrum(
+    petsc: &Petsc,
+    grid: &BackgroundGrid,
+    solid: &[f64],
+    sdf: &SignedDistance,
+    depth: f64,
+    t: f64,
+    options: &MarchingOptions,
+    material: &Material,
+    n_modes: usize,
+    with_gradient: bool,
+) -> Result<(ShapeSpectrum, Option<Vec<f64>>), ShapeError> {
     let mut timings = StepTimings::default();
     let clock = std::time::Instant::now();
     let shell = curved_shell(grid, solid, sdf, depth, t, options)?;
     timings.meshing = clock.elapsed().as_secs_f64();
     let to_thickness = |per_node: &[Vec<f64>]| shell.thickness_derivatives(sdf, depth, per_node);
-    let carry = with_gradient.then_some(Carry { len: 1, map: &to_thickness });
-    let (eigenvalues, clusters, rows) = solve_and_carry(petsc, &shell.body.quadratic, material, n_modes, &mut timings, carry)?;
+    let carry = with_gradient.then_some(Carry {
+        len: 1,
+        map: &to_thickness,
+    });
+    let (eigenvalues, clusters, rows) = solve_and_carry(
+        petsc,
+        &shell.body.quadratic,
+        material,
+        n_modes,
+        &mut timings,
+        carry,
+    )?;
     let derivative = rows.map(|rows| rows.into_iter().map(|r| r[0]).collect());
-    Ok((body_spectrum(&shell.body, eigenvalues, clusters, timings), derivative))
+    Ok((
+        body_spectrum(&shell.body, eigenvalues, clusters, timings),
+        derivative,
+    ))
 }
 
-fn body_spectrum(body: &CurvedBody, eigenvalues: Vec<f64>, clusters: Vec<Range<usize>>, timings: StepTimings) -> ShapeSpectrum {
-    ShapeSpectrum { eigenvalues, gradient: None, clusters, report: body.marched.report.clone(), tets: body.linear.n_tets(), p2_nodes: body.quadratic.n_nodes(), volume: body.linear.volume(), timings }
+fn body_spectrum(
+    body: &CurvedBody,
+    eigenvalues: Vec<f64>,
+    clusters: Vec<Range<usize>>,
+    timings: StepTimings,
+) -> ShapeSpectrum {
+    ShapeSpectrum {
+        eigenvalues,
+        gradient: None,
+        clusters,
+        report: body.marched.report.clone(),
+        tets: body.linear.n_tets(),
+        p2_nodes: body.quadratic.n_nodes(),
+        volume: body.linear.volume(),
+        timings,
+    }
 }
 
 /// A spectrum's gradient with respect to a field given as weights at points: dλ_k/dp =
@@ -874,14 +1056,31 @@ pub struct PointGradient {
 /// if asked, its gradient as weights at the grid vertices, the moved points and the turn
 /// points ([`PointGradient`]). Collective: every rank passes the same field.
 #[allow(clippy::too_many_arguments)]
-pub fn curved_field_spectrum(petsc: &Petsc, grid: &BackgroundGrid, values: &[f64], f: &dyn Fn([f64; 3]) -> f64, options: &MarchingOptions, material: &Material, n_modes: usize, with_gradient: bool) -> Result<(ShapeSpectrum, Option<PointGradient>), ShapeError> {
+pub fn curved_field_spectrum(
+    petsc: &Petsc,
+    grid: &BackgroundGrid,
+    values: &[f64],
+    f: &dyn Fn([f64; 3]) -> f64,
+    options: &MarchingOptions,
+    material: &Material,
+    n_modes: usize,
+    with_gradient: bool,
+) -> Result<(ShapeSpectrum, Option<PointGradient>), ShapeError> {
     let mut timings = StepTimings::default();
     let clock = std::time::Instant::now();
     // The Hessians serve the gradient alone.
     let body = curved_body(grid, values, f, None, options, with_gradient)?;
     timings.meshing = clock.elapsed().as_secs_f64();
     // Where the weights apply (the gradient alone needs them).
-    let points: Vec<[f64; 3]> = if with_gradient { grid.vertex_positions().into_iter().chain(body.moved_points()).chain(body.turn_points()).collect() } else { Vec::new() };
+    let points: Vec<[f64; 3]> = if with_gradient {
+        grid.vertex_positions()
+            .into_iter()
+            .chain(body.moved_points())
+            .chain(body.turn_points())
+            .collect()
+    } else {
+        Vec::new()
+    };
     let to_points = |per_node: &[Vec<f64>]| -> Result<Vec<f64>, ShapeError> {
         let mut flat = Vec::with_capacity(per_node.len() * points.len());
         for g in per_node {
@@ -891,42 +1090,86 @@ pub fn curved_field_spectrum(petsc: &Petsc, grid: &BackgroundGrid, values: &[f64
         }
         Ok(flat)
     };
-    let carry = with_gradient.then_some(Carry { len: points.len(), map: &to_points });
-    let (eigenvalues, clusters, rows) = solve_and_carry(petsc, &body.quadratic, material, n_modes, &mut timings, carry)?;
+    let carry = with_gradient.then_some(Carry {
+        len: points.len(),
+        map: &to_points,
+    });
+    let (eigenvalues, clusters, rows) = solve_and_carry(
+        petsc,
+        &body.quadratic,
+        material,
+        n_modes,
+        &mut timings,
+        carry,
+    )?;
     let gradient = rows.map(|per_mode| PointGradient { points, per_mode });
-    Ok((body_spectrum(&body, eigenvalues, clusters, timings), gradient))
+    Ok((
+        body_spectrum(&body, eigenvalues, clusters, timings),
+        gradient,
+    ))
 }
 
 /// The modes of [`curved_body`] with their shapes (for writing a fitted body). Collective.
-pub fn curved_field_modes(petsc: &Petsc, grid: &BackgroundGrid, values: &[f64], f: &dyn Fn([f64; 3]) -> f64, options: &MarchingOptions, material: &Material, n_modes: usize) -> Result<ShapeModes, ShapeError> {
+pub fn curved_field_modes(
+    petsc: &Petsc,
+    grid: &BackgroundGrid,
+    values: &[f64],
+    f: &dyn Fn([f64; 3]) -> f64,
+    options: &MarchingOptions,
+    material: &Material,
+    n_modes: usize,
+) -> Result<ShapeModes, ShapeError> {
     let body = curved_body(grid, values, f, None, options, false)?;
-    modes_of_mesh(petsc, body.quadratic, body.marched.report.clone(), material, n_modes)
+    modes_of_mesh(
+        petsc,
+        body.quadratic,
+        body.marched.report.clone(),
+        material,
+        n_modes,
+    )
 }
 
 /// Assembles the P2 mesh and solves its first `n_modes` elastic modes (the count proven by the
 /// solver's cluster completion, not by an inertia check: that would be a second factorisation
 /// per evaluation).
-fn assemble_and_solve<'p>(petsc: &'p Petsc, quadratic: &TetMesh, material: &Material, n_modes: usize, timings: &mut StepTimings) -> Result<(assembly::Assembled<'p>, eigen::Modes<'p>), ShapeError> {
+fn assemble_and_solve<'p>(
+    petsc: &'p Petsc,
+    quadratic: &TetMesh,
+    material: &Material,
+    n_modes: usize,
+    timings: &mut StepTimings,
+) -> Result<(assembly::Assembled<'p>, eigen::Modes<'p>), ShapeError> {
     // Marched meshes have slivers, and on two ranks MUMPS's workspace estimate fell short on
     // some of them (INFOG(1) = −9 on a hollow box at 14 cells): the solver's one factor path
     // factors again with a larger workspace and keeps it for the later evaluations
     // (`petsc::factor`).
     let t = std::time::Instant::now();
-    let assembled = assembly::assemble(petsc, quadratic).map_err(|e| ShapeError::Solver(e.to_string()))?;
-    let (k, m) = assembled.operators(material).map_err(|e| ShapeError::Solver(e.to_string()))?;
+    let assembled =
+        assembly::assemble(petsc, quadratic).map_err(|e| ShapeError::Solver(e.to_string()))?;
+    let (k, m) = assembled
+        .operators(material)
+        .map_err(|e| ShapeError::Solver(e.to_string()))?;
     timings.assembly = t.elapsed().as_secs_f64();
     let t = std::time::Instant::now();
     let (lo, hi) = quadratic.bounding_box();
     let diagonal = (0..3).map(|d| (hi[d] - lo[d]).powi(2)).sum::<f64>().sqrt();
-    let mut cfg = EigenConfig::new(ModeRequest::FirstN(n_modes), eigen::spectrum_scale(material.lame_mu(), material.density, diagonal));
+    let mut cfg = EigenConfig::new(
+        ModeRequest::FirstN(n_modes),
+        eigen::spectrum_scale(material.lame_mu(), material.density, diagonal),
+    );
     cfg.verify_count = false;
     // The marched body is one free piece (its largest component): its six rigid motions are
     // known; deflated, they cannot leak into the elastic modes (measured speed-up: a few per
     // cent at most, module docs).
-    let rigid = eigen::rigid_body_vectors(&k, &assembled.layout, &quadratic.nodes).map_err(|e| ShapeError::Solver(e.to_string()))?;
-    let modes = eigen::solve_modes_deflated(petsc, &k, &m, &cfg, &rigid).map_err(|e| ShapeError::Solver(e.to_string()))?;
+    let rigid = eigen::rigid_body_vectors(&k, &assembled.layout, &quadratic.nodes)
+        .map_err(|e| ShapeError::Solver(e.to_string()))?;
+    let modes = eigen::solve_modes_deflated(petsc, &k, &m, &cfg, &rigid)
+        .map_err(|e| ShapeError::Solver(e.to_string()))?;
     if modes.eigenvalues.len() < n_modes {
-        return Err(ShapeError::Solver(format!("the solve gave {} elastic modes, {n_modes} wanted", modes.eigenvalues.len())));
+        return Err(ShapeError::Solver(format!(
+            "the solve gave {} elastic modes, {n_modes} wanted",
+            modes.eigenvalues.len()
+        )));
     }
     timings.solve = t.elapsed().as_secs_f64();
     Ok((assembled, modes))
@@ -951,25 +1194,59 @@ pub struct ShapeModes {
 
 /// Meshes the field and solves the first `n_modes` modes with their shapes (for writing the
 /// fitted body). Collective.
-pub fn shape_modes(petsc: &Petsc, grid: &BackgroundGrid, values: &[f64], options: &MarchingOptions, material: &Material, n_modes: usize) -> Result<ShapeModes, ShapeError> {
+pub fn shape_modes(
+    petsc: &Petsc,
+    grid: &BackgroundGrid,
+    values: &[f64],
+    options: &MarchingOptions,
+    material: &Material,
+    n_modes: usize,
+) -> Result<ShapeModes, ShapeError> {
     if values.iter().all(|v| *v <= 0.0) {
         return Err(ShapeError::Empty);
     }
     let marched = mesh::march(grid, values, None, options)?;
-    modes_of_mesh(petsc, lift_to_quadratic(&marched.mesh), marched.report.clone(), material, n_modes)
+    modes_of_mesh(
+        petsc,
+        lift_to_quadratic(&marched.mesh),
+        marched.report.clone(),
+        material,
+        n_modes,
+    )
 }
 
-fn modes_of_mesh(petsc: &Petsc, quadratic: TetMesh, report: MarchingReport, material: &Material, n_modes: usize) -> Result<ShapeModes, ShapeError> {
+fn modes_of_mesh(
+    petsc: &Petsc,
+    quadratic: TetMesh,
+    report: MarchingReport,
+    material: &Material,
+    n_modes: usize,
+) -> Result<ShapeModes, ShapeError> {
     let mut timings = StepTimings::default();
-    let (assembled, modes) = assemble_and_solve(petsc, &quadratic, material, n_modes, &mut timings)?;
-    let mut shapes = assembled.layout.gather_original_order(&modes.vectors).map_err(|e| ShapeError::Solver(e.to_string()))?;
+    let (assembled, modes) =
+        assemble_and_solve(petsc, &quadratic, material, n_modes, &mut timings)?;
+    let mut shapes = assembled
+        .layout
+        .gather_original_order(&modes.vectors)
+        .map_err(|e| ShapeError::Solver(e.to_string()))?;
     for s in &mut shapes {
-        let largest = s.iter().copied().fold(0.0_f64, |m, x| if x.abs() > m.abs() { x } else { m });
+        let largest = s
+            .iter()
+            .copied()
+            .fold(0.0_f64, |m, x| if x.abs() > m.abs() { x } else { m });
         if largest < 0.0 {
             s.iter_mut().for_each(|x| *x = -*x);
         }
     }
-    Ok(ShapeModes { eigenvalues: modes.eigenvalues.clone(), residuals: modes.residuals.clone(), rigid_eigenvalues: modes.rigid_eigenvalues.clone(), clusters: modes.clusters.clone(), shapes, report, mesh: quadratic })
+    Ok(ShapeModes {
+        eigenvalues: modes.eigenvalues.clone(),
+        residuals: modes.residuals.clone(),
+        rigid_eigenvalues: modes.rigid_eigenvalues.clone(),
+        clusters: modes.clusters.clone(),
+        shapes,
+        report,
+        mesh: quadratic,
+    })
 }
 
 // ------------------------------------------------------------------ surfaces and fields
@@ -977,10 +1254,17 @@ fn modes_of_mesh(petsc: &Petsc, quadratic: TetMesh, report: MarchingReport, mate
 /// A closed triangle surface from an OBJ file, or the boundary of a Gmsh tet mesh (`.msh`),
 /// with the reader's warnings.
 pub fn read_surface(path: &Path) -> Result<(TriangleSurface, Vec<String>), ShapeError> {
-    let is_msh = path.extension().and_then(|e| e.to_str()).is_some_and(|e| e.eq_ignore_ascii_case("msh"));
+    let is_msh = path
+        .extension()
+        .and_then(|e| e.to_str())
+        .is_some_and(|e| e.eq_ignore_ascii_case("msh"));
     if is_msh {
-        let read = mesh::read_mesh(path, &mesh::ReadOptions::default()).map_err(|e| ShapeError::Invalid(e.to_string()))?;
-        Ok((TriangleSurface::from_mesh_boundary(&read.mesh), read.warnings))
+        let read = mesh::read_mesh(path, &mesh::ReadOptions::default())
+            .map_err(|e| ShapeError::Invalid(e.to_string()))?;
+        Ok((
+            TriangleSurface::from_mesh_boundary(&read.mesh),
+            read.warnings,
+        ))
     } else {
         let read = mesh::read_obj(path)?;
         Ok((read.surface, read.warnings))
@@ -991,12 +1275,16 @@ pub fn read_surface(path: &Path) -> Result<(TriangleSurface, Vec<String>), Shape
 /// diagonal of `diagonal` (module docs). Returns the scale factor applied.
 pub fn normalise_surface(surface: &mut TriangleSurface, diagonal: f64) -> Result<f64, ShapeError> {
     if !(diagonal.is_finite() && diagonal > 0.0) {
-        return Err(ShapeError::Invalid(format!("the bounding-box diagonal must be positive, got {diagonal}")));
+        return Err(ShapeError::Invalid(format!(
+            "the bounding-box diagonal must be positive, got {diagonal}"
+        )));
     }
     let (lo, hi) = surface.bounding_box();
     let current = (0..3).map(|d| (hi[d] - lo[d]).powi(2)).sum::<f64>().sqrt();
     if !(current.is_finite() && current > 0.0) {
-        return Err(ShapeError::Invalid("the surface has no extent (all its vertices coincide)".into()));
+        return Err(ShapeError::Invalid(
+            "the surface has no extent (all its vertices coincide)".into(),
+        ));
     }
     let scale = diagonal / current;
     let centre = [0, 1, 2].map(|d| 0.5 * (lo[d] + hi[d]));
@@ -1018,21 +1306,36 @@ pub struct SampledField {
 impl SampledField {
     /// Samples `sdf` on the grid of cubic cells with `cells` along the longest axis of the box
     /// [lo, hi] plus one cell of margin ([`BackgroundGrid::covering`]).
-    pub fn of_sdf(sdf: &SignedDistance, lo: [f64; 3], hi: [f64; 3], cells: usize) -> Result<SampledField, ShapeError> {
+    pub fn of_sdf(
+        sdf: &SignedDistance,
+        lo: [f64; 3],
+        hi: [f64; 3],
+        cells: usize,
+    ) -> Result<SampledField, ShapeError> {
         SampledField::of_sdf_shifted(sdf, lo, hi, cells, [0.0; 3])
     }
 
     /// [`SampledField::of_sdf`] on the grid moved by `shift` cells along the axes
     /// ([`shifted_covering`]): the same spacing, another alignment of the vertices with the
     /// surface (a replica level, module docs "Grid bias and its extrapolation").
-    pub fn of_sdf_shifted(sdf: &SignedDistance, lo: [f64; 3], hi: [f64; 3], cells: usize, shift: [f64; 3]) -> Result<SampledField, ShapeError> {
+    pub fn of_sdf_shifted(
+        sdf: &SignedDistance,
+        lo: [f64; 3],
+        hi: [f64; 3],
+        cells: usize,
+        shift: [f64; 3],
+    ) -> Result<SampledField, ShapeError> {
         if cells < 4 {
-            return Err(ShapeError::Invalid(format!("a grid needs at least 4 cells along its longest axis, got {cells}")));
+            return Err(ShapeError::Invalid(format!(
+                "a grid needs at least 4 cells along its longest axis, got {cells}"
+            )));
         }
         let grid = shifted_covering(lo, hi, cells, shift)?;
         let values = sdf.evaluate(&grid.vertex_positions());
         if !values.iter().any(|&v| v > 0.0) {
-            return Err(ShapeError::Invalid(format!("no vertex of the {cells}-cell grid lies inside the surface: is it closed?")));
+            return Err(ShapeError::Invalid(format!(
+                "no vertex of the {cells}-cell grid lies inside the surface: is it closed?"
+            )));
         }
         Ok(SampledField { grid, values })
     }
@@ -1067,7 +1370,18 @@ pub fn replica_shift(r: usize, replicas: usize) -> [f64; 3] {
 /// spacing would only be a start for the next); r goes to [`replica_shift`]`(r, K)`.
 pub fn replica_levels(cells: &[usize], replicas: usize, every_level: bool) -> Vec<(usize, usize)> {
     let last = cells.len().saturating_sub(1);
-    cells.iter().enumerate().flat_map(|(i, &c)| (0..if i == 0 || (!every_level && i != last) { 1 } else { replicas.max(1) }).map(move |r| (c, r))).collect()
+    cells
+        .iter()
+        .enumerate()
+        .flat_map(|(i, &c)| {
+            (0..if i == 0 || (!every_level && i != last) {
+                1
+            } else {
+                replicas.max(1)
+            })
+                .map(move |r| (c, r))
+        })
+        .collect()
 }
 
 /// Whether a fit answers with the line through its levels' answers (else with the finest
@@ -1093,13 +1407,24 @@ pub fn replica_line_levels(spacings: usize, replicas: usize, every_level: bool) 
 /// (each in [−½, ½], so the box stays inside): the same spacing, vertices that do not line up
 /// with the centred grid's (a target grid of 40 cells would otherwise contain every vertex of a
 /// 20-cell fit grid).
-pub fn shifted_covering(lo: [f64; 3], hi: [f64; 3], cells: usize, shift: [f64; 3]) -> Result<BackgroundGrid, ShapeError> {
+pub fn shifted_covering(
+    lo: [f64; 3],
+    hi: [f64; 3],
+    cells: usize,
+    shift: [f64; 3],
+) -> Result<BackgroundGrid, ShapeError> {
     if shift.iter().any(|s| !(s.abs() <= 0.5)) {
-        return Err(ShapeError::Invalid(format!("grid shift {shift:?} must lie in [−½, ½] cells")));
+        return Err(ShapeError::Invalid(format!(
+            "grid shift {shift:?} must lie in [−½, ½] cells"
+        )));
     }
     let base = BackgroundGrid::covering(lo, hi, cells, 1.0)?;
     let h = base.spacing();
-    Ok(BackgroundGrid::new([0, 1, 2].map(|d| base.origin()[d] + shift[d] * h[d]), h, base.cells())?)
+    Ok(BackgroundGrid::new(
+        [0, 1, 2].map(|d| base.origin()[d] + shift[d] * h[d]),
+        h,
+        base.cells(),
+    )?)
 }
 
 /// The box [lo, hi] of the union of the bounding boxes of `surfaces`.
@@ -1126,13 +1451,21 @@ const DEPTH_SEED_CELLS: usize = 32;
 pub fn reference_depth(sdf: &SignedDistance, surface: &TriangleSurface) -> Result<f64, ShapeError> {
     let (lo, hi) = surface.bounding_box();
     let seed = SampledField::of_sdf(sdf, lo, hi, DEPTH_SEED_CELLS)?;
-    let mut order: Vec<usize> = (0..seed.values.len()).filter(|&v| seed.values[v] > 0.0).collect();
+    let mut order: Vec<usize> = (0..seed.values.len())
+        .filter(|&v| seed.values[v] > 0.0)
+        .collect();
     order.sort_by(|&a, &b| seed.values[b].total_cmp(&seed.values[a]));
-    let starts: Vec<[f64; 3]> = order.iter().take(16).map(|&v| seed.grid.vertex_position(v)).collect();
+    let starts: Vec<[f64; 3]> = order
+        .iter()
+        .take(16)
+        .map(|&v| seed.grid.vertex_position(v))
+        .collect();
     let diagonal = (0..3).map(|d| (hi[d] - lo[d]).powi(2)).sum::<f64>().sqrt();
     let (_, depth) = sdf.deepest_point(&starts, seed.spacing(), 1e-7 * diagonal);
     if !(depth > 0.0) {
-        return Err(ShapeError::Invalid("the surface encloses no inside point".into()));
+        return Err(ShapeError::Invalid(
+            "the surface encloses no inside point".into(),
+        ));
     }
     Ok(depth)
 }
@@ -1146,7 +1479,11 @@ pub enum ShapeFamily {
     /// distance) with reference depth S = `depth` [m]; the parameter is t. With `surface` (the
     /// continuous signed distance the samples came from) the body is meshed with exact
     /// crossings and a curved boundary ([`curved_shell`]); without, from the samples alone.
-    Thickness { solid: Vec<f64>, depth: f64, surface: Option<std::sync::Arc<SignedDistance>> },
+    Thickness {
+        solid: Vec<f64>,
+        depth: f64,
+        surface: Option<std::sync::Arc<SignedDistance>>,
+    },
     /// m = c·A + (1 − c)·B; the parameter is c.
     Morph { a: Vec<f64>, b: Vec<f64> },
 }
@@ -1185,21 +1522,63 @@ impl ShapeFamily {
     fn derivative(&self, built: &Built, d_field: &[f64]) -> Result<f64, ShapeError> {
         match (self, built) {
             (_, Built::Shell(shell)) => Ok(shell.vjp(d_field)?.thickness),
-            (ShapeFamily::Morph { a, b }, Built::Morph(c)) => Ok(mesh::morph_vjp(a, b, *c, d_field)?.c),
-            (ShapeFamily::Thickness { .. }, Built::Morph(_)) => unreachable!("a thickness family builds a shell"),
+            (ShapeFamily::Morph { a, b }, Built::Morph(c)) => {
+                Ok(mesh::morph_vjp(a, b, *c, d_field)?.c)
+            }
+            (ShapeFamily::Thickness { .. }, Built::Morph(_)) => {
+                unreachable!("a thickness family builds a shell")
+            }
         }
     }
 
     /// The spectrum at parameter `p` on `grid` and, if asked, dλ_k/dp. Collective.
     #[allow(clippy::too_many_arguments)]
-    pub fn spectrum(&self, petsc: &Petsc, grid: &BackgroundGrid, p: f64, options: &MarchingOptions, material: &Material, n_modes: usize, with_gradient: bool) -> Result<(ShapeSpectrum, Option<Vec<f64>>), ShapeError> {
-        if let ShapeFamily::Thickness { solid, depth, surface: Some(sdf) } = self {
-            return curved_shell_spectrum(petsc, grid, solid, sdf, *depth, p, options, material, n_modes, with_gradient);
+    pub fn spectrum(
+        &self,
+        petsc: &Petsc,
+        grid: &BackgroundGrid,
+        p: f64,
+        options: &MarchingOptions,
+        material: &Material,
+        n_modes: usize,
+        with_gradient: bool,
+    ) -> Result<(ShapeSpectrum, Option<Vec<f64>>), ShapeError> {
+        if let ShapeFamily::Thickness {
+            solid,
+            depth,
+            surface: Some(sdf),
+        } = self
+        {
+            return curved_shell_spectrum(
+                petsc,
+                grid,
+                solid,
+                sdf,
+                *depth,
+                p,
+                options,
+                material,
+                n_modes,
+                with_gradient,
+            );
         }
         let (values, built) = self.build(p)?;
-        let spectrum = shape_spectrum(petsc, grid, &values, options, material, n_modes, with_gradient)?;
+        let spectrum = shape_spectrum(
+            petsc,
+            grid,
+            &values,
+            options,
+            material,
+            n_modes,
+            with_gradient,
+        )?;
         let derivative = match &spectrum.gradient {
-            Some(gradient) => Some(gradient.iter().map(|g| self.derivative(&built, g)).collect::<Result<Vec<f64>, ShapeError>>()?),
+            Some(gradient) => Some(
+                gradient
+                    .iter()
+                    .map(|g| self.derivative(&built, g))
+                    .collect::<Result<Vec<f64>, ShapeError>>()?,
+            ),
             None => None,
         };
         Ok((spectrum, derivative))
@@ -1213,14 +1592,39 @@ impl ShapeFamily {
 
     /// The thickness body meshed with exact crossings and a curved boundary ([`curved_shell`]).
     pub fn is_curved_thickness(&self) -> bool {
-        matches!(self, ShapeFamily::Thickness { surface: Some(_), .. })
+        matches!(
+            self,
+            ShapeFamily::Thickness {
+                surface: Some(_),
+                ..
+            }
+        )
     }
 
     /// The modes and mesh of the body at parameter `p` (for writing it). Collective.
-    pub fn modes(&self, petsc: &Petsc, grid: &BackgroundGrid, p: f64, options: &MarchingOptions, material: &Material, n_modes: usize) -> Result<ShapeModes, ShapeError> {
-        if let ShapeFamily::Thickness { solid, depth, surface: Some(sdf) } = self {
+    pub fn modes(
+        &self,
+        petsc: &Petsc,
+        grid: &BackgroundGrid,
+        p: f64,
+        options: &MarchingOptions,
+        material: &Material,
+        n_modes: usize,
+    ) -> Result<ShapeModes, ShapeError> {
+        if let ShapeFamily::Thickness {
+            solid,
+            depth,
+            surface: Some(sdf),
+        } = self
+        {
             let body = curved_shell(grid, solid, sdf, *depth, p, options)?;
-            return modes_of_mesh(petsc, body.body.quadratic, body.body.marched.report.clone(), material, n_modes);
+            return modes_of_mesh(
+                petsc,
+                body.body.quadratic,
+                body.body.marched.report.clone(),
+                material,
+                n_modes,
+            );
         }
         shape_modes(petsc, grid, &self.field(p)?, options, material, n_modes)
     }
@@ -1246,10 +1650,19 @@ pub const MAX_WALL_REFINEMENT: usize = 3;
 /// The grid refined `levels` times near the inner wall of every shell with t ∈ `t_range`
 /// (module docs, "Refinement near the walls"): [`refine_near_depths`] with the one band
 /// [t_lo·S, t_hi·S].
-pub fn refine_near_wall(grid: &BackgroundGrid, solid: &[f64], sdf: &SignedDistance, depth: f64, t_range: (f64, f64), levels: usize) -> Result<(BackgroundGrid, Vec<f64>), ShapeError> {
+pub fn refine_near_wall(
+    grid: &BackgroundGrid,
+    solid: &[f64],
+    sdf: &SignedDistance,
+    depth: f64,
+    t_range: (f64, f64),
+    levels: usize,
+) -> Result<(BackgroundGrid, Vec<f64>), ShapeError> {
     let (t_lo, t_hi) = t_range;
     if !(t_lo.is_finite() && t_hi.is_finite() && t_lo <= t_hi) {
-        return Err(ShapeError::Invalid(format!("wall refinement range ({t_lo}, {t_hi}) must be finite and ordered")));
+        return Err(ShapeError::Invalid(format!(
+            "wall refinement range ({t_lo}, {t_hi}) must be finite and ordered"
+        )));
     }
     refine_near_depths(grid, solid, sdf, &[(t_lo * depth, t_hi * depth)], levels)
 }
@@ -1259,7 +1672,13 @@ pub fn refine_near_wall(grid: &BackgroundGrid, solid: &[f64], sdf: &SignedDistan
 /// is 1-Lipschitz, so s inside the tet lies in [min s_v − ℓ, max s_v + ℓ]), reach into a band
 /// is bisected until it is a Kuhn tet of h/2^levels. New vertices take the continuous distance.
 /// Returns the grid and the solid's samples on it.
-pub fn refine_near_depths(grid: &BackgroundGrid, solid: &[f64], sdf: &SignedDistance, bands: &[(f64, f64)], levels: usize) -> Result<(BackgroundGrid, Vec<f64>), ShapeError> {
+pub fn refine_near_depths(
+    grid: &BackgroundGrid,
+    solid: &[f64],
+    sdf: &SignedDistance,
+    bands: &[(f64, f64)],
+    levels: usize,
+) -> Result<(BackgroundGrid, Vec<f64>), ShapeError> {
     refine_unresolved(grid, solid, sdf, bands, levels, 0.0)
 }
 
@@ -1267,25 +1686,49 @@ pub fn refine_near_depths(grid: &BackgroundGrid, solid: &[f64], sdf: &SignedDist
 /// whose midpoint value misses the corners' mean by more than `tolerance` times the tet's
 /// longest edge, |s(m) − (s_a + s_b)/2| > tolerance·ℓ (a crease, a ridge, a thin feature or a
 /// tight curvature: a smooth wall of radius R gives ℓ/(8R) at most). 0 refines the whole band.
-pub fn refine_unresolved(grid: &BackgroundGrid, solid: &[f64], sdf: &SignedDistance, bands: &[(f64, f64)], levels: usize, tolerance: f64) -> Result<(BackgroundGrid, Vec<f64>), ShapeError> {
+pub fn refine_unresolved(
+    grid: &BackgroundGrid,
+    solid: &[f64],
+    sdf: &SignedDistance,
+    bands: &[(f64, f64)],
+    levels: usize,
+    tolerance: f64,
+) -> Result<(BackgroundGrid, Vec<f64>), ShapeError> {
     if !(tolerance.is_finite() && tolerance >= 0.0) {
-        return Err(ShapeError::Invalid(format!("the resolution tolerance must be ≥ 0, got {tolerance}")));
+        return Err(ShapeError::Invalid(format!(
+            "the resolution tolerance must be ≥ 0, got {tolerance}"
+        )));
     }
-    if bands.iter().any(|&(a, b)| !(a.is_finite() && b.is_finite() && a <= b)) {
-        return Err(ShapeError::Invalid(format!("refinement bands {bands:?} must be finite and ordered")));
+    if bands
+        .iter()
+        .any(|&(a, b)| !(a.is_finite() && b.is_finite() && a <= b))
+    {
+        return Err(ShapeError::Invalid(format!(
+            "refinement bands {bands:?} must be finite and ordered"
+        )));
     }
     if levels > MAX_WALL_REFINEMENT {
-        return Err(ShapeError::Invalid(format!("wall refinement must lie in 0..={MAX_WALL_REFINEMENT}, got {levels}")));
+        return Err(ShapeError::Invalid(format!(
+            "wall refinement must lie in 0..={MAX_WALL_REFINEMENT}, got {levels}"
+        )));
     }
     let field = |x: [f64; 3]| sdf.signed_distance(x);
     let marked = |v: &mesh::refine::TetView| {
-        let (lo, hi) = v.values.iter().fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), &x| (a.min(x), b.max(x)));
-        let in_band = bands.iter().any(|&(band_lo, band_hi)| lo - v.longest_edge <= band_hi && hi + v.longest_edge >= band_lo);
+        let (lo, hi) = v
+            .values
+            .iter()
+            .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), &x| {
+                (a.min(x), b.max(x))
+            });
+        let in_band = bands.iter().any(|&(band_lo, band_hi)| {
+            lo - v.longest_edge <= band_hi && hi + v.longest_edge >= band_lo
+        });
         in_band
             && (tolerance == 0.0
                 || mesh::TET10_EDGES.iter().any(|&(a, b)| {
                     let m = [0, 1, 2].map(|d| 0.5 * (v.corners[a][d] + v.corners[b][d]));
-                    (sdf.signed_distance(m) - 0.5 * (v.values[a] + v.values[b])).abs() > tolerance * v.longest_edge
+                    (sdf.signed_distance(m) - 0.5 * (v.values[a] + v.values[b])).abs()
+                        > tolerance * v.longest_edge
                 }))
     };
     Ok(grid.refined(levels, solid, &field, &marked)?)
@@ -1296,17 +1739,39 @@ impl ShapeLevel {
     /// not resolve the signed distance ([`refine_unresolved`] with `tolerance`, 0 for the whole
     /// bands): the outer wall s = 0 and the inner walls of t ∈ [p₀ − w, p₀ + w]. `None` for a
     /// family other than the curved thickness body, or with `levels` = 0.
-    pub fn near_wall(&self, p0: f64, w: f64, levels: usize, tolerance: f64) -> Result<Option<ShapeLevel>, ShapeError> {
-        let ShapeFamily::Thickness { solid, depth, surface: Some(sdf) } = &self.family else { return Ok(None) };
+    pub fn near_wall(
+        &self,
+        p0: f64,
+        w: f64,
+        levels: usize,
+        tolerance: f64,
+    ) -> Result<Option<ShapeLevel>, ShapeError> {
+        let ShapeFamily::Thickness {
+            solid,
+            depth,
+            surface: Some(sdf),
+        } = &self.family
+        else {
+            return Ok(None);
+        };
         if levels == 0 {
             return Ok(None);
         }
         if !(p0.is_finite() && w.is_finite() && w > 0.0) {
-            return Err(ShapeError::Invalid(format!("wall refinement around {p0} ± {w}: both must be finite, w > 0")));
+            return Err(ShapeError::Invalid(format!(
+                "wall refinement around {p0} ± {w}: both must be finite, w > 0"
+            )));
         }
         let bands = [(0.0, 0.0), ((p0 - w) * depth, (p0 + w) * depth)];
         let (grid, solid) = refine_unresolved(&self.grid, solid, sdf, &bands, levels, tolerance)?;
-        Ok(Some(ShapeLevel { grid, family: ShapeFamily::Thickness { solid, depth: *depth, surface: Some(Arc::clone(sdf)) } }))
+        Ok(Some(ShapeLevel {
+            grid,
+            family: ShapeFamily::Thickness {
+                solid,
+                depth: *depth,
+                surface: Some(Arc::clone(sdf)),
+            },
+        }))
     }
 
     /// Cell size h [m] (of the structured grid, before any refinement).
@@ -1338,10 +1803,14 @@ impl SpectrumTarget {
             return Err(ShapeError::Invalid("no target eigenvalues".into()));
         }
         if let Some(bad) = eigenvalues.iter().find(|v| !(v.is_finite() && **v > 0.0)) {
-            return Err(ShapeError::Invalid(format!("target eigenvalues must be positive numbers, got {bad}")));
+            return Err(ShapeError::Invalid(format!(
+                "target eigenvalues must be positive numbers, got {bad}"
+            )));
         }
         if !(cluster_rtol.is_finite() && cluster_rtol >= 0.0) {
-            return Err(ShapeError::Invalid(format!("cluster_rtol must be ≥ 0, got {cluster_rtol}")));
+            return Err(ShapeError::Invalid(format!(
+                "cluster_rtol must be ≥ 0, got {cluster_rtol}"
+            )));
         }
         eigenvalues.sort_by(f64::total_cmp);
         let clusters = eigen::find_clusters(&eigenvalues, cluster_rtol);
@@ -1353,7 +1822,10 @@ impl SpectrumTarget {
             groups.push(c);
         }
         groups.extend((k..eigenvalues.len()).map(|j| j..j + 1));
-        Ok(SpectrumTarget { eigenvalues, groups })
+        Ok(SpectrumTarget {
+            eigenvalues,
+            groups,
+        })
     }
 
     pub fn len(&self) -> usize {
@@ -1381,10 +1853,19 @@ pub struct LossPoint {
 /// L, dL/dp and the Gauss–Newton step from the model's eigenvalues and their derivatives
 /// dλ_k/dp (same length as the target). With `free_scale`, a common offset of every
 /// ln λ_k (a stiffness factor, module docs "Free stiffness scale") is profiled out.
-pub fn spectrum_loss(eigenvalues: &[f64], d_eigenvalues: &[f64], target: &SpectrumTarget, free_scale: bool) -> Result<LossPoint, ShapeError> {
+pub fn spectrum_loss(
+    eigenvalues: &[f64],
+    d_eigenvalues: &[f64],
+    target: &SpectrumTarget,
+    free_scale: bool,
+) -> Result<LossPoint, ShapeError> {
     let n = target.len();
     if eigenvalues.len() < n || d_eigenvalues.len() < n {
-        return Err(ShapeError::Invalid(format!("{} model eigenvalues and {} derivatives for {n} targets", eigenvalues.len(), d_eigenvalues.len())));
+        return Err(ShapeError::Invalid(format!(
+            "{} model eigenvalues and {} derivatives for {n} targets",
+            eigenvalues.len(),
+            d_eigenvalues.len()
+        )));
     }
     // Per group: weight |G|, residual r_G and sensitivity J_G.
     let groups: Vec<(f64, f64, f64)> = target
@@ -1392,14 +1873,25 @@ pub fn spectrum_loss(eigenvalues: &[f64], d_eigenvalues: &[f64], target: &Spectr
         .iter()
         .map(|g| {
             let size = g.len() as f64;
-            let r = g.clone().map(|k| (eigenvalues[k] / target.eigenvalues[k]).ln()).sum::<f64>() / size;
-            let j = g.clone().map(|k| d_eigenvalues[k] / eigenvalues[k]).sum::<f64>() / size;
+            let r = g
+                .clone()
+                .map(|k| (eigenvalues[k] / target.eigenvalues[k]).ln())
+                .sum::<f64>()
+                / size;
+            let j = g
+                .clone()
+                .map(|k| d_eigenvalues[k] / eigenvalues[k])
+                .sum::<f64>()
+                / size;
             (size, r, j)
         })
         .collect();
     let (log_scale, mean_j) = if free_scale {
         let w: f64 = groups.iter().map(|g| g.0).sum();
-        (groups.iter().map(|g| g.0 * g.1).sum::<f64>() / w, groups.iter().map(|g| g.0 * g.2).sum::<f64>() / w)
+        (
+            groups.iter().map(|g| g.0 * g.1).sum::<f64>() / w,
+            groups.iter().map(|g| g.0 * g.2).sum::<f64>() / w,
+        )
     } else {
         (0.0, 0.0)
     };
@@ -1414,7 +1906,12 @@ pub fn spectrum_loss(eigenvalues: &[f64], d_eigenvalues: &[f64], target: &Spectr
         jtr += size * j * r;
     }
     let step = if jtj > 0.0 { -jtr / jtj } else { 0.0 };
-    Ok(LossPoint { loss, gradient, step, log_scale })
+    Ok(LossPoint {
+        loss,
+        gradient,
+        step,
+        log_scale,
+    })
 }
 
 // ------------------------------------------------------------------ the fit
@@ -1461,48 +1958,92 @@ pub struct ShapeFitSettings {
 
 impl Default for ShapeFitSettings {
     fn default() -> Self {
-        ShapeFitSettings { modes: 8, bounds: (0.1, 0.95), scan_points: 9, max_refinements: 8, tolerance: 1e-3, refine_window: 0.05, cluster_rtol: 1e-2, extrapolate: None, extrapolation_levels: 3, free_scale: false, wall_refinement: 0, wall_band: 0.05, wall_tolerance: 0.05 }
+        ShapeFitSettings {
+            modes: 8,
+            bounds: (0.1, 0.95),
+            scan_points: 9,
+            max_refinements: 8,
+            tolerance: 1e-3,
+            refine_window: 0.05,
+            cluster_rtol: 1e-2,
+            extrapolate: None,
+            extrapolation_levels: 3,
+            free_scale: false,
+            wall_refinement: 0,
+            wall_band: 0.05,
+            wall_tolerance: 0.05,
+        }
     }
 }
 
 impl ShapeFitSettings {
     /// Settings for a morph weight c ∈ [0, 1].
     pub fn morph() -> Self {
-        ShapeFitSettings { bounds: (0.0, 1.0), scan_points: 6, ..Default::default() }
+        ShapeFitSettings {
+            bounds: (0.0, 1.0),
+            scan_points: 6,
+            ..Default::default()
+        }
     }
 
     pub fn validate(&self) -> Result<(), ShapeError> {
         let (lo, hi) = self.bounds;
         let bad = |m: String| Err(ShapeError::Invalid(m));
         if !(lo.is_finite() && hi.is_finite() && lo < hi) {
-            return bad(format!("the bounds ({lo}, {hi}) must be finite with lo < hi"));
+            return bad(format!(
+                "the bounds ({lo}, {hi}) must be finite with lo < hi"
+            ));
         }
         if self.modes == 0 || self.modes > 200 {
             return bad(format!("modes must lie in 1..=200, got {}", self.modes));
         }
         if self.scan_points < 2 {
-            return bad(format!("scan_points must be at least 2, got {}", self.scan_points));
+            return bad(format!(
+                "scan_points must be at least 2, got {}",
+                self.scan_points
+            ));
         }
         if !(self.tolerance > 0.0 && self.tolerance < hi - lo) {
-            return bad(format!("tolerance must lie in (0, hi − lo), got {}", self.tolerance));
+            return bad(format!(
+                "tolerance must lie in (0, hi − lo), got {}",
+                self.tolerance
+            ));
         }
         if !(self.refine_window > 0.0 && self.refine_window.is_finite()) {
-            return bad(format!("refine_window must be positive, got {}", self.refine_window));
+            return bad(format!(
+                "refine_window must be positive, got {}",
+                self.refine_window
+            ));
         }
         if !(self.cluster_rtol.is_finite() && self.cluster_rtol >= 0.0) {
-            return bad(format!("cluster_rtol must be ≥ 0, got {}", self.cluster_rtol));
+            return bad(format!(
+                "cluster_rtol must be ≥ 0, got {}",
+                self.cluster_rtol
+            ));
         }
         if self.extrapolation_levels < 2 {
-            return bad(format!("extrapolation_levels must be at least 2, got {}", self.extrapolation_levels));
+            return bad(format!(
+                "extrapolation_levels must be at least 2, got {}",
+                self.extrapolation_levels
+            ));
         }
         if self.wall_refinement > MAX_WALL_REFINEMENT {
-            return bad(format!("wall_refinement must lie in 0..={MAX_WALL_REFINEMENT}, got {}", self.wall_refinement));
+            return bad(format!(
+                "wall_refinement must lie in 0..={MAX_WALL_REFINEMENT}, got {}",
+                self.wall_refinement
+            ));
         }
         if !(self.wall_band.is_finite() && self.wall_band > 0.0) {
-            return bad(format!("wall_band must be positive, got {}", self.wall_band));
+            return bad(format!(
+                "wall_band must be positive, got {}",
+                self.wall_band
+            ));
         }
         if !(self.wall_tolerance.is_finite() && self.wall_tolerance >= 0.0) {
-            return bad(format!("wall_tolerance must be ≥ 0, got {}", self.wall_tolerance));
+            return bad(format!(
+                "wall_tolerance must be ≥ 0, got {}",
+                self.wall_tolerance
+            ));
         }
         Ok(())
     }
@@ -1587,7 +2128,11 @@ impl ShapeFit {
     /// Seconds per evaluation on average, split like [`StepTimings`], over the evaluations of
     /// `level` that produced a body.
     pub fn mean_timings(&self, level: usize) -> StepTimings {
-        let e: Vec<&FitEvaluation> = self.history.iter().filter(|h| h.level == level && h.failure.is_none()).collect();
+        let e: Vec<&FitEvaluation> = self
+            .history
+            .iter()
+            .filter(|h| h.level == level && h.failure.is_none())
+            .collect();
         let n = e.len().max(1) as f64;
         StepTimings {
             meshing: e.iter().map(|h| h.timings.meshing).sum::<f64>() / n,
@@ -1624,7 +2169,11 @@ enum SearchFailure {
 
 /// The search on one level (module docs): `evaluate(p, phase)` is the loss at p, or `None`
 /// where no body could be meshed and solved. Returns the best point seen.
-fn search_level<T: Clone>(mut evaluate: impl FnMut(f64, SearchPhase) -> Option<Point<T>>, start: SearchStart, settings: &ShapeFitSettings) -> Result<Point<T>, SearchFailure> {
+fn search_level<T: Clone>(
+    mut evaluate: impl FnMut(f64, SearchPhase) -> Option<Point<T>>,
+    start: SearchStart,
+    settings: &ShapeFitSettings,
+) -> Result<Point<T>, SearchFailure> {
     let (lo, hi) = settings.bounds;
     // [a, b] holds the minimum as far as the signs of dL/dp seen so far tell; no step is
     // longer than `max_step`.
@@ -1632,13 +2181,18 @@ fn search_level<T: Clone>(mut evaluate: impl FnMut(f64, SearchPhase) -> Option<P
     let (start, max_step) = match start {
         SearchStart::Scan => {
             let n = settings.scan_points;
-            let grid: Vec<f64> = (0..n).map(|i| lo + (hi - lo) * i as f64 / (n - 1) as f64).collect();
+            let grid: Vec<f64> = (0..n)
+                .map(|i| lo + (hi - lo) * i as f64 / (n - 1) as f64)
+                .collect();
             let mut points: Vec<Option<Point<T>>> = Vec::with_capacity(n);
             for &p in &grid {
                 points.push(evaluate(p, SearchPhase::Scan));
             }
             let i = (0..n).filter(|&i| points[i].is_some()).min_by(|&i, &j| {
-                let (pi, pj) = (points[i].as_ref().expect("some"), points[j].as_ref().expect("some"));
+                let (pi, pj) = (
+                    points[i].as_ref().expect("some"),
+                    points[j].as_ref().expect("some"),
+                );
                 pi.loss.loss.total_cmp(&pj.loss.loss)
             });
             let i = i.ok_or(SearchFailure::NothingScanned)?;
@@ -1655,7 +2209,10 @@ fn search_level<T: Clone>(mut evaluate: impl FnMut(f64, SearchPhase) -> Option<P
             }
             (points[i].clone().expect("some"), (hi - lo) / (n - 1) as f64)
         }
-        SearchStart::From(previous) => (evaluate(previous, SearchPhase::Refine).ok_or(SearchFailure::StartFailed)?, settings.refine_window),
+        SearchStart::From(previous) => (
+            evaluate(previous, SearchPhase::Refine).ok_or(SearchFailure::StartFailed)?,
+            settings.refine_window,
+        ),
     };
     // Safeguarded Newton on dL/dp = 0.
     let mut best = start.clone();
@@ -1689,11 +2246,25 @@ fn search_level<T: Clone>(mut evaluate: impl FnMut(f64, SearchPhase) -> Option<P
         // sensitivities that fall towards the minimum (a small cavity, the turtle at t* = 0.7 on
         // 36 cells) it cut each accurate Gauss–Newton step to a third — six evaluations, each
         // covering about half the remaining way.
-        let mut step = if x.loss.step != 0.0 { x.loss.step } else { -x.loss.gradient.signum() * max_step };
-        let other_side = if x.loss.gradient > 0.0 { below } else if x.loss.gradient < 0.0 { above } else { None };
+        let mut step = if x.loss.step != 0.0 {
+            x.loss.step
+        } else {
+            -x.loss.gradient.signum() * max_step
+        };
+        let other_side = if x.loss.gradient > 0.0 {
+            below
+        } else if x.loss.gradient < 0.0 {
+            above
+        } else {
+            None
+        };
         if let Some((p0, g0)) = other_side {
             let secant = (x.loss.gradient - g0) / (x.p - p0);
-            let gauss_newton = if x.loss.step != 0.0 { -x.loss.gradient / x.loss.step } else { 0.0 };
+            let gauss_newton = if x.loss.step != 0.0 {
+                -x.loss.gradient / x.loss.step
+            } else {
+                0.0
+            };
             if secant.is_finite() && secant > gauss_newton {
                 step = -x.loss.gradient / secant;
             }
@@ -1725,22 +2296,41 @@ fn search_level<T: Clone>(mut evaluate: impl FnMut(f64, SearchPhase) -> Option<P
 /// target (module docs). `target_spacing` is the target's grid spacing h* [m] (Some(0.0) for a
 /// measured target) for the extrapolation; `on_eval` sees every evaluation. Collective.
 #[allow(clippy::too_many_arguments)]
-pub fn fit_shape(petsc: &Petsc, levels: &[ShapeLevel], target: &SpectrumTarget, options: &MarchingOptions, material: &Material, settings: &ShapeFitSettings, target_spacing: Option<f64>, mut on_eval: impl FnMut(&FitEvaluation)) -> Result<ShapeFit, ShapeError> {
+pub fn fit_shape(
+    petsc: &Petsc,
+    levels: &[ShapeLevel],
+    target: &SpectrumTarget,
+    options: &MarchingOptions,
+    material: &Material,
+    settings: &ShapeFitSettings,
+    target_spacing: Option<f64>,
+    mut on_eval: impl FnMut(&FitEvaluation),
+) -> Result<ShapeFit, ShapeError> {
     settings.validate()?;
     if levels.is_empty() {
         return Err(ShapeError::Invalid("no grid levels to fit on".into()));
     }
     for (i, l) in levels.iter().enumerate() {
         if l.family.n_values() != l.grid.n_vertices() {
-            return Err(ShapeError::Invalid(format!("level {i}: {} field values for a grid of {} vertices", l.family.n_values(), l.grid.n_vertices())));
+            return Err(ShapeError::Invalid(format!(
+                "level {i}: {} field values for a grid of {} vertices",
+                l.family.n_values(),
+                l.grid.n_vertices()
+            )));
         }
     }
     if target.len() != settings.modes {
-        return Err(ShapeError::Invalid(format!("{} target eigenvalues for {} compared modes", target.len(), settings.modes)));
+        return Err(ShapeError::Invalid(format!(
+            "{} target eigenvalues for {} compared modes",
+            target.len(),
+            settings.modes
+        )));
     }
     if let Some(h) = target_spacing {
         if !(h.is_finite() && h >= 0.0) {
-            return Err(ShapeError::Invalid(format!("the target's grid spacing must be ≥ 0, got {h}")));
+            return Err(ShapeError::Invalid(format!(
+                "the target's grid spacing must be ≥ 0, got {h}"
+            )));
         }
     }
     let clock = std::time::Instant::now();
@@ -1753,13 +2343,30 @@ pub fn fit_shape(petsc: &Petsc, levels: &[ShapeLevel], target: &SpectrumTarget, 
         // Every level after the scanned one may be refined near the inner walls around its start.
         let wall_centre = (index > 0).then(|| results[index - 1].parameter);
         let refined = match wall_centre {
-            Some(p0) => level.near_wall(p0, settings.wall_band, settings.wall_refinement, settings.wall_tolerance)?,
+            Some(p0) => level.near_wall(
+                p0,
+                settings.wall_band,
+                settings.wall_refinement,
+                settings.wall_tolerance,
+            )?,
             None => None,
         };
         let wall_centre = wall_centre.filter(|_| refined.is_some());
         let level = refined.as_ref().unwrap_or(level);
         let evaluate = |p: f64, phase: SearchPhase| -> Option<Point<Vec<f64>>> {
-            let mut record = FitEvaluation { level: index, cells: level.cells(), phase, parameter: p, loss: f64::NAN, gradient: f64::NAN, step: f64::NAN, tets: 0, p2_nodes: 0, timings: StepTimings::default(), failure: None };
+            let mut record = FitEvaluation {
+                level: index,
+                cells: level.cells(),
+                phase,
+                parameter: p,
+                loss: f64::NAN,
+                gradient: f64::NAN,
+                step: f64::NAN,
+                tets: 0,
+                p2_nodes: 0,
+                timings: StepTimings::default(),
+                failure: None,
+            };
             let point = match evaluate_point(petsc, level, p, target, options, material, settings) {
                 Ok((point, spectrum)) => {
                     record.loss = point.loss.loss;
@@ -1779,7 +2386,11 @@ pub fn fit_shape(petsc: &Petsc, levels: &[ShapeLevel], target: &SpectrumTarget, 
             history.push(record);
             point
         };
-        let start = if index == 0 { SearchStart::Scan } else { SearchStart::From(results[index - 1].parameter) };
+        let start = if index == 0 {
+            SearchStart::Scan
+        } else {
+            SearchStart::From(results[index - 1].parameter)
+        };
         let best = search_level(evaluate, start, settings).map_err(|failure| {
             let name = level.family.parameter_name();
             let reasons: Vec<String> = history[first_eval..].iter().filter_map(|h| h.failure.as_ref().map(|f| format!("{name} = {:.4}: {f}", h.parameter))).collect();
@@ -1788,30 +2399,63 @@ pub fn fit_shape(petsc: &Petsc, levels: &[ShapeLevel], target: &SpectrumTarget, 
                 SearchFailure::StartFailed => format!("the {}-cell grid could not take the coarser grid's answer: {}", level.cells(), reasons.join("; ")),
             })
         })?;
-        results.push(LevelResult { cells: level.cells(), spacing: level.spacing(), parameter: best.p, loss: best.loss.loss, log_scale: best.loss.log_scale, eigenvalues: best.data, evaluations: history.len() - first_eval, seconds: level_clock.elapsed().as_secs_f64(), wall_centre, grid_tets: level.grid.n_tets() });
+        results.push(LevelResult {
+            cells: level.cells(),
+            spacing: level.spacing(),
+            parameter: best.p,
+            loss: best.loss.loss,
+            log_scale: best.loss.log_scale,
+            eigenvalues: best.data,
+            evaluations: history.len() - first_eval,
+            seconds: level_clock.elapsed().as_secs_f64(),
+            wall_centre,
+            grid_tets: level.grid.n_tets(),
+        });
     }
 
     let extrapolated = match target_spacing {
         Some(h_target) if results.len() >= 2 => {
             let used = &results[results.len().saturating_sub(settings.extrapolation_levels)..];
-            Some(extrapolate_line(&used.iter().map(|r| (r.spacing, r.parameter)).collect::<Vec<_>>(), h_target).clamp(lo, hi))
+            Some(
+                extrapolate_line(
+                    &used
+                        .iter()
+                        .map(|r| (r.spacing, r.parameter))
+                        .collect::<Vec<_>>(),
+                    h_target,
+                )
+                .clamp(lo, hi),
+            )
         }
         _ => None,
     };
     let finest = finest_mean(&results);
-    let extrapolate = answers_with_line(settings.extrapolate, levels[0].family.is_curved_thickness());
+    let extrapolate =
+        answers_with_line(settings.extrapolate, levels[0].family.is_curved_thickness());
     let (parameter, extrapolation_used) = match extrapolated {
         Some(p) if extrapolate => (p, true),
         _ => (finest, false),
     };
-    Ok(ShapeFit { parameter, levels: results, extrapolated, extrapolation_used, target_spacing, history, seconds: clock.elapsed().as_secs_f64() })
+    Ok(ShapeFit {
+        parameter,
+        levels: results,
+        extrapolated,
+        extrapolation_used,
+        target_spacing,
+        history,
+        seconds: clock.elapsed().as_secs_f64(),
+    })
 }
 
 /// The finest spacing's answer: with grid replicas, the mean over its K grids (their alignment
 /// noise averages, as it does in the line). `levels` must not be empty.
 fn finest_mean(levels: &[LevelResult]) -> f64 {
     let finest_spacing = levels.last().expect("at least one level").spacing;
-    let group: Vec<f64> = levels.iter().filter(|r| (r.spacing - finest_spacing).abs() <= 1e-9 * finest_spacing).map(|r| r.parameter).collect();
+    let group: Vec<f64> = levels
+        .iter()
+        .filter(|r| (r.spacing - finest_spacing).abs() <= 1e-9 * finest_spacing)
+        .map(|r| r.parameter)
+        .collect();
     group.iter().sum::<f64>() / group.len() as f64
 }
 
@@ -1830,41 +2474,130 @@ pub fn extrapolate_line(points: &[(f64, f64)], x: f64) -> f64 {
 }
 
 /// The loss, its derivative and the Gauss–Newton step at parameter `p` on one level.
-fn evaluate_point(petsc: &Petsc, level: &ShapeLevel, p: f64, target: &SpectrumTarget, options: &MarchingOptions, material: &Material, settings: &ShapeFitSettings) -> Result<(Point<Vec<f64>>, ShapeSpectrum), ShapeError> {
-    let (spectrum, d_eigenvalues) = level.family.spectrum(petsc, &level.grid, p, options, material, settings.modes, true)?;
-    let d_eigenvalues = d_eigenvalues.ok_or_else(|| ShapeError::Solver("the spectrum came without its gradient".into()))?;
-    let loss = spectrum_loss(&spectrum.eigenvalues, &d_eigenvalues, target, settings.free_scale)?;
-    Ok((Point { p, loss, data: spectrum.eigenvalues.clone() }, spectrum))
+fn evaluate_point(
+    petsc: &Petsc,
+    level: &ShapeLevel,
+    p: f64,
+    target: &SpectrumTarget,
+    options: &MarchingOptions,
+    material: &Material,
+    settings: &ShapeFitSettings,
+) -> Result<(Point<Vec<f64>>, ShapeSpectrum), ShapeError> {
+    let (spectrum, d_eigenvalues) = level.family.spectrum(
+        petsc,
+        &level.grid,
+        p,
+        options,
+        material,
+        settings.modes,
+        true,
+    )?;
+    let d_eigenvalues = d_eigenvalues
+        .ok_or_else(|| ShapeError::Solver("the spectrum came without its gradient".into()))?;
+    let loss = spectrum_loss(
+        &spectrum.eigenvalues,
+        &d_eigenvalues,
+        target,
+        settings.free_scale,
+    )?;
+    Ok((
+        Point {
+            p,
+            loss,
+            data: spectrum.eigenvalues.clone(),
+        },
+        spectrum,
+    ))
 }
 
 /// The thickness fit: `solids` are the solid's signed distance sampled on the levels' grids
 /// (coarse to fine), `depth` its reference depth S ([`reference_depth`]), `surface` the
 /// continuous signed distance for the curved boundary (None: the samples alone). Collective.
 #[allow(clippy::too_many_arguments)]
-pub fn fit_thickness(petsc: &Petsc, solids: &[SampledField], depth: f64, surface: Option<std::sync::Arc<SignedDistance>>, target: &SpectrumTarget, options: &MarchingOptions, material: &Material, settings: &ShapeFitSettings, target_spacing: Option<f64>, on_eval: impl FnMut(&FitEvaluation)) -> Result<ShapeFit, ShapeError> {
+pub fn fit_thickness(
+    petsc: &Petsc,
+    solids: &[SampledField],
+    depth: f64,
+    surface: Option<std::sync::Arc<SignedDistance>>,
+    target: &SpectrumTarget,
+    options: &MarchingOptions,
+    material: &Material,
+    settings: &ShapeFitSettings,
+    target_spacing: Option<f64>,
+    on_eval: impl FnMut(&FitEvaluation),
+) -> Result<ShapeFit, ShapeError> {
     if !(depth.is_finite() && depth > 0.0) {
-        return Err(ShapeError::Invalid(format!("the reference depth S must be positive, got {depth}")));
+        return Err(ShapeError::Invalid(format!(
+            "the reference depth S must be positive, got {depth}"
+        )));
     }
     let (lo, hi) = settings.bounds;
     if !(lo > 0.0 && hi <= 1.0) {
-        return Err(ShapeError::Invalid(format!("thickness bounds ({lo}, {hi}) must lie in (0, 1]")));
+        return Err(ShapeError::Invalid(format!(
+            "thickness bounds ({lo}, {hi}) must lie in (0, 1]"
+        )));
     }
-    let levels: Vec<ShapeLevel> = solids.iter().map(|s| ShapeLevel { grid: s.grid.clone(), family: ShapeFamily::Thickness { solid: s.values.clone(), depth, surface: surface.clone() } }).collect();
-    fit_shape(petsc, &levels, target, options, material, settings, target_spacing, on_eval)
+    let levels: Vec<ShapeLevel> = solids
+        .iter()
+        .map(|s| ShapeLevel {
+            grid: s.grid.clone(),
+            family: ShapeFamily::Thickness {
+                solid: s.values.clone(),
+                depth,
+                surface: surface.clone(),
+            },
+        })
+        .collect();
+    fit_shape(
+        petsc,
+        &levels,
+        target,
+        options,
+        material,
+        settings,
+        target_spacing,
+        on_eval,
+    )
 }
 
 /// The morph fit: `pairs` hold shape A and shape B sampled on the same grid, per level (coarse
 /// to fine); the field is c·A + (1 − c)·B. Collective.
 #[allow(clippy::too_many_arguments)]
-pub fn fit_morph(petsc: &Petsc, pairs: &[(SampledField, SampledField)], target: &SpectrumTarget, options: &MarchingOptions, material: &Material, settings: &ShapeFitSettings, target_spacing: Option<f64>, on_eval: impl FnMut(&FitEvaluation)) -> Result<ShapeFit, ShapeError> {
+pub fn fit_morph(
+    petsc: &Petsc,
+    pairs: &[(SampledField, SampledField)],
+    target: &SpectrumTarget,
+    options: &MarchingOptions,
+    material: &Material,
+    settings: &ShapeFitSettings,
+    target_spacing: Option<f64>,
+    on_eval: impl FnMut(&FitEvaluation),
+) -> Result<ShapeFit, ShapeError> {
     let mut levels = Vec::with_capacity(pairs.len());
     for (i, (a, b)) in pairs.iter().enumerate() {
         if a.grid != b.grid {
-            return Err(ShapeError::Invalid(format!("level {i}: the two shapes of a morph must be sampled on the same grid")));
+            return Err(ShapeError::Invalid(format!(
+                "level {i}: the two shapes of a morph must be sampled on the same grid"
+            )));
         }
-        levels.push(ShapeLevel { grid: a.grid.clone(), family: ShapeFamily::Morph { a: a.values.clone(), b: b.values.clone() } });
+        levels.push(ShapeLevel {
+            grid: a.grid.clone(),
+            family: ShapeFamily::Morph {
+                a: a.values.clone(),
+                b: b.values.clone(),
+            },
+        });
     }
-    fit_shape(petsc, &levels, target, options, material, settings, target_spacing, on_eval)
+    fit_shape(
+        petsc,
+        &levels,
+        target,
+        options,
+        material,
+        settings,
+        target_spacing,
+        on_eval,
+    )
 }
 
 #[cfg(test)]

@@ -744,7 +744,10 @@ fn create_nested(path: &Path, file: &hdf5::File, parts: &[&str]) -> Result<hdf5:
     for part in parts {
         group = match group.group(part) {
             Ok(g) => g,
-            Err(_) => group.create_group(part).map_err(IoError::hdf5(path, format!("creating group {part} in {}", group.name())))?,
+            Err(_) => group.create_group(part).map_err(IoError::hdf5(
+                path,
+                format!("creating group {part} in {}", group.name()),
+            ))?,
         };
     }
     Ok(group)

@@ -7,7 +7,9 @@
 //! attributes `format` (string) and `format_version` (u64). Every dataset has a string attribute
 //! `units` ("1" for dimensionless, "" for indices and labels coded as numbers).
 
-use super::{create_nested, read_attr, read_str_attr, write_attr, write_dataset, write_str_attr, IoError};
+use super::{
+    create_nested, read_attr, read_str_attr, write_attr, write_dataset, write_str_attr, IoError,
+};
 use std::path::Path;
 
 /// An attribute value.
@@ -40,11 +42,21 @@ fn components(path: &str) -> Result<Vec<&str>, String> {
     if path == "/" {
         return Ok(Vec::new());
     }
-    let rest = path.strip_prefix('/').ok_or_else(|| format!("path {path:?} must start with '/'"))?;
+    let rest = path
+        .strip_prefix('/')
+        .ok_or_else(|| format!("path {path:?} must start with '/'"))?;
     let parts: Vec<&str> = rest.split('/').collect();
     for p in &parts {
-        if p.is_empty() || *p == "." || *p == ".." || !p.chars().all(|c| c.is_ascii_alphanumeric() || "_.-".contains(c)) {
-            return Err(format!("path {path:?}: component {p:?} must be non-empty [A-Za-z0-9_.-]"));
+        if p.is_empty()
+            || *p == "."
+            || *p == ".."
+            || !p
+                .chars()
+                .all(|c| c.is_ascii_alphanumeric() || "_.-".contains(c))
+        {
+            return Err(format!(
+                "path {path:?}: component {p:?} must be non-empty [A-Za-z0-9_.-]"
+            ));
         }
     }
     Ok(parts)
@@ -52,12 +64,28 @@ fn components(path: &str) -> Result<Vec<&str>, String> {
 
 impl ResultsFile {
     pub fn new(format: &str, version: u64) -> ResultsFile {
-        ResultsFile { format: format.into(), version, datasets: Vec::new(), attributes: Vec::new() }
+        ResultsFile {
+            format: format.into(),
+            version,
+            datasets: Vec::new(),
+            attributes: Vec::new(),
+        }
     }
 
     /// A dataset of any shape (row-major `data`).
-    pub fn dataset(&mut self, path: &str, shape: &[usize], data: Vec<f64>, units: &str) -> &mut Self {
-        self.datasets.push(Dataset { path: path.into(), shape: shape.to_vec(), data, units: units.into() });
+    pub fn dataset(
+        &mut self,
+        path: &str,
+        shape: &[usize],
+        data: Vec<f64>,
+        units: &str,
+    ) -> &mut Self {
+        self.datasets.push(Dataset {
+            path: path.into(),
+            shape: shape.to_vec(),
+            data,
+            units: units.into(),
+        });
         self
     }
 
@@ -68,18 +96,23 @@ impl ResultsFile {
     }
 
     pub fn number(&mut self, group: &str, key: &str, value: f64) -> &mut Self {
-        self.attributes.push((group.into(), key.into(), AttrValue::Number(value)));
+        self.attributes
+            .push((group.into(), key.into(), AttrValue::Number(value)));
         self
     }
 
     pub fn text(&mut self, group: &str, key: &str, value: &str) -> &mut Self {
-        self.attributes.push((group.into(), key.into(), AttrValue::Text(value.into())));
+        self.attributes
+            .push((group.into(), key.into(), AttrValue::Text(value.into())));
         self
     }
 
     /// Checks paths, shapes and uniqueness; nothing touches the disk.
     fn validate(&self, path: &Path) -> Result<(), IoError> {
-        let bad = |reason: String| IoError::InvalidInput { path: path.to_path_buf(), reason };
+        let bad = |reason: String| IoError::InvalidInput {
+            path: path.to_path_buf(),
+            reason,
+        };
         let mut seen = std::collections::BTreeSet::new();
         for d in &self.datasets {
             let parts = components(&d.path).map_err(bad)?;
@@ -87,7 +120,12 @@ impl ResultsFile {
                 return Err(bad("a dataset cannot be the root".into()));
             }
             if d.shape.iter().product::<usize>() != d.data.len() {
-                return Err(bad(format!("{}: shape {:?} does not hold {} values", d.path, d.shape, d.data.len())));
+                return Err(bad(format!(
+                    "{}: shape {:?} does not hold {} values",
+                    d.path,
+                    d.shape,
+                    d.data.len()
+                )));
             }
             if !seen.insert(d.path.clone()) {
                 return Err(bad(format!("{}: written twice", d.path)));
@@ -97,17 +135,24 @@ impl ResultsFile {
         for d in &self.datasets {
             let prefix = format!("{}/", d.path);
             if let Some(other) = self.datasets.iter().find(|o| o.path.starts_with(&prefix)) {
-                return Err(bad(format!("{} is a dataset and also the group of {}", d.path, other.path)));
+                return Err(bad(format!(
+                    "{} is a dataset and also the group of {}",
+                    d.path, other.path
+                )));
             }
         }
         let mut keys = std::collections::BTreeSet::new();
         for (group, key, _) in &self.attributes {
             components(group).map_err(bad)?;
             if key.is_empty() || (group == "/" && (key == "format" || key == "format_version")) {
-                return Err(bad(format!("attribute {key:?} on {group} is empty or reserved")));
+                return Err(bad(format!(
+                    "attribute {key:?} on {group} is empty or reserved"
+                )));
             }
             if self.datasets.iter().any(|d| &d.path == group) {
-                return Err(bad(format!("attribute {key:?}: {group} is a dataset, not a group")));
+                return Err(bad(format!(
+                    "attribute {key:?}: {group} is a dataset, not a group"
+                )));
             }
             if !keys.insert((group.clone(), key.clone())) {
                 return Err(bad(format!("attribute {key:?} on {group} written twice")));
@@ -122,7 +167,8 @@ impl ResultsFile {
         super::write_atomically(path, |tmp| {
             let file = hdf5::File::create(tmp).map_err(IoError::hdf5(tmp, "creating HDF5 file"))?;
             self.fill(tmp, &file)?;
-            file.close().map_err(IoError::hdf5(tmp, "closing HDF5 file"))
+            file.close()
+                .map_err(IoError::hdf5(tmp, "closing HDF5 file"))
         })
     }
 
@@ -151,16 +197,25 @@ impl ResultsFile {
 /// Reads one dataset back: (values, shape).
 pub fn read_dataset(path: &Path, dataset: &str) -> Result<(Vec<f64>, Vec<usize>), IoError> {
     let file = hdf5::File::open(path).map_err(IoError::hdf5(path, "opening HDF5 file"))?;
-    let ds = file.dataset(dataset).map_err(IoError::hdf5(path, format!("opening dataset {dataset}")))?;
+    let ds = file
+        .dataset(dataset)
+        .map_err(IoError::hdf5(path, format!("opening dataset {dataset}")))?;
     let shape = ds.shape();
-    let data = if shape.iter().product::<usize>() == 0 { Vec::new() } else { ds.read_raw::<f64>().map_err(IoError::hdf5(path, format!("reading dataset {dataset}")))? };
+    let data = if shape.iter().product::<usize>() == 0 {
+        Vec::new()
+    } else {
+        ds.read_raw::<f64>()
+            .map_err(IoError::hdf5(path, format!("reading dataset {dataset}")))?
+    };
     Ok((data, shape))
 }
 
 /// Reads an attribute of a group ("/" for the root) back.
 pub fn read_attribute(path: &Path, group: &str, key: &str) -> Result<AttrValue, IoError> {
     let file = hdf5::File::open(path).map_err(IoError::hdf5(path, "opening HDF5 file"))?;
-    let loc = file.group(group).map_err(IoError::hdf5(path, format!("opening group {group}")))?;
+    let loc = file
+        .group(group)
+        .map_err(IoError::hdf5(path, format!("opening group {group}")))?;
     match read_attr::<f64>(path, &loc, key) {
         Ok(v) => Ok(AttrValue::Number(v)),
         Err(_) => read_str_attr(path, &loc, key).map(AttrValue::Text),
@@ -181,22 +236,47 @@ mod tests {
             .number("/fit", "youngs_modulus", 5e10)
             .text("/", "mesh", "bowl.msh");
         f.write(&path).unwrap();
-        assert_eq!(read_dataset(&path, "/fit/history/loss").unwrap(), (vec![3.0, 2.0, 1.0], vec![3]));
+        assert_eq!(
+            read_dataset(&path, "/fit/history/loss").unwrap(),
+            (vec![3.0, 2.0, 1.0], vec![3])
+        );
         assert_eq!(read_dataset(&path, "/fit/matrix").unwrap().1, vec![2, 2]);
-        assert_eq!(read_attribute(&path, "/fit", "youngs_modulus").unwrap(), AttrValue::Number(5e10));
-        assert_eq!(read_attribute(&path, "/", "mesh").unwrap(), AttrValue::Text("bowl.msh".into()));
-        assert_eq!(read_attribute(&path, "/", "format").unwrap(), AttrValue::Text("diffsound.test".into()));
+        assert_eq!(
+            read_attribute(&path, "/fit", "youngs_modulus").unwrap(),
+            AttrValue::Number(5e10)
+        );
+        assert_eq!(
+            read_attribute(&path, "/", "mesh").unwrap(),
+            AttrValue::Text("bowl.msh".into())
+        );
+        assert_eq!(
+            read_attribute(&path, "/", "format").unwrap(),
+            AttrValue::Text("diffsound.test".into())
+        );
 
         for broken in [
-            ResultsFile::new("x", 1).column("/a", vec![1.0], "").column("/a", vec![1.0], "").clone(),
-            ResultsFile::new("x", 1).dataset("/a", &[2], vec![1.0], "").clone(),
-            ResultsFile::new("x", 1).column("/a", vec![1.0], "").column("/a/b", vec![1.0], "").clone(),
+            ResultsFile::new("x", 1)
+                .column("/a", vec![1.0], "")
+                .column("/a", vec![1.0], "")
+                .clone(),
+            ResultsFile::new("x", 1)
+                .dataset("/a", &[2], vec![1.0], "")
+                .clone(),
+            ResultsFile::new("x", 1)
+                .column("/a", vec![1.0], "")
+                .column("/a/b", vec![1.0], "")
+                .clone(),
             ResultsFile::new("x", 1).column("a", vec![1.0], "").clone(),
-            ResultsFile::new("x", 1).column("/a b", vec![1.0], "").clone(),
+            ResultsFile::new("x", 1)
+                .column("/a b", vec![1.0], "")
+                .clone(),
             ResultsFile::new("x", 1).number("/", "format", 1.0).clone(),
         ] {
             let p = dir.join("bad.h5");
-            assert!(matches!(broken.write(&p), Err(IoError::InvalidInput { .. })));
+            assert!(matches!(
+                broken.write(&p),
+                Err(IoError::InvalidInput { .. })
+            ));
             assert!(!p.exists(), "nothing is written for invalid input");
         }
     }

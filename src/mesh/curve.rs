@@ -87,7 +87,13 @@ pub struct CurvingReport {
 
 /// Curves the boundary of a P2 mesh onto f = 0 (module docs). Returns the curved mesh, the
 /// kept moves and a report. A linear mesh is returned unchanged.
-pub fn curve_boundary(quadratic: &TetMesh, f: &dyn Fn([f64; 3]) -> f64, gradient: Option<FieldGradient>, max_fraction: f64, min_jacobian_ratio: f64) -> (TetMesh, Vec<CurvedNode>, CurvingReport) {
+pub fn curve_boundary(
+    quadratic: &TetMesh,
+    f: &dyn Fn([f64; 3]) -> f64,
+    gradient: Option<FieldGradient>,
+    max_fraction: f64,
+    min_jacobian_ratio: f64,
+) -> (TetMesh, Vec<CurvedNode>, CurvingReport) {
     let mut report = CurvingReport::default();
     if quadratic.order != ElementOrder::Quadratic {
         return (quadratic.clone(), Vec::new(), report);
@@ -97,7 +103,11 @@ pub fn curve_boundary(quadratic: &TetMesh, f: &dyn Fn([f64; 3]) -> f64, gradient
     for e in 0..quadratic.n_tets() {
         let t = quadratic.tet(e);
         for (k, &(a, b)) in TET10_EDGES.iter().enumerate() {
-            let key = if t[a] < t[b] { (t[a], t[b]) } else { (t[b], t[a]) };
+            let key = if t[a] < t[b] {
+                (t[a], t[b])
+            } else {
+                (t[b], t[a])
+            };
             mid_of.insert(key, t[4 + k]);
         }
     }
@@ -161,14 +171,21 @@ pub fn curve_boundary(quadratic: &TetMesh, f: &dyn Fn([f64; 3]) -> f64, gradient
 }
 
 /// The root of f along ∇f from p0 (module docs), or None.
-fn project(p0: [f64; 3], length: f64, f: &dyn Fn([f64; 3]) -> f64, exact_gradient: Option<FieldGradient>, max_fraction: f64) -> Option<CurvedNode> {
+fn project(
+    p0: [f64; 3],
+    length: f64,
+    f: &dyn Fn([f64; 3]) -> f64,
+    exact_gradient: Option<FieldGradient>,
+    max_fraction: f64,
+) -> Option<CurvedNode> {
     let step = 1e-3 * length;
     let at = |p: [f64; 3], d: usize, s: f64| {
         let mut q = p;
         q[d] += s;
         f(q)
     };
-    let difference = |p: [f64; 3]| [0, 1, 2].map(|d| (at(p, d, step) - at(p, d, -step)) / (2.0 * step));
+    let difference =
+        |p: [f64; 3]| [0, 1, 2].map(|d| (at(p, d, step) - at(p, d, -step)) / (2.0 * step));
     // The direction is the central difference even where the exact gradient is known: it
     // varies continuously with p₀ across a crease of f, where the exact one jumps.
     let grad = difference(p0);
@@ -190,7 +207,11 @@ fn project(p0: [f64; 3], length: f64, f: &dyn Fn([f64; 3]) -> f64, exact_gradien
         if f1 == 0.0 || (u1 - u0).abs() <= 1e-10 * length {
             break;
         }
-        let u2 = if f1 != f0 { u1 - f1 * (u1 - u0) / (f1 - f0) } else { break };
+        let u2 = if f1 != f0 {
+            u1 - f1 * (u1 - u0) / (f1 - f0)
+        } else {
+            break;
+        };
         if !u2.is_finite() || u2.abs() > limit {
             return None;
         }
@@ -202,7 +223,9 @@ fn project(p0: [f64; 3], length: f64, f: &dyn Fn([f64; 3]) -> f64, exact_gradien
         return None;
     }
     let position = [0, 1, 2].map(|d| p0[d] + u1 * n[d]);
-    let gradient = exact_gradient.and_then(|g| g(position)).unwrap_or_else(|| difference(position));
+    let gradient = exact_gradient
+        .and_then(|g| g(position))
+        .unwrap_or_else(|| difference(position));
     let slope = match exact_gradient {
         Some(_) => (0..3).map(|d| gradient[d] * n[d]).sum::<f64>(),
         None => (along(u1 + step) - along(u1 - step)) / (2.0 * step),
@@ -210,7 +233,17 @@ fn project(p0: [f64; 3], length: f64, f: &dyn Fn([f64; 3]) -> f64, exact_gradien
     if !(slope.is_finite() && slope != 0.0) {
         return None;
     }
-    Some(CurvedNode { node: usize::MAX, position, direction: n, slope, gradient, origin: p0, offset: u1, origin_gradient_norm: norm, difference_step: step })
+    Some(CurvedNode {
+        node: usize::MAX,
+        position,
+        direction: n,
+        slope,
+        gradient,
+        origin: p0,
+        offset: u1,
+        origin_gradient_norm: norm,
+        difference_step: step,
+    })
 }
 
 /// Reference gradients of the ten P2 shape functions on the order-4 barycentric lattice.
@@ -219,7 +252,11 @@ fn lattice_gradients() -> Vec<[[f64; 3]; 10]> {
     for i in 0..=4 {
         for j in 0..=4 - i {
             for k in 0..=4 - i - j {
-                out.push(p2_grad_ref([i as f64 / 4.0, j as f64 / 4.0, k as f64 / 4.0]));
+                out.push(p2_grad_ref([
+                    i as f64 / 4.0,
+                    j as f64 / 4.0,
+                    k as f64 / 4.0,
+                ]));
             }
         }
     }
@@ -230,7 +267,9 @@ fn lattice_gradients() -> Vec<[[f64; 3]; 10]> {
 fn keeps_orientation(coords: &[[f64; 3]], lattice: &[[[f64; 3]; 10]], ratio: f64) -> bool {
     let straight = det3(&affine_jacobian(coords));
     let sign = straight.signum();
-    lattice.iter().all(|g| sign * det3(&jacobian(coords, g)) >= ratio * straight.abs())
+    lattice
+        .iter()
+        .all(|g| sign * det3(&jacobian(coords, g)) >= ratio * straight.abs())
 }
 
 #[cfg(test)]
@@ -251,36 +290,69 @@ mod tests {
             let grid = BackgroundGrid::covering([-radius; 3], [radius; 3], n, 1.0).unwrap();
             let values: Vec<f64> = grid.vertex_positions().iter().map(|&p| f(p)).collect();
             let marched = march(&grid, &values, None, &MarchingOptions::default()).unwrap();
-            let (exact_linear, _, _) = crate::inverse::shape::refine_crossings(&marched, &grid, &f, None, 0.01);
+            let (exact_linear, _, _) =
+                crate::inverse::shape::refine_crossings(&marched, &grid, &f, None, 0.01);
             let straight = lift_to_quadratic(&exact_linear);
             let (curved, moved, report) = curve_boundary(&straight, &f, None, 0.5, 0.05);
             assert!(report.moved > 0 && report.moved == moved.len());
             for c in &moved {
-                assert!(f(curved.nodes[c.node]).abs() < 1e-9, "a moved node is off the sphere");
+                assert!(
+                    f(curved.nodes[c.node]).abs() < 1e-9,
+                    "a moved node is off the sphere"
+                );
             }
             let rule = crate::fem::tet_rule(8);
-            let volume = |m: &TetMesh| (0..m.n_tets()).map(|e| crate::fem::element_volume(&m.tet_coords(e), &rule).unwrap()).sum::<f64>();
+            let volume = |m: &TetMesh| {
+                (0..m.n_tets())
+                    .map(|e| crate::fem::element_volume(&m.tet_coords(e), &rule).unwrap())
+                    .sum::<f64>()
+            };
             let exact = 4.0 / 3.0 * std::f64::consts::PI * radius.powi(3);
-            let (vs, vc) = (volume(&straight) / exact - 1.0, volume(&curved) / exact - 1.0);
-            assert!(vc.abs() < 0.25 * vs.abs(), "curving should cut the volume error: straight {vs:.3e}, curved {vc:.3e}");
+            let (vs, vc) = (
+                volume(&straight) / exact - 1.0,
+                volume(&curved) / exact - 1.0,
+            );
+            assert!(
+                vc.abs() < 0.25 * vs.abs(),
+                "curving should cut the volume error: straight {vs:.3e}, curved {vc:.3e}"
+            );
             errors.push(vc.abs());
         }
         // Halving-ish h (8 → 12 cells) cuts the curved error by more than (12/8)² = 2.25.
-        assert!(errors[1] < errors[0] / 2.25, "curved volume errors {errors:?}");
+        assert!(
+            errors[1] < errors[0] / 2.25,
+            "curved volume errors {errors:?}"
+        );
     }
 
     #[test]
     fn a_node_whose_move_would_fold_a_tet_goes_back_to_its_midpoint() {
         // One tet with a boundary face; a field whose zero is far beyond the allowed fold.
-        let mesh = lift_to_quadratic(&TetMesh { nodes: vec![[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]], connectivity: vec![0, 1, 2, 3], order: ElementOrder::Linear });
+        let mesh = lift_to_quadratic(&TetMesh {
+            nodes: vec![
+                [0.0, 0.0, 0.0],
+                [1.0, 0.0, 0.0],
+                [0.0, 1.0, 0.0],
+                [0.0, 0.0, 1.0],
+            ],
+            connectivity: vec![0, 1, 2, 3],
+            order: ElementOrder::Linear,
+        });
         // f = 0.3 − z + x·(1 − x)·4·0.45: the x-edge's midpoint moves by +0.45 in z (nearly to
         // the top corner): the tet would fold.
         let f = |p: [f64; 3]| -p[2] + 1.8 * p[0] * (1.0 - p[0]) * (1.0 - p[1]);
         let (curved, moved, report) = curve_boundary(&mesh, &f, None, 0.6, 0.05);
         assert!(report.reverted > 0);
         for c in &moved {
-            assert!(keeps_orientation(&curved.tet_coords(0), &lattice_gradients(), 0.05), "{c:?}");
+            assert!(
+                keeps_orientation(&curved.tet_coords(0), &lattice_gradients(), 0.05),
+                "{c:?}"
+            );
         }
-        assert!(keeps_orientation(&curved.tet_coords(0), &lattice_gradients(), 0.05));
+        assert!(keeps_orientation(
+            &curved.tet_coords(0),
+            &lattice_gradients(),
+            0.05
+        ));
     }
 }

@@ -80,7 +80,9 @@ pub fn sample_surface(surface: &TriangleSurface, n: usize, rng: &mut SplitMix64)
     (0..n)
         .map(|_| {
             let target = rng.unit() * total;
-            let t = cumulative.partition_point(|&c| c <= target).min(cumulative.len() - 1);
+            let t = cumulative
+                .partition_point(|&c| c <= target)
+                .min(cumulative.len() - 1);
             let [a, b, c] = surface.triangle_coords(t);
             let (r1, r2) = (rng.unit().sqrt(), rng.unit());
             [0, 1, 2].map(|d| (1.0 - r1) * a[d] + r1 * (1.0 - r2) * b[d] + r1 * r2 * c[d])
@@ -89,43 +91,82 @@ pub fn sample_surface(surface: &TriangleSurface, n: usize, rng: &mut SplitMix64)
 }
 
 /// Distances from the `samples` points on `from` (plus its vertices) to `to`: (mean, max).
-fn one_way(from: &TriangleSurface, to: &SignedDistance, samples: usize, rng: &mut SplitMix64) -> (f64, f64) {
+fn one_way(
+    from: &TriangleSurface,
+    to: &SignedDistance,
+    samples: usize,
+    rng: &mut SplitMix64,
+) -> (f64, f64) {
     let mut points = sample_surface(from, samples, rng);
     points.extend_from_slice(&from.vertices);
     let d: Vec<f64> = points.iter().map(|&p| to.unsigned_distance(p)).collect();
-    (d.iter().sum::<f64>() / d.len() as f64, d.iter().copied().fold(0.0, f64::max))
+    (
+        d.iter().sum::<f64>() / d.len() as f64,
+        d.iter().copied().fold(0.0, f64::max),
+    )
 }
 
 fn check_samples(samples: usize) -> Result<(), DistanceError> {
     if samples == 0 {
-        return Err(DistanceError::Invalid("at least one sample point is needed".into()));
+        return Err(DistanceError::Invalid(
+            "at least one sample point is needed".into(),
+        ));
     }
     Ok(())
 }
 
 /// Chamfer and Hausdorff distances between `a` and `b` from `samples` points on each (module
 /// docs).
-pub fn surface_distance(a: &TriangleSurface, b: &TriangleSurface, samples: usize, seed: u64) -> Result<SurfaceDistance, DistanceError> {
+pub fn surface_distance(
+    a: &TriangleSurface,
+    b: &TriangleSurface,
+    samples: usize,
+    seed: u64,
+) -> Result<SurfaceDistance, DistanceError> {
     check_samples(samples)?;
     let (sa, sb) = (SignedDistance::new(a)?, SignedDistance::new(b)?);
     Ok(distance_with(a, &sa, b, &sb, samples, seed))
 }
 
-fn distance_with(a: &TriangleSurface, sa: &SignedDistance, b: &TriangleSurface, sb: &SignedDistance, samples: usize, seed: u64) -> SurfaceDistance {
+fn distance_with(
+    a: &TriangleSurface,
+    sa: &SignedDistance,
+    b: &TriangleSurface,
+    sb: &SignedDistance,
+    samples: usize,
+    seed: u64,
+) -> SurfaceDistance {
     let (mean_ab, max_ab) = one_way(a, sb, samples, &mut SplitMix64::stream(seed, 0));
     let (mean_ba, max_ba) = one_way(b, sa, samples, &mut SplitMix64::stream(seed, 1));
-    SurfaceDistance { chamfer: 0.5 * (mean_ab + mean_ba), hausdorff: max_ab.max(max_ba), mean_a_to_b: mean_ab, mean_b_to_a: mean_ba }
+    SurfaceDistance {
+        chamfer: 0.5 * (mean_ab + mean_ba),
+        hausdorff: max_ab.max(max_ba),
+        mean_a_to_b: mean_ab,
+        mean_b_to_a: mean_ba,
+    }
 }
 
 /// Volume intersection over union of the solids bounded by `a` and `b` from `samples` points
 /// (module docs).
-pub fn volume_iou(a: &TriangleSurface, b: &TriangleSurface, samples: usize, seed: u64) -> Result<f64, DistanceError> {
+pub fn volume_iou(
+    a: &TriangleSurface,
+    b: &TriangleSurface,
+    samples: usize,
+    seed: u64,
+) -> Result<f64, DistanceError> {
     check_samples(samples)?;
     let (sa, sb) = (SignedDistance::new(a)?, SignedDistance::new(b)?);
     iou_with(a, &sa, b, &sb, samples, seed)
 }
 
-fn iou_with(a: &TriangleSurface, sa: &SignedDistance, b: &TriangleSurface, sb: &SignedDistance, samples: usize, seed: u64) -> Result<f64, DistanceError> {
+fn iou_with(
+    a: &TriangleSurface,
+    sa: &SignedDistance,
+    b: &TriangleSurface,
+    sb: &SignedDistance,
+    samples: usize,
+    seed: u64,
+) -> Result<f64, DistanceError> {
     let ((lo_a, hi_a), (lo_b, hi_b)) = (a.bounding_box(), b.bounding_box());
     let lo = [0, 1, 2].map(|d| lo_a[d].min(lo_b[d]));
     let hi = [0, 1, 2].map(|d| hi_a[d].max(hi_b[d]));
@@ -138,19 +179,31 @@ fn iou_with(a: &TriangleSurface, sa: &SignedDistance, b: &TriangleSurface, sb: &
         either += usize::from(ia || ib);
     }
     if either == 0 {
-        return Err(DistanceError::Invalid(format!("none of {samples} sample points lies inside either surface: are they closed?")));
+        return Err(DistanceError::Invalid(format!(
+            "none of {samples} sample points lies inside either surface: are they closed?"
+        )));
     }
     Ok(both as f64 / either as f64)
 }
 
 /// Chamfer, Hausdorff (from `surface_samples` points on each surface) and IoU (from
 /// `volume_samples` points) of `shape` against `reference`.
-pub fn compare_shapes(shape: &TriangleSurface, reference: &TriangleSurface, surface_samples: usize, volume_samples: usize, seed: u64) -> Result<ShapeComparison, DistanceError> {
+pub fn compare_shapes(
+    shape: &TriangleSurface,
+    reference: &TriangleSurface,
+    surface_samples: usize,
+    volume_samples: usize,
+    seed: u64,
+) -> Result<ShapeComparison, DistanceError> {
     check_samples(surface_samples.min(volume_samples))?;
     let (sa, sb) = (SignedDistance::new(shape)?, SignedDistance::new(reference)?);
     let d = distance_with(shape, &sa, reference, &sb, surface_samples, seed);
     let iou = iou_with(shape, &sa, reference, &sb, volume_samples, seed)?;
-    Ok(ShapeComparison { chamfer: d.chamfer, hausdorff: d.hausdorff, iou })
+    Ok(ShapeComparison {
+        chamfer: d.chamfer,
+        hausdorff: d.hausdorff,
+        iou,
+    })
 }
 
 #[cfg(test)]
@@ -161,13 +214,34 @@ mod tests {
 
     fn sphere(r: f64, centre: [f64; 3]) -> TriangleSurface {
         let (v, t) = icosphere(r, 4);
-        TriangleSurface::new(v.into_iter().map(|p| [0, 1, 2].map(|d| p[d] + centre[d])).collect(), t).unwrap()
+        TriangleSurface::new(
+            v.into_iter()
+                .map(|p| [0, 1, 2].map(|d| p[d] + centre[d]))
+                .collect(),
+            t,
+        )
+        .unwrap()
     }
 
     fn cuboid(h: f64) -> TriangleSurface {
-        let v: Vec<[f64; 3]> = (0..8).map(|k| [(k & 1) as f64, ((k >> 1) & 1) as f64, if k & 4 == 4 { h } else { 0.0 }]).collect();
+        let v: Vec<[f64; 3]> = (0..8)
+            .map(|k| {
+                [
+                    (k & 1) as f64,
+                    ((k >> 1) & 1) as f64,
+                    if k & 4 == 4 { h } else { 0.0 },
+                ]
+            })
+            .collect();
         let mut t = Vec::new();
-        for [p, q, r, s] in [[0, 2, 3, 1], [4, 5, 7, 6], [0, 1, 5, 4], [2, 6, 7, 3], [0, 4, 6, 2], [1, 3, 7, 5]] {
+        for [p, q, r, s] in [
+            [0, 2, 3, 1],
+            [4, 5, 7, 6],
+            [0, 1, 5, 4],
+            [2, 6, 7, 3],
+            [0, 4, 6, 2],
+            [1, 3, 7, 5],
+        ] {
             t.push([p, q, r]);
             t.push([p, r, s]);
         }
@@ -182,13 +256,23 @@ mod tests {
         let (a, b) = (sphere(1.0, [0.0; 3]), sphere(0.8, [0.0; 3]));
         let c = compare_shapes(&a, &b, 4000, 40_000, 1).unwrap();
         assert!((c.chamfer - 0.2).abs() < 3e-3, "Chamfer {}", c.chamfer);
-        assert!((c.hausdorff - 0.2).abs() < 3e-3, "Hausdorff {}", c.hausdorff);
+        assert!(
+            (c.hausdorff - 0.2).abs() < 3e-3,
+            "Hausdorff {}",
+            c.hausdorff
+        );
         // IoU = 0.8³; standard error ≈ 0.0035.
         assert!((c.iou - 0.512).abs() < 0.015, "IoU {}", c.iou);
         let same = compare_shapes(&a, &a, 500, 5000, 2).unwrap();
-        assert!(same.chamfer < 1e-12 && same.hausdorff < 1e-12 && same.iou == 1.0, "{same:?}");
+        assert!(
+            same.chamfer < 1e-12 && same.hausdorff < 1e-12 && same.iou == 1.0,
+            "{same:?}"
+        );
         // Reproducible from the seed.
-        assert_eq!(compare_shapes(&a, &b, 300, 3000, 5).unwrap(), compare_shapes(&a, &b, 300, 3000, 5).unwrap());
+        assert_eq!(
+            compare_shapes(&a, &b, 300, 3000, 5).unwrap(),
+            compare_shapes(&a, &b, 300, 3000, 5).unwrap()
+        );
     }
 
     #[test]
@@ -207,13 +291,28 @@ mod tests {
         // uniform in [−1, 1] on the sphere: the mean of ||a − c_B| − r| by Simpson's rule.
         let n = 2000;
         let f = |u: f64| ((r * r + d * d - 2.0 * r * d * u).sqrt() - r).abs();
-        let mean = (0..=n).map(|i| {
-            let u = -1.0 + 2.0 * i as f64 / n as f64;
-            let w = if i == 0 || i == n { 1.0 } else if i % 2 == 1 { 4.0 } else { 2.0 };
-            w * f(u)
-        }).sum::<f64>() * (2.0 / n as f64) / 3.0 / 2.0;
+        let mean = (0..=n)
+            .map(|i| {
+                let u = -1.0 + 2.0 * i as f64 / n as f64;
+                let w = if i == 0 || i == n {
+                    1.0
+                } else if i % 2 == 1 {
+                    4.0
+                } else {
+                    2.0
+                };
+                w * f(u)
+            })
+            .sum::<f64>()
+            * (2.0 / n as f64)
+            / 3.0
+            / 2.0;
         // Standard error of the sampled mean ≈ 0.1/√20000 per side.
-        assert!((c.chamfer - mean).abs() < 4e-3, "Chamfer {} vs {mean}", c.chamfer);
+        assert!(
+            (c.chamfer - mean).abs() < 4e-3,
+            "Chamfer {} vs {mean}",
+            c.chamfer
+        );
     }
 
     #[test]
@@ -221,11 +320,19 @@ mod tests {
         let (a, b) = (cuboid(1.0), cuboid(1.2));
         let c = compare_shapes(&a, &b, 3000, 40_000, 4).unwrap();
         // B's top corners are 0.2 above A's, and nothing is farther.
-        assert!((c.hausdorff - 0.2).abs() < 1e-12, "Hausdorff {}", c.hausdorff);
+        assert!(
+            (c.hausdorff - 0.2).abs() < 1e-12,
+            "Hausdorff {}",
+            c.hausdorff
+        );
         assert!((c.iou - 1.0 / 1.2).abs() < 0.01, "IoU {}", c.iou);
         // Both surfaces share four full sides' worth of area with the other: the Chamfer
         // distance is well below the Hausdorff one, and positive.
-        assert!(c.chamfer > 0.005 && c.chamfer < 0.1, "Chamfer {}", c.chamfer);
+        assert!(
+            c.chamfer > 0.005 && c.chamfer < 0.1,
+            "Chamfer {}",
+            c.chamfer
+        );
         assert!(compare_shapes(&a, &b, 0, 10, 1).is_err());
         assert!(surface_distance(&a, &b, 10, 1).is_ok() && volume_iou(&a, &b, 10, 1).is_ok());
     }
@@ -235,7 +342,10 @@ mod tests {
         // Box of height 3 with unit base: the sides hold 12 of the 14 units of area.
         let s = cuboid(3.0);
         let points = sample_surface(&s, 14_000, &mut SplitMix64::new(9));
-        let on_sides = points.iter().filter(|p| p[2] > 1e-12 && p[2] < 3.0 - 1e-12).count();
+        let on_sides = points
+            .iter()
+            .filter(|p| p[2] > 1e-12 && p[2] < 3.0 - 1e-12)
+            .count();
         let fraction = on_sides as f64 / points.len() as f64;
         assert!((fraction - 12.0 / 14.0).abs() < 0.01, "{fraction}");
     }

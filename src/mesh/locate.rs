@@ -36,7 +36,11 @@ fn dot(a: [f64; 3], b: [f64; 3]) -> f64 {
     a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
 }
 fn cross(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
-    [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]]
+    [
+        a[1] * b[2] - a[2] * b[1],
+        a[2] * b[0] - a[0] * b[2],
+        a[0] * b[1] - a[1] * b[0],
+    ]
 }
 fn unit(a: [f64; 3]) -> [f64; 3] {
     let n = dot(a, a).sqrt();
@@ -90,7 +94,8 @@ impl TetMesh {
     /// local corner indices they have in that tet.
     fn boundary_faces_with_owner(&self) -> Vec<(usize, [usize; 3])> {
         let faces = self.boundary_faces();
-        let mut key_to_face: std::collections::HashMap<[usize; 3], usize> = std::collections::HashMap::with_capacity(faces.len());
+        let mut key_to_face: std::collections::HashMap<[usize; 3], usize> =
+            std::collections::HashMap::with_capacity(faces.len());
         for (i, f) in faces.iter().enumerate() {
             let mut k = *f;
             k.sort_unstable();
@@ -133,7 +138,13 @@ impl TetMesh {
         }
         let [a, b, c] = face.map(|n| self.nodes[n]);
         let position_on = [0, 1, 2].map(|d| w[0] * a[d] + w[1] * b[d] + w[2] * c[d]);
-        Some(SurfacePoint { tet, barycentric, position: position_on, normal: unit(cross(sub(b, a), sub(c, a))), distance: d2.sqrt() })
+        Some(SurfacePoint {
+            tet,
+            barycentric,
+            position: position_on,
+            normal: unit(cross(sub(b, a), sub(c, a))),
+            distance: d2.sqrt(),
+        })
     }
 
     /// The surface point at corner node `vertex`, with the vertex normal. `None` if the node
@@ -142,21 +153,41 @@ impl TetMesh {
         let normals = self.vertex_normals();
         let &(_, normal) = normals.iter().find(|(v, _)| *v == vertex)?;
         let npt = self.nodes_per_tet();
-        let (tet, local) = self.connectivity.chunks_exact(npt).enumerate().find_map(|(e, t)| t[..4].iter().position(|&n| n == vertex).map(|i| (e, i)))?;
+        let (tet, local) = self
+            .connectivity
+            .chunks_exact(npt)
+            .enumerate()
+            .find_map(|(e, t)| t[..4].iter().position(|&n| n == vertex).map(|i| (e, i)))?;
         let mut barycentric = [0.0; 4];
         barycentric[local] = 1.0;
-        Some(SurfacePoint { tet, barycentric, position: self.nodes[vertex], normal, distance: 0.0 })
+        Some(SurfacePoint {
+            tet,
+            barycentric,
+            position: self.nodes[vertex],
+            normal,
+            distance: 0.0,
+        })
     }
 
     /// The default strike vertex: the surface vertex farthest from the bounding-box centre (a
     /// rim or a corner, where most modes move); the lowest index among equals.
     pub fn default_strike_vertex(&self) -> Option<usize> {
         let (lo, hi) = self.bounding_box();
-        let centre = [0.5 * (lo[0] + hi[0]), 0.5 * (lo[1] + hi[1]), 0.5 * (lo[2] + hi[2])];
+        let centre = [
+            0.5 * (lo[0] + hi[0]),
+            0.5 * (lo[1] + hi[1]),
+            0.5 * (lo[2] + hi[2]),
+        ];
         let dist2 = |n: usize| dot(sub(self.nodes[n], centre), sub(self.nodes[n], centre));
         let vertices = self.surface_vertices();
         let first = *vertices.first()?;
-        Some(vertices.into_iter().fold(first, |best, cand| if dist2(cand) > dist2(best) + 1e-30 { cand } else { best }))
+        Some(vertices.into_iter().fold(first, |best, cand| {
+            if dist2(cand) > dist2(best) + 1e-30 {
+                cand
+            } else {
+                best
+            }
+        }))
     }
 
     /// The surface point at [`Self::default_strike_vertex`].
@@ -174,7 +205,10 @@ impl TetMesh {
                     n[i] = l[i] * (2.0 * l[i] - 1.0);
                 }
                 // Gmsh tet10 edge order: (0,1) (1,2) (0,2) (0,3) (2,3) (1,3).
-                for (e, (i, j)) in [(0, 1), (1, 2), (0, 2), (0, 3), (2, 3), (1, 3)].into_iter().enumerate() {
+                for (e, (i, j)) in [(0, 1), (1, 2), (0, 2), (0, 3), (2, 3), (1, 3)]
+                    .into_iter()
+                    .enumerate()
+                {
                     n[4 + e] = 4.0 * l[i] * l[j];
                 }
                 n
@@ -204,16 +238,30 @@ mod tests {
         let m = lift_to_quadratic(&box_mesh([3, 3, 3], [1.0, 2.0, 3.0]));
         // Outside the +x face, level with its interior.
         let p = m.closest_surface_point([1.4, 0.7, 1.1]).unwrap();
-        assert!((p.position[0] - 1.0).abs() < 1e-12 && (p.position[1] - 0.7).abs() < 1e-12 && (p.position[2] - 1.1).abs() < 1e-12, "{p:?}");
+        assert!(
+            (p.position[0] - 1.0).abs() < 1e-12
+                && (p.position[1] - 0.7).abs() < 1e-12
+                && (p.position[2] - 1.1).abs() < 1e-12,
+            "{p:?}"
+        );
         assert!((p.distance - 0.4).abs() < 1e-12);
         assert!((p.normal[0] - 1.0).abs() < 1e-12, "normal {:?}", p.normal);
         // A quadratic field is reproduced exactly by P2 interpolation.
-        let field: Vec<f64> = m.nodes.iter().flat_map(|x| [x[0] * x[1], x[2] * x[2], 1.0 + x[0] - 2.0 * x[1] * x[2]]).collect();
+        let field: Vec<f64> = m
+            .nodes
+            .iter()
+            .flat_map(|x| [x[0] * x[1], x[2] * x[2], 1.0 + x[0] - 2.0 * x[1] * x[2]])
+            .collect();
         let v = m.interpolate_vector(&field, &p);
         let x = p.position;
         let exact = [x[0] * x[1], x[2] * x[2], 1.0 + x[0] - 2.0 * x[1] * x[2]];
         for d in 0..3 {
-            assert!((v[d] - exact[d]).abs() < 1e-12, "component {d}: {} vs {}", v[d], exact[d]);
+            assert!(
+                (v[d] - exact[d]).abs() < 1e-12,
+                "component {d}: {} vs {}",
+                v[d],
+                exact[d]
+            );
         }
         // A point inside the body projects to the nearest face.
         let inner = m.closest_surface_point([0.1, 1.0, 1.5]).unwrap();
@@ -227,10 +275,20 @@ mod tests {
         let p = m.surface_point_at_vertex(corner).unwrap();
         assert_eq!(p.position, [1.0, 1.0, 1.0]);
         let field: Vec<f64> = (0..3 * m.n_nodes()).map(|i| i as f64).collect();
-        assert_eq!(m.interpolate_vector(&field, &p), [3.0 * corner as f64, 3.0 * corner as f64 + 1.0, 3.0 * corner as f64 + 2.0]);
+        assert_eq!(
+            m.interpolate_vector(&field, &p),
+            [
+                3.0 * corner as f64,
+                3.0 * corner as f64 + 1.0,
+                3.0 * corner as f64 + 2.0
+            ]
+        );
         let centre = m.nodes.iter().position(|x| *x == [0.5, 0.5, 0.5]).unwrap();
         assert!(m.surface_point_at_vertex(centre).is_none(), "interior node");
         let s = m.default_strike_point().unwrap();
-        assert!((s.position.iter().map(|c| (c - 0.5).powi(2)).sum::<f64>() - 0.75).abs() < 1e-12, "a corner");
+        assert!(
+            (s.position.iter().map(|c| (c - 0.5).powi(2)).sum::<f64>() - 0.75).abs() < 1e-12,
+            "a corner"
+        );
     }
 }

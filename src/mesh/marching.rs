@@ -339,17 +339,33 @@ impl BackgroundGrid {
         marked: &dyn Fn(&super::refine::TetView) -> bool,
     ) -> Result<(BackgroundGrid, Vec<f64>), MarchingError> {
         if self.refinement.is_some() {
-            return Err(MarchingError::BadGrid { message: "the grid is refined already; refine the structured grid once".into() });
+            return Err(MarchingError::BadGrid {
+                message: "the grid is refined already; refine the structured grid once".into(),
+            });
         }
         if levels > 40 {
-            return Err(MarchingError::BadGrid { message: format!("{levels} refinement levels: at most 40") });
+            return Err(MarchingError::BadGrid {
+                message: format!("{levels} refinement levels: at most 40"),
+            });
         }
         check_finite("values", values, self.n_vertices())?;
         let tets: Vec<[usize; 4]> = (0..self.n_tets()).map(|e| self.tet(e)).collect();
-        let r = super::refine::refine_marked(self.vertex_positions(), values.to_vec(), &tets, levels, field, marked);
+        let r = super::refine::refine_marked(
+            self.vertex_positions(),
+            values.to_vec(),
+            &tets,
+            levels,
+            field,
+            marked,
+        );
         let n = self.n_structured_vertices();
         let max_generation = r.generations.iter().copied().max().unwrap_or(0);
-        let refinement = GridRefinement { extra: r.positions[n..].to_vec(), tets: r.tets, edges: r.edges, max_generation };
+        let refinement = GridRefinement {
+            extra: r.positions[n..].to_vec(),
+            tets: r.tets,
+            edges: r.edges,
+            max_generation,
+        };
         let mut grid = self.clone();
         grid.refinement = Some(std::sync::Arc::new(refinement));
         Ok((grid, r.values))
@@ -411,7 +427,9 @@ impl BackgroundGrid {
             if self.refinement.is_some() {
                 // The bound that keeps every background tet positive holds for Kuhn tets of
                 // one size (module docs), not for a refinement's mix of sizes.
-                return Err(MarchingError::BadGrid { message: "vertex offsets are not supported on a locally refined grid".into() });
+                return Err(MarchingError::BadGrid {
+                    message: "vertex offsets are not supported on a locally refined grid".into(),
+                });
             }
             check_finite("offsets", theta, 3 * self.n_vertices())?;
             let b = self.offset_bound(max_offset_fraction);
@@ -1142,9 +1160,15 @@ pub fn shell(values: &[f64], thickness: f64) -> Result<Shell, MarchingError> {
 /// continuous one whose maximum is known (the deepest point of a signed distance,
 /// [`super::SignedDistance::deepest_point`]), so that t means the same on every grid. S is a
 /// constant here: [`Shell::vjp`] has no argmax term. `argmax` is still the largest sample.
-pub fn shell_of_depth(values: &[f64], thickness: f64, max_value: f64) -> Result<Shell, MarchingError> {
+pub fn shell_of_depth(
+    values: &[f64],
+    thickness: f64,
+    max_value: f64,
+) -> Result<Shell, MarchingError> {
     if !(max_value.is_finite() && max_value > 0.0) {
-        return Err(MarchingError::BadOption { message: format!("shell reference depth {max_value} must be finite and positive") });
+        return Err(MarchingError::BadOption {
+            message: format!("shell reference depth {max_value} must be finite and positive"),
+        });
     }
     let mut sh = shell(values, thickness)?;
     let depth = thickness * max_value;

@@ -82,14 +82,18 @@ mod tests;
 
 mod locate;
 pub use curve::{curve_boundary, CurvedNode, CurvingReport, FieldGradient};
-pub use distance::{compare_shapes, sample_surface, surface_distance, volume_iou, DistanceError, ShapeComparison, SurfaceDistance};
+pub use distance::{
+    compare_shapes, sample_surface, surface_distance, volume_iou, DistanceError, ShapeComparison,
+    SurfaceDistance,
+};
 pub use generate::box_mesh;
-pub use locate::SurfacePoint;
 pub use gmsh::{read_mesh, read_mesh_from_bytes};
 pub use lift::{lift_to_quadratic, linear_node_gradient, to_linear, LiftError};
+pub use locate::SurfacePoint;
 pub use marching::{
-    march, morph, morph_vjp, shell, shell_of_depth, BackgroundGrid, MarchedMesh, MarchingError, MarchingGradient,
-    MarchingOptions, MarchingReport, MorphGradient, Shell, ShellGradient, VertexOrigin,
+    march, morph, morph_vjp, shell, shell_of_depth, BackgroundGrid, MarchedMesh, MarchingError,
+    MarchingGradient, MarchingOptions, MarchingReport, MorphGradient, Shell, ShellGradient,
+    VertexOrigin,
 };
 pub use sdf::SignedDistance;
 pub use surface::{parse_obj, read_obj, SurfaceError, SurfaceRead, TriangleSurface};

@@ -141,14 +141,21 @@ impl Refiner<'_> {
     /// Bisects edge `e` in every tet around it, after making it their refinement edge.
     fn bisect(&mut self, e: (usize, usize)) {
         loop {
-            let Some(list) = self.around.get(&e) else { return };
-            let other = list.iter().map(|&t| self.refinement_edge(t)).find(|&f| f != e);
+            let Some(list) = self.around.get(&e) else {
+                return;
+            };
+            let other = list
+                .iter()
+                .map(|&t| self.refinement_edge(t))
+                .find(|&f| f != e);
             match other {
                 Some(f) => self.bisect(f),
                 None => break,
             }
         }
-        let Some(list) = self.around.get(&e).cloned() else { return };
+        let Some(list) = self.around.get(&e).cloned() else {
+            return;
+        };
         let m = *self.midpoints.entry(e).or_insert_with(|| {
             let (p, q) = (self.positions[e.0], self.positions[e.1]);
             let x = [0, 1, 2].map(|d| 0.5 * (p[d] + q[d]));
@@ -175,17 +182,38 @@ impl Refiner<'_> {
     fn view(&self, t: usize) -> TetView {
         let v = self.tets[t];
         let longest = self.edge_length_squared(self.refinement_edge(t)).sqrt();
-        TetView { corners: v.map(|i| self.positions[i]), values: v.map(|i| self.values[i]), generation: self.generations[t], longest_edge: longest }
+        TetView {
+            corners: v.map(|i| self.positions[i]),
+            values: v.map(|i| self.values[i]),
+            generation: self.generations[t],
+            longest_edge: longest,
+        }
     }
 }
 
 /// Refines the mesh (`positions`, `values` at them, `tets`) by bisection (module docs): every
 /// tet for which `marked` holds and whose generation is below `3·levels` is bisected, its
 /// children marked anew, until none is left. `field` gives the value at a new vertex.
-pub fn refine_marked(positions: Vec<[f64; 3]>, values: Vec<f64>, tets: &[[usize; 4]], levels: usize, field: &dyn Fn([f64; 3]) -> f64, marked: &dyn Fn(&TetView) -> bool) -> RefinedTets {
+pub fn refine_marked(
+    positions: Vec<[f64; 3]>,
+    values: Vec<f64>,
+    tets: &[[usize; 4]],
+    levels: usize,
+    field: &dyn Fn([f64; 3]) -> f64,
+    marked: &dyn Fn(&TetView) -> bool,
+) -> RefinedTets {
     assert_eq!(positions.len(), values.len(), "one value per vertex");
     let max_generation = (3 * levels).min(u8::MAX as usize) as u8;
-    let mut r = Refiner { positions, values, tets: Vec::with_capacity(tets.len()), generations: Vec::new(), alive: Vec::new(), around: HashMap::new(), midpoints: HashMap::new(), field };
+    let mut r = Refiner {
+        positions,
+        values,
+        tets: Vec::with_capacity(tets.len()),
+        generations: Vec::new(),
+        alive: Vec::new(),
+        around: HashMap::new(),
+        midpoints: HashMap::new(),
+        field,
+    };
     for &t in tets {
         r.add_tet(t, 0);
     }
@@ -193,7 +221,9 @@ pub fn refine_marked(positions: Vec<[f64; 3]>, values: Vec<f64>, tets: &[[usize;
     // unmarked stays so: each pass looks only at the tets made since the previous one.
     let mut first_unseen = 0;
     loop {
-        let todo: Vec<usize> = (first_unseen..r.tets.len()).filter(|&t| r.alive[t] && r.generations[t] < max_generation && marked(&r.view(t))).collect();
+        let todo: Vec<usize> = (first_unseen..r.tets.len())
+            .filter(|&t| r.alive[t] && r.generations[t] < max_generation && marked(&r.view(t)))
+            .collect();
         first_unseen = r.tets.len();
         if todo.is_empty() {
             break;
@@ -208,7 +238,13 @@ pub fn refine_marked(positions: Vec<[f64; 3]>, values: Vec<f64>, tets: &[[usize;
     let keep: Vec<usize> = (0..r.tets.len()).filter(|&t| r.alive[t]).collect();
     let mut edges: Vec<(usize, usize)> = r.around.keys().copied().collect();
     edges.sort_unstable();
-    RefinedTets { tets: keep.iter().map(|&t| r.tets[t]).collect(), generations: keep.iter().map(|&t| r.generations[t]).collect(), positions: r.positions, values: r.values, edges }
+    RefinedTets {
+        tets: keep.iter().map(|&t| r.tets[t]).collect(),
+        generations: keep.iter().map(|&t| r.generations[t]).collect(),
+        positions: r.positions,
+        values: r.values,
+        edges,
+    }
 }
 
 #[cfg(test)]
@@ -218,10 +254,12 @@ mod tests {
 
     fn kuhn_box(n: usize, h: f64) -> (Vec<[f64; 3]>, Vec<[usize; 4]>) {
         let mesh = crate::mesh::box_mesh([n; 3], [n as f64 * h; 3]);
-        let tets = (0..mesh.n_tets()).map(|e| {
-            let t = mesh.tet(e);
-            [t[0], t[1], t[2], t[3]]
-        }).collect();
+        let tets = (0..mesh.n_tets())
+            .map(|e| {
+                let t = mesh.tet(e);
+                [t[0], t[1], t[2], t[3]]
+            })
+            .collect();
         (mesh.nodes, tets)
     }
 
@@ -246,15 +284,31 @@ mod tests {
             assert!(*count <= 2, "face {f:?} shared by {count} tets");
             if *count == 1 {
                 let [a, b, c] = f.map(|i| r.positions[i]);
-                let (u, v) = ([0, 1, 2].map(|d| b[d] - a[d]), [0, 1, 2].map(|d| c[d] - a[d]));
-                let n = [u[1] * v[2] - u[2] * v[1], u[2] * v[0] - u[0] * v[2], u[0] * v[1] - u[1] * v[0]];
+                let (u, v) = (
+                    [0, 1, 2].map(|d| b[d] - a[d]),
+                    [0, 1, 2].map(|d| c[d] - a[d]),
+                );
+                let n = [
+                    u[1] * v[2] - u[2] * v[1],
+                    u[2] * v[0] - u[0] * v[2],
+                    u[0] * v[1] - u[1] * v[0],
+                ];
                 boundary_area += 0.5 * (n[0] * n[0] + n[1] * n[1] + n[2] * n[2]).sqrt();
                 // A boundary face lies on the box's surface.
-                let on_surface = (0..3).any(|d| [a, b, c].iter().all(|p| p[d].abs() < 1e-12) || [a, b, c].iter().all(|p| (p[d] - side).abs() < 1e-12));
-                assert!(on_surface, "boundary face {f:?} inside the box: a hanging node");
+                let on_surface = (0..3).any(|d| {
+                    [a, b, c].iter().all(|p| p[d].abs() < 1e-12)
+                        || [a, b, c].iter().all(|p| (p[d] - side).abs() < 1e-12)
+                });
+                assert!(
+                    on_surface,
+                    "boundary face {f:?} inside the box: a hanging node"
+                );
             }
         }
-        assert!((boundary_area - 6.0 * side * side).abs() < 1e-9 * side * side, "boundary area {boundary_area}");
+        assert!(
+            (boundary_area - 6.0 * side * side).abs() < 1e-9 * side * side,
+            "boundary area {boundary_area}"
+        );
     }
 
     #[test]
@@ -266,13 +320,21 @@ mod tests {
         let values = positions.iter().map(|&x| field(x)).collect();
         // A band around the sphere of radius 2.
         let r = refine_marked(positions, values, &tets, 2, &field, &|v: &TetView| {
-            let (lo, hi) = v.values.iter().fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), &x| (a.min(x), b.max(x)));
+            let (lo, hi) = v
+                .values
+                .iter()
+                .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), &x| {
+                    (a.min(x), b.max(x))
+                });
             lo - v.longest_edge <= 0.0 && hi + v.longest_edge >= 0.0
         });
         assert!(r.tets.len() > tets.len());
         let total: f64 = (0..r.tets.len()).map(|t| volume(&r, t)).sum();
         assert!((total - 216.0).abs() < 1e-9, "volume {total}");
-        assert!((0..r.tets.len()).all(|t| volume(&r, t) > 0.0), "an inverted or flat tet");
+        assert!(
+            (0..r.tets.len()).all(|t| volume(&r, t) > 0.0),
+            "an inverted or flat tet"
+        );
         assert_conforming(&r, n as f64 * h);
         // Every edge listed once, and every tet edge among them.
         let listed: std::collections::HashSet<(usize, usize)> = r.edges.iter().copied().collect();
@@ -290,7 +352,9 @@ mod tests {
         let values = vec![0.0; positions.len()];
         let zero = |_: [f64; 3]| 0.0;
         // Mark the tets with a corner in the lower-left-front quarter, two levels deep.
-        let r = refine_marked(positions, values, &tets, 2, &zero, &|v: &TetView| v.corners.iter().any(|c| c.iter().all(|&x| x < 1.5)));
+        let r = refine_marked(positions, values, &tets, 2, &zero, &|v: &TetView| {
+            v.corners.iter().any(|c| c.iter().all(|&x| x < 1.5))
+        });
         let mut generations_seen = std::collections::BTreeSet::new();
         let mut shapes = std::collections::BTreeSet::new();
         for (t, tet) in r.tets.iter().enumerate() {
@@ -298,22 +362,48 @@ mod tests {
             generations_seen.insert(g);
             // Volume halves with each generation: 1/6 of a unit cube at generation 0.
             let expected = 1.0 / 6.0 / 2f64.powi(g as i32);
-            assert!((volume(&r, t) - expected).abs() < 1e-12, "generation {g}: volume {} against {expected}", volume(&r, t));
+            assert!(
+                (volume(&r, t) - expected).abs() < 1e-12,
+                "generation {g}: volume {} against {expected}",
+                volume(&r, t)
+            );
             if g % 3 == 0 {
                 // A Kuhn tet of size 2^(−g/3): edges h, h, h, √2h, √2h, √3h.
                 let size = 0.5f64.powi(g as i32 / 3);
-                let mut l: Vec<f64> = TET_EDGES.iter().map(|&(i, j)| length_squared(r.positions[tet[i]], r.positions[tet[j]]).sqrt() / size).collect();
+                let mut l: Vec<f64> = TET_EDGES
+                    .iter()
+                    .map(|&(i, j)| {
+                        length_squared(r.positions[tet[i]], r.positions[tet[j]]).sqrt() / size
+                    })
+                    .collect();
                 l.sort_by(f64::total_cmp);
                 let kuhn = [1.0, 1.0, 1.0, 2f64.sqrt(), 2f64.sqrt(), 3f64.sqrt()];
-                assert!(l.iter().zip(kuhn).all(|(a, b)| (a - b).abs() < 1e-12), "generation {g}: edges {l:?}");
+                assert!(
+                    l.iter().zip(kuhn).all(|(a, b)| (a - b).abs() < 1e-12),
+                    "generation {g}: edges {l:?}"
+                );
             }
             // The shape class: the sorted edge lengths relative to the longest.
-            let mut l: Vec<f64> = TET_EDGES.iter().map(|&(i, j)| length_squared(r.positions[tet[i]], r.positions[tet[j]])).collect();
+            let mut l: Vec<f64> = TET_EDGES
+                .iter()
+                .map(|&(i, j)| length_squared(r.positions[tet[i]], r.positions[tet[j]]))
+                .collect();
             l.sort_by(f64::total_cmp);
-            shapes.insert(l.iter().map(|x| (x / l[5] * 1e6).round() as i64).collect::<Vec<_>>());
+            shapes.insert(
+                l.iter()
+                    .map(|x| (x / l[5] * 1e6).round() as i64)
+                    .collect::<Vec<_>>(),
+            );
         }
-        assert!(generations_seen.contains(&6), "the marked region reached generation 6: {generations_seen:?}");
-        assert!(shapes.len() <= 3, "{} shape classes: {shapes:?}", shapes.len());
+        assert!(
+            generations_seen.contains(&6),
+            "the marked region reached generation 6: {generations_seen:?}"
+        );
+        assert!(
+            shapes.len() <= 3,
+            "{} shape classes: {shapes:?}",
+            shapes.len()
+        );
         let total: f64 = (0..r.tets.len()).map(|t| volume(&r, t)).sum();
         assert!((total - 64.0).abs() < 1e-9);
         assert_conforming(&r, 4.0);
@@ -324,11 +414,29 @@ mod tests {
         let (positions, tets) = kuhn_box(2, 1.0);
         let field = |x: [f64; 3]| x[0] * x[0] + 2.0 * x[1] - x[2];
         let values: Vec<f64> = positions.iter().map(|&x| field(x)).collect();
-        let same = refine_marked(positions.clone(), values.clone(), &tets, 3, &field, &|_: &TetView| false);
+        let same = refine_marked(
+            positions.clone(),
+            values.clone(),
+            &tets,
+            3,
+            &field,
+            &|_: &TetView| false,
+        );
         assert_eq!(same.tets, tets);
         assert_eq!(same.positions, positions);
-        let r = refine_marked(positions.clone(), values.clone(), &tets, 1, &field, &|_: &TetView| true);
-        assert_eq!(r.tets.len(), 8 * tets.len(), "one level everywhere: every tet into eight");
+        let r = refine_marked(
+            positions.clone(),
+            values.clone(),
+            &tets,
+            1,
+            &field,
+            &|_: &TetView| true,
+        );
+        assert_eq!(
+            r.tets.len(),
+            8 * tets.len(),
+            "one level everywhere: every tet into eight"
+        );
         assert_eq!(&r.positions[..positions.len()], &positions[..]);
         for (x, v) in r.positions.iter().zip(&r.values) {
             assert_eq!(*v, field(*x));

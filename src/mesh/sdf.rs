@@ -240,7 +240,11 @@ impl SignedDistance {
     pub fn value_and_gradient(&self, q: [f64; 3]) -> (f64, Option<[f64; 3]>) {
         let (d2, closest) = self.nearest(q, f64::INFINITY);
         let d = d2.sqrt();
-        let sign = if self.winding_number(q) > 0.5 { 1.0 } else { -1.0 };
+        let sign = if self.winding_number(q) > 0.5 {
+            1.0
+        } else {
+            -1.0
+        };
         let gradient = (d > 0.0).then(|| [0, 1, 2].map(|k| sign * (q[k] - closest[k]) / d));
         (sign * d, gradient)
     }
@@ -272,7 +276,11 @@ impl SignedDistance {
         // narrow cone, which one fixed set can miss.
         let mut directions: Vec<[f64; 3]> = Vec::with_capacity(52);
         for code in 0..27usize {
-            let d = [(code % 3) as f64 - 1.0, ((code / 3) % 3) as f64 - 1.0, (code / 9) as f64 - 1.0];
+            let d = [
+                (code % 3) as f64 - 1.0,
+                ((code / 3) % 3) as f64 - 1.0,
+                (code / 9) as f64 - 1.0,
+            ];
             if code != 13 {
                 let n = norm(d);
                 directions.push(d.map(|x| x / n));
@@ -485,7 +493,10 @@ fn triangle_nearest(tri: &[[f64; 3]; 3], q: [f64; 3]) -> (f64, [f64; 3]) {
         return [(a, b), (b, c), (c, a)]
             .map(|(u, v)| segment_nearest(u, v, q))
             .into_iter()
-            .fold((f64::INFINITY, q), |best, x| if x.0 < best.0 { x } else { best });
+            .fold(
+                (f64::INFINITY, q),
+                |best, x| if x.0 < best.0 { x } else { best },
+            );
     }
     let w = closest_on_triangle(q, a, b, c);
     let p = [0, 1, 2].map(|k| w[0] * a[k] + w[1] * b[k] + w[2] * c[k]);

@@ -100,7 +100,11 @@ impl TriangleSurface {
             let theta = std::f64::consts::PI * i as f64 / rings as f64;
             for j in 0..segments {
                 let phi = 2.0 * std::f64::consts::PI * j as f64 / segments as f64;
-                vertices.push([axes[0] * theta.sin() * phi.cos(), axes[1] * theta.sin() * phi.sin(), axes[2] * theta.cos()]);
+                vertices.push([
+                    axes[0] * theta.sin() * phi.cos(),
+                    axes[1] * theta.sin() * phi.sin(),
+                    axes[2] * theta.cos(),
+                ]);
             }
         }
         vertices.push([0.0, 0.0, -axes[2]]);
@@ -117,7 +121,10 @@ impl TriangleSurface {
                 triangles.push([ring(i, j), ring(i + 1, j + 1), ring(i, j + 1)]);
             }
         }
-        TriangleSurface { vertices, triangles }
+        TriangleSurface {
+            vertices,
+            triangles,
+        }
     }
 
     /// Checks that every index is in range and every coordinate finite.

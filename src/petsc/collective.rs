@@ -25,10 +25,17 @@ pub fn broadcast_slice(petsc: &Petsc, data: &mut [f64]) {
 /// Rank 0's result, on every rank. Rank 0 passes `Some(result)`, the others `None` (what they
 /// pass is ignored); `len` is the length of an `Ok` vector, the same on every rank. A rank-0
 /// `Ok` of another length is an error on every rank.
-pub fn share_from_root(petsc: &Petsc, root_result: Option<Result<Vec<f64>, String>>, len: usize) -> Result<Vec<f64>, String> {
+pub fn share_from_root(
+    petsc: &Petsc,
+    root_result: Option<Result<Vec<f64>, String>>,
+    len: usize,
+) -> Result<Vec<f64>, String> {
     let root_result = if petsc.rank() == 0 {
         match root_result {
-            Some(Ok(v)) if v.len() != len => Err(format!("rank 0 computed {} numbers where {len} were expected", v.len())),
+            Some(Ok(v)) if v.len() != len => Err(format!(
+                "rank 0 computed {} numbers where {len} were expected",
+                v.len()
+            )),
             Some(r) => r,
             None => Err("rank 0 passed no result to share".into()),
         }
@@ -61,7 +68,11 @@ pub fn share_from_root(petsc: &Petsc, root_result: Option<Result<Vec<f64>, Strin
         bytes.resize(status as usize, b' ');
         root.broadcast_into(&mut bytes[..]);
         let message = String::from_utf8_lossy(&bytes).into_owned();
-        Err(if petsc.rank() == 0 { message } else { format!("rank 0: {message}") })
+        Err(if petsc.rank() == 0 {
+            message
+        } else {
+            format!("rank 0: {message}")
+        })
     }
 }
 
@@ -72,9 +83,15 @@ pub fn agree<T>(petsc: &Petsc, local: Result<T, String>) -> Result<T, String> {
         return local;
     }
     let size = petsc.size() as u64;
-    let mine: u64 = if local.is_err() { petsc.rank() as u64 } else { size };
+    let mine: u64 = if local.is_err() {
+        petsc.rank() as u64
+    } else {
+        size
+    };
     let mut first_failed: u64 = size;
-    petsc.world().all_reduce_into(&mine, &mut first_failed, SystemOperation::min());
+    petsc
+        .world()
+        .all_reduce_into(&mine, &mut first_failed, SystemOperation::min());
     if first_failed == size {
         return local;
     }
@@ -87,5 +104,8 @@ pub fn agree<T>(petsc: &Petsc, local: Result<T, String>) -> Result<T, String> {
     root.broadcast_into(&mut len);
     let mut bytes = own.map_or_else(|| vec![0u8; len as usize], String::into_bytes);
     root.broadcast_into(&mut bytes[..]);
-    Err(format!("rank {first_failed}: {}", String::from_utf8_lossy(&bytes)))
+    Err(format!(
+        "rank {first_failed}: {}",
+        String::from_utf8_lossy(&bytes)
+    ))
 }

@@ -34,7 +34,10 @@ impl<'p> Eps<'p> {
         let mut raw: sys::EPS = std::ptr::null_mut();
         // SAFETY: creation on the world communicator.
         unsafe { check(sys::EPSCreate(petsc.comm(), &mut raw), "EPSCreate")? };
-        Ok(Eps { raw, _runtime: PhantomData })
+        Ok(Eps {
+            raw,
+            _runtime: PhantomData,
+        })
     }
 
     /// Sets the generalised Hermitian definite problem `A x = λ B x`.
@@ -43,8 +46,14 @@ impl<'p> Eps<'p> {
         // and the caller keeps them alive while solving (enforced by `solve` taking them again
         // would be heavier; callers in crate::eigen hold them across the solve).
         unsafe {
-            check(sys::EPSSetOperators(self.raw, a.raw(), b.raw()), "EPSSetOperators")?;
-            check(sys::EPSSetProblemType(self.raw, sys::EPSProblemType_EPS_GHEP), "EPSSetProblemType")
+            check(
+                sys::EPSSetOperators(self.raw, a.raw(), b.raw()),
+                "EPSSetOperators",
+            )?;
+            check(
+                sys::EPSSetProblemType(self.raw, sys::EPSProblemType_EPS_GHEP),
+                "EPSSetProblemType",
+            )
         }
     }
 
@@ -59,7 +68,12 @@ impl<'p> Eps<'p> {
             EpsWhich::All => sys::EPSWhich_EPS_ALL,
         };
         // SAFETY: plain setter.
-        unsafe { check(sys::EPSSetWhichEigenpairs(self.raw, w), "EPSSetWhichEigenpairs") }
+        unsafe {
+            check(
+                sys::EPSSetWhichEigenpairs(self.raw, w),
+                "EPSSetWhichEigenpairs",
+            )
+        }
     }
 
     pub fn set_target(&mut self, target: f64) -> Result<()> {
@@ -69,28 +83,56 @@ impl<'p> Eps<'p> {
 
     pub fn set_interval(&mut self, lower: f64, upper: f64) -> Result<()> {
         // SAFETY: plain setter.
-        unsafe { check(sys::EPSSetInterval(self.raw, lower, upper), "EPSSetInterval") }
+        unsafe {
+            check(
+                sys::EPSSetInterval(self.raw, lower, upper),
+                "EPSSetInterval",
+            )
+        }
     }
 
     /// Number of eigenpairs wanted; `ncv`/`mpd` left to SLEPc when `None`.
-    pub fn set_dimensions(&mut self, nev: usize, ncv: Option<usize>, mpd: Option<usize>) -> Result<()> {
+    pub fn set_dimensions(
+        &mut self,
+        nev: usize,
+        ncv: Option<usize>,
+        mpd: Option<usize>,
+    ) -> Result<()> {
         let decide = sys::PETSC_DECIDE;
         let ncv = ncv.map(to_petsc_int).transpose()?.unwrap_or(decide);
         let mpd = mpd.map(to_petsc_int).transpose()?.unwrap_or(decide);
         // SAFETY: plain setter.
-        unsafe { check(sys::EPSSetDimensions(self.raw, to_petsc_int(nev)?, ncv, mpd), "EPSSetDimensions") }
+        unsafe {
+            check(
+                sys::EPSSetDimensions(self.raw, to_petsc_int(nev)?, ncv, mpd),
+                "EPSSetDimensions",
+            )
+        }
     }
 
     pub fn set_tolerances(&mut self, tol: f64, max_it: Option<usize>) -> Result<()> {
-        let max_it = max_it.map(to_petsc_int).transpose()?.unwrap_or(sys::PETSC_DEFAULT);
+        let max_it = max_it
+            .map(to_petsc_int)
+            .transpose()?
+            .unwrap_or(sys::PETSC_DEFAULT);
         // SAFETY: plain setter.
-        unsafe { check(sys::EPSSetTolerances(self.raw, tol, max_it), "EPSSetTolerances") }
+        unsafe {
+            check(
+                sys::EPSSetTolerances(self.raw, tol, max_it),
+                "EPSSetTolerances",
+            )
+        }
     }
 
     /// Purification costs one extra solve per eigenvector; off by default (stack notes).
     pub fn set_purify(&mut self, purify: bool) -> Result<()> {
         // SAFETY: plain setter.
-        unsafe { check(sys::EPSSetPurify(self.raw, purify as sys::PetscBool), "EPSSetPurify") }
+        unsafe {
+            check(
+                sys::EPSSetPurify(self.raw, purify as sys::PetscBool),
+                "EPSSetPurify",
+            )
+        }
     }
 
     /// Restricts the solve to the complement (in the B-inner product of the GHEP) of the space
@@ -100,14 +142,22 @@ impl<'p> Eps<'p> {
     pub fn set_deflation_space(&mut self, vectors: &[Vector<'p>]) -> Result<()> {
         let mut raw: Vec<sys::Vec> = vectors.iter().map(|v| v.raw()).collect();
         // SAFETY: `raw` holds live Vec handles of the operators' layout; SLEPc references them.
-        unsafe { check(sys::EPSSetDeflationSpace(self.raw, to_petsc_int(raw.len())?, raw.as_mut_ptr()), "EPSSetDeflationSpace") }
+        unsafe {
+            check(
+                sys::EPSSetDeflationSpace(self.raw, to_petsc_int(raw.len())?, raw.as_mut_ptr()),
+                "EPSSetDeflationSpace",
+            )
+        }
     }
 
     pub fn st(&self) -> Result<St<'_>> {
         let mut raw: sys::ST = std::ptr::null_mut();
         // SAFETY: borrowed handle owned by the EPS.
         unsafe { check(sys::EPSGetST(self.raw, &mut raw), "EPSGetST")? };
-        Ok(St { raw, _eps: PhantomData })
+        Ok(St {
+            raw,
+            _eps: PhantomData,
+        })
     }
 
     /// Applies `-eps_*`, `-st_*` options: call after the code defaults so users can override them.
@@ -137,7 +187,19 @@ impl<'p> Eps<'p> {
     pub fn eigenpair(&self, i: usize, x: &mut Vector<'p>) -> Result<f64> {
         let (mut kr, mut ki) = (0.0, 0.0);
         // SAFETY: `x` has the operator's layout; imaginary part is not requested (real GHEP).
-        unsafe { check(sys::EPSGetEigenpair(self.raw, to_petsc_int(i)?, &mut kr, &mut ki, x.raw(), std::ptr::null_mut()), "EPSGetEigenpair")? };
+        unsafe {
+            check(
+                sys::EPSGetEigenpair(
+                    self.raw,
+                    to_petsc_int(i)?,
+                    &mut kr,
+                    &mut ki,
+                    x.raw(),
+                    std::ptr::null_mut(),
+                ),
+                "EPSGetEigenpair",
+            )?
+        };
         Ok(kr)
     }
 
@@ -145,14 +207,29 @@ impl<'p> Eps<'p> {
     pub fn relative_error(&self, i: usize) -> Result<f64> {
         let mut e = 0.0;
         // SAFETY: query only (collective).
-        unsafe { check(sys::EPSComputeError(self.raw, to_petsc_int(i)?, sys::EPSErrorType_EPS_ERROR_RELATIVE, &mut e), "EPSComputeError")? };
+        unsafe {
+            check(
+                sys::EPSComputeError(
+                    self.raw,
+                    to_petsc_int(i)?,
+                    sys::EPSErrorType_EPS_ERROR_RELATIVE,
+                    &mut e,
+                ),
+                "EPSComputeError",
+            )?
+        };
         Ok(e)
     }
 
     pub fn iterations(&self) -> Result<usize> {
         let mut n = 0;
         // SAFETY: query only.
-        unsafe { check(sys::EPSGetIterationNumber(self.raw, &mut n), "EPSGetIterationNumber")? };
+        unsafe {
+            check(
+                sys::EPSGetIterationNumber(self.raw, &mut n),
+                "EPSGetIterationNumber",
+            )?
+        };
         Ok(n as usize)
     }
 
@@ -168,7 +245,12 @@ impl<'p> Eps<'p> {
     pub fn tolerances(&self) -> Result<(f64, usize)> {
         let (mut tol, mut it) = (0.0, 0);
         // SAFETY: query only.
-        unsafe { check(sys::EPSGetTolerances(self.raw, &mut tol, &mut it), "EPSGetTolerances")? };
+        unsafe {
+            check(
+                sys::EPSGetTolerances(self.raw, &mut tol, &mut it),
+                "EPSGetTolerances",
+            )?
+        };
         Ok((tol, it as usize))
     }
 
@@ -176,7 +258,12 @@ impl<'p> Eps<'p> {
     pub fn dimensions(&self) -> Result<(usize, usize, usize)> {
         let (mut nev, mut ncv, mut mpd) = (0, 0, 0);
         // SAFETY: query only.
-        unsafe { check(sys::EPSGetDimensions(self.raw, &mut nev, &mut ncv, &mut mpd), "EPSGetDimensions")? };
+        unsafe {
+            check(
+                sys::EPSGetDimensions(self.raw, &mut nev, &mut ncv, &mut mpd),
+                "EPSGetDimensions",
+            )?
+        };
         Ok((nev as usize, ncv as usize, mpd as usize))
     }
 
@@ -190,7 +277,12 @@ impl<'p> Eps<'p> {
     pub fn interval(&self) -> Result<(f64, f64)> {
         let (mut a, mut b) = (0.0, 0.0);
         // SAFETY: query only.
-        unsafe { check(sys::EPSGetInterval(self.raw, &mut a, &mut b), "EPSGetInterval")? };
+        unsafe {
+            check(
+                sys::EPSGetInterval(self.raw, &mut a, &mut b),
+                "EPSGetInterval",
+            )?
+        };
         Ok((a, b))
     }
 
@@ -198,7 +290,12 @@ impl<'p> Eps<'p> {
     pub fn converged_reason(&self) -> Result<i32> {
         let mut r: sys::EPSConvergedReason = 0;
         // SAFETY: query only.
-        unsafe { check(sys::EPSGetConvergedReason(self.raw, &mut r), "EPSGetConvergedReason")? };
+        unsafe {
+            check(
+                sys::EPSGetConvergedReason(self.raw, &mut r),
+                "EPSGetConvergedReason",
+            )?
+        };
         Ok(r as i32)
     }
 }
@@ -221,7 +318,12 @@ impl St<'_> {
     /// K and M share one sparsity pattern, so K − σM needs no symbolic merge.
     pub fn set_same_nonzero_pattern(&self) -> Result<()> {
         // SAFETY: plain setter.
-        unsafe { check(sys::STSetMatStructure(self.raw, sys::MatStructure_SAME_NONZERO_PATTERN), "STSetMatStructure") }
+        unsafe {
+            check(
+                sys::STSetMatStructure(self.raw, sys::MatStructure_SAME_NONZERO_PATTERN),
+                "STSetMatStructure",
+            )
+        }
     }
 
     pub fn type_name(&self) -> Result<String> {
@@ -240,9 +342,15 @@ impl St<'_> {
         unsafe {
             let mut ksp: sys::KSP = std::ptr::null_mut();
             check(sys::STGetKSP(self.raw, &mut ksp), "STGetKSP")?;
-            check(sys::KSPSetType(ksp, sys::KSPPREONLY.as_ptr() as _), "KSPSetType")?;
+            check(
+                sys::KSPSetType(ksp, sys::KSPPREONLY.as_ptr() as _),
+                "KSPSetType",
+            )?;
             check(sys::PCSetType(pc.raw, factor.as_ptr() as _), "PCSetType")?;
-            check(sys::PCFactorSetMatSolverType(pc.raw, solver.as_ptr() as _), "PCFactorSetMatSolverType")
+            check(
+                sys::PCFactorSetMatSolverType(pc.raw, solver.as_ptr() as _),
+                "PCFactorSetMatSolverType",
+            )
         }
     }
 
@@ -253,7 +361,10 @@ impl St<'_> {
             check(sys::STGetKSP(self.raw, &mut ksp), "STGetKSP")?;
             let mut pc: sys::PC = std::ptr::null_mut();
             check(sys::KSPGetPC(ksp, &mut pc), "KSPGetPC")?;
-            Ok(Pc { raw: pc, _eps: PhantomData })
+            Ok(Pc {
+                raw: pc,
+                _eps: PhantomData,
+            })
         }
     }
 

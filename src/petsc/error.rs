@@ -25,7 +25,11 @@ pub struct PetscError {
 
 impl PetscError {
     pub fn other(message: impl Into<String>) -> Self {
-        PetscError { code: 0, call: String::new(), message: message.into() }
+        PetscError {
+            code: 0,
+            call: String::new(),
+            message: message.into(),
+        }
     }
 }
 
@@ -34,7 +38,11 @@ impl std::fmt::Display for PetscError {
         if self.call.is_empty() {
             write!(f, "{}", self.message)
         } else {
-            write!(f, "{} failed (PETSc error {}): {}", self.call, self.code, self.message)
+            write!(
+                f,
+                "{} failed (PETSc error {}): {}",
+                self.call, self.code, self.message
+            )
         }
     }
 }
@@ -49,11 +57,19 @@ pub(crate) fn check(code: sys::PetscErrorCode, call: &str) -> Result<()> {
         return Ok(());
     }
     let lines = std::mem::take(&mut *RECORDED.lock().unwrap_or_else(|p| p.into_inner()));
-    let mut message = if lines.is_empty() { generic_text(code) } else { lines.join("; ") };
+    let mut message = if lines.is_empty() {
+        generic_text(code)
+    } else {
+        lines.join("; ")
+    };
     if message.is_empty() {
         message = "unknown error".into();
     }
-    Err(PetscError { code: code as i32, call: call.to_string(), message })
+    Err(PetscError {
+        code: code as i32,
+        call: call.to_string(),
+        message,
+    })
 }
 
 /// Drops the messages of a failure that the caller tolerates (a query answered "none"), so they
@@ -83,12 +99,22 @@ pub(crate) unsafe extern "C" fn record_error(
     message: *const c_char,
     _ctx: *mut c_void,
 ) -> sys::PetscErrorCode {
-    let text = |p: *const c_char| if p.is_null() { String::new() } else { CStr::from_ptr(p).to_string_lossy().trim().to_string() };
+    let text = |p: *const c_char| {
+        if p.is_null() {
+            String::new()
+        } else {
+            CStr::from_ptr(p).to_string_lossy().trim().to_string()
+        }
+    };
     let func = text(func);
     let file = text(file);
     let entry = if kind == sys::PetscErrorType_PETSC_ERROR_INITIAL {
         let msg = text(message);
-        let msg = if msg.is_empty() { generic_text(code) } else { msg };
+        let msg = if msg.is_empty() {
+            generic_text(code)
+        } else {
+            msg
+        };
         format!("{msg} [in {func}() at {file}:{line}]")
     } else {
         format!("from {func}()")

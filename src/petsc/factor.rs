@@ -36,6 +36,20 @@ use super::error::{check, Result};
 use super::{sys, Mat, Petsc, PetscError, Vector};
 use std::sync::atomic::{AtomicI32, Ordering};
 
+/// Testing hook for the workspace recovery: with the PETSc option `-diffsound_fault_workspace
+/// WHAT`, the first attempt of every factorisation whose name contains WHAT (e.g. `inertia`) is
+/// reported as INFOG(1) = −9, as MUMPS reports a workspace run short. Whether MUMPS really runs
+/// short at a given ICNTL(14) depends on its dynamic scheduling on several ranks, so a test of the
+/// recovery cannot rely on it; the factorisation itself and its retry are real. Every rank reads
+/// the same option, so the retry stays collective.
+pub const FAULT_WORKSPACE_OPTION: &str = "-diffsound_fault_workspace";
+
+fn injected_workspace_fault(petsc: &Petsc, what: &str) -> Result<bool> {
+    Ok(petsc
+        .option_value(FAULT_WORKSPACE_OPTION)?
+        .is_some_and(|w| !w.is_empty() && what.contains(w.as_str())))
+}
+
 /// How many times a factorisation is repeated with a larger workspace before giving up.
 pub const MAX_WORKSPACE_RETRIES: usize = 4;
 
@@ -155,7 +169,11 @@ impl MumpsFailure {
 /// Megabytes that an INFOG(2) of an allocation failure (−13) stands for: entries of 8 bytes, or
 /// millions of entries when negative.
 pub fn allocation_mb(infog2: i32) -> f64 {
-    let entries = if infog2 < 0 { -(infog2 as f64) * 1e6 } else { infog2 as f64 };
+    let entries = if infog2 < 0 {
+        -(infog2 as f64) * 1e6
+    } else {
+        infog2 as f64
+    };
     entries * 8.0 / 1e6
 }
 
@@ -178,7 +196,12 @@ pub struct FactorLog {
 impl FactorLog {
     /// Records a try; it is a retry when this log already holds one (a log per factorisation).
     pub fn record(&mut self, icntl14: i32, infog1: i32, infog2: i32) {
-        self.attempts.push(FactorAttempt { retry: !self.attempts.is_empty(), icntl14, infog1, infog2 });
+        self.attempts.push(FactorAttempt {
+            retry: !self.attempts.is_empty(),
+            icntl14,
+            infog1,
+            infog2,
+        });
     }
 
     /// Tries that repeated a failed one.
@@ -193,7 +216,11 @@ impl FactorLog {
             if i > 0 {
                 out.push_str(if a.retry { " " } else { ", " });
             }
-            out.push_str(&if a.infog1 >= 0 { format!("{}%:ok", a.icntl14) } else { format!("{}%:{}", a.icntl14, a.infog1) });
+            out.push_str(&if a.infog1 >= 0 {
+                format!("{}%:ok", a.icntl14)
+            } else {
+                format!("{}%:{}", a.icntl14, a.infog1)
+            });
         }
         out
     }
@@ -223,13 +250,25 @@ pub enum FactorError {
          its analysis estimated {estimate_mb_max} MB on the largest rank ({estimate_mb_sum} MB in all). \
          Set a larger percentage with the PETSc option -mat_mumps_icntl_14 (after --), or use a coarser mesh"
     )]
-    Workspace { what: String, infog1: i32, retries: usize, last_percent: i32, estimate_mb_max: i32, estimate_mb_sum: i32 },
+    Workspace {
+        what: String,
+        infog1: i32,
+        retries: usize,
+        last_percent: i32,
+        estimate_mb_max: i32,
+        estimate_mb_sum: i32,
+    },
     #[error(
         "MUMPS could not allocate memory factoring the {what} (INFOG(1) = -13): it asked for about {requested_mb:.0} MB on one rank (entries of 8 bytes), \
          with an estimate of {estimate_mb_max} MB on the largest rank ({estimate_mb_sum} MB in all). \
          Use fewer ranks per machine, a coarser mesh, or MUMPS's block low-rank factorisation (-mat_mumps_icntl_35 1)"
     )]
-    Allocation { what: String, requested_mb: f64, estimate_mb_max: i32, estimate_mb_sum: i32 },
+    Allocation {
+        what: String,
+        requested_mb: f64,
+        estimate_mb_max: i32,
+        estimate_mb_sum: i32,
+    },
     #[error(
         "MUMPS's working memory cap ICNTL(23) is too small for the {what} (INFOG(1) = -19; estimate {estimate_mb_max} MB on the largest rank): \
          raise or remove -mat_mumps_icntl_23"
@@ -238,7 +277,11 @@ pub enum FactorError {
     #[error("the {what} is numerically singular (MUMPS INFOG(1) = -10)")]
     Singular { what: String },
     #[error("MUMPS failed factoring the {what}: INFOG(1) = {infog1}, INFOG(2) = {infog2} (see the MUMPS users' guide, section on error diagnostics)")]
-    Mumps { what: String, infog1: i32, infog2: i32 },
+    Mumps {
+        what: String,
+        infog1: i32,
+        infog2: i32,
+    },
 }
 
 impl FactorError {
@@ -254,12 +297,22 @@ impl FactorError {
                 estimate_mb_max: status.estimate_mb_max,
                 estimate_mb_sum: status.estimate_mb_sum,
             },
-            Some(MumpsFailure::Allocation) => {
-                FactorError::Allocation { what, requested_mb: allocation_mb(status.infog2), estimate_mb_max: status.estimate_mb_max, estimate_mb_sum: status.estimate_mb_sum }
-            }
-            Some(MumpsFailure::MemoryCap) => FactorError::MemoryCap { what, estimate_mb_max: status.estimate_mb_max },
+            Some(MumpsFailure::Allocation) => FactorError::Allocation {
+                what,
+                requested_mb: allocation_mb(status.infog2),
+                estimate_mb_max: status.estimate_mb_max,
+                estimate_mb_sum: status.estimate_mb_sum,
+            },
+            Some(MumpsFailure::MemoryCap) => FactorError::MemoryCap {
+                what,
+                estimate_mb_max: status.estimate_mb_max,
+            },
             Some(MumpsFailure::Singular) => FactorError::Singular { what },
-            _ => FactorError::Mumps { what, infog1: status.infog1, infog2: status.infog2 },
+            _ => FactorError::Mumps {
+                what,
+                infog1: status.infog1,
+                infog2: status.infog2,
+            },
         }
     }
 }
@@ -279,7 +332,10 @@ pub fn mumps_code_in(error: &PetscError) -> Option<(i32, i32)> {
     let text = &error.message;
     let number_after = |key: &str| -> Option<i32> {
         let start = text.find(key)? + key.len();
-        let digits: String = text[start..].chars().take_while(|c| c.is_ascii_digit() || *c == '-').collect();
+        let digits: String = text[start..]
+            .chars()
+            .take_while(|c| c.is_ascii_digit() || *c == '-')
+            .collect();
         digits.parse().ok()
     };
     let infog1 = number_after("INFOG(1)=")?;
@@ -306,19 +362,43 @@ impl<'p> MumpsCholesky<'p> {
     /// Factors the symmetric matrix `a` (`what` names it in messages). With
     /// [`FactorUse::Inertia`] the factor is set up so that its inertia can be read (ICNTL(13) = 1,
     /// ICNTL(24) = 1). `a` need not outlive the factor.
-    pub fn factor(_petsc: &'p Petsc, a: &Mat<'p>, usage: FactorUse, what: &str) -> std::result::Result<Self, FactorError> {
+    pub fn factor(
+        petsc: &'p Petsc,
+        a: &Mat<'p>,
+        usage: FactorUse,
+        what: &str,
+    ) -> std::result::Result<Self, FactorError> {
         let mut log = FactorLog::default();
+        let mut fault = injected_workspace_fault(petsc, what)?;
         let mut percent = learned_workspace_percent();
         loop {
             let mut raw: sys::Mat = std::ptr::null_mut();
             // SAFETY: creates a new factor matrix that this function or `Self` destroys.
-            unsafe { check(sys::MatGetFactor(a.raw(), sys::MATSOLVERMUMPS.as_ptr() as _, sys::MatFactorType_MAT_FACTOR_CHOLESKY, &mut raw), "MatGetFactor(MUMPS)")? };
+            unsafe {
+                check(
+                    sys::MatGetFactor(
+                        a.raw(),
+                        sys::MATSOLVERMUMPS.as_ptr() as _,
+                        sys::MatFactorType_MAT_FACTOR_CHOLESKY,
+                        &mut raw,
+                    ),
+                    "MatGetFactor(MUMPS)",
+                )?
+            };
             // Owned from here on, so that every way out of this attempt destroys it.
-            let mut factor = MumpsCholesky { raw, status: MumpsStatus::default(), log: FactorLog::default(), _runtime: std::marker::PhantomData };
+            let mut factor = MumpsCholesky {
+                raw,
+                status: MumpsStatus::default(),
+                log: FactorLog::default(),
+                _runtime: std::marker::PhantomData,
+            };
             // SAFETY: `raw` is a MUMPS factor of `a`; the calls set controls and factor.
             let numeric = unsafe {
                 // A failed factorisation is read from MUMPS's status below, not raised.
-                check(sys::MatSetErrorIfFailure(a.raw(), sys::PetscBool_PETSC_FALSE), "MatSetErrorIfFailure")?;
+                check(
+                    sys::MatSetErrorIfFailure(a.raw(), sys::PetscBool_PETSC_FALSE),
+                    "MatSetErrorIfFailure",
+                )?;
                 if usage == FactorUse::Inertia {
                     // Values set before MUMPS starts; the options database may still change them,
                     // which `inertia` checks.
@@ -326,20 +406,38 @@ impl<'p> MumpsCholesky<'p> {
                     check(sys::MatMumpsSetIcntl(raw, 24, 1), "MatMumpsSetIcntl(24)")?;
                 }
                 let mut info: sys::MatFactorInfo = std::mem::zeroed();
-                check(sys::MatFactorInfoInitialize(&mut info), "MatFactorInfoInitialize")?;
+                check(
+                    sys::MatFactorInfoInitialize(&mut info),
+                    "MatFactorInfoInitialize",
+                )?;
                 // The analysis reads the user's -mat_mumps_* options; a retry's workspace is set
                 // after it so that it wins over a user's ICNTL(14) that proved too small.
-                check(sys::MatCholeskyFactorSymbolic(raw, a.raw(), std::ptr::null_mut(), &info), "MatCholeskyFactorSymbolic(MUMPS)")?;
+                check(
+                    sys::MatCholeskyFactorSymbolic(raw, a.raw(), std::ptr::null_mut(), &info),
+                    "MatCholeskyFactorSymbolic(MUMPS)",
+                )?;
                 if let Some(p) = percent {
                     let mut current: sys::PetscInt = 0;
-                    check(sys::MatMumpsGetIcntl(raw, 14, &mut current), "MatMumpsGetIcntl(14)")?;
+                    check(
+                        sys::MatMumpsGetIcntl(raw, 14, &mut current),
+                        "MatMumpsGetIcntl(14)",
+                    )?;
                     if p > current {
                         check(sys::MatMumpsSetIcntl(raw, 14, p), "MatMumpsSetIcntl(14)")?;
                     }
                 }
-                check(sys::MatCholeskyFactorNumeric(raw, a.raw(), &info), "MatCholeskyFactorNumeric(MUMPS)")
+                check(
+                    sys::MatCholeskyFactorNumeric(raw, a.raw(), &info),
+                    "MatCholeskyFactorNumeric(MUMPS)",
+                )
             };
-            let status = MumpsStatus::read(raw)?;
+            let mut status = MumpsStatus::read(raw)?;
+            if fault && status.infog1 == 0 {
+                // The testing hook below: this attempt is reported as run short of workspace.
+                fault = false;
+                status.infog1 = -9;
+                status.infog2 = 1;
+            }
             // An error raised by PETSc despite the flag above still carries MUMPS's status.
             if let Err(e) = numeric {
                 if status.infog1 >= 0 {
@@ -393,8 +491,17 @@ impl<'p> MumpsCholesky<'p> {
         }
         let (mut neg, mut zero, mut pos) = (0, 0, 0);
         // SAFETY: query of a successful factorisation.
-        unsafe { check(sys::MatGetInertia(self.raw, &mut neg, &mut zero, &mut pos), "MatGetInertia")? };
-        Ok(Inertia { negative: neg as usize, zero: zero as usize, positive: pos as usize })
+        unsafe {
+            check(
+                sys::MatGetInertia(self.raw, &mut neg, &mut zero, &mut pos),
+                "MatGetInertia",
+            )?
+        };
+        Ok(Inertia {
+            negative: neg as usize,
+            zero: zero as usize,
+            positive: pos as usize,
+        })
     }
 }
 
@@ -418,7 +525,10 @@ pub struct Inertia {
 /// Copies every MUMPS control the user gave in one spelling (`-mat_mumps_…` or
 /// `-st_mat_mumps_…`) to the other, so that one option reaches every factorisation (module docs).
 pub fn share_mumps_options(petsc: &Petsc) -> Result<()> {
-    let names = (1..=40).map(|i| format!("mat_mumps_icntl_{i}")).chain((1..=7).map(|i| format!("mat_mumps_cntl_{i}"))).chain(["mat_mumps_ooc_tmpdir".to_string()]);
+    let names = (1..=40)
+        .map(|i| format!("mat_mumps_icntl_{i}"))
+        .chain((1..=7).map(|i| format!("mat_mumps_cntl_{i}")))
+        .chain(["mat_mumps_ooc_tmpdir".to_string()]);
     for name in names {
         let (plain, st) = (format!("-{name}"), format!("-st_{name}"));
         match (petsc.option_value(&plain)?, petsc.option_value(&st)?) {
@@ -441,7 +551,11 @@ impl<'p> ScopedOption<'p> {
     pub fn set(petsc: &'p Petsc, name: &str, value: &str) -> Result<Self> {
         let previous = petsc.option_value(name)?;
         petsc.set_option(name, value)?;
-        Ok(ScopedOption { petsc, name: name.to_string(), previous })
+        Ok(ScopedOption {
+            petsc,
+            name: name.to_string(),
+            previous,
+        })
     }
 }
 
@@ -461,7 +575,11 @@ mod tests {
     #[test]
     fn workspace_errors_are_told_from_the_others() {
         for code in [-8, -9, -11, -12, -14, -17, -20] {
-            assert_eq!(MumpsFailure::of(code), Some(MumpsFailure::Workspace), "{code}");
+            assert_eq!(
+                MumpsFailure::of(code),
+                Some(MumpsFailure::Workspace),
+                "{code}"
+            );
         }
         assert_eq!(MumpsFailure::of(-13), Some(MumpsFailure::Allocation));
         assert_eq!(MumpsFailure::of(-19), Some(MumpsFailure::MemoryCap));
@@ -482,7 +600,10 @@ mod tests {
     #[test]
     fn allocation_sizes_read_both_units() {
         assert!((allocation_mb(1_000_000) - 8.0).abs() < 1e-12);
-        assert!((allocation_mb(-3) - 24.0).abs() < 1e-12, "negative: millions of entries");
+        assert!(
+            (allocation_mb(-3) - 24.0).abs() < 1e-12,
+            "negative: millions of entries"
+        );
     }
 
     #[test]
@@ -493,29 +614,61 @@ mod tests {
             message: "Error reported by MUMPS in numerical factorization phase: INFOG(1)=-9, INFO(2)=68907 [in MatFactorNumeric_MUMPS()]".into(),
         };
         assert_eq!(mumps_code_in(&e), Some((-9, 68907)));
-        let analysis = PetscError { code: 76, call: "EPSSolve".into(), message: "Error reported by MUMPS in analysis phase: INFOG(1)=-6".into() };
+        let analysis = PetscError {
+            code: 76,
+            call: "EPSSolve".into(),
+            message: "Error reported by MUMPS in analysis phase: INFOG(1)=-6".into(),
+        };
         assert_eq!(mumps_code_in(&analysis), Some((-6, 0)));
         assert_eq!(mumps_code_in(&PetscError::other("no MUMPS here")), None);
     }
 
     #[test]
     fn the_log_tells_retries_from_new_factorisations() {
-        let a = |retry, icntl14, infog1| FactorAttempt { retry, icntl14, infog1, infog2: 0 };
-        let log = FactorLog { attempts: vec![a(false, 20, -9), a(true, 60, 0), a(false, 60, 0)] };
+        let a = |retry, icntl14, infog1| FactorAttempt {
+            retry,
+            icntl14,
+            infog1,
+            infog2: 0,
+        };
+        let log = FactorLog {
+            attempts: vec![a(false, 20, -9), a(true, 60, 0), a(false, 60, 0)],
+        };
         assert_eq!(log.retries(), 1);
         assert_eq!(log.describe(), "20%:-9 60%:ok, 60%:ok");
         let notes = log.retry_notes("test matrix");
         assert_eq!(notes.len(), 1, "{notes:?}");
-        assert!(notes[0].contains("INFOG(1) = -9") && notes[0].contains("ICNTL(14) = 60 %"), "{}", notes[0]);
+        assert!(
+            notes[0].contains("INFOG(1) = -9") && notes[0].contains("ICNTL(14) = 60 %"),
+            "{}",
+            notes[0]
+        );
     }
 
     #[test]
     fn a_give_up_names_the_option_and_the_memory() {
-        let status = MumpsStatus { infog1: -9, icntl14: 960, estimate_mb_max: 1234, estimate_mb_sum: 2400, ..MumpsStatus::default() };
-        let text = FactorError::from_status("shift-invert matrix", &status, &FactorLog::default()).to_string();
-        assert!(text.contains("-mat_mumps_icntl_14") && text.contains("1234 MB") && text.contains("960 %"), "{text}");
-        let status = MumpsStatus { infog1: -13, infog2: -5, ..MumpsStatus::default() };
-        let text = FactorError::from_status("inertia matrix", &status, &FactorLog::default()).to_string();
+        let status = MumpsStatus {
+            infog1: -9,
+            icntl14: 960,
+            estimate_mb_max: 1234,
+            estimate_mb_sum: 2400,
+            ..MumpsStatus::default()
+        };
+        let text = FactorError::from_status("shift-invert matrix", &status, &FactorLog::default())
+            .to_string();
+        assert!(
+            text.contains("-mat_mumps_icntl_14")
+                && text.contains("1234 MB")
+                && text.contains("960 %"),
+            "{text}"
+        );
+        let status = MumpsStatus {
+            infog1: -13,
+            infog2: -5,
+            ..MumpsStatus::default()
+        };
+        let text =
+            FactorError::from_status("inertia matrix", &status, &FactorLog::default()).to_string();
         assert!(text.contains("40 MB") && text.contains("-13"), "{text}");
     }
 }

@@ -24,21 +24,51 @@ impl<'p> Mat<'p> {
     /// owns and in the others. With exact counts assembly performs no mallocs; any entry outside the
     /// preallocated pattern is turned into an error (`MAT_NEW_NONZERO_ALLOCATION_ERR`) instead of a
     /// silent slow path.
-    pub fn new_aij(petsc: &'p Petsc, local_rows: usize, global_rows: usize, block_size: usize, diag_nnz: &[PetscInt], offdiag_nnz: &[PetscInt]) -> Result<Self> {
+    pub fn new_aij(
+        petsc: &'p Petsc,
+        local_rows: usize,
+        global_rows: usize,
+        block_size: usize,
+        diag_nnz: &[PetscInt],
+        offdiag_nnz: &[PetscInt],
+    ) -> Result<Self> {
         assert_eq!(diag_nnz.len(), local_rows);
         assert_eq!(offdiag_nnz.len(), local_rows);
         let mut raw: sys::Mat = std::ptr::null_mut();
-        let (n, big_n, bs) = (to_petsc_int(local_rows)?, to_petsc_int(global_rows)?, to_petsc_int(block_size)?);
+        let (n, big_n, bs) = (
+            to_petsc_int(local_rows)?,
+            to_petsc_int(global_rows)?,
+            to_petsc_int(block_size)?,
+        );
         // SAFETY: standard creation sequence; arrays outlive the calls, PETSc copies them.
         unsafe {
             check(sys::MatCreate(petsc.comm(), &mut raw), "MatCreate")?;
-            let mat = Mat { raw, _runtime: PhantomData };
+            let mat = Mat {
+                raw,
+                _runtime: PhantomData,
+            };
             check(sys::MatSetSizes(raw, n, n, big_n, big_n), "MatSetSizes")?;
-            check(sys::MatSetType(raw, sys::MATAIJ.as_ptr() as _), "MatSetType")?;
+            check(
+                sys::MatSetType(raw, sys::MATAIJ.as_ptr() as _),
+                "MatSetType",
+            )?;
             check(sys::MatSetBlockSize(raw, bs), "MatSetBlockSize")?;
-            check(sys::MatSeqAIJSetPreallocation(raw, 0, diag_nnz.as_ptr()), "MatSeqAIJSetPreallocation")?;
-            check(sys::MatMPIAIJSetPreallocation(raw, 0, diag_nnz.as_ptr(), 0, offdiag_nnz.as_ptr()), "MatMPIAIJSetPreallocation")?;
-            check(sys::MatSetOption(raw, sys::MatOption_MAT_NEW_NONZERO_ALLOCATION_ERR, sys::PetscBool_PETSC_TRUE), "MatSetOption")?;
+            check(
+                sys::MatSeqAIJSetPreallocation(raw, 0, diag_nnz.as_ptr()),
+                "MatSeqAIJSetPreallocation",
+            )?;
+            check(
+                sys::MatMPIAIJSetPreallocation(raw, 0, diag_nnz.as_ptr(), 0, offdiag_nnz.as_ptr()),
+                "MatMPIAIJSetPreallocation",
+            )?;
+            check(
+                sys::MatSetOption(
+                    raw,
+                    sys::MatOption_MAT_NEW_NONZERO_ALLOCATION_ERR,
+                    sys::PetscBool_PETSC_TRUE,
+                ),
+                "MatSetOption",
+            )?;
             Ok(mat)
         }
     }
@@ -46,25 +76,65 @@ impl<'p> Mat<'p> {
     /// A square AIJ matrix from this rank's rows in CSR form (global column indices, sorted
     /// within each row). PETSc takes the exact pattern and the values in one call, so there is no
     /// preallocation guesswork and no stash traffic: every rank must supply complete rows.
-    pub fn from_csr(petsc: &'p Petsc, global_rows: usize, block_size: usize, row_ptr: &[PetscInt], cols: &[PetscInt], values: &[f64]) -> Result<Self> {
+    pub fn from_csr(
+        petsc: &'p Petsc,
+        global_rows: usize,
+        block_size: usize,
+        row_ptr: &[PetscInt],
+        cols: &[PetscInt],
+        values: &[f64],
+    ) -> Result<Self> {
         let local_rows = row_ptr.len() - 1;
         assert_eq!(cols.len(), values.len());
         assert_eq!(row_ptr[local_rows] as usize, cols.len());
         let mut raw: sys::Mat = std::ptr::null_mut();
-        let (n, big_n, bs) = (to_petsc_int(local_rows)?, to_petsc_int(global_rows)?, to_petsc_int(block_size)?);
+        let (n, big_n, bs) = (
+            to_petsc_int(local_rows)?,
+            to_petsc_int(global_rows)?,
+            to_petsc_int(block_size)?,
+        );
         // SAFETY: PETSc copies the three arrays; they outlive the calls.
         unsafe {
             check(sys::MatCreate(petsc.comm(), &mut raw), "MatCreate")?;
-            let mut mat = Mat { raw, _runtime: PhantomData };
+            let mut mat = Mat {
+                raw,
+                _runtime: PhantomData,
+            };
             check(sys::MatSetSizes(raw, n, n, big_n, big_n), "MatSetSizes")?;
-            check(sys::MatSetType(raw, sys::MATAIJ.as_ptr() as _), "MatSetType")?;
+            check(
+                sys::MatSetType(raw, sys::MATAIJ.as_ptr() as _),
+                "MatSetType",
+            )?;
             check(sys::MatSetBlockSize(raw, bs), "MatSetBlockSize")?;
             if petsc.size() == 1 {
-                check(sys::MatSeqAIJSetPreallocationCSR(raw, row_ptr.as_ptr(), cols.as_ptr(), values.as_ptr()), "MatSeqAIJSetPreallocationCSR")?;
+                check(
+                    sys::MatSeqAIJSetPreallocationCSR(
+                        raw,
+                        row_ptr.as_ptr(),
+                        cols.as_ptr(),
+                        values.as_ptr(),
+                    ),
+                    "MatSeqAIJSetPreallocationCSR",
+                )?;
             } else {
-                check(sys::MatMPIAIJSetPreallocationCSR(raw, row_ptr.as_ptr(), cols.as_ptr(), values.as_ptr()), "MatMPIAIJSetPreallocationCSR")?;
+                check(
+                    sys::MatMPIAIJSetPreallocationCSR(
+                        raw,
+                        row_ptr.as_ptr(),
+                        cols.as_ptr(),
+                        values.as_ptr(),
+                    ),
+                    "MatMPIAIJSetPreallocationCSR",
+                )?;
             }
-            check(sys::MatSetOption(raw, sys::MatOption_MAT_NEW_NONZERO_ALLOCATION_ERR, sys::PetscBool_PETSC_TRUE), "MatSetOption")?;
+            check(
+                sys::MatSetOption(
+                    raw,
+                    sys::MatOption_MAT_NEW_NONZERO_ALLOCATION_ERR,
+                    sys::PetscBool_PETSC_TRUE,
+                ),
+                "MatSetOption",
+            )?;
             mat.assemble()?;
             Ok(mat)
         }
@@ -76,12 +146,25 @@ impl<'p> Mat<'p> {
 
     /// Adds a dense `rows × cols` block (row-major) into the matrix; off-rank rows are stashed
     /// and sent during [`Mat::assemble`].
-    pub fn add_values(&mut self, rows: &[PetscInt], cols: &[PetscInt], values: &[f64]) -> Result<()> {
+    pub fn add_values(
+        &mut self,
+        rows: &[PetscInt],
+        cols: &[PetscInt],
+        values: &[f64],
+    ) -> Result<()> {
         debug_assert_eq!(values.len(), rows.len() * cols.len());
         // SAFETY: lengths are passed with the pointers.
         unsafe {
             check(
-                sys::MatSetValues(self.raw, rows.len() as PetscInt, rows.as_ptr(), cols.len() as PetscInt, cols.as_ptr(), values.as_ptr(), sys::InsertMode_ADD_VALUES),
+                sys::MatSetValues(
+                    self.raw,
+                    rows.len() as PetscInt,
+                    rows.as_ptr(),
+                    cols.len() as PetscInt,
+                    cols.as_ptr(),
+                    values.as_ptr(),
+                    sys::InsertMode_ADD_VALUES,
+                ),
                 "MatSetValues",
             )
         }
@@ -91,8 +174,14 @@ impl<'p> Mat<'p> {
     pub fn assemble(&mut self) -> Result<()> {
         // SAFETY: collective on the matrix communicator; all ranks call it in the same order.
         unsafe {
-            check(sys::MatAssemblyBegin(self.raw, sys::MatAssemblyType_MAT_FINAL_ASSEMBLY), "MatAssemblyBegin")?;
-            check(sys::MatAssemblyEnd(self.raw, sys::MatAssemblyType_MAT_FINAL_ASSEMBLY), "MatAssemblyEnd")
+            check(
+                sys::MatAssemblyBegin(self.raw, sys::MatAssemblyType_MAT_FINAL_ASSEMBLY),
+                "MatAssemblyBegin",
+            )?;
+            check(
+                sys::MatAssemblyEnd(self.raw, sys::MatAssemblyType_MAT_FINAL_ASSEMBLY),
+                "MatAssemblyEnd",
+            )
         }
     }
 
@@ -100,8 +189,22 @@ impl<'p> Mat<'p> {
     pub fn set_symmetric(&mut self) -> Result<()> {
         // SAFETY: option setting only.
         unsafe {
-            check(sys::MatSetOption(self.raw, sys::MatOption_MAT_SYMMETRIC, sys::PetscBool_PETSC_TRUE), "MatSetOption(SYMMETRIC)")?;
-            check(sys::MatSetOption(self.raw, sys::MatOption_MAT_SYMMETRY_ETERNAL, sys::PetscBool_PETSC_TRUE), "MatSetOption(SYMMETRY_ETERNAL)")
+            check(
+                sys::MatSetOption(
+                    self.raw,
+                    sys::MatOption_MAT_SYMMETRIC,
+                    sys::PetscBool_PETSC_TRUE,
+                ),
+                "MatSetOption(SYMMETRIC)",
+            )?;
+            check(
+                sys::MatSetOption(
+                    self.raw,
+                    sys::MatOption_MAT_SYMMETRY_ETERNAL,
+                    sys::PetscBool_PETSC_TRUE,
+                ),
+                "MatSetOption(SYMMETRY_ETERNAL)",
+            )
         }
     }
 
@@ -109,8 +212,16 @@ impl<'p> Mat<'p> {
     pub fn duplicate(&self) -> Result<Mat<'p>> {
         let mut raw: sys::Mat = std::ptr::null_mut();
         // SAFETY: creates a new independent matrix.
-        unsafe { check(sys::MatDuplicate(self.raw, sys::MatDuplicateOption_MAT_COPY_VALUES, &mut raw), "MatDuplicate")? };
-        Ok(Mat { raw, _runtime: PhantomData })
+        unsafe {
+            check(
+                sys::MatDuplicate(self.raw, sys::MatDuplicateOption_MAT_COPY_VALUES, &mut raw),
+                "MatDuplicate",
+            )?
+        };
+        Ok(Mat {
+            raw,
+            _runtime: PhantomData,
+        })
     }
 
     /// `self ← self + a·x`.
@@ -140,7 +251,12 @@ impl<'p> Mat<'p> {
     pub fn create_vector(&self) -> Result<Vector<'p>> {
         let mut raw: sys::Vec = std::ptr::null_mut();
         // SAFETY: PETSc allocates a compatible vector.
-        unsafe { check(sys::MatCreateVecs(self.raw, &mut raw, std::ptr::null_mut()), "MatCreateVecs")? };
+        unsafe {
+            check(
+                sys::MatCreateVecs(self.raw, &mut raw, std::ptr::null_mut()),
+                "MatCreateVecs",
+            )?
+        };
         Ok(Vector::from_raw(raw))
     }
 
@@ -156,7 +272,12 @@ impl<'p> Mat<'p> {
     pub fn ownership_range(&self) -> Result<(usize, usize)> {
         let (mut lo, mut hi) = (0, 0);
         // SAFETY: query only.
-        unsafe { check(sys::MatGetOwnershipRange(self.raw, &mut lo, &mut hi), "MatGetOwnershipRange")? };
+        unsafe {
+            check(
+                sys::MatGetOwnershipRange(self.raw, &mut lo, &mut hi),
+                "MatGetOwnershipRange",
+            )?
+        };
         Ok((lo as usize, hi as usize))
     }
 
@@ -165,7 +286,10 @@ impl<'p> Mat<'p> {
         // SAFETY: MatInfo is plain data; PETSc fills it.
         unsafe {
             let mut info: sys::MatInfo = std::mem::zeroed();
-            check(sys::MatGetInfo(self.raw, sys::MatInfoType_MAT_GLOBAL_SUM, &mut info), "MatGetInfo")?;
+            check(
+                sys::MatGetInfo(self.raw, sys::MatInfoType_MAT_GLOBAL_SUM, &mut info),
+                "MatGetInfo",
+            )?;
             Ok((info.nz_used, info.mallocs))
         }
     }

@@ -45,5 +45,6 @@ pub(crate) unsafe fn from_cstr(p: *const std::os::raw::c_char) -> String {
 /// Converts a usize count or index to `PetscInt`, failing loudly instead of wrapping: Debian's
 /// PETSc uses 32-bit indices, so a system with more than 2³¹ DOFs cannot be represented.
 pub fn to_petsc_int(n: usize) -> Result<PetscInt> {
-    PetscInt::try_from(n).map_err(|_| PetscError::other(format!("index {n} does not fit PETSc's 32-bit PetscInt")))
+    PetscInt::try_from(n)
+        .map_err(|_| PetscError::other(format!("index {n} does not fit PETSc's 32-bit PetscInt")))
 }

@@ -32,18 +32,36 @@ impl Petsc {
     /// `XSetFromOptions` after our code defaults, so these options override the defaults.
     pub fn initialize(universe: Universe, program: &str, petsc_args: &[String]) -> Result<Petsc> {
         let world = universe.world();
-        let mut argv_storage: Vec<CString> = std::iter::once(program).chain(petsc_args.iter().map(String::as_str)).map(cstring).collect();
-        let mut argv_ptrs: Vec<*mut c_char> = argv_storage.iter_mut().map(|s| s.as_ptr() as *mut c_char).collect();
+        let mut argv_storage: Vec<CString> = std::iter::once(program)
+            .chain(petsc_args.iter().map(String::as_str))
+            .map(cstring)
+            .collect();
+        let mut argv_ptrs: Vec<*mut c_char> = argv_storage
+            .iter_mut()
+            .map(|s| s.as_ptr() as *mut c_char)
+            .collect();
         argv_ptrs.push(std::ptr::null_mut());
         let mut argc = (argv_ptrs.len() - 1) as i32;
         let mut argv = argv_ptrs.as_mut_ptr();
         // SAFETY: MPI is initialised (we hold the universe); argv lives in `self` for the whole run.
         unsafe {
             sys::PETSC_COMM_WORLD = world.as_raw();
-            check(sys::SlepcInitialize(&mut argc, &mut argv, std::ptr::null(), std::ptr::null()), "SlepcInitialize")?;
-            check(sys::PetscPushErrorHandler(Some(record_error), std::ptr::null_mut()), "PetscPushErrorHandler")?;
+            check(
+                sys::SlepcInitialize(&mut argc, &mut argv, std::ptr::null(), std::ptr::null()),
+                "SlepcInitialize",
+            )?;
+            check(
+                sys::PetscPushErrorHandler(Some(record_error), std::ptr::null_mut()),
+                "PetscPushErrorHandler",
+            )?;
         }
-        let petsc = Petsc { _argv_storage: argv_storage, _argv_ptrs: argv_ptrs, world, universe, ours: Default::default() };
+        let petsc = Petsc {
+            _argv_storage: argv_storage,
+            _argv_ptrs: argv_ptrs,
+            world,
+            universe,
+            ours: Default::default(),
+        };
         if petsc.rank() == 0 {
             for token in stray_tokens(petsc_args) {
                 eprintln!("warning: '{token}' after -- is not a PETSc option (options start with '-') and is ignored");
@@ -78,7 +96,17 @@ impl Petsc {
         let name = cstring(name);
         let mut found: sys::PetscBool = 0;
         // SAFETY: plain query of the global options database.
-        unsafe { check(sys::PetscOptionsHasName(std::ptr::null_mut(), std::ptr::null(), name.as_ptr(), &mut found), "PetscOptionsHasName")? };
+        unsafe {
+            check(
+                sys::PetscOptionsHasName(
+                    std::ptr::null_mut(),
+                    std::ptr::null(),
+                    name.as_ptr(),
+                    &mut found,
+                ),
+                "PetscOptionsHasName",
+            )?
+        };
         Ok(found != 0)
     }
 
@@ -91,7 +119,12 @@ impl Petsc {
         self.mark_ours(name);
         let (n, v) = (cstring(name), cstring(value));
         // SAFETY: PETSc copies both strings.
-        unsafe { check(sys::PetscOptionsSetValue(std::ptr::null_mut(), n.as_ptr(), v.as_ptr()), "PetscOptionsSetValue") }
+        unsafe {
+            check(
+                sys::PetscOptionsSetValue(std::ptr::null_mut(), n.as_ptr(), v.as_ptr()),
+                "PetscOptionsSetValue",
+            )
+        }
     }
 
     /// Sets an option in the global database (replacing any value).
@@ -99,14 +132,24 @@ impl Petsc {
         self.mark_ours(name);
         let (n, v) = (cstring(name), cstring(value));
         // SAFETY: PETSc copies both strings.
-        unsafe { check(sys::PetscOptionsSetValue(std::ptr::null_mut(), n.as_ptr(), v.as_ptr()), "PetscOptionsSetValue") }
+        unsafe {
+            check(
+                sys::PetscOptionsSetValue(std::ptr::null_mut(), n.as_ptr(), v.as_ptr()),
+                "PetscOptionsSetValue",
+            )
+        }
     }
 
     /// Removes an option from the global database.
     pub fn clear_option(&self, name: &str) -> Result<()> {
         let n = cstring(name);
         // SAFETY: PETSc only reads the string.
-        unsafe { check(sys::PetscOptionsClearValue(std::ptr::null_mut(), n.as_ptr()), "PetscOptionsClearValue") }
+        unsafe {
+            check(
+                sys::PetscOptionsClearValue(std::ptr::null_mut(), n.as_ptr()),
+                "PetscOptionsClearValue",
+            )
+        }
     }
 
     /// The value of a string option, if given.
@@ -117,15 +160,29 @@ impl Petsc {
         // SAFETY: buffer length is passed; PETSc NUL-terminates.
         unsafe {
             check(
-                sys::PetscOptionsGetString(std::ptr::null_mut(), std::ptr::null(), name.as_ptr(), buf.as_mut_ptr(), buf.len(), &mut found),
+                sys::PetscOptionsGetString(
+                    std::ptr::null_mut(),
+                    std::ptr::null(),
+                    name.as_ptr(),
+                    buf.as_mut_ptr(),
+                    buf.len(),
+                    &mut found,
+                ),
                 "PetscOptionsGetString",
             )?;
-            Ok(if found != 0 { Some(super::from_cstr(buf.as_ptr())) } else { None })
+            Ok(if found != 0 {
+                Some(super::from_cstr(buf.as_ptr()))
+            } else {
+                None
+            })
         }
     }
 
     fn mark_ours(&self, name: &str) {
-        self.ours.lock().unwrap_or_else(|p| p.into_inner()).insert(name.trim_start_matches('-').to_string());
+        self.ours
+            .lock()
+            .unwrap_or_else(|p| p.into_inner())
+            .insert(name.trim_start_matches('-').to_string());
     }
 
     /// The options the user gave that no PETSc object has read so far (PETSc's
@@ -138,7 +195,13 @@ impl Petsc {
             let mut n: sys::PetscInt = 0;
             let mut raw_names: *mut *mut c_char = std::ptr::null_mut();
             let mut raw_values: *mut *mut c_char = std::ptr::null_mut();
-            if sys::PetscOptionsLeftGet(std::ptr::null_mut(), &mut n, &mut raw_names, &mut raw_values) != 0 {
+            if sys::PetscOptionsLeftGet(
+                std::ptr::null_mut(),
+                &mut n,
+                &mut raw_names,
+                &mut raw_values,
+            ) != 0
+            {
                 super::error::discard_recorded();
                 return names;
             }
@@ -146,9 +209,18 @@ impl Petsc {
                 let name = super::from_cstr(*raw_names.add(i));
                 let value = super::from_cstr(*raw_values.add(i));
                 let name = name.trim_start_matches('-').to_string();
-                names.push(if value.is_empty() { name } else { format!("{name} {value}") });
+                names.push(if value.is_empty() {
+                    name
+                } else {
+                    format!("{name} {value}")
+                });
             }
-            sys::PetscOptionsLeftRestore(std::ptr::null_mut(), &mut n, &mut raw_names, &mut raw_values);
+            sys::PetscOptionsLeftRestore(
+                std::ptr::null_mut(),
+                &mut n,
+                &mut raw_names,
+                &mut raw_values,
+            );
         }
         let ours = self.ours.lock().unwrap_or_else(|p| p.into_inner()).clone();
         let key = |entry: &str| entry.split(' ').next().unwrap_or("").to_string();
@@ -157,7 +229,11 @@ impl Petsc {
             .into_iter()
             .filter(|e| {
                 let k = key(e);
-                let mirror = if let Some(plain) = k.strip_prefix("st_") { plain.to_string() } else { format!("st_{k}") };
+                let mirror = if let Some(plain) = k.strip_prefix("st_") {
+                    plain.to_string()
+                } else {
+                    format!("st_{k}")
+                };
                 let mirrored_use = k.contains("mat_mumps_") && !unused.contains(&mirror);
                 !ours.contains(&k) && !mirrored_use
             })
@@ -227,9 +303,22 @@ mod tests {
     #[test]
     fn words_that_are_neither_options_nor_their_values_are_stray() {
         let args = |v: &[&str]| v.iter().map(|s| s.to_string()).collect::<Vec<_>>();
-        assert_eq!(stray_tokens(&args(&["-eps_ncv", "80", "-eps_view"])), Vec::<String>::new());
-        assert_eq!(stray_tokens(&args(&["notanoption"])), vec!["notanoption".to_string()]);
-        assert_eq!(stray_tokens(&args(&["-foo_bar", "1", "extra"])), vec!["extra".to_string()]);
-        assert_eq!(stray_tokens(&args(&["-st_shift", "-1e30"])), Vec::<String>::new(), "a negative number is a value");
+        assert_eq!(
+            stray_tokens(&args(&["-eps_ncv", "80", "-eps_view"])),
+            Vec::<String>::new()
+        );
+        assert_eq!(
+            stray_tokens(&args(&["notanoption"])),
+            vec!["notanoption".to_string()]
+        );
+        assert_eq!(
+            stray_tokens(&args(&["-foo_bar", "1", "extra"])),
+            vec!["extra".to_string()]
+        );
+        assert_eq!(
+            stray_tokens(&args(&["-st_shift", "-1e30"])),
+            Vec::<String>::new(),
+            "a negative number is a value"
+        );
     }
 }

@@ -11,7 +11,10 @@ pub struct Vector<'p> {
 
 impl<'p> Vector<'p> {
     pub(crate) fn from_raw(raw: sys::Vec) -> Self {
-        Vector { raw, _runtime: PhantomData }
+        Vector {
+            raw,
+            _runtime: PhantomData,
+        }
     }
 
     pub fn raw(&self) -> sys::Vec {
@@ -35,7 +38,12 @@ impl<'p> Vector<'p> {
     pub fn ownership_range(&self) -> Result<(usize, usize)> {
         let (mut lo, mut hi) = (0, 0);
         // SAFETY: query only.
-        unsafe { check(sys::VecGetOwnershipRange(self.raw, &mut lo, &mut hi), "VecGetOwnershipRange")? };
+        unsafe {
+            check(
+                sys::VecGetOwnershipRange(self.raw, &mut lo, &mut hi),
+                "VecGetOwnershipRange",
+            )?
+        };
         Ok((lo as usize, hi as usize))
     }
 
@@ -47,7 +55,10 @@ impl<'p> Vector<'p> {
         unsafe {
             check(sys::VecGetArrayRead(self.raw, &mut ptr), "VecGetArrayRead")?;
             let out = std::slice::from_raw_parts(ptr, hi - lo).to_vec();
-            check(sys::VecRestoreArrayRead(self.raw, &mut ptr), "VecRestoreArrayRead")?;
+            check(
+                sys::VecRestoreArrayRead(self.raw, &mut ptr),
+                "VecRestoreArrayRead",
+            )?;
             Ok(out)
         }
     }
@@ -56,7 +67,11 @@ impl<'p> Vector<'p> {
     pub fn set_local_values(&mut self, values: &[f64]) -> Result<()> {
         let (lo, hi) = self.ownership_range()?;
         if values.len() != hi - lo {
-            return Err(super::PetscError::other(format!("set_local_values: {} values for {} local entries", values.len(), hi - lo)));
+            return Err(super::PetscError::other(format!(
+                "set_local_values: {} values for {} local entries",
+                values.len(),
+                hi - lo
+            )));
         }
         let mut ptr: *mut f64 = std::ptr::null_mut();
         // SAFETY: as above, with a write pointer.
@@ -77,7 +92,12 @@ impl<'p> Vector<'p> {
     pub fn norm2(&self) -> Result<f64> {
         let mut n = 0.0;
         // SAFETY: collective reduction.
-        unsafe { check(sys::VecNorm(self.raw, sys::NormType_NORM_2, &mut n), "VecNorm")? };
+        unsafe {
+            check(
+                sys::VecNorm(self.raw, sys::NormType_NORM_2, &mut n),
+                "VecNorm",
+            )?
+        };
         Ok(n)
     }
 
@@ -103,16 +123,59 @@ impl<'p> Vector<'p> {
         // index array (PETSC_COPY_VALUES).
         unsafe {
             let self_comm = mpi::ffi::RSMPI_COMM_SELF;
-            check(sys::ISCreateGeneral(self_comm, n, indices.as_ptr(), sys::PetscCopyMode_PETSC_COPY_VALUES, &mut is_from), "ISCreateGeneral")?;
+            check(
+                sys::ISCreateGeneral(
+                    self_comm,
+                    n,
+                    indices.as_ptr(),
+                    sys::PetscCopyMode_PETSC_COPY_VALUES,
+                    &mut is_from,
+                ),
+                "ISCreateGeneral",
+            )?;
             let result = (|| {
                 check(sys::VecCreateSeq(self_comm, n, &mut local), "VecCreateSeq")?;
-                check(sys::VecScatterCreate(self.raw, is_from, local, std::ptr::null_mut(), &mut scatter), "VecScatterCreate")?;
-                check(sys::VecScatterBegin(scatter, self.raw, local, sys::InsertMode_INSERT_VALUES, sys::ScatterMode_SCATTER_FORWARD), "VecScatterBegin")?;
-                check(sys::VecScatterEnd(scatter, self.raw, local, sys::InsertMode_INSERT_VALUES, sys::ScatterMode_SCATTER_FORWARD), "VecScatterEnd")?;
+                check(
+                    sys::VecScatterCreate(
+                        self.raw,
+                        is_from,
+                        local,
+                        std::ptr::null_mut(),
+                        &mut scatter,
+                    ),
+                    "VecScatterCreate",
+                )?;
+                check(
+                    sys::VecScatterBegin(
+                        scatter,
+                        self.raw,
+                        local,
+                        sys::InsertMode_INSERT_VALUES,
+                        sys::ScatterMode_SCATTER_FORWARD,
+                    ),
+                    "VecScatterBegin",
+                )?;
+                check(
+                    sys::VecScatterEnd(
+                        scatter,
+                        self.raw,
+                        local,
+                        sys::InsertMode_INSERT_VALUES,
+                        sys::ScatterMode_SCATTER_FORWARD,
+                    ),
+                    "VecScatterEnd",
+                )?;
                 let mut ptr: *const f64 = std::ptr::null();
                 check(sys::VecGetArrayRead(local, &mut ptr), "VecGetArrayRead")?;
-                let out = if indices.is_empty() { Vec::new() } else { std::slice::from_raw_parts(ptr, indices.len()).to_vec() };
-                check(sys::VecRestoreArrayRead(local, &mut ptr), "VecRestoreArrayRead")?;
+                let out = if indices.is_empty() {
+                    Vec::new()
+                } else {
+                    std::slice::from_raw_parts(ptr, indices.len()).to_vec()
+                };
+                check(
+                    sys::VecRestoreArrayRead(local, &mut ptr),
+                    "VecRestoreArrayRead",
+                )?;
                 Ok(out)
             })();
             if !scatter.is_null() {
@@ -132,17 +195,41 @@ impl<'p> Vector<'p> {
         let mut full: sys::Vec = std::ptr::null_mut();
         // SAFETY: scatter context and target are destroyed before returning.
         unsafe {
-            check(sys::VecScatterCreateToZero(self.raw, &mut scatter, &mut full), "VecScatterCreateToZero")?;
+            check(
+                sys::VecScatterCreateToZero(self.raw, &mut scatter, &mut full),
+                "VecScatterCreateToZero",
+            )?;
             let full = Vector::<'p>::from_raw(full);
             let result = (|| {
-                check(sys::VecScatterBegin(scatter, self.raw, full.raw, sys::InsertMode_INSERT_VALUES, sys::ScatterMode_SCATTER_FORWARD), "VecScatterBegin")?;
-                check(sys::VecScatterEnd(scatter, self.raw, full.raw, sys::InsertMode_INSERT_VALUES, sys::ScatterMode_SCATTER_FORWARD), "VecScatterEnd")?;
+                check(
+                    sys::VecScatterBegin(
+                        scatter,
+                        self.raw,
+                        full.raw,
+                        sys::InsertMode_INSERT_VALUES,
+                        sys::ScatterMode_SCATTER_FORWARD,
+                    ),
+                    "VecScatterBegin",
+                )?;
+                check(
+                    sys::VecScatterEnd(
+                        scatter,
+                        self.raw,
+                        full.raw,
+                        sys::InsertMode_INSERT_VALUES,
+                        sys::ScatterMode_SCATTER_FORWARD,
+                    ),
+                    "VecScatterEnd",
+                )?;
                 if rank == 0 {
                     let n = full.global_size()?;
                     let mut ptr: *const f64 = std::ptr::null();
                     check(sys::VecGetArrayRead(full.raw, &mut ptr), "VecGetArrayRead")?;
                     let out = std::slice::from_raw_parts(ptr, n).to_vec();
-                    check(sys::VecRestoreArrayRead(full.raw, &mut ptr), "VecRestoreArrayRead")?;
+                    check(
+                        sys::VecRestoreArrayRead(full.raw, &mut ptr),
+                        "VecRestoreArrayRead",
+                    )?;
                     Ok(Some(out))
                 } else {
                     Ok(None)

@@ -24,10 +24,22 @@ pub fn number_attribute(path: &Path, group: &str, key: &str) -> f64 {
 pub fn box_obj(dir: &Path, name: &str, [a, b, c]: [f64; 3]) -> PathBuf {
     let mut text = String::from("# box\n");
     for k in 0..8 {
-        text.push_str(&format!("v {} {} {}\n", if k & 1 == 1 { a } else { 0.0 }, if k & 2 == 2 { b } else { 0.0 }, if k & 4 == 4 { c } else { 0.0 }));
+        text.push_str(&format!(
+            "v {} {} {}\n",
+            if k & 1 == 1 { a } else { 0.0 },
+            if k & 2 == 2 { b } else { 0.0 },
+            if k & 4 == 4 { c } else { 0.0 }
+        ));
     }
     // Faces as quads (1-based corners), counter-clockwise seen from outside.
-    for [p, q, r, t] in [[1, 3, 4, 2], [5, 6, 8, 7], [1, 2, 6, 5], [3, 7, 8, 4], [1, 5, 7, 3], [2, 4, 8, 6]] {
+    for [p, q, r, t] in [
+        [1, 3, 4, 2],
+        [5, 6, 8, 7],
+        [1, 2, 6, 5],
+        [3, 7, 8, 4],
+        [1, 5, 7, 3],
+        [2, 4, 8, 6],
+    ] {
         text.push_str(&format!("f {p} {q} {r}\nf {p} {r} {t}\n"));
     }
     let path = dir.join(name);
@@ -45,7 +57,9 @@ pub fn repo() -> PathBuf {
 
 /// The shared data folder: `$DIFFSOUND_SHARED`, else `<repo>/../shared`.
 pub fn shared() -> Option<PathBuf> {
-    let p = std::env::var_os("DIFFSOUND_SHARED").map(PathBuf::from).unwrap_or_else(|| repo().join("../shared"));
+    let p = std::env::var_os("DIFFSOUND_SHARED")
+        .map(PathBuf::from)
+        .unwrap_or_else(|| repo().join("../shared"));
     p.join("data").is_dir().then_some(p)
 }
 
@@ -78,7 +92,10 @@ impl Run {
         self.status == Some(0) && !self.timed_out
     }
     pub fn describe(&self) -> String {
-        format!("status {:?} (timed out: {})\n--- stdout\n{}\n--- stderr\n{}", self.status, self.timed_out, self.stdout, self.stderr)
+        format!(
+            "status {:?} (timed out: {})\n--- stdout\n{}\n--- stderr\n{}",
+            self.status, self.timed_out, self.stdout, self.stderr
+        )
     }
 }
 
@@ -98,7 +115,9 @@ pub fn run_with_limit(mut cmd: Command, limit: Duration) -> Run {
         .stdin(Stdio::null())
         .stdout(Stdio::piped())
         .stderr(Stdio::piped());
-    let mut child = cmd.spawn().expect("spawn mpirun (is openmpi-bin installed? run scripts/install-deps.sh)");
+    let mut child = cmd
+        .spawn()
+        .expect("spawn mpirun (is openmpi-bin installed? run scripts/install-deps.sh)");
     // Drain the pipes on threads so a chatty child cannot block on a full pipe.
     let mut out = child.stdout.take().unwrap();
     let mut err = child.stderr.take().unwrap();
@@ -126,35 +145,63 @@ pub fn run_with_limit(mut cmd: Command, limit: Duration) -> Run {
         }
         std::thread::sleep(Duration::from_millis(50));
     };
-    Run { status, stdout: t_out.join().unwrap_or_default(), stderr: t_err.join().unwrap_or_default(), timed_out }
+    Run {
+        status,
+        stdout: t_out.join().unwrap_or_default(),
+        stderr: t_err.join().unwrap_or_default(),
+        timed_out,
+    }
 }
 
 /// Parses the `--timings-json` output.
 pub fn read_json(path: &Path) -> serde_json::Value {
-    let text = std::fs::read_to_string(path).unwrap_or_else(|e| panic!("read {}: {e}", path.display()));
+    let text =
+        std::fs::read_to_string(path).unwrap_or_else(|e| panic!("read {}: {e}", path.display()));
     serde_json::from_str(&text).expect("valid JSON")
 }
 
 pub fn f64s(v: &serde_json::Value, key: &str) -> Vec<f64> {
-    v[key].as_array().unwrap_or_else(|| panic!("{key} missing")).iter().map(|x| x.as_f64().unwrap()).collect()
+    v[key]
+        .as_array()
+        .unwrap_or_else(|| panic!("{key} missing"))
+        .iter()
+        .map(|x| x.as_f64().unwrap())
+        .collect()
 }
 
 /// Meshes a .geo with gmsh at element size `h` (second order: curved boundary nodes).
 pub fn gmsh_mesh(geo: &Path, h: f64, order: u32, out: &Path) {
     let mut cmd = Command::new("gmsh");
-    cmd.args(["-3", "-order", &order.to_string(), "-clmin", &h.to_string(), "-clmax", &h.to_string(), "-format", "msh41"])
-        .arg(geo)
-        .arg("-o")
-        .arg(out);
+    cmd.args([
+        "-3",
+        "-order",
+        &order.to_string(),
+        "-clmin",
+        &h.to_string(),
+        "-clmax",
+        &h.to_string(),
+        "-format",
+        "msh41",
+    ])
+    .arg(geo)
+    .arg("-o")
+    .arg(out);
     let r = run_with_limit(cmd, Duration::from_secs(120));
-    assert!(r.success() && out.exists(), "gmsh failed (is gmsh installed? run scripts/install-deps.sh):\n{}", r.describe());
+    assert!(
+        r.success() && out.exists(),
+        "gmsh failed (is gmsh installed? run scripts/install-deps.sh):\n{}",
+        r.describe()
+    );
 }
 
 /// The benchmark generator example, built next to the test binaries by `cargo test`
 /// (target/<profile>/examples).
 pub fn generator() -> PathBuf {
     let exe = std::env::current_exe().expect("test binary path");
-    let profile_dir = exe.parent().and_then(Path::parent).expect("target/<profile>/deps/<test>");
+    let profile_dir = exe
+        .parent()
+        .and_then(Path::parent)
+        .expect("target/<profile>/deps/<test>");
     let path = profile_dir.join("examples").join("diagnose_generate");
     assert!(path.is_file(), "{} is missing: build it with `cargo build --release --example diagnose_generate` (cargo test builds it too)", path.display());
     path

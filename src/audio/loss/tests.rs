@@ -7,14 +7,23 @@ fn uniform_noise(seed: u64, n: usize) -> Vec<f64> {
 }
 
 fn tone(freq: f64, decay: f64, amplitude: f64) -> ModalBank {
-    ModalBank { frequencies_hz: vec![freq], decay_rates: vec![decay], amplitudes: vec![amplitude], phases: vec![0.3] }
+    ModalBank {
+        frequencies_hz: vec![freq],
+        decay_rates: vec![decay],
+        amplitudes: vec![amplitude],
+        phases: vec![0.3],
+    }
 }
 
 fn bank(seed: u64, n: usize) -> ModalBank {
     let r = uniform_noise(seed, 4 * n);
     ModalBank {
-        frequencies_hz: (0..n).map(|k| 200.0 + 3000.0 * (0.5 + 0.5 * r[4 * k])).collect(),
-        decay_rates: (0..n).map(|k| 5.0 + 10.0 * (0.5 + 0.5 * r[4 * k + 1])).collect(),
+        frequencies_hz: (0..n)
+            .map(|k| 200.0 + 3000.0 * (0.5 + 0.5 * r[4 * k]))
+            .collect(),
+        decay_rates: (0..n)
+            .map(|k| 5.0 + 10.0 * (0.5 + 0.5 * r[4 * k + 1]))
+            .collect(),
         amplitudes: (0..n).map(|k| 0.2 + 0.3 * r[4 * k + 2].abs()).collect(),
         phases: (0..n).map(|k| 3.0 * r[4 * k + 3]).collect(),
     }
@@ -24,12 +33,22 @@ const FS: f64 = 8000.0;
 const LEN: usize = 3000;
 
 /// Central differences of a loss through the synthesiser, parameter by parameter.
-fn check_bank_gradient(name: &str, loss: &dyn Fn(&[f64]) -> (f64, Vec<f64>), b: &ModalBank, tol: f64) {
+fn check_bank_gradient(
+    name: &str,
+    loss: &dyn Fn(&[f64]) -> (f64, Vec<f64>),
+    b: &ModalBank,
+    tol: f64,
+) {
     let (_, g_signal) = loss(&render_samples(b, FS, LEN));
     let g = render_backward(b, FS, &g_signal);
     let value = |b: &ModalBank| loss(&render_samples(b, FS, LEN)).0;
     let fields: [(&str, fn(&mut ModalBank) -> &mut Vec<f64>, &Vec<f64>, f64); 4] = [
-        ("frequency", |b| &mut b.frequencies_hz, &g.frequencies_hz, 1e-4),
+        (
+            "frequency",
+            |b| &mut b.frequencies_hz,
+            &g.frequencies_hz,
+            1e-4,
+        ),
         ("decay", |b| &mut b.decay_rates, &g.decay_rates, 1e-4),
         ("amplitude", |b| &mut b.amplitudes, &g.amplitudes, 1e-6),
         ("phase", |b| &mut b.phases, &g.phases, 1e-6),
@@ -41,7 +60,11 @@ fn check_bank_gradient(name: &str, loss: &dyn Fn(&[f64]) -> (f64, Vec<f64>), b: 
             get(&mut p)[k] += h;
             get(&mut m)[k] -= h;
             let fd = (value(&p) - value(&m)) / (2.0 * h);
-            assert!((fd - exact[k]).abs() <= tol * scale, "{name}: d/d{field}_{k}: fd {fd} vs exact {} (scale {scale})", exact[k]);
+            assert!(
+                (fd - exact[k]).abs() <= tol * scale,
+                "{name}: d/d{field}_{k}: fd {fd} vs exact {} (scale {scale})",
+                exact[k]
+            );
         }
     }
 }
@@ -49,27 +72,77 @@ fn check_bank_gradient(name: &str, loss: &dyn Fn(&[f64]) -> (f64, Vec<f64>), b: 
 #[test]
 fn spectral_loss_gradient_matches_finite_differences_through_the_synthesiser() {
     let target = render_samples(&bank(1, 4), FS, LEN);
-    let config = SpectralLossConfig { fft_sizes: vec![512, 128, 64], ..Default::default() };
+    let config = SpectralLossConfig {
+        fft_sizes: vec![512, 128, 64],
+        ..Default::default()
+    };
     let loss = MultiScaleSpectralLoss::new(&target, config).unwrap();
-    check_bank_gradient("spectral", &|x| loss.value_and_gradient(x).unwrap(), &bank(2, 4), 2e-4);
+    check_bank_gradient(
+        "spectral",
+        &|x| loss.value_and_gradient(x).unwrap(),
+        &bank(2, 4),
+        2e-4,
+    );
 }
 
 #[test]
 fn transport_loss_gradient_matches_finite_differences_through_the_synthesiser() {
     let target = render_samples(&bank(3, 3), FS, LEN);
-    let loss = TransportLoss::new(&target, FS, TransportLossConfig { fft_size: 256, ..Default::default() }).unwrap();
-    check_bank_gradient("transport", &|x| loss.value_and_gradient(x).unwrap(), &bank(4, 3), 2e-4);
+    let loss = TransportLoss::new(
+        &target,
+        FS,
+        TransportLossConfig {
+            fft_size: 256,
+            ..Default::default()
+        },
+    )
+    .unwrap();
+    check_bank_gradient(
+        "transport",
+        &|x| loss.value_and_gradient(x).unwrap(),
+        &bank(4, 3),
+        2e-4,
+    );
 }
 
 #[test]
 fn loss_gradients_with_respect_to_the_signal_match_finite_differences() {
-    let target: Vec<f64> = render_samples(&bank(5, 3), FS, 700).iter().zip(uniform_noise(6, 700)).map(|(s, n)| s + 0.01 * n).collect();
-    let x: Vec<f64> = render_samples(&bank(7, 3), FS, 700).iter().zip(uniform_noise(8, 700)).map(|(s, n)| s + 0.01 * n).collect();
-    let spectral = MultiScaleSpectralLoss::new(&target, SpectralLossConfig { fft_sizes: vec![256, 64], ..Default::default() }).unwrap();
-    let transport = TransportLoss::new(&target, FS, TransportLossConfig { fft_size: 128, ..Default::default() }).unwrap();
+    let target: Vec<f64> = render_samples(&bank(5, 3), FS, 700)
+        .iter()
+        .zip(uniform_noise(6, 700))
+        .map(|(s, n)| s + 0.01 * n)
+        .collect();
+    let x: Vec<f64> = render_samples(&bank(7, 3), FS, 700)
+        .iter()
+        .zip(uniform_noise(8, 700))
+        .map(|(s, n)| s + 0.01 * n)
+        .collect();
+    let spectral = MultiScaleSpectralLoss::new(
+        &target,
+        SpectralLossConfig {
+            fft_sizes: vec![256, 64],
+            ..Default::default()
+        },
+    )
+    .unwrap();
+    let transport = TransportLoss::new(
+        &target,
+        FS,
+        TransportLossConfig {
+            fft_size: 128,
+            ..Default::default()
+        },
+    )
+    .unwrap();
     let losses: [(&str, Box<dyn Fn(&[f64]) -> (f64, Vec<f64>)>); 2] = [
-        ("spectral", Box::new(|x| spectral.value_and_gradient(x).unwrap())),
-        ("transport", Box::new(|x| transport.value_and_gradient(x).unwrap())),
+        (
+            "spectral",
+            Box::new(|x| spectral.value_and_gradient(x).unwrap()),
+        ),
+        (
+            "transport",
+            Box::new(|x| transport.value_and_gradient(x).unwrap()),
+        ),
     ];
     for (name, loss) in &losses {
         let (v, g) = loss(&x);
@@ -81,7 +154,11 @@ fn loss_gradients_with_respect_to_the_signal_match_finite_differences() {
             p[i] += h;
             m[i] -= h;
             let fd = (loss(&p).0 - loss(&m).0) / (2.0 * h);
-            assert!((fd - g[i]).abs() < 1e-5 * scale, "{name} sample {i}: fd {fd} vs {}", g[i]);
+            assert!(
+                (fd - g[i]).abs() < 1e-5 * scale,
+                "{name} sample {i}: fd {fd} vs {}",
+                g[i]
+            );
         }
     }
 }
@@ -93,13 +170,42 @@ fn identical_signals_score_zero_and_length_mismatch_is_an_error() {
     let t = TransportLoss::new(&y, FS, TransportLossConfig::default()).unwrap();
     assert_eq!(s.value(&y).unwrap(), 0.0);
     assert!(t.value(&y).unwrap().abs() < 1e-12);
-    assert_eq!(s.value(&y[1..]).unwrap_err(), LossError::Length { got: LEN - 1, expected: LEN });
+    assert_eq!(
+        s.value(&y[1..]).unwrap_err(),
+        LossError::Length {
+            got: LEN - 1,
+            expected: LEN
+        }
+    );
     assert!(matches!(t.value(&[]), Err(LossError::Length { .. })));
-    assert_eq!(MultiScaleSpectralLoss::new(&[], SpectralLossConfig::default()).unwrap_err(), LossError::EmptyTarget);
-    assert_eq!(MultiScaleSpectralLoss::new(&[0.0, f64::NAN], SpectralLossConfig::default()).unwrap_err(), LossError::NonFinite(1));
-    assert!(TransportLoss::new(&vec![0.0; 100], FS, TransportLossConfig::default()).is_err(), "silent target");
-    assert!(MultiScaleSpectralLoss::new(&y, SpectralLossConfig { fft_sizes: vec![100, 63], ..Default::default() }).is_err());
-    assert!(MultiScaleSpectralLoss::new(&y, SpectralLossConfig { hop_fraction: 0.0, ..Default::default() }).is_err());
+    assert_eq!(
+        MultiScaleSpectralLoss::new(&[], SpectralLossConfig::default()).unwrap_err(),
+        LossError::EmptyTarget
+    );
+    assert_eq!(
+        MultiScaleSpectralLoss::new(&[0.0, f64::NAN], SpectralLossConfig::default()).unwrap_err(),
+        LossError::NonFinite(1)
+    );
+    assert!(
+        TransportLoss::new(&vec![0.0; 100], FS, TransportLossConfig::default()).is_err(),
+        "silent target"
+    );
+    assert!(MultiScaleSpectralLoss::new(
+        &y,
+        SpectralLossConfig {
+            fft_sizes: vec![100, 63],
+            ..Default::default()
+        }
+    )
+    .is_err());
+    assert!(MultiScaleSpectralLoss::new(
+        &y,
+        SpectralLossConfig {
+            hop_fraction: 0.0,
+            ..Default::default()
+        }
+    )
+    .is_err());
 }
 
 #[test]
@@ -108,7 +214,15 @@ fn transport_loss_measures_the_frequency_gap_in_hz() {
     let n_fft = 512;
     let bin = FS / n_fft as f64;
     let target = render_samples(&tone(100.0 * bin, 0.0, 1.0), FS, 8000);
-    let loss = TransportLoss::new(&target, FS, TransportLossConfig { fft_size: n_fft, ..Default::default() }).unwrap();
+    let loss = TransportLoss::new(
+        &target,
+        FS,
+        TransportLossConfig {
+            fft_size: n_fft,
+            ..Default::default()
+        },
+    )
+    .unwrap();
     for gap_bins in [5.0, 40.0, 120.0] {
         let x = render_samples(&tone((100.0 + gap_bins) * bin, 0.0, 1.0), FS, 8000);
         let w = loss.value(&x).unwrap();
@@ -118,7 +232,12 @@ fn transport_loss_measures_the_frequency_gap_in_hz() {
 }
 
 /// Adam on one frequency, the way the fits move parameters.
-fn descend(loss: &dyn Fn(&[f64]) -> (f64, Vec<f64>), start_hz: f64, steps: usize, rate_hz: f64) -> f64 {
+fn descend(
+    loss: &dyn Fn(&[f64]) -> (f64, Vec<f64>),
+    start_hz: f64,
+    steps: usize,
+    rate_hz: f64,
+) -> f64 {
     let (mut f, mut m, mut v) = (start_hz, 0.0, 0.0);
     let (b1, b2) = (0.9, 0.999);
     for t in 1..=steps {
@@ -139,13 +258,37 @@ fn transport_pulls_a_distant_mode_to_its_target_where_the_spectral_loss_does_not
     let target_hz = 2000.0;
     let target = render_samples(&tone(target_hz, 4.0, 1.0), FS, LEN);
     let spectral = MultiScaleSpectralLoss::new(&target, SpectralLossConfig::default()).unwrap();
-    let transport = TransportLoss::new(&target, FS, TransportLossConfig { fft_size: 512, ..Default::default() }).unwrap();
+    let transport = TransportLoss::new(
+        &target,
+        FS,
+        TransportLossConfig {
+            fft_size: 512,
+            ..Default::default()
+        },
+    )
+    .unwrap();
     let start = 1000.0;
-    let by_transport = descend(&|x| transport.value_and_gradient(x).unwrap(), start, 300, 10.0);
-    let by_spectral = descend(&|x| spectral.value_and_gradient(x).unwrap(), start, 300, 10.0);
+    let by_transport = descend(
+        &|x| transport.value_and_gradient(x).unwrap(),
+        start,
+        300,
+        10.0,
+    );
+    let by_spectral = descend(
+        &|x| spectral.value_and_gradient(x).unwrap(),
+        start,
+        300,
+        10.0,
+    );
     eprintln!("from {start} Hz to {target_hz} Hz: transport ends at {by_transport:.2} Hz, spectral at {by_spectral:.2} Hz");
-    assert!((by_transport - target_hz).abs() < 5.0, "transport ended at {by_transport} Hz");
-    assert!((by_spectral - target_hz).abs() > 500.0, "spectral ended at {by_spectral} Hz");
+    assert!(
+        (by_transport - target_hz).abs() < 5.0,
+        "transport ended at {by_transport} Hz"
+    );
+    assert!(
+        (by_spectral - target_hz).abs() > 500.0,
+        "spectral ended at {by_spectral} Hz"
+    );
 }
 
 #[test]

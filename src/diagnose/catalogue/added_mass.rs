@@ -23,7 +23,9 @@
 
 use std::sync::Arc;
 
-use super::{weighted_regression, weights_vary, Detection, Effect, Fit, ModeTable, ParamSpec, Proposal, Term};
+use super::{
+    weighted_regression, weights_vary, Detection, Effect, Fit, ModeTable, ParamSpec, Proposal, Term,
+};
 
 pub struct AddedMass;
 
@@ -84,10 +86,17 @@ impl Effect for AddedMass {
     }
     fn detect(&self, table: &ModeTable, current: &Fit) -> Detection {
         if table.modes.len() < 4 {
-            return Detection::NotEnoughData(format!("{} matched modes; at least 4 needed", table.modes.len()));
+            return Detection::NotEnoughData(format!(
+                "{} matched modes; at least 4 needed",
+                table.modes.len()
+            ));
         }
         let res = current.mode_residuals(table);
-        let ln_f1 = table.modes.iter().map(|m| m.ln_f_sim).fold(f64::INFINITY, f64::min);
+        let ln_f1 = table
+            .modes
+            .iter()
+            .map(|m| m.ln_f_sim)
+            .fold(f64::INFINITY, f64::min);
         let mut details = Vec::new();
         let mut proposals = Vec::new();
         let mut statistic = f64::NEG_INFINITY;
@@ -105,9 +114,17 @@ impl Effect for AddedMass {
                 .map(|(m, &(r, v))| (-0.5 * term.weight(m.ln_f_sim, m.mass_weight), r, 1.0 / v))
                 .collect();
             let (mu, z) = weighted_regression(&points);
-            let (lo, hi) = points.iter().fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), p| (a.min(p.0), b.max(p.0)));
+            let (lo, hi) = points
+                .iter()
+                .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), p| {
+                    (a.min(p.0), b.max(p.0))
+                });
             let differential_shift = mu * (hi - lo);
-            details.push(format!("{}: slope μ ≈ {mu:.3e} (z = {z:.1}), differential shift {:.2} ‰", term.variant(), 1e3 * differential_shift));
+            details.push(format!(
+                "{}: slope μ ≈ {mu:.3e} (z = {z:.1}), differential shift {:.2} ‰",
+                term.variant(),
+                1e3 * differential_shift
+            ));
             statistic = statistic.max(z);
             if mu > 0.0 && z > 1.0 && differential_shift >= MIN_DIFFERENTIAL_SHIFT {
                 proposals.push(Proposal {

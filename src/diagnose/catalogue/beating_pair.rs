@@ -107,7 +107,12 @@ impl Effect for BeatingPair {
         "a simulated mode or degenerate cluster seen as two close observed modes, split beyond σ"
     }
     fn detect(&self, table: &ModeTable, current: &Fit) -> Detection {
-        if current.model.terms.iter().any(|t| t.effect() == "beating_pair") {
+        if current
+            .model
+            .terms
+            .iter()
+            .any(|t| t.effect() == "beating_pair")
+        {
             return Detection::NotEnoughData("splits already free".into());
         }
         if table.pairs.is_empty() {
@@ -154,7 +159,12 @@ impl Effect for BeatingPair {
                 continue;
             }
             let observed = u.ln_f - l.ln_f;
-            let sweep = [l.glide, u.glide].into_iter().flatten().filter(|&(g, sg)| g.abs() > 3.0 * sg).map(|(g, _)| g.abs()).fold(0.0, f64::max);
+            let sweep = [l.glide, u.glide]
+                .into_iter()
+                .flatten()
+                .filter(|&(g, sg)| g.abs() > 3.0 * sg)
+                .map(|(g, _)| g.abs())
+                .fold(0.0, f64::max);
             if observed.abs() < sweep {
                 in_glide += 1;
                 continue;
@@ -186,7 +196,10 @@ impl Effect for BeatingPair {
             statistic: worst,
             detail: listed.join("; "),
             proposals: vec![Proposal {
-                term: Arc::new(PairSplits { clusters, centre_hz }),
+                term: Arc::new(PairSplits {
+                    clusters,
+                    centre_hz,
+                }),
                 init,
             }],
         }

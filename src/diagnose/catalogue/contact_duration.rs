@@ -81,7 +81,12 @@ impl Effect for ContactDuration {
         "high modes weaker than their drive predicts, increasingly with frequency (a low-pass on the amplitudes)"
     }
     fn detect(&self, table: &ModeTable, current: &Fit) -> Detection {
-        if current.model.terms.iter().any(|t| t.effect() == "contact_duration") {
+        if current
+            .model
+            .terms
+            .iter()
+            .any(|t| t.effect() == "contact_duration")
+        {
             return Detection::NotEnoughData("contact duration already in the model".into());
         }
         let res = current.mode_residuals(table);
@@ -90,17 +95,25 @@ impl Effect for ContactDuration {
             .modes
             .iter()
             .zip(&res.ln_a_level)
-            .filter_map(|(m, level)| level.map(|(r, v)| (2.0 * std::f64::consts::PI * m.ln_f.exp(), r, 1.0 / v)))
+            .filter_map(|(m, level)| {
+                level.map(|(r, v)| (2.0 * std::f64::consts::PI * m.ln_f.exp(), r, 1.0 / v))
+            })
             .collect();
         if points.len() < 4 {
-            return Detection::NotEnoughData(format!("{} modes with amplitudes; at least 4 needed", points.len()));
+            return Detection::NotEnoughData(format!(
+                "{} modes with amplitudes; at least 4 needed",
+                points.len()
+            ));
         }
         let omega_max = points.iter().map(|p| p.0).fold(0.0, f64::max);
         let t_max = 2.9 * std::f64::consts::PI / omega_max;
         let sw: f64 = points.iter().map(|p| p.2).sum();
         let chi2 = |shift: &dyn Fn(f64) -> f64| -> f64 {
             let mean: f64 = points.iter().map(|p| p.2 * (p.1 - shift(p.0))).sum::<f64>() / sw;
-            points.iter().map(|p| p.2 * (p.1 - shift(p.0) - mean).powi(2)).sum()
+            points
+                .iter()
+                .map(|p| p.2 * (p.1 - shift(p.0) - mean).powi(2))
+                .sum()
         };
         let base = chi2(&|_| 0.0);
         let mut best = (0.0, t_max);
@@ -126,7 +139,9 @@ impl Effect for ContactDuration {
             statistic: best.0,
             detail,
             proposals: vec![Proposal {
-                term: Arc::new(HalfSineContact { max_duration_s: t_max }),
+                term: Arc::new(HalfSineContact {
+                    max_duration_s: t_max,
+                }),
                 init: vec![best.1],
             }],
         }

@@ -119,7 +119,15 @@ pub(super) fn minimise<F: FnMut(&[f64], &mut [f64])>(
     let mut lambda = 1e-3;
     let mut trial_r = vec![0.0; n_residuals];
     for _ in 0..max_iterations {
-        let jac = jacobian(&mut residuals, &x, &columns, lower, upper, scale, n_residuals);
+        let jac = jacobian(
+            &mut residuals,
+            &x,
+            &columns,
+            lower,
+            upper,
+            scale,
+            n_residuals,
+        );
         let rv = DVector::from_column_slice(&r);
         let jtj = jac.transpose() * &jac;
         let grad = jac.transpose() * rv;
@@ -247,7 +255,11 @@ pub(super) fn profile_floor_with(r: &[f64], v: &[f64], row: impl Fn(f64, f64) ->
     let v_min = v.iter().cloned().fold(f64::INFINITY, f64::min).max(1e-300);
     let v_max = v.iter().cloned().fold(0.0, f64::max);
     let r2_max = r.iter().map(|r| r * r).fold(0.0, f64::max);
-    minimise_nonnegative(|t| r.iter().zip(v).map(|(&r, &v)| row(r, v + t)).sum(), 1e-4 * v_min, 10.0 * r2_max + v_max)
+    minimise_nonnegative(
+        |t| r.iter().zip(v).map(|(&r, &v)| row(r, v + t)).sum(),
+        1e-4 * v_min,
+        10.0 * r2_max + v_max,
+    )
 }
 
 /// Inverse of JᵀJ (the covariance of the parameters when the residuals are standardised),
@@ -265,7 +277,9 @@ pub(super) fn standard_errors(jac: &DMatrix<f64>) -> Vec<f64> {
     if scale.iter().any(|&s| !(s > 0.0) || !s.is_finite()) {
         let mut out = vec![f64::INFINITY; n];
         // Parameters with information still get a value if the rest of the matrix allows.
-        let keep: Vec<usize> = (0..n).filter(|&j| scale[j] > 0.0 && scale[j].is_finite()).collect();
+        let keep: Vec<usize> = (0..n)
+            .filter(|&j| scale[j] > 0.0 && scale[j].is_finite())
+            .collect();
         if !keep.is_empty() {
             let sub = jac.select_columns(keep.iter());
             for (s, &j) in standard_errors(&sub).into_iter().zip(&keep) {

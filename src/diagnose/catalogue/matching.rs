@@ -188,14 +188,26 @@ pub fn match_modes(
         // split is then judged against the split of the two members they matched.
         let allowance = match obs.as_slice() {
             &[a, b] => match (sim_of_obs[a], sim_of_obs[b]) {
-                (Some(ja), Some(jb)) if simulated[ja].match_frequency_hz.is_some() && simulated[jb].match_frequency_hz.is_some() => (sim_ln_f[ja] - sim_ln_f[jb]).abs(),
+                (Some(ja), Some(jb))
+                    if simulated[ja].match_frequency_hz.is_some()
+                        && simulated[jb].match_frequency_hz.is_some() =>
+                {
+                    (sim_ln_f[ja] - sim_ln_f[jb]).abs()
+                }
                 _ => 0.0,
             },
             _ => 0.0,
         };
-        if obs.len() == 2 && (observed_ln_f[obs[0]] - observed_ln_f[obs[1]]).abs() > settings.max_pair_split + allowance {
+        if obs.len() == 2
+            && (observed_ln_f[obs[0]] - observed_ln_f[obs[1]]).abs()
+                > settings.max_pair_split + allowance
+        {
             let err = |i: usize| distance(i, sim_of_obs[i].unwrap_or(0)).abs();
-            let drop = if err(obs[0]) > err(obs[1]) { obs[0] } else { obs[1] };
+            let drop = if err(obs[0]) > err(obs[1]) {
+                obs[0]
+            } else {
+                obs[1]
+            };
             if let Some(j) = sim_of_obs[drop].take() {
                 obs_of_sim[j] = None;
             }
@@ -203,7 +215,9 @@ pub fn match_modes(
     }
     // Split partners: (observed, cluster) joined in step 3.
     let mut partner_of_cluster: BTreeMap<usize, usize> = BTreeMap::new();
-    let mut free: Vec<usize> = (0..observed_ln_f.len()).filter(|&i| sim_of_obs[i].is_none()).collect();
+    let mut free: Vec<usize> = (0..observed_ln_f.len())
+        .filter(|&i| sim_of_obs[i].is_none())
+        .collect();
     free.sort_by(|&a, &b| {
         let da = nearest(&sim_sorted, observed_ln_f[a] - ln_scale).1.abs();
         let db = nearest(&sim_sorted, observed_ln_f[b] - ln_scale).1.abs();
@@ -220,7 +234,10 @@ pub fn match_modes(
                 continue;
             }
             let split = (observed_ln_f[i] - observed_ln_f[obs[0]]).abs();
-            let near = list.iter().map(|&j| distance(i, j).abs()).fold(f64::INFINITY, f64::min);
+            let near = list
+                .iter()
+                .map(|&j| distance(i, j).abs())
+                .fold(f64::INFINITY, f64::min);
             if split <= settings.max_pair_split && near <= tol && best.is_none_or(|b| split < b.0) {
                 best = Some((split, cluster));
             }
@@ -254,7 +271,11 @@ pub fn match_modes(
                 // Each mode of the pair sits at "its" member: for a one-member cluster both at
                 // that mode; otherwise the lower observed at the lower of the members matched
                 // (or, for a split partner, of the free members), the upper at the upper.
-                let mut own: Vec<usize> = list.iter().copied().filter(|&j| obs_of_sim[j].is_some()).collect();
+                let mut own: Vec<usize> = list
+                    .iter()
+                    .copied()
+                    .filter(|&j| obs_of_sim[j].is_some())
+                    .collect();
                 for &j in list {
                     if own.len() < 2 && !own.contains(&j) {
                         own.push(j);
@@ -265,7 +286,11 @@ pub fn match_modes(
                     let j = own[slot.min(own.len() - 1)];
                     units.push(Unit {
                         observed: i,
-                        role: if slot == 0 { Role::SplitLower } else { Role::SplitUpper },
+                        role: if slot == 0 {
+                            Role::SplitLower
+                        } else {
+                            Role::SplitUpper
+                        },
                         cluster,
                         slot,
                         represents: list.clone(),
@@ -276,7 +301,8 @@ pub fn match_modes(
             }
             _ => {
                 for (slot, &i) in obs.iter().enumerate() {
-                    let j = sim_of_obs[i].expect("three observed modes in a cluster are all pass-1 matches");
+                    let j = sim_of_obs[i]
+                        .expect("three observed modes in a cluster are all pass-1 matches");
                     units.push(Unit {
                         observed: i,
                         role: Role::Member,
@@ -287,7 +313,8 @@ pub fn match_modes(
                         drive_factor: 1.0,
                     });
                 }
-                unmatched_simulated.extend(list.iter().copied().filter(|&j| obs_of_sim[j].is_none()));
+                unmatched_simulated
+                    .extend(list.iter().copied().filter(|&j| obs_of_sim[j].is_none()));
             }
         }
     }
@@ -307,9 +334,19 @@ pub fn match_modes(
         }
         let beside = units
             .iter()
-            .filter(|u| (observed_ln_f[i] - observed_ln_f[u.observed]).abs() <= settings.max_pair_split)
-            .filter(|u| members[&u.cluster].iter().any(|&j| distance(i, j).abs() <= tol))
-            .min_by(|a, b| (observed_ln_f[i] - observed_ln_f[a.observed]).abs().total_cmp(&(observed_ln_f[i] - observed_ln_f[b.observed]).abs()));
+            .filter(|u| {
+                (observed_ln_f[i] - observed_ln_f[u.observed]).abs() <= settings.max_pair_split
+            })
+            .filter(|u| {
+                members[&u.cluster]
+                    .iter()
+                    .any(|&j| distance(i, j).abs() <= tol)
+            })
+            .min_by(|a, b| {
+                (observed_ln_f[i] - observed_ln_f[a.observed])
+                    .abs()
+                    .total_cmp(&(observed_ln_f[i] - observed_ln_f[b.observed]).abs())
+            });
         if let Some(u) = beside {
             extra_poles.push((i, u.observed, u.cluster));
         }

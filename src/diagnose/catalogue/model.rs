@@ -11,7 +11,9 @@ use super::{ObservedMode, ParamSpec, SimulatedMode, Term};
 
 /// Identifies a matched mode across data sets (fit and held-out): its simulated cluster and
 /// its position among the cluster's observed modes. Terms key per-mode parameters by it.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord, Hash, serde::Serialize, serde::Deserialize)]
+#[derive(
+    Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord, Hash, serde::Serialize, serde::Deserialize,
+)]
 pub struct ModeKey {
     pub cluster: usize,
     pub slot: usize,
@@ -153,7 +155,10 @@ impl RowKind {
     pub fn modes(self) -> (usize, Option<usize>) {
         match self {
             RowKind::LnF(k) | RowKind::LnD(k) | RowKind::LnA(k, _) | RowKind::Glide(k) => (k, None),
-            RowKind::PairMean(l, u) | RowKind::Split(l, u) | RowKind::PairMeanLnD(l, u) | RowKind::DecaySplit(l, u) => (l, Some(u)),
+            RowKind::PairMean(l, u)
+            | RowKind::Split(l, u)
+            | RowKind::PairMeanLnD(l, u)
+            | RowKind::DecaySplit(l, u) => (l, Some(u)),
         }
     }
 
@@ -202,7 +207,11 @@ pub struct ModeTable {
 }
 
 /// Drive²-weighted mean of `value` over `modes` (plain mean if every drive is zero).
-fn drive_weighted(simulated: &[SimulatedMode], modes: &[usize], value: impl Fn(&SimulatedMode) -> f64) -> f64 {
+fn drive_weighted(
+    simulated: &[SimulatedMode],
+    modes: &[usize],
+    value: impl Fn(&SimulatedMode) -> f64,
+) -> f64 {
     let w: f64 = modes.iter().map(|&j| simulated[j].drive.powi(2)).sum();
     if w > 0.0 {
         modes
@@ -241,7 +250,12 @@ pub const DEFAULT_OWN_MEMBER_SPLIT_Z: f64 = 3.0;
 /// ln a pattern across microphones correlates 0.9999 with the members' own ln |transfer| and
 /// 0.26 with the pooled one). When the splits disagree (a beating pair, or a pair the mesh
 /// leaves degenerate) the orientation is unknown and the pair is pooled.
-pub fn own_members(observed: &[ObservedMode], simulated: &[SimulatedMode], matching: &Matching, z: f64) -> Vec<Option<usize>> {
+pub fn own_members(
+    observed: &[ObservedMode],
+    simulated: &[SimulatedMode],
+    matching: &Matching,
+    z: f64,
+) -> Vec<Option<usize>> {
     let mut own = vec![None; matching.units.len()];
     if z <= 0.0 {
         return own;
@@ -252,11 +266,18 @@ pub fn own_members(observed: &[ObservedMode], simulated: &[SimulatedMode], match
         if lower.role != Role::SplitLower {
             continue;
         }
-        let Some(u) = matching.units.iter().position(|o| o.role == Role::SplitUpper && o.cluster == lower.cluster) else {
+        let Some(u) = matching
+            .units
+            .iter()
+            .position(|o| o.role == Role::SplitUpper && o.cluster == lower.cluster)
+        else {
             continue;
         };
         let upper = &matching.units[u];
-        let (&[jl], &[ju]) = (lower.frequency_from.as_slice(), upper.frequency_from.as_slice()) else {
+        let (&[jl], &[ju]) = (
+            lower.frequency_from.as_slice(),
+            upper.frequency_from.as_slice(),
+        ) else {
             continue;
         };
         if jl == ju {
@@ -264,7 +285,11 @@ pub fn own_members(observed: &[ObservedMode], simulated: &[SimulatedMode], match
         }
         let simulated_split = simulated[ju].match_ln_f() - simulated[jl].match_ln_f();
         let observed_split = ln_f0(upper.observed) - ln_f0(lower.observed);
-        let s = split_sigma_of(sigma(lower.observed), sigma(upper.observed), simulated_split);
+        let s = split_sigma_of(
+            sigma(lower.observed),
+            sigma(upper.observed),
+            simulated_split,
+        );
         if simulated_split > 0.0 && (observed_split - simulated_split).abs() <= z * s {
             own[l] = Some(jl);
             own[u] = Some(ju);
@@ -298,7 +323,11 @@ impl ModeTable {
                 Some(j) => (std::slice::from_ref(j), 1.0),
                 None => (unit.represents.as_slice(), unit.drive_factor),
             };
-            let combined: f64 = represents.iter().map(|&j| simulated[j].drive.powi(2)).sum::<f64>().sqrt();
+            let combined: f64 = represents
+                .iter()
+                .map(|&j| simulated[j].drive.powi(2))
+                .sum::<f64>()
+                .sqrt();
             let drive = combined * drive_factor;
             let ln_f_sim = drive_weighted(simulated, &unit.frequency_from, |m| m.frequency_hz.ln());
             let support_weight = drive_weighted(simulated, represents, |m| m.support_weight);
@@ -314,7 +343,9 @@ impl ModeTable {
                     (0..channels)
                         .map(|c| {
                             drive_weighted(simulated, represents, |m| {
-                                m.transfer.as_ref().map_or(0.0, |t| t[transfer_offset + c].powi(2))
+                                m.transfer
+                                    .as_ref()
+                                    .map_or(0.0, |t| t[transfer_offset + c].powi(2))
                             })
                             .sqrt()
                         })
@@ -324,7 +355,8 @@ impl ModeTable {
                 None
             };
             let f0 = undamped_hz(obs);
-            let ln_d = (obs.decay_rate > 0.0).then(|| (obs.decay_rate.ln(), obs.sigma_decay_rate / obs.decay_rate));
+            let ln_d = (obs.decay_rate > 0.0)
+                .then(|| (obs.decay_rate.ln(), obs.sigma_decay_rate / obs.decay_rate));
             let ln_a = (0..channels)
                 .map(|c| {
                     let a = obs.amplitudes[c];
@@ -335,10 +367,17 @@ impl ModeTable {
             // early-minus-late difference.
             let glide = match (obs.glide, obs.early_frequency_hz, obs.late_frequency_hz) {
                 (Some((g, sg)), _, _) => Some((g, sg)),
-                (None, Some((fe, se)), Some((fl, sl))) => Some(((fe - fl) / f0, (se * se + sl * sl).sqrt() / f0)),
+                (None, Some((fe, se)), Some((fl, sl))) => {
+                    Some(((fe - fl) / f0, (se * se + sl * sl).sqrt() / f0))
+                }
                 _ => None,
             };
-            let present: Vec<f64> = obs.amplitudes.iter().copied().filter(|&a| a > 0.0).collect();
+            let present: Vec<f64> = obs
+                .amplitudes
+                .iter()
+                .copied()
+                .filter(|&a| a > 0.0)
+                .collect();
             let mean_square = if present.is_empty() {
                 0.0
             } else {
@@ -418,9 +457,11 @@ impl ModeTable {
         // a support damping one mode of the pair more than the other, is then measured to the
         // extraction's own precision instead of drowning in the law's floor.
         let decay_pair = |k: usize| {
-            pairs
-                .iter()
-                .find(|p| (p.lower == k || p.upper == k) && modes[p.lower].ln_d.is_some() && modes[p.upper].ln_d.is_some())
+            pairs.iter().find(|p| {
+                (p.lower == k || p.upper == k)
+                    && modes[p.lower].ln_d.is_some()
+                    && modes[p.upper].ln_d.is_some()
+            })
         };
         for (k, m) in modes.iter().enumerate() {
             if let Some((v, s)) = m.ln_d {
@@ -434,7 +475,10 @@ impl ModeTable {
             }
         }
         for p in &pairs {
-            let (Some((dl, sl)), Some((du, su))) = (modes[p.lower].ln_d, modes[p.upper].ln_d) else { continue };
+            let (Some((dl, sl)), Some((du, su))) = (modes[p.lower].ln_d, modes[p.upper].ln_d)
+            else {
+                continue;
+            };
             rows.push(Row {
                 kind: RowKind::PairMeanLnD(p.lower, p.upper),
                 value: 0.5 * (dl + du),
@@ -618,7 +662,13 @@ impl Model {
             ));
         }
         for c in 0..self.channels {
-            specs.push(ParamSpec::new(format!("amplitude tilt of channel {c}"), "1", -TILT_BOUND, TILT_BOUND, 1.0));
+            specs.push(ParamSpec::new(
+                format!("amplitude tilt of channel {c}"),
+                "1",
+                -TILT_BOUND,
+                TILT_BOUND,
+                1.0,
+            ));
         }
         for t in &self.terms {
             specs.extend(t.params());
@@ -658,7 +708,8 @@ impl Model {
             let base = m.drive.max(1e-300).ln() + ln_two_pi + out.ln_f[k];
             let octave = out.ln_f[k] - self.ln_f_ref;
             for c in 0..c_n {
-                out.ln_a[k * c_n + c] = x[BASE_PARAMS + c] + x[BASE_PARAMS + c_n + c] * octave + base;
+                out.ln_a[k * c_n + c] =
+                    x[BASE_PARAMS + c] + x[BASE_PARAMS + c_n + c] * octave + base;
             }
         }
         for (i, t) in self.terms.iter().enumerate() {
@@ -710,12 +761,17 @@ pub const DECAY_SPLIT_MODEL_FLOOR: f64 = 2e-3;
 /// is itself a model quantity (the mesh's accidental asymmetry at the fitted material) trusted
 /// to [`SPLIT_MODEL_FLOOR`] of its size.
 pub fn split_sigma(lower: &ModeEntry, upper: &ModeEntry) -> f64 {
-    split_sigma_of(lower.sigma_ln_f, upper.sigma_ln_f, upper.ln_f_sim - lower.ln_f_sim)
+    split_sigma_of(
+        lower.sigma_ln_f,
+        upper.sigma_ln_f,
+        upper.ln_f_sim - lower.ln_f_sim,
+    )
 }
 
 /// [`split_sigma`] from the two σ(ln f) and the simulated split ln f_u − ln f_l.
 fn split_sigma_of(sigma_lower: f64, sigma_upper: f64, simulated_split: f64) -> f64 {
-    (sigma_lower.powi(2) + sigma_upper.powi(2) + (SPLIT_MODEL_FLOOR * simulated_split).powi(2)).sqrt()
+    (sigma_lower.powi(2) + sigma_upper.powi(2) + (SPLIT_MODEL_FLOOR * simulated_split).powi(2))
+        .sqrt()
 }
 /// Index of the per-mode amplitude level floor τ_A.
 pub const LEVEL_FLOOR: usize = 3;
@@ -750,7 +806,9 @@ pub type FloorVariances = [f64; N_FLOORS];
 
 /// Total variance σ² + τ² of a row (for amplitude rows: the within-mode part only).
 fn row_variance(row: &Row, tau2: &FloorVariances) -> f64 {
-    row.sigma * row.sigma + row.kind.quantity().floor_index().map_or(0.0, |q| tau2[q]) + own_decay_share(row, tau2)
+    row.sigma * row.sigma
+        + row.kind.quantity().floor_index().map_or(0.0, |q| tau2[q])
+        + own_decay_share(row, tau2)
 }
 
 /// Variance τ_i² of a mode's own ln d error (see [`own_decay_share`]): (F² + τ_s²)/2, F the
@@ -823,8 +881,21 @@ impl AmplitudeBlock {
 /// quadratic form of −2 ln L.
 /// The amplitude block of one mode's rows (residuals at `p` with their σ²) under the
 /// per-row mix floor.
-fn group_block(table: &ModeTable, rows: &[usize], p: &Prediction, tau2: &FloorVariances) -> AmplitudeBlock {
-    amplitude_block(rows.iter().map(|&r| (table.rows[r].value - table.rows[r].kind.predict(p), table.rows[r].sigma.powi(2))), tau2[2])
+fn group_block(
+    table: &ModeTable,
+    rows: &[usize],
+    p: &Prediction,
+    tau2: &FloorVariances,
+) -> AmplitudeBlock {
+    amplitude_block(
+        rows.iter().map(|&r| {
+            (
+                table.rows[r].value - table.rows[r].kind.predict(p),
+                table.rows[r].sigma.powi(2),
+            )
+        }),
+        tau2[2],
+    )
 }
 
 fn whiten(table: &ModeTable, p: &Prediction, tau2: &FloorVariances, out: &mut [f64]) {
@@ -832,7 +903,11 @@ fn whiten(table: &ModeTable, p: &Prediction, tau2: &FloorVariances, out: &mut [f
     for &r in &table.other_rows {
         let row = &table.rows[r];
         let (res, v) = (row.value - row.kind.predict(p), row_variance(row, tau2));
-        out[i] = if row.kind.quantity() == Quantity::Glide { glide_whitened(res, v) } else { res / v.sqrt() };
+        out[i] = if row.kind.quantity() == Quantity::Glide {
+            glide_whitened(res, v)
+        } else {
+            res / v.sqrt()
+        };
         i += 1;
     }
     for (_, rows) in &table.amplitude_groups {
@@ -876,7 +951,11 @@ fn minus_two_log_likelihood(table: &ModeTable, p: &Prediction, tau2: &FloorVaria
 /// `keep(mode)` holds (leave-one-out uses this). ln f, ln d and glide by the 1-D profile; the
 /// two amplitude floors by coordinate descent on the exact block likelihood (at most 6
 /// sweeps, until both settle to 10⁻⁶).
-fn profile_floors_where(table: &ModeTable, p: &Prediction, keep: impl Fn(usize) -> bool) -> FloorVariances {
+fn profile_floors_where(
+    table: &ModeTable,
+    p: &Prediction,
+    keep: impl Fn(usize) -> bool,
+) -> FloorVariances {
     let mut tau2 = [0.0; N_FLOORS];
     let keeps = |row: &Row| {
         let (a, b) = row.kind.modes();
@@ -890,10 +969,19 @@ fn profile_floors_where(table: &ModeTable, p: &Prediction, keep: impl Fn(usize) 
             .iter()
             .map(|&i| &table.rows[i])
             .filter(|row| row.kind.quantity().floor_index() == Some(q) && keeps(row))
-            .map(|row| (row.value - row.kind.predict(p), row.sigma * row.sigma + own_decay_share(row, &tau2)))
+            .map(|row| {
+                (
+                    row.value - row.kind.predict(p),
+                    row.sigma * row.sigma + own_decay_share(row, &tau2),
+                )
+            })
             .unzip();
         if r.iter().all(|r| r.is_finite()) {
-            tau2[q] = if q == 4 { profile_glide_floor(&r, &v) } else { lm::profile_floor(&r, &v) };
+            tau2[q] = if q == 4 {
+                profile_glide_floor(&r, &v)
+            } else {
+                lm::profile_floor(&r, &v)
+            };
         }
     }
     let groups: Vec<Vec<(f64, f64)>> = table
@@ -921,7 +1009,11 @@ fn profile_floors_where(table: &ModeTable, p: &Prediction, keep: impl Fn(usize) 
         .fold(f64::INFINITY, f64::min)
         .max(1e-300);
     let s_max = groups.iter().flatten().map(|g| g.1).fold(0.0, f64::max);
-    let r_max = groups.iter().flatten().map(|g| g.0 * g.0).fold(0.0, f64::max);
+    let r_max = groups
+        .iter()
+        .flatten()
+        .map(|g| g.0 * g.0)
+        .fold(0.0, f64::max);
     let (lo, hi) = (1e-4 * s_min, 10.0 * r_max + s_max);
     let objective = |mix: f64, level: f64| -> f64 {
         groups
@@ -937,9 +1029,10 @@ fn profile_floors_where(table: &ModeTable, p: &Prediction, keep: impl Fn(usize) 
             .iter()
             .map(|g| amplitude_block(g.iter().copied(), new_mix))
             .collect();
-        let new_level = lm::minimise_nonnegative(|t| blocks.iter().map(|b| b.objective(t)).sum(), lo, hi);
-        let settled =
-            (new_mix - mix).abs() <= 1e-6 * new_mix.max(lo) && (new_level - level).abs() <= 1e-6 * new_level.max(lo);
+        let new_level =
+            lm::minimise_nonnegative(|t| blocks.iter().map(|b| b.objective(t)).sum(), lo, hi);
+        let settled = (new_mix - mix).abs() <= 1e-6 * new_mix.max(lo)
+            && (new_level - level).abs() <= 1e-6 * new_level.max(lo);
         (mix, level) = (new_mix, new_level);
         if settled {
             break;
@@ -1005,7 +1098,11 @@ impl Fit {
             .filter_map(|row| match row.kind {
                 RowKind::DecaySplit(l, u) => {
                     let pair = *table.pairs.iter().find(|p| p.lower == l && p.upper == u)?;
-                    Some((pair, row.value - row.kind.predict(&self.prediction), row_variance(row, &self.tau2)))
+                    Some((
+                        pair,
+                        row.value - row.kind.predict(&self.prediction),
+                        row_variance(row, &self.tau2),
+                    ))
                 }
                 _ => None,
             })
@@ -1068,7 +1165,14 @@ fn residuals_with(table: &ModeTable, p: &Prediction, t: &FloorVariances) -> Mode
         .modes
         .iter()
         .enumerate()
-        .map(|(k, m)| m.ln_d.map(|(v, s)| (v - p.decay[k].max(1e-300).ln(), s * s + t[1] + own_decay_variance(t))))
+        .map(|(k, m)| {
+            m.ln_d.map(|(v, s)| {
+                (
+                    v - p.decay[k].max(1e-300).ln(),
+                    s * s + t[1] + own_decay_variance(t),
+                )
+            })
+        })
         .collect();
     let ln_a: Vec<Vec<Option<(f64, f64)>>> = table
         .modes
@@ -1078,7 +1182,14 @@ fn residuals_with(table: &ModeTable, p: &Prediction, t: &FloorVariances) -> Mode
             m.ln_a
                 .iter()
                 .enumerate()
-                .map(|(c, a)| a.map(|(v, s)| (v - p.ln_a[k * p.channels + c], s * s + t[2] + t[LEVEL_FLOOR])))
+                .map(|(c, a)| {
+                    a.map(|(v, s)| {
+                        (
+                            v - p.ln_a[k * p.channels + c],
+                            s * s + t[2] + t[LEVEL_FLOOR],
+                        )
+                    })
+                })
                 .collect()
         })
         .collect();
@@ -1145,7 +1256,16 @@ pub fn fit(table: &ModeTable, model: Model, x0: Vec<f64>) -> Fit {
             model.predict(table, xs, &mut scratch);
             whiten(table, &scratch, &tau2, out);
         };
-        let min = lm::minimise(residuals, n_residuals, &x, &free, &lower, &upper, &scale, 200);
+        let min = lm::minimise(
+            residuals,
+            n_residuals,
+            &x,
+            &free,
+            &lower,
+            &upper,
+            &scale,
+            200,
+        );
         x = min.x;
         model.predict(table, &x, &mut pred);
         tau2 = profile_floors(table, &pred);
@@ -1162,7 +1282,15 @@ pub fn fit(table: &ModeTable, model: Model, x0: Vec<f64>) -> Fit {
         model.predict(table, xs, &mut scratch);
         whiten(table, &scratch, &tau2, out);
     };
-    let jac = lm::jacobian(&mut residuals, &x, &columns, &lower, &upper, &scale, n_residuals);
+    let jac = lm::jacobian(
+        &mut residuals,
+        &x,
+        &columns,
+        &lower,
+        &upper,
+        &scale,
+        n_residuals,
+    );
     let mut sigma = vec![0.0; x.len()];
     for (s, &j) in lm::standard_errors(&jac).into_iter().zip(&columns) {
         sigma[j] = s;
@@ -1248,7 +1376,11 @@ pub fn robust_dispersion(z: &[f64]) -> f64 {
     }
     z2.sort_by(f64::total_cmp);
     let n = z2.len();
-    let median = if n % 2 == 1 { z2[n / 2] } else { 0.5 * (z2[n / 2 - 1] + z2[n / 2]) };
+    let median = if n % 2 == 1 {
+        z2[n / 2]
+    } else {
+        0.5 * (z2[n / 2 - 1] + z2[n / 2])
+    };
     (median / MEDIAN_CHI2_1).max(1.0)
 }
 
@@ -1298,7 +1430,16 @@ pub fn held_out_chi2(fit: &Fit, held: &ModeTable, tau2: &FloorVariances) -> Opti
         model.predict(held, xs, &mut scratch);
         whiten(held, &scratch, tau2, out);
     };
-    let min = lm::minimise(&mut residuals, held.n_residuals(), &x, &free, &lower, &upper, &scale, 200);
+    let min = lm::minimise(
+        &mut residuals,
+        held.n_residuals(),
+        &x,
+        &free,
+        &lower,
+        &upper,
+        &scale,
+        200,
+    );
     if !min.cost.is_finite() {
         return None;
     }
@@ -1314,7 +1455,11 @@ pub fn held_out_chi2(fit: &Fit, held: &ModeTable, tau2: &FloorVariances) -> Opti
         .count();
     let nuisance = x.len() - BASE_PARAMS - CHANNEL_PARAMS * (held.channels - channels_seen);
     let dof = (held.rows.len() as f64 - nuisance as f64).max(1.0);
-    Some(HeldOutChi2 { chi2: min.cost, dof, dispersion: robust_dispersion(&z) })
+    Some(HeldOutChi2 {
+        chi2: min.cost,
+        dof,
+        dispersion: robust_dispersion(&z),
+    })
 }
 
 /// Sets each channel's ln gain (x[BASE_PARAMS + c]) to its mean amplitude residual under
@@ -1355,7 +1500,10 @@ pub fn baseline_start(table: &ModeTable, model: &Model, ln_scale: f64) -> Vec<f6
     let solve = |with_alpha: bool, with_b: bool| -> (f64, f64) {
         let (mut s11, mut s12, mut s22, mut r1, mut r2) = (0.0, 0.0, 0.0, 0.0, 0.0);
         for &(u, d, w) in &points {
-            let (p, q) = (if with_alpha { 0.5 } else { 0.0 }, if with_b { 0.5 * u } else { 0.0 });
+            let (p, q) = (
+                if with_alpha { 0.5 } else { 0.0 },
+                if with_b { 0.5 * u } else { 0.0 },
+            );
             s11 += w * p * p;
             s12 += w * p * q;
             s22 += w * q * q;
@@ -1385,7 +1533,11 @@ pub fn baseline_start(table: &ModeTable, model: &Model, ln_scale: f64) -> Vec<f6
                 .map(|&(u, d, w)| w * (d - 0.5 * (a + bb * u)).powi(2))
                 .sum()
         };
-        (alpha, b) = if cost(a_only) <= cost(b_only) { a_only } else { b_only };
+        (alpha, b) = if cost(a_only) <= cost(b_only) {
+            a_only
+        } else {
+            b_only
+        };
     }
     x[1] = alpha.max(0.0);
     x[2] = b.max(0.0);

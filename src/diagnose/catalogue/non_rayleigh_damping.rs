@@ -76,7 +76,15 @@ impl Term for ThreeKnotDamping {
     fn params(&self) -> Vec<ParamSpec> {
         self.knots
             .iter()
-            .map(|k| ParamSpec::new(format!("decay rate at {:.0} Hz", k.exp()), "1/s", 1e-6, 1e6, 1.0))
+            .map(|k| {
+                ParamSpec::new(
+                    format!("decay rate at {:.0} Hz", k.exp()),
+                    "1/s",
+                    1e-6,
+                    1e6,
+                    1.0,
+                )
+            })
             .collect()
     }
     fn replaces_rayleigh(&self) -> bool {
@@ -103,7 +111,9 @@ impl Effect for NonRayleighDamping {
             return Detection::NotEnoughData("the damping curve is already free".into());
         }
         let res = current.mode_residuals(table);
-        let with_decay: Vec<usize> = (0..table.modes.len()).filter(|&k| res.ln_d[k].is_some()).collect();
+        let with_decay: Vec<usize> = (0..table.modes.len())
+            .filter(|&k| res.ln_d[k].is_some())
+            .collect();
         if with_decay.len() < 6 {
             return Detection::NotEnoughData(format!(
                 "{} modes with a decay rate; the 3-knot curve needs at least 6",
@@ -144,7 +154,11 @@ impl Effect for NonRayleighDamping {
             .iter()
             .map(|&k| {
                 let (ln_d, _) = table.modes[k].ln_d.expect("filtered");
-                (table.modes[k].ln_f, ln_d, 1.0 / res.ln_d[k].expect("filtered").1)
+                (
+                    table.modes[k].ln_f,
+                    ln_d,
+                    1.0 / res.ln_d[k].expect("filtered").1,
+                )
             })
             .collect();
         let Some((coef, _)) = fit_hats(&knots, &observed) else {

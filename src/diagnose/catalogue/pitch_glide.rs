@@ -37,7 +37,10 @@
 
 use std::sync::Arc;
 
-use super::{weighted_regression_through_origin, Detection, Effect, Fit, ModeTable, ParamSpec, Proposal, Term};
+use super::{
+    weighted_regression_through_origin, Detection, Effect, Fit, ModeTable, ParamSpec, Proposal,
+    Term,
+};
 
 pub struct PitchGlide;
 
@@ -88,7 +91,13 @@ impl Term for UniformGlide {
         "uniform"
     }
     fn params(&self) -> Vec<ParamSpec> {
-        vec![ParamSpec::new("relative glide g (offset at the onset) of every mode", "1", -0.2, 0.2, 1e-4)]
+        vec![ParamSpec::new(
+            "relative glide g (offset at the onset) of every mode",
+            "1",
+            -0.2,
+            0.2,
+            1e-4,
+        )]
     }
     fn glide(&self, _table: &ModeTable, p: &[f64], glide: &mut [f64]) {
         for y in glide.iter_mut() {
@@ -105,7 +114,12 @@ impl Effect for PitchGlide {
         "early part of a decay higher (or lower) in pitch than the late part, most in the loudest modes"
     }
     fn detect(&self, table: &ModeTable, current: &Fit) -> Detection {
-        if current.model.terms.iter().any(|t| t.effect() == "pitch_glide") {
+        if current
+            .model
+            .terms
+            .iter()
+            .any(|t| t.effect() == "pitch_glide")
+        {
             return Detection::NotEnoughData("glide already in the model".into());
         }
         // (Q², residual, measurement variance σ_k²): the floor comes from the variant's own fit.
@@ -115,7 +129,9 @@ impl Effect for PitchGlide {
             .iter()
             .zip(&res.glide)
             .filter_map(|(m, g)| match (g, m.glide) {
-                (Some((r, _)), Some((_, sigma))) if sigma > 0.0 => Some((m.energy, *r, sigma * sigma)),
+                (Some((r, _)), Some((_, sigma))) if sigma > 0.0 => {
+                    Some((m.energy, *r, sigma * sigma))
+                }
                 _ => None,
             })
             .collect();
@@ -126,7 +142,11 @@ impl Effect for PitchGlide {
             ));
         }
         // Through-origin random-effects regressions of y on each variant's covariate.
-        let through_origin = |x: &dyn Fn(&(f64, f64, f64)) -> f64| random_effects_through_origin(&points.iter().map(|p| (x(p), p.1, p.2)).collect::<Vec<_>>());
+        let through_origin = |x: &dyn Fn(&(f64, f64, f64)) -> f64| {
+            random_effects_through_origin(
+                &points.iter().map(|p| (x(p), p.1, p.2)).collect::<Vec<_>>(),
+            )
+        };
         let mut details = Vec::new();
         let mut proposals = Vec::new();
         let mut statistic = 0.0f64;
@@ -138,10 +158,15 @@ impl Effect for PitchGlide {
             match through_origin(x) {
                 None => details.push(format!("{label}: no mode with an amplitude")),
                 Some((g, z, tau)) => {
-                    details.push(format!("{label}: g ≈ {g:.2e} (z = {z:.1}, spread about the line {tau:.1e})"));
+                    details.push(format!(
+                        "{label}: g ≈ {g:.2e} (z = {z:.1}, spread about the line {tau:.1e})"
+                    ));
                     statistic = statistic.max(z.abs());
                     if z.abs() > 2.0 && g.abs() >= MIN_GLIDE {
-                        proposals.push(Proposal { term, init: vec![g.clamp(-0.2, 0.2)] });
+                        proposals.push(Proposal {
+                            term,
+                            init: vec![g.clamp(-0.2, 0.2)],
+                        });
                     }
                 }
             }
@@ -150,7 +175,11 @@ impl Effect for PitchGlide {
         if proposals.is_empty() {
             return Detection::Nothing { statistic, detail };
         }
-        Detection::Found { statistic, detail, proposals }
+        Detection::Found {
+            statistic,
+            detail,
+            proposals,
+        }
     }
 }
 
@@ -169,13 +198,21 @@ pub(crate) fn random_effects_through_origin(points: &[(f64, f64, f64)]) -> Optio
     }
     let fixed = |p: &(f64, f64, f64)| (p.0, p.1, 1.0 / p.2);
     let (g_fe, _) = weighted_regression_through_origin(points.iter().map(fixed))?;
-    let q: f64 = points.iter().map(|p| (p.1 - g_fe * p.0).powi(2) / p.2).sum();
+    let q: f64 = points
+        .iter()
+        .map(|p| (p.1 - g_fe * p.0).powi(2) / p.2)
+        .sum();
     let sw: f64 = points.iter().map(|p| 1.0 / p.2).sum();
     let swxx: f64 = points.iter().map(|p| p.0 * p.0 / p.2).sum();
     let sw2xx: f64 = points.iter().map(|p| p.0 * p.0 / (p.2 * p.2)).sum();
     let denominator = sw - sw2xx / swxx;
-    let tau2 = if denominator > 0.0 { ((q - (points.len() as f64 - 1.0)) / denominator).max(0.0) } else { 0.0 };
-    let (g, z) = weighted_regression_through_origin(points.iter().map(|p| (p.0, p.1, 1.0 / (p.2 + tau2))))?;
+    let tau2 = if denominator > 0.0 {
+        ((q - (points.len() as f64 - 1.0)) / denominator).max(0.0)
+    } else {
+        0.0
+    };
+    let (g, z) =
+        weighted_regression_through_origin(points.iter().map(|p| (p.0, p.1, 1.0 / (p.2 + tau2))))?;
     Some((g, z, tau2.sqrt()))
 }
 
@@ -188,14 +225,27 @@ mod tests {
     /// so the glide is significant; the same rows scattered about zero are not.
     #[test]
     fn the_detector_spread_is_taken_about_the_variants_line() {
-        let rows = [(1.797e-3, 4e-8), (1.799e-3, 7e-7), (1.800e-3, 2e-6), (1.745e-3, 9.4e-5), (2.068e-3, 1.7e-4), (-2.732e-3, 1.8e-3), (-6.385e-4, 1.5e-3), (-1.626e-2, 9.6e-3), (-3.213e-2, 6.7e-2)];
+        let rows = [
+            (1.797e-3, 4e-8),
+            (1.799e-3, 7e-7),
+            (1.800e-3, 2e-6),
+            (1.745e-3, 9.4e-5),
+            (2.068e-3, 1.7e-4),
+            (-2.732e-3, 1.8e-3),
+            (-6.385e-4, 1.5e-3),
+            (-1.626e-2, 9.6e-3),
+            (-3.213e-2, 6.7e-2),
+        ];
         let points: Vec<(f64, f64, f64)> = rows.iter().map(|&(g, s)| (1.0, g, s * s)).collect();
         let (g, z, tau) = random_effects_through_origin(&points).unwrap();
         assert!((g - 1.8e-3).abs() < 1e-4, "g {g}");
         assert!(z > 5.0, "z {z}");
         assert!(tau < 3e-4, "tau {tau}");
         // Clean: values of either sign far beyond their σ; the spread takes them and z stays small.
-        let clean: Vec<(f64, f64, f64)> = [2e-4, -3e-4, 1e-4, -2e-4, 3e-4, -1e-4].iter().map(|&g| (1.0, g, 1e-10)).collect();
+        let clean: Vec<(f64, f64, f64)> = [2e-4, -3e-4, 1e-4, -2e-4, 3e-4, -1e-4]
+            .iter()
+            .map(|&g| (1.0, g, 1e-10))
+            .collect();
         let (g, z, tau) = random_effects_through_origin(&clean).unwrap();
         assert!(z.abs() < 1.0, "g {g} z {z}");
         assert!(tau > 1e-4, "tau {tau}");

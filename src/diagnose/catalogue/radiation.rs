@@ -180,8 +180,17 @@ impl Term for FactorDirectivity {
             }
         }
     }
-    fn held_out_nuisance(&self, fitted: &[f64], held: &ModeTable) -> Option<(Arc<dyn Term>, Vec<f64>)> {
-        let map: BTreeMap<ModeKey, f64> = self.keys.iter().copied().zip(fitted.iter().copied()).collect();
+    fn held_out_nuisance(
+        &self,
+        fitted: &[f64],
+        held: &ModeTable,
+    ) -> Option<(Arc<dyn Term>, Vec<f64>)> {
+        let map: BTreeMap<ModeKey, f64> = self
+            .keys
+            .iter()
+            .copied()
+            .zip(fitted.iter().copied())
+            .collect();
         let term = FactorDirectivity {
             keys: self.keys.clone(),
             channels: held.channels,
@@ -204,7 +213,9 @@ impl Effect for Radiation {
     fn detect(&self, table: &ModeTable, current: &Fit) -> Detection {
         let c_n = table.channels;
         if c_n < 2 {
-            return Detection::NotEnoughData(format!("{c_n} channel(s); microphone dependence needs at least 2"));
+            return Detection::NotEnoughData(format!(
+                "{c_n} channel(s); microphone dependence needs at least 2"
+            ));
         }
         let res = current.mode_residuals(table);
         let rows: Vec<usize> = (0..table.modes.len())
@@ -234,14 +245,16 @@ impl Effect for Radiation {
             for _ in 0..3 {
                 for i in 0..k_n {
                     let n: f64 = (0..c_n).map(|c| mask[(i, c)]).sum();
-                    let mean: f64 = (0..c_n).map(|c| m[(i, c)] * mask[(i, c)]).sum::<f64>() / n.max(1.0);
+                    let mean: f64 =
+                        (0..c_n).map(|c| m[(i, c)] * mask[(i, c)]).sum::<f64>() / n.max(1.0);
                     for c in 0..c_n {
                         m[(i, c)] = (m[(i, c)] - mean) * mask[(i, c)];
                     }
                 }
                 for c in 0..c_n {
                     let n: f64 = (0..k_n).map(|i| mask[(i, c)]).sum();
-                    let mean: f64 = (0..k_n).map(|i| m[(i, c)] * mask[(i, c)]).sum::<f64>() / n.max(1.0);
+                    let mean: f64 =
+                        (0..k_n).map(|i| m[(i, c)] * mask[(i, c)]).sum::<f64>() / n.max(1.0);
                     for i in 0..k_n {
                         m[(i, c)] = (m[(i, c)] - mean) * mask[(i, c)];
                     }
@@ -286,7 +299,13 @@ impl Effect for Radiation {
         }
         if ratio > 1.0 {
             let u1 = svd.u.as_ref().expect("requested").column(idx).into_owned();
-            let v1 = svd.v_t.as_ref().expect("requested").row(idx).transpose().into_owned();
+            let v1 = svd
+                .v_t
+                .as_ref()
+                .expect("requested")
+                .row(idx)
+                .transpose()
+                .into_owned();
             let reference = (0..c_n)
                 .max_by(|&a, &b| v1[a].abs().total_cmp(&v1[b].abs()))
                 .unwrap_or(0);

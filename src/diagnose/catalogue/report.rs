@@ -16,7 +16,12 @@ pub struct FittedParam {
 }
 
 impl FittedParam {
-    pub fn new(name: impl Into<String>, unit: impl Into<String>, value: f64, sigma: f64) -> FittedParam {
+    pub fn new(
+        name: impl Into<String>,
+        unit: impl Into<String>,
+        value: f64,
+        sigma: f64,
+    ) -> FittedParam {
         FittedParam {
             name: name.into(),
             unit: unit.into(),

@@ -47,7 +47,10 @@
 
 use super::lm;
 use super::report::{FittedParam, NoiseFloorReport};
-use super::{CatalogueSettings, Effect, Evidence, HeldOutChange, OwnEvaluation, OwnOutcome, ResidualEnvelopes};
+use super::{
+    CatalogueSettings, Effect, Evidence, HeldOutChange, OwnEvaluation, OwnOutcome,
+    ResidualEnvelopes,
+};
 
 /// ln(10⁶): energy decays by 60 dB in T60.
 const SIXTY_DB: f64 = 13.815510557964274;
@@ -109,10 +112,18 @@ fn reverb_log(t: f64, rho: f64, t60: f64) -> f64 {
 /// Per-band residual variances σ_b² = RSS_b / n_b, each floored at the median over the bands
 /// (module docs, "no band is trusted more than the typical one").
 fn band_variances(rss: &[f64], counts: &[usize]) -> Vec<f64> {
-    let raw: Vec<f64> = rss.iter().zip(counts).map(|(&r, &n)| (r / n.max(1) as f64).max(1e-300)).collect();
+    let raw: Vec<f64> = rss
+        .iter()
+        .zip(counts)
+        .map(|(&r, &n)| (r / n.max(1) as f64).max(1e-300))
+        .collect();
     let mut sorted = raw.clone();
     sorted.sort_by(f64::total_cmp);
-    let median = if sorted.is_empty() { 0.0 } else { sorted[sorted.len() / 2] };
+    let median = if sorted.is_empty() {
+        0.0
+    } else {
+        sorted[sorted.len() / 2]
+    };
     raw.into_iter().map(|v| v.max(median)).collect()
 }
 
@@ -132,7 +143,12 @@ fn profiled_m2ll(rss: &[f64], counts: &[usize]) -> f64 {
 /// The reverberant fit: params [ln N_b …, ρ_b …, T60]; alternates LM at fixed σ_b with
 /// σ_b² = RSS_b / n_b (the same scheme as the modal fit).
 /// `min_ln_floor[b]`: lower bound of ln N_b (−∞ when the pre-roll gave no floor).
-fn fit_reverb(frames: &[Frames], min_ln_floor: &[f64], t_lo: f64, t_hi: f64) -> (Vec<f64>, Vec<f64>, f64) {
+fn fit_reverb(
+    frames: &[Frames],
+    min_ln_floor: &[f64],
+    t_lo: f64,
+    t_hi: f64,
+) -> (Vec<f64>, Vec<f64>, f64) {
     let b_n = frames.len();
     let counts: Vec<usize> = frames.iter().map(|f| f.len()).collect();
     // Start: grid over T60 with N, R per band by linear least squares in energy.
@@ -219,7 +235,17 @@ fn fit_reverb(frames: &[Frames], min_ln_floor: &[f64], t_lo: f64, t_hi: f64) -> 
     let mut var = variances(&rss_of(&x));
     let mut previous = f64::INFINITY;
     for _ in 0..40 {
-        x = lm::minimise(|xs: &[f64], out: &mut [f64]| standardised(&var, xs, out), n_rows, &x, &free, &lower, &upper, &scale, 200).x;
+        x = lm::minimise(
+            |xs: &[f64], out: &mut [f64]| standardised(&var, xs, out),
+            n_rows,
+            &x,
+            &free,
+            &lower,
+            &upper,
+            &scale,
+            200,
+        )
+        .x;
         let rss = rss_of(&x);
         var = variances(&rss);
         let m2ll = profiled_m2ll(&rss, &counts);
@@ -242,7 +268,13 @@ impl ReverbNoise {
     fn evaluate(&self, env: &ResidualEnvelopes) -> OwnEvaluation {
         let split = split_frames(env);
         let b_n = env.energy.len();
-        let min_frames = split.fit.iter().chain(&split.held).map(|f| f.len()).min().unwrap_or(0);
+        let min_frames = split
+            .fit
+            .iter()
+            .chain(&split.held)
+            .map(|f| f.len())
+            .min()
+            .unwrap_or(0);
         if b_n == 0 || min_frames < 8 {
             return OwnEvaluation {
                 outcome: OwnOutcome::NotEnoughData(format!(
@@ -254,7 +286,9 @@ impl ReverbNoise {
         let floor = floor_only(&split.fit);
         let pre_roll = env.noise_floor_estimate.clone();
         let floor_levels: Vec<f64> = floor.iter().map(|f| f.0.exp()).collect();
-        let noise = |fitted: Vec<f64>| NoiseFloorReport::new(env.band_edges_hz.clone(), pre_roll.clone(), fitted);
+        let noise = |fitted: Vec<f64>| {
+            NoiseFloorReport::new(env.band_edges_hz.clone(), pre_roll.clone(), fitted)
+        };
 
         // Detector.
         let mut statistic = f64::NEG_INFINITY;
@@ -290,7 +324,11 @@ impl ReverbNoise {
             .collect();
         let (x, sigma, m2ll_1) = fit_reverb(&split.fit, &min_ln_floor, t_lo, t_hi);
         let counts: Vec<usize> = split.fit.iter().map(|f| f.len()).collect();
-        let rss0: Vec<f64> = floor.iter().zip(&counts).map(|(f, &n)| f.1 * n as f64).collect();
+        let rss0: Vec<f64> = floor
+            .iter()
+            .zip(&counts)
+            .map(|(f, &n)| f.1 * n as f64)
+            .collect();
         let m2ll_0 = profiled_m2ll(&rss0, &counts);
         let n: usize = counts.iter().sum();
         let n_params = b_n + 1;
@@ -329,12 +367,23 @@ impl ReverbNoise {
         // Per band: the likelihood ratio of its own frames, floor only against the joint fit.
         let band_lr: Vec<f64> = (0..b_n)
             .map(|b| {
-                let rss1: f64 = split.fit[b].iter().map(|&(t, y)| (y - x[b] - reverb_log(t, x[b_n + b], x[2 * b_n])).powi(2)).sum();
+                let rss1: f64 = split.fit[b]
+                    .iter()
+                    .map(|&(t, y)| (y - x[b] - reverb_log(t, x[b_n + b], x[2 * b_n])).powi(2))
+                    .sum();
                 counts[b] as f64 * (rss0[b] / rss1.max(1e-300)).ln()
             })
             .collect();
-        let significant: Vec<usize> = (0..b_n).filter(|&b| x[b_n + b] > 0.0 && band_lr[b] > BAND_LR).collect();
-        let band_name = |b: usize| format!("{:.0}–{:.0} Hz", env.band_edges_hz[b], env.band_edges_hz[b + 1]);
+        let significant: Vec<usize> = (0..b_n)
+            .filter(|&b| x[b_n + b] > 0.0 && band_lr[b] > BAND_LR)
+            .collect();
+        let band_name = |b: usize| {
+            format!(
+                "{:.0}–{:.0} Hz",
+                env.band_edges_hz[b],
+                env.band_edges_hz[b + 1]
+            )
+        };
         let needed = min_reverb_bands(b_n);
         let signature_missing = (significant.len() < needed).then(|| {
             format!(
@@ -371,7 +420,11 @@ impl Effect for ReverbNoise {
     fn detect(&self, _table: &super::ModeTable, _current: &super::Fit) -> super::Detection {
         super::Detection::NotEnoughData("acts on the residual envelopes, not on the modes".into())
     }
-    fn evaluate_own(&self, evidence: &Evidence, _settings: &CatalogueSettings) -> Option<OwnEvaluation> {
+    fn evaluate_own(
+        &self,
+        evidence: &Evidence,
+        _settings: &CatalogueSettings,
+    ) -> Option<OwnEvaluation> {
         Some(match &evidence.residual_envelopes {
             None => OwnEvaluation {
                 outcome: OwnOutcome::NotEnoughData("no residual envelopes given".into()),

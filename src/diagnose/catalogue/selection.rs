@@ -3,10 +3,14 @@
 
 use super::matching::{match_modes, Matching};
 use super::model::{
-    baseline_start, fit, held_out_chi2, held_out_error, undamped_hz, Fit, FloorVariances, ModeTable, Model, BASE_PARAMS, CHANNEL_PARAMS, LEVEL_FLOOR,
+    baseline_start, fit, held_out_chi2, held_out_error, undamped_hz, Fit, FloorVariances,
+    ModeTable, Model, BASE_PARAMS, CHANNEL_PARAMS, LEVEL_FLOOR,
 };
 use super::report::*;
-use super::{catalogue, CatalogueError, CatalogueSettings, Detection, Effect, Evidence, HeldOutChange, OwnOutcome, Quantity};
+use super::{
+    catalogue, CatalogueError, CatalogueSettings, Detection, Effect, Evidence, HeldOutChange,
+    OwnOutcome, Quantity,
+};
 
 /// One effect's evaluation against the current model.
 enum Outcome {
@@ -31,7 +35,11 @@ struct Candidate {
 
 /// The acceptance rule (parent docs): ΔBIC above the threshold and a held-out Σz² that falls
 /// by more than `min_held_out_gain`. None: accepted.
-pub fn acceptance(delta_bic: f64, held_out: Option<HeldOutChange>, settings: &CatalogueSettings) -> Option<Rejection> {
+pub fn acceptance(
+    delta_bic: f64,
+    held_out: Option<HeldOutChange>,
+    settings: &CatalogueSettings,
+) -> Option<Rejection> {
     if !delta_bic.is_finite() {
         return Some(Rejection::FitFailed);
     }
@@ -41,7 +49,9 @@ pub fn acceptance(delta_bic: f64, held_out: Option<HeldOutChange>, settings: &Ca
     match held_out {
         None if settings.require_held_out => Some(Rejection::NoHeldOutData),
         None => None,
-        Some(h) if (h.after - h.before).abs() <= 1e-9 * h.before.abs().max(1e-300) => Some(Rejection::HeldOutCannotTest),
+        Some(h) if (h.after - h.before).abs() <= 1e-9 * h.before.abs().max(1e-300) => {
+            Some(Rejection::HeldOutCannotTest)
+        }
         Some(h) if h.gain > settings.min_held_out_gain => None,
         Some(_) => Some(Rejection::HeldOutDidNotImprove),
     }
@@ -49,9 +59,18 @@ pub fn acceptance(delta_bic: f64, held_out: Option<HeldOutChange>, settings: &Ca
 
 /// The verdict with the signature check first: a fit that lacks its effect's signature is
 /// rejected whatever its ΔBIC, the reason appended to the detector's `detail`.
-fn verdict_with_signature(signature_missing: Option<String>, detail: String, delta_bic: f64, held_out: Option<HeldOutChange>, settings: &CatalogueSettings) -> (Option<Rejection>, String) {
+fn verdict_with_signature(
+    signature_missing: Option<String>,
+    detail: String,
+    delta_bic: f64,
+    held_out: Option<HeldOutChange>,
+    settings: &CatalogueSettings,
+) -> (Option<Rejection>, String) {
     match signature_missing {
-        Some(why) => (Some(Rejection::SignatureMissing), format!("{detail}; {why}")),
+        Some(why) => (
+            Some(Rejection::SignatureMissing),
+            format!("{detail}; {why}"),
+        ),
         None => (acceptance(delta_bic, held_out, settings), detail),
     }
 }
@@ -91,12 +110,14 @@ fn evaluate(
         let candidate = fit(table, model, x0);
         // A candidate region the caller chose from these data costs parameters of its own
         // (parent docs, `mass_region_search_params`).
-        let searched = if proposal.term.effect() == "added_mass" && proposal.term.variant() == "added_mass" {
-            settings.mass_region_search_params as f64
-        } else {
-            0.0
-        };
-        let delta_bic = current.bic() - candidate.bic() - searched * (table.n_residuals() as f64).ln();
+        let searched =
+            if proposal.term.effect() == "added_mass" && proposal.term.variant() == "added_mass" {
+                settings.mass_region_search_params as f64
+            } else {
+                0.0
+            };
+        let delta_bic =
+            current.bic() - candidate.bic() - searched * (table.n_residuals() as f64).ln();
         let better = match &best {
             None => true,
             Some((_, d)) => delta_bic > *d || (d.is_nan() && !delta_bic.is_nan()),
@@ -111,15 +132,30 @@ fn evaluate(
     let held_out = held.and_then(|h| {
         let before = held_out_chi2(current, h, &current.tau2)?;
         let after = held_out_chi2(&candidate, h, &current.tau2)?;
-        let dispersion = if settings.held_out_dispersion { before.dispersion } else { 1.0 };
-        Some(HeldOutChange::with_dispersion(before.chi2, before.dof, after.chi2, after.dof, dispersion))
+        let dispersion = if settings.held_out_dispersion {
+            before.dispersion
+        } else {
+            1.0
+        };
+        Some(HeldOutChange::with_dispersion(
+            before.chi2,
+            before.dof,
+            after.chi2,
+            after.dof,
+            dispersion,
+        ))
     });
     let i = candidate.model.terms.len() - 1;
     let term = &candidate.model.terms[i];
     let off = candidate.model.term_offset(i);
     let n_term = term.params().len();
-    let signature_missing = term.signature_missing(table, &candidate.x[off..off + n_term], &candidate.sigma[off..off + n_term]);
-    let (rejection, detail) = verdict_with_signature(signature_missing, detail, delta_bic, held_out, settings);
+    let signature_missing = term.signature_missing(
+        table,
+        &candidate.x[off..off + n_term],
+        &candidate.sigma[off..off + n_term],
+    );
+    let (rejection, detail) =
+        verdict_with_signature(signature_missing, detail, delta_bic, held_out, settings);
     Outcome::Fitted(Box::new(Candidate {
         statistic,
         detail,
@@ -147,9 +183,19 @@ fn floors(tau2: &FloorVariances) -> Floors {
 fn summary(fit: &Fit, held: Option<&ModeTable>, yardstick: &FloorVariances) -> ModelSummary {
     let omega_ref2 = (2.0 * std::f64::consts::PI * fit.model.ln_f_ref.exp()).powi(2);
     let scale = fit.x[0].exp();
-    let mut params = vec![FittedParam::new("frequency scale s", "1", scale, scale * fit.sigma[0])];
+    let mut params = vec![FittedParam::new(
+        "frequency scale s",
+        "1",
+        scale,
+        scale * fit.sigma[0],
+    )];
     if !fit.model.replaces_rayleigh() {
-        params.push(FittedParam::new("Rayleigh α", "1/s", fit.x[1], fit.sigma[1]));
+        params.push(FittedParam::new(
+            "Rayleigh α",
+            "1/s",
+            fit.x[1],
+            fit.sigma[1],
+        ));
         params.push(FittedParam::new(
             "Rayleigh β",
             "s",
@@ -167,7 +213,12 @@ fn summary(fit: &Fit, held: Option<&ModeTable>, yardstick: &FloorVariances) -> M
     }
     for c in 0..fit.model.channels {
         let i = fit.model.tilt_index(c);
-        params.push(FittedParam::new(format!("amplitude tilt of channel {c} (power of f beyond the acceleration law)"), "1", fit.x[i], fit.sigma[i]));
+        params.push(FittedParam::new(
+            format!("amplitude tilt of channel {c} (power of f beyond the acceleration law)"),
+            "1",
+            fit.x[i],
+            fit.sigma[i],
+        ));
     }
     for i in 0..fit.model.terms.len() {
         params.extend(term_params(fit, i));
@@ -200,7 +251,12 @@ fn z_scores(fit: &Fit, table: &ModeTable, k: usize) -> ZScores {
     }
 }
 
-fn matching_report(evidence: &Evidence, m: &Matching, table: &ModeTable, held: Option<&Matching>) -> MatchingReport {
+fn matching_report(
+    evidence: &Evidence,
+    m: &Matching,
+    table: &ModeTable,
+    held: Option<&Matching>,
+) -> MatchingReport {
     let scale = m.ln_scale.exp();
     MatchingReport {
         scale,
@@ -221,7 +277,13 @@ fn matching_report(evidence: &Evidence, m: &Matching, table: &ModeTable, held: O
         extra_poles: m
             .extra_poles
             .iter()
-            .map(|&(i, beside, cluster)| ExtraPole { observed: i, observed_hz: evidence.fit[i].frequency_hz, beside, beside_hz: evidence.fit[beside].frequency_hz, cluster })
+            .map(|&(i, beside, cluster)| ExtraPole {
+                observed: i,
+                observed_hz: evidence.fit[i].frequency_hz,
+                beside,
+                beside_hz: evidence.fit[beside].frequency_hz,
+                cluster,
+            })
             .collect(),
         held_out_matched: held.map(|h| h.units.len()),
         held_out_unmatched: held.map(|h| h.unmatched_observed.clone()),
@@ -232,9 +294,21 @@ fn matching_report(evidence: &Evidence, m: &Matching, table: &ModeTable, held: O
 /// no simulated mode within the tolerance after the scale, or the nearest one's cluster already
 /// taken by closer observed modes (an extra pole of the same partial: damping or asymmetry the
 /// model lacks, or a mode the mesh does not have).
-fn unmatched_reason(evidence: &Evidence, matching: &super::Matching, fit_ln_f: &[f64], i: usize, settings: &CatalogueSettings) -> String {
+fn unmatched_reason(
+    evidence: &Evidence,
+    matching: &super::Matching,
+    fit_ln_f: &[f64],
+    i: usize,
+    settings: &CatalogueSettings,
+) -> String {
     let x = fit_ln_f[i] - matching.ln_scale;
-    let Some((j, e)) = evidence.simulated.iter().enumerate().map(|(j, m)| (j, x - m.match_ln_f())).min_by(|a, b| a.1.abs().total_cmp(&b.1.abs())) else {
+    let Some((j, e)) = evidence
+        .simulated
+        .iter()
+        .enumerate()
+        .map(|(j, m)| (j, x - m.match_ln_f()))
+        .min_by(|a, b| a.1.abs().total_cmp(&b.1.abs()))
+    else {
         return "no simulated modes".into();
     };
     let sim_hz = evidence.simulated[j].match_ln_f().exp();
@@ -266,7 +340,10 @@ fn unmatched_reason(evidence: &Evidence, matching: &super::Matching, fit_ln_f: &
 
 /// Runs the whole catalogue on `evidence`: match, fit the baseline, select effects greedily,
 /// report (parent module docs).
-pub fn diagnose(evidence: &Evidence, settings: &CatalogueSettings) -> Result<CatalogueReport, CatalogueError> {
+pub fn diagnose(
+    evidence: &Evidence,
+    settings: &CatalogueSettings,
+) -> Result<CatalogueReport, CatalogueError> {
     diagnose_with(evidence, settings, &catalogue())
 }
 
@@ -280,10 +357,18 @@ pub fn diagnose_with(
     evidence.validate()?;
     let fit_ln_f: Vec<f64> = evidence.fit.iter().map(|m| undamped_hz(m).ln()).collect();
     let matching = match_modes(&fit_ln_f, &evidence.simulated, None, settings);
-    let table = ModeTable::build(&evidence.fit, &evidence.simulated, &matching, 0, settings.own_member_split_z);
+    let table = ModeTable::build(
+        &evidence.fit,
+        &evidence.simulated,
+        &matching,
+        0,
+        settings.own_member_split_z,
+    );
     let channels = table.channels;
     const MIN_MATCHED: usize = 3;
-    if table.modes.len() < MIN_MATCHED || table.rows.len() < BASE_PARAMS + CHANNEL_PARAMS * channels + 4 {
+    if table.modes.len() < MIN_MATCHED
+        || table.rows.len() < BASE_PARAMS + CHANNEL_PARAMS * channels + 4
+    {
         return Err(CatalogueError::TooFewMatches {
             matched: table.modes.len(),
             needed: MIN_MATCHED,
@@ -294,12 +379,27 @@ pub fn diagnose_with(
     }
     let held = evidence.held_out.as_ref().map(|h| {
         let ln_f: Vec<f64> = h.iter().map(|m| undamped_hz(m).ln()).collect();
-        let m = match_modes(&ln_f, &evidence.simulated, Some(matching.ln_scale), settings);
-        (ModeTable::build(h, &evidence.simulated, &m, channels, settings.own_member_split_z), m)
+        let m = match_modes(
+            &ln_f,
+            &evidence.simulated,
+            Some(matching.ln_scale),
+            settings,
+        );
+        (
+            ModeTable::build(
+                h,
+                &evidence.simulated,
+                &m,
+                channels,
+                settings.own_member_split_z,
+            ),
+            m,
+        )
     });
     let held_table = held.as_ref().map(|(t, _)| t).filter(|t| !t.rows.is_empty());
 
-    let ln_f_ref = matching.ln_scale + table.modes.iter().map(|m| m.ln_f_sim).sum::<f64>() / table.modes.len() as f64;
+    let ln_f_ref = matching.ln_scale
+        + table.modes.iter().map(|m| m.ln_f_sim).sum::<f64>() / table.modes.len() as f64;
     let base_model = Model::new(vec![], ln_f_ref, channels);
     let x0 = baseline_start(&table, &base_model, matching.ln_scale);
     let baseline = fit(&table, base_model, x0);
@@ -308,7 +408,10 @@ pub fn diagnose_with(
     }
 
     // Greedy forward selection over the modal effects.
-    let own: Vec<_> = effects.iter().map(|e| e.evaluate_own(evidence, settings)).collect();
+    let own: Vec<_> = effects
+        .iter()
+        .map(|e| e.evaluate_own(evidence, settings))
+        .collect();
     let mut remaining: Vec<usize> = (0..effects.len()).filter(|&e| own[e].is_none()).collect();
     let mut last: Vec<Option<Outcome>> = (0..effects.len()).map(|_| None).collect();
     let mut current = baseline.clone();
@@ -351,20 +454,23 @@ pub fn diagnose_with(
         });
     }
     let mut rejected = Vec::new();
-    let reject =
-        |e: usize, reason: Rejection, detail: String, statistic: Option<f64>, c: Option<&Candidate>| RejectedEffect {
-            name: effects[e].name().into(),
-            signature: effects[e].signature().into(),
-            reason,
-            detail,
-            statistic,
-            variant: c.map(|c| c.variant.clone()),
-            n_params: c.map(|c| c.n_params),
-            delta_bic: c.map(|c| c.delta_bic).filter(|d| d.is_finite()),
-            held_out_before: c.and_then(|c| c.held_out.map(|h| h.before)),
-            held_out_after: c.and_then(|c| c.held_out.map(|h| h.after)),
-            held_out_gain: c.and_then(|c| c.held_out.map(|h| h.gain)),
-        };
+    let reject = |e: usize,
+                  reason: Rejection,
+                  detail: String,
+                  statistic: Option<f64>,
+                  c: Option<&Candidate>| RejectedEffect {
+        name: effects[e].name().into(),
+        signature: effects[e].signature().into(),
+        reason,
+        detail,
+        statistic,
+        variant: c.map(|c| c.variant.clone()),
+        n_params: c.map(|c| c.n_params),
+        delta_bic: c.map(|c| c.delta_bic).filter(|d| d.is_finite()),
+        held_out_before: c.and_then(|c| c.held_out.map(|h| h.before)),
+        held_out_after: c.and_then(|c| c.held_out.map(|h| h.after)),
+        held_out_gain: c.and_then(|c| c.held_out.map(|h| h.gain)),
+    };
     for &e in &remaining {
         match &last[e] {
             Some(Outcome::NotEnoughData(why)) => {
@@ -391,10 +497,14 @@ pub fn diagnose_with(
     // Effects evaluated on their own data.
     let mut noise = None;
     for (e, evaluation) in own.into_iter().enumerate() {
-        let Some(evaluation) = evaluation else { continue };
+        let Some(evaluation) = evaluation else {
+            continue;
+        };
         let mut noise_here = evaluation.noise;
         match evaluation.outcome {
-            OwnOutcome::NotEnoughData(why) => rejected.push(reject(e, Rejection::NotEnoughData, why, None, None)),
+            OwnOutcome::NotEnoughData(why) => {
+                rejected.push(reject(e, Rejection::NotEnoughData, why, None, None))
+            }
             OwnOutcome::Nothing { statistic, detail } => rejected.push(reject(
                 e,
                 Rejection::DetectorFoundNothing,
@@ -413,7 +523,13 @@ pub fn diagnose_with(
                 floor_if_accepted,
                 signature_missing,
             } => {
-                let (rejection, detail) = verdict_with_signature(signature_missing, detail, delta_bic, Some(held_out), settings);
+                let (rejection, detail) = verdict_with_signature(
+                    signature_missing,
+                    detail,
+                    delta_bic,
+                    Some(held_out),
+                    settings,
+                );
                 let c = Candidate {
                     statistic,
                     detail,
@@ -428,7 +544,11 @@ pub fn diagnose_with(
                 match c.rejection {
                     None => {
                         if let Some(n) = noise_here.as_mut() {
-                            *n = NoiseFloorReport::new(n.band_edges_hz.clone(), n.pre_roll.clone(), floor_if_accepted);
+                            *n = NoiseFloorReport::new(
+                                n.band_edges_hz.clone(),
+                                n.pre_roll.clone(),
+                                floor_if_accepted,
+                            );
                         }
                         report_accepted.push(AcceptedEffect {
                             name: effects[e].name().into(),
@@ -507,7 +627,13 @@ pub fn diagnose_with(
         frequency_hz: p.ln_f[k].exp(),
         decay_rate: p.decay[k],
         amplitudes: (0..p.channels)
-            .map(|c| if table.modes[k].drive > 0.0 { p.ln_a[k * p.channels + c].exp() } else { 0.0 })
+            .map(|c| {
+                if table.modes[k].drive > 0.0 {
+                    p.ln_a[k * p.channels + c].exp()
+                } else {
+                    0.0
+                }
+            })
             .collect(),
     };
     let p_before = baseline.model.prediction(&table, &baseline.x);
@@ -550,15 +676,52 @@ mod tests {
     fn held_out_gain_must_exceed_the_minimum() {
         let settings = CatalogueSettings::default();
         assert_eq!(settings.min_held_out_gain, 2.0);
-        let fell = |gain: f64| Some(HeldOutChange { before: 1.0, after: 0.99, gain });
-        assert_eq!(acceptance(10.0, fell(1.9), &settings), Some(Rejection::HeldOutDidNotImprove));
+        let fell = |gain: f64| {
+            Some(HeldOutChange {
+                before: 1.0,
+                after: 0.99,
+                gain,
+            })
+        };
+        assert_eq!(
+            acceptance(10.0, fell(1.9), &settings),
+            Some(Rejection::HeldOutDidNotImprove)
+        );
         assert_eq!(acceptance(10.0, fell(2.1), &settings), None);
         // A rise is never an improvement.
-        assert_eq!(acceptance(10.0, Some(HeldOutChange { before: 1.0, after: 1.01, gain: -0.5 }), &settings), Some(Rejection::HeldOutDidNotImprove));
+        assert_eq!(
+            acceptance(
+                10.0,
+                Some(HeldOutChange {
+                    before: 1.0,
+                    after: 1.01,
+                    gain: -0.5
+                }),
+                &settings
+            ),
+            Some(Rejection::HeldOutDidNotImprove)
+        );
         // ΔBIC first, and an unchanged held-out error cannot test the effect.
-        assert_eq!(acceptance(1.0, fell(50.0), &settings), Some(Rejection::DeltaBicTooSmall));
-        assert_eq!(acceptance(10.0, Some(HeldOutChange { before: 1.0, after: 1.0, gain: 0.0 }), &settings), Some(Rejection::HeldOutCannotTest));
-        let relaxed = CatalogueSettings { min_held_out_gain: 0.0, ..CatalogueSettings::default() };
+        assert_eq!(
+            acceptance(1.0, fell(50.0), &settings),
+            Some(Rejection::DeltaBicTooSmall)
+        );
+        assert_eq!(
+            acceptance(
+                10.0,
+                Some(HeldOutChange {
+                    before: 1.0,
+                    after: 1.0,
+                    gain: 0.0
+                }),
+                &settings
+            ),
+            Some(Rejection::HeldOutCannotTest)
+        );
+        let relaxed = CatalogueSettings {
+            min_held_out_gain: 0.0,
+            ..CatalogueSettings::default()
+        };
         assert_eq!(acceptance(10.0, fell(0.1), &relaxed), None);
     }
 
@@ -574,8 +737,14 @@ mod tests {
         assert!(nuisance_only.gain.abs() < 1e-12, "{nuisance_only:?}");
         let rose = HeldOutChange::new(100.0, 50.0, 97.0, 47.0);
         assert!(rose.after > rose.before && rose.gain < 0.0, "{rose:?}");
-        let settings = CatalogueSettings { min_held_out_gain: 0.0, ..CatalogueSettings::default() };
-        assert_eq!(acceptance(10.0, Some(rose), &settings), Some(Rejection::HeldOutDidNotImprove));
+        let settings = CatalogueSettings {
+            min_held_out_gain: 0.0,
+            ..CatalogueSettings::default()
+        };
+        assert_eq!(
+            acceptance(10.0, Some(rose), &settings),
+            Some(Rejection::HeldOutDidNotImprove)
+        );
     }
 
     /// The quasi-likelihood form: the gain shrinks by ĉ, a ĉ below 1 changes nothing, and ĉ is
@@ -586,8 +755,15 @@ mod tests {
         use super::super::model::robust_dispersion;
         let plain = HeldOutChange::new(1000.0, 50.0, 900.0, 50.0);
         let scaled = HeldOutChange::with_dispersion(1000.0, 50.0, 900.0, 50.0, 20.0);
-        assert!((scaled.gain - plain.gain / 20.0).abs() < 1e-9 && scaled.before == plain.before && scaled.after == plain.after);
-        assert_eq!(HeldOutChange::with_dispersion(1000.0, 50.0, 900.0, 50.0, 0.3), plain);
+        assert!(
+            (scaled.gain - plain.gain / 20.0).abs() < 1e-9
+                && scaled.before == plain.before
+                && scaled.after == plain.after
+        );
+        assert_eq!(
+            HeldOutChange::with_dispersion(1000.0, 50.0, 900.0, 50.0, 0.3),
+            plain
+        );
 
         let mut rng = crate::random::SplitMix64::new(7);
         let unit: Vec<f64> = (0..2001).map(|_| rng.normal()).collect();
@@ -605,7 +781,10 @@ mod tests {
     #[test]
     fn min_held_out_gain_is_validated() {
         for bad in [-1.0, f64::NAN, f64::INFINITY] {
-            let s = CatalogueSettings { min_held_out_gain: bad, ..CatalogueSettings::default() };
+            let s = CatalogueSettings {
+                min_held_out_gain: bad,
+                ..CatalogueSettings::default()
+            };
             assert!(s.validate().is_err(), "{bad} accepted");
         }
     }

@@ -32,7 +32,10 @@
 
 use std::sync::Arc;
 
-use super::{weight_range, weighted_regression, weighted_regression_through_origin, weights_vary, Detection, Effect, Fit, ModeTable, ParamSpec, Proposal, Term};
+use super::{
+    weight_range, weighted_regression, weighted_regression_through_origin, weights_vary, Detection,
+    Effect, Fit, ModeTable, ParamSpec, Proposal, Term,
+};
 
 pub struct SupportContact;
 
@@ -55,7 +58,13 @@ impl Term for SupportTerm {
     fn params(&self) -> Vec<ParamSpec> {
         let mut p = vec![ParamSpec::new("support damping γ", "1/s", 0.0, 1e4, 1.0)];
         if self.with_frequency {
-            p.push(ParamSpec::new("support frequency shift κ", "1", -0.5, 0.5, 1e-2));
+            p.push(ParamSpec::new(
+                "support frequency shift κ",
+                "1",
+                -0.5,
+                0.5,
+                1e-2,
+            ));
         }
         p
     }
@@ -74,7 +83,11 @@ impl Term for SupportTerm {
     fn signature_missing(&self, table: &ModeTable, p: &[f64], sigma: &[f64]) -> Option<String> {
         let damps = p[0] > 2.0 * sigma[0];
         let (lo, hi) = weight_range(table.modes.iter().map(|m| m.support_weight));
-        let shift = if self.with_frequency { p[1].abs() * (hi - lo) } else { 0.0 };
+        let shift = if self.with_frequency {
+            p[1].abs() * (hi - lo)
+        } else {
+            0.0
+        };
         (!damps).then(|| format!("the support does not damp (γ = {:.3} ± {:.3} 1/s; differential frequency shift {shift:.1e}, which alone is not a support)", p[0], sigma[0]))
     }
 }
@@ -88,7 +101,9 @@ impl Effect for SupportContact {
     }
     fn detect(&self, table: &ModeTable, current: &Fit) -> Detection {
         if !weights_vary(table.modes.iter().map(|m| m.support_weight)) {
-            return Detection::NotEnoughData("support weights do not vary between the matched modes".into());
+            return Detection::NotEnoughData(
+                "support weights do not vary between the matched modes".into(),
+            );
         }
         let res = current.mode_residuals(table);
         // Decay residuals in 1/s: d_obs − d_pred, variance d² (σ_lnd² + τ_d²).
@@ -100,12 +115,19 @@ impl Effect for SupportContact {
                 m.ln_d.map(|(ln_d, _)| {
                     let (_, v) = res.ln_d[k].expect("present with ln_d");
                     let d = ln_d.exp();
-                    (m.support_weight, d - current.prediction.decay[k], 1.0 / (d * d * v))
+                    (
+                        m.support_weight,
+                        d - current.prediction.decay[k],
+                        1.0 / (d * d * v),
+                    )
                 })
             })
             .collect();
         if damping.len() < 4 {
-            return Detection::NotEnoughData(format!("{} modes with a decay rate; at least 4 needed", damping.len()));
+            return Detection::NotEnoughData(format!(
+                "{} modes with a decay rate; at least 4 needed",
+                damping.len()
+            ));
         }
         let frequency: Vec<(f64, f64, f64)> = table
             .modes
@@ -124,10 +146,15 @@ impl Effect for SupportContact {
             .filter_map(|(pair, r, v)| {
                 let (l, u) = (&table.modes[pair.lower], &table.modes[pair.upper]);
                 let d = 0.5 * (l.ln_d?.0.exp() + u.ln_d?.0.exp());
-                Some((u.support_weight - l.support_weight, d * r, 1.0 / (d * d * v)))
+                Some((
+                    u.support_weight - l.support_weight,
+                    d * r,
+                    1.0 / (d * d * v),
+                ))
             })
             .collect();
-        let (gamma_pair, z_pair) = weighted_regression_through_origin(within.iter().copied()).unwrap_or((0.0, 0.0));
+        let (gamma_pair, z_pair) =
+            weighted_regression_through_origin(within.iter().copied()).unwrap_or((0.0, 0.0));
         let detail = format!(
             "decay residual vs support weight: slope {gamma:.3} 1/s (z = {z_gamma:.1}); within split pairs: slope {gamma_pair:.3} 1/s (z = {z_pair:.1}); ln f: slope {kappa:.2e} (z = {z_kappa:.1})"
         );
@@ -142,11 +169,15 @@ impl Effect for SupportContact {
             detail,
             proposals: vec![
                 Proposal {
-                    term: Arc::new(SupportTerm { with_frequency: false }),
+                    term: Arc::new(SupportTerm {
+                        with_frequency: false,
+                    }),
                     init: vec![g0],
                 },
                 Proposal {
-                    term: Arc::new(SupportTerm { with_frequency: true }),
+                    term: Arc::new(SupportTerm {
+                        with_frequency: true,
+                    }),
                     init: vec![g0, kappa.clamp(-0.5, 0.5)],
                 },
             ],

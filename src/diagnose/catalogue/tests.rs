@@ -59,7 +59,9 @@ fn object(rng: &mut Rng) -> Object {
         .map(|c| 2.0 * PI * c as f64 / n_mics as f64 + rng.uniform(-0.2, 0.2))
         .collect();
     for i in 0..CLUSTERS {
-        let f = 450.0 * (7000.0f64 / 450.0).powf(i as f64 / (CLUSTERS - 1) as f64) * rng.uniform(0.98, 1.02);
+        let f = 450.0
+            * (7000.0f64 / 450.0).powf(i as f64 / (CLUSTERS - 1) as f64)
+            * rng.uniform(0.98, 1.02);
         let support_weight = rng.next().powi(3);
         let mass_weight = rng.next().powi(2);
         let mut list = vec![sim.len()];
@@ -301,8 +303,14 @@ fn observe(
                 sigma_decay_rate: SIGMA_LN_D * d,
                 amplitudes,
                 sigma_amplitudes,
-                early_frequency_hz: Some((fd * (1.0 + 0.5 * m.glide) + 2.0 * sf * normal(rng), 2.0 * sf)),
-                late_frequency_hz: Some((fd * (1.0 - 0.5 * m.glide) + 2.0 * sf * normal(rng), 2.0 * sf)),
+                early_frequency_hz: Some((
+                    fd * (1.0 + 0.5 * m.glide) + 2.0 * sf * normal(rng),
+                    2.0 * sf,
+                )),
+                late_frequency_hz: Some((
+                    fd * (1.0 - 0.5 * m.glide) + 2.0 * sf * normal(rng),
+                    2.0 * sf,
+                )),
                 glide: None,
             }
         })
@@ -352,10 +360,25 @@ fn evidence(truth: &Truth, seed: u64) -> (Evidence, Object) {
         .collect();
     // Drawn only when asked for, so that the other tests' random streams stay as they were.
     let tilts: Vec<f64> = (0..FIT_CHANNELS + HELD_CHANNELS)
-        .map(|_| truth.tilt + if truth.mic_tilt_spread > 0.0 { rng.uniform(-truth.mic_tilt_spread, truth.mic_tilt_spread) } else { 0.0 })
+        .map(|_| {
+            truth.tilt
+                + if truth.mic_tilt_spread > 0.0 {
+                    rng.uniform(-truth.mic_tilt_spread, truth.mic_tilt_spread)
+                } else {
+                    0.0
+                }
+        })
         .collect();
     let modes = true_modes(&obj, truth, &mut rng);
-    let fit = observe(&obj, truth, &modes, &gains, &tilts, 0..FIT_CHANNELS, &mut rng);
+    let fit = observe(
+        &obj,
+        truth,
+        &modes,
+        &gains,
+        &tilts,
+        0..FIT_CHANNELS,
+        &mut rng,
+    );
     let held_out = truth.held_out.then(|| {
         observe(
             &obj,
@@ -430,7 +453,10 @@ fn profile_floor_matches_a_brute_force_search() {
         } else {
             10f64.powf(rng.uniform(-3.0, 0.0))
         };
-        let r: Vec<f64> = v.iter().map(|&v| (v + true_tau2).sqrt() * normal(&mut rng)).collect();
+        let r: Vec<f64> = v
+            .iter()
+            .map(|&v| (v + true_tau2).sqrt() * normal(&mut rng))
+            .collect();
         let t = lm::profile_floor(&r, &v);
         let h = |t: f64| {
             r.iter()
@@ -484,7 +510,10 @@ fn levenberg_marquardt_solves_a_bounded_exponential_fit() {
         &[1.0, 1.0],
         200,
     );
-    assert!((m.x[0] - 2.0).abs() < 1e-8 && (m.x[1] - 3.0).abs() < 1e-8, "{m:?}");
+    assert!(
+        (m.x[0] - 2.0).abs() < 1e-8 && (m.x[1] - 3.0).abs() < 1e-8,
+        "{m:?}"
+    );
     // With k bounded above by 2.5 the answer sits on the bound and A is the best for it.
     let m = lm::minimise(
         f,
@@ -541,7 +570,10 @@ fn weighted_regression_is_exact_on_a_line() {
         .collect();
     let (slope, _) = weighted_regression(&pts);
     assert!((slope + 0.5).abs() < 1e-12);
-    assert_eq!(weighted_regression(&[(1.0, 2.0, 1.0), (1.0, 3.0, 1.0)]), (0.0, 0.0));
+    assert_eq!(
+        weighted_regression(&[(1.0, 2.0, 1.0), (1.0, 3.0, 1.0)]),
+        (0.0, 0.0)
+    );
 }
 
 // ---------------------------------------------------------------------------------------
@@ -584,13 +616,20 @@ fn matching_finds_the_scale_clusters_and_split_partners() {
     ];
     let ln: Vec<f64> = obs_hz.iter().map(|f: &f64| f.ln()).collect();
     let m = match_modes(&ln, &simulated, None, &CatalogueSettings::default());
-    assert!((m.ln_scale - s.ln()).abs() < 0.006, "scale {}", m.ln_scale.exp());
+    assert!(
+        (m.ln_scale - s.ln()).abs() < 0.006,
+        "scale {}",
+        m.ln_scale.exp()
+    );
     assert_eq!(m.unmatched_observed, vec![5]);
     assert_eq!(m.unmatched_simulated, vec![5]);
     let unit = |i: usize| m.units.iter().find(|u| u.observed == i).expect("matched");
     assert_eq!(unit(2).role, Role::Single);
     assert_eq!(unit(2).represents, vec![2, 3]);
-    assert_eq!((unit(3).role, unit(4).role), (Role::SplitLower, Role::SplitUpper));
+    assert_eq!(
+        (unit(3).role, unit(4).role),
+        (Role::SplitLower, Role::SplitUpper)
+    );
     assert_eq!((unit(3).cluster, unit(4).cluster), (3, 3));
     assert!((unit(3).drive_factor - 0.5f64.sqrt()).abs() < 1e-15);
     assert_eq!(unit(6).represents, vec![6]);
@@ -618,8 +657,25 @@ fn extra_poles_of_a_partial_join_its_cluster_and_far_modes_stay_unmatched() {
     // A real partial recorded as several poles (the bowl's near 1680 Hz: five within 0.5 %):
     // the first split pair takes the cluster, the other poles within the largest pair split
     // join it as extra poles; a mode 4.6 % from everything stays unmatched.
-    let simulated = vec![sim(1000.0, 0), sim(1000.2, 0), sim(1700.0, 1), sim(2600.0, 2), sim(4000.0, 3)];
-    let obs_hz = [1000.0, 998.0, 1001.5, 1003.0, 1700.0, 2600.0 * 0.996, 2600.0 * 1.004, 2600.0 * 1.009, 4000.0, 3100.0];
+    let simulated = vec![
+        sim(1000.0, 0),
+        sim(1000.2, 0),
+        sim(1700.0, 1),
+        sim(2600.0, 2),
+        sim(4000.0, 3),
+    ];
+    let obs_hz = [
+        1000.0,
+        998.0,
+        1001.5,
+        1003.0,
+        1700.0,
+        2600.0 * 0.996,
+        2600.0 * 1.004,
+        2600.0 * 1.009,
+        4000.0,
+        3100.0,
+    ];
     let ln: Vec<f64> = obs_hz.iter().map(|f: &f64| f.ln()).collect();
     let m = match_modes(&ln, &simulated, Some(0.0), &CatalogueSettings::default());
     assert_eq!(m.unmatched_observed, vec![9], "{m:#?}");
@@ -628,9 +684,16 @@ fn extra_poles_of_a_partial_join_its_cluster_and_far_modes_stay_unmatched() {
     let mut extra: Vec<(usize, usize)> = m.extra_poles.iter().map(|&(i, _, c)| (i, c)).collect();
     extra.sort_unstable();
     let per_cluster = |c: usize| extra.iter().filter(|e| e.1 == c).count();
-    assert_eq!((per_cluster(0), per_cluster(2), extra.len()), (2, 1, 3), "{m:#?}");
+    assert_eq!(
+        (per_cluster(0), per_cluster(2), extra.len()),
+        (2, 1, 3),
+        "{m:#?}"
+    );
     // Extra poles carry no rows: every unit is one of the matched modes.
-    assert!(m.units.iter().all(|u| !extra.iter().any(|e| e.0 == u.observed)));
+    assert!(m
+        .units
+        .iter()
+        .all(|u| !extra.iter().any(|e| e.0 == u.observed)));
 }
 
 #[test]
@@ -649,16 +712,35 @@ fn extra_poles_change_no_decision_on_clean_evidence() {
     }
     let report = diagnose(&ev, &CatalogueSettings::default()).expect("valid");
     // One of the two may become the partial's split partner instead; both are matched.
-    let in_cluster = report.matching.pairs.iter().filter(|p| p.cluster == k).count();
-    assert_eq!(report.matching.extra_poles.len() + in_cluster, 3, "{:#?}", report.matching);
-    assert!(report.matching.unmatched_observed.is_empty(), "{:#?}", report.matching);
+    let in_cluster = report
+        .matching
+        .pairs
+        .iter()
+        .filter(|p| p.cluster == k)
+        .count();
+    assert_eq!(
+        report.matching.extra_poles.len() + in_cluster,
+        3,
+        "{:#?}",
+        report.matching
+    );
+    assert!(
+        report.matching.unmatched_observed.is_empty(),
+        "{:#?}",
+        report.matching
+    );
     assert!(report.accepted.is_empty(), "{:#?}", report.accepted);
 }
 
 #[test]
 fn a_pair_split_as_the_mesh_splits_it_stands_for_its_own_members() {
     // Cluster 1: members at 1000 and 1002 Hz (split 2·10⁻³) with unlike drives and transfers.
-    let mut simulated = vec![sim(500.0, 0), sim(1000.0, 1), sim(1002.0, 1), sim(2000.0, 2)];
+    let mut simulated = vec![
+        sim(500.0, 0),
+        sim(1000.0, 1),
+        sim(1002.0, 1),
+        sim(2000.0, 2),
+    ];
     (simulated[1].drive, simulated[2].drive) = (1.0, 0.2);
     (simulated[1].mass_weight, simulated[2].mass_weight) = (1.0, 0.0);
     for m in simulated.iter_mut() {
@@ -668,38 +750,79 @@ fn a_pair_split_as_the_mesh_splits_it_stands_for_its_own_members() {
     simulated[2].transfer = Some(vec![1.0, 4.0]);
     let settings = CatalogueSettings::default();
     let table_for = |upper_hz: f64, z: f64| {
-        let observed: Vec<ObservedMode> = [500.0, 1000.0, upper_hz, 2000.0].iter().map(|&f| observed_at(f)).collect();
+        let observed: Vec<ObservedMode> = [500.0, 1000.0, upper_hz, 2000.0]
+            .iter()
+            .map(|&f| observed_at(f))
+            .collect();
         let ln: Vec<f64> = observed.iter().map(|m| m.frequency_hz.ln()).collect();
         let matching = match_modes(&ln, &simulated, Some(0.0), &settings);
         ModeTable::build(&observed, &simulated, &matching, 0, z)
     };
     let pair = |t: &ModeTable| -> (ModeEntry, ModeEntry) {
-        let find = |role: Role| t.modes.iter().find(|m| m.role == role).expect("split pair matched").clone();
+        let find = |role: Role| {
+            t.modes
+                .iter()
+                .find(|m| m.role == role)
+                .expect("split pair matched")
+                .clone()
+        };
         (find(Role::SplitLower), find(Role::SplitUpper))
     };
     // The observed split equals the simulated one: each observed mode is its own member.
     let (lower, upper) = pair(&table_for(1002.0, DEFAULT_OWN_MEMBER_SPLIT_Z));
-    assert_eq!((lower.simulated.clone(), upper.simulated.clone()), (vec![1], vec![2]));
-    assert!((lower.drive - 1.0).abs() < 1e-12 && (upper.drive - 0.2).abs() < 1e-12, "{lower:?} {upper:?}");
+    assert_eq!(
+        (lower.simulated.clone(), upper.simulated.clone()),
+        (vec![1], vec![2])
+    );
+    assert!(
+        (lower.drive - 1.0).abs() < 1e-12 && (upper.drive - 0.2).abs() < 1e-12,
+        "{lower:?} {upper:?}"
+    );
     assert_eq!((lower.mass_weight, upper.mass_weight), (1.0, 0.0));
-    assert_eq!((lower.transfer.clone().unwrap(), upper.transfer.clone().unwrap()), (vec![4.0, 1.0], vec![1.0, 4.0]));
+    assert_eq!(
+        (
+            lower.transfer.clone().unwrap(),
+            upper.transfer.clone().unwrap()
+        ),
+        (vec![4.0, 1.0], vec![1.0, 4.0])
+    );
     // 10 % wider than the simulated split: within 3κ (κ = 5 %), still the mesh's own split.
     let (lower, upper) = pair(&table_for(1002.2, DEFAULT_OWN_MEMBER_SPLIT_Z));
-    assert_eq!((lower.simulated.clone(), upper.simulated.clone()), (vec![1], vec![2]));
+    assert_eq!(
+        (lower.simulated.clone(), upper.simulated.clone()),
+        (vec![1], vec![2])
+    );
     // Split 3× or 20 % wider than the simulated one (a beating pair): the orientation is
     // unknown, both pooled.
     let pooled_drive = (1.0f64 + 0.04).sqrt() * 0.5f64.sqrt();
     for (t, why) in [
-        (table_for(1006.0, DEFAULT_OWN_MEMBER_SPLIT_Z), "split 3× the simulated"),
-        (table_for(1002.4, DEFAULT_OWN_MEMBER_SPLIT_Z), "split 20 % wider than the simulated"),
+        (
+            table_for(1006.0, DEFAULT_OWN_MEMBER_SPLIT_Z),
+            "split 3× the simulated",
+        ),
+        (
+            table_for(1002.4, DEFAULT_OWN_MEMBER_SPLIT_Z),
+            "split 20 % wider than the simulated",
+        ),
         (table_for(1002.0, 0.0), "own_member_split_z = 0"),
     ] {
         let (lower, upper) = pair(&t);
-        assert_eq!((lower.simulated.clone(), upper.simulated.clone()), (vec![1, 2], vec![1, 2]), "{why}");
-        assert!((lower.drive - pooled_drive).abs() < 1e-12 && (upper.drive - pooled_drive).abs() < 1e-12, "{why}");
+        assert_eq!(
+            (lower.simulated.clone(), upper.simulated.clone()),
+            (vec![1, 2], vec![1, 2]),
+            "{why}"
+        );
+        assert!(
+            (lower.drive - pooled_drive).abs() < 1e-12
+                && (upper.drive - pooled_drive).abs() < 1e-12,
+            "{why}"
+        );
     }
     // The helper on its own: singles never have an own member.
-    let observed: Vec<ObservedMode> = [500.0, 1000.0, 1002.0, 2000.0].iter().map(|&f| observed_at(f)).collect();
+    let observed: Vec<ObservedMode> = [500.0, 1000.0, 1002.0, 2000.0]
+        .iter()
+        .map(|&f| observed_at(f))
+        .collect();
     let ln: Vec<f64> = observed.iter().map(|m| m.frequency_hz.ln()).collect();
     let matching = match_modes(&ln, &simulated, Some(0.0), &settings);
     let own = own_members(&observed, &simulated, &matching, 3.0);
@@ -715,7 +838,12 @@ fn a_loaded_simulation_is_matched_by_its_loaded_frequencies() {
     // loaded frequencies, each observed mode finds its own member and stands for it (its mass
     // weight), so an added mass reproduces the split; the baseline frequency stays the
     // unloaded one.
-    let mut simulated = vec![sim(500.0, 0), sim(1000.0, 1), sim(1000.0, 1), sim(2000.0, 2)];
+    let mut simulated = vec![
+        sim(500.0, 0),
+        sim(1000.0, 1),
+        sim(1000.0, 1),
+        sim(2000.0, 2),
+    ];
     let loaded_hz = [500.0, 970.0, 1000.0, 2000.0];
     for (m, &f) in simulated.iter_mut().zip(&loaded_hz) {
         m.match_frequency_hz = Some(f);
@@ -725,24 +853,56 @@ fn a_loaded_simulation_is_matched_by_its_loaded_frequencies() {
     let observed: Vec<ObservedMode> = loaded_hz.iter().map(|&f| observed_at(f)).collect();
     let ln: Vec<f64> = observed.iter().map(|m| m.frequency_hz.ln()).collect();
     let matching = match_modes(&ln, &simulated, Some(0.0), &settings);
-    let table = ModeTable::build(&observed, &simulated, &matching, 0, DEFAULT_OWN_MEMBER_SPLIT_Z);
-    let find = |role: Role| table.modes.iter().find(|m| m.role == role).expect("split pair matched").clone();
+    let table = ModeTable::build(
+        &observed,
+        &simulated,
+        &matching,
+        0,
+        DEFAULT_OWN_MEMBER_SPLIT_Z,
+    );
+    let find = |role: Role| {
+        table
+            .modes
+            .iter()
+            .find(|m| m.role == role)
+            .expect("split pair matched")
+            .clone()
+    };
     let (lower, upper) = (find(Role::SplitLower), find(Role::SplitUpper));
-    assert_eq!((lower.simulated.clone(), upper.simulated.clone()), (vec![1], vec![2]));
+    assert_eq!(
+        (lower.simulated.clone(), upper.simulated.clone()),
+        (vec![1], vec![2])
+    );
     assert_eq!((lower.mass_weight, upper.mass_weight), (1.0, 0.0));
-    assert!((lower.ln_f_sim - 1000f64.ln()).abs() < 1e-12, "baseline is the unloaded frequency: {lower:?}");
+    assert!(
+        (lower.ln_f_sim - 1000f64.ln()).abs() < 1e-12,
+        "baseline is the unloaded frequency: {lower:?}"
+    );
     // Without the loaded frequencies the same observations overflow max_pair_split: one of the
     // pair is dropped from the cluster.
-    let unloaded: Vec<SimulatedMode> = simulated.iter().cloned().map(|mut m| {
-        m.match_frequency_hz = None;
-        m
-    }).collect();
+    let unloaded: Vec<SimulatedMode> = simulated
+        .iter()
+        .cloned()
+        .map(|mut m| {
+            m.match_frequency_hz = None;
+            m
+        })
+        .collect();
     let plain = match_modes(&ln, &unloaded, Some(0.0), &settings);
-    assert!(!plain.units.iter().any(|u| u.role == Role::SplitLower), "{plain:?}");
+    assert!(
+        !plain.units.iter().any(|u| u.role == Role::SplitLower),
+        "{plain:?}"
+    );
     // A bad match frequency is an input error.
     let (mut ev, _) = evidence(&Truth::default(), 1);
     ev.simulated[0].match_frequency_hz = Some(-1.0);
-    assert!(matches!(diagnose(&ev, &settings), Err(CatalogueError::InvalidSimulated { field: "match_frequency_hz", .. })));
+    assert!(matches!(
+        diagnose(&ev, &settings),
+        Err(CatalogueError::InvalidSimulated {
+            field: "match_frequency_hz",
+            ..
+        })
+    ));
 }
 
 #[test]
@@ -799,7 +959,10 @@ fn bad_input_is_an_error_not_a_panic() {
         fit: vec![],
         ..ev.clone()
     };
-    assert_eq!(diagnose(&e, &settings).unwrap_err(), CatalogueError::NoObservedModes);
+    assert_eq!(
+        diagnose(&e, &settings).unwrap_err(),
+        CatalogueError::NoObservedModes
+    );
     let bad = CatalogueSettings {
         max_pair_split: 0.5,
         ..CatalogueSettings::default()
@@ -812,9 +975,21 @@ fn bad_input_is_an_error_not_a_panic() {
         })
     ));
     for z in [-1.0, f64::NAN, f64::INFINITY] {
-        let bad = CatalogueSettings { own_member_split_z: z, ..CatalogueSettings::default() };
+        let bad = CatalogueSettings {
+            own_member_split_z: z,
+            ..CatalogueSettings::default()
+        };
         let err = diagnose(&ev, &bad).unwrap_err();
-        assert!(matches!(err, CatalogueError::InvalidSetting { name: "own_member_split_z", .. }), "{z}: {err:?}");
+        assert!(
+            matches!(
+                err,
+                CatalogueError::InvalidSetting {
+                    name: "own_member_split_z",
+                    ..
+                }
+            ),
+            "{z}: {err:?}"
+        );
         assert!(err.to_string().contains("must be finite and ≥ 0"), "{err}");
     }
 }
@@ -839,9 +1014,16 @@ fn clean_evidence_recovers_the_baseline_and_accepts_nothing() {
         "{:?}",
         get("Rayleigh α")
     );
-    assert!(within_3_sigma(get("Rayleigh β"), truth.beta), "{:?}", get("Rayleigh β"));
+    assert!(
+        within_3_sigma(get("Rayleigh β"), truth.beta),
+        "{:?}",
+        get("Rayleigh β")
+    );
     assert_eq!(report.matching.pairs.len(), CLUSTERS);
-    assert!(report.matching.unmatched_observed.is_empty() && report.matching.unmatched_simulated.is_empty());
+    assert!(
+        report.matching.unmatched_observed.is_empty()
+            && report.matching.unmatched_simulated.is_empty()
+    );
     assert!(report.unexplained.is_empty(), "{:#?}", report.unexplained);
     // The report is plain data.
     let json = serde_json::to_string(&report).expect("serialises");
@@ -904,9 +1086,16 @@ fn beating_pairs_are_found_and_their_splits_recovered() {
         ..Truth::default()
     };
     let report = run(&truth, 22);
-    assert!(report.accepted.iter().all(|a| a.name != "beating_pair"), "{:#?}", report.accepted);
     assert!(
-        report.unexplained.iter().any(|u| u.quantity == Some(Quantity::Split)),
+        report.accepted.iter().all(|a| a.name != "beating_pair"),
+        "{:#?}",
+        report.accepted
+    );
+    assert!(
+        report
+            .unexplained
+            .iter()
+            .any(|u| u.quantity == Some(Quantity::Split)),
         "{:#?}",
         report.unexplained
     );
@@ -921,7 +1110,15 @@ fn two_split_pairs() -> (Evidence, usize, usize) {
     };
     let (ev, _) = evidence(&truth, 22);
     let first = diagnose(&ev, &CatalogueSettings::default()).expect("valid");
-    let pole = |role: Role| first.matching.pairs.iter().find(|p| p.cluster == 3 && p.role == role).expect("cluster 3 is seen split").observed;
+    let pole = |role: Role| {
+        first
+            .matching
+            .pairs
+            .iter()
+            .find(|p| p.cluster == 3 && p.role == role)
+            .expect("cluster 3 is seen split")
+            .observed
+    };
     let (lower, upper) = (pole(Role::SplitLower), pole(Role::SplitUpper));
     (ev, lower, upper)
 }
@@ -929,8 +1126,14 @@ fn two_split_pairs() -> (Evidence, usize, usize) {
 /// Beating accepted for cluster 8 (its split recovered) but not for cluster 3.
 fn assert_only_cluster_8_split(report: &CatalogueReport) {
     let a = expect_accepted(report, "beating_pair");
-    assert!(a.params.iter().all(|p| !p.name.contains("cluster 3 ")), "{a:?}");
-    assert!(within_3_sigma(param(a, "relative split δf/f of cluster 8 "), 0.002), "{a:?}");
+    assert!(
+        a.params.iter().all(|p| !p.name.contains("cluster 3 ")),
+        "{a:?}"
+    );
+    assert!(
+        within_3_sigma(param(a, "relative split δf/f of cluster 8 "), 0.002),
+        "{a:?}"
+    );
 }
 
 #[test]
@@ -953,9 +1156,26 @@ fn a_pair_centred_far_from_its_cluster_is_not_a_beating_pair() {
         ev.fit[i].frequency_hz *= 0.97;
     }
     let report = diagnose(&ev, &CatalogueSettings::default()).expect("valid");
-    assert!(report.matching.pairs.iter().filter(|p| p.cluster == 3 && p.role != Role::Single).count() == 2, "still matched as a pair: {:#?}", report.matching.pairs);
+    assert!(
+        report
+            .matching
+            .pairs
+            .iter()
+            .filter(|p| p.cluster == 3 && p.role != Role::Single)
+            .count()
+            == 2,
+        "still matched as a pair: {:#?}",
+        report.matching.pairs
+    );
     assert_only_cluster_8_split(&report);
-    assert!(report.unexplained.iter().any(|u| members.contains(&u.observed) && u.quantity == Some(Quantity::LnFrequency)), "{:#?}", report.unexplained);
+    assert!(
+        report
+            .unexplained
+            .iter()
+            .any(|u| members.contains(&u.observed) && u.quantity == Some(Quantity::LnFrequency)),
+        "{:#?}",
+        report.unexplained
+    );
 }
 
 /// A split narrower than the pair's own measured glide lies inside the range the mode sweeps:
@@ -971,7 +1191,10 @@ fn a_split_inside_its_glide_sweep_is_not_a_beating_pair() {
     assert_only_cluster_8_split(&with_glide(0.006));
     let report = with_glide(0.002);
     let a = expect_accepted(&report, "beating_pair");
-    assert!(within_3_sigma(param(a, "relative split δf/f of cluster 3 "), 0.004), "{a:?}");
+    assert!(
+        within_3_sigma(param(a, "relative split δf/f of cluster 3 "), 0.004),
+        "{a:?}"
+    );
 }
 
 #[test]
@@ -984,7 +1207,10 @@ fn support_contact_damping_and_stiffening_are_recovered() {
     let a = expect_accepted(&report, "support_contact");
     assert_eq!(a.variant, "damping_and_frequency");
     assert!(within_3_sigma(param(a, "support damping γ"), 6.0), "{a:?}");
-    assert!(within_3_sigma(param(a, "support frequency shift κ"), 0.008), "{a:?}");
+    assert!(
+        within_3_sigma(param(a, "support frequency shift κ"), 0.008),
+        "{a:?}"
+    );
     assert_eq!(report.accepted.len(), 1, "{:#?}", report.accepted);
 }
 
@@ -1001,8 +1227,16 @@ fn a_support_that_does_not_damp_is_not_named() {
             ..Truth::default()
         };
         let report = run(&truth, 23);
-        assert!(accepted(&report, "support_contact").is_none(), "κ = {kappa}: {:#?}", report.accepted);
-        let r = report.rejected.iter().find(|r| r.name == "support_contact").expect("rejected");
+        assert!(
+            accepted(&report, "support_contact").is_none(),
+            "κ = {kappa}: {:#?}",
+            report.accepted
+        );
+        let r = report
+            .rejected
+            .iter()
+            .find(|r| r.name == "support_contact")
+            .expect("rejected");
         assert_eq!(r.reason, Rejection::SignatureMissing, "κ = {kappa}: {r:?}");
     }
 }
@@ -1014,14 +1248,20 @@ fn a_support_that_does_not_damp_is_not_named() {
 /// rates measured to 0.3 %, as the extraction measures a clean recording's.
 fn support_pair_evidence(gamma: f64, seed: u64) -> Evidence {
     let mut rng = Rng(seed.wrapping_mul(0x9E37_79B9_7F4A_7C15) | 1);
-    let gains: Vec<f64> = (0..FIT_CHANNELS + HELD_CHANNELS).map(|_| rng.uniform(-1.0, 1.0) - 3.0).collect();
+    let gains: Vec<f64> = (0..FIT_CHANNELS + HELD_CHANNELS)
+        .map(|_| rng.uniform(-1.0, 1.0) - 3.0)
+        .collect();
     let mut simulated = Vec::new();
     // (simulated index, true decay, ln amplitude without the channel gain)
     let mut truth = Vec::new();
     for cluster in 0..12 {
         let f = 800.0 * 1.35f64.powi(cluster as i32);
         let misfit = (0.15 * normal(&mut rng)).exp();
-        let members: Vec<f64> = if cluster % 2 == 0 { vec![f, f * 1.002] } else { vec![f] };
+        let members: Vec<f64> = if cluster % 2 == 0 {
+            vec![f, f * 1.002]
+        } else {
+            vec![f]
+        };
         for (slot, &fm) in members.iter().enumerate() {
             let w = match (cluster, slot) {
                 (0, 0) => 0.003,
@@ -1049,7 +1289,10 @@ fn support_pair_evidence(gamma: f64, seed: u64) -> Evidence {
                 let f0 = simulated[j].frequency_hz * 1.01;
                 let fd = (f0 * f0 - (d / (2.0 * PI)).powi(2)).sqrt();
                 let sf = sigma_f(fd);
-                let amplitudes: Vec<f64> = channels.clone().map(|c| (gains[c] + ln_amp + SIGMA_LN_A * normal(rng)).exp()).collect();
+                let amplitudes: Vec<f64> = channels
+                    .clone()
+                    .map(|c| (gains[c] + ln_amp + SIGMA_LN_A * normal(rng)).exp())
+                    .collect();
                 ObservedMode {
                     frequency_hz: fd + sf * normal(rng),
                     sigma_frequency_hz: sf,
@@ -1065,7 +1308,10 @@ fn support_pair_evidence(gamma: f64, seed: u64) -> Evidence {
             .collect()
     };
     let fit = observe(0..FIT_CHANNELS, &mut rng);
-    let held_out = Some(observe(FIT_CHANNELS..FIT_CHANNELS + HELD_CHANNELS, &mut rng));
+    let held_out = Some(observe(
+        FIT_CHANNELS..FIT_CHANNELS + HELD_CHANNELS,
+        &mut rng,
+    ));
     Evidence {
         fit,
         held_out,
@@ -1079,11 +1325,26 @@ fn a_support_that_damps_one_mode_of_a_pair_more_is_found_under_a_damping_law_mis
     // γ = 50 1/s: the lowest pair's modes (d ≈ 2.2 1/s) gain 0.150 and 0.225 1/s, a decay
     // split of 3 %, which the 15 % law misfit hides mode by mode but not within the pair.
     for seed in [1, 2, 3] {
-        let report = diagnose(&support_pair_evidence(50.0, seed), &CatalogueSettings::default()).expect("valid evidence");
+        let report = diagnose(
+            &support_pair_evidence(50.0, seed),
+            &CatalogueSettings::default(),
+        )
+        .expect("valid evidence");
         let a = expect_accepted(&report, "support_contact");
-        assert!(within_3_sigma(param(a, "support damping γ"), 50.0), "seed {seed}: {a:?}");
-        let clean = diagnose(&support_pair_evidence(0.0, seed), &CatalogueSettings::default()).expect("valid evidence");
-        assert!(accepted(&clean, "support_contact").is_none(), "seed {seed}: {:#?}", clean.accepted);
+        assert!(
+            within_3_sigma(param(a, "support damping γ"), 50.0),
+            "seed {seed}: {a:?}"
+        );
+        let clean = diagnose(
+            &support_pair_evidence(0.0, seed),
+            &CatalogueSettings::default(),
+        )
+        .expect("valid evidence");
+        assert!(
+            accepted(&clean, "support_contact").is_none(),
+            "seed {seed}: {:#?}",
+            clean.accepted
+        );
     }
 }
 
@@ -1122,10 +1383,18 @@ fn hertzian_contact_is_found_by_the_half_sine_model() {
     let (ev, _) = evidence(&truth, 24);
     let report = diagnose(&ev, &CatalogueSettings::default()).expect("valid");
     let a = expect_accepted(&report, "contact_duration");
-    let omegas: Vec<f64> = report.matching.pairs.iter().map(|p| 2.0 * PI * p.observed_hz).collect();
+    let omegas: Vec<f64> = report
+        .matching
+        .pairs
+        .iter()
+        .map(|p| 2.0 * PI * p.observed_hz)
+        .collect();
     let t_star = pseudo_true_half_sine(t_h, &omegas);
     let p = param(a, "contact duration T");
-    assert!(within_3_sigma(p, t_star), "{p:?} vs pseudo-true {t_star} (Hertz {t_h})");
+    assert!(
+        within_3_sigma(p, t_star),
+        "{p:?} vs pseudo-true {t_star} (Hertz {t_h})"
+    );
     assert_eq!(report.accepted.len(), 1, "{:#?}", report.accepted);
 }
 
@@ -1137,7 +1406,10 @@ fn room_reverberation_is_found_in_the_residual_envelopes() {
     };
     let report = run(&truth, 25);
     let a = expect_accepted(&report, "reverb_noise");
-    assert!(within_3_sigma(param(a, "reverberation time T60"), 0.4), "{a:?}");
+    assert!(
+        within_3_sigma(param(a, "reverberation time T60"), 0.4),
+        "{a:?}"
+    );
     let noise = report.noise.as_ref().expect("envelopes given");
     // The floor fitted under the reverberant model is the true floor, which the pre-roll
     // estimates within its 10 % scatter.
@@ -1157,9 +1429,16 @@ fn an_excess_in_one_band_is_a_local_misfit_not_a_room() {
         *e *= 1.0 + 30.0 * (-13.815510557964274 * t / 0.4).exp();
     }
     let report = diagnose(&ev, &CatalogueSettings::default()).expect("valid");
-    let r = report.rejected.iter().find(|r| r.name == "reverb_noise").expect("reverb rejected");
+    let r = report
+        .rejected
+        .iter()
+        .find(|r| r.name == "reverb_noise")
+        .expect("reverb rejected");
     assert_eq!(r.reason, Rejection::SignatureMissing, "{r:?}");
-    assert!(r.delta_bic.expect("fitted") > 2.0, "the likelihood alone would have taken it: {r:?}");
+    assert!(
+        r.delta_bic.expect("fitted") > 2.0,
+        "the likelihood alone would have taken it: {r:?}"
+    );
 }
 
 #[test]
@@ -1167,14 +1446,27 @@ fn a_smooth_misfit_band_does_not_capture_the_rooms_decay() {
     // A room (T60 = 0.4 s) plus one band holding a mode the extraction left in, at a constant,
     // slowly rising level 60 dB over the floor: with its tiny profiled σ that band alone would
     // set the shared T60 (module docs); floored at the median band's σ it does not.
-    let (mut ev, _) = evidence(&Truth { reverb_t60: Some(0.4), ..Truth::default() }, 25);
+    let (mut ev, _) = evidence(
+        &Truth {
+            reverb_t60: Some(0.4),
+            ..Truth::default()
+        },
+        25,
+    );
     let env = ev.residual_envelopes.as_mut().expect("envelopes");
     let top = env.energy.len() - 1;
     let floor = env.noise_floor_estimate[top];
-    env.energy[top] = env.times_s.iter().map(|&t| 1e6 * floor * (1.0 + 0.3 * t)).collect();
+    env.energy[top] = env
+        .times_s
+        .iter()
+        .map(|&t| 1e6 * floor * (1.0 + 0.3 * t))
+        .collect();
     let report = diagnose(&ev, &CatalogueSettings::default()).expect("valid");
     let a = expect_accepted(&report, "reverb_noise");
-    assert!(within_3_sigma(param(a, "reverberation time T60"), 0.4), "{a:?}");
+    assert!(
+        within_3_sigma(param(a, "reverberation time T60"), 0.4),
+        "{a:?}"
+    );
 }
 
 #[test]
@@ -1187,7 +1479,10 @@ fn radiation_with_known_transfer_recovers_unit_exponent() {
     let report = run(&truth, 26);
     let a = expect_accepted(&report, "radiation");
     assert_eq!(a.variant, "transfer");
-    assert!(within_3_sigma(param(a, "transfer exponent η"), 1.0), "{a:?}");
+    assert!(
+        within_3_sigma(param(a, "transfer exponent η"), 1.0),
+        "{a:?}"
+    );
     assert_eq!(report.accepted.len(), 1, "{:#?}", report.accepted);
 }
 
@@ -1214,7 +1509,10 @@ fn added_mass_and_fluid_loading_are_told_apart() {
     let report = run(&truth, 28);
     let a = expect_accepted(&report, "added_mass");
     assert_eq!(a.variant, "added_mass");
-    assert!(within_3_sigma(param(a, "added-mass ratio μ"), 0.06), "{a:?}");
+    assert!(
+        within_3_sigma(param(a, "added-mass ratio μ"), 0.06),
+        "{a:?}"
+    );
     assert_eq!(report.accepted.len(), 1, "{:#?}", report.accepted);
 
     let truth = Truth {
@@ -1224,7 +1522,10 @@ fn added_mass_and_fluid_loading_are_told_apart() {
     let report = run(&truth, 29);
     let a = expect_accepted(&report, "added_mass");
     assert_eq!(a.variant, "fluid_loading");
-    assert!(within_3_sigma(param(a, "fluid added-mass ratio μ_f"), 0.08), "{a:?}");
+    assert!(
+        within_3_sigma(param(a, "fluid added-mass ratio μ_f"), 0.08),
+        "{a:?}"
+    );
     assert_eq!(report.accepted.len(), 1, "{:#?}", report.accepted);
 }
 
@@ -1254,11 +1555,18 @@ fn a_glide_below_the_physical_minimum_is_not_named() {
     };
     // 5·10⁻⁵ at 10 σ per mode: significant, but below MIN_GLIDE.
     let report = with_glide(0.5 * pitch_glide::MIN_GLIDE);
-    let r = report.rejected.iter().find(|r| r.name == "pitch_glide").expect("rejected");
+    let r = report
+        .rejected
+        .iter()
+        .find(|r| r.name == "pitch_glide")
+        .expect("rejected");
     assert_eq!(r.reason, Rejection::DetectorFoundNothing, "{r:?}");
     let report = with_glide(5.0 * pitch_glide::MIN_GLIDE);
     let a = expect_accepted(&report, "pitch_glide");
-    assert!(within_3_sigma(param(a, "relative glide g"), 5.0 * pitch_glide::MIN_GLIDE), "{a:?}");
+    assert!(
+        within_3_sigma(param(a, "relative glide g"), 5.0 * pitch_glide::MIN_GLIDE),
+        "{a:?}"
+    );
 }
 
 /// The blind benchmark's seed 202 case 021: every well-resolved mode measured the injected
@@ -1275,12 +1583,19 @@ fn a_glide_is_found_past_a_few_wild_glide_measurements() {
         for (i, m) in set.iter_mut().enumerate() {
             // The top fifth of the modes by frequency: wild glides of alternating sign.
             let wild = i >= n - n / 5;
-            m.glide = Some(if wild { (if i % 2 == 0 { -2.0 } else { 2.5 } * g, 0.1 * g) } else { (g, 1e-3 * g) });
+            m.glide = Some(if wild {
+                (if i % 2 == 0 { -2.0 } else { 2.5 } * g, 0.1 * g)
+            } else {
+                (g, 1e-3 * g)
+            });
         }
     }
     let report = diagnose(&ev, &CatalogueSettings::default()).expect("valid");
     let a = expect_accepted(&report, "pitch_glide");
-    assert!((param(a, "relative glide g").value / g - 1.0).abs() < 1e-2, "{a:?}");
+    assert!(
+        (param(a, "relative glide g").value / g - 1.0).abs() < 1e-2,
+        "{a:?}"
+    );
 }
 
 #[test]
@@ -1293,7 +1608,10 @@ fn two_effects_together_are_both_found() {
     let report = run(&truth, 31);
     expect_accepted(&report, "non_rayleigh_damping");
     let a = expect_accepted(&report, "added_mass");
-    assert!(within_3_sigma(param(a, "added-mass ratio μ"), 0.06), "{a:?}");
+    assert!(
+        within_3_sigma(param(a, "added-mass ratio μ"), 0.06),
+        "{a:?}"
+    );
     let truth = Truth {
         hertz: Some(1.6e-4),
         splits: vec![(13, 0.003)],
@@ -1364,7 +1682,11 @@ fn without_held_out_data_effects_are_not_confirmed() {
         ..CatalogueSettings::default()
     };
     let report = diagnose(&ev, &relaxed).expect("valid");
-    assert!(accepted(&report, "added_mass").is_some(), "{:#?}", report.rejected);
+    assert!(
+        accepted(&report, "added_mass").is_some(),
+        "{:#?}",
+        report.rejected
+    );
 }
 
 // ---------------------------------------------------------------------------------------
@@ -1410,13 +1732,22 @@ fn calibration_false_alarms_at_most_two_percent() {
     // fall) must stay ≤ 5 % per effect.
     let draws = clean_draws(&Truth::default(), 1000..1240);
     let n = draws.len() as f64;
-    let rate = |i: usize, c: f64| draws.iter().filter(|d| d[i].0.is_some_and(|x| x > c)).count() as f64 / n;
+    let rate = |i: usize, c: f64| {
+        draws
+            .iter()
+            .filter(|d| d[i].0.is_some_and(|x| x > c))
+            .count() as f64
+            / n
+    };
     let calibrated = (0..=10)
         .map(f64::from)
         .find(|&c| (0..EFFECTS.len()).all(|i| rate(i, c) <= 0.02));
     for (i, name) in EFFECTS.iter().enumerate() {
         let fitted = draws.iter().filter(|d| d[i].0.is_some()).count();
-        let max = draws.iter().filter_map(|d| d[i].0).fold(f64::NEG_INFINITY, f64::max);
+        let max = draws
+            .iter()
+            .filter_map(|d| d[i].0)
+            .fold(f64::NEG_INFINITY, f64::max);
         let accepted = draws.iter().filter(|d| d[i].1).count();
         println!(
             "{name:22} fitted {fitted:3}/{n} max ΔBIC {max:8.2} rate at ΔBIC > 0: {:.3}, > 2: {:.3}, > {DEFAULT_DELTA_BIC_THRESHOLD}: {:.3}; accepted {accepted}",
@@ -1470,13 +1801,25 @@ fn amplitude_tilts_from_f_minus_2_to_f_plus_2_are_nuisances_not_effects() {
     // low-pass was the one that did: its slope absorbed it).
     let mut worst = 0usize;
     for tilt in [-2.0, -1.0, 1.0, 2.0] {
-        let truth = Truth { tilt, mic_tilt_spread: 0.5, scatter: Some((0.0, 0.0, 0.4)), ..Truth::default() };
+        let truth = Truth {
+            tilt,
+            mic_tilt_spread: 0.5,
+            scatter: Some((0.0, 0.0, 0.4)),
+            ..Truth::default()
+        };
         let draws = clean_draws(&truth, 3000..3030);
         for (i, name) in EFFECTS.iter().enumerate() {
             let accepted = draws.iter().filter(|d| d[i].1).count();
-            println!("tilt f^{tilt:+}: {name:22} accepted {accepted} of {}", draws.len());
+            println!(
+                "tilt f^{tilt:+}: {name:22} accepted {accepted} of {}",
+                draws.len()
+            );
             worst = worst.max(accepted);
-            assert!(accepted * 20 <= draws.len(), "tilt {tilt}: {name} accepted on {accepted} of {} clean draws", draws.len());
+            assert!(
+                accepted * 20 <= draws.len(),
+                "tilt {tilt}: {name} accepted on {accepted} of {} clean draws",
+                draws.len()
+            );
         }
         let contact = draws.iter().filter(|d| d[3].1).count();
         assert_eq!(contact, 0, "tilt {tilt}: contact duration claimed a tilt");
@@ -1491,7 +1834,12 @@ fn a_contact_duration_is_found_past_an_amplitude_tilt() {
     // and microphones that differ by ±0.5).
     let t_h = 1.6e-4;
     for tilt in [-1.0, 1.0] {
-        let truth = Truth { hertz: Some(t_h), tilt, mic_tilt_spread: 0.5, ..Truth::default() };
+        let truth = Truth {
+            hertz: Some(t_h),
+            tilt,
+            mic_tilt_spread: 0.5,
+            ..Truth::default()
+        };
         let (ev, _) = evidence(&truth, 24);
         let report = diagnose(&ev, &CatalogueSettings::default()).expect("valid");
         expect_accepted(&report, "contact_duration");
@@ -1515,9 +1863,17 @@ fn missing_observations_are_skipped_not_fatal() {
     }
     let report = diagnose(&ev, &CatalogueSettings::default()).expect("valid");
     expect_accepted(&report, "added_mass");
-    let row = report.residuals.iter().find(|r| r.observed == 4).expect("matched");
+    let row = report
+        .residuals
+        .iter()
+        .find(|r| r.observed == 4)
+        .expect("matched");
     assert!(row.before.ln_decay.is_none() && row.after.ln_decay.is_none());
-    let row = report.residuals.iter().find(|r| r.observed == 2).expect("matched");
+    let row = report
+        .residuals
+        .iter()
+        .find(|r| r.observed == 2)
+        .expect("matched");
     assert!(row.before.ln_amplitude[1].is_none() && row.before.ln_amplitude[0].is_some());
 
     // No amplitudes at all (zero channels): amplitude effects have no data, the rest works.
@@ -1537,12 +1893,24 @@ fn missing_observations_are_skipped_not_fatal() {
     let report = diagnose(&ev, &CatalogueSettings::default()).expect("valid");
     expect_accepted(&report, "added_mass");
     for name in ["radiation", "contact_duration"] {
-        let r = report.rejected.iter().find(|r| r.name == name).expect("rejected");
+        let r = report
+            .rejected
+            .iter()
+            .find(|r| r.name == name)
+            .expect("rejected");
         assert_eq!(r.reason, Rejection::NotEnoughData, "{r:?}");
     }
     // The energy-weighted glide needs amplitudes; the uniform one does not, and finds nothing.
-    let r = report.rejected.iter().find(|r| r.name == "pitch_glide").expect("rejected");
-    assert!(r.detail.contains("relative energy: no mode with an amplitude"), "{r:?}");
+    let r = report
+        .rejected
+        .iter()
+        .find(|r| r.name == "pitch_glide")
+        .expect("rejected");
+    assert!(
+        r.detail
+            .contains("relative energy: no mode with an amplitude"),
+        "{r:?}"
+    );
 }
 
 /// Detection rate over 20 draws per effect at the strengths of the tests above, with the
@@ -1662,8 +2030,14 @@ fn detection_power_at_realistic_strengths() {
             }
         }
         println!("{name:22} {variant:22} detected {hit}/20");
-        assert!(hit >= 18, "{name} ({variant}): detected in {hit} of 20 draws");
+        assert!(
+            hit >= 18,
+            "{name} ({variant}): detected in {hit} of 20 draws"
+        );
     }
     println!("draws with an effect accepted that was not injected: {others} of 200");
-    assert!(others <= 10, "{others} of 200 draws accepted an effect not injected");
+    assert!(
+        others <= 10,
+        "{others} of 200 draws accepted an effect not injected"
+    );
 }

@@ -178,7 +178,17 @@ pub struct GlideOptions {
 
 impl Default for GlideOptions {
     fn default() -> Self {
-        GlideOptions { min_snr_db: 20.0, group_rtol: 0.004, max_group: 6, max_band_hz: 80.0, max_iterations: 30, step_tolerance: 1e-3, max_glide: 0.05, bic_margin: 0.0, min_glide_z: 3.0 }
+        GlideOptions {
+            min_snr_db: 20.0,
+            group_rtol: 0.004,
+            max_group: 6,
+            max_band_hz: 80.0,
+            max_iterations: 30,
+            step_tolerance: 1e-3,
+            max_glide: 0.05,
+            bic_margin: 0.0,
+            min_glide_z: 3.0,
+        }
     }
 }
 
@@ -209,7 +219,11 @@ fn phi_integral(d: f64, t: f64) -> (f64, f64) {
     let x = 2.0 * d * t;
     // Φ = t·(−expm1(−x)/x) is exact down to x → 0 (where Φ → t); the generator renders its
     // glides with this same function (`inject::glide_phase`).
-    let phi = if x.abs() < 1e-300 { t } else { t * (-(-x).exp_m1() / x) };
+    let phi = if x.abs() < 1e-300 {
+        t
+    } else {
+        t * (-(-x).exp_m1() / x)
+    };
     let d_phi = if x.abs() < SERIES_BELOW {
         // (t e^(−x) − Φ)/d cancels for small x: ∂Φ/∂d = 2t² h'(x), h(x) = (1 − e^(−x))/x,
         // h' = −½ + x/3 − x²/8.
@@ -221,7 +235,15 @@ fn phi_integral(d: f64, t: f64) -> (f64, f64) {
 }
 
 /// Renders a_c e^(−dt) sin(θ(t) + φ) with the glide phase into `out` (added), N samples at f_s.
-pub fn add_gliding_mode(out: &mut [f64], sample_rate: f64, f0: f64, decay: f64, glide: f64, amplitude: f64, phase: f64) {
+pub fn add_gliding_mode(
+    out: &mut [f64],
+    sample_rate: f64,
+    f0: f64,
+    decay: f64,
+    glide: f64,
+    amplitude: f64,
+    phase: f64,
+) {
     for (n, v) in out.iter_mut().enumerate() {
         let t = n as f64 / sample_rate;
         *v += amplitude * (-decay * t).exp() * (glide_phase(f0, decay, glide, t) + phase).sin();
@@ -398,18 +420,46 @@ impl BandProblem<'_> {
         if !(top > 0.0) {
             return None;
         }
-        let keep: Vec<usize> = (0..svd.singular_values.len()).filter(|&i| svd.singular_values[i] > SVD_CUTOFF * top).collect();
+        let keep: Vec<usize> = (0..svd.singular_values.len())
+            .filter(|&i| svd.singular_values[i] > SVD_CUTOFF * top)
+            .collect();
         let left = DMatrix::from_fn(rows, keep.len(), |i, j| u[(i, keep[j])]);
-        let pinv = DMatrix::from_fn(l, rows, |i, j| keep.iter().map(|&s| vt[(s, i)] * u[(j, s)] / svd.singular_values[s]).sum());
+        let pinv = DMatrix::from_fn(l, rows, |i, j| {
+            keep.iter()
+                .map(|&s| vt[(s, i)] * u[(j, s)] / svd.singular_values[s])
+                .sum()
+        });
         let coeffs: Vec<DVector<f64>> = self.data.iter().map(|y| &pinv * y).collect();
-        let residuals: Vec<DVector<f64>> = self.data.iter().zip(&coeffs).map(|(y, b)| y - &basis * b).collect();
+        let residuals: Vec<DVector<f64>> = self
+            .data
+            .iter()
+            .zip(&coeffs)
+            .map(|(y, b)| y - &basis * b)
+            .collect();
         let rss = residuals.iter().map(|r| r.norm_squared()).collect();
-        Some(Evaluation { basis, left, pinv, coeffs, residuals, rss, derivatives: derivs })
+        Some(Evaluation {
+            basis,
+            left,
+            pinv,
+            coeffs,
+            residuals,
+            rss,
+            derivatives: derivs,
+        })
     }
 
     /// Free parameters of `comps` as a vector (f, d[, g] per component).
     fn pack(comps: &[Component]) -> Vec<f64> {
-        comps.iter().flat_map(|c| if c.glide_free { vec![c.f, c.d, c.g] } else { vec![c.f, c.d] }).collect()
+        comps
+            .iter()
+            .flat_map(|c| {
+                if c.glide_free {
+                    vec![c.f, c.d, c.g]
+                } else {
+                    vec![c.f, c.d]
+                }
+            })
+            .collect()
     }
 
     fn unpack(&self, comps: &[Component], x: &[f64]) -> Option<Vec<Component>> {
@@ -423,7 +473,11 @@ impl BandProblem<'_> {
                 n.g = x[i + 2];
             }
             i += c.n_params();
-            let ok = n.f > self.f_range.0 && n.f < self.f_range.1 && n.d > 0.0 && n.d.is_finite() && n.g.abs() <= self.max_glide;
+            let ok = n.f > self.f_range.0
+                && n.f < self.f_range.1
+                && n.d > 0.0
+                && n.d.is_finite()
+                && n.g.abs() <= self.max_glide;
             if !ok {
                 return None;
             }
@@ -433,7 +487,12 @@ impl BandProblem<'_> {
     }
 
     /// Levenberg–Marquardt from `start` with channel weights `weights`.
-    fn levenberg_marquardt(&self, start: &[Component], weights: &[f64], options: &GlideOptions) -> Option<(Vec<Component>, Evaluation)> {
+    fn levenberg_marquardt(
+        &self,
+        start: &[Component],
+        weights: &[f64],
+        options: &GlideOptions,
+    ) -> Option<(Vec<Component>, Evaluation)> {
         let mut comps = start.to_vec();
         let mut eval = self.evaluate(&comps, true)?;
         let mut cost = eval.cost(weights);
@@ -461,7 +520,9 @@ impl BandProblem<'_> {
                     continue;
                 };
                 let trial_x: Vec<f64> = x.iter().zip(step.iter()).map(|(a, b)| a + b).collect();
-                let trial = self.unpack(&comps, &trial_x).and_then(|c| self.evaluate(&c, false).map(|e| (c, e)));
+                let trial = self
+                    .unpack(&comps, &trial_x)
+                    .and_then(|c| self.evaluate(&c, false).map(|e| (c, e)));
                 if let Some((c, e)) = trial {
                     let trial_cost = e.cost(weights);
                     if trial_cost <= cost {
@@ -484,8 +545,16 @@ impl BandProblem<'_> {
     }
 
     /// The fit of module docs: LM, noise from the residual, LM again; with its covariance.
-    fn fit(&self, start: &[Component], noise_var: &[f64], options: &GlideOptions) -> Option<BandFitResult> {
-        let weights: Vec<f64> = noise_var.iter().map(|&v| if v > 0.0 { 2.0 / v } else { 0.0 }).collect();
+    fn fit(
+        &self,
+        start: &[Component],
+        noise_var: &[f64],
+        options: &GlideOptions,
+    ) -> Option<BandFitResult> {
+        let weights: Vec<f64> = noise_var
+            .iter()
+            .map(|&v| if v > 0.0 { 2.0 / v } else { 0.0 })
+            .collect();
         let (comps, eval) = self.levenberg_marquardt(start, &weights, options)?;
         let n_b = self.rows() as f64;
         let channels = self.data.len() as f64;
@@ -494,16 +563,35 @@ impl BandProblem<'_> {
         if dof <= 1.0 {
             return None;
         }
-        let noise: Vec<f64> = eval.rss.iter().map(|r| (2.0 * r / dof).max(f64::MIN_POSITIVE)).collect();
+        let noise: Vec<f64> = eval
+            .rss
+            .iter()
+            .map(|r| (2.0 * r / dof).max(f64::MIN_POSITIVE))
+            .collect();
         let weights: Vec<f64> = noise.iter().map(|v| 2.0 / v).collect();
         let (comps, eval) = self.levenberg_marquardt(&comps, &weights, options)?;
-        let noise: Vec<f64> = eval.rss.iter().map(|r| (2.0 * r / dof).max(f64::MIN_POSITIVE)).collect();
+        let noise: Vec<f64> = eval
+            .rss
+            .iter()
+            .map(|r| (2.0 * r / dof).max(f64::MIN_POSITIVE))
+            .collect();
         let weights: Vec<f64> = noise.iter().map(|v| 2.0 / v).collect();
         let (h, _) = gauss_newton(&eval, &weights);
         let cov = symmetric_inverse(&h)?;
         let l = eval.basis.ncols() as f64;
-        let bic = eval.rss.iter().map(|r| n_b * (r / n_b).max(f64::MIN_POSITIVE).ln()).sum::<f64>() + (n_nonlinear as f64 + l * channels) * (n_b * channels).ln();
-        Some(BandFitResult { comps, eval, cov, noise, bic })
+        let bic = eval
+            .rss
+            .iter()
+            .map(|r| n_b * (r / n_b).max(f64::MIN_POSITIVE).ln())
+            .sum::<f64>()
+            + (n_nonlinear as f64 + l * channels) * (n_b * channels).ln();
+        Some(BandFitResult {
+            comps,
+            eval,
+            cov,
+            noise,
+            bic,
+        })
     }
 }
 
@@ -520,7 +608,15 @@ struct BandFitResult {
 
 impl BandFitResult {
     /// Component `q` as an extracted mode with its standard deviations (module docs).
-    fn mode(&self, q: usize, template: &ExtractedMode, spectra: &Spectra, merged: usize, delta_bic: f64, glide_selected: bool) -> ExtractedMode {
+    fn mode(
+        &self,
+        q: usize,
+        template: &ExtractedMode,
+        spectra: &Spectra,
+        merged: usize,
+        delta_bic: f64,
+        glide_selected: bool,
+    ) -> ExtractedMode {
         let comp = self.comps[q];
         let offset: usize = self.comps[..q].iter().map(|c| c.n_params()).sum();
         let sd = |i: usize| self.cov[(offset + i, offset + i)].max(0.0).sqrt();
@@ -545,21 +641,40 @@ impl BandFitResult {
             amplitudes.push(a2.sqrt());
             phases.push(qv.atan2(p));
             if a2 > 0.0 {
-                amplitude_sds.push(((p * p * vpp + qv * qv * vqq + 2.0 * p * qv * vpq) / a2).max(0.0).sqrt());
-                phase_sds.push(((qv * qv * vpp + p * p * vqq - 2.0 * p * qv * vpq) / (a2 * a2)).max(0.0).sqrt());
+                amplitude_sds.push(
+                    ((p * p * vpp + qv * qv * vqq + 2.0 * p * qv * vpq) / a2)
+                        .max(0.0)
+                        .sqrt(),
+                );
+                phase_sds.push(
+                    ((qv * qv * vpp + p * p * vqq - 2.0 * p * qv * vpq) / (a2 * a2))
+                        .max(0.0)
+                        .sqrt(),
+                );
             } else {
                 amplitude_sds.push((0.5 * (vpp + vqq)).max(0.0).sqrt());
                 phase_sds.push(PI / 3f64.sqrt());
             }
         }
-        let envelope: f64 = if comp.d > 0.0 { -(-2.0 * comp.d * spectra.n as f64 / spectra.sample_rate).exp_m1() / -(-2.0 * comp.d / spectra.sample_rate).exp_m1() } else { spectra.n as f64 };
+        let envelope: f64 = if comp.d > 0.0 {
+            -(-2.0 * comp.d * spectra.n as f64 / spectra.sample_rate).exp_m1()
+                / -(-2.0 * comp.d / spectra.sample_rate).exp_m1()
+        } else {
+            spectra.n as f64
+        };
         let energy: f64 = amplitudes.iter().map(|a| 0.5 * a * a * envelope).sum();
         let noise_total: f64 = self.noise.iter().sum();
         let frequency_sd_hz = sd(0);
         let decay_rate_sd = sd(1);
         let z_f = (comp.f - template.esprit_frequency_hz) / frequency_sd_hz;
         let z_d = (comp.d - template.esprit_decay_rate) / decay_rate_sd;
-        let glide = comp.glide_free.then(|| ModeGlide { glide: comp.g, glide_sd: sd(2), selected: glide_selected, merged_poles: merged, delta_bic });
+        let glide = comp.glide_free.then(|| ModeGlide {
+            glide: comp.g,
+            glide_sd: sd(2),
+            selected: glide_selected,
+            merged_poles: merged,
+            delta_bic,
+        });
         ExtractedMode {
             frequency_hz: comp.f,
             frequency_sd_hz,
@@ -597,10 +712,14 @@ fn gauss_newton(eval: &Evaluation, weights: &[f64]) -> (DMatrix<f64>, DVector<f6
 /// Inverse of a symmetric positive definite matrix after Jacobi scaling; `None` if singular.
 fn symmetric_inverse(h: &DMatrix<f64>) -> Option<DMatrix<f64>> {
     let p = h.nrows();
-    let scale: Vec<f64> = (0..p).map(|i| 1.0 / h[(i, i)].max(f64::MIN_POSITIVE).sqrt()).collect();
+    let scale: Vec<f64> = (0..p)
+        .map(|i| 1.0 / h[(i, i)].max(f64::MIN_POSITIVE).sqrt())
+        .collect();
     let scaled = DMatrix::from_fn(p, p, |i, j| h[(i, j)] * scale[i] * scale[j]);
     let inv = scaled.cholesky()?.inverse();
-    Some(DMatrix::from_fn(p, p, |i, j| inv[(i, j)] * scale[i] * scale[j]))
+    Some(DMatrix::from_fn(p, p, |i, j| {
+        inv[(i, j)] * scale[i] * scale[j]
+    }))
 }
 
 /// What [`fit_glides`] decided for one group (for logs and tests).
@@ -627,13 +746,27 @@ pub struct GlideStage {
 
 /// Runs the chirp-aware stage on `extraction` of `channels` (the same channels, from the
 /// onset, that it was extracted from).
-pub fn fit_glides(channels: &[Vec<f64>], extraction: &ModalExtraction, options: &GlideOptions) -> Result<GlideStage, ExtractError> {
+pub fn fit_glides(
+    channels: &[Vec<f64>],
+    extraction: &ModalExtraction,
+    options: &GlideOptions,
+) -> Result<GlideStage, ExtractError> {
     check_options(options)?;
     let fs = extraction.sample_rate;
     let n = channels.first().map_or(0, |c| c.len());
     let n_channels = channels.len();
-    if n == 0 || channels.iter().any(|c| c.len() != n) || extraction.modes.iter().any(|m| m.amplitudes.len() != n_channels) {
-        return Err(ExtractError::InvalidOption { name: "channels", value: n_channels as f64, reason: "must be non-empty, of equal lengths and match the extraction's channels" });
+    if n == 0
+        || channels.iter().any(|c| c.len() != n)
+        || extraction
+            .modes
+            .iter()
+            .any(|m| m.amplitudes.len() != n_channels)
+    {
+        return Err(ExtractError::InvalidOption {
+            name: "channels",
+            value: n_channels as f64,
+            reason: "must be non-empty, of equal lengths and match the extraction's channels",
+        });
     }
     let mut planner = FftPlanner::new();
     // Residual: recording − every extracted mode (with its glide when selected).
@@ -649,7 +782,12 @@ pub fn fit_glides(channels: &[Vec<f64>], extraction: &ModalExtraction, options: 
     let mut groups: Vec<Vec<usize>> = Vec::new();
     for &i in &order {
         match groups.last_mut() {
-            Some(g) if modes[i].frequency_hz - modes[*g.last().expect("non-empty")].frequency_hz <= options.group_rtol * modes[i].frequency_hz => g.push(i),
+            Some(g)
+                if modes[i].frequency_hz - modes[*g.last().expect("non-empty")].frequency_hz
+                    <= options.group_rtol * modes[i].frequency_hz =>
+            {
+                g.push(i)
+            }
             _ => groups.push(vec![i]),
         }
     }
@@ -657,28 +795,54 @@ pub fn fit_glides(channels: &[Vec<f64>], extraction: &ModalExtraction, options: 
     let mut decisions = Vec::new();
     // Loudest groups first: their glides leak furthest, and once decided they are subtracted as
     // they are for the groups that follow.
-    let loudness = |g: &Vec<usize>| g.iter().map(|&i| modes[i].snr_db).fold(f64::NEG_INFINITY, f64::max);
+    let loudness = |g: &Vec<usize>| {
+        g.iter()
+            .map(|&i| modes[i].snr_db)
+            .fold(f64::NEG_INFINITY, f64::max)
+    };
     groups.sort_by(|a, b| loudness(b).total_cmp(&loudness(a)));
     for group in groups {
         let members: Vec<&ExtractedMode> = group.iter().map(|&i| &modes[i]).collect();
-        let loudest = *members.iter().max_by(|a, b| a.snr_db.total_cmp(&b.snr_db)).expect("non-empty");
-        let skip = members.len() > options.max_group || loudest.snr_db < options.min_snr_db || members.iter().any(|m| m.glide.as_ref().is_some_and(|g| g.selected)) || !(members.iter().all(|m| m.frequency_hz > 0.0 && m.decay_rate > 0.0));
+        let loudest = *members
+            .iter()
+            .max_by(|a, b| a.snr_db.total_cmp(&b.snr_db))
+            .expect("non-empty");
+        let skip = members.len() > options.max_group
+            || loudest.snr_db < options.min_snr_db
+            || members
+                .iter()
+                .any(|m| m.glide.as_ref().is_some_and(|g| g.selected))
+            || !(members
+                .iter()
+                .all(|m| m.frequency_hz > 0.0 && m.decay_rate > 0.0));
         if skip {
             out_modes.extend(members.into_iter().cloned());
             continue;
         }
-        let f_lo = members.iter().map(|m| m.frequency_hz).fold(f64::INFINITY, f64::min);
+        let f_lo = members
+            .iter()
+            .map(|m| m.frequency_hz)
+            .fold(f64::INFINITY, f64::min);
         let f_hi = members.iter().map(|m| m.frequency_hz).fold(0.0, f64::max);
         let d_max = members.iter().map(|m| m.decay_rate).fold(0.0, f64::max);
-        let d_min = members.iter().map(|m| m.decay_rate).fold(f64::INFINITY, f64::min);
+        let d_min = members
+            .iter()
+            .map(|m| m.decay_rate)
+            .fold(f64::INFINITY, f64::min);
         // The span that holds the group's modes: FIT_SPAN_DECAYS decay times of the slowest
         // (amplitude e^(−12)), in whole FFT_BLOCKs (a smooth FFT length), at most N.
         let needed = ((FIT_SPAN_DECAYS / d_min).max(MIN_FIT_SPAN_S) * fs).ceil() as usize;
         let n_fit = (needed.div_ceil(FFT_BLOCK) * FFT_BLOCK).min(n);
-        let spectra = Spectra { fft: planner.plan_fft_forward(n_fit), n: n_fit, sample_rate: fs };
+        let spectra = Spectra {
+            fft: planner.plan_fft_forward(n_fit),
+            n: n_fit,
+            sample_rate: fs,
+        };
         let nyquist_bin = n_fit / 2;
         let df = fs / n_fit as f64;
-        let w = (8.0 * df + 4.0 * d_max / (2.0 * PI) + 0.003 * f_hi).min(options.max_band_hz).max(4.0 * df);
+        let w = (8.0 * df + 4.0 * d_max / (2.0 * PI) + 0.003 * f_hi)
+            .min(options.max_band_hz)
+            .max(4.0 * df);
         let k_lo = (((f_lo - w) / df).floor().max(1.0)) as usize;
         let k_hi = (((f_hi + w) / df).ceil() as usize).min(nyquist_bin.saturating_sub(1));
         if k_hi <= k_lo + 4 {
@@ -691,7 +855,15 @@ pub fn fit_glides(channels: &[Vec<f64>], extraction: &ModalExtraction, options: 
             .map(|c| {
                 let mut x = residual[c][..n_fit].to_vec();
                 for m in &members {
-                    add_gliding_mode(&mut x, fs, m.frequency_hz, m.decay_rate, 0.0, m.amplitudes[c], m.phases[c]);
+                    add_gliding_mode(
+                        &mut x,
+                        fs,
+                        m.frequency_hz,
+                        m.decay_rate,
+                        0.0,
+                        m.amplitudes[c],
+                        m.phases[c],
+                    );
                 }
                 let scale = 1.0 / (n_fit as f64).sqrt();
                 let mut y: Vec<C64> = x.iter().map(|&v| C64::new(v * scale, 0.0)).collect();
@@ -706,9 +878,29 @@ pub fn fit_glides(channels: &[Vec<f64>], extraction: &ModalExtraction, options: 
             })
             .collect();
         let band = extraction.bands.get(loudest.band);
-        let noise_var: Vec<f64> = (0..n_channels).map(|c| band.and_then(|b| b.noise_rms.get(c)).map_or(1.0, |s| (s * s).max(f64::MIN_POSITIVE))).collect();
-        let problem = BandProblem { spectra: &spectra, bins, data, f_range: ((k_lo as f64) * df, (k_hi as f64) * df), max_glide: options.max_glide, nuisance: true };
-        let constant: Vec<Component> = members.iter().map(|m| Component { f: m.frequency_hz, d: m.decay_rate, g: 0.0, glide_free: false }).collect();
+        let noise_var: Vec<f64> = (0..n_channels)
+            .map(|c| {
+                band.and_then(|b| b.noise_rms.get(c))
+                    .map_or(1.0, |s| (s * s).max(f64::MIN_POSITIVE))
+            })
+            .collect();
+        let problem = BandProblem {
+            spectra: &spectra,
+            bins,
+            data,
+            f_range: ((k_lo as f64) * df, (k_hi as f64) * df),
+            max_glide: options.max_glide,
+            nuisance: true,
+        };
+        let constant: Vec<Component> = members
+            .iter()
+            .map(|m| Component {
+                f: m.frequency_hz,
+                d: m.decay_rate,
+                g: 0.0,
+                glide_free: false,
+            })
+            .collect();
         let spread = (f_hi - f_lo) / f_lo;
         let mean_d = members.iter().map(|m| m.decay_rate).sum::<f64>() / members.len() as f64;
         // Gliding hypotheses with K' = 1 … K components. K' = 1: from the loudest pole, and from
@@ -716,12 +908,27 @@ pub fn fit_glides(channels: &[Vec<f64>], extraction: &ModalExtraction, options: 
         // (K' = K: every pole, in the members' order, so component q is pole q).
         let mut by_snr: Vec<usize> = (0..members.len()).collect();
         by_snr.sort_by(|&a, &b| members[b].snr_db.total_cmp(&members[a].snr_db));
-        let gliding = |m: &ExtractedMode| Component { f: m.frequency_hz, d: m.decay_rate, g: 0.0, glide_free: true };
+        let gliding = |m: &ExtractedMode| Component {
+            f: m.frequency_hz,
+            d: m.decay_rate,
+            g: 0.0,
+            glide_free: true,
+        };
         let mut hypotheses: Vec<Vec<Component>> = vec![vec![gliding(loudest)]];
         if members.len() > 1 {
             let g0 = spread.min(0.8 * options.max_glide);
-            hypotheses.push(vec![Component { f: f_lo, d: mean_d, g: g0, glide_free: true }]);
-            hypotheses.push(vec![Component { f: f_hi, d: mean_d, g: -g0, glide_free: true }]);
+            hypotheses.push(vec![Component {
+                f: f_lo,
+                d: mean_d,
+                g: g0,
+                glide_free: true,
+            }]);
+            hypotheses.push(vec![Component {
+                f: f_hi,
+                d: mean_d,
+                g: -g0,
+                glide_free: true,
+            }]);
             if members.len() > 2 {
                 let mut chosen: Vec<usize> = by_snr[..2].to_vec();
                 chosen.sort_unstable();
@@ -733,14 +940,25 @@ pub fn fit_glides(channels: &[Vec<f64>], extraction: &ModalExtraction, options: 
         // the glide at the onset can exceed the spacing of a near-degenerate pair many times
         // over, and from g = 0 each component is caught by the wrong pole.
         let single = if members.len() > 1 { 3 } else { 1 };
-        let mut fits: Vec<(usize, BandFitResult)> = hypotheses[..single].iter().enumerate().filter_map(|(h, start)| problem.fit(start, &noise_var, options).map(|f| (h, f))).collect();
-        let g1 = fits.iter().min_by(|a, b| a.1.bic.total_cmp(&b.1.bic)).map(|f| f.1.comps[0].g);
+        let mut fits: Vec<(usize, BandFitResult)> = hypotheses[..single]
+            .iter()
+            .enumerate()
+            .filter_map(|(h, start)| problem.fit(start, &noise_var, options).map(|f| (h, f)))
+            .collect();
+        let g1 = fits
+            .iter()
+            .min_by(|a, b| a.1.bic.total_cmp(&b.1.bic))
+            .map(|f| f.1.comps[0].g);
         for (h, start) in hypotheses.iter().enumerate().skip(single) {
             let mut tries = vec![start.clone()];
             if let Some(g) = g1 {
                 tries.push(start.iter().map(|c| Component { g, ..*c }).collect());
             }
-            if let Some(best) = tries.iter().filter_map(|t| problem.fit(t, &noise_var, options)).min_by(|a, b| a.bic.total_cmp(&b.bic)) {
+            if let Some(best) = tries
+                .iter()
+                .filter_map(|t| problem.fit(t, &noise_var, options))
+                .min_by(|a, b| a.bic.total_cmp(&b.bic))
+            {
                 fits.push((h, best));
             }
         }
@@ -759,15 +977,25 @@ pub fn fit_glides(channels: &[Vec<f64>], extraction: &ModalExtraction, options: 
             fit.cov[(offset + 2, offset + 2)].max(0.0).sqrt()
         };
         let comps = 0..glide_fit.comps.len();
-        let identified = comps.clone().all(|q| glide_component_sound(&glide_fit.comps[q], g_sd(glide_fit, q), (d_min, d_max), options))
-            && comps.into_iter().any(|q| glide_fit.comps[q].g.abs() >= options.min_glide_z * g_sd(glide_fit, q));
+        let identified = comps.clone().all(|q| {
+            glide_component_sound(
+                &glide_fit.comps[q],
+                g_sd(glide_fit, q),
+                (d_min, d_max),
+                options,
+            )
+        }) && comps
+            .into_iter()
+            .any(|q| glide_fit.comps[q].g.abs() >= options.min_glide_z * g_sd(glide_fit, q));
         let selected = delta_bic > options.bic_margin && identified;
         decisions.push(GlideDecision {
             poles_hz: members.iter().map(|m| m.frequency_hz).collect(),
             f0_hz: glide_fit.comps.iter().map(|c| c.f).collect(),
             decay_rate: glide_fit.comps.iter().map(|c| c.d).collect(),
             glide: glide_fit.comps.iter().map(|c| c.g).collect(),
-            glide_sd: (0..glide_fit.comps.len()).map(|q| g_sd(glide_fit, q)).collect(),
+            glide_sd: (0..glide_fit.comps.len())
+                .map(|q| g_sd(glide_fit, q))
+                .collect(),
             delta_bic,
             selected,
         });
@@ -776,27 +1004,60 @@ pub fn fit_glides(channels: &[Vec<f64>], extraction: &ModalExtraction, options: 
             let new_modes: Vec<ExtractedMode> = (0..glide_fit.comps.len())
                 .map(|q| {
                     let f = glide_fit.comps[q].f;
-                    let template = members.iter().min_by(|a, b| (a.frequency_hz - f).abs().total_cmp(&(b.frequency_hz - f).abs())).expect("non-empty");
+                    let template = members
+                        .iter()
+                        .min_by(|a, b| {
+                            (a.frequency_hz - f)
+                                .abs()
+                                .total_cmp(&(b.frequency_hz - f).abs())
+                        })
+                        .expect("non-empty");
                     glide_fit.mode(q, template, &spectra, members.len(), delta_bic, true)
                 })
                 .collect();
             // The residual now holds the glides instead of the poles.
             for (c, r) in residual.iter_mut().enumerate() {
                 for m in &members {
-                    add_gliding_mode(r, fs, m.frequency_hz, m.decay_rate, 0.0, m.amplitudes[c], m.phases[c]);
+                    add_gliding_mode(
+                        r,
+                        fs,
+                        m.frequency_hz,
+                        m.decay_rate,
+                        0.0,
+                        m.amplitudes[c],
+                        m.phases[c],
+                    );
                 }
                 for (comp, mode) in glide_fit.comps.iter().zip(&new_modes) {
-                    add_gliding_mode(r, fs, comp.f, comp.d, comp.g, -mode.amplitudes[c], mode.phases[c]);
+                    add_gliding_mode(
+                        r,
+                        fs,
+                        comp.f,
+                        comp.d,
+                        comp.g,
+                        -mode.amplitudes[c],
+                        mode.phases[c],
+                    );
                 }
             }
             out_modes.extend(new_modes);
         } else {
             // The extraction's constant poles stand; each gets its g as a measurement from the
             // fit with one gliding component per pole (nested in it: unbiased, ≈ 0 ± σ_g).
-            let per_pole = fits.iter().find(|(h, _)| *h == hypotheses.len() - 1).map(|(_, f)| f).filter(|f| f.comps.len() == members.len());
+            let per_pole = fits
+                .iter()
+                .find(|(h, _)| *h == hypotheses.len() - 1)
+                .map(|(_, f)| f)
+                .filter(|f| f.comps.len() == members.len());
             for (q, m) in members.into_iter().enumerate() {
                 let mut mode = m.clone();
-                mode.glide = per_pole.map(|f| ModeGlide { glide: f.comps[q].g, glide_sd: g_sd(f, q), selected: false, merged_poles: 1, delta_bic });
+                mode.glide = per_pole.map(|f| ModeGlide {
+                    glide: f.comps[q].g,
+                    glide_sd: g_sd(f, q),
+                    selected: false,
+                    merged_poles: 1,
+                    delta_bic,
+                });
                 out_modes.push(mode);
             }
         }
@@ -804,7 +1065,10 @@ pub fn fit_glides(channels: &[Vec<f64>], extraction: &ModalExtraction, options: 
     out_modes.sort_by(|a, b| a.frequency_hz.total_cmp(&b.frequency_hz));
     let mut extraction = extraction.clone();
     extraction.modes = out_modes;
-    Ok(GlideStage { extraction, decisions })
+    Ok(GlideStage {
+        extraction,
+        decisions,
+    })
 }
 
 /// Decay rates of a gliding component further than this factor from the group's poles' range
@@ -813,7 +1077,12 @@ const DECAY_RANGE_FACTOR: f64 = 4.0;
 
 /// Whether a fitted gliding component is not broken (module docs): σ_g finite, |g| < 0.98
 /// `max_glide`, and d within [`DECAY_RANGE_FACTOR`] of the poles' range `decays`.
-fn glide_component_sound(comp: &Component, glide_sd: f64, decays: (f64, f64), options: &GlideOptions) -> bool {
+fn glide_component_sound(
+    comp: &Component,
+    glide_sd: f64,
+    decays: (f64, f64),
+    options: &GlideOptions,
+) -> bool {
     let (d_min, d_max) = decays;
     glide_sd.is_finite()
         && comp.g.abs() < 0.98 * options.max_glide
@@ -822,9 +1091,19 @@ fn glide_component_sound(comp: &Component, glide_sd: f64, decays: (f64, f64), op
 }
 
 fn check_options(options: &GlideOptions) -> Result<(), ExtractError> {
-    let invalid = |name, value, reason| Err(ExtractError::InvalidOption { name, value, reason });
+    let invalid = |name, value, reason| {
+        Err(ExtractError::InvalidOption {
+            name,
+            value,
+            reason,
+        })
+    };
     if !(options.group_rtol >= 0.0 && options.group_rtol < 0.1) {
-        return invalid("glide.group_rtol", options.group_rtol, "must be in [0, 0.1)");
+        return invalid(
+            "glide.group_rtol",
+            options.group_rtol,
+            "must be in [0, 0.1)",
+        );
     }
     if options.max_group == 0 {
         return invalid("glide.max_group", 0.0, "must be at least 1");
@@ -833,13 +1112,21 @@ fn check_options(options: &GlideOptions) -> Result<(), ExtractError> {
         return invalid("glide.max_iterations", 0.0, "must be at least 1");
     }
     if !(options.step_tolerance > 0.0 && options.step_tolerance.is_finite()) {
-        return invalid("glide.step_tolerance", options.step_tolerance, "must be a positive number");
+        return invalid(
+            "glide.step_tolerance",
+            options.step_tolerance,
+            "must be a positive number",
+        );
     }
     if !(options.max_glide > 0.0 && options.max_glide < 1.0) {
         return invalid("glide.max_glide", options.max_glide, "must be in (0, 1)");
     }
     if !(options.max_band_hz > 0.0) {
-        return invalid("glide.max_band_hz", options.max_band_hz, "must be positive (Hz)");
+        return invalid(
+            "glide.max_band_hz",
+            options.max_band_hz,
+            "must be positive (Hz)",
+        );
     }
     if options.bic_margin.is_nan() {
         return invalid("glide.bic_margin", options.bic_margin, "must be a number");

@@ -804,9 +804,22 @@ fn bowl_recording_first_pair_is_two_modes_with_tight_frequencies() {
     // microphones (the refinement weighs them together, so one channel may rise — mic3 by 0.9 %
     // with the current ESPRIT start — while the total falls), and no channel by more than 2 %.
     let total = |v: &[f64]| v.iter().map(|r| r * r).sum::<f64>();
-    assert!(total(&x.residual_rms_refined) < total(&x.residual_rms_esprit), "refined {:?} vs ESPRIT {:?}", x.residual_rms_refined, x.residual_rms_esprit);
-    for (c, (r, e)) in x.residual_rms_refined.iter().zip(&x.residual_rms_esprit).enumerate() {
-        assert!(*r < e * 1.02, "mic{c}: refined residual {r:e} vs ESPRIT's {e:e}");
+    assert!(
+        total(&x.residual_rms_refined) < total(&x.residual_rms_esprit),
+        "refined {:?} vs ESPRIT {:?}",
+        x.residual_rms_refined,
+        x.residual_rms_esprit
+    );
+    for (c, (r, e)) in x
+        .residual_rms_refined
+        .iter()
+        .zip(&x.residual_rms_esprit)
+        .enumerate()
+    {
+        assert!(
+            *r < e * 1.02,
+            "mic{c}: refined residual {r:e} vs ESPRIT's {e:e}"
+        );
     }
     assert!(x.modes.iter().all(|m| m.frequency_sd_hz.is_finite()
         && m.decay_rate_sd.is_finite()

@@ -445,34 +445,57 @@ pub(crate) fn estimate_with_bands(
         let log_z: Vec<C64> = candidates.iter().map(|c| c.log_z).collect();
         let coeffs = lsq::fit_full_rate(signals, &log_z)
             .ok_or(EstimateError::SingularFit { modes: log_z.len() })?;
-        let mode_energies: Vec<Vec<f64>> = candidates.iter().zip(&coeffs).map(|(cand, ck)| energies(cand.log_z, ck, n)).collect();
-        let snr: Vec<f64> = candidates.iter().zip(&mode_energies).map(|(cand, e)| snr_db(e, band_noise[cand.band])).collect();
+        let mode_energies: Vec<Vec<f64>> = candidates
+            .iter()
+            .zip(&coeffs)
+            .map(|(cand, ck)| energies(cand.log_z, ck, n))
+            .collect();
+        let snr: Vec<f64> = candidates
+            .iter()
+            .zip(&mode_energies)
+            .map(|(cand, e)| snr_db(e, band_noise[cand.band]))
+            .collect();
         let total_energy: Vec<f64> = mode_energies.iter().map(|e| e.iter().sum()).collect();
         let strongest = total_energy.iter().fold(0.0_f64, |m, e| m.max(*e));
         let level_floor = strongest * 10f64.powf(opts.min_level_db / 10.0);
-        let full_power: Vec<f64> = coeffs.iter().map(|ck| ck.iter().map(|c| c.norm_sqr()).sum::<f64>()).collect();
+        let full_power: Vec<f64> = coeffs
+            .iter()
+            .map(|ck| ck.iter().map(|c| c.norm_sqr()).sum::<f64>())
+            .collect();
         let mut keep: Vec<bool> = candidates
             .iter()
             .zip(&full_power)
             .zip(&snr)
             .zip(&total_energy)
-            .map(|(((cand, &full), &s), &e)| s >= opts.min_snr_db && e >= level_floor && full >= MIN_ENERGY_RATIO * cand.band_power)
+            .map(|(((cand, &full), &s), &e)| {
+                s >= opts.min_snr_db
+                    && e >= level_floor
+                    && full >= MIN_ENERGY_RATIO * cand.band_power
+            })
             .collect();
         // The band fit and the full-rate fit must agree on a mode's size. A pole that the
         // full-rate fit inflates far beyond its band amplitude is one of a near-collinear pair
         // cancelling each other (on clean records, a −120 dB alias next to a strongly damped
         // mode): of such a pair only the one with the smaller band amplitude goes, since the
         // other, once alone, comes back to its true size.
-        let inflated: Vec<bool> = candidates.iter().zip(&full_power).map(|(cand, &full)| full * MIN_ENERGY_RATIO > cand.band_power).collect();
+        let inflated: Vec<bool> = candidates
+            .iter()
+            .zip(&full_power)
+            .map(|(cand, &full)| full * MIN_ENERGY_RATIO > cand.band_power)
+            .collect();
         for k in 0..candidates.len() {
             if !inflated[k] {
                 continue;
             }
-            let partner = (0..candidates.len())
-                .filter(|&j| j != k)
-                .min_by(|&a, &b| (candidates[a].log_z - candidates[k].log_z).norm().total_cmp(&(candidates[b].log_z - candidates[k].log_z).norm()));
+            let partner = (0..candidates.len()).filter(|&j| j != k).min_by(|&a, &b| {
+                (candidates[a].log_z - candidates[k].log_z)
+                    .norm()
+                    .total_cmp(&(candidates[b].log_z - candidates[k].log_z).norm())
+            });
             match partner {
-                Some(j) if inflated[j] && candidates[j].band_power > candidates[k].band_power => keep[k] = false,
+                Some(j) if inflated[j] && candidates[j].band_power > candidates[k].band_power => {
+                    keep[k] = false
+                }
                 Some(j) if inflated[j] => {}
                 _ => keep[k] = false,
             }
@@ -543,8 +566,24 @@ impl From<crate::audio::ChannelFault> for EstimateError {
         use crate::audio::ChannelFault as F;
         match fault {
             F::NoChannels => EstimateError::NoChannels,
-            F::LengthMismatch { channel, len, expected } => EstimateError::LengthMismatch { channel, len, expected },
-            F::NonFiniteSample { channel, index, value } => EstimateError::NonFiniteSample { channel, index, value },
+            F::LengthMismatch {
+                channel,
+                len,
+                expected,
+            } => EstimateError::LengthMismatch {
+                channel,
+                len,
+                expected,
+            },
+            F::NonFiniteSample {
+                channel,
+                index,
+                value,
+            } => EstimateError::NonFiniteSample {
+                channel,
+                index,
+                value,
+            },
         }
     }
 }

@@ -642,12 +642,22 @@ fn bowl_recording() {
 fn clean_damped_close_pair_gives_no_spurious_modes() {
     // The 16 partials of that target (Rayleigh α = 6, β = 1e-7; amplitudes of an acceleration
     // response, growing with frequency); the modes above 12 kHz decay faster than 300 1/s.
-    let freqs = vec![1839.1, 1843.0, 4585.3, 4588.3, 8131.8, 8133.1, 12391.2, 12392.9, 13531.9, 14656.4, 14768.6, 16942.9, 17332.9, 17342.9, 17811.5, 17926.0];
-    let decays: Vec<f64> = freqs.iter().map(|f: &f64| (6.0 + 1e-7 * (2.0 * std::f64::consts::PI * f).powi(2)) / 2.0).collect();
-    let amps = [0.001, 0.005, 0.025, 0.004, 0.13, 0.07, 0.3, 0.1, 0.2, 0.05, 0.4, 0.3, 0.2, 0.1, 0.5, 0.3];
+    let freqs = vec![
+        1839.1, 1843.0, 4585.3, 4588.3, 8131.8, 8133.1, 12391.2, 12392.9, 13531.9, 14656.4,
+        14768.6, 16942.9, 17332.9, 17342.9, 17811.5, 17926.0,
+    ];
+    let decays: Vec<f64> = freqs
+        .iter()
+        .map(|f: &f64| (6.0 + 1e-7 * (2.0 * std::f64::consts::PI * f).powi(2)) / 2.0)
+        .collect();
+    let amps = [
+        0.001, 0.005, 0.025, 0.004, 0.13, 0.07, 0.3, 0.1, 0.2, 0.05, 0.4, 0.3, 0.2, 0.1, 0.5, 0.3,
+    ];
     let truth = Truth {
         amps: amps.iter().map(|a| vec![*a]).collect(),
-        phases: (0..freqs.len()).map(|k| vec![-1.5 + 0.37 * k as f64]).collect(),
+        phases: (0..freqs.len())
+            .map(|k| vec![-1.5 + 0.37 * k as f64])
+            .collect(),
         freqs,
         decays,
     };
@@ -655,12 +665,25 @@ fn clean_damped_close_pair_gives_no_spurious_modes() {
     let channels = truth.render(fs, 24_000);
     let est = estimate_modes(&channels, fs, &EstimateOptions::default()).unwrap();
     for m in &est.modes {
-        let off = truth.freqs.iter().map(|f| (f - m.frequency_hz).abs()).fold(f64::INFINITY, f64::min);
-        assert!(off < 5.0, "spurious mode at {} Hz (d {}, a {:?})", m.frequency_hz, m.decay_rate, m.amplitudes);
+        let off = truth
+            .freqs
+            .iter()
+            .map(|f| (f - m.frequency_hz).abs())
+            .fold(f64::INFINITY, f64::min);
+        assert!(
+            off < 5.0,
+            "spurious mode at {} Hz (d {}, a {:?})",
+            m.frequency_hz,
+            m.decay_rate,
+            m.amplitudes
+        );
     }
     // The well separated modes are all there.
     for &f in &[1842.98, 4585.29] {
-        assert!((closest(&est, f).frequency_hz - f).abs() < 0.05, "{f} Hz not found");
+        assert!(
+            (closest(&est, f).frequency_hz - f).abs() < 0.05,
+            "{f} Hz not found"
+        );
     }
     assert!((closest(&est, 8132.0).frequency_hz - 8132.0).abs() < 2.0);
 }

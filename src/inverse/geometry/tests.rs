@@ -31,10 +31,19 @@ fn voxels_of_a_ball_have_its_volume_and_a_closed_staircase() {
     // Centre sampling of a ball: the voxel volume is within a few % of 4/3 π r³ (an icosphere of
     // 1280 faces holds 0.99 of it).
     let exact = 4.0 / 3.0 * std::f64::consts::PI * r.powi(3);
-    assert!((v.volume() / exact - 1.0).abs() < 0.04, "voxel volume {} vs {exact}", v.volume());
+    assert!(
+        (v.volume() / exact - 1.0).abs() < 0.04,
+        "voxel volume {} vs {exact}",
+        v.volume()
+    );
     let s = v.boundary_surface();
     // Closed and outward: the enclosed volume is the voxels' volume, exactly.
-    assert!((s.signed_volume() - v.volume()).abs() < 1e-12 * v.volume().max(1e-30), "{} vs {}", s.signed_volume(), v.volume());
+    assert!(
+        (s.signed_volume() - v.volume()).abs() < 1e-12 * v.volume().max(1e-30),
+        "{} vs {}",
+        s.signed_volume(),
+        v.volume()
+    );
     let mut edges: HashMap<(usize, usize), i32> = HashMap::new();
     for t in &s.triangles {
         for (a, b) in [(t[0], t[1]), (t[1], t[2]), (t[2], t[0])] {
@@ -46,12 +55,16 @@ fn voxels_of_a_ball_have_its_volume_and_a_closed_staircase() {
     assert!(edges.values().all(|&n| n == 0));
     assert!(Voxels::of_sdf(&sdf, [-r; 3], [r; 3], 1).is_err());
     assert!(Voxels::of_sdf(&sdf, [r; 3], [r; 3], 8).is_err());
-    assert!(Voxels::of_sdf(&sdf, [0.05; 3], [0.06; 3], 4).is_err(), "no voxel inside");
+    assert!(
+        Voxels::of_sdf(&sdf, [0.05; 3], [0.06; 3], 4).is_err(),
+        "no voxel inside"
+    );
 }
 
 #[test]
 fn eigenvalue_loss_is_the_shape_modules_loss_with_its_derivative_per_mode() {
-    let target = SpectrumTarget::new(vec![1.0e8, 1.004e8, 3.0e8, 5.0e8, 5.02e8, 7.0e8], 1e-2).unwrap();
+    let target =
+        SpectrumTarget::new(vec![1.0e8, 1.004e8, 3.0e8, 5.0e8, 5.02e8, 7.0e8], 1e-2).unwrap();
     let model = vec![1.05e8, 0.98e8, 2.9e8, 5.3e8, 5.1e8, 7.2e8];
     let mut rng = Rng(21);
     let (loss, d) = eigenvalue_loss(&model, &target).unwrap();
@@ -61,7 +74,11 @@ fn eigenvalue_loss_is_the_shape_modules_loss_with_its_derivative_per_mode() {
         let reference = spectrum_loss(&model, &dlambda, &target, false).unwrap();
         let chain: f64 = d.iter().zip(&dlambda).map(|(a, b)| a * b).sum();
         assert!((reference.loss - loss).abs() < 1e-15 * loss.max(1.0));
-        assert!((reference.gradient - chain).abs() < 1e-12 * reference.gradient.abs().max(1e-12), "{} vs {chain}", reference.gradient);
+        assert!(
+            (reference.gradient - chain).abs() < 1e-12 * reference.gradient.abs().max(1e-12),
+            "{} vs {chain}",
+            reference.gradient
+        );
     }
     assert!(eigenvalue_loss(&model[..3], &target).is_err());
     assert!(eigenvalue_loss(&[1.0, -1.0, 1.0, 1.0, 1.0, 1.0], &target).is_err());
@@ -77,7 +94,11 @@ fn check_derivative(name: &str, values: &[f64], f: impl Fn(&[f64]) -> (f64, Vec<
         v[i] -= 2.0 * h;
         let minus = f(&v).0;
         let fd = (plus - minus) / (2.0 * h);
-        assert!((fd - d[i]).abs() <= 1e-6 * (1.0 + d[i].abs()), "{name} value {i}: {} vs FD {fd}", d[i]);
+        assert!(
+            (fd - d[i]).abs() <= 1e-6 * (1.0 + d[i].abs()),
+            "{name} value {i}: {} vs FD {fd}",
+            d[i]
+        );
     }
 }
 
@@ -85,7 +106,9 @@ fn check_derivative(name: &str, values: &[f64], f: impl Fn(&[f64]) -> (f64, Vec<
 fn loss_terms_match_finite_differences() {
     let mut rng = Rng(4);
     let values = rng.uniform_vec(24, -0.004, 0.004);
-    let labels: Vec<f64> = (0..24).map(|i| if i % 3 == 0 { 1.0 } else { -1.0 }).collect();
+    let labels: Vec<f64> = (0..24)
+        .map(|i| if i % 3 == 0 { 1.0 } else { -1.0 })
+        .collect();
     check_derivative("sign", &values, |v| sign_loss(v, &labels, 0.001), 1e-8);
     check_derivative("hinge", &values, |v| hinge_loss(v, &labels, 0.002), 1e-8);
     let stencil_values = rng.uniform_vec(30, -0.01, 0.01);
@@ -101,10 +124,21 @@ fn eikonal_loss_vanishes_on_a_distance_and_measures_a_scaled_one() {
     // field); 2·n·x has |Ds| = 2, so the loss is (2 − 1)² = 1.
     let n = [0.48, 0.6, 0.64];
     let mut rng = Rng(8);
-    let points: Vec<[f64; 3]> = (0..10).map(|_| [rng.uniform(-1.0, 1.0), rng.uniform(-1.0, 1.0), rng.uniform(-1.0, 1.0)]).collect();
+    let points: Vec<[f64; 3]> = (0..10)
+        .map(|_| {
+            [
+                rng.uniform(-1.0, 1.0),
+                rng.uniform(-1.0, 1.0),
+                rng.uniform(-1.0, 1.0),
+            ]
+        })
+        .collect();
     let around = stencil(&points, 0.01);
     assert_eq!(around.len(), 60);
-    let plane: Vec<f64> = around.iter().map(|p| n[0] * p[0] + n[1] * p[1] + n[2] * p[2]).collect();
+    let plane: Vec<f64> = around
+        .iter()
+        .map(|p| n[0] * p[0] + n[1] * p[1] + n[2] * p[2])
+        .collect();
     assert!(eikonal_loss(&plane, 0.01).0 < 1e-20);
     let doubled: Vec<f64> = plane.iter().map(|v| 2.0 * v).collect();
     assert!((eikonal_loss(&doubled, 0.01).0 - 1.0).abs() < 1e-10);
@@ -118,13 +152,24 @@ fn prefit_to_a_voxelised_ball_gets_the_signs_and_a_distance_scale() {
     let (lo, hi) = voxels.padded_box();
     let config = NeuralSdfConfig::for_box(lo, hi, 2, vec![16, 16]).unwrap();
     let mut net = NeuralSdf::new(config, 3).unwrap();
-    let settings = PrefitSettings { steps: 400, batch: 256, eikonal_batch: 64, learning_rate: 1e-2, final_learning_rate: 1e-3, ..Default::default() };
+    let settings = PrefitSettings {
+        steps: 400,
+        batch: 256,
+        eikonal_batch: 64,
+        learning_rate: 1e-2,
+        final_learning_rate: 1e-3,
+        ..Default::default()
+    };
     let report = prefit(&mut net, &voxels, &settings).unwrap();
     assert_eq!(report.loss.len(), 400);
     let early = report.loss[..20].iter().sum::<f64>() / 20.0;
     let late = report.loss[380..].iter().sum::<f64>() / 20.0;
     assert!(late < 0.3 * early, "loss {early} → {late}");
-    assert!(report.centre_accuracy > 0.97, "centre accuracy {}", report.centre_accuracy);
+    assert!(
+        report.centre_accuracy > 0.97,
+        "centre accuracy {}",
+        report.centre_accuracy
+    );
     // A distance-like field: s near the centre is close to the ball's radius (the zero level
     // sits on the voxel faces, up to a voxel edge e = 7.5 mm off the sphere), and the body
     // marched on a grid overlaps the ball.
@@ -139,71 +184,206 @@ fn prefit_to_a_voxelised_ball_gets_the_signs_and_a_distance_scale() {
     assert!(c.iou > 0.75 && c.chamfer < 0.2 * r, "{c:?}");
     // Same seed, same network.
     let mut again = NeuralSdf::new(net.config().clone(), 3).unwrap();
-    prefit(&mut again, &voxels, &PrefitSettings { steps: 5, ..settings.clone() }).unwrap();
+    prefit(
+        &mut again,
+        &voxels,
+        &PrefitSettings {
+            steps: 5,
+            ..settings.clone()
+        },
+    )
+    .unwrap();
     let mut twice = NeuralSdf::new(net.config().clone(), 3).unwrap();
-    prefit(&mut twice, &voxels, &PrefitSettings { steps: 5, ..settings.clone() }).unwrap();
+    prefit(
+        &mut twice,
+        &voxels,
+        &PrefitSettings {
+            steps: 5,
+            ..settings.clone()
+        },
+    )
+    .unwrap();
     assert_eq!(again.parameters(), twice.parameters());
-    assert!(prefit(&mut twice, &voxels, &PrefitSettings { steps: 0, ..settings }).is_err());
+    assert!(prefit(
+        &mut twice,
+        &voxels,
+        &PrefitSettings {
+            steps: 0,
+            ..settings
+        }
+    )
+    .is_err());
 }
 
 #[test]
 fn settings_are_validated() {
     assert!(GeometrySettings::default().validate().is_ok());
     for bad in [
-        GeometrySettings { voxels: 1, ..Default::default() },
-        GeometrySettings { cells: 32, target_cells: 31, ..Default::default() },
-        GeometrySettings { modes: 0, ..Default::default() },
-        GeometrySettings { modes: 1, refine: RefineSettings { free_scale: true, ..Default::default() }, ..Default::default() },
-        GeometrySettings { hidden: vec![], ..Default::default() },
-        GeometrySettings { refine: RefineSettings { learning_rate: 0.0, ..Default::default() }, ..Default::default() },
-        GeometrySettings { prefit: PrefitSettings { margin: f64::NAN, ..Default::default() }, ..Default::default() },
+        GeometrySettings {
+            voxels: 1,
+            ..Default::default()
+        },
+        GeometrySettings {
+            cells: 32,
+            target_cells: 31,
+            ..Default::default()
+        },
+        GeometrySettings {
+            modes: 0,
+            ..Default::default()
+        },
+        GeometrySettings {
+            modes: 1,
+            refine: RefineSettings {
+                free_scale: true,
+                ..Default::default()
+            },
+            ..Default::default()
+        },
+        GeometrySettings {
+            hidden: vec![],
+            ..Default::default()
+        },
+        GeometrySettings {
+            refine: RefineSettings {
+                learning_rate: 0.0,
+                ..Default::default()
+            },
+            ..Default::default()
+        },
+        GeometrySettings {
+            prefit: PrefitSettings {
+                margin: f64::NAN,
+                ..Default::default()
+            },
+            ..Default::default()
+        },
     ] {
-        assert!(matches!(bad.validate(), Err(GeometryError::Invalid(_) | GeometryError::Network(_))), "{bad:?}");
+        assert!(
+            matches!(
+                bad.validate(),
+                Err(GeometryError::Invalid(_) | GeometryError::Network(_))
+            ),
+            "{bad:?}"
+        );
     }
 }
 
 /// A small network on the box of a voxelised ball, a grid over it, and a made-up per-mode
 /// sensitivity dλ_k/ds_i (smooth in i), for the least-squares rows.
 /// The group rows on this process alone.
-fn serial(net: &NeuralSdf, points: &[[f64; 3]], rows: &[Vec<f64>]) -> Result<Vec<Vec<f64>>, GeometryError> {
+fn serial(
+    net: &NeuralSdf,
+    points: &[[f64; 3]],
+    rows: &[Vec<f64>],
+) -> Result<Vec<Vec<f64>>, GeometryError> {
     Ok(net.vjp_rows(points, rows)?)
 }
 
-fn least_squares_case() -> (NeuralSdf, Vec<[f64; 3]>, Vec<Vec<f64>>, Vec<f64>, SpectrumTarget, Voxels, Vec<[f64; 3]>, RefineSettings) {
+fn least_squares_case() -> (
+    NeuralSdf,
+    Vec<[f64; 3]>,
+    Vec<Vec<f64>>,
+    Vec<f64>,
+    SpectrumTarget,
+    Voxels,
+    Vec<[f64; 3]>,
+    RefineSettings,
+) {
     let r = 0.03;
     let (_, sdf) = ball(r);
     let voxels = Voxels::of_sdf(&sdf, [-r; 3], [r; 3], 4).unwrap();
     let (lo, hi) = voxels.padded_box();
     let net = NeuralSdf::new(NeuralSdfConfig::for_box(lo, hi, 1, vec![6]).unwrap(), 5).unwrap();
-    let grid_points = BackgroundGrid::covering([-r; 3], [r; 3], 3, 1.0).unwrap().vertex_positions();
-    let per_mode: Vec<Vec<f64>> = (0..4).map(|k| grid_points.iter().map(|p| 1e9 * (1.0 + k as f64) * (p[0] + 2.0 * p[1] - p[2] + 0.1)).collect()).collect();
+    let grid_points = BackgroundGrid::covering([-r; 3], [r; 3], 3, 1.0)
+        .unwrap()
+        .vertex_positions();
+    let per_mode: Vec<Vec<f64>> = (0..4)
+        .map(|k| {
+            grid_points
+                .iter()
+                .map(|p| 1e9 * (1.0 + k as f64) * (p[0] + 2.0 * p[1] - p[2] + 0.1))
+                .collect()
+        })
+        .collect();
     let target = SpectrumTarget::new(vec![1.0e8, 1.003e8, 2.5e8, 4.0e8], 1e-2).unwrap();
     let eigenvalues = vec![1.1e8, 0.97e8, 2.4e8, 4.3e8];
     let eik_points = uniform_points(lo, hi, 7, &mut SplitMix64::new(3));
-    let settings = RefineSettings { voxel_weight: 2.0, eikonal_weight: 0.3, ..Default::default() };
-    (net, grid_points, per_mode, eigenvalues, target, voxels, eik_points, settings)
+    let settings = RefineSettings {
+        voxel_weight: 2.0,
+        eikonal_weight: 0.3,
+        ..Default::default()
+    };
+    (
+        net,
+        grid_points,
+        per_mode,
+        eigenvalues,
+        target,
+        voxels,
+        eik_points,
+        settings,
+    )
 }
 
 #[test]
 fn least_squares_rows_sum_to_the_loss_and_match_finite_differences_in_theta() {
-    let (mut net, grid_points, per_mode, eigenvalues, target, voxels, eik_points, settings) = least_squares_case();
+    let (mut net, grid_points, per_mode, eigenvalues, target, voxels, eik_points, settings) =
+        least_squares_case();
     let delta = 0.25 * voxels.min_edge();
-    let system = least_squares(&serial, &net, &grid_points, &per_mode, &eigenvalues, &target, &voxels, &eik_points, delta, &settings).unwrap();
+    let system = least_squares(
+        &serial,
+        &net,
+        &grid_points,
+        &per_mode,
+        &eigenvalues,
+        &target,
+        &voxels,
+        &eik_points,
+        delta,
+        &settings,
+    )
+    .unwrap();
     // Σ r² is the loss of the three terms.
     let (le, _) = eigenvalue_loss(&eigenvalues, &target).unwrap();
-    let (lv, _) = hinge_loss(&net.values(&voxels.centres()), &voxels.labels(), voxels.min_edge());
+    let (lv, _) = hinge_loss(
+        &net.values(&voxels.centres()),
+        &voxels.labels(),
+        voxels.min_edge(),
+    );
     let lk = eikonal_loss(&net.values(&stencil(&eik_points, delta)), delta).0;
     let total = le + settings.voxel_weight * lv + settings.eikonal_weight * lk;
     let squares: f64 = system.residuals.iter().map(|r| r * r).sum();
-    assert!((squares - total).abs() <= 1e-12 * total, "{squares} vs {total}");
-    assert!(lv > 0.0, "an untrained network violates some voxels, so the case has voxel rows");
+    assert!(
+        (squares - total).abs() <= 1e-12 * total,
+        "{squares} vs {total}"
+    );
+    assert!(
+        lv > 0.0,
+        "an untrained network violates some voxels, so the case has voxel rows"
+    );
     assert_eq!(system.rows.len(), system.residuals.len());
     // The voxel and eikonal rows are ∂r/∂θ: central differences in θ with the active set held.
     // (The eigenvalue rows' λ do not follow θ here; their θ-part is the network's VJP of a
     // fixed dλ/ds, checked for the network itself in neural_sdf.)
     let theta = net.parameters().to_vec();
     let groups = target.groups.len();
-    let residuals_at = |net: &NeuralSdf| least_squares(&serial, net, &grid_points, &per_mode, &eigenvalues, &target, &voxels, &eik_points, delta, &settings).unwrap().residuals;
+    let residuals_at = |net: &NeuralSdf| {
+        least_squares(
+            &serial,
+            net,
+            &grid_points,
+            &per_mode,
+            &eigenvalues,
+            &target,
+            &voxels,
+            &eik_points,
+            delta,
+            &settings,
+        )
+        .unwrap()
+        .residuals
+    };
     let h = 1e-6;
     for i in (0..theta.len()).step_by(7) {
         let mut t = theta.clone();
@@ -218,7 +398,11 @@ fn least_squares_rows_sum_to_the_loss_and_match_finite_differences_in_theta() {
         }
         for j in groups..system.residuals.len() {
             let fd = (plus[j] - minus[j]) / (2.0 * h);
-            assert!((fd - system.rows[j][i]).abs() <= 1e-5 * (1.0 + fd.abs()), "row {j}, θ_{i}: {} vs FD {fd}", system.rows[j][i]);
+            assert!(
+                (fd - system.rows[j][i]).abs() <= 1e-5 * (1.0 + fd.abs()),
+                "row {j}, θ_{i}: {} vs FD {fd}",
+                system.rows[j][i]
+            );
         }
     }
     net.set_parameters(&theta).unwrap();
@@ -227,10 +411,17 @@ fn least_squares_rows_sum_to_the_loss_and_match_finite_differences_in_theta() {
     assert_eq!(g.len(), 2, "the first two target modes form a cluster");
     let mut d_values = vec![0.0; grid_points.len()];
     for k in g.clone() {
-        add_scaled(&mut d_values, 2f64.sqrt() / 2.0 / eigenvalues[k], &per_mode[k]);
+        add_scaled(
+            &mut d_values,
+            2f64.sqrt() / 2.0 / eigenvalues[k],
+            &per_mode[k],
+        );
     }
     let expected = net.vjp(&grid_points, &d_values).unwrap();
-    assert!(system.rows[0].iter().zip(&expected).all(|(a, b)| (a - b).abs() <= 1e-14 * b.abs().max(1e-300)));
+    assert!(system.rows[0]
+        .iter()
+        .zip(&expected)
+        .all(|(a, b)| (a - b).abs() <= 1e-14 * b.abs().max(1e-300)));
 }
 
 #[test]
@@ -238,7 +429,10 @@ fn the_minimum_norm_step_solves_the_linearised_rows_in_their_row_space() {
     let mut rng = Rng(12);
     let rows: Vec<Vec<f64>> = (0..3).map(|_| rng.uniform_vec(8, -1.0, 1.0)).collect();
     let residuals = rng.uniform_vec(3, -0.5, 0.5);
-    let system = LeastSquares { residuals: residuals.clone(), rows: rows.clone() };
+    let system = LeastSquares {
+        residuals: residuals.clone(),
+        rows: rows.clone(),
+    };
     let step = minimum_norm_step(&system, 1e-12).unwrap();
     // J δ = −r: an underdetermined system solved exactly …
     for (row, r) in rows.iter().zip(&residuals) {
@@ -251,7 +445,8 @@ fn the_minimum_norm_step_solves_the_linearised_rows_in_their_row_space() {
     let mut n = rng.uniform_vec(8, -1.0, 1.0);
     for _ in 0..50 {
         for row in &rows {
-            let c = row.iter().zip(&n).map(|(a, b)| a * b).sum::<f64>() / row.iter().map(|a| a * a).sum::<f64>();
+            let c = row.iter().zip(&n).map(|(a, b)| a * b).sum::<f64>()
+                / row.iter().map(|a| a * a).sum::<f64>();
             add_scaled(&mut n, -c, row);
         }
     }
@@ -263,7 +458,8 @@ fn the_minimum_norm_step_solves_the_linearised_rows_in_their_row_space() {
 
 #[test]
 fn the_free_scale_loss_is_the_shape_modules_and_ignores_a_common_factor() {
-    let target = SpectrumTarget::new(vec![1.0e8, 1.004e8, 3.0e8, 5.0e8, 5.02e8, 7.0e8], 1e-2).unwrap();
+    let target =
+        SpectrumTarget::new(vec![1.0e8, 1.004e8, 3.0e8, 5.0e8, 5.02e8, 7.0e8], 1e-2).unwrap();
     let model = vec![1.05e8, 0.98e8, 2.9e8, 5.3e8, 5.1e8, 7.2e8];
     let mut rng = Rng(22);
     let (loss, d) = eigenvalue_loss_with(&model, &target, true).unwrap();
@@ -272,8 +468,16 @@ fn the_free_scale_loss_is_the_shape_modules_and_ignores_a_common_factor() {
         let dlambda = rng.uniform_vec(6, -1e7, 1e7);
         let reference = spectrum_loss(&model, &dlambda, &target, true).unwrap();
         let chain: f64 = d.iter().zip(&dlambda).map(|(a, b)| a * b).sum();
-        assert!((reference.loss - loss).abs() < 1e-14 * loss, "{} vs {loss}", reference.loss);
-        assert!((reference.gradient - chain).abs() < 1e-10 * reference.gradient.abs().max(1e-12), "{} vs {chain}", reference.gradient);
+        assert!(
+            (reference.loss - loss).abs() < 1e-14 * loss,
+            "{} vs {loss}",
+            reference.loss
+        );
+        assert!(
+            (reference.gradient - chain).abs() < 1e-10 * reference.gradient.abs().max(1e-12),
+            "{} vs {chain}",
+            reference.gradient
+        );
     }
     // A stiffness factor common to every mode is invisible to it.
     let stiffer: Vec<f64> = model.iter().map(|l| 1.7 * l).collect();
@@ -283,11 +487,39 @@ fn the_free_scale_loss_is_the_shape_modules_and_ignores_a_common_factor() {
 
 #[test]
 fn free_scale_rows_are_the_plain_rows_less_their_weighted_mean_and_sum_to_the_loss() {
-    let (net, grid_points, per_mode, eigenvalues, target, voxels, eik_points, plain_settings) = least_squares_case();
+    let (net, grid_points, per_mode, eigenvalues, target, voxels, eik_points, plain_settings) =
+        least_squares_case();
     let delta = 0.25 * voxels.min_edge();
-    let free_settings = RefineSettings { free_scale: true, ..plain_settings.clone() };
-    let plain = least_squares(&serial, &net, &grid_points, &per_mode, &eigenvalues, &target, &voxels, &eik_points, delta, &plain_settings).unwrap();
-    let free = least_squares(&serial, &net, &grid_points, &per_mode, &eigenvalues, &target, &voxels, &eik_points, delta, &free_settings).unwrap();
+    let free_settings = RefineSettings {
+        free_scale: true,
+        ..plain_settings.clone()
+    };
+    let plain = least_squares(
+        &serial,
+        &net,
+        &grid_points,
+        &per_mode,
+        &eigenvalues,
+        &target,
+        &voxels,
+        &eik_points,
+        delta,
+        &plain_settings,
+    )
+    .unwrap();
+    let free = least_squares(
+        &serial,
+        &net,
+        &grid_points,
+        &per_mode,
+        &eigenvalues,
+        &target,
+        &voxels,
+        &eik_points,
+        delta,
+        &free_settings,
+    )
+    .unwrap();
     assert_eq!(plain.residuals.len(), free.residuals.len());
     // Σ r² is the free-scale eigenvalue loss plus the same voxel and eikonal terms.
     let groups = &target.groups;
@@ -295,16 +527,33 @@ fn free_scale_rows_are_the_plain_rows_less_their_weighted_mean_and_sum_to_the_lo
     let (le_free, _) = eigenvalue_loss_with(&eigenvalues, &target, true).unwrap();
     let squares = |s: &LeastSquares| s.residuals.iter().map(|r| r * r).sum::<f64>();
     let expected = squares(&plain) - le_plain + le_free;
-    assert!((squares(&free) - expected).abs() <= 1e-12 * expected, "{} vs {expected}", squares(&free));
+    assert!(
+        (squares(&free) - expected).abs() <= 1e-12 * expected,
+        "{} vs {expected}",
+        squares(&free)
+    );
     // Eigenvalue rows: J_G − J̄ (J_G = row_G/√|G|, J̄ the |G|-weighted mean), times √|G|.
     let total: f64 = groups.iter().map(|g| g.len() as f64).sum();
     let n_theta = plain.rows[0].len();
-    let mean: Vec<f64> = (0..n_theta).map(|j| groups.iter().enumerate().map(|(i, g)| g.len() as f64 * plain.rows[i][j] / (g.len() as f64).sqrt()).sum::<f64>() / total).collect();
+    let mean: Vec<f64> = (0..n_theta)
+        .map(|j| {
+            groups
+                .iter()
+                .enumerate()
+                .map(|(i, g)| g.len() as f64 * plain.rows[i][j] / (g.len() as f64).sqrt())
+                .sum::<f64>()
+                / total
+        })
+        .collect();
     for (i, g) in groups.iter().enumerate() {
         let root = (g.len() as f64).sqrt();
         for j in 0..n_theta {
             let want = root * (plain.rows[i][j] / root - mean[j]);
-            assert!((free.rows[i][j] - want).abs() <= 1e-12 * (want.abs() + mean[j].abs()).max(1e-300), "group {i}, θ_{j}: {} vs {want}", free.rows[i][j]);
+            assert!(
+                (free.rows[i][j] - want).abs() <= 1e-12 * (want.abs() + mean[j].abs()).max(1e-300),
+                "group {i}, θ_{j}: {} vs {want}",
+                free.rows[i][j]
+            );
         }
     }
     // The voxel and eikonal rows do not change.

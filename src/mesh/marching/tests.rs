@@ -1043,18 +1043,39 @@ fn shell_of_given_depth_uses_that_depth_and_has_no_argmax_term() {
     let d_g = base.vjp(d_x).unwrap().values;
     let d = given.vjp(&d_g).unwrap();
     let f_t = |t: &[f64]| {
-        let m = march(&grid, &shell_of_depth(&sphere, t[0], depth).unwrap().values, None, &options).unwrap();
+        let m = march(
+            &grid,
+            &shell_of_depth(&sphere, t[0], depth).unwrap().values,
+            None,
+            &options,
+        )
+        .unwrap();
         let l = losses(&m.mesh)[1].0;
         (m, l)
     };
     let fd = central_difference(&[thickness], 0, 1e-7, &base, &f_t).expect("stable topology");
-    assert!((fd - d.thickness).abs() < 1e-6 * d.thickness.abs(), "{fd} vs {}", d.thickness);
+    assert!(
+        (fd - d.thickness).abs() < 1e-6 * d.thickness.abs(),
+        "{fd} vs {}",
+        d.thickness
+    );
     let with_argmax = sampled.vjp(&d_g).unwrap();
-    let expected: Vec<f64> = d_g.iter().zip(&given.values).zip(&sphere).map(|((g, _), s)| if *s > thickness * depth - s { -g } else { *g }).collect();
+    let expected: Vec<f64> = d_g
+        .iter()
+        .zip(&given.values)
+        .zip(&sphere)
+        .map(|((g, _), s)| if *s > thickness * depth - s { -g } else { *g })
+        .collect();
     assert_eq!(d.values, expected);
-    assert_ne!(with_argmax.values[sampled.argmax], d.values[sampled.argmax], "the sampled shell's maximum moves its wall");
+    assert_ne!(
+        with_argmax.values[sampled.argmax], d.values[sampled.argmax],
+        "the sampled shell's maximum moves its wall"
+    );
     for bad in [0.0, -1.0, f64::NAN] {
-        assert!(matches!(shell_of_depth(&sphere, thickness, bad), Err(MarchingError::BadOption { .. })));
+        assert!(matches!(
+            shell_of_depth(&sphere, thickness, bad),
+            Err(MarchingError::BadOption { .. })
+        ));
     }
 }
 
@@ -1087,13 +1108,20 @@ fn a_locally_refined_grid_marches_a_thin_shell_closer_to_its_volume() {
     let (coarse_error, _) = error_of(&grid, &values);
     // Tets whose value range, widened by their longest edge, reaches the wall's middle.
     let band = |v: &crate::mesh::refine::TetView| {
-        let (a, b) = v.values.iter().fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), &x| (a.min(x), b.max(x)));
+        let (a, b) = v
+            .values
+            .iter()
+            .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), &x| {
+                (a.min(x), b.max(x))
+            });
         a - v.longest_edge <= 0.0 && b + v.longest_edge >= 0.0
     };
     let (refined, refined_values) = grid.refined(2, &values, &field, &band).unwrap();
     assert!(refined.is_refined() && !grid.is_refined());
     assert_eq!(refined_values.len(), refined.n_vertices());
-    assert!((0..grid.n_vertices()).all(|v| refined.vertex_position(v) == grid.vertex_position(v) && refined_values[v] == values[v]));
+    assert!((0..grid.n_vertices())
+        .all(|v| refined.vertex_position(v) == grid.vertex_position(v)
+            && refined_values[v] == values[v]));
     let (refined_error, marched) = error_of(&refined, &refined_values);
     let fine = BackgroundGrid::covering(lo, hi, 4 * n - 6, 1.0).unwrap();
     let fine_values: Vec<f64> = fine.vertex_positions().iter().map(|&x| field(x)).collect();
@@ -1106,9 +1134,17 @@ fn a_locally_refined_grid_marches_a_thin_shell_closer_to_its_volume() {
         4 * n - 6,
         fine.n_tets()
     );
-    assert!(refined_error < 0.25 * coarse_error, "{refined_error} vs {coarse_error}");
+    assert!(
+        refined_error < 0.25 * coarse_error,
+        "{refined_error} vs {coarse_error}"
+    );
     // Closer than the uniform grid of about the refinement's finest spacing, with fewer tets.
-    assert!(refined_error < fine_error && refined.n_tets() < fine.n_tets(), "{refined_error} on {} tets vs {fine_error} on {}", refined.n_tets(), fine.n_tets());
+    assert!(
+        refined_error < fine_error && refined.n_tets() < fine.n_tets(),
+        "{refined_error} on {} tets vs {fine_error} on {}",
+        refined.n_tets(),
+        fine.n_tets()
+    );
     assert!(refined.smallest_rest_tet_volume() < grid.smallest_rest_tet_volume() / 60.0);
 
     // dV/ds through the refined grid's crossings against central differences.
@@ -1121,17 +1157,32 @@ fn a_locally_refined_grid_marches_a_thin_shell_closer_to_its_volume() {
     };
     let scale = grad.values.iter().fold(0.0f64, |a, b| a.max(b.abs()));
     let (mut checked, mut beyond_structured) = (0, 0);
-    let moving: Vec<usize> = (0..refined.n_vertices()).filter(|&v| grad.values[v] != 0.0).collect();
+    let moving: Vec<usize> = (0..refined.n_vertices())
+        .filter(|&v| grad.values[v] != 0.0)
+        .collect();
     for &v in moving.iter().step_by((moving.len() / 60).max(1)) {
         if let Some(fd) = central_difference(&refined_values, v, 1e-5 * h, &marched, &volume_of) {
             checked += 1;
             beyond_structured += usize::from(v >= grid.n_vertices());
-            assert!((fd - grad.values[v]).abs() <= 1e-5 * scale, "dV/ds[{v}]: fd {fd} vs {}", grad.values[v]);
+            assert!(
+                (fd - grad.values[v]).abs() <= 1e-5 * scale,
+                "dV/ds[{v}]: fd {fd} vs {}",
+                grad.values[v]
+            );
         }
     }
-    assert!(checked > 30 && beyond_structured > 10, "{checked} checked, {beyond_structured} at midpoints");
+    assert!(
+        checked > 30 && beyond_structured > 10,
+        "{checked} checked, {beyond_structured} at midpoints"
+    );
 
     let theta = vec![0.0; 3 * refined.n_vertices()];
-    assert!(matches!(march(&refined, &refined_values, Some(&theta), &options), Err(MarchingError::BadGrid { .. })));
-    assert!(matches!(refined.refined(1, &refined_values, &field, &band), Err(MarchingError::BadGrid { .. })));
+    assert!(matches!(
+        march(&refined, &refined_values, Some(&theta), &options),
+        Err(MarchingError::BadGrid { .. })
+    ));
+    assert!(matches!(
+        refined.refined(1, &refined_values, &field, &band),
+        Err(MarchingError::BadGrid { .. })
+    ));
 }

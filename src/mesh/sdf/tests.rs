@@ -302,7 +302,10 @@ fn deepest_point_of_a_ball_and_a_box() {
     let centre_depth = sdf.unsigned_distance([0.0; 3]);
     let (p, s) = sdf.deepest_point(&[[0.31, -0.2, 0.15]], 0.1, 1e-9);
     assert!(norm(p) < 1e-3, "deepest point {p:?}");
-    assert!((s - centre_depth).abs() < 1e-6 && s > 0.69 * 0.98, "S = {s}, centre {centre_depth}");
+    assert!(
+        (s - centre_depth).abs() < 1e-6 && s > 0.69 * 0.98,
+        "S = {s}, centre {centre_depth}"
+    );
     // A box 0.06 × 0.04 × 0.02: s = distance to the nearest face, largest (0.01) on the
     // rectangle z = 0, |x| ≤ 0.02, |y| ≤ 0.01; from a start off that ridge.
     let mesh = box_mesh([3, 2, 1], [0.06, 0.04, 0.02]);
@@ -342,12 +345,18 @@ fn gradient_is_unit_and_matches_differences_off_the_creases() {
             continue; // a crease within the stencil
         }
         for d in 0..3 {
-            assert!((g[d] - 0.5 * (forward[d] + backward[d])).abs() < 1e-6, "q {q:?}: exact {g:?}, differences {forward:?}");
+            assert!(
+                (g[d] - 0.5 * (forward[d] + backward[d])).abs() < 1e-6,
+                "q {q:?}: exact {g:?}, differences {forward:?}"
+            );
         }
         checked += 1;
         inside += usize::from(s > 0.0);
     }
-    assert!(checked > 300 && inside > 20, "checked {checked}, inside {inside}");
+    assert!(
+        checked > 300 && inside > 20,
+        "checked {checked}, inside {inside}"
+    );
     let on_surface = surface.vertices[0];
     assert_eq!(sdf.gradient(on_surface), None);
 }

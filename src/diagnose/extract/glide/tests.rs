@@ -17,7 +17,15 @@ struct Truth {
 
 impl Truth {
     fn random(f0: f64, d: f64, g: f64, channels: usize, rng: &mut SplitMix64) -> Truth {
-        Truth { f0, d, g, amps: (0..channels).map(|_| 0.4 + 0.6 * rng.uniform()).collect(), phases: (0..channels).map(|_| PI * (2.0 * rng.uniform() - 1.0)).collect() }
+        Truth {
+            f0,
+            d,
+            g,
+            amps: (0..channels).map(|_| 0.4 + 0.6 * rng.uniform()).collect(),
+            phases: (0..channels)
+                .map(|_| PI * (2.0 * rng.uniform() - 1.0))
+                .collect(),
+        }
     }
 }
 
@@ -60,14 +68,39 @@ fn stand_in(poles: &[(f64, f64, f64)], channels: usize, sigma: f64) -> ModalExtr
             glide: None,
         })
         .collect();
-    let band = BandFit { lo_hz: 0.0, hi_hz: FS / 2.0, demod_hz: 0.0, modes: poles.len(), nuisance_poles: 0, iterations: 1, converged: true, cost_esprit: None, cost_refined: None, noise_rms: vec![sigma; channels], esprit_noise_rms: vec![sigma; channels] };
-    ModalExtraction { sample_rate: FS, n_samples: N, modes, bands: vec![band], residual_rms_esprit: vec![0.0; channels], residual_rms_refined: vec![0.0; channels], residual_rms_reported: vec![0.0; channels], signal_rms: vec![1.0; channels], decimation: 1 }
+    let band = BandFit {
+        lo_hz: 0.0,
+        hi_hz: FS / 2.0,
+        demod_hz: 0.0,
+        modes: poles.len(),
+        nuisance_poles: 0,
+        iterations: 1,
+        converged: true,
+        cost_esprit: None,
+        cost_refined: None,
+        noise_rms: vec![sigma; channels],
+        esprit_noise_rms: vec![sigma; channels],
+    };
+    ModalExtraction {
+        sample_rate: FS,
+        n_samples: N,
+        modes,
+        bands: vec![band],
+        residual_rms_esprit: vec![0.0; channels],
+        residual_rms_refined: vec![0.0; channels],
+        residual_rms_reported: vec![0.0; channels],
+        signal_rms: vec![1.0; channels],
+        decimation: 1,
+    }
 }
 
 fn std_dev(z: &[f64]) -> (f64, f64) {
     let n = z.len() as f64;
     let mean = z.iter().sum::<f64>() / n;
-    (mean, (z.iter().map(|v| (v - mean).powi(2)).sum::<f64>() / (n - 1.0)).sqrt())
+    (
+        mean,
+        (z.iter().map(|v| (v - mean).powi(2)).sum::<f64>() / (n - 1.0)).sqrt(),
+    )
 }
 
 #[test]
@@ -76,18 +109,33 @@ fn glide_phase_is_the_integral_of_the_gliding_frequency() {
     for d in [0.0, 1e-9, 0.3, 8.0, 60.0] {
         for t in [0.0, 1e-4, 0.01, 0.3, 1.0] {
             let h = 1e-6;
-            let freq = (glide_phase(f0, d, g, t + h) - glide_phase(f0, d, g, (t - h).max(0.0))) / ((t + h) - (t - h).max(0.0)) / (2.0 * PI);
-            let want = f0 * (1.0 + g * (-2.0 * d * (t + h - (t + h - (t - h).max(0.0)) / 2.0)).exp());
-            assert!((freq - want).abs() < 1e-6 * f0, "d {d} t {t}: {freq} vs {want}");
+            let freq = (glide_phase(f0, d, g, t + h) - glide_phase(f0, d, g, (t - h).max(0.0)))
+                / ((t + h) - (t - h).max(0.0))
+                / (2.0 * PI);
+            let want =
+                f0 * (1.0 + g * (-2.0 * d * (t + h - (t + h - (t - h).max(0.0)) / 2.0)).exp());
+            assert!(
+                (freq - want).abs() < 1e-6 * f0,
+                "d {d} t {t}: {freq} vs {want}"
+            );
         }
         assert_eq!(glide_phase(f0, d, g, 0.0), 0.0);
     }
     // ∂Φ/∂d by central differences, on both sides of the series threshold.
-    for (d, t) in [(5.0, 0.3), (8.0, 1e-5), (1e-3, 0.4), (0.02, 0.02), (40.0, 1.0)] {
+    for (d, t) in [
+        (5.0, 0.3),
+        (8.0, 1e-5),
+        (1e-3, 0.4),
+        (0.02, 0.02),
+        (40.0, 1.0),
+    ] {
         let h = 1e-6 * d;
         let fd = (phi_integral(d + h, t).0 - phi_integral(d - h, t).0) / (2.0 * h);
         let an = phi_integral(d, t).1;
-        assert!((fd - an).abs() <= 1e-6 * an.abs() + 1e-12, "d {d} t {t}: {fd} vs {an}");
+        assert!(
+            (fd - an).abs() <= 1e-6 * an.abs() + 1e-12,
+            "d {d} t {t}: {fd} vs {an}"
+        );
     }
 }
 
@@ -98,20 +146,45 @@ fn kaufman_jacobian_matches_finite_differences_on_exact_data() {
     let mut rng = SplitMix64(3);
     let truth = Truth::random(2000.0, 9.0, 3e-3, 2, &mut rng);
     let x = render(&[truth.clone()], 0.0, &mut rng);
-    let spectra = Spectra { fft: FftPlanner::new().plan_fft_forward(N), n: N, sample_rate: FS };
+    let spectra = Spectra {
+        fft: FftPlanner::new().plan_fft_forward(N),
+        n: N,
+        sample_rate: FS,
+    };
     let df = FS / N as f64;
     let bins: Vec<usize> = ((1950.0 / df) as usize..=(2040.0 / df) as usize).collect();
     let data = x
         .iter()
         .map(|c| {
-            let mut v: Vec<C64> = c.iter().map(|&s| C64::new(s / (N as f64).sqrt(), 0.0)).collect();
+            let mut v: Vec<C64> = c
+                .iter()
+                .map(|&s| C64::new(s / (N as f64).sqrt(), 0.0))
+                .collect();
             spectra.fft.process(&mut v);
             let m = bins.len();
-            DVector::from_fn(2 * m, |i, _| if i < m { v[bins[i]].re } else { v[bins[i - m]].im })
+            DVector::from_fn(2 * m, |i, _| {
+                if i < m {
+                    v[bins[i]].re
+                } else {
+                    v[bins[i - m]].im
+                }
+            })
         })
         .collect();
-    let problem = BandProblem { spectra: &spectra, bins, data, f_range: (1900.0, 2100.0), max_glide: 0.05, nuisance: true };
-    let comp = Component { f: truth.f0, d: truth.d, g: truth.g, glide_free: true };
+    let problem = BandProblem {
+        spectra: &spectra,
+        bins,
+        data,
+        f_range: (1900.0, 2100.0),
+        max_glide: 0.05,
+        nuisance: true,
+    };
+    let comp = Component {
+        f: truth.f0,
+        d: truth.d,
+        g: truth.g,
+        glide_free: true,
+    };
     let eval = problem.evaluate(&[comp], true).unwrap();
     assert!(eval.rss.iter().all(|&r| r < 1e-18), "{:?}", eval.rss);
     let jac = eval.jacobians();
@@ -121,12 +194,20 @@ fn kaufman_jacobian_matches_finite_differences_on_exact_data() {
         plus[j] += h;
         let mut minus = x0.clone();
         minus[j] -= h;
-        let rp = problem.evaluate(&problem.unpack(&[comp], &plus).unwrap(), false).unwrap();
-        let rm = problem.evaluate(&problem.unpack(&[comp], &minus).unwrap(), false).unwrap();
+        let rp = problem
+            .evaluate(&problem.unpack(&[comp], &plus).unwrap(), false)
+            .unwrap();
+        let rm = problem
+            .evaluate(&problem.unpack(&[comp], &minus).unwrap(), false)
+            .unwrap();
         for c in 0..2 {
             let fd = (&rp.residuals[c] - &rm.residuals[c]) / (2.0 * h);
             let err = (&fd - jac[c].column(j)).norm();
-            assert!(err < 1e-5 * fd.norm(), "parameter {j} channel {c}: |FD − J| = {err:.3e}, |FD| = {:.3e}", fd.norm());
+            assert!(
+                err < 1e-5 * fd.norm(),
+                "parameter {j} channel {c}: |FD − J| = {err:.3e}, |FD| = {:.3e}",
+                fd.norm()
+            );
         }
     }
 }
@@ -156,7 +237,10 @@ fn gliding_modes_are_recovered_within_their_standard_deviations() {
     for (name, z) in [("f0", &zf), ("d", &zd), ("g", &zg)] {
         let (mean, sd) = std_dev(z);
         println!("{name}: z mean {mean:+.3}, sd {sd:.3}");
-        assert!(mean.abs() < 0.4 && (0.75..=1.3).contains(&sd), "{name}: z mean {mean:.3}, sd {sd:.3}");
+        assert!(
+            mean.abs() < 0.4 && (0.75..=1.3).contains(&sd),
+            "{name}: z mean {mean:.3}, sd {sd:.3}"
+        );
     }
 }
 
@@ -167,13 +251,27 @@ fn a_glide_split_into_two_poles_is_merged() {
     let (f0, d, g) = (3000.0, 12.0, 4e-3);
     let truth = Truth::random(f0, d, g, 3, &mut rng);
     let x = render(&[truth], 0.01, &mut rng);
-    let ex = stand_in(&[(f0 * (1.0 + 0.1 * g), 9.0, 0.5), (f0 * (1.0 + 0.7 * g), 25.0, 0.3)], 3, 0.02);
+    let ex = stand_in(
+        &[
+            (f0 * (1.0 + 0.1 * g), 9.0, 0.5),
+            (f0 * (1.0 + 0.7 * g), 25.0, 0.3),
+        ],
+        3,
+        0.02,
+    );
     let stage = fit_glides(&x, &ex, &GlideOptions::default()).unwrap();
     assert_eq!(stage.extraction.modes.len(), 1, "{:?}", stage.decisions);
     let m = &stage.extraction.modes[0];
     let gl = m.glide.as_ref().unwrap();
-    assert!(gl.selected && gl.merged_poles == 2 && gl.delta_bic > 10.0, "{gl:?}");
-    assert!(((gl.glide - g) / gl.glide_sd).abs() < 4.0 && ((m.frequency_hz - f0) / m.frequency_sd_hz).abs() < 4.0, "{m:?}");
+    assert!(
+        gl.selected && gl.merged_poles == 2 && gl.delta_bic > 10.0,
+        "{gl:?}"
+    );
+    assert!(
+        ((gl.glide - g) / gl.glide_sd).abs() < 4.0
+            && ((m.frequency_hz - f0) / m.frequency_sd_hz).abs() < 4.0,
+        "{m:?}"
+    );
 }
 
 /// A real beating pair (two constant modes 1.6 Hz apart, their beats differing between
@@ -217,7 +315,10 @@ fn a_clean_constant_mode_is_rarely_given_a_glide() {
     }
     let (mean, sd) = std_dev(&z);
     println!("constant mode: g z mean {mean:+.3}, sd {sd:.3}, {alarms} false alarms in 200");
-    assert!(mean.abs() < 0.25 && (0.75..=1.3).contains(&sd), "z mean {mean:.3}, sd {sd:.3}");
+    assert!(
+        mean.abs() < 0.25 && (0.75..=1.3).contains(&sd),
+        "z mean {mean:.3}, sd {sd:.3}"
+    );
     assert!(alarms <= 10, "{alarms} false alarms in 200");
 }
 
@@ -225,8 +326,26 @@ fn a_clean_constant_mode_is_rarely_given_a_glide() {
 fn bad_input_is_an_error_not_a_panic() {
     let ex = stand_in(&[(1000.0, 5.0, 1.0)], 2, 0.01);
     assert!(fit_glides(&[vec![0.0; N]], &ex, &GlideOptions::default()).is_err());
-    assert!(fit_glides(&[vec![0.0; N], vec![0.0; N - 1]], &ex, &GlideOptions::default()).is_err());
-    for bad in [GlideOptions { group_rtol: -1.0, ..Default::default() }, GlideOptions { min_glide_z: -1.0, ..Default::default() }, GlideOptions { min_glide_z: f64::NAN, ..Default::default() }] {
+    assert!(fit_glides(
+        &[vec![0.0; N], vec![0.0; N - 1]],
+        &ex,
+        &GlideOptions::default()
+    )
+    .is_err());
+    for bad in [
+        GlideOptions {
+            group_rtol: -1.0,
+            ..Default::default()
+        },
+        GlideOptions {
+            min_glide_z: -1.0,
+            ..Default::default()
+        },
+        GlideOptions {
+            min_glide_z: f64::NAN,
+            ..Default::default()
+        },
+    ] {
         let err = fit_glides(&[vec![0.0; N], vec![0.0; N]], &ex, &bad).unwrap_err();
         assert!(matches!(err, ExtractError::InvalidOption { .. }), "{err}");
     }
@@ -238,14 +357,49 @@ fn bad_input_is_an_error_not_a_panic() {
 #[test]
 fn a_broken_glide_component_is_refused() {
     let options = GlideOptions::default();
-    let comp = |g: f64, d: f64| Component { f: 2000.0, d, g, glide_free: true };
+    let comp = |g: f64, d: f64| Component {
+        f: 2000.0,
+        d,
+        g,
+        glide_free: true,
+    };
     let poles = (6.0, 9.0);
-    assert!(glide_component_sound(&comp(3e-3, 8.0), 2e-4, poles, &options));
+    assert!(glide_component_sound(
+        &comp(3e-3, 8.0),
+        2e-4,
+        poles,
+        &options
+    ));
     // A loose g is not broken (a weak partner); one at the bound, with σ undefined, or run away
     // to d → 0 or far above the poles is.
-    assert!(glide_component_sound(&comp(3e-4, 8.0), 2e-4, poles, &options));
-    assert!(!glide_component_sound(&comp(0.0499, 8.0), 1e-4, poles, &options));
-    assert!(!glide_component_sound(&comp(3e-3, 8.0), f64::NAN, poles, &options));
-    assert!(!glide_component_sound(&comp(3e-3, 0.02), 2e-4, poles, &options));
-    assert!(!glide_component_sound(&comp(3e-3, 40.0), 2e-4, poles, &options));
+    assert!(glide_component_sound(
+        &comp(3e-4, 8.0),
+        2e-4,
+        poles,
+        &options
+    ));
+    assert!(!glide_component_sound(
+        &comp(0.0499, 8.0),
+        1e-4,
+        poles,
+        &options
+    ));
+    assert!(!glide_component_sound(
+        &comp(3e-3, 8.0),
+        f64::NAN,
+        poles,
+        &options
+    ));
+    assert!(!glide_component_sound(
+        &comp(3e-3, 0.02),
+        2e-4,
+        poles,
+        &options
+    ));
+    assert!(!glide_component_sound(
+        &comp(3e-3, 40.0),
+        2e-4,
+        poles,
+        &options
+    ));
 }
