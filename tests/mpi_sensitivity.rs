@@ -1176,6 +1176,35 @@ fn check_loaded_ritz(petsc: &Petsc, c: &mut Checker) {
     let projections = basis
         .attachments(petsc, &assembled, &solver, &loads, 2)
         .expect("attachments");
+    // The batched path (several groups through one multiple-right-hand-side solve) gives the
+    // same numbers as one group alone, whatever else shares its chunk.
+    let single: Vec<Vec<(_, f64)>> = (0..3)
+        .map(|k| vec![(assembled.layout.global_dof(region_nodes[0], k) as _, 1.0)])
+        .collect();
+    let many = basis
+        .attachments_many(petsc, &assembled, &solver, &[single, loads.clone()], 2)
+        .expect("batched attachments");
+    let rel = |a: &nalgebra::DMatrix<f64>, b: &nalgebra::DMatrix<f64>| {
+        (a - b).norm() / b.norm().max(1e-300)
+    };
+    let p = &projections;
+    let q = &many[1];
+    let batched = [
+        rel(&q.cross_lambda, &p.cross_lambda),
+        rel(&q.cross_mu, &p.cross_mu),
+        rel(&q.cross_mass, &p.cross_mass),
+        rel(&q.self_lambda, &p.self_lambda),
+        rel(&q.self_mu, &p.self_mu),
+        rel(&q.self_mass, &p.self_mass),
+        rel(&q.probe_values, &p.probe_values),
+    ]
+    .into_iter()
+    .fold(0.0_f64, f64::max);
+    c.check(
+        "brick attachments batched",
+        many.len() == 2 && batched < 1e-10,
+        format!("a region's projections solved alone and beside another region: largest relative difference {batched:.1e}"),
+    );
     let na = projections.probe_values.ncols();
     let extra = Enrichment {
         region_values: projections.probe_values.rows(1, 9).into_owned(),

@@ -108,7 +108,7 @@ use crate::diagnose::extract::{
     extract_modes, fit_glides, ExtractOptions, GlideOptions, ModalExtraction,
 };
 use crate::diagnose::inject;
-use crate::eigen::reduced::{lame_unit, AttachmentSolver, PoissonBasis};
+use crate::eigen::reduced::{lame_unit, AttachmentProjections, AttachmentSolver, PoissonBasis};
 use crate::eigen::{self, EigenConfig, ModeRequest};
 use crate::fem::Material;
 use crate::inverse::loaded_match::{
@@ -1166,6 +1166,7 @@ fn loaded_match<'p>(
     let factorisations = std::cell::Cell::new(1usize);
     let factor_total = std::cell::Cell::new(factor_seconds);
     let last_report = std::cell::Cell::new(Instant::now());
+    let reanchor_regions = LoadedMatchSettings::default().reanchor_regions;
     let enrich = |r: usize, anchor: f64| -> Option<Rc<Enrichment>> {
         let key = (r, anchor.to_bits());
         if let Some(hit) = cache.borrow().get(&key) {
@@ -1188,42 +1189,97 @@ fn loaded_match<'p>(
             factorisations.set(factorisations.get() + 1);
             factor_total.set(factor_total.get() + t.elapsed().as_secs_f64());
         }
-        let loads: Vec<Vec<(PetscInt, f64)>> = (0..3)
-            .map(|c| {
-                regions[r]
-                    .iter()
-                    .map(|&i| (assembled.layout.global_dof(surface[i], c) as PetscInt, 1.0))
-                    .collect()
-            })
-            .collect();
+        let loads = |r: usize| -> Vec<Vec<(PetscInt, f64)>> {
+            (0..3)
+                .map(|c| {
+                    regions[r]
+                        .iter()
+                        .map(|&i| (assembled.layout.global_dof(surface[i], c) as PetscInt, 1.0))
+                        .collect()
+                })
+                .collect()
+        };
+        // One batch: this region and those the search asks for next at this anchor (the whole
+        // coarse pass at the plain ν; otherwise every size at the sites around this one), through
+        // one multiple-right-hand-side solve (`PoissonBasis::attachments_many`).
+        let upcoming: Vec<usize> = if plain && coarse.contains(&r) {
+            coarse.clone()
+        } else if plain {
+            neighbours(r)
+        } else {
+            // A re-anchored pass asks for the first `reanchor_regions` around its site only.
+            neighbours(r).into_iter().take(reanchor_regions).collect()
+        };
+        let mut batch = vec![r];
+        {
+            let cached = cache.borrow();
+            for u in upcoming {
+                if !batch.contains(&u) && !cached.contains_key(&(u, anchor.to_bits())) {
+                    batch.push(u);
+                }
+            }
+        }
         let held = anchored.borrow();
         let use_solver = if plain {
             &solver
         } else {
             &held.as_ref().expect("factored above").1
         };
-        let made = match basis.attachments(petsc, assembled, use_solver, &loads, ATTACHMENT_BLOCKS)
-        {
-            Ok(projections) => {
-                let p = &projections.probe_values;
-                let na = p.ncols();
-                let region_values = DMatrix::from_fn(3 * regions[r].len(), na, |row, j| {
-                    p[(strike_dofs + 3 * regions[r][row / 3] + row % 3, j)]
-                });
-                let strike = (0..na).map(|j| strike_drive(p, j)).collect();
-                Some(Rc::new(Enrichment {
-                    projections,
-                    region_values,
-                    strike,
-                }))
-            }
-            Err(_) => {
-                failures.set(failures.get() + 1);
-                None
-            }
+        let enrichment = |r: usize, projections: AttachmentProjections| {
+            let p = &projections.probe_values;
+            let na = p.ncols();
+            let region_values = DMatrix::from_fn(3 * regions[r].len(), na, |row, j| {
+                p[(strike_dofs + 3 * regions[r][row / 3] + row % 3, j)]
+            });
+            let strike = (0..na).map(|j| strike_drive(p, j)).collect();
+            Rc::new(Enrichment {
+                projections,
+                region_values,
+                strike,
+            })
+        };
+        let groups: Vec<_> = batch.iter().map(|&r| loads(r)).collect();
+        let made: Vec<Option<Rc<Enrichment>>> = match basis.attachments_many(
+            petsc,
+            assembled,
+            use_solver,
+            &groups,
+            ATTACHMENT_BLOCKS,
+        ) {
+            Ok(list) => batch
+                .iter()
+                .zip(list)
+                .map(|(&r, p)| Some(enrichment(r, p)))
+                .collect(),
+            // One bad region must not cost the batch: each alone, a failure falling back to
+            // the modes alone.
+            Err(_) => batch
+                .iter()
+                .map(|&r| {
+                    match basis.attachments(
+                        petsc,
+                        assembled,
+                        use_solver,
+                        &loads(r),
+                        ATTACHMENT_BLOCKS,
+                    ) {
+                        Ok(p) => Some(enrichment(r, p)),
+                        Err(_) => {
+                            failures.set(failures.get() + 1);
+                            None
+                        }
+                    }
+                })
+                .collect(),
         };
         drop(held);
-        cache.borrow_mut().insert(key, made.clone());
+        {
+            let mut cached = cache.borrow_mut();
+            for (&u, e) in batch.iter().zip(&made) {
+                cached.insert((u, anchor.to_bits()), e.clone());
+            }
+        }
+        let made = made[0].clone();
         enrich_seconds.set(enrich_seconds.get() + started.elapsed().as_secs_f64());
         // The search is silent otherwise for minutes: report it about every 30 s.
         if last_report.get().elapsed().as_secs_f64() >= LOADED_MATCH_PROGRESS_SECONDS {

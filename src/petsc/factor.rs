@@ -476,6 +476,19 @@ impl<'p> MumpsCholesky<'p> {
         unsafe { check(sys::MatSolve(self.raw, b.raw(), x.raw()), "MatSolve(MUMPS)") }
     }
 
+    /// Solves for every column of `b` at once (MUMPS's multiple right-hand sides: the factor
+    /// is read once per block of columns instead of once per column). Collective.
+    pub fn solve_many(&self, b: &super::Dense<'p>, x: &mut super::Dense<'p>) -> Result<()> {
+        // SAFETY: dense matrices with the operator's row layout and equal column counts; PETSc
+        // checks the sizes.
+        unsafe {
+            check(
+                sys::MatMatSolve(self.raw, b.raw(), x.raw()),
+                "MatMatSolve(MUMPS)",
+            )
+        }
+    }
+
     /// The Sylvester inertia of the factored matrix, refused unless MUMPS's count is exact on this
     /// many ranks (module docs: ICNTL(13) = 1 and ICNTL(24) = 1 in force). Null pivots are
     /// returned as `zero`; their sign is undetermined, so a caller proving a count treats

@@ -10,6 +10,7 @@
 //! MPI universe and finalises PETSc/SLEPc before MPI (stack note 7).
 
 pub mod collective;
+mod dense;
 mod eps;
 mod error;
 pub mod factor;
@@ -18,6 +19,7 @@ mod runtime;
 pub mod sys;
 mod vector;
 
+pub use dense::Dense;
 pub use eps::{Eps, EpsWhich, Pc, St};
 pub use error::{PetscError, Result};
 pub use factor::{FactorError, FactorLog, FactorUse, Inertia, MumpsCholesky};

@@ -18,13 +18,15 @@ while [ $# -gt 0 ]; do
     *) echo "unknown option $1" >&2; exit 2 ;;
   esac
 done
-command -v python3 >/dev/null && python3 -c "import numpy, h5py" 2>/dev/null || apt-get install -y python3-numpy python3-h5py
+# Debian's Python and its NumPy and h5py (a pyenv or venv python3 earlier on PATH may lack them).
+PY=/usr/bin/python3
+"$PY" -c "import numpy, h5py" 2>/dev/null || apt-get install -y python3-numpy python3-h5py
 cargo build --release --bin diffsound 2>&1 | tail -n 1
 mkdir -p "$out"
-[ -d "$out/labels" ] && [ "$(ls "$out"/labels | wc -l)" -ge "$cases" ] || python3 scripts/bench/gen2/generate.py --out "$out" --cases "$cases" --seed "$seed" --np "$np"
+[ -d "$out/labels" ] && [ "$(ls "$out"/labels | wc -l)" -ge "$cases" ] || "$PY" scripts/bench/gen2/generate.py --out "$out" --cases "$cases" --seed "$seed" --np "$np"
 for dir in "$out"/case_*; do
   [ -f "$dir/diagnosis.json" ] && continue
-  mapfile -t args < <(python3 -c "import json,sys; print('\n'.join(json.load(open(sys.argv[1]))))" "$dir/args.json")
+  mapfile -t args < <("$PY" -c "import json,sys; print('\n'.join(json.load(open(sys.argv[1]))))" "$dir/args.json")
   t0=$(date +%s)
   if mpirun -np "$np" target/release/diffsound diagnose "${args[@]}" --out "$dir/diagnosis.h5" -v > "$dir/diagnosis.log" 2>&1; then
     echo $(( $(date +%s) - t0 )) > "$dir/seconds"
@@ -33,4 +35,4 @@ for dir in "$out"/case_*; do
     echo "$(basename "$dir"): diagnosis FAILED (see $dir/diagnosis.log)" >&2
   fi
 done
-python3 scripts/bench/gen2/score.py "$out" | tee "$out/score.md"
+"$PY" scripts/bench/gen2/score.py "$out" | tee "$out/score.md"

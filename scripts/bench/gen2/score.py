@@ -1,4 +1,4 @@
-#!/usr/bin/env python3
+#!/usr/bin/python3
 """Scores a diagnosis benchmark directory written by generate.py (generator 2) after run.sh:
 per effect precision, recall and F1 over the seven effects, macro-F1, false alarms on the
 clean and the uniform-shift controls, the held-out gain of every accepted effect, and the time
