@@ -184,6 +184,46 @@ fn diagnose_writes_a_consistent_report_and_agrees_across_ranks() {
         b["material"]["youngs_modulus"].as_f64().unwrap(),
     );
     assert!((ea / eb - 1.0).abs() < 1e-6, "E {ea} vs {eb}");
+
+    // Two microphones, as a user with the least gear would give them (one fitted, one held
+    // out), the strike and the material unknown: the run completes and says which effects
+    // these recordings cannot test (the microphone dependence of radiation needs two fitted).
+    let case = bench.join("case_000");
+    let two = case.join("two_mics.h5");
+    let (m0, m1) = (case.join("mic0.wav"), case.join("mic1.wav"));
+    let run = mpirun(
+        2,
+        &[
+            "diagnose",
+            "--mesh",
+            mesh_path.to_str().unwrap(),
+            "--recording",
+            m0.to_str().unwrap(),
+            "--recording",
+            m1.to_str().unwrap(),
+            "--density",
+            "2700",
+            "--out",
+            two.to_str().unwrap(),
+        ],
+        Duration::from_secs(600),
+    );
+    assert!(run.success(), "{}", run.describe());
+    assert!(
+        run.stdout
+            .contains("could not be tested with these recordings"),
+        "{}",
+        run.stdout
+    );
+    let report = read_json(&case.join("two_mics.json"));
+    let untested = report["untested"].as_array().expect("an untested list");
+    assert!(
+        untested
+            .iter()
+            .any(|u| u["name"] == "radiation"
+                && u["detail"].as_str().unwrap_or("").contains("channel")),
+        "radiation must be reported untestable with one fitted microphone: {untested:?}"
+    );
 }
 
 #[test]

@@ -1906,6 +1906,18 @@ fn print_report(
         };
         println!("  rejected {}: {:?}{extra}: {}", r.name, r.reason, r.detail);
     }
+    let untested = report.untested();
+    if !untested.is_empty() {
+        println!(
+            "  could not be tested with these recordings ({}): {}",
+            untested.len(),
+            untested
+                .iter()
+                .map(|r| format!("{} ({})", r.name, r.detail))
+                .collect::<Vec<_>>()
+                .join("; ")
+        );
+    }
     if !report.unexplained.is_empty() {
         println!("  unexplained ({}):", report.unexplained.len());
         for u in report.unexplained.iter().take(12) {
@@ -1961,6 +1973,8 @@ fn write_json(
         "observed": {"fit": measured.fit, "held_out": measured.held_out},
         "localisation": {"best_vertex": localised.best.map(|b| b.0), "best_z": localised.best.map(|b| b.1), "offered_region": localised.region},
         "catalogue": report,
+        // The effects these recordings could not test, and why (a subset of the rejections).
+        "untested": report.untested().iter().map(|r| serde_json::json!({"name": r.name, "reason": r.reason, "detail": r.detail})).collect::<Vec<_>>(),
         // What the final catalogue pass saw, so that it can be replayed without the audio,
         // the mesh or the solver (examples/catalogue_replay).
         "catalogue_input": {"evidence": catalogue_input.0, "settings": catalogue_input.1},

@@ -166,6 +166,25 @@ pub struct RejectedEffect {
     pub held_out_gain: Option<f64>,
 }
 
+impl CatalogueReport {
+    /// The effects the recordings given could not test (too few microphones, modes or
+    /// envelopes for the effect, or a held-out set it changes nothing in), with why: a
+    /// verdict of "not found" on these would claim more than the data holds.
+    pub fn untested(&self) -> Vec<&RejectedEffect> {
+        self.rejected
+            .iter()
+            .filter(|r| {
+                matches!(
+                    r.reason,
+                    Rejection::NotEnoughData
+                        | Rejection::HeldOutCannotTest
+                        | Rejection::NoHeldOutData
+                )
+            })
+            .collect()
+    }
+}
+
 /// A residual nothing in the final model explains.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct UnexplainedMode {
