@@ -224,6 +224,62 @@ fn diagnose_writes_a_consistent_report_and_agrees_across_ranks() {
                 && u["detail"].as_str().unwrap_or("").contains("channel")),
         "radiation must be reported untestable with one fitted microphone: {untested:?}"
     );
+
+    // A dead held-out microphone (a silent file in place of mic1) is left out with a warning
+    // naming it, recorded as dead, and never used as held-out evidence.
+    let silent = case.join("silent1.wav");
+    let n = hound::WavReader::open(&m0).unwrap().len() as usize;
+    let spec = hound::WavSpec {
+        channels: 1,
+        sample_rate: 48_000,
+        bits_per_sample: 32,
+        sample_format: hound::SampleFormat::Float,
+    };
+    let mut w = hound::WavWriter::create(&silent, spec).unwrap();
+    for _ in 0..n {
+        w.write_sample(0.0f32).unwrap();
+    }
+    w.finalize().unwrap();
+    let dead = case.join("dead_mic.h5");
+    let (m2, m3) = (case.join("mic2.wav"), case.join("mic3.wav"));
+    let run = mpirun(
+        2,
+        &[
+            "diagnose",
+            "--mesh",
+            mesh_path.to_str().unwrap(),
+            "--recording",
+            m0.to_str().unwrap(),
+            "--recording",
+            silent.to_str().unwrap(),
+            "--recording",
+            m2.to_str().unwrap(),
+            "--recording",
+            m3.to_str().unwrap(),
+            "--density",
+            "2700",
+            "--out",
+            dead.to_str().unwrap(),
+        ],
+        Duration::from_secs(600),
+    );
+    assert!(run.success(), "{}", run.describe());
+    assert!(
+        run.stderr.contains("silent1 is dead"),
+        "the dead file must be named:\n{}",
+        run.stderr
+    );
+    let report = read_json(&case.join("dead_mic.json"));
+    assert_eq!(
+        report["channel_health"][1]["verdict"], "dead",
+        "{}",
+        report["channel_health"]
+    );
+    assert_eq!(
+        report["held_out_microphones"],
+        serde_json::json!([3]),
+        "the dead microphone must not be held out"
+    );
 }
 
 #[test]

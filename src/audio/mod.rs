@@ -14,6 +14,7 @@
 
 pub mod chain;
 pub mod excitation;
+pub mod health;
 pub mod loss;
 pub mod noise;
 pub mod onset;

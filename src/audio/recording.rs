@@ -74,6 +74,10 @@ pub struct RecordingOptions {
     pub duration_s: Option<f64>,
     pub gain: GainPolicy,
     pub onset: OnsetOptions,
+    /// The highest frequency the caller will analyse (Hz): it must lie below the Nyquist
+    /// frequency of the files as recorded (resampling to a higher rate adds no content above
+    /// it, and an aliased file puts energy there that is not the object's).
+    pub band_max_hz: Option<f64>,
 }
 
 impl Default for RecordingOptions {
@@ -84,6 +88,7 @@ impl Default for RecordingOptions {
             duration_s: None,
             gain: GainPolicy::default(),
             onset: OnsetOptions::default(),
+            band_max_hz: None,
         }
     }
 }
@@ -150,6 +155,12 @@ pub enum RecordingError {
         #[source]
         source: OnsetError,
     },
+    #[error("{path}: the band up to {band_hz} Hz passes this file's Nyquist frequency {} Hz (recorded at {rate} Hz); lower the band's top (--fmax) below {} Hz or give a recording sampled at more than {} Hz", 0.5 * f64::from(*rate), 0.5 * f64::from(*rate), 2.0 * band_hz)]
+    BandPastNyquist {
+        path: PathBuf,
+        rate: u32,
+        band_hz: f64,
+    },
     #[error("applying the gain: {0}")]
     Gain(#[from] GainError),
 }
@@ -172,6 +183,13 @@ pub fn load_recording<P: AsRef<Path>>(
         let frames = file_channels.first().map_or(0, Vec::len);
         if file_index == 0 {
             source_rate = rate;
+            if let Some(band_hz) = opts.band_max_hz.filter(|b| *b >= 0.5 * f64::from(rate)) {
+                return Err(RecordingError::BandPastNyquist {
+                    path: path.to_path_buf(),
+                    rate,
+                    band_hz,
+                });
+            }
         } else if rate != source_rate {
             return Err(RecordingError::RateMismatch {
                 path: path.to_path_buf(),
@@ -496,6 +514,33 @@ mod tests {
         let err = load_recording(&[&noise], &opts).unwrap_err();
         assert!(matches!(err, RecordingError::Onset { .. }), "{err}");
         assert!(err.to_string().contains("noise.wav"), "{err}");
+    }
+
+    #[test]
+    fn a_band_past_the_files_nyquist_is_refused_with_the_file_named() {
+        let tmp = TempDir::new("nyquist");
+        let a = write_strike(&tmp.0, "low_rate.wav", 1, 0.5);
+        let nyquist = 0.5 * f64::from(RATE);
+        // Resampling to a higher rate does not make the band valid.
+        let opts = RecordingOptions {
+            target_rate: Some(4 * RATE),
+            band_max_hz: Some(1.2 * nyquist),
+            ..RecordingOptions::default()
+        };
+        let err = load_recording(&[&a], &opts).unwrap_err();
+        assert!(
+            matches!(err, RecordingError::BandPastNyquist { .. }),
+            "{err}"
+        );
+        assert!(
+            err.to_string().contains("low_rate.wav") && err.to_string().contains("--fmax"),
+            "{err}"
+        );
+        let fine = RecordingOptions {
+            band_max_hz: Some(0.8 * nyquist),
+            ..RecordingOptions::default()
+        };
+        assert!(load_recording(&[&a], &fine).is_ok());
     }
 
     #[test]

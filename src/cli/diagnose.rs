@@ -97,6 +97,7 @@ use super::fit_material::plot_path;
 use super::{fail, Progress};
 use crate::assembly;
 use crate::audio::chain::{DampingModel, Strike};
+use crate::audio::health::{ChannelHealth, Verdict};
 use crate::audio::radiation::{fit_multipoles, MultipoleSettings, SurfaceQuadrature};
 use crate::audio::recording::{load_recording, GainPolicy, RecordingOptions};
 use crate::audio::stft::StftPlan;
@@ -307,6 +308,8 @@ pub struct Job {
     pub recordings: Vec<PathBuf>,
     pub fit_channels: Vec<usize>,
     pub held_channels: Vec<usize>,
+    /// Each recording's health, measured at the start of the job (empty before).
+    pub channel_health: Vec<ChannelHealth>,
     pub sample_rate: u32,
     pub duration: f64,
     pub pre_roll: f64,
@@ -579,8 +582,9 @@ pub fn resolve(args: &DiagnoseArgs) -> Result<Job, String> {
         .clone()
         .or(file.plots.clone())
         .unwrap_or_else(|| out.with_extension(""));
-    super::modes::check_output_dir(&out)?;
-    super::modes::check_output_dir(&plots)?;
+    let given = super::modes::inputs(&mesh, &recordings);
+    super::modes::check_output(&out, &given)?;
+    super::modes::check_output(&plots, &given)?;
     let mut petsc_options = file.solver.petsc_options.clone();
     petsc_options.extend(args.petsc_options.iter().cloned());
     Ok(Job {
@@ -591,6 +595,7 @@ pub fn resolve(args: &DiagnoseArgs) -> Result<Job, String> {
         recordings,
         fit_channels,
         held_channels,
+        channel_health: Vec::new(),
         sample_rate,
         duration,
         pre_roll,
@@ -647,6 +652,56 @@ fn pick(channels: &[Vec<f64>], which: &[usize]) -> Vec<Vec<f64>> {
     which.iter().map(|&c| channels[c].clone()).collect()
 }
 
+/// The recording's channel health ([`crate::audio::health`]) and the fit and held-out
+/// microphones that remain: unhealthy ones dropped; an emptied held-out set takes a healthy fit
+/// microphone when at least two remain (and an emptied fit set a held-out one). Rank 0.
+fn healthy_channels(job: &Job) -> Result<(Vec<ChannelHealth>, Vec<usize>, Vec<usize>), String> {
+    let options = RecordingOptions {
+        target_rate: Some(job.sample_rate),
+        pre_roll_s: job.pre_roll,
+        duration_s: Some(job.pre_roll + job.duration),
+        gain: GainPolicy::Unity,
+        band_max_hz: Some(job.max_frequency_hz),
+        ..Default::default()
+    };
+    let rec = load_recording(&job.recordings, &options).map_err(|e| e.to_string())?;
+    let fs = f64::from(rec.sample_rate);
+    let onset =
+        (((rec.onset_s - rec.start_s) * fs).round().max(0.0) as usize).min(rec.channels[0].len());
+    let health = crate::audio::health::assess(
+        &rec.names,
+        &rec.channels,
+        onset,
+        fs,
+        &rec.channel_onsets_s,
+        rec.onset_s,
+    );
+    let ok = |c: &usize| {
+        health
+            .get(*c)
+            .is_some_and(|h| h.verdict == Verdict::Healthy)
+    };
+    let mut fit: Vec<usize> = job.fit_channels.iter().copied().filter(ok).collect();
+    let mut held: Vec<usize> = job.held_channels.iter().copied().filter(ok).collect();
+    if fit.is_empty() && held.len() >= 2 {
+        fit.push(held.remove(0));
+    }
+    if held.is_empty() && !job.held_channels.is_empty() && fit.len() >= 2 {
+        held.push(fit.pop().expect("two or more"));
+    }
+    if fit.is_empty() {
+        let why: Vec<String> = health
+            .iter()
+            .map(|h| format!("{}: {}", h.name, h.verdict.word()))
+            .collect();
+        return Err(format!(
+            "no microphone carries the strike ({}); check the files and the cables",
+            why.join("; ")
+        ));
+    }
+    Ok((health, fit, held))
+}
+
 fn measure(job: &Job, progress: &Progress) -> Result<Measured, String> {
     let t = Instant::now();
     let options = RecordingOptions {
@@ -654,6 +709,7 @@ fn measure(job: &Job, progress: &Progress) -> Result<Measured, String> {
         pre_roll_s: job.pre_roll,
         duration_s: Some(job.pre_roll + job.duration),
         gain: GainPolicy::CommonPeak(0.5),
+        band_max_hz: Some(job.max_frequency_hz),
         ..Default::default()
     };
     let rec = load_recording(&job.recordings, &options).map_err(|e| e.to_string())?;
@@ -1443,6 +1499,37 @@ fn compute(petsc: &Petsc, job: &Job) -> Result<(), String> {
         }
     }
 
+    // 0: channel health (rank 0, shared): a dead, noise-only or misaligned microphone is left
+    // out with a warning naming its file, never used as evidence.
+    let local = (rank == 0).then(|| healthy_channels(job));
+    let (health, fit_channels, held_channels): (Vec<ChannelHealth>, Vec<usize>, Vec<usize>) =
+        super::fit_material::broadcast_from_root(petsc, local)??;
+    if rank == 0 {
+        for h in health.iter().filter(|h| h.verdict != Verdict::Healthy) {
+            eprintln!(
+                "warning: {} is {} (SNR {:.0} dB{}): left out of the diagnosis",
+                h.name,
+                h.verdict.word(),
+                h.snr_db,
+                h.onset_offset_s.map_or(String::new(), |d| format!(
+                    ", its strike {d:+.3} s from the others'"
+                ))
+            );
+        }
+        if held_channels.is_empty() && !job.held_channels.is_empty() {
+            eprintln!("warning: no held-out microphone carries the strike: no effect can be confirmed on held-out evidence");
+        } else if held_channels != job.held_channels || fit_channels != job.fit_channels {
+            eprintln!("note: microphones used: fit {fit_channels:?}, held out {held_channels:?} (asked: fit {:?}, held out {:?})", job.fit_channels, job.held_channels);
+        }
+    }
+    let adjusted = Job {
+        fit_channels,
+        held_channels,
+        channel_health: health,
+        ..job.clone()
+    };
+    let job = &adjusted;
+
     // 1–2: the recording (rank 0), shared so that every rank stops together on an error.
     let local = (rank == 0).then(|| measure(job, &progress));
     let measured: Measured = super::fit_material::broadcast_from_root(petsc, local)??;
@@ -1964,6 +2051,8 @@ fn write_json(
         "recordings": job.recordings.iter().map(|p| p.display().to_string()).collect::<Vec<_>>(),
         "fit_microphones": job.fit_channels,
         "held_out_microphones": job.held_channels,
+        // Every recording's health and verdict; the unhealthy ones were left out.
+        "channel_health": job.channel_health,
         "onset_s": measured.onset_s,
         // The pitch-glide rows are the chirp fit's g per mode (relative offset at the onset),
         // not an early-minus-late frequency difference: the scorer compares accordingly.
@@ -2034,6 +2123,31 @@ fn write_hdf5(
         .number("/material", "poisson_ratio", poisson)
         .number("/material", "density", job.density)
         .text("/material", "source", &format!("{:?}", job.material_source));
+    if !job.channel_health.is_empty() {
+        // Per recording: its SNR, whether it was used (fit or held out), and the verdict.
+        let used = |c: usize| job.fit_channels.contains(&c) || job.held_channels.contains(&c);
+        file.column(
+            "/channels/snr_db",
+            job.channel_health.iter().map(|h| h.snr_db).collect(),
+            "dB",
+        )
+        .column(
+            "/channels/used",
+            (0..job.channel_health.len())
+                .map(|c| if used(c) { 1.0 } else { 0.0 })
+                .collect(),
+            "1",
+        )
+        .text(
+            "/channels",
+            "verdicts",
+            &job.channel_health
+                .iter()
+                .map(|h| format!("{}: {}", h.name, h.verdict.word()))
+                .collect::<Vec<_>>()
+                .join("; "),
+        );
+    }
     for (group, modes) in [
         ("/observed", &measured.fit),
         ("/held_out", &measured.held_out),

@@ -323,7 +323,7 @@ pub fn resolve(args: &FitGeometryArgs) -> Result<Job, String> {
         .clone()
         .or(file.out.clone())
         .unwrap_or_else(|| PathBuf::from("fit_geometry.h5"));
-    super::modes::check_output_dir(&out)?;
+    super::modes::check_output(&out, &[])?;
     let stem = out.with_extension("");
     let mesh_out = super::fit_material::plot_path(&stem, "_mesh.h5");
     let png = args
@@ -331,7 +331,7 @@ pub fn resolve(args: &FitGeometryArgs) -> Result<Job, String> {
         .clone()
         .or(file.png.clone())
         .unwrap_or_else(|| super::fit_material::plot_path(&stem, ".png"));
-    super::modes::check_output_dir(&png)?;
+    super::modes::check_output(&png, &[])?;
     let mut petsc_options = file.solver.petsc_options.clone();
     petsc_options.extend(args.petsc_options.iter().cloned());
     Ok(Job {

@@ -337,8 +337,9 @@ pub fn resolve(args: &FitMaterialArgs) -> Result<Job, String> {
         .clone()
         .or(file.plots.clone())
         .unwrap_or_else(|| out.with_extension(""));
-    super::modes::check_output_dir(&out)?;
-    super::modes::check_output_dir(&plots)?;
+    let given = super::modes::inputs(&mesh, &recordings);
+    super::modes::check_output(&out, &given)?;
+    super::modes::check_output(&plots, &given)?;
     let mut petsc_options = file.solver.petsc_options.clone();
     petsc_options.extend(args.petsc_options.iter().cloned());
     Ok(Job {
@@ -468,8 +469,22 @@ pub(super) fn decode_from_broadcast<T: serde::de::DeserializeOwned>(
 /// that every rank stops together.
 fn stage_one(petsc: &Petsc, job: &Job, progress: &Progress) -> Result<StageOne, String> {
     let local: Option<Result<StageOne, String>> = (petsc.rank() == 0).then(|| {
-        let options = RecordingOptions { target_rate: Some(job.sample_rate), pre_roll_s: 0.0, duration_s: Some(job.duration), gain: GainPolicy::CommonPeak(0.5), ..Default::default() };
-        let rec = load_recording(&job.recordings, &options).map_err(|e| e.to_string())?;
+        let options = RecordingOptions { target_rate: Some(job.sample_rate), pre_roll_s: 0.0, duration_s: Some(job.duration), gain: GainPolicy::CommonPeak(0.5), band_max_hz: Some(job.max_frequency_hz), ..Default::default() };
+        let mut rec = load_recording(&job.recordings, &options).map_err(|e| e.to_string())?;
+        // Channel health (pre-roll 0: the floor is the track's last tenth): a dead, noise-only
+        // or misaligned microphone is left out with a warning naming its file.
+        let health = crate::audio::health::assess(&rec.names, &rec.channels, 0, f64::from(rec.sample_rate), &rec.channel_onsets_s, rec.onset_s);
+        let healthy = |c: usize| health[c].verdict == crate::audio::health::Verdict::Healthy;
+        for h in health.iter().filter(|h| h.verdict != crate::audio::health::Verdict::Healthy) {
+            eprintln!("warning: {} is {} (SNR {:.0} dB): left out of the fit", h.name, h.verdict.word(), h.snr_db);
+        }
+        if !(0..health.len()).any(healthy) {
+            let why: Vec<String> = health.iter().map(|h| format!("{}: {}", h.name, h.verdict.word())).collect();
+            return Err(format!("no microphone carries the strike ({}); check the files and the cables", why.join("; ")));
+        }
+        let keep: Vec<usize> = (0..health.len()).filter(|&c| healthy(c)).collect();
+        rec.channels = keep.iter().map(|&c| std::mem::take(&mut rec.channels[c])).collect();
+        rec.names = keep.iter().map(|&c| rec.names[c].clone()).collect();
         progress.say(format!("{} channel(s) at {} Hz, onset at {:.4} s, {:.3} s each", rec.channels.len(), rec.sample_rate, rec.onset_s, rec.channels[0].len() as f64 / f64::from(rec.sample_rate)));
         let t = std::time::Instant::now();
         let damping = fit_damping(&rec.channels, f64::from(rec.sample_rate), &job.damping, |s| {

@@ -410,7 +410,7 @@ pub fn resolve(args: &ImpactArgs) -> Result<Job, String> {
         .clone()
         .or(file.out.clone())
         .unwrap_or_else(|| PathBuf::from("impact.h5"));
-    super::modes::check_output_dir(&out)?;
+    super::modes::check_output(&out, &super::modes::inputs(&mesh, &recordings))?;
     let mut petsc_options = file.petsc_options.clone();
     petsc_options.extend(args.petsc_options.iter().cloned());
     Ok(Job {
@@ -458,7 +458,9 @@ pub fn run(universe: Universe, args: ImpactArgs) -> Result<(), String> {
 /// What rank 0 read from the recording.
 #[derive(Clone, Debug, Serialize, Deserialize)]
 struct Measured {
+    /// The healthy channels' names, and their indices among the recordings.
     names: Vec<String>,
+    kept: Vec<usize>,
     onset_s: f64,
     /// Channels from the onset on, recording units.
     channels: Vec<Vec<f64>>,
@@ -475,13 +477,52 @@ fn measure(job: &Job, progress: &Progress) -> Result<Measured, String> {
         pre_roll_s: job.pre_roll,
         duration_s: Some(job.pre_roll + job.window),
         gain: GainPolicy::Unity,
+        band_max_hz: Some(job.max_frequency_hz),
         ..Default::default()
     };
     let rec = load_recording(&job.recordings, &options).map_err(|e| e.to_string())?;
     let fs = f64::from(rec.sample_rate);
     let onset =
         (((rec.onset_s - rec.start_s) * fs).round().max(0.0) as usize).min(rec.channels[0].len());
-    let channels: Vec<Vec<f64>> = rec.channels.iter().map(|c| c[onset..].to_vec()).collect();
+    // Channel health: a dead, noise-only or misaligned microphone would move the map; it is
+    // left out with a warning naming its file.
+    let health = crate::audio::health::assess(
+        &rec.names,
+        &rec.channels,
+        onset,
+        fs,
+        &rec.channel_onsets_s,
+        rec.onset_s,
+    );
+    let kept: Vec<usize> = (0..health.len())
+        .filter(|&c| health[c].verdict == crate::audio::health::Verdict::Healthy)
+        .collect();
+    for h in health
+        .iter()
+        .filter(|h| h.verdict != crate::audio::health::Verdict::Healthy)
+    {
+        eprintln!(
+            "warning: {} is {} (SNR {:.0} dB): left out of the map",
+            h.name,
+            h.verdict.word(),
+            h.snr_db
+        );
+    }
+    if kept.is_empty() {
+        let why: Vec<String> = health
+            .iter()
+            .map(|h| format!("{}: {}", h.name, h.verdict.word()))
+            .collect();
+        return Err(format!(
+            "no microphone carries the strike ({}); check the files and the cables",
+            why.join("; ")
+        ));
+    }
+    let channels: Vec<Vec<f64>> = kept
+        .iter()
+        .map(|&c| rec.channels[c][onset..].to_vec())
+        .collect();
+    let names: Vec<String> = kept.iter().map(|&c| rec.names[c].clone()).collect();
     if (channels[0].len() as f64) < 0.02 * fs {
         return Err(format!(
             "only {:.3} s of recording after the onset at {:.3} s",
@@ -499,7 +540,8 @@ fn measure(job: &Job, progress: &Progress) -> Result<Measured, String> {
         .collect();
     progress.say(format!("{} channel(s) at {} Hz, onset at {:.4} s, {:.3} s fitted; {} recorded poles below {:.0} Hz", channels.len(), rec.sample_rate, rec.onset_s, channels[0].len() as f64 / fs, poles.len(), job.max_frequency_hz));
     Ok(Measured {
-        names: rec.names,
+        names,
+        kept,
         onset_s: rec.onset_s,
         channels,
         sample_rate: fs,
@@ -622,6 +664,15 @@ fn compute(petsc: &Petsc, job: &Job) -> Result<(), String> {
     // 1: the recording (rank 0), shared so that every rank stops together on an error.
     let local = (rank == 0).then(|| measure(job, &progress));
     let measured: Measured = broadcast_from_root(petsc, local)??;
+    // The microphone positions of the channels kept.
+    let adjusted = Job {
+        microphones: job
+            .microphones
+            .as_ref()
+            .map(|m| measured.kept.iter().map(|&c| m[c]).collect()),
+        ..job.clone()
+    };
+    let job = &adjusted;
     if measured.poles.len() < 3 {
         return Err(format!(
             "only {} poles found in the recording below {} Hz; the map needs at least 3",

@@ -164,9 +164,13 @@ pub fn resolve(args: &ModesArgs) -> Result<Job, String> {
 /// after that end the job through [`fail`] so that no rank waits forever in a collective call.
 pub fn run(universe: Universe, args: ModesArgs) -> Result<(), String> {
     let job = resolve(&args)?;
-    check_output_dir(&job.out)?;
+    let given = inputs(&job.mesh, &[]);
+    check_output(&job.out, &given)?;
     if let Some(w) = &job.wav {
-        check_output_dir(w)?;
+        check_output(w, &given)?;
+    }
+    if let Some(t) = &job.timings_json {
+        check_output(t, &given)?;
     }
     let petsc =
         Petsc::initialize(universe, "diffsound", &job.petsc_options).map_err(|e| e.to_string())?;
@@ -221,19 +225,20 @@ pub(super) fn resolve_mesh(
     })
 }
 
-pub(super) fn check_output_dir(path: &Path) -> Result<(), String> {
-    let dir = path
-        .parent()
-        .filter(|p| !p.as_os_str().is_empty())
-        .unwrap_or(Path::new("."));
-    if !dir.is_dir() {
-        return Err(format!(
-            "output directory {} does not exist (for {})",
-            dir.display(),
-            path.display()
-        ));
-    }
-    Ok(())
+/// An output path checked before the work ([`crate::io::preflight`]): its folder exists and
+/// takes a new file, and it is none of `inputs` (named for the message).
+pub(super) fn check_output(path: &Path, inputs: &[(&str, &Path)]) -> Result<(), String> {
+    crate::io::preflight::check_output(path, inputs).map_err(|e| e.to_string())
+}
+
+/// The job's input files as [`check_output`] takes them.
+pub(super) fn inputs<'a>(
+    mesh: &'a Path,
+    recordings: &'a [PathBuf],
+) -> Vec<(&'static str, &'a Path)> {
+    std::iter::once(("the mesh", mesh))
+        .chain(recordings.iter().map(|r| ("a recording", r.as_path())))
+        .collect()
 }
 
 fn compute(petsc: &Petsc, job: &Job) -> Result<(), String> {

@@ -103,6 +103,7 @@ use hdf5::types::VarLenUnicode;
 
 pub mod atomic;
 pub mod plot;
+pub mod preflight;
 pub mod results;
 #[cfg(test)]
 pub(crate) mod test_support;

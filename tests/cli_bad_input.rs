@@ -1,0 +1,288 @@
+//! Realistic mistakes, on 2 ranks, each ending at once with a message that names the cause
+//! and no output file (issue 41): outputs that cannot be written or would destroy an input,
+//! a band past a recording's Nyquist frequency, and dead, noise-only or late microphones.
+//! Every refusal here happens before any solve, so each takes seconds.
+
+mod common;
+use common::*;
+use std::path::{Path, PathBuf};
+use std::time::{Duration, Instant};
+
+const LIMIT: Duration = Duration::from_secs(120);
+
+fn bowl_wav(i: usize) -> PathBuf {
+    repo().join("examples/bowl").join(format!("mic{i}.wav"))
+}
+
+/// A mono float WAV at `rate` Hz.
+fn write_wav(path: &Path, x: &[f64], rate: u32) {
+    let spec = hound::WavSpec {
+        channels: 1,
+        sample_rate: rate,
+        bits_per_sample: 32,
+        sample_format: hound::SampleFormat::Float,
+    };
+    let mut w = hound::WavWriter::create(path, spec).unwrap();
+    for v in x {
+        w.write_sample(*v as f32).unwrap();
+    }
+    w.finalize().unwrap();
+}
+
+fn read_wav(path: &Path) -> (Vec<f64>, u32) {
+    let mut r = hound::WavReader::open(path).unwrap();
+    let spec = r.spec();
+    let x: Vec<f64> = match spec.sample_format {
+        hound::SampleFormat::Float => r.samples::<f32>().map(|v| f64::from(v.unwrap())).collect(),
+        hound::SampleFormat::Int => {
+            let scale = (1i64 << (spec.bits_per_sample - 1)) as f64;
+            r.samples::<i32>()
+                .map(|v| f64::from(v.unwrap()) / scale)
+                .collect()
+        }
+    };
+    (x, spec.sample_rate)
+}
+
+/// Runs and asserts a refusal: non-zero exit within `seconds`, every `needles` in stderr, and
+/// no `out`.
+fn refused(args: &[&str], needles: &[&str], out: &Path, seconds: f64) {
+    let started = Instant::now();
+    let run = mpirun(2, args, LIMIT);
+    let took = started.elapsed().as_secs_f64();
+    assert!(
+        !run.success() && !run.timed_out,
+        "must be refused:\n{}",
+        run.describe()
+    );
+    for n in needles {
+        assert!(
+            run.stderr.contains(n),
+            "the message must say {n:?}:\n{}",
+            run.describe()
+        );
+    }
+    assert!(!out.exists(), "no output may be written: {}", out.display());
+    assert!(took < seconds, "the refusal took {took:.1} s");
+    println!(
+        "refused in {took:.1} s: {}",
+        run.stderr
+            .lines()
+            .find(|l| l.contains("rror"))
+            .unwrap_or("")
+    );
+}
+
+#[test]
+fn outputs_are_checked_before_the_work() {
+    let dir = scratch("bad_outputs");
+    let mesh = dir.join("bowl.msh");
+    std::fs::copy(bowl_mesh(), &mesh).unwrap();
+    let before = std::fs::read(&mesh).unwrap();
+    let out = dir.join("out.h5");
+    // --out naming the input mesh.
+    refused(
+        &[
+            "modes",
+            "--mesh",
+            s(&mesh),
+            "--modes",
+            "5",
+            "--out",
+            s(&mesh),
+        ],
+        &["also an input of this job (the mesh)"],
+        &dir.join("never.h5"),
+        20.0,
+    );
+    assert_eq!(
+        std::fs::read(&mesh).unwrap(),
+        before,
+        "the mesh must be untouched"
+    );
+    // --out naming a directory; a folder that takes no file; a timings file in a missing folder.
+    refused(
+        &[
+            "modes",
+            "--mesh",
+            s(&mesh),
+            "--modes",
+            "5",
+            "--out",
+            s(&dir),
+        ],
+        &["is a directory"],
+        &out,
+        20.0,
+    );
+    refused(
+        &[
+            "modes",
+            "--mesh",
+            s(&mesh),
+            "--modes",
+            "5",
+            "--out",
+            "/proc/diffsound_modes.h5",
+        ],
+        &["cannot write /proc/diffsound_modes.h5"],
+        Path::new("/proc/diffsound_modes.h5"),
+        20.0,
+    );
+    let missing = dir.join("no_such_folder").join("t.json");
+    refused(
+        &[
+            "modes",
+            "--mesh",
+            s(&mesh),
+            "--modes",
+            "5",
+            "--out",
+            s(&out),
+            "--timings-json",
+            s(&missing),
+        ],
+        &["does not exist"],
+        &out,
+        20.0,
+    );
+    // A diagnosis whose --out is one of its recordings.
+    let wav = dir.join("mic0.wav");
+    std::fs::copy(bowl_wav(0), &wav).unwrap();
+    refused(
+        &[
+            "diagnose",
+            "--mesh",
+            s(&mesh),
+            "--recording",
+            s(&wav),
+            "--recording",
+            s(&bowl_wav(1)),
+            "--density",
+            "2400",
+            "--out",
+            s(&wav),
+        ],
+        &["also an input of this job (a recording)"],
+        &out,
+        20.0,
+    );
+    assert!(
+        read_wav(&wav).0.len() > 1000,
+        "the recording must be untouched"
+    );
+}
+
+#[test]
+fn a_band_past_a_recordings_nyquist_is_refused_with_the_file_named() {
+    let dir = scratch("bad_nyquist");
+    // The bowl's first microphone decimated to 8 kHz (every sixth sample of 48 kHz: aliased,
+    // as a careless export would be).
+    let (x, rate) = read_wav(&bowl_wav(0));
+    assert_eq!(rate, 48_000);
+    let low: Vec<f64> = x.iter().step_by(6).copied().collect();
+    let (a, b) = (dir.join("low0.wav"), dir.join("low1.wav"));
+    write_wav(&a, &low, 8000);
+    write_wav(&b, &low, 8000);
+    let out = dir.join("fit.h5");
+    refused(
+        &[
+            "fit-material",
+            "--mesh",
+            s(&bowl_mesh()),
+            "--recording",
+            s(&a),
+            "--recording",
+            s(&b),
+            "--density",
+            "2400",
+            "--youngs",
+            "7e10",
+            "--poisson",
+            "0.2",
+            "--fmax",
+            "6000",
+            "--out",
+            s(&out),
+        ],
+        &["low0.wav", "Nyquist frequency 4000 Hz", "--fmax"],
+        &out,
+        30.0,
+    );
+    let out = dir.join("diagnosis.h5");
+    refused(
+        &[
+            "diagnose",
+            "--mesh",
+            s(&bowl_mesh()),
+            "--recording",
+            s(&a),
+            "--recording",
+            s(&b),
+            "--density",
+            "2400",
+            "--fmax",
+            "6000",
+            "--out",
+            s(&out),
+        ],
+        &["low0.wav", "Nyquist frequency 4000 Hz"],
+        &out,
+        30.0,
+    );
+}
+
+#[test]
+fn no_microphone_with_the_strike_is_refused_with_every_file_named() {
+    let dir = scratch("bad_channels");
+    let n = read_wav(&bowl_wav(0)).0.len();
+    let (silent, hiss) = (dir.join("silent.wav"), dir.join("hiss.wav"));
+    write_wav(&silent, &vec![0.0; n], 48_000);
+    let mut state = 7u64;
+    let noise: Vec<f64> = (0..n)
+        .map(|_| {
+            state = state
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            0.01 * (((state >> 11) as f64 / (1u64 << 53) as f64) - 0.5)
+        })
+        .collect();
+    write_wav(&hiss, &noise, 48_000);
+    let out = dir.join("impact.h5");
+    let run = mpirun(
+        2,
+        &[
+            "locate-impact",
+            "--mesh",
+            s(&bowl_mesh()),
+            "--recording",
+            s(&silent),
+            "--recording",
+            s(&hiss),
+            "--density",
+            "2400",
+            "--youngs",
+            "7e10",
+            "--poisson",
+            "0.2",
+            "--out",
+            s(&out),
+        ],
+        LIMIT,
+    );
+    assert!(!run.success() && !run.timed_out, "{}", run.describe());
+    assert!(!out.exists());
+    println!(
+        "{}",
+        run.stderr
+            .lines()
+            .filter(|l| l.contains("rror") || l.contains("strike"))
+            .collect::<Vec<_>>()
+            .join("\n")
+    );
+    assert!(
+        run.stderr.contains("silent") || run.stderr.contains("hiss"),
+        "the files must be named:\n{}",
+        run.describe()
+    );
+}
