@@ -286,3 +286,61 @@ fn no_microphone_with_the_strike_is_refused_with_every_file_named() {
         run.describe()
     );
 }
+
+/// A curved 10-node tet whose map folds over (a mid-edge node pushed across the element, as a
+/// second-order Gmsh mesh of a thin curved part can make): refused before any assembly with
+/// the file and the Gmsh element tag named and both ways forward; with `--straighten-invalid`
+/// it runs, and the straightening is reported.
+#[test]
+fn a_folded_curved_tet_is_named_by_its_gmsh_tag_and_straightened_on_request() {
+    let dir = scratch("bad_folded");
+    let mesh = dir.join("folded.msh");
+    std::fs::write(
+        &mesh,
+        "$MeshFormat\n2.2 0 8\n$EndMeshFormat\n$Nodes\n10\n1 0 0 0\n2 1 0 0\n3 0 1 0\n4 0 0 1\n5 0.5 0.9 0.9\n6 0.5 0.5 0\n7 0 0.5 0\n8 0 0 0.5\n9 0 0.5 0.5\n10 0.5 0 0.5\n$EndNodes\n$Elements\n1\n4287 11 2 0 1 1 2 3 4 5 6 7 8 9 10\n$EndElements\n",
+    )
+    .unwrap();
+    let out = dir.join("folded_modes.h5");
+    refused(
+        &[
+            "modes",
+            "--mesh",
+            s(&mesh),
+            "--modes",
+            "5",
+            "--out",
+            s(&out),
+        ],
+        &[
+            "folded.msh",
+            "fold over",
+            "Gmsh element tags 4287",
+            "--straighten-invalid",
+            "gmsh -optimize_ho",
+        ],
+        &out,
+        20.0,
+    );
+    let run = mpirun(
+        2,
+        &[
+            "modes",
+            "--mesh",
+            s(&mesh),
+            "--modes",
+            "5",
+            "--out",
+            s(&out),
+            "--straighten-invalid",
+        ],
+        LIMIT,
+    );
+    assert!(run.success(), "{}", run.describe());
+    assert!(
+        run.stderr
+            .contains("straightened 1 folded curved tetrahedra (1 mid-edge nodes moved"),
+        "{}",
+        run.stderr
+    );
+    assert!(out.exists());
+}

@@ -82,6 +82,10 @@ pub struct ModesArgs {
     /// Flip inverted tets instead of rejecting the mesh.
     #[arg(long)]
     pub fix_inverted: bool,
+    /// Straighten the mid-edge nodes of curved 10-node tets whose map folds over (Jacobian
+    /// determinant ≤ 0 inside) instead of rejecting the mesh; the count is reported.
+    #[arg(long)]
+    pub straighten_invalid: bool,
     /// Material preset (ceramic, glass, steel, aluminium, wood, plastic, …); default ceramic.
     #[arg(long)]
     pub material: Option<String>,

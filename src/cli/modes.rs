@@ -21,6 +21,7 @@ pub struct Job {
     pub units: String,
     pub order: u32,
     pub fix_inverted: bool,
+    pub straighten_invalid: bool,
     pub material: Material,
     pub material_name: String,
     pub request: ModeRequest,
@@ -134,6 +135,7 @@ pub fn resolve(args: &ModesArgs) -> Result<Job, String> {
         units,
         order,
         fix_inverted: args.fix_inverted || file.fix_inverted.unwrap_or(false),
+        straighten_invalid: args.straighten_invalid,
         material,
         material_name,
         request,
@@ -247,7 +249,7 @@ fn compute(petsc: &Petsc, job: &Job) -> Result<(), String> {
     let progress = Progress::new(rank, job.verbose);
 
     progress.say(format!("reading {}", job.mesh.display()));
-    let read = mesh::read_mesh(
+    let mut read = mesh::read_mesh(
         &job.mesh,
         &ReadOptions {
             unit_scale: job.unit_scale,
@@ -255,6 +257,33 @@ fn compute(petsc: &Petsc, job: &Job) -> Result<(), String> {
         },
     )
     .map_err(|e| e.to_string())?;
+    // Curved 10-node tets that fold over: refused with the file and Gmsh tags named, or
+    // straightened on request (`mesh::straighten`), before any assembly.
+    let folded = mesh::straighten::folded_tets(&read.mesh);
+    if !folded.is_empty() {
+        let tags: Vec<String> = folded
+            .iter()
+            .take(5)
+            .map(|&e| {
+                read.element_tags
+                    .get(e)
+                    .map_or(format!("#{e}"), |t| t.to_string())
+            })
+            .collect();
+        if !job.straighten_invalid {
+            return Err(format!(
+                "{}: {} curved 10-node tetrahedra fold over (Jacobian determinant ≤ 0 inside the element; Gmsh element tags {}{}): rerun with --straighten-invalid to straighten their mid-edge nodes, or untangle the mesh with `gmsh -optimize_ho`",
+                job.mesh.display(),
+                folded.len(),
+                tags.join(", "),
+                if folded.len() > 5 { ", …" } else { "" }
+            ));
+        }
+        let moved = mesh::straighten::straighten(&mut read.mesh, &folded);
+        if rank == 0 {
+            eprintln!("warning: straightened {} folded curved tetrahedra ({moved} mid-edge nodes moved to their edge midpoints; Gmsh element tags {}{})", folded.len(), tags.join(", "), if folded.len() > 5 { ", …" } else { "" });
+        }
+    }
     if rank == 0 {
         for w in &read.warnings {
             eprintln!("warning: {w}");

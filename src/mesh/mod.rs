@@ -43,7 +43,7 @@
 //! Both are errors when reading; inverted tets can instead be flipped with
 //! [`ReadOptions::fix_inverted`]. Curved 10-node tets whose Jacobian becomes
 //! non-positive inside the element are not detected here (only corners are
-//! checked); that is the FEM layer's job.
+//! checked): [`straighten`] finds and, on request, straightens them.
 //!
 //! # Shapes from signed distances
 //!
@@ -73,6 +73,7 @@ mod lift;
 pub mod marching;
 pub mod refine;
 pub mod sdf;
+pub mod straighten;
 pub mod surface;
 mod validate;
 mod write;
@@ -321,6 +322,8 @@ impl Default for ReadOptions {
 #[derive(Clone, Debug)]
 pub struct MeshRead {
     pub mesh: TetMesh,
+    /// The Gmsh element tag of each tet, in the order of `mesh`'s tets.
+    pub element_tags: Vec<u64>,
     /// One line per issue that did not prevent reading (ignored element
     /// types, dropped nodes, several connected pieces, flipped tets).
     pub warnings: Vec<String>,

@@ -97,7 +97,11 @@ pub(super) fn finish(raw: RawMesh, path: &Path, opts: &ReadOptions) -> Result<Me
             "the mesh has {pieces} connected pieces (tets sharing no node); each piece adds its own rigid-body modes"
         ));
     }
-    Ok(MeshRead { mesh, warnings })
+    Ok(MeshRead {
+        mesh,
+        element_tags,
+        warnings,
+    })
 }
 
 /// Keeps only nodes referenced by `connectivity`, in their original order,
