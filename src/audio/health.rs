@@ -113,18 +113,16 @@ pub fn assess(
                 .flatten()
                 .map(|t| t - shared_onset_s);
             let finite = c.iter().all(|v| v.is_finite());
-            let verdict = if !finite
-                || !(level > 0.0)
-                || 20.0 * (level / loudest).log10() <= -DEAD_BELOW_DB
-            {
-                Verdict::Dead
-            } else if onset_offset_s.is_none() || (has_floor && snr_db < MIN_SNR_DB) {
-                Verdict::NoiseOnly
-            } else if onset_offset_s.is_some_and(|d| d.abs() > MAX_ONSET_OFFSET_S) {
-                Verdict::Misaligned
-            } else {
-                Verdict::Healthy
-            };
+            let verdict =
+                if !finite || level <= 0.0 || 20.0 * (level / loudest).log10() <= -DEAD_BELOW_DB {
+                    Verdict::Dead
+                } else if onset_offset_s.is_none() || (has_floor && snr_db < MIN_SNR_DB) {
+                    Verdict::NoiseOnly
+                } else if onset_offset_s.is_some_and(|d| d.abs() > MAX_ONSET_OFFSET_S) {
+                    Verdict::Misaligned
+                } else {
+                    Verdict::Healthy
+                };
             ChannelHealth {
                 name: names
                     .get(i)

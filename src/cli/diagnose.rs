@@ -652,10 +652,13 @@ fn pick(channels: &[Vec<f64>], which: &[usize]) -> Vec<Vec<f64>> {
     which.iter().map(|&c| channels[c].clone()).collect()
 }
 
+/// Every channel's health, then the fit and the held-out microphones kept.
+type ChannelChoice = (Vec<ChannelHealth>, Vec<usize>, Vec<usize>);
+
 /// The recording's channel health ([`crate::audio::health`]) and the fit and held-out
 /// microphones that remain: unhealthy ones dropped; an emptied held-out set takes a healthy fit
 /// microphone when at least two remain (and an emptied fit set a held-out one). Rank 0.
-fn healthy_channels(job: &Job) -> Result<(Vec<ChannelHealth>, Vec<usize>, Vec<usize>), String> {
+fn healthy_channels(job: &Job) -> Result<ChannelChoice, String> {
     let options = RecordingOptions {
         target_rate: Some(job.sample_rate),
         pre_roll_s: job.pre_roll,
@@ -1502,7 +1505,7 @@ fn compute(petsc: &Petsc, job: &Job) -> Result<(), String> {
     // 0: channel health (rank 0, shared): a dead, noise-only or misaligned microphone is left
     // out with a warning naming its file, never used as evidence.
     let local = (rank == 0).then(|| healthy_channels(job));
-    let (health, fit_channels, held_channels): (Vec<ChannelHealth>, Vec<usize>, Vec<usize>) =
+    let (health, fit_channels, held_channels): ChannelChoice =
         super::fit_material::broadcast_from_root(petsc, local)??;
     if rank == 0 {
         for h in health.iter().filter(|h| h.verdict != Verdict::Healthy) {

@@ -113,6 +113,9 @@ pub struct AttachmentProjections {
     pub probe_values: DMatrix<f64>,
 }
 
+/// Per group of a chunk: the cross projections C_• and the own Gram blocks Aᵀ K_• A.
+type Projected = (Vec<DMatrix<f64>>, Vec<DMatrix<f64>>);
+
 /// The factored operator a(ν)K_λ + b(ν)K_μ + σM₁ and the M₁-orthonormal rigid-body motions,
 /// for [`PoissonBasis::attachments`].
 pub struct AttachmentSolver<'p> {
@@ -715,49 +718,48 @@ impl<'p> PoissonBasis<'p> {
         let basis = DMatrix::from_fn(n_local, nb, |r, i| solver.local_basis[i][r]);
         let basis_t = basis.transpose();
         let self_len: usize = (0..groups.len()).map(|g| members(g).len().pow(2)).sum();
-        let project =
-            |mat: &Mat<'p>| -> Result<(Vec<DMatrix<f64>>, Vec<DMatrix<f64>>), ReducedError> {
-                // Local sums, then one reduction: the basis rows of every column, then each group's
-                // own Gram block.
-                let products: Vec<Vec<f64>> = solved
-                    .iter()
-                    .map(|x| Dense::product(mat, x).and_then(|mut w| w.local_values()))
-                    .collect::<Result<_, _>>()?;
-                let mut local = Vec::with_capacity(nb * n_rhs * blocks + self_len);
-                for w in &products {
-                    let w = DMatrix::from_column_slice(n_local, n_rhs, w);
-                    local.extend_from_slice((&basis_t * w).as_slice());
-                }
-                for g in 0..groups.len() {
-                    let m = members(g);
-                    for &(bj, j) in m {
-                        let wj = &products[bj][j * n_local..(j + 1) * n_local];
-                        for &(bi, i) in m {
-                            local.push(dot(column(bi, i), wj));
-                        }
+        let project = |mat: &Mat<'p>| -> Result<Projected, ReducedError> {
+            // Local sums, then one reduction: the basis rows of every column, then each group's
+            // own Gram block.
+            let products: Vec<Vec<f64>> = solved
+                .iter()
+                .map(|x| Dense::product(mat, x).and_then(|mut w| w.local_values()))
+                .collect::<Result<_, _>>()?;
+            let mut local = Vec::with_capacity(nb * n_rhs * blocks + self_len);
+            for w in &products {
+                let w = DMatrix::from_column_slice(n_local, n_rhs, w);
+                local.extend_from_slice((&basis_t * w).as_slice());
+            }
+            for g in 0..groups.len() {
+                let m = members(g);
+                for &(bj, j) in m {
+                    let wj = &products[bj][j * n_local..(j + 1) * n_local];
+                    for &(bi, i) in m {
+                        local.push(dot(column(bi, i), wj));
                     }
                 }
-                let global = sum(&local);
-                let mut cross = Vec::with_capacity(groups.len());
-                let mut own = Vec::with_capacity(groups.len());
-                let mut at = nb * n_rhs * blocks;
-                for g in 0..groups.len() {
-                    let m = members(g);
-                    let c = DMatrix::from_fn(nb, m.len(), |i, k| {
-                        let (b, j) = m[k];
-                        global[b * nb * n_rhs + j * nb + i]
-                    });
-                    cross.push(self.whitening.transpose() * c);
-                    let o = DMatrix::from_column_slice(
-                        m.len(),
-                        m.len(),
-                        &global[at..at + m.len() * m.len()],
-                    );
-                    at += m.len() * m.len();
-                    own.push((&o + o.transpose()) * 0.5);
-                }
-                Ok((cross, own))
-            };
+            }
+            let global = sum(&local);
+            let mut cross = Vec::with_capacity(groups.len());
+            let mut own = Vec::with_capacity(groups.len());
+            let mut at = nb * n_rhs * blocks;
+            for g in 0..groups.len() {
+                let m = members(g);
+                let c = DMatrix::from_fn(nb, m.len(), |i, k| {
+                    let (b, j) = m[k];
+                    global[b * nb * n_rhs + j * nb + i]
+                });
+                cross.push(self.whitening.transpose() * c);
+                let o = DMatrix::from_column_slice(
+                    m.len(),
+                    m.len(),
+                    &global[at..at + m.len() * m.len()],
+                );
+                at += m.len() * m.len();
+                own.push((&o + o.transpose()) * 0.5);
+            }
+            Ok((cross, own))
+        };
         let (cross_lambda, self_lambda) = project(&assembled.k_lambda)?;
         let (cross_mu, self_mu) = project(&assembled.k_mu)?;
         let (cross_mass, self_mass) = project(&assembled.mass_unit)?;
