@@ -63,6 +63,49 @@ pub struct ChannelHealth {
     pub verdict: Verdict,
 }
 
+impl ChannelHealth {
+    pub fn is_healthy(&self) -> bool {
+        self.verdict == Verdict::Healthy
+    }
+
+    /// The one-line warning for a channel left out of `job` (e.g. "the fit").
+    pub fn left_out_warning(&self, job: &str) -> String {
+        let offset = self.onset_offset_s.map_or(String::new(), |d| {
+            format!(", its strike {d:+.3} s from the others'")
+        });
+        format!(
+            "warning: {} is {} (SNR {:.0} dB{offset}): left out of {job}",
+            self.name,
+            self.verdict.word(),
+            self.snr_db
+        )
+    }
+}
+
+/// No channel of the recording carries the strike.
+#[derive(Debug, thiserror::Error)]
+#[error("no microphone carries the strike ({verdicts}); check the files and the cables")]
+pub struct NoHealthyChannel {
+    /// "name: verdict" of every channel.
+    pub verdicts: String,
+}
+
+/// The indices of the healthy channels, or the error naming every channel's verdict.
+pub fn healthy_channels(health: &[ChannelHealth]) -> Result<Vec<usize>, NoHealthyChannel> {
+    let kept: Vec<usize> = (0..health.len())
+        .filter(|&c| health[c].is_healthy())
+        .collect();
+    if kept.is_empty() {
+        let verdicts = health
+            .iter()
+            .map(|h| format!("{}: {}", h.name, h.verdict.word()))
+            .collect::<Vec<_>>()
+            .join("; ");
+        return Err(NoHealthyChannel { verdicts });
+    }
+    Ok(kept)
+}
+
 fn rms(x: &[f64]) -> f64 {
     if x.is_empty() {
         return 0.0;

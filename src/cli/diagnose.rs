@@ -97,7 +97,7 @@ use super::fit_material::plot_path;
 use super::{fail, Progress};
 use crate::assembly;
 use crate::audio::chain::{DampingModel, Strike};
-use crate::audio::health::{ChannelHealth, Verdict};
+use crate::audio::health::ChannelHealth;
 use crate::audio::radiation::{fit_multipoles, MultipoleSettings, SurfaceQuadrature};
 use crate::audio::recording::{load_recording, GainPolicy, RecordingOptions};
 use crate::audio::stft::StftPlan;
@@ -679,11 +679,8 @@ fn healthy_channels(job: &Job) -> Result<ChannelChoice, String> {
         &rec.channel_onsets_s,
         rec.onset_s,
     );
-    let ok = |c: &usize| {
-        health
-            .get(*c)
-            .is_some_and(|h| h.verdict == Verdict::Healthy)
-    };
+    let healthy = crate::audio::health::healthy_channels(&health).map_err(|e| e.to_string())?;
+    let ok = |c: &usize| healthy.contains(c);
     let mut fit: Vec<usize> = job.fit_channels.iter().copied().filter(ok).collect();
     let mut held: Vec<usize> = job.held_channels.iter().copied().filter(ok).collect();
     if fit.is_empty() && held.len() >= 2 {
@@ -693,14 +690,13 @@ fn healthy_channels(job: &Job) -> Result<ChannelChoice, String> {
         held.push(fit.pop().expect("two or more"));
     }
     if fit.is_empty() {
-        let why: Vec<String> = health
+        // A lone healthy held-out channel cannot be fitted and checked at once.
+        let verdicts = health
             .iter()
             .map(|h| format!("{}: {}", h.name, h.verdict.word()))
-            .collect();
-        return Err(format!(
-            "no microphone carries the strike ({}); check the files and the cables",
-            why.join("; ")
-        ));
+            .collect::<Vec<_>>()
+            .join("; ");
+        return Err(crate::audio::health::NoHealthyChannel { verdicts }.to_string());
     }
     Ok((health, fit, held))
 }
@@ -1508,16 +1504,8 @@ fn compute(petsc: &Petsc, job: &Job) -> Result<(), String> {
     let (health, fit_channels, held_channels): ChannelChoice =
         super::fit_material::broadcast_from_root(petsc, local)??;
     if rank == 0 {
-        for h in health.iter().filter(|h| h.verdict != Verdict::Healthy) {
-            eprintln!(
-                "warning: {} is {} (SNR {:.0} dB{}): left out of the diagnosis",
-                h.name,
-                h.verdict.word(),
-                h.snr_db,
-                h.onset_offset_s.map_or(String::new(), |d| format!(
-                    ", its strike {d:+.3} s from the others'"
-                ))
-            );
+        for h in health.iter().filter(|h| !h.is_healthy()) {
+            eprintln!("{}", h.left_out_warning("the diagnosis"));
         }
         if held_channels.is_empty() && !job.held_channels.is_empty() {
             eprintln!("warning: no held-out microphone carries the strike: no effect can be confirmed on held-out evidence");

@@ -474,15 +474,10 @@ fn stage_one(petsc: &Petsc, job: &Job, progress: &Progress) -> Result<StageOne, 
         // Channel health (pre-roll 0: the floor is the track's last tenth): a dead, noise-only
         // or misaligned microphone is left out with a warning naming its file.
         let health = crate::audio::health::assess(&rec.names, &rec.channels, 0, f64::from(rec.sample_rate), &rec.channel_onsets_s, rec.onset_s);
-        let healthy = |c: usize| health[c].verdict == crate::audio::health::Verdict::Healthy;
-        for h in health.iter().filter(|h| h.verdict != crate::audio::health::Verdict::Healthy) {
-            eprintln!("warning: {} is {} (SNR {:.0} dB): left out of the fit", h.name, h.verdict.word(), h.snr_db);
+        for h in health.iter().filter(|h| !h.is_healthy()) {
+            eprintln!("{}", h.left_out_warning("the fit"));
         }
-        if !(0..health.len()).any(healthy) {
-            let why: Vec<String> = health.iter().map(|h| format!("{}: {}", h.name, h.verdict.word())).collect();
-            return Err(format!("no microphone carries the strike ({}); check the files and the cables", why.join("; ")));
-        }
-        let keep: Vec<usize> = (0..health.len()).filter(|&c| healthy(c)).collect();
+        let keep = crate::audio::health::healthy_channels(&health).map_err(|e| e.to_string())?;
         rec.channels = keep.iter().map(|&c| std::mem::take(&mut rec.channels[c])).collect();
         rec.names = keep.iter().map(|&c| rec.names[c].clone()).collect();
         progress.say(format!("{} channel(s) at {} Hz, onset at {:.4} s, {:.3} s each", rec.channels.len(), rec.sample_rate, rec.onset_s, rec.channels[0].len() as f64 / f64::from(rec.sample_rate)));

@@ -494,30 +494,10 @@ fn measure(job: &Job, progress: &Progress) -> Result<Measured, String> {
         &rec.channel_onsets_s,
         rec.onset_s,
     );
-    let kept: Vec<usize> = (0..health.len())
-        .filter(|&c| health[c].verdict == crate::audio::health::Verdict::Healthy)
-        .collect();
-    for h in health
-        .iter()
-        .filter(|h| h.verdict != crate::audio::health::Verdict::Healthy)
-    {
-        eprintln!(
-            "warning: {} is {} (SNR {:.0} dB): left out of the map",
-            h.name,
-            h.verdict.word(),
-            h.snr_db
-        );
+    for h in health.iter().filter(|h| !h.is_healthy()) {
+        eprintln!("{}", h.left_out_warning("the map"));
     }
-    if kept.is_empty() {
-        let why: Vec<String> = health
-            .iter()
-            .map(|h| format!("{}: {}", h.name, h.verdict.word()))
-            .collect();
-        return Err(format!(
-            "no microphone carries the strike ({}); check the files and the cables",
-            why.join("; ")
-        ));
-    }
+    let kept = crate::audio::health::healthy_channels(&health).map_err(|e| e.to_string())?;
     let channels: Vec<Vec<f64>> = kept
         .iter()
         .map(|&c| rec.channels[c][onset..].to_vec())
