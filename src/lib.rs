@@ -29,3 +29,4 @@ pub mod petsc;
 pub mod random;
 #[cfg(test)]
 mod testing;
+pub mod workflow;

@@ -1478,7 +1478,7 @@ fn loaded_match<'p>(
 fn compute(petsc: &Petsc, job: &Job) -> Result<(), String> {
     let total = Instant::now();
     let rank = petsc.rank();
-    let progress = Progress::new(rank, job.verbose);
+    let progress = super::stderr_progress(rank, job.verbose);
     let read = mesh::read_mesh(
         &job.mesh,
         &ReadOptions {

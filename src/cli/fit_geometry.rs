@@ -51,8 +51,8 @@
 //! the pre-fitted body, the refined body and the true surface side by side, from two views, at
 //! one scale. Progress per step on stderr (with `-v`, or on a terminal); only rank 0 writes.
 
+use super::fail;
 use super::fit_shape::{MaterialConfig, SolverConfig};
-use super::{fail, Progress};
 use crate::fem::Material;
 use crate::inverse::geometry::{fit_geometry, GeometryFit, GeometryProgress, GeometrySettings};
 use crate::inverse::shape::{curved_field_modes, normalise_surface, read_surface, shape_modes};
@@ -400,7 +400,7 @@ fn compute(
 ) -> Result<(), String> {
     let total = std::time::Instant::now();
     let rank = petsc.rank();
-    let progress = Progress::new(rank, job.verbose);
+    let progress = super::stderr_progress(rank, job.verbose);
     let fit = fit_geometry(
         petsc,
         truth,

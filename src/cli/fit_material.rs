@@ -648,7 +648,7 @@ fn match_modes(recorded_hz: &[f64], simulated_hz: &[f64]) -> Vec<Match> {
 fn compute(petsc: &Petsc, job: &Job) -> Result<(), String> {
     let total = std::time::Instant::now();
     let rank = petsc.rank();
-    let progress = Progress::new(rank, job.verbose);
+    let progress = super::stderr_progress(rank, job.verbose);
     let fs = f64::from(job.sample_rate);
 
     // Check the mesh before the long stage 1.

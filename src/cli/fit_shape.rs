@@ -64,7 +64,7 @@
 //! its modes ([`crate::io::write_modes`] layout). Progress on stderr per evaluation (with
 //! `-v`, or on a terminal); only rank 0 writes.
 
-use super::{fail, Progress};
+use super::fail;
 use crate::fem::Material;
 use crate::inverse::shape::{
     answers_with_line, fit_shape, normalise_surface, read_surface, reference_depth, replica_levels,
@@ -734,7 +734,7 @@ fn family_on(job: &Job, shapes: &[Shape], grid: &mesh::BackgroundGrid, depth: f6
 fn compute(petsc: &Petsc, job: &Job, shapes: Vec<Shape>) -> Result<(), String> {
     let total = std::time::Instant::now();
     let rank = petsc.rank();
-    let progress = Progress::new(rank, job.verbose);
+    let progress = super::stderr_progress(rank, job.verbose);
     if rank == 0 {
         for shape in &shapes {
             for w in &shape.warnings {

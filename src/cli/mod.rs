@@ -152,27 +152,14 @@ pub struct ModesArgs {
     pub petsc_options: Vec<String>,
 }
 
-/// Rank-0 progress lines on stderr: shown on a terminal (or with --verbose), silent in batch logs.
-pub struct Progress {
-    enabled: bool,
-    start: std::time::Instant,
-}
+pub use crate::workflow::Progress;
 
-impl Progress {
-    pub fn new(rank: usize, verbose: bool) -> Self {
-        Progress {
-            enabled: rank == 0 && (verbose || std::io::stderr().is_terminal()),
-            start: std::time::Instant::now(),
-        }
-    }
-    pub fn say(&self, msg: impl AsRef<str>) {
-        if self.enabled {
-            eprintln!(
-                "[{:7.2} s] {}",
-                self.start.elapsed().as_secs_f64(),
-                msg.as_ref()
-            );
-        }
+/// Rank-0 progress lines on stderr: shown on a terminal (or with --verbose), silent in batch logs.
+pub fn stderr_progress(rank: usize, verbose: bool) -> Progress {
+    if rank == 0 && (verbose || std::io::stderr().is_terminal()) {
+        Progress::new(|seconds, msg| eprintln!("[{seconds:7.2} s] {msg}"))
+    } else {
+        Progress::silent()
     }
 }
 

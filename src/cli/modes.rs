@@ -1,7 +1,7 @@
 //! The `modes` job: mesh → P2 → assembly → SLEPc → HDF5/XDMF (+ WAV strike).
 
 use super::config::{FileConfig, MaterialConfig};
-use super::{fail, ModesArgs, Progress};
+use super::{fail, ModesArgs};
 use crate::assembly;
 use crate::audio::{self, ModalBank, WavFormat};
 use crate::eigen::sensitivity::{self, ClusterTreatment};
@@ -246,7 +246,7 @@ pub(super) fn inputs<'a>(
 fn compute(petsc: &Petsc, job: &Job) -> Result<(), String> {
     let total = std::time::Instant::now();
     let rank = petsc.rank();
-    let progress = Progress::new(rank, job.verbose);
+    let progress = super::stderr_progress(rank, job.verbose);
 
     progress.say(format!("reading {}", job.mesh.display()));
     let mut read = mesh::read_mesh(
