@@ -93,7 +93,6 @@
 //!   and of recording − modal resynthesis, fit channel 0), `_envelopes.png` (residual energy
 //!   per band over time against the pre-roll floor).
 
-use super::fit_material::plot_path;
 use super::{fail, Progress};
 use crate::assembly;
 use crate::audio::chain::{DampingModel, Strike};
@@ -120,11 +119,13 @@ use crate::inverse::material::{
     line_match_targets, line_spectrum_start, LineSpectrumStart, MaterialFitSettings,
     MaterialProblem,
 };
+use crate::io::fit_material::read_material as read_fit_material;
+use crate::io::paths::{plot_path, with_suffix};
 use crate::io::plot::{
     line_plot_png, spectrogram_png, AxisScale, LineFigure, Marker, Series, SpectrogramFigure,
     SpectrogramPanel,
 };
-use crate::io::results::{read_attribute, AttrValue, ResultsFile};
+use crate::io::results::ResultsFile;
 use crate::io::{write_modes, MaterialRecord, ModesFile, NodeField};
 use crate::mesh::{self, ReadOptions, TetMesh};
 use crate::petsc::{Petsc, PetscInt};
@@ -346,41 +347,6 @@ fn unit_vector(v: [f64; 3], what: &str) -> Result<[f64; 3], String> {
     Ok(v.map(|c| c / n))
 }
 
-pub(super) fn with_suffix(path: &Path, suffix: &str) -> PathBuf {
-    let mut s = path.with_extension("").into_os_string();
-    s.push(suffix);
-    PathBuf::from(s)
-}
-
-/// Reads E, ν, ρ from a fit-material result.
-pub(super) fn read_fit_material(path: &Path) -> Result<(f64, f64, f64), String> {
-    let number = |key: &str| -> Result<f64, String> {
-        match read_attribute(path, "/material", key)
-            .map_err(|e| format!("{}: {e}", path.display()))?
-        {
-            AttrValue::Number(v) => Ok(v),
-            AttrValue::Text(t) => Err(format!(
-                "{}: /material {key} is text {t:?}, expected a number",
-                path.display()
-            )),
-        }
-    };
-    match read_attribute(path, "/", "format").map_err(|e| format!("{}: {e}", path.display()))? {
-        AttrValue::Text(t) if t == "diffsound.fit_material" => {}
-        other => {
-            return Err(format!(
-                "{} is not a fit-material result (format {other:?})",
-                path.display()
-            ))
-        }
-    }
-    Ok((
-        number("youngs_modulus")?,
-        number("poisson_ratio")?,
-        number("density")?,
-    ))
-}
-
 /// Merges defaults < case metadata < config file < flags and validates.
 pub fn resolve(args: &DiagnoseArgs) -> Result<Job, String> {
     let file = match &args.config {
@@ -406,9 +372,9 @@ pub fn resolve(args: &DiagnoseArgs) -> Result<Job, String> {
         .unwrap_or_default();
     let mesh_from_case = case.as_ref().map(|c| c.mesh.clone());
     let units_from_case = case.as_ref().map(|c| c.mesh_unit.clone());
-    let super::modes::MeshChoice {
+    let super::resolve::MeshChoice {
         mesh, unit_scale, ..
-    } = super::modes::resolve_mesh(
+    } = super::resolve::resolve_mesh(
         &args.mesh,
         &file.mesh.clone().or(mesh_from_case),
         &args.units,
@@ -582,9 +548,9 @@ pub fn resolve(args: &DiagnoseArgs) -> Result<Job, String> {
         .clone()
         .or(file.plots.clone())
         .unwrap_or_else(|| out.with_extension(""));
-    let given = super::modes::inputs(&mesh, &recordings);
-    super::modes::check_output(&out, &given)?;
-    super::modes::check_output(&plots, &given)?;
+    let given = super::resolve::inputs(&mesh, &recordings);
+    super::resolve::check_output(&out, &given)?;
+    super::resolve::check_output(&plots, &given)?;
     let mut petsc_options = file.solver.petsc_options.clone();
     petsc_options.extend(args.petsc_options.iter().cloned());
     Ok(Job {
@@ -1502,7 +1468,7 @@ fn compute(petsc: &Petsc, job: &Job) -> Result<(), String> {
     // out with a warning naming its file, never used as evidence.
     let local = (rank == 0).then(|| healthy_channels(job));
     let (health, fit_channels, held_channels): ChannelChoice =
-        super::fit_material::broadcast_from_root(petsc, local)??;
+        crate::workflow::broadcast_from_root(petsc, local)??;
     if rank == 0 {
         for h in health.iter().filter(|h| !h.is_healthy()) {
             eprintln!("{}", h.left_out_warning("the diagnosis"));
@@ -1523,7 +1489,7 @@ fn compute(petsc: &Petsc, job: &Job) -> Result<(), String> {
 
     // 1–2: the recording (rank 0), shared so that every rank stops together on an error.
     let local = (rank == 0).then(|| measure(job, &progress));
-    let measured: Measured = super::fit_material::broadcast_from_root(petsc, local)??;
+    let measured: Measured = crate::workflow::broadcast_from_root(petsc, local)??;
     if measured.fit.len() < 4 {
         return Err(format!(
             "only {} modes found in the recording below {} Hz; the diagnosis needs at least 4",

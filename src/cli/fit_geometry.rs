@@ -323,15 +323,15 @@ pub fn resolve(args: &FitGeometryArgs) -> Result<Job, String> {
         .clone()
         .or(file.out.clone())
         .unwrap_or_else(|| PathBuf::from("fit_geometry.h5"));
-    super::modes::check_output(&out, &[])?;
+    super::resolve::check_output(&out, &[])?;
     let stem = out.with_extension("");
-    let mesh_out = super::fit_material::plot_path(&stem, "_mesh.h5");
+    let mesh_out = crate::io::paths::plot_path(&stem, "_mesh.h5");
     let png = args
         .png
         .clone()
         .or(file.png.clone())
-        .unwrap_or_else(|| super::fit_material::plot_path(&stem, ".png"));
-    super::modes::check_output(&png, &[])?;
+        .unwrap_or_else(|| crate::io::paths::plot_path(&stem, ".png"));
+    super::resolve::check_output(&png, &[])?;
     let mut petsc_options = file.solver.petsc_options.clone();
     petsc_options.extend(args.petsc_options.iter().cloned());
     Ok(Job {

@@ -67,6 +67,7 @@ use crate::inverse::material::{
     band_weight, fit_material, render_channels, rms_matched_log_gains, MaterialFit,
     MaterialFitSettings, MaterialProblem,
 };
+use crate::io::paths::plot_path;
 use crate::io::plot::{
     line_plot_png, spectrogram_png, AxisScale, LineFigure, Marker, Series, SpectrogramFigure,
     SpectrogramPanel,
@@ -74,11 +75,12 @@ use crate::io::plot::{
 use crate::io::results::ResultsFile;
 use crate::mesh::{self, ReadOptions, SurfacePoint, TetMesh};
 use crate::petsc::{Petsc, PetscInt};
+use crate::workflow::broadcast_from_root;
 use clap::Args;
 use mpi::environment::Universe;
-use mpi::traits::{Communicator, CommunicatorCollectives, Root};
+use mpi::traits::CommunicatorCollectives;
 use serde::Deserialize;
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 
 #[derive(Args, Debug, Clone, Default)]
 #[command(allow_negative_numbers = true)]
@@ -234,12 +236,12 @@ pub fn resolve(args: &FitMaterialArgs) -> Result<Job, String> {
         }
         None => FitFileConfig::default(),
     };
-    let super::modes::MeshChoice {
+    let super::resolve::MeshChoice {
         mesh,
         unit_scale,
         order,
         ..
-    } = super::modes::resolve_mesh(
+    } = super::resolve::resolve_mesh(
         &args.mesh,
         &file.mesh,
         &args.units,
@@ -337,9 +339,9 @@ pub fn resolve(args: &FitMaterialArgs) -> Result<Job, String> {
         .clone()
         .or(file.plots.clone())
         .unwrap_or_else(|| out.with_extension(""));
-    let given = super::modes::inputs(&mesh, &recordings);
-    super::modes::check_output(&out, &given)?;
-    super::modes::check_output(&plots, &given)?;
+    let given = super::resolve::inputs(&mesh, &recordings);
+    super::resolve::check_output(&out, &given)?;
+    super::resolve::check_output(&plots, &given)?;
     let mut petsc_options = file.solver.petsc_options.clone();
     petsc_options.extend(args.petsc_options.iter().cloned());
     Ok(Job {
@@ -411,58 +413,6 @@ fn agree_on_fit(
     }
     let root = if petsc.rank() == 0 { Some(fit) } else { None };
     broadcast_from_root(petsc, root)
-}
-
-/// Broadcasts a value from rank 0 (a length, then the bytes of [`encode_for_broadcast`]).
-/// Every rank returns the same value or the same error: a value rank 0 cannot encode is an
-/// error on every rank, not a rank waiting forever for bytes that never come.
-pub(super) fn broadcast_from_root<T: serde::Serialize + serde::de::DeserializeOwned>(
-    petsc: &Petsc,
-    value: Option<T>,
-) -> Result<T, String> {
-    let root = petsc.world().process_at_rank(0);
-    let (mut bytes, failure) = match value.as_ref().map(encode_for_broadcast) {
-        Some(Ok(bytes)) => (bytes, None),
-        Some(Err(e)) => (Vec::new(), Some(e)),
-        None => (Vec::new(), None),
-    };
-    // u64::MAX: rank 0 could not encode the value.
-    let mut len = if failure.is_some() {
-        u64::MAX
-    } else {
-        bytes.len() as u64
-    };
-    root.broadcast_into(&mut len);
-    if len == u64::MAX {
-        return Err(format!(
-            "broadcast from rank 0: {}",
-            failure.unwrap_or_else(|| "rank 0 could not encode its result".into())
-        ));
-    }
-    bytes.resize(len as usize, 0);
-    root.broadcast_into(&mut bytes[..]);
-    match value {
-        Some(v) => Ok(v),
-        None => decode_from_broadcast(&bytes),
-    }
-}
-
-/// CBOR, which carries every f64 bit for bit. The first version sent JSON: a NaN or ±∞
-/// anywhere in a diagnosis's extraction became `null`, which the other ranks could not read
-/// (seed 404 case 019 of the blind benchmark stopped with "invalid type: null, expected f64"),
-/// and JSON's decimal round trip is not guaranteed exact, so ranks could differ in the last bit.
-pub(super) fn encode_for_broadcast<T: serde::Serialize>(value: &T) -> Result<Vec<u8>, String> {
-    let mut bytes = Vec::new();
-    ciborium::into_writer(value, &mut bytes)
-        .map_err(|e| format!("encoding rank 0's result: {e}"))?;
-    Ok(bytes)
-}
-
-/// The inverse of [`encode_for_broadcast`].
-pub(super) fn decode_from_broadcast<T: serde::de::DeserializeOwned>(
-    bytes: &[u8],
-) -> Result<T, String> {
-    ciborium::from_reader(bytes).map_err(|e| format!("broadcast from rank 0: {e}"))
 }
 
 /// Stage 1 on rank 0: the recording and the damping fit. Errors travel with the broadcast so
@@ -1173,12 +1123,6 @@ fn damped_partials(
     Ok((bank.frequencies_hz, bank.decay_rates))
 }
 
-pub(super) fn plot_path(prefix: &Path, suffix: &str) -> PathBuf {
-    let mut s = prefix.as_os_str().to_owned();
-    s.push(suffix);
-    PathBuf::from(s)
-}
-
 #[allow(clippy::too_many_arguments)]
 fn write_plots(
     job: &Job,
@@ -1355,41 +1299,6 @@ fn write_plots(
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    /// What rank 0 broadcasts reaches the other ranks bit for bit, NaN and ±∞ included (JSON
-    /// turned them into null and the other ranks failed to read it).
-    #[test]
-    fn a_broadcast_value_survives_bit_for_bit() {
-        #[derive(serde::Serialize, serde::Deserialize, Debug)]
-        struct Sample {
-            values: Vec<f64>,
-            pair: Option<(f64, f64)>,
-            name: String,
-        }
-        let sample = Sample {
-            values: vec![
-                f64::NAN,
-                f64::INFINITY,
-                f64::NEG_INFINITY,
-                0.1 + 0.2,
-                -0.0,
-                5e-324,
-                f64::MAX,
-            ],
-            pair: Some((1.0 / 3.0, f64::NAN)),
-            name: "ν".into(),
-        };
-        let back: Sample = decode_from_broadcast(&encode_for_broadcast(&sample).unwrap()).unwrap();
-        let bits = |v: &[f64]| v.iter().map(|x| x.to_bits()).collect::<Vec<u64>>();
-        assert_eq!(bits(&back.values), bits(&sample.values));
-        let (a, b) = back.pair.unwrap();
-        assert_eq!(
-            (a.to_bits(), b.to_bits()),
-            ((1.0f64 / 3.0).to_bits(), f64::NAN.to_bits())
-        );
-        assert_eq!(back.name, "ν");
-        assert!(decode_from_broadcast::<Sample>(&[0xff, 0x00]).is_err());
-    }
 
     #[test]
     fn modes_pair_one_to_one_closest_first() {

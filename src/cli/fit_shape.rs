@@ -582,8 +582,8 @@ fn resolve(
         .clone()
         .or(file.out.clone())
         .unwrap_or_else(|| PathBuf::from(format!("fit_{}.h5", task.name())));
-    super::modes::check_output(&out, &[])?;
-    let mesh_out = super::fit_material::plot_path(&out.with_extension(""), "_mesh.h5");
+    super::resolve::check_output(&out, &[])?;
+    let mesh_out = crate::io::paths::plot_path(&out.with_extension(""), "_mesh.h5");
     let mut petsc_options = file.solver.petsc_options.clone();
     petsc_options.extend(common.petsc_options.iter().cloned());
     Ok(Job {

@@ -61,8 +61,6 @@
 //! * `OUT.json`: the summary; `OUT_map.png`: the map seen from three sides, with the top
 //!   candidates (and the truth, when known) marked.
 
-use super::diagnose::{read_fit_material, with_suffix};
-use super::fit_material::broadcast_from_root;
 use super::{fail, Progress};
 use crate::assembly;
 use crate::audio::chain::{DampingCurve, Strike};
@@ -77,11 +75,14 @@ use crate::inverse::impact::{
     self, AmplitudeFitOptions, ClusterAmplitudes, ForwardTable, ImpactMap, MapOptions, Pole,
     SurfaceGraph, Transfer,
 };
+use crate::io::fit_material::read_material as read_fit_material;
+use crate::io::paths::with_suffix;
 use crate::io::plot::{surface_png, SurfaceFigure, SurfaceMarker, SurfacePanel, View};
 use crate::io::results::{read_dataset, ResultsFile};
 use crate::io::{write_modes, MaterialRecord, ModesFile, NodeField};
 use crate::mesh::{self, ReadOptions, TetMesh};
 use crate::petsc::Petsc;
+use crate::workflow::broadcast_from_root;
 use clap::Args;
 use mpi::environment::Universe;
 use rustfft::num_complex::Complex64;
@@ -282,9 +283,9 @@ pub fn resolve(args: &ImpactArgs) -> Result<Job, String> {
         .and_then(|p| p.parent())
         .map(Path::to_path_buf)
         .unwrap_or_default();
-    let super::modes::MeshChoice {
+    let super::resolve::MeshChoice {
         mesh, unit_scale, ..
-    } = super::modes::resolve_mesh(
+    } = super::resolve::resolve_mesh(
         &args.mesh,
         &file.mesh.clone().or(case.as_ref().map(|c| c.mesh.clone())),
         &args.units,
@@ -410,7 +411,7 @@ pub fn resolve(args: &ImpactArgs) -> Result<Job, String> {
         .clone()
         .or(file.out.clone())
         .unwrap_or_else(|| PathBuf::from("impact.h5"));
-    super::modes::check_output(&out, &super::modes::inputs(&mesh, &recordings))?;
+    super::resolve::check_output(&out, &super::resolve::inputs(&mesh, &recordings))?;
     let mut petsc_options = file.petsc_options.clone();
     petsc_options.extend(args.petsc_options.iter().cloned());
     Ok(Job {

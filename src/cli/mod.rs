@@ -19,6 +19,7 @@ pub mod fit_shape;
 pub mod impact;
 mod modes;
 pub mod render;
+pub mod resolve;
 pub mod spectrogram;
 
 use clap::{Args, Parser, Subcommand};

@@ -102,6 +102,8 @@ use std::path::{Path, PathBuf};
 use hdf5::types::VarLenUnicode;
 
 pub mod atomic;
+pub mod fit_material;
+pub mod paths;
 pub mod plot;
 pub mod preflight;
 pub mod results;
