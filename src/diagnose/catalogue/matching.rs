@@ -29,6 +29,14 @@
 //!    "unmatched"), but without rows of its own, so it adds no evidence and takes none from the
 //!    unit it sits beside. Modes further away stay unmatched, with the nearest simulated mode
 //!    named in the report.
+//! 6. **Which poles are the partial** ([`Matching::with_swap`], used by the selection): steps
+//!    2–5 decide by frequency alone, and inside a degenerate cluster the simulated split is
+//!    mesh noise, so the closest pole is not necessarily the partial's. The bowl's partial
+//!    near 1680 Hz rings at 1681.2 and 1684.2 Hz (d ≈ 3.1 1/s on both, the split pair) beside
+//!    faint or broad poles at 1673, 1678.7 and 1687 Hz (d = 12–43 1/s), and step 2 took
+//!    1678.7 Hz because the mesh's members sit at 1678.8 and 1682.3 Hz. An extra pole may
+//!    therefore take a unit's place; the selection keeps the exchange when the baseline's
+//!    likelihood prefers it (parent docs, "Selection").
 
 use std::collections::BTreeMap;
 
@@ -76,6 +84,72 @@ fn nearest(sorted: &[f64], x: f64) -> (usize, f64) {
         }
     }
     best
+}
+
+impl Matching {
+    /// This matching with the extra pole `extra` in the place of the unit whose observed mode
+    /// is `replaced` (step 6 of the module docs); `replaced` becomes an extra pole beside it.
+    /// Roles and the members a split pair's modes sit at are re-sorted by frequency. None when
+    /// `extra` is not an extra pole of that unit's cluster, or when a split pair would then be
+    /// split by more than the largest pair split.
+    pub fn with_swap(
+        &self,
+        observed_ln_f: &[f64],
+        simulated: &[SimulatedMode],
+        replaced: usize,
+        extra: usize,
+        settings: &CatalogueSettings,
+    ) -> Option<Matching> {
+        let unit = self.units.iter().position(|u| u.observed == replaced)?;
+        let cluster = self.units[unit].cluster;
+        let extra_at = self
+            .extra_poles
+            .iter()
+            .position(|&(i, _, c)| i == extra && c == cluster)?;
+        let mut m = self.clone();
+        m.units[unit].observed = extra;
+        m.extra_poles[extra_at] = (replaced, extra, cluster);
+        let mut idx: Vec<usize> = (0..m.units.len())
+            .filter(|&k| m.units[k].cluster == cluster)
+            .collect();
+        if idx.len() == 2 && m.units[idx[0]].role != Role::Member {
+            idx.sort_by(|&a, &b| {
+                observed_ln_f[m.units[a].observed].total_cmp(&observed_ln_f[m.units[b].observed])
+            });
+            let (lo, hi) = (m.units[idx[0]].observed, m.units[idx[1]].observed);
+            let old_split = {
+                let o: Vec<f64> = self
+                    .units
+                    .iter()
+                    .filter(|u| u.cluster == cluster)
+                    .map(|u| observed_ln_f[u.observed])
+                    .collect();
+                (o[0] - o[1]).abs()
+            };
+            let split = observed_ln_f[hi] - observed_ln_f[lo];
+            if split > settings.max_pair_split.max(old_split) {
+                return None;
+            }
+            let mut at: Vec<Vec<usize>> = idx
+                .iter()
+                .map(|&k| m.units[k].frequency_from.clone())
+                .collect();
+            let key = |v: &Vec<usize>| v.first().map_or(f64::NAN, |&j| simulated[j].match_ln_f());
+            at.sort_by(|a, b| key(a).total_cmp(&key(b)));
+            for (slot, (&k, from)) in idx.iter().zip(at).enumerate() {
+                let u = &mut m.units[k];
+                u.slot = slot;
+                u.role = if slot == 0 {
+                    Role::SplitLower
+                } else {
+                    Role::SplitUpper
+                };
+                u.frequency_from = from;
+            }
+        }
+        m.units.sort_by_key(|u| u.observed);
+        Some(m)
+    }
 }
 
 fn median(values: &mut [f64]) -> f64 {

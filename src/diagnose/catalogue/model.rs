@@ -1363,6 +1363,9 @@ pub struct HeldOutChi2 {
     /// grossly misfitting row (a wrong match) does not inflate it; at least 1, so that a model
     /// that fits its held-out rows well is never credited more than Σz² says.
     pub dispersion: f64,
+    /// −2 ln L of the held-out rows at the fitted nuisance (Σz² with the Gaussian
+    /// normalisers ln 2π(σ² + τ²)): compares assignments of poles to modes, whose σ differ.
+    pub minus_two_log_likelihood: f64,
 }
 
 /// Median of the χ² distribution with one degree of freedom.
@@ -1445,6 +1448,7 @@ pub fn held_out_chi2(fit: &Fit, held: &ModeTable, tau2: &FloorVariances) -> Opti
     }
     let mut z = vec![0.0; held.n_residuals()];
     residuals(&min.x, &mut z);
+    let held_prediction = model.prediction(held, &min.x);
     // Count only the nuisance parameters the held-out rows can see.
     let channels_seen = (0..held.channels)
         .filter(|&c| {
@@ -1459,6 +1463,7 @@ pub fn held_out_chi2(fit: &Fit, held: &ModeTable, tau2: &FloorVariances) -> Opti
         chi2: min.cost,
         dof,
         dispersion: robust_dispersion(&z),
+        minus_two_log_likelihood: minus_two_log_likelihood(held, &held_prediction, tau2),
     })
 }
 

@@ -338,6 +338,61 @@ fn unmatched_reason(
     )
 }
 
+/// The observed modes of one side (fit or held out) and what [`choose_partial_poles`] needs
+/// to rebuild their table.
+struct PoleChoice<'a> {
+    observed: &'a [super::ObservedMode],
+    simulated: &'a [super::SimulatedMode],
+    /// Channel count of the table (0: take the observed modes' own).
+    channels: usize,
+    settings: &'a CatalogueSettings,
+}
+
+/// Matching step 6 (matching module docs): exchanges a unit's pole for an extra pole of its
+/// cluster while `cost` (−2 ln L of the rebuilt table under the baseline) falls by more than
+/// the ΔBIC threshold, the best exchange first. Only exchanges that keep the number of rows
+/// are compared, so that the likelihoods are of the same data size.
+fn choose_partial_poles(
+    side: PoleChoice,
+    mut matching: Matching,
+    mut table: ModeTable,
+    cost: impl Fn(&ModeTable) -> f64,
+) -> (Matching, ModeTable) {
+    let ln_f: Vec<f64> = side.observed.iter().map(|m| undamped_hz(m).ln()).collect();
+    let mut current = cost(&table);
+    for _ in 0..matching.units.len() {
+        let mut best: Option<(f64, Matching, ModeTable)> = None;
+        for &(extra, _, cluster) in &matching.extra_poles {
+            for unit in matching.units.iter().filter(|u| u.cluster == cluster) {
+                let Some(m) =
+                    matching.with_swap(&ln_f, side.simulated, unit.observed, extra, side.settings)
+                else {
+                    continue;
+                };
+                let t = ModeTable::build(
+                    side.observed,
+                    side.simulated,
+                    &m,
+                    side.channels,
+                    side.settings.own_member_split_z,
+                );
+                if t.rows.len() != table.rows.len() {
+                    continue;
+                }
+                let c = cost(&t);
+                if c < current - side.settings.delta_bic_threshold
+                    && best.as_ref().is_none_or(|b| c < b.0)
+                {
+                    best = Some((c, m, t));
+                }
+            }
+        }
+        let Some((c, m, t)) = best else { break };
+        (current, matching, table) = (c, m, t);
+    }
+    (matching, table)
+}
+
 /// Runs the whole catalogue on `evidence`: match, fit the baseline, select effects greedily,
 /// report (parent module docs).
 pub fn diagnose(
@@ -377,6 +432,30 @@ pub fn diagnose_with(
             tolerance: settings.match_tolerance,
         });
     }
+    let ln_f_ref = matching.ln_scale
+        + table.modes.iter().map(|m| m.ln_f_sim).sum::<f64>() / table.modes.len() as f64;
+    let ln_scale = matching.ln_scale;
+    let baseline_on = |t: &ModeTable| {
+        let base_model = Model::new(vec![], ln_f_ref, channels);
+        let x0 = baseline_start(t, &base_model, ln_scale);
+        fit(t, base_model, x0)
+    };
+    // Which poles are each partial's (matching step 6): the baseline's likelihood decides.
+    let (matching, table) = choose_partial_poles(
+        PoleChoice {
+            observed: &evidence.fit,
+            simulated: &evidence.simulated,
+            channels: 0,
+            settings,
+        },
+        matching,
+        table,
+        |t| baseline_on(t).minus_two_log_likelihood,
+    );
+    let baseline = baseline_on(&table);
+    if !baseline.minus_two_log_likelihood.is_finite() {
+        return Err(CatalogueError::BaselineFailed);
+    }
     let held = evidence.held_out.as_ref().map(|h| {
         let ln_f: Vec<f64> = h.iter().map(|m| undamped_hz(m).ln()).collect();
         let m = match_modes(
@@ -385,27 +464,32 @@ pub fn diagnose_with(
             Some(matching.ln_scale),
             settings,
         );
-        (
-            ModeTable::build(
-                h,
-                &evidence.simulated,
-                &m,
+        let t = ModeTable::build(
+            h,
+            &evidence.simulated,
+            &m,
+            channels,
+            settings.own_member_split_z,
+        );
+        // The held-out poles are chosen under the baseline: the effects are then judged on
+        // an assignment made without them (conservative for every effect alike).
+        let (m, t) = choose_partial_poles(
+            PoleChoice {
+                observed: h,
+                simulated: &evidence.simulated,
                 channels,
-                settings.own_member_split_z,
-            ),
+                settings,
+            },
             m,
-        )
+            t,
+            |t| {
+                held_out_chi2(&baseline, t, &baseline.tau2)
+                    .map_or(f64::INFINITY, |c| c.minus_two_log_likelihood)
+            },
+        );
+        (t, m)
     });
     let held_table = held.as_ref().map(|(t, _)| t).filter(|t| !t.rows.is_empty());
-
-    let ln_f_ref = matching.ln_scale
-        + table.modes.iter().map(|m| m.ln_f_sim).sum::<f64>() / table.modes.len() as f64;
-    let base_model = Model::new(vec![], ln_f_ref, channels);
-    let x0 = baseline_start(&table, &base_model, matching.ln_scale);
-    let baseline = fit(&table, base_model, x0);
-    if !baseline.minus_two_log_likelihood.is_finite() {
-        return Err(CatalogueError::BaselineFailed);
-    }
 
     // Greedy forward selection over the modal effects.
     let own: Vec<_> = effects
