@@ -1,4 +1,6 @@
-//! The `diffsound` command line: argument parsing, the MPI/PETSc runtime, and the `modes` job.
+//! The `diffsound` command line: argument parsing and the MPI/PETSc runtime; each command's flags,
+//! their merging with its configuration file and its printing live in a file of its own here, and
+//! its job in [`crate::workflow`].
 //!
 //! Sample runs:
 //! ```text
@@ -17,14 +19,13 @@ pub mod fit_geometry;
 pub mod fit_material;
 pub mod fit_shape;
 pub mod impact;
-mod modes;
+pub mod modes;
 pub mod render;
 pub mod resolve;
 pub mod spectrogram;
 
-use clap::{Args, Parser, Subcommand};
+use clap::{Parser, Subcommand};
 use std::io::IsTerminal;
-use std::path::PathBuf;
 
 #[derive(Parser, Debug)]
 #[command(
@@ -40,7 +41,7 @@ pub struct Cli {
 #[derive(Subcommand, Debug)]
 pub enum Command {
     /// Compute the vibration modes of a free body, write them to HDF5 (+ XDMF) and render a strike.
-    Modes(ModesArgs),
+    Modes(modes::ModesArgs),
     /// Render a strike from a modes HDF5 file to WAV (impact point, direction, force, damping).
     Render(render::RenderArgs),
     /// Spectrogram PNG of one WAV file or several side by side (e.g. rendered vs recorded).
@@ -64,96 +65,8 @@ pub enum Command {
     Materials,
 }
 
-#[derive(Args, Debug, Clone, Default)]
-// Negative numbers are values (so `--fmax -5` meets our own range check, not a parser hint).
-#[command(allow_negative_numbers = true)]
-pub struct ModesArgs {
-    /// TOML configuration file (see the README); flags given here override it.
-    #[arg(long)]
-    pub config: Option<PathBuf>,
-    /// Tet mesh: Gmsh .msh 2.2 or 4.1, ASCII or binary, 4- or 10-node tets.
-    #[arg(long)]
-    pub mesh: Option<PathBuf>,
-    /// Length unit of the mesh: m, cm, mm, um, in, ft, or metres per unit (e.g. 0.1).
-    #[arg(long)]
-    pub units: Option<String>,
-    /// Element order: 2 (quadratic, default) or 1 (linear baseline).
-    #[arg(long)]
-    pub order: Option<u32>,
-    /// Flip inverted tets instead of rejecting the mesh.
-    #[arg(long)]
-    pub fix_inverted: bool,
-    /// Straighten the mid-edge nodes of curved 10-node tets whose map folds over (Jacobian
-    /// determinant ≤ 0 inside) instead of rejecting the mesh; the count is reported.
-    #[arg(long)]
-    pub straighten_invalid: bool,
-    /// Material preset (ceramic, glass, steel, aluminium, wood, plastic, …); default ceramic.
-    #[arg(long)]
-    pub material: Option<String>,
-    /// Young's modulus E in Pa (overrides the preset).
-    #[arg(long)]
-    pub youngs: Option<f64>,
-    /// Poisson's ratio ν (overrides the preset).
-    #[arg(long)]
-    pub poisson: Option<f64>,
-    /// Density ρ in kg/m³ (overrides the preset).
-    #[arg(long)]
-    pub density: Option<f64>,
-    /// Rayleigh mass damping α in 1/s (overrides the preset).
-    #[arg(long)]
-    pub alpha: Option<f64>,
-    /// Rayleigh stiffness damping β in s (overrides the preset).
-    #[arg(long)]
-    pub beta: Option<f64>,
-    /// Compute the first N elastic modes (default 20).
-    #[arg(long, conflicts_with = "fmax")]
-    pub modes: Option<usize>,
-    /// Compute every elastic mode up to this frequency in Hz (spectrum slicing).
-    #[arg(long)]
-    pub fmax: Option<f64>,
-    /// Relative eigen-solver tolerance (default 1e-10).
-    #[arg(long)]
-    pub tol: Option<f64>,
-    /// Shift σ in rad²/s² (default −10⁻²·μ/(ρL²)).
-    #[arg(long, allow_hyphen_values = true)]
-    pub shift: Option<f64>,
-    /// Skip the inertia check that proves no mode was missed.
-    #[arg(long)]
-    pub no_verify: bool,
-    /// HDF5 output (default: <mesh stem>_modes.h5 in the current directory).
-    #[arg(long)]
-    pub out: Option<PathBuf>,
-    /// Render a strike at a surface vertex to this WAV file.
-    #[arg(long)]
-    pub wav: Option<PathBuf>,
-    /// Surface node (0-based, in file order after unused nodes are dropped) to strike.
-    #[arg(long)]
-    pub strike_vertex: Option<usize>,
-    /// Length of the rendered strike in s (default 2).
-    #[arg(long)]
-    pub duration: Option<f64>,
-    /// Sample rate of the rendered strike in Hz (default 48000).
-    #[arg(long)]
-    pub sample_rate: Option<u32>,
-    /// Also compute exact eigenvalue derivatives with respect to E, ν and ρ (written to HDF5).
-    #[arg(long)]
-    pub sensitivities: bool,
-    /// Also compute dλ/dx at every node for every mode (HDF5 + ParaView fields); implies
-    /// --sensitivities.
-    #[arg(long)]
-    pub node_gradients: bool,
-    /// Write assembly/solve timings, memory and eigenvalues as JSON (for benchmarks).
-    #[arg(long)]
-    pub timings_json: Option<PathBuf>,
-    /// Print progress even when stderr is not a terminal.
-    #[arg(long, short)]
-    pub verbose: bool,
-    /// PETSc/SLEPc options, after `--` (e.g. -- -eps_ncv 64 -st_type sinvert).
-    #[arg(last = true, allow_hyphen_values = true)]
-    pub petsc_options: Vec<String>,
-}
-
 pub use crate::workflow::Progress;
+pub use modes::ModesArgs;
 
 /// Rank-0 progress lines on stderr: shown on a terminal (or with --verbose), silent in batch logs.
 pub fn stderr_progress(rank: usize, verbose: bool) -> Progress {

@@ -1,45 +1,103 @@
-//! The `modes` job: mesh → P2 → assembly → SLEPc → HDF5/XDMF (+ WAV strike).
+//! The `modes` command: its flags, their merging with the TOML configuration file, and the
+//! printed summary. The job itself is [`crate::workflow::modes`].
 
 use super::config::{FileConfig, MaterialConfig};
+use super::fail;
 use super::resolve::{check_output, inputs, resolve_mesh, MeshChoice};
-use super::{fail, ModesArgs};
-use crate::assembly;
-use crate::audio::{self, ModalBank, WavFormat};
-use crate::eigen::sensitivity::{self, ClusterTreatment};
-use crate::eigen::{self, EigenConfig, ModeRequest};
-use crate::fem::Material;
-use crate::io::{self, MaterialRecord, ModesFile};
-use crate::mesh::{self, ReadOptions, TetMesh};
+use crate::eigen::ModeRequest;
 use crate::petsc::Petsc;
+use crate::workflow::modes::{self as workflow, inertia_line, Job, Report};
+use clap::Args;
 use mpi::environment::Universe;
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 
-/// Everything the job needs, resolved from defaults, the config file and the flags.
-#[derive(Clone, Debug)]
-pub struct Job {
-    pub mesh: PathBuf,
-    pub unit_scale: f64,
-    pub units: String,
-    pub order: u32,
+#[derive(Args, Debug, Clone, Default)]
+// Negative numbers are values (so `--fmax -5` meets our own range check, not a parser hint).
+#[command(allow_negative_numbers = true)]
+pub struct ModesArgs {
+    /// TOML configuration file (see the README); flags given here override it.
+    #[arg(long)]
+    pub config: Option<PathBuf>,
+    /// Tet mesh: Gmsh .msh 2.2 or 4.1, ASCII or binary, 4- or 10-node tets.
+    #[arg(long)]
+    pub mesh: Option<PathBuf>,
+    /// Length unit of the mesh: m, cm, mm, um, in, ft, or metres per unit (e.g. 0.1).
+    #[arg(long)]
+    pub units: Option<String>,
+    /// Element order: 2 (quadratic, default) or 1 (linear baseline).
+    #[arg(long)]
+    pub order: Option<u32>,
+    /// Flip inverted tets instead of rejecting the mesh.
+    #[arg(long)]
     pub fix_inverted: bool,
+    /// Straighten the mid-edge nodes of curved 10-node tets whose map folds over (Jacobian
+    /// determinant ≤ 0 inside) instead of rejecting the mesh; the count is reported.
+    #[arg(long)]
     pub straighten_invalid: bool,
-    pub material: Material,
-    pub material_name: String,
-    pub request: ModeRequest,
-    pub tolerance: f64,
-    pub verify_count: bool,
-    pub cluster_rtol: Option<f64>,
+    /// Material preset (ceramic, glass, steel, aluminium, wood, plastic, …); default ceramic.
+    #[arg(long)]
+    pub material: Option<String>,
+    /// Young's modulus E in Pa (overrides the preset).
+    #[arg(long)]
+    pub youngs: Option<f64>,
+    /// Poisson's ratio ν (overrides the preset).
+    #[arg(long)]
+    pub poisson: Option<f64>,
+    /// Density ρ in kg/m³ (overrides the preset).
+    #[arg(long)]
+    pub density: Option<f64>,
+    /// Rayleigh mass damping α in 1/s (overrides the preset).
+    #[arg(long)]
+    pub alpha: Option<f64>,
+    /// Rayleigh stiffness damping β in s (overrides the preset).
+    #[arg(long)]
+    pub beta: Option<f64>,
+    /// Compute the first N elastic modes (default 20).
+    #[arg(long, conflicts_with = "fmax")]
+    pub modes: Option<usize>,
+    /// Compute every elastic mode up to this frequency in Hz (spectrum slicing).
+    #[arg(long)]
+    pub fmax: Option<f64>,
+    /// Relative eigen-solver tolerance (default 1e-10).
+    #[arg(long)]
+    pub tol: Option<f64>,
+    /// Shift σ in rad²/s² (default −10⁻²·μ/(ρL²)).
+    #[arg(long, allow_hyphen_values = true)]
     pub shift: Option<f64>,
-    pub out: PathBuf,
+    /// Skip the inertia check that proves no mode was missed.
+    #[arg(long)]
+    pub no_verify: bool,
+    /// HDF5 output (default: <mesh stem>_modes.h5 in the current directory).
+    #[arg(long)]
+    pub out: Option<PathBuf>,
+    /// Render a strike at a surface vertex to this WAV file.
+    #[arg(long)]
     pub wav: Option<PathBuf>,
+    /// Surface node (0-based, in file order after unused nodes are dropped) to strike.
+    #[arg(long)]
     pub strike_vertex: Option<usize>,
-    pub duration: f64,
-    pub sample_rate: u32,
-    pub timings_json: Option<PathBuf>,
+    /// Length of the rendered strike in s (default 2).
+    #[arg(long)]
+    pub duration: Option<f64>,
+    /// Sample rate of the rendered strike in Hz (default 48000).
+    #[arg(long)]
+    pub sample_rate: Option<u32>,
+    /// Also compute exact eigenvalue derivatives with respect to E, ν and ρ (written to HDF5).
+    #[arg(long)]
     pub sensitivities: bool,
+    /// Also compute dλ/dx at every node for every mode (HDF5 + ParaView fields); implies
+    /// --sensitivities.
+    #[arg(long)]
     pub node_gradients: bool,
-    pub petsc_options: Vec<String>,
+    /// Write assembly/solve timings, memory and eigenvalues as JSON (for benchmarks).
+    #[arg(long)]
+    pub timings_json: Option<PathBuf>,
+    /// Print progress even when stderr is not a terminal.
+    #[arg(long, short)]
     pub verbose: bool,
+    /// PETSc/SLEPc options, after `--` (e.g. -- -eps_ncv 64 -st_type sinvert).
+    #[arg(last = true, allow_hyphen_values = true)]
+    pub petsc_options: Vec<String>,
 }
 
 /// Merges defaults < config file < command-line flags and validates the result.
@@ -159,7 +217,6 @@ pub fn resolve(args: &ModesArgs) -> Result<Job, String> {
             || file.output.node_gradients.unwrap_or(false),
         node_gradients: args.node_gradients || file.output.node_gradients.unwrap_or(false),
         petsc_options,
-        verbose: args.verbose,
     })
 }
 
@@ -186,578 +243,36 @@ pub fn run(universe: Universe, args: ModesArgs) -> Result<(), String> {
     {
         panic!("injected panic (DIFFSOUND_TEST_PANIC_ON_RANK={rank})");
     }
-    match compute(&petsc, &job) {
+    match compute(&petsc, &job, args.verbose) {
         Ok(()) => Ok(()),
-        Err(message) => fail(rank, size, &message),
+        Err(e) => fail(rank, size, &e.to_string()),
     }
 }
 
-fn compute(petsc: &Petsc, job: &Job) -> Result<(), String> {
-    let total = std::time::Instant::now();
-    let rank = petsc.rank();
-    let progress = super::stderr_progress(rank, job.verbose);
-
-    progress.say(format!("reading {}", job.mesh.display()));
-    let mut read = mesh::read_mesh(
-        &job.mesh,
-        &ReadOptions {
-            unit_scale: job.unit_scale,
-            fix_inverted: job.fix_inverted,
-        },
-    )
-    .map_err(|e| e.to_string())?;
-    // Curved 10-node tets that fold over: refused with the file and Gmsh tags named, or
-    // straightened on request (`mesh::straighten`), before any assembly.
-    let folded = mesh::straighten::folded_tets(&read.mesh);
-    if !folded.is_empty() {
-        let tags: Vec<String> = folded
-            .iter()
-            .take(5)
-            .map(|&e| {
-                read.element_tags
-                    .get(e)
-                    .map_or(format!("#{e}"), |t| t.to_string())
-            })
-            .collect();
-        if !job.straighten_invalid {
-            return Err(format!(
-                "{}: {} curved 10-node tetrahedra fold over (Jacobian determinant ≤ 0 inside the element; Gmsh element tags {}{}): rerun with --straighten-invalid to straighten their mid-edge nodes, or untangle the mesh with `gmsh -optimize_ho`",
-                job.mesh.display(),
-                folded.len(),
-                tags.join(", "),
-                if folded.len() > 5 { ", …" } else { "" }
-            ));
-        }
-        let moved = mesh::straighten::straighten(&mut read.mesh, &folded);
-        if rank == 0 {
-            eprintln!("warning: straightened {} folded curved tetrahedra ({moved} mid-edge nodes moved to their edge midpoints; Gmsh element tags {}{})", folded.len(), tags.join(", "), if folded.len() > 5 { ", …" } else { "" });
-        }
-    }
-    if rank == 0 {
-        for w in &read.warnings {
-            eprintln!("warning: {w}");
-        }
-    }
-    let input_order = read.mesh.nodes_per_tet();
-
-    let mesh: TetMesh = if job.order == 2 {
-        mesh::lift_to_quadratic(&read.mesh)
-    } else {
-        mesh::to_linear(&read.mesh)
-    };
-    drop(read);
-    // Check the strike point now, not after a long solve.
-    let strike_point = match &job.wav {
-        Some(_) => Some(strike(&mesh, job.strike_vertex)?),
-        None => None,
-    };
-    let (lo, hi) = mesh.bounding_box();
-    let diagonal =
-        ((hi[0] - lo[0]).powi(2) + (hi[1] - lo[1]).powi(2) + (hi[2] - lo[2]).powi(2)).sqrt();
-    progress.say(format!(
-        "mesh: {} tets, {} nodes (P{}, from {}-node input), {} DOF on {} rank(s)",
-        mesh.n_tets(),
-        mesh.n_nodes(),
-        job.order,
-        input_order,
-        3 * mesh.n_nodes(),
-        petsc.size()
-    ));
-
-    let assembled = assembly::assemble(petsc, &mesh).map_err(|e| e.to_string())?;
-    let stats = assembled.stats.clone();
-    progress.say(format!(
-        "assembled M, K_λ, K_μ in {:.2} s ({:.0} nonzeros each, {} mallocs)",
-        stats.seconds, stats.nonzeros, stats.mallocs
-    ));
-    let t_ops = std::time::Instant::now();
-    // Sensitivities need the split K_λ, K_μ and M₁; a forward-only run releases them.
-    let (k, m, layout, split) = if job.sensitivities {
-        let (k, m) = assembled
-            .operators(&job.material)
-            .map_err(|e| e.to_string())?;
-        let layout = assembled.layout.clone();
-        (k, m, layout, Some(assembled))
-    } else {
-        let (k, m, layout, _) = assembled
-            .into_operators(&job.material)
-            .map_err(|e| e.to_string())?;
-        (k, m, layout, None)
-    };
-    let operator_seconds = t_ops.elapsed().as_secs_f64();
-
-    let scale = eigen::spectrum_scale(job.material.lame_mu(), job.material.density, diagonal);
-    let mut cfg = EigenConfig::new(job.request, scale);
-    cfg.tolerance = job.tolerance;
-    cfg.verify_count = job.verify_count;
-    cfg.shift = job.shift;
-    if let Some(r) = job.cluster_rtol {
-        cfg.cluster_rtol = r;
-    }
-    progress.say(match job.request {
-        ModeRequest::FirstN(n) => format!(
-            "solving for the first {n} elastic modes (shift {:.3e} rad²/s²)",
-            cfg.effective_shift()
-        ),
-        ModeRequest::UpTo { f_max_hz } => {
-            format!("solving for every mode up to {f_max_hz} Hz (spectrum slicing)")
-        }
-    });
-    let modes = eigen::solve_modes(petsc, &k, &m, &cfg).map_err(|e| e.to_string())?;
-    if rank == 0 {
-        for w in &modes.warnings {
-            eprintln!("warning: {w}");
-        }
-    }
-    progress.say(format!(
-        "{} elastic modes in {:.2} s",
-        modes.eigenvalues.len(),
-        modes.solve_seconds
-    ));
-
-    let t_sens = std::time::Instant::now();
-    let material_sens = match &split {
-        Some(a) => Some(
-            sensitivity::material_sensitivities(
-                &a.k_lambda,
-                &a.k_mu,
-                &a.mass_unit,
-                &modes,
-                &job.material,
-            )
-            .map_err(|e| e.to_string())?,
-        ),
-        None => None,
-    };
-    let material_seconds = t_sens.elapsed().as_secs_f64();
-    let t_nodes = std::time::Instant::now();
-    let node_grads = if job.node_gradients {
-        sensitivity::node_gradients(
-            petsc,
-            &mesh,
-            &layout,
-            &modes,
-            &job.material,
-            ClusterTreatment::Mean,
-        )
-        .map_err(|e| e.to_string())?
-    } else {
-        None
-    };
-    let node_gradient_seconds = t_nodes.elapsed().as_secs_f64();
-    let sensitivity_seconds = t_sens.elapsed().as_secs_f64();
-    if material_sens.is_some() {
-        progress.say(format!("sensitivities in {sensitivity_seconds:.2} s (material {material_seconds:.2} s, node positions {node_gradient_seconds:.2} s)"));
-    }
-
-    // Gather every mode to rank 0 in original node order, with a deterministic sign: the entry
-    // of largest magnitude is made positive, so runs on any number of ranks agree.
-    let mut shapes = layout
-        .gather_original_order(&modes.vectors)
-        .map_err(|e| e.to_string())?;
-    for s in &mut shapes {
-        let (imax, _) = s.iter().enumerate().fold((0, 0.0f64), |(bi, bv), (i, &x)| {
-            if x.abs() > bv + 1e-12 * bv {
-                (i, x.abs())
-            } else {
-                (bi, bv)
-            }
-        });
-        if s[imax] < 0.0 {
-            s.iter_mut().for_each(|x| *x = -*x);
-        }
-    }
-    let frequencies: Vec<f64> = modes
-        .eigenvalues
-        .iter()
-        .map(|&l| eigen::frequency_hz(l))
-        .collect();
-    let solve_seconds = modes.solve_seconds;
-    let peak_rss_local = petsc.peak_rss_bytes();
-    let peak_rss_sum: f64 = {
-        use mpi::collective::{CommunicatorCollectives, SystemOperation};
-        let mut sum = 0.0;
-        petsc
-            .world()
-            .all_reduce_into(&peak_rss_local, &mut sum, SystemOperation::sum());
-        sum
-    };
-
-    if rank == 0 {
-        let mut solver = modes.settings.clone();
-        solver.push(("petsc_options".into(), job.petsc_options.join(" ")));
-        let (pv, sv) = petsc.versions();
-        solver.push(("petsc_version".into(), pv));
-        solver.push(("slepc_version".into(), sv));
-        if let Some(c) = &modes.inertia_check {
-            solver.push(("inertia_check".into(), inertia_line(c)));
-        }
-        solver.push((
-            "clusters".into(),
-            modes
-                .clusters
-                .iter()
-                .map(|r| format!("{}-{}", r.start, r.end - 1))
-                .collect::<Vec<_>>()
-                .join(","),
-        ));
-        let timings = vec![
-            ("assembly".to_string(), stats.seconds + operator_seconds),
-            ("solve".to_string(), solve_seconds),
-            (
-                "inertia_check".to_string(),
-                modes.inertia_check.as_ref().map_or(0.0, |c| c.seconds),
-            ),
-            ("sensitivities".to_string(), sensitivity_seconds),
-            ("material_sensitivities".to_string(), material_seconds),
-            ("node_gradients".to_string(), node_gradient_seconds),
-            ("total".to_string(), total.elapsed().as_secs_f64()),
-            ("peak_rss_bytes_sum".to_string(), peak_rss_sum),
-        ];
-        let provenance = vec![
-            ("mesh".to_string(), job.mesh.display().to_string()),
-            (
-                "units".to_string(),
-                format!("{} ({} m per unit)", job.units, job.unit_scale),
-            ),
-            (
-                "command_line".to_string(),
-                std::env::args().collect::<Vec<_>>().join(" "),
-            ),
-            (
-                "diffsound_version".to_string(),
-                env!("CARGO_PKG_VERSION").to_string(),
-            ),
-        ];
-        let width = io::mode_index_width(modes.eigenvalues.len());
-        let node_field_names: Vec<String> = (0..node_grads.as_ref().map_or(0, Vec::len))
-            .map(|k| format!("d_lambda_dx_mode_{k:0width$}"))
-            .collect();
-        let file = ModesFile {
-            nodes: &mesh.nodes,
-            connectivity: &mesh.connectivity,
-            nodes_per_tet: mesh.nodes_per_tet(),
-            material: MaterialRecord {
-                name: job.material_name.clone(),
-                youngs_modulus: job.material.youngs_modulus,
-                poisson_ratio: job.material.poisson_ratio,
-                density: job.material.density,
-                rayleigh_alpha: job.material.rayleigh_alpha,
-                rayleigh_beta: job.material.rayleigh_beta,
-            },
-            eigenvalues: &modes.eigenvalues,
-            frequencies_hz: &frequencies,
-            mode_shapes: &shapes,
-            residual_norms: &modes.residuals,
-            rigid_eigenvalues: &modes.rigid_eigenvalues,
-            solver,
-            n_ranks: petsc.size(),
-            element_order: job.order,
-            timings,
-            provenance,
-            extra_datasets: material_sens
-                .as_ref()
-                .map(|s| sensitivity_datasets(s, &modes, &job.material))
-                .unwrap_or_default(),
-            node_fields: node_field_names
-                .iter()
-                .zip(node_grads.iter().flatten())
-                .map(|(name, data)| io::NodeField {
-                    name: name.clone(),
-                    data,
-                    units: "rad^2/s^2/m".into(),
-                })
-                .collect(),
-        };
-        io::write_modes(&job.out, &file).map_err(|e| e.to_string())?;
-        progress.say(format!("wrote {} and its .xdmf sidecar", job.out.display()));
-
-        if let (Some(wav), Some(vertex)) = (&job.wav, strike_point) {
-            render_strike(wav, &mesh, vertex, &modes.eigenvalues, &shapes, job)?;
-            progress.say(format!(
-                "wrote {} (strike at node {})",
-                wav.display(),
-                vertex.0
-            ));
-        }
-
-        print_summary(
-            job,
-            &mesh,
-            &stats,
-            &modes,
-            &frequencies,
-            total.elapsed().as_secs_f64(),
-            petsc.size(),
-            material_sens.as_ref(),
-        );
+/// The job, then on rank 0 its files and the summary (printed before the timings JSON is
+/// written, as the files' "total" times are measured when each is written).
+fn compute(petsc: &Petsc, job: &Job, verbose: bool) -> Result<(), workflow::Error> {
+    let progress = super::stderr_progress(petsc.rank(), verbose);
+    let report = workflow::run(petsc, job, &progress)?;
+    if petsc.rank() == 0 {
+        workflow::write_outputs(job, &report, &progress)?;
+        print_summary(job, &report);
         if let Some(path) = &job.timings_json {
-            let json = serde_json::json!({
-                "ndof": stats.n_dofs,
-                "n_ranks": petsc.size(),
-                "assembly_s": stats.seconds + operator_seconds,
-                "solve_s": solve_seconds,
-                "inertia_check_s": modes.inertia_check.as_ref().map_or(0.0, |c| c.seconds),
-                "material_sensitivities_s": material_seconds,
-                "node_gradients_s": node_gradient_seconds,
-                "total_s": total.elapsed().as_secs_f64(),
-                "peak_rss_mb": peak_rss_sum / 1048576.0,
-                "mallocs": stats.mallocs,
-                "eigenvalues": modes.eigenvalues,
-                "frequencies_hz": frequencies,
-                "rigid_eigenvalues": modes.rigid_eigenvalues,
-                "residuals": modes.residuals,
-                "factor_retries": modes.setting("factor_retries").and_then(|v| v.parse::<usize>().ok()).unwrap_or(0),
-                "factor_attempts": modes.setting("factor_attempts").unwrap_or(""),
-                "inertia": modes.inertia_check.as_ref().map(|c| serde_json::json!({
-                    "threshold": c.threshold,
-                    "below": c.below,
-                    "found": c.found,
-                    "proven": c.proven,
-                    "second": c.second.map(|(t, b, f)| serde_json::json!({"threshold": t, "below": b, "found": f})),
-                    "verdict": c.verdict.word(),
-                    "factor_retries": c.factor_log.retries(),
-                    "factor_attempts": c.factor_log.describe(),
-                })),
-            });
-            io::write_atomically(path, |tmp| {
-                std::fs::write(tmp, serde_json::to_string_pretty(&json).unwrap_or_default())
-                    .map_err(|e| io::IoError::Fs {
-                        path: tmp.to_path_buf(),
-                        context: "writing timings".into(),
-                        source: e,
-                    })
-            })
-            .map_err(|e| e.to_string())?;
+            workflow::write_timings_json(path, &report)?;
         }
     }
     Ok(())
 }
 
-/// The strike point: the given node (must be on the surface) or, by default, the surface vertex
-/// farthest from the bounding-box centre (a rim or corner, where most modes move). Returns the
-/// node and its outward unit normal, the strike direction.
-fn strike(mesh: &TetMesh, requested: Option<usize>) -> Result<(usize, [f64; 3]), String> {
-    let vertex = match requested {
-        Some(v) => v,
-        None => mesh
-            .default_strike_vertex()
-            .ok_or("the mesh has no surface vertices to strike")?,
-    };
-    let point = mesh.surface_point_at_vertex(vertex).ok_or_else(|| {
-        format!(
-            "strike vertex {vertex} is not a surface vertex of the mesh ({} nodes)",
-            mesh.n_nodes()
-        )
-    })?;
-    Ok((vertex, point.normal))
-}
-
-/// A unit impulse along the normal at `vertex`: mode k starts with velocity amplitude
-/// φ_k(v)·n (mass-normalised modes), rings at its Rayleigh-damped frequency and decays at
-/// (α + βω²)/2. The signal is normalised to a peak of 0.9 and written as 16-bit PCM.
-fn render_strike(
-    path: &Path,
-    mesh: &TetMesh,
-    (vertex, normal): (usize, [f64; 3]),
-    eigenvalues: &[f64],
-    shapes: &[Vec<f64>],
-    job: &Job,
-) -> Result<(), String> {
-    let amplitudes: Vec<f64> = shapes
-        .iter()
-        .map(|s| (0..3).map(|d| s[3 * vertex + d] * normal[d]).sum())
-        .collect();
-    let bank = ModalBank::from_eigenvalues(
-        eigenvalues,
-        &amplitudes,
-        job.material.rayleigh_alpha,
-        job.material.rayleigh_beta,
+fn print_summary(job: &Job, report: &Report<'_>) {
+    let (mesh, stats, modes, freqs) = (
+        &report.mesh,
+        &report.stats,
+        &report.modes,
+        &report.frequencies,
     );
-    let _ = mesh;
-    let samples = audio::render(&bank, job.sample_rate as f64, job.duration);
-    audio::write_wav(path, &samples, job.sample_rate, WavFormat::Pcm16, Some(0.9))
-        .map_err(|e| e.to_string())
-}
-
-/// The `/sensitivities` datasets: dλ/dp (cluster means for clustered modes), the per-mode
-/// values, df/dp through f = √λ/2π, and the cluster ranges with their split derivatives.
-fn sensitivity_datasets(
-    s: &sensitivity::MaterialSensitivities,
-    modes: &eigen::Modes<'_>,
-    material: &crate::fem::Material,
-) -> Vec<io::ExtraDataset> {
-    let ds = |name: &str, data: Vec<f64>, units: &str, what: &str| io::ExtraDataset {
-        path: format!("/sensitivities/{name}"),
-        shape: vec![data.len()],
-        data,
-        attrs: vec![
-            ("units".into(), units.into()),
-            ("meaning".into(), what.into()),
-        ],
-    };
-    let df = |d: &[f64]| -> Vec<f64> {
-        d.iter()
-            .zip(&modes.eigenvalues)
-            .map(|(x, &l)| x / (4.0 * std::f64::consts::PI * l.sqrt()))
-            .collect()
-    };
-    let mean = "derivative of the mode's eigenvalue; inside a near-degenerate cluster, of the cluster mean";
-    let mut out = vec![
-        ds(
-            "d_eigenvalue_d_youngs",
-            s.d_youngs.clone(),
-            "rad^2/s^2/Pa",
-            mean,
-        ),
-        ds(
-            "d_eigenvalue_d_poisson",
-            s.d_poisson.clone(),
-            "rad^2/s^2",
-            mean,
-        ),
-        ds(
-            "d_eigenvalue_d_density",
-            s.d_density.clone(),
-            "rad^2/s^2/(kg/m^3)",
-            mean,
-        ),
-        ds(
-            "d_frequency_d_youngs",
-            df(&s.d_youngs),
-            "Hz/Pa",
-            "df = dlambda / (4 pi sqrt(lambda))",
-        ),
-        ds(
-            "d_frequency_d_poisson",
-            df(&s.d_poisson),
-            "Hz",
-            "df = dlambda / (4 pi sqrt(lambda))",
-        ),
-        ds(
-            "d_frequency_d_density",
-            df(&s.d_density),
-            "Hz/(kg/m^3)",
-            "df = dlambda / (4 pi sqrt(lambda))",
-        ),
-        ds(
-            "per_mode_d_eigenvalue_d_youngs",
-            s.per_mode_youngs.clone(),
-            "rad^2/s^2/Pa",
-            "each mode on its own (undefined inside a cluster)",
-        ),
-        ds(
-            "per_mode_d_eigenvalue_d_poisson",
-            s.per_mode_poisson.clone(),
-            "rad^2/s^2",
-            "each mode on its own (undefined inside a cluster)",
-        ),
-        ds(
-            "per_mode_d_eigenvalue_d_density",
-            s.per_mode_density.clone(),
-            "rad^2/s^2/(kg/m^3)",
-            "each mode on its own (undefined inside a cluster)",
-        ),
-    ];
-    let chain: Vec<_> = modes
-        .eigenvalues
-        .iter()
-        .map(|&l| sensitivity::damped_chain(l, material.rayleigh_alpha, material.rayleigh_beta))
-        .collect();
-    let pick = |f: &dyn Fn(&sensitivity::DampedChain) -> f64| {
-        chain
-            .iter()
-            .map(|c| c.as_ref().map_or(f64::NAN, f))
-            .collect::<Vec<_>>()
-    };
-    out.push(ds(
-        "d_damped_omega_d_eigenvalue",
-        pick(&|c| c.domega_d_dlambda),
-        "(rad/s)/(rad^2/s^2)",
-        "Rayleigh damping; NaN where overdamped",
-    ));
-    out.push(ds(
-        "d_decay_d_eigenvalue",
-        pick(&|c| c.ddecay_dlambda),
-        "(1/s)/(rad^2/s^2)",
-        "decay d = (alpha + beta lambda)/2",
-    ));
-    let mut ranges = Vec::new();
-    for c in &s.clusters {
-        ranges.extend_from_slice(&[c.modes.start as f64, c.modes.end as f64]);
-    }
-    out.push(io::ExtraDataset {
-        path: "/sensitivities/clusters".into(),
-        shape: vec![s.clusters.len(), 2],
-        data: ranges,
-        attrs: vec![
-            (
-                "meaning".into(),
-                "mode index ranges [start, end) of near-degenerate clusters".into(),
-            ),
-            ("cluster_rtol".into(), format!("{:e}", modes.cluster_rtol)),
-        ],
-    });
-    for (k, c) in s.clusters.iter().enumerate() {
-        let mut data = Vec::new();
-        for v in [&c.d_youngs, &c.d_poisson, &c.d_density] {
-            data.extend_from_slice(v);
-        }
-        out.push(io::ExtraDataset {
-            path: format!("/sensitivities/cluster_split/{k:03}"),
-            shape: vec![3, c.modes.len()],
-            data,
-            attrs: vec![
-                (
-                    "modes".into(),
-                    format!("{}..{}", c.modes.start, c.modes.end),
-                ),
-                (
-                    "rows".into(),
-                    "d/dE [rad^2/s^2/Pa], d/dnu [rad^2/s^2], d/drho [rad^2/s^2/(kg/m^3)]".into(),
-                ),
-                (
-                    "meaning".into(),
-                    "eigenvalues of Phi^T (dK - mean(lambda) dM) Phi over the cluster".into(),
-                ),
-            ],
-        });
-    }
-    out
-}
-
-/// The inertia proof in one line: both counts and the verdict.
-fn inertia_line(c: &eigen::InertiaCheck) -> String {
-    let second = c.second.map_or(String::new(), |(t2, below, found)| {
-        format!("; {below} below {t2:.6e}, {found} found")
-    });
-    let verdict = match &c.verdict {
-        eigen::CountVerdict::Complete => "complete".to_string(),
-        eigen::CountVerdict::Missed => "MISSED MODES".to_string(),
-        eigen::CountVerdict::Unproven(_) => "UNPROVEN (see the warning)".to_string(),
-    };
-    let retries = if c.factor_log.retries() > 0 {
-        format!(" [factor tries {}]", c.factor_log.describe())
-    } else {
-        String::new()
-    };
-    format!(
-        "{} eigenvalues below {:.6e} rad^2/s^2, {} found{second} -> {verdict}{retries}",
-        c.below, c.threshold, c.found
-    )
-}
-
-#[allow(clippy::too_many_arguments)]
-fn print_summary(
-    job: &Job,
-    mesh: &TetMesh,
-    stats: &assembly::AssemblyStats,
-    modes: &eigen::Modes<'_>,
-    freqs: &[f64],
-    total: f64,
-    ranks: usize,
-    sens: Option<&sensitivity::MaterialSensitivities>,
-) {
+    let sens = report.material_sensitivities.as_ref();
+    let (total, ranks) = (report.timings.total_seconds(), report.n_ranks);
     println!(
         "diffsound modes: {} ({} tets, {} DOF, P{}, {} rank(s))",
         job.mesh.display(),

@@ -6,6 +6,9 @@
 //! test, prints timed lines on a terminal, or feeds another program.
 
 pub mod locate_impact;
+pub mod modes;
+pub mod render;
+pub mod spectrogram;
 
 use crate::petsc::Petsc;
 use mpi::traits::{Communicator, Root};
