@@ -535,7 +535,7 @@ fn strike_probe(
 
 /// The PETSc dofs of the tet holding `point` and the weights that read φ(x)·`direction` from
 /// them (shape functions at the point times the direction's components).
-pub(super) fn probe_along(
+pub(crate) fn probe_along(
     mesh: &TetMesh,
     point: &SurfacePoint,
     direction: [f64; 3],

@@ -156,6 +156,11 @@ use serde::{Deserialize, Serialize};
 use crate::audio::synth::{render_samples, ModalBank};
 use crate::diagnose::catalogue::{AcceptedEffect, FittedParam};
 use crate::mesh::TetMesh;
+// The mesh helpers the generator shares with the diagnosis live with the mesh; re-exported
+// here for the benchmark's examples.
+pub use crate::mesh::locate::{
+    nearest_points, nearest_surface_vertices, strike_candidates, support_nodes,
+};
 
 /// Everything that can be wrong with the input of this module.
 #[derive(Debug, thiserror::Error, Clone, PartialEq)]
@@ -922,71 +927,6 @@ fn dot(a: [f64; 3], b: [f64; 3]) -> f64 {
 fn unit(a: [f64; 3]) -> [f64; 3] {
     let n = dot(a, a).sqrt();
     [a[0] / n, a[1] / n, a[2] / n]
-}
-
-/// Heights of the corner nodes above the lowest one along −`down` [m], and the body's extent.
-fn heights(mesh: &TetMesh, down: [f64; 3]) -> (Vec<f64>, f64) {
-    let up = unit(down).map(|c| -c);
-    let h: Vec<f64> = mesh.nodes.iter().map(|x| dot(*x, up)).collect();
-    let lo = h.iter().copied().fold(f64::INFINITY, f64::min);
-    let hi = h.iter().copied().fold(f64::NEG_INFINITY, f64::max);
-    (h.into_iter().map(|v| v - lo).collect(), hi - lo)
-}
-
-/// Surface vertices a mallet can reach on an object resting on its lowest side: outward
-/// normal not pointing more than 60° downwards (n·down < 0.5) and higher than
-/// `clearance`·(extent) above the lowest point. (vertex, outward unit normal).
-pub fn strike_candidates(mesh: &TetMesh, down: [f64; 3], clearance: f64) -> Vec<(usize, [f64; 3])> {
-    let (h, extent) = heights(mesh, down);
-    let down = unit(down);
-    mesh.vertex_normals()
-        .into_iter()
-        .filter(|&(v, n)| dot(n, down) < 0.5 && h[v] > clearance * extent)
-        .collect()
-}
-
-/// The contact points of an object resting on a support below it: the surface vertices within
-/// `band`·(extent) of the lowest point along `down`, at least `min_nodes` (the lowest ones).
-pub fn support_nodes(mesh: &TetMesh, down: [f64; 3], band: f64, min_nodes: usize) -> Vec<usize> {
-    let (h, extent) = heights(mesh, down);
-    let mut surface = mesh.surface_vertices();
-    surface.sort_by(|&a, &b| h[a].total_cmp(&h[b]).then(a.cmp(&b)));
-    let within = surface
-        .iter()
-        .take_while(|&&v| h[v] <= band * extent)
-        .count();
-    surface.truncate(within.max(min_nodes).min(surface.len()));
-    surface.sort_unstable();
-    surface
-}
-
-/// The `n` surface vertices nearest to vertex `centre` (itself included), sorted.
-pub fn nearest_surface_vertices(mesh: &TetMesh, centre: usize, n: usize) -> Vec<usize> {
-    let surface = mesh.surface_vertices();
-    let points: Vec<[f64; 3]> = surface.iter().map(|&v| mesh.nodes[v]).collect();
-    // `surface` is ascending, so ties at equal distance go to the lower node, as before.
-    let mut near: Vec<usize> = nearest_points(&points, mesh.nodes[centre], n)
-        .into_iter()
-        .map(|i| surface[i])
-        .collect();
-    near.sort_unstable();
-    near
-}
-
-/// Indices of the `n` of `points` nearest to `centre`, nearest first (ties: lower index).
-pub fn nearest_points(points: &[[f64; 3]], centre: [f64; 3], n: usize) -> Vec<usize> {
-    let d2 = |x: &[f64; 3]| {
-        (x[0] - centre[0]).powi(2) + (x[1] - centre[1]).powi(2) + (x[2] - centre[2]).powi(2)
-    };
-    let mut order: Vec<(f64, usize)> = points.iter().map(d2).zip(0..).collect();
-    let n = n.min(order.len());
-    let by_distance = |a: &(f64, usize), b: &(f64, usize)| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1));
-    if n < order.len() {
-        order.select_nth_unstable_by(n, by_distance);
-        order.truncate(n);
-    }
-    order.sort_by(by_distance);
-    order.into_iter().map(|p| p.1).collect()
 }
 
 /// The mesh with the same nodes and only the tets whose corner centroid lies in the wedge
@@ -2544,26 +2484,9 @@ mod tests {
     }
 
     #[test]
-    fn geometry_helpers_pick_the_bottom_the_top_and_a_neighbourhood() {
-        let mesh = box_mesh([4, 3, 2], [0.4, 0.3, 0.1]);
+    fn geometry_helpers_pick_a_sector_and_the_support_damping() {
+        // The support, strike and neighbourhood helpers are tested in `mesh::locate`.
         let down = [0.0, 0.0, -1.0];
-        let bottom = support_nodes(&mesh, down, 0.01, 3);
-        assert_eq!(bottom.len(), 5 * 4);
-        assert!(bottom.iter().all(|&v| mesh.nodes[v][2] == 0.0));
-        let strike = strike_candidates(&mesh, down, 0.05);
-        assert!(
-            !strike.is_empty()
-                && strike
-                    .iter()
-                    .all(|&(v, n)| mesh.nodes[v][2] > 0.004 && n[2] > -0.5)
-        );
-        let corner = mesh
-            .nodes
-            .iter()
-            .position(|x| *x == [0.4, 0.3, 0.1])
-            .unwrap();
-        let near = nearest_surface_vertices(&mesh, corner, 4);
-        assert!(near.contains(&corner) && near.len() == 4);
         // On a square plate, the quadrant x > 0.2, y > 0.2 about the vertical axis through the
         // centre holds a quarter of the tets (cell faces lie on the quadrant's edges); the
         // sector [π/2, 3π/2) is the half x < 0.2; a sector through ψ = 0 wraps around.

@@ -81,7 +81,7 @@ mod write;
 #[cfg(test)]
 mod tests;
 
-mod locate;
+pub mod locate;
 pub use curve::{curve_boundary, CurvedNode, CurvingReport, FieldGradient};
 pub use distance::{
     compare_shapes, sample_surface, surface_distance, volume_iou, DistanceError, ShapeComparison,

@@ -5,6 +5,7 @@
 //! A job reports progress through a [`Progress`] callback, so the same job runs silently in a
 //! test, prints timed lines on a terminal, or feeds another program.
 
+pub mod diagnose;
 pub mod locate_impact;
 pub mod modes;
 pub mod render;

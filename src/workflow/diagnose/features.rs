@@ -1,0 +1,220 @@
+//! Stage 5's inputs from the simulation, on rank 0: per simulated mode its drive at the strike
+//! (|φ·n|, or the RMS over the surface vertices one can hit when the strike is unknown), its
+//! motion at the support, its near-degenerate cluster, |φ_k|² at each surface vertex, and with
+//! the microphones known its |acoustic transfer| to each; then the object map, the baseline's
+//! frequency residuals regressed on each surface vertex's |φ_k|² pattern.
+
+use super::Job;
+use crate::audio::radiation::{fit_multipoles, MultipoleSettings, SurfaceQuadrature};
+use crate::diagnose::catalogue::CatalogueReport;
+use crate::diagnose::evidence;
+use crate::eigen;
+use crate::mesh::locate::{nearest_surface_vertices, strike_candidates, support_nodes};
+use crate::mesh::TetMesh;
+use crate::workflow::Progress;
+use std::time::Instant;
+
+/// Per-mode features on rank 0 from the full shapes (original node order).
+pub struct Features {
+    /// Simulated frequencies [Hz] (with a carried mass: the mass taken out again).
+    pub frequencies_hz: Vec<f64>,
+    pub clusters: Vec<usize>,
+    pub drive: Vec<f64>,
+    pub support_energy: Vec<f64>,
+    /// |acoustic transfer| per mode to each microphone (fit ones first, then held out).
+    pub transfer: Option<Vec<Vec<f64>>>,
+    /// Surface vertices and |φ_k|² there: [vertex][mode].
+    pub surface: Vec<usize>,
+    pub surface_energy: Vec<Vec<f64>>,
+    /// How the strike was taken (printed and in the JSON).
+    pub strike_note: String,
+}
+
+pub(super) fn features(
+    job: &Job,
+    mesh: &TetMesh,
+    eigenvalues: &[f64],
+    shapes: &[Vec<f64>],
+    progress: &Progress,
+) -> Result<Features, String> {
+    let along =
+        |shape: &[f64], v: usize, n: [f64; 3]| (0..3).map(|c| shape[3 * v + c] * n[c]).sum::<f64>();
+    let normals: std::collections::HashMap<usize, [f64; 3]> =
+        mesh.vertex_normals().into_iter().collect();
+    let (drive, strike_note) = match job.strike_vertex {
+        Some(v) => {
+            let n = match job.strike_direction {
+                Some(d) => d,
+                None => normals.get(&v).map(|n| n.map(|c| -c)).ok_or_else(|| {
+                    format!("strike vertex {v} is not a surface vertex of the mesh")
+                })?,
+            };
+            (
+                shapes.iter().map(|s| along(s, v, n).abs()).collect(),
+                format!("vertex {v}"),
+            )
+        }
+        None => {
+            // Unknown strike: the RMS drive over the vertices one can hit.
+            let candidates = strike_candidates(mesh, job.support_direction, 0.05);
+            if candidates.is_empty() {
+                return Err("no surface vertex can be struck (all face the support)".into());
+            }
+            let d = shapes
+                .iter()
+                .map(|s| {
+                    (candidates
+                        .iter()
+                        .map(|&(v, n)| along(s, v, n).powi(2))
+                        .sum::<f64>()
+                        / candidates.len() as f64)
+                        .sqrt()
+                })
+                .collect();
+            (
+                d,
+                format!("unknown: RMS over {} surface vertices", candidates.len()),
+            )
+        }
+    };
+    let support = support_nodes(mesh, job.support_direction, 0.01, 3);
+    let frequencies_hz: Vec<f64> = eigenvalues
+        .iter()
+        .map(|&l| eigen::frequency_hz(l))
+        .collect();
+    let (lo, hi) = mesh.bounding_box();
+    let centre = [
+        0.5 * (lo[0] + hi[0]),
+        0.5 * (lo[1] + hi[1]),
+        0.5 * (lo[2] + hi[2]),
+    ];
+    let profiles: Vec<Vec<f64>> = shapes
+        .iter()
+        .map(|s| {
+            evidence::axial_profile(s, &mesh.nodes, centre, job.support_direction, PROFILE_BINS)
+        })
+        .collect();
+    let clusters = evidence::symmetric_cluster_ids(
+        &frequencies_hz,
+        &profiles,
+        CLUSTER_RTOL,
+        CLUSTER_PROFILE_DISTANCE,
+    );
+    let support_energy =
+        evidence::cluster_region_energies(shapes, &frequencies_hz, &clusters, &support, false);
+    let surface = mesh.surface_vertices();
+    let surface_energy = surface
+        .iter()
+        .map(|&v| evidence::cluster_region_energies(shapes, &frequencies_hz, &clusters, &[v], true))
+        .collect();
+    let transfer = match &job.microphones {
+        None => None,
+        Some(mics) => {
+            let t = Instant::now();
+            let quadrature = SurfaceQuadrature::new(mesh).map_err(|e| format!("radiation: {e}"))?;
+            let order: Vec<usize> = job
+                .fit_channels
+                .iter()
+                .chain(&job.held_channels)
+                .copied()
+                .collect();
+            let positions: Vec<[f64; 3]> = order.iter().map(|&c| mics[c]).collect();
+            let mut out = Vec::new();
+            for (shape, &lambda) in shapes.iter().zip(eigenvalues) {
+                let un = quadrature
+                    .normal_displacement(shape)
+                    .map_err(|e| format!("radiation: {e}"))?;
+                let fit = fit_multipoles(
+                    quadrature.samples(),
+                    &un,
+                    lambda.sqrt(),
+                    &MultipoleSettings::default(),
+                )
+                .map_err(|e| format!("radiation: {e}"))?;
+                let nearest = positions
+                    .iter()
+                    .map(|x| {
+                        (0..3)
+                            .map(|d| (x[d] - fit.centre[d]).powi(2))
+                            .sum::<f64>()
+                            .sqrt()
+                    })
+                    .fold(f64::INFINITY, f64::min);
+                if nearest <= fit.source_radius {
+                    return Err(format!("a microphone {nearest:.3} m from the radiation fit's centre lies inside its source sphere ({:.3} m); the transfer there is not defined", fit.source_radius));
+                }
+                out.push(
+                    fit.transfer(&positions)
+                        .map_err(|e| e.to_string())?
+                        .iter()
+                        .map(|p| p.norm())
+                        .collect(),
+                );
+            }
+            progress.say(format!(
+                "acoustic transfer of {} modes to {} microphones in {:.1} s",
+                shapes.len(),
+                positions.len(),
+                t.elapsed().as_secs_f64()
+            ));
+            Some(out)
+        }
+    };
+    Ok(Features {
+        frequencies_hz,
+        clusters,
+        drive,
+        support_energy,
+        transfer,
+        surface,
+        surface_energy,
+        strike_note,
+    })
+}
+
+/// The localisation and, when it points somewhere, the second catalogue run.
+pub struct Localised {
+    /// (μ, z) of the regression at each of [`Features::surface`].
+    pub map: Vec<(f64, f64)>,
+    /// The best surface vertex and its z.
+    pub best: Option<(usize, f64)>,
+    /// The region offered to the catalogue (empty when z is at most [`MASS_REGION_Z`]).
+    pub region: Vec<usize>,
+}
+
+/// Near-degenerate clusters: neighbouring simulated frequencies within 0.5 % whose motion has
+/// the same axial profile about the support axis through the bounding-box centre.
+const CLUSTER_RTOL: f64 = 0.005;
+
+/// Axial profiles ([`evidence::axial_profile`]) of the members of a symmetry-degenerate
+/// cluster: 8 × 8 cells, L1 distance at most 0.2 (of 2).
+const PROFILE_BINS: usize = 8;
+const CLUSTER_PROFILE_DISTANCE: f64 = 0.2;
+
+/// Nodes of the candidate added-mass region around the best vertex.
+const MASS_REGION_VERTICES: usize = 5;
+/// ζ above which the best region is offered to the catalogue.
+const MASS_REGION_Z: f64 = 2.0;
+
+pub(super) fn localise(report: &CatalogueReport, feats: &Features, mesh: &TetMesh) -> Localised {
+    let residuals: Vec<(Vec<usize>, f64)> = report
+        .residuals
+        .iter()
+        .filter(|r| r.before.ln_frequency.is_finite())
+        .map(|r| (r.simulated.clone(), r.before.ln_frequency))
+        .collect();
+    let map = evidence::localise_frequency_residuals(&feats.surface_energy, &residuals);
+    let best = map
+        .iter()
+        .enumerate()
+        .filter(|(_, m)| m.1.is_finite())
+        .max_by(|a, b| a.1 .1.total_cmp(&b.1 .1))
+        .map(|(i, m)| (feats.surface[i], m.1));
+    let region = match best {
+        Some((v, z)) if z > MASS_REGION_Z => {
+            nearest_surface_vertices(mesh, v, MASS_REGION_VERTICES)
+        }
+        _ => Vec::new(),
+    };
+    Localised { map, best, region }
+}

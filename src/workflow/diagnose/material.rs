@@ -1,0 +1,151 @@
+//! Stage 3 of the diagnosis: the material. E and ν are given (a `fit-material` result or the
+//! configuration), or come from the line-spectrum match of the recorded mode frequencies
+//! against a reduced basis in ν ([`crate::inverse::material::line_spectrum_start`]), followed,
+//! when that match leaves a distance above [`LOADED_MATCH_MIN_DISTANCE`], by the loaded line
+//! match with a candidate added mass ([`super::loaded_match`]; module docs of
+//! [`crate::workflow::diagnose`], stage 3).
+
+use super::loaded_match::{
+    loaded_match, LoadedMass, LOADED_MATCH_MIN_DISTANCE, LOADED_MATCH_RATIO,
+};
+use super::StageInput;
+use crate::audio::chain::{DampingModel, Strike};
+use crate::eigen::reduced::PoissonBasis;
+use crate::inverse::material::{
+    line_spectrum_start, LineSpectrumStart, MaterialFitSettings, MaterialProblem,
+};
+use crate::petsc::PetscInt;
+use std::time::Instant;
+
+/// The material the simulation uses, and how the line matches got there.
+pub(super) struct MaterialStage {
+    pub youngs: f64,
+    pub poisson: f64,
+    /// The plain line-spectrum match (with the material unknown).
+    pub line_start: Option<LineSpectrumStart>,
+    /// The loaded line match (when it ran); `used` when the simulation carries its mass.
+    pub loaded: Option<LoadedMass>,
+}
+
+/// E and ν for the simulation (stage 3). Collective: every rank runs the same matches.
+pub(super) fn material(input: &StageInput<'_, '_>) -> Result<MaterialStage, String> {
+    let StageInput {
+        petsc,
+        job,
+        mesh: mesh_model,
+        assembled,
+        diagonal,
+        measured,
+        progress,
+    } = *input;
+    let mut line_start = None;
+    let mut loaded: Option<LoadedMass> = None;
+    let (youngs, poisson) = match job.material {
+        Some(m) => m,
+        None => {
+            let point = match job.strike_vertex {
+                Some(v) => mesh_model
+                    .surface_point_at_vertex(v)
+                    .ok_or_else(|| format!("strike vertex {v} is not a surface corner node"))?,
+                None => mesh_model
+                    .default_strike_point()
+                    .ok_or("the mesh has no surface")?,
+            };
+            let normal = job
+                .strike_direction
+                .map(|d| d.map(|c| -c))
+                .unwrap_or(point.normal);
+            let (mut dofs, w) = crate::cli::fit_material::probe_along(
+                mesh_model,
+                &point,
+                normal,
+                &assembled.layout,
+            );
+            // The basis also carries every surface vertex's values, for the loaded match.
+            let strike_dofs = dofs.len();
+            let surface = if job.loaded_mass_match {
+                mesh_model.surface_vertices()
+            } else {
+                Vec::new()
+            };
+            dofs.extend(
+                surface
+                    .iter()
+                    .flat_map(|&v| (0..3).map(move |c| (v, c)))
+                    .map(|(v, c)| assembled.layout.global_dof(v, c) as PetscInt),
+            );
+            // Enough modes to cover the recorded band; spurious weak poles (a reverberant tail) must
+            // not inflate the solves, so the count is capped.
+            let n_modes = (measured.fit.len() + 8).min(48);
+            let samples = [0.1, 0.25, 0.4];
+            progress.say(format!("material unknown: reduced basis in ν ({n_modes} modes at ν = {samples:?}) for the line-spectrum match"));
+            let strike_petsc_dofs: Vec<PetscInt> = dofs[..strike_dofs].to_vec();
+            let basis = PoissonBasis::build(petsc, assembled, diagonal, n_modes, 8, &samples, dofs)
+                .map_err(|e| e.to_string())?;
+            let problem = MaterialProblem {
+                targets: &[],
+                sample_rate: f64::from(job.sample_rate),
+                density: job.density,
+                damping: DampingModel::Rayleigh {
+                    alpha: 0.0,
+                    beta: 0.0,
+                },
+                strike: Strike::default(),
+                direction_weights: w,
+                max_frequency_hz: Some(job.max_frequency_hz),
+                target_modes_hz: measured.fit.iter().map(|m| m.frequency_hz).collect(),
+            };
+            let settings = MaterialFitSettings {
+                youngs_search_factor: 8.0,
+                ..Default::default()
+            };
+            let start = line_spectrum_start(&basis, &problem, (7.2e10, 0.25), &settings)?;
+            progress.say(format!(
+                "line-spectrum match: E = {:.4e} Pa, ν = {:.4} (distance {:.2e})",
+                start.youngs, start.poisson, start.distance
+            ));
+            line_start = Some(start);
+            if job.loaded_mass_match && start.distance > LOADED_MATCH_MIN_DISTANCE {
+                let t = Instant::now();
+                let found = loaded_match(
+                    input,
+                    &basis,
+                    &surface,
+                    &strike_petsc_dofs,
+                    &problem,
+                    &start,
+                    &settings,
+                )?;
+                let used = found.matched.distance < LOADED_MATCH_RATIO * start.distance;
+                progress.say(format!(
+                    "loaded line match: E = {:.4e} Pa, ν = {:.4}, {:.2} g ({:.2} % of the body) at surface vertex {} (distance {:.2e} against {:.2e} without; {}) in {:.1} s ({} regions enriched in {:.1} s, {} failed, {} factorisations in {:.1} s)",
+                    found.matched.youngs,
+                    found.matched.poisson,
+                    1e3 * found.matched.mass_kg,
+                    100.0 * found.mass_fraction,
+                    found.centre,
+                    found.matched.distance,
+                    start.distance,
+                    if used { "the simulation carries this mass, the catalogue tests it" } else { "not used" },
+                    t.elapsed().as_secs_f64(),
+                    found.enrichment.regions,
+                    found.enrichment.seconds,
+                    found.enrichment.failures,
+                    found.enrichment.factorisations,
+                    found.enrichment.factor_seconds
+                ));
+                loaded = Some(LoadedMass { used, ..found });
+            }
+            match &loaded {
+                Some(l) if l.used => (l.matched.youngs, l.matched.poisson),
+                _ => (start.youngs, start.poisson),
+            }
+        }
+    };
+    Ok(MaterialStage {
+        youngs,
+        poisson,
+        line_start,
+        loaded,
+    })
+}

@@ -1,0 +1,196 @@
+//! Stages 0–2 of the diagnosis, on rank 0: each recording's health, then the recording cut at
+//! its onset, its modes (extraction and the chirp-aware glide stage) for the fit and the
+//! held-out microphones, and the residual envelopes against the pre-roll's floor.
+
+use super::Job;
+use crate::audio::health::ChannelHealth;
+use crate::audio::recording::{load_recording, GainPolicy, RecordingOptions};
+use crate::diagnose::catalogue::{ObservedMode, ResidualEnvelopes};
+use crate::diagnose::evidence;
+use crate::diagnose::extract::{extract_modes, fit_glides, ModalExtraction};
+use crate::workflow::Progress;
+use serde::{Deserialize, Serialize};
+use std::time::Instant;
+
+/// What rank 0 measured in the recording.
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct Measured {
+    /// The recordings' channel names.
+    pub names: Vec<String>,
+    /// The shared onset [s].
+    pub onset_s: f64,
+    /// The fit and the held-out microphones' modes, below the highest frequency diagnosed.
+    pub fit: Vec<ObservedMode>,
+    pub held_out: Vec<ObservedMode>,
+    pub envelopes: Option<ResidualEnvelopes>,
+    pub extraction_fit: ModalExtraction,
+    pub extraction_held: Option<ModalExtraction>,
+    /// Fit channel 0 after the onset and its residual (for the plots).
+    pub plot_signal: Vec<f64>,
+    pub plot_residual: Vec<f64>,
+    pub seconds: f64,
+}
+
+fn pick(channels: &[Vec<f64>], which: &[usize]) -> Vec<Vec<f64>> {
+    which.iter().map(|&c| channels[c].clone()).collect()
+}
+
+/// Every channel's health, then the fit and the held-out microphones kept.
+pub(super) type ChannelChoice = (Vec<ChannelHealth>, Vec<usize>, Vec<usize>);
+
+/// The recording's channel health ([`crate::audio::health`]) and the fit and held-out
+/// microphones that remain: unhealthy ones dropped; an emptied held-out set takes a healthy fit
+/// microphone when at least two remain (and an emptied fit set a held-out one). Rank 0.
+pub(super) fn healthy_channels(job: &Job) -> Result<ChannelChoice, String> {
+    let options = RecordingOptions {
+        target_rate: Some(job.sample_rate),
+        pre_roll_s: job.pre_roll,
+        duration_s: Some(job.pre_roll + job.duration),
+        gain: GainPolicy::Unity,
+        band_max_hz: Some(job.max_frequency_hz),
+        ..Default::default()
+    };
+    let rec = load_recording(&job.recordings, &options).map_err(|e| e.to_string())?;
+    let fs = f64::from(rec.sample_rate);
+    let onset =
+        (((rec.onset_s - rec.start_s) * fs).round().max(0.0) as usize).min(rec.channels[0].len());
+    let health = crate::audio::health::assess(
+        &rec.names,
+        &rec.channels,
+        onset,
+        fs,
+        &rec.channel_onsets_s,
+        rec.onset_s,
+    );
+    let healthy = crate::audio::health::healthy_channels(&health).map_err(|e| e.to_string())?;
+    let ok = |c: &usize| healthy.contains(c);
+    let mut fit: Vec<usize> = job.fit_channels.iter().copied().filter(ok).collect();
+    let mut held: Vec<usize> = job.held_channels.iter().copied().filter(ok).collect();
+    if fit.is_empty() && held.len() >= 2 {
+        fit.push(held.remove(0));
+    }
+    if held.is_empty() && !job.held_channels.is_empty() && fit.len() >= 2 {
+        held.push(fit.pop().expect("two or more"));
+    }
+    if fit.is_empty() {
+        // A lone healthy held-out channel cannot be fitted and checked at once.
+        let verdicts = health
+            .iter()
+            .map(|h| format!("{}: {}", h.name, h.verdict.word()))
+            .collect::<Vec<_>>()
+            .join("; ");
+        return Err(crate::audio::health::NoHealthyChannel { verdicts }.to_string());
+    }
+    Ok((health, fit, held))
+}
+
+pub(super) fn measure(job: &Job, progress: &Progress) -> Result<Measured, String> {
+    let t = Instant::now();
+    let options = RecordingOptions {
+        target_rate: Some(job.sample_rate),
+        pre_roll_s: job.pre_roll,
+        duration_s: Some(job.pre_roll + job.duration),
+        gain: GainPolicy::CommonPeak(0.5),
+        band_max_hz: Some(job.max_frequency_hz),
+        ..Default::default()
+    };
+    let rec = load_recording(&job.recordings, &options).map_err(|e| e.to_string())?;
+    let fs = f64::from(rec.sample_rate);
+    let onset =
+        (((rec.onset_s - rec.start_s) * fs).round().max(0.0) as usize).min(rec.channels[0].len());
+    let (pre, post): (Vec<Vec<f64>>, Vec<Vec<f64>>) = rec
+        .channels
+        .iter()
+        .map(|c| (c[..onset].to_vec(), c[onset..].to_vec()))
+        .unzip();
+    let n = post[0].len();
+    if (n as f64) < 0.1 * fs {
+        return Err(format!(
+            "only {:.3} s of recording after the onset at {:.3} s",
+            n as f64 / fs,
+            rec.onset_s
+        ));
+    }
+    progress.say(format!("{} channel(s) at {} Hz, onset at {:.4} s, {:.3} s pre-roll, {:.3} s after; fit microphones {:?}, held out {:?}", rec.channels.len(), rec.sample_rate, rec.onset_s, onset as f64 / fs, n as f64 / fs, job.fit_channels, job.held_channels));
+    // Extraction, then the chirp-aware stage: a gliding mode comes out as one mode with its
+    // glide instead of a cluster of constant poles (which would read as a split pair).
+    let extract = |channels: &[Vec<f64>], what: &str| -> Result<ModalExtraction, String> {
+        let t = Instant::now();
+        let ex = extract_modes(channels, fs, &job.extract)
+            .map_err(|e| format!("mode extraction ({what}): {e}"))?;
+        let stage = fit_glides(channels, &ex, &job.glide)
+            .map_err(|e| format!("glide stage ({what}): {e}"))?;
+        let selected: Vec<_> = stage.decisions.iter().filter(|d| d.selected).collect();
+        let merged: usize = selected.iter().map(|d| d.poles_hz.len()).sum();
+        let gliding: usize = selected.iter().map(|d| d.f0_hz.len()).sum();
+        progress.say(format!("extraction ({what}): {} modes, {} after the glide stage ({} groups tried, {} gliding modes from {} poles) in {:.1} s", ex.modes.len(), stage.extraction.modes.len(), stage.decisions.len(), gliding, merged, t.elapsed().as_secs_f64()));
+        for d in &selected {
+            let round = |v: &[f64]| {
+                v.iter()
+                    .map(|f| (f * 100.0).round() / 100.0)
+                    .collect::<Vec<_>>()
+            };
+            let glides: Vec<String> = d
+                .glide
+                .iter()
+                .zip(&d.glide_sd)
+                .map(|(g, s)| format!("{g:.3e} ± {s:.1e}"))
+                .collect();
+            progress.say(format!(
+                "    glide: poles {:?} Hz → f₀ = {:?} Hz, d = {:?} 1/s, g = [{}] (ΔBIC {:.1})",
+                round(&d.poles_hz),
+                round(&d.f0_hz),
+                round(&d.decay_rate),
+                glides.join(", "),
+                d.delta_bic
+            ));
+        }
+        Ok(stage.extraction)
+    };
+    let fit_post = pick(&post, &job.fit_channels);
+    let full = extract(&fit_post, "fit microphones")?;
+    let in_band = |mut modes: Vec<ObservedMode>| {
+        modes.retain(|m| m.frequency_hz <= job.max_frequency_hz);
+        modes
+    };
+    let fit = in_band(evidence::observed_modes(&full, None, None, &job.observed));
+    let (held_out, extraction_held) = if job.held_channels.is_empty() {
+        (Vec::new(), None)
+    } else {
+        let held = extract(&pick(&post, &job.held_channels), "held-out microphones")?;
+        (
+            in_band(evidence::observed_modes(&held, None, None, &job.observed)),
+            Some(held),
+        )
+    };
+    let envelopes = match evidence::residual_envelopes(
+        &fit_post,
+        &pick(&pre, &job.fit_channels),
+        &full,
+        &job.envelopes,
+    ) {
+        Ok(e) => Some(e),
+        Err(e) => {
+            progress.say(format!("no residual envelopes: {e}"));
+            None
+        }
+    };
+    let model0 = full.render_channel(0, n);
+    let plot_residual = fit_post[0]
+        .iter()
+        .zip(&model0)
+        .map(|(a, b)| a - b)
+        .collect();
+    Ok(Measured {
+        names: rec.names,
+        onset_s: rec.onset_s,
+        fit,
+        held_out,
+        envelopes,
+        extraction_fit: full,
+        extraction_held,
+        plot_signal: fit_post[0].clone(),
+        plot_residual,
+        seconds: t.elapsed().as_secs_f64(),
+    })
+}
