@@ -5,6 +5,8 @@
 //! A job reports progress through a [`Progress`] callback, so the same job runs silently in a
 //! test, prints timed lines on a terminal, or feeds another program.
 
+pub mod fit_material;
+
 use crate::petsc::Petsc;
 use mpi::traits::{Communicator, Root};
 use std::time::Instant;
