@@ -6,6 +6,7 @@
 //! test, prints timed lines on a terminal, or feeds another program.
 
 pub mod diagnose;
+pub mod fit_material;
 pub mod locate_impact;
 pub mod modes;
 pub mod render;

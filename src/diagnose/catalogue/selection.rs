@@ -3,8 +3,8 @@
 
 use super::matching::{match_modes, Matching};
 use super::model::{
-    baseline_start, fit, held_out_chi2, held_out_error, undamped_hz, Fit, FloorVariances,
-    ModeTable, Model, BASE_PARAMS, CHANNEL_PARAMS, LEVEL_FLOOR,
+    assignment_cost, baseline_start, fit, held_out_chi2, held_out_error, undamped_hz, Fit,
+    FloorVariances, ModeTable, Model, BASE_PARAMS, CHANNEL_PARAMS, LEVEL_FLOOR,
 };
 use super::report::*;
 use super::{
@@ -349,7 +349,8 @@ struct PoleChoice<'a> {
 }
 
 /// Matching step 6 (matching module docs): exchanges a unit's pole for an extra pole of its
-/// cluster while `cost` (−2 ln L of the rebuilt table under the baseline) falls by more than
+/// cluster while `cost` (−2 ln L of the rebuilt table under the baseline, its split rows
+/// left out: [`assignment_cost`]) falls by more than
 /// the ΔBIC threshold, the best exchange first. Only exchanges that keep the number of rows
 /// are compared, so that the likelihoods are of the same data size.
 fn choose_partial_poles(
@@ -450,7 +451,7 @@ pub fn diagnose_with(
         },
         matching,
         table,
-        |t| baseline_on(t).minus_two_log_likelihood,
+        |t| assignment_cost(&baseline_on(t), t),
     );
     let baseline = baseline_on(&table);
     if !baseline.minus_two_log_likelihood.is_finite() {
@@ -484,7 +485,7 @@ pub fn diagnose_with(
             t,
             |t| {
                 held_out_chi2(&baseline, t, &baseline.tau2)
-                    .map_or(f64::INFINITY, |c| c.minus_two_log_likelihood)
+                    .map_or(f64::INFINITY, |c| c.assignment_cost)
             },
         );
         (t, m)

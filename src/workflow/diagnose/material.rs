@@ -55,7 +55,7 @@ pub(super) fn material(input: &StageInput<'_, '_>) -> Result<MaterialStage, Stri
                 .strike_direction
                 .map(|d| d.map(|c| -c))
                 .unwrap_or(point.normal);
-            let (mut dofs, w) = crate::cli::fit_material::probe_along(
+            let (mut dofs, w) = crate::workflow::fit_material::probe_along(
                 mesh_model,
                 &point,
                 normal,
