@@ -15,12 +15,12 @@
 //! Shapes are centred and scaled to a 0.1 m bounding-box diagonal; ceramic. The seed sets the
 //! target grid's shift, the network's initialisation, the pre-fit batches and the eikonal
 //! points. With --out-dir, one PNG per case (voxels / before / after / true) and `results.json`.
-use diffsound::cli::fit_geometry::{load_surface, render_comparison, step_line};
 use diffsound::fem::Material;
 use diffsound::inverse::geometry::{
     assess, eigenvalue_loss, fit_geometry, GeometryProgress, GeometrySettings,
 };
 use diffsound::petsc::Petsc;
+use diffsound::workflow::fit_geometry::{load_surface, step_line, write::render_comparison};
 
 struct Args {
     voxels: Vec<usize>,

@@ -1,70 +1,21 @@
-//! The `fit-geometry` job (issue 7, task 3): a body known only as a coarse voxelisation,
-//! represented by an MLP signed-distance field, pre-fitted to the voxels and refined by the
-//! first N eigenvalues of a target spectrum ([`crate::inverse::geometry`]).
+//! `diffsound fit-geometry`: a body known only as a coarse voxelisation, refined by its
+//! spectrum (issue 7, task 3).
 //!
-//! ```text
-//! mpirun -np 2 diffsound fit-geometry --surface spot.obj --diagonal 0.1 --voxels 16 --cells 20 \
-//!        --target-cells 32 --modes 12 --steps 30 --out out/spot_geometry.h5 -v
-//! ```
-//!
-//! # Inputs
-//!
-//! * **Surface**: a closed triangle surface, OBJ or the boundary of a Gmsh tet mesh (`.msh`), in
-//!   `units` (metres per unit), centred on its bounding box and, with `diagonal`, scaled to that
-//!   bounding-box diagonal [m]. It is the truth: voxelised (`voxels` per axis over its bounding
-//!   box), rendered for the target spectrum (`target_cells`, a grid shifted by a random fraction
-//!   of a cell from `target_seed`), and compared with the results. The fit itself only sees the
-//!   voxels and the target eigenvalues.
-//! * **Fit**: the grid (`cells` along the longest axis), `modes` N, the refinement's `steps`
-//!   and update (`method`: minimum-norm Gauss–Newton with its `damping`, the default, or Adam
-//!   with its `learning_rate`), the grid-bias correction (on unless `--no-bias-correction`),
-//!   `free_scale` (off; the spectrum's shape only, for a body of unknown stiffness), the check
-//!   on the target's cell count (on unless `--no-target-grid-check`), the body's boundary
-//!   (curved unless `--straight-boundary`: every body — target, fit, bias reference, floor —
-//!   has its crossings and boundary mid-edge nodes on the zero of its continuous field, the
-//!   network's or the true signed distance; TOML `[geometry.refine] curved_boundary`),
-//!   the weights of the voxel constraint and of the eikonal regulariser, the
-//!   pre-fit's updates, the network (`octaves`, `hidden` widths) and `seed` (network
-//!   initialisation, pre-fit batches and eikonal points).
-//! * **Material**: a preset and overrides (E, ν, ρ are known).
-//!
-//! # Outputs
-//!
-//! `out` (HDF5, written atomically; `/` attrs `format` = `diffsound.fit_geometry`,
-//! `format_version` = 1, `surface`, `command`, `version`, `n_ranks`, `settings_json`):
-//!
-//! | path | contents |
-//! |------|----------|
-//! | `/metrics/{voxels,before,after,floor}` attrs | `chamfer`, `hausdorff` [m], `iou` against the true surface: the voxels' staircase, the pre-fitted field, the refined field (both marched on the fit grid, crossings on the field's zero with the curved boundary) and the true signed distance marched on the fit grid (the floor); the last three add `rms_frequency_error`, `eigen_loss`, `volume` [m³] |
-//! | `/modes/{target,before,after,floor}_eigenvalues`, `…_frequency_hz`, `{before,after,floor}_relative_frequency_error` | the N compared modes |
-//! | `/check` attrs `before_loss`, `after_loss`, `refined_kept` | with the correction and the check (default): the eigenvalue loss of the pre-fitted and the refined field on a centred grid of `target_cells` against the uncorrected target; `refined_kept` = 1 if the refined field is the answer (its loss there is lower), else the answer is the pre-fitted field |
-//! | `/modes/bias_correction` | with the grid-bias correction (default): ln λ_k(fit grid) − ln λ_k(bias grid) of the pre-fitted field, added to ln λ*_k for the refinement (the errors above are against the uncorrected target) |
-//! | `/refine/history/{step,loss,eigen_loss,voxel_loss,eikonal_loss,tets,p2_nodes,meshing_s,assembly_s,solve_s,gradient_s,network_s,step_scale,backtracked,failed}` | every evaluation (step 0 = the pre-fit; step_scale: the fraction of Adam's update taken after it; backtracked: the next update restarted from the best θ); attrs `best_step`, `seconds` |
-//! | `/refine/mean_step` attrs | `meshing`, `assembly`, `solve`, `gradient`, `network`, `total` [s] per evaluation |
-//! | `/prefit/loss` | L_pre per update; attrs `centre_accuracy`, `sign_loss`, `eikonal_loss`, `seconds` |
-//! | `/network/parameters`, `/network/prefit_parameters` | θ after and before refinement (layout in [`crate::inverse::neural_sdf`]); attrs `octaves`, `length` [m], `centre_x/y/z` [m], text `hidden`, `config_json` |
-//! | `/voxels` attrs | `resolution`, `occupied`, `edge_x/y/z` [m] |
-//! | `/material` attrs, `/timings` attrs | E, ν, ρ; `voxelise`, `prefit`, `target`, `refine`, `assess`, `final_body`, `total` [s] |
-//!
-//! `<out stem>_mesh.h5` + `.xdmf` (ParaView): the refined body on the fit grid, P2 (curved
-//! boundary by default), with its modes ([`crate::io::write_modes`] layout). `png` (default `<out stem>.png`): the voxels,
-//! the pre-fitted body, the refined body and the true surface side by side, from two views, at
-//! one scale. Progress per step on stderr (with `-v`, or on a terminal); only rank 0 writes.
+//! The command line of the job in [`crate::workflow::fit_geometry`] (its module docs give the
+//! inputs, the method and the files): the flags and the TOML file merged into a [`Job`], the
+//! job run, its summary printed and its files written.
 
 use super::fail;
-use super::fit_shape::{MaterialConfig, SolverConfig};
 use crate::fem::Material;
-use crate::inverse::geometry::{fit_geometry, GeometryFit, GeometryProgress, GeometrySettings};
-use crate::inverse::shape::{curved_field_modes, normalise_surface, read_surface, shape_modes};
-use crate::io::plot::{surface_png, SurfaceFigure, SurfacePanel, View};
-use crate::io::results::ResultsFile;
-use crate::io::{write_modes, MaterialRecord, ModesFile};
-use crate::mesh::{self, MarchingOptions, SignedDistance, TriangleSurface};
+use crate::inverse::geometry::{GeometryFit, GeometrySettings};
+use crate::mesh;
 use crate::petsc::Petsc;
+use crate::workflow::fit_geometry;
+pub use crate::workflow::fit_geometry::{load_surface, Job};
 use clap::Args;
 use mpi::environment::Universe;
 use serde::Deserialize;
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 
 #[derive(Args, Debug, Clone, Default)]
 #[command(allow_negative_numbers = true)]
@@ -197,19 +148,38 @@ pub struct GeometryFileConfig {
     pub solver: SolverConfig,
 }
 
-/// Everything resolved and checked before PETSc starts.
-#[derive(Clone, Debug)]
-pub struct Job {
-    pub surface: PathBuf,
-    pub unit_scale: f64,
-    pub diagonal: Option<f64>,
-    pub settings: GeometrySettings,
-    pub material: Material,
-    pub out: PathBuf,
-    pub mesh_out: PathBuf,
-    pub png: PathBuf,
+/// The `[material]` table of the shape fits' TOML files (fit-thickness, fit-morph,
+/// fit-geometry).
+#[derive(Clone, Debug, Default, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct MaterialConfig {
+    pub preset: Option<String>,
+    pub youngs_modulus: Option<f64>,
+    pub poisson_ratio: Option<f64>,
+    pub density: Option<f64>,
+}
+
+impl MaterialConfig {
+    /// The preset with the flags' and then the file's E, ν, ρ, validated: the shared
+    /// resolution of [`super::config::MaterialConfig::resolve`] (shape fits take no damping).
+    pub fn resolve(&self, flags: &super::config::MaterialConfig) -> Result<Material, String> {
+        let shared = super::config::MaterialConfig {
+            preset: self.preset.clone(),
+            youngs_modulus: self.youngs_modulus,
+            poisson_ratio: self.poisson_ratio,
+            density: self.density,
+            ..Default::default()
+        };
+        shared.resolve(flags).map(|(material, _)| material)
+    }
+}
+
+/// The `[solver]` table of the shape fits' TOML files.
+#[derive(Clone, Debug, Default, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SolverConfig {
+    #[serde(default)]
     pub petsc_options: Vec<String>,
-    pub verbose: bool,
 }
 
 /// Merges defaults < config file < flags and validates.
@@ -348,33 +318,6 @@ pub fn resolve(args: &FitGeometryArgs) -> Result<Job, String> {
     })
 }
 
-/// Reads and places the surface (before PETSc starts: a bad file ends the job with its message).
-pub fn load_surface(
-    path: &Path,
-    unit_scale: f64,
-    diagonal: Option<f64>,
-) -> Result<(TriangleSurface, SignedDistance, Vec<String>), String> {
-    let (mut surface, warnings) =
-        read_surface(path).map_err(|e| format!("{}: {e}", path.display()))?;
-    for v in &mut surface.vertices {
-        for x in v.iter_mut() {
-            *x *= unit_scale;
-        }
-    }
-    let (lo, hi) = surface.bounding_box();
-    let size = (0..3).map(|d| (hi[d] - lo[d]).powi(2)).sum::<f64>().sqrt();
-    normalise_surface(&mut surface, diagonal.unwrap_or(size))
-        .map_err(|e| format!("{}: {e}", path.display()))?;
-    if (0..3).any(|d| !(hi[d] > lo[d])) {
-        return Err(format!(
-            "{}: the surface is flat (no extent along some axis)",
-            path.display()
-        ));
-    }
-    let sdf = SignedDistance::new(&surface).map_err(|e| format!("{}: {e}", path.display()))?;
-    Ok((surface, sdf, warnings))
-}
-
 pub fn run(universe: Universe, args: FitGeometryArgs) -> Result<(), String> {
     let job = resolve(&args)?;
     let (surface, sdf, warnings) = load_surface(&job.surface, job.unit_scale, job.diagonal)?;
@@ -386,96 +329,27 @@ pub fn run(universe: Universe, args: FitGeometryArgs) -> Result<(), String> {
             eprintln!("warning: {}: {w}", job.surface.display());
         }
     }
-    match compute(&petsc, &job, &surface, &sdf) {
-        Ok(()) => Ok(()),
-        Err(message) => fail(rank, size, &message),
-    }
-}
-
-fn compute(
-    petsc: &Petsc,
-    job: &Job,
-    truth: &TriangleSurface,
-    sdf: &SignedDistance,
-) -> Result<(), String> {
-    let total = std::time::Instant::now();
-    let rank = petsc.rank();
     let progress = super::stderr_progress(rank, job.verbose);
-    let fit = fit_geometry(
-        petsc,
-        truth,
-        sdf,
-        &job.material,
-        &job.settings,
-        |p| match p {
-            GeometryProgress::Message(m) => progress.say(m),
-            GeometryProgress::Step(s) => progress.say(step_line(s)),
-        },
-    )
-    .map_err(|e| format!("{}: {e}", job.surface.display()))?;
-    // The refined body with its modes, for ParaView.
-    let clock = std::time::Instant::now();
-    let net = crate::inverse::neural_sdf::NeuralSdf::from_parameters(
-        fit.network.clone(),
-        fit.refinement.best_parameters.clone(),
-    )
-    .map_err(|e| e.to_string())?;
-    let values = net.values(&fit.grid.vertex_positions());
-    let body = if job.settings.refine.curved_boundary {
-        curved_field_modes(
-            petsc,
-            &fit.grid,
-            &values,
-            &|x| net.value(x),
-            &MarchingOptions::default(),
-            &job.material,
-            job.settings.modes,
-        )
-    } else {
-        shape_modes(
-            petsc,
-            &fit.grid,
-            &values,
-            &MarchingOptions::default(),
-            &job.material,
-            job.settings.modes,
-        )
-    }
-    .map_err(|e| format!("the refined body: {e}"))?;
-    let final_seconds = clock.elapsed().as_secs_f64();
-    if rank == 0 {
-        print_summary(&fit);
-        write_results(
-            job,
-            &fit,
-            &body,
-            final_seconds,
-            total.elapsed().as_secs_f64(),
-            petsc.size(),
-        )?;
-        render_comparison(&job.png, &fit, truth, &format!("{}: {}^3 voxels -> pre-fit (before) -> refined by {} eigenvalues (after); C = Chamfer distance", job.surface.file_name().map_or(String::new(), |n| n.to_string_lossy().to_string()), job.settings.voxels, job.settings.modes))?;
-        println!(
-            "wrote {}, {} (+ .xdmf) and {}",
-            job.out.display(),
-            job.mesh_out.display(),
-            job.png.display()
-        );
-    }
-    Ok(())
-}
-
-/// One progress line per refinement evaluation.
-pub fn step_line(s: &crate::inverse::geometry::RefineStep) -> String {
-    match &s.failure {
-        None => format!(
-            "step {:>3}: loss {:.4e} (eigen {:.4e}, voxel {:.3e}, eikonal {:.3e}), {} tets; mesh {:.2} s, assembly {:.2} s, solve {:.2} s, gradient {:.2} s, network {:.2} s{}",
-            s.step, s.loss, s.eigen_loss, s.voxel_loss, s.eikonal_loss, s.tets, s.timings.meshing, s.timings.assembly, s.timings.solve, s.timings.gradient, s.network_seconds,
-            if s.backtracked { "; worse than the best: back to it, half the step" } else { "" }
-        ),
-        Some(f) => format!("step {:>3}: no body ({f}); back to the best step", s.step),
+    let result = fit_geometry::run(&petsc, &job, &surface, &sdf, &progress).and_then(|report| {
+        if rank == 0 {
+            print_summary(&report.fit);
+            fit_geometry::write::write_outputs(&job, &report, &surface)?;
+            println!(
+                "wrote {}, {} (+ .xdmf) and {}",
+                job.out.display(),
+                job.mesh_out.display(),
+                job.png.display()
+            );
+        }
+        Ok(())
+    });
+    match result {
+        Ok(()) => Ok(()),
+        Err(error) => fail(rank, size, &error.to_string()),
     }
 }
 
+/// The before/after table on stdout.
 fn print_summary(fit: &GeometryFit) {
     let mm = 1e3;
     println!(
@@ -511,303 +385,4 @@ fn print_summary(fit: &GeometryFit) {
             100.0 * a.rms_frequency_error(&fit.target)
         );
     }
-}
-
-/// The voxels, the pre-fitted and refined bodies and the true surface side by side (two views,
-/// one scale), in millimetres.
-pub fn render_comparison(
-    path: &Path,
-    fit: &GeometryFit,
-    truth: &TriangleSurface,
-    title: &str,
-) -> Result<(), String> {
-    let mm = |s: &TriangleSurface| {
-        s.vertices
-            .iter()
-            .map(|v| v.map(|x| 1e3 * x))
-            .collect::<Vec<_>>()
-    };
-    let voxels = fit.voxels.boundary_surface();
-    // The plot font is ASCII: "16^3", not "16³". Titles stay short enough for one cell.
-    let label = |name: &str, a: &crate::inverse::geometry::Assessed| {
-        format!(
-            "{name}: C {:.2} mm, IoU {:.3}",
-            1e3 * a.comparison.chamfer,
-            a.comparison.iou
-        )
-    };
-    let panels = vec![
-        SurfacePanel::new(
-            format!(
-                "{n}^3 voxels: C {:.2} mm",
-                1e3 * fit.voxel_comparison.chamfer,
-                n = fit.voxels.resolution
-            ),
-            mm(&voxels),
-            voxels.triangles.clone(),
-        ),
-        SurfacePanel::new(
-            label("before", &fit.before),
-            mm(&fit.before.surface),
-            fit.before.surface.triangles.clone(),
-        ),
-        SurfacePanel::new(
-            label("after", &fit.after),
-            mm(&fit.after.surface),
-            fit.after.surface.triangles.clone(),
-        ),
-        SurfacePanel::new("true", mm(truth), truth.triangles.clone()),
-    ];
-    let mut fig = SurfaceFigure::new(title, panels);
-    fig.views = vec![
-        View::new(30.0, 25.0),
-        View::new(210.0, 20.0),
-        View::labelled(0.0, 89.0, "top"),
-    ];
-    fig.panel_size = 340;
-    surface_png(path, &fig).map_err(|e| e.to_string())
-}
-
-fn write_results(
-    job: &Job,
-    fit: &GeometryFit,
-    body: &crate::inverse::shape::ShapeModes,
-    final_seconds: f64,
-    total: f64,
-    n_ranks: usize,
-) -> Result<(), String> {
-    let hz = |v: &[f64]| {
-        v.iter()
-            .map(|&l| crate::eigen::frequency_hz(l))
-            .collect::<Vec<f64>>()
-    };
-    let mut file = ResultsFile::new("diffsound.fit_geometry", 1);
-    file.text("/", "surface", &job.surface.display().to_string())
-        .text(
-            "/",
-            "command",
-            &std::env::args().collect::<Vec<_>>().join(" "),
-        )
-        .text("/", "version", env!("CARGO_PKG_VERSION"))
-        .text(
-            "/",
-            "settings_json",
-            &serde_json::to_string(&job.settings).map_err(|e| e.to_string())?,
-        )
-        .number("/", "n_ranks", n_ranks as f64);
-    let c = &fit.voxel_comparison;
-    file.number("/metrics/voxels", "chamfer", c.chamfer)
-        .number("/metrics/voxels", "hausdorff", c.hausdorff)
-        .number("/metrics/voxels", "iou", c.iou);
-    let loss_of = |a: &crate::inverse::geometry::Assessed| {
-        crate::inverse::geometry::eigenvalue_loss(&a.eigenvalues, &fit.target)
-            .map(|(l, _)| l)
-            .unwrap_or(f64::NAN)
-    };
-    for (name, a) in [
-        ("before", &fit.before),
-        ("after", &fit.after),
-        ("floor", &fit.floor),
-    ] {
-        let g = format!("/metrics/{name}");
-        file.number(&g, "chamfer", a.comparison.chamfer)
-            .number(&g, "hausdorff", a.comparison.hausdorff)
-            .number(&g, "iou", a.comparison.iou)
-            .number(
-                &g,
-                "rms_frequency_error",
-                a.rms_frequency_error(&fit.target),
-            )
-            .number(&g, "eigen_loss", loss_of(a))
-            .number(&g, "volume", a.volume);
-        file.column(
-            &format!("/modes/{name}_eigenvalues"),
-            a.eigenvalues.clone(),
-            "rad^2/s^2",
-        )
-        .column(
-            &format!("/modes/{name}_frequency_hz"),
-            hz(&a.eigenvalues),
-            "Hz",
-        )
-        .column(
-            &format!("/modes/{name}_relative_frequency_error"),
-            a.eigenvalues
-                .iter()
-                .zip(&fit.target.eigenvalues)
-                .map(|(l, t)| (l / t).sqrt() - 1.0)
-                .collect(),
-            "1",
-        );
-    }
-    if !fit.bias_correction.is_empty() {
-        file.column("/modes/bias_correction", fit.bias_correction.clone(), "1");
-    }
-    if let Some(c) = &fit.check {
-        file.number("/check", "before_loss", c.before_loss)
-            .number("/check", "after_loss", c.after_loss)
-            .number(
-                "/check",
-                "refined_kept",
-                f64::from(u8::from(c.refined_kept)),
-            );
-    }
-    file.column(
-        "/modes/target_eigenvalues",
-        fit.target.eigenvalues.clone(),
-        "rad^2/s^2",
-    )
-    .column(
-        "/modes/target_frequency_hz",
-        hz(&fit.target.eigenvalues),
-        "Hz",
-    )
-    .number("/modes", "target_spacing", fit.target_spacing);
-    let h = &fit.refinement.history;
-    let col = |f: &dyn Fn(&crate::inverse::geometry::RefineStep) -> f64| {
-        h.iter().map(f).collect::<Vec<f64>>()
-    };
-    file.column("/refine/history/step", col(&|s| s.step as f64), "")
-        .column("/refine/history/loss", col(&|s| s.loss), "1")
-        .column("/refine/history/eigen_loss", col(&|s| s.eigen_loss), "1")
-        .column("/refine/history/voxel_loss", col(&|s| s.voxel_loss), "1")
-        .column(
-            "/refine/history/eikonal_loss",
-            col(&|s| s.eikonal_loss),
-            "1",
-        )
-        .column("/refine/history/tets", col(&|s| s.tets as f64), "")
-        .column("/refine/history/p2_nodes", col(&|s| s.p2_nodes as f64), "")
-        .column(
-            "/refine/history/meshing_s",
-            col(&|s| s.timings.meshing),
-            "s",
-        )
-        .column(
-            "/refine/history/assembly_s",
-            col(&|s| s.timings.assembly),
-            "s",
-        )
-        .column("/refine/history/solve_s", col(&|s| s.timings.solve), "s")
-        .column(
-            "/refine/history/gradient_s",
-            col(&|s| s.timings.gradient),
-            "s",
-        )
-        .column(
-            "/refine/history/network_s",
-            col(&|s| s.network_seconds),
-            "s",
-        )
-        .column("/refine/history/step_scale", col(&|s| s.step_scale), "1")
-        .column(
-            "/refine/history/backtracked",
-            col(&|s| f64::from(u8::from(s.backtracked))),
-            "",
-        )
-        .column(
-            "/refine/history/failed",
-            col(&|s| f64::from(u8::from(s.failure.is_some()))),
-            "",
-        )
-        .number("/refine", "best_step", fit.refinement.best_step as f64)
-        .number("/refine", "seconds", fit.refinement.seconds);
-    let (mean, network) = fit.refinement.mean_timings();
-    file.number("/refine/mean_step", "meshing", mean.meshing)
-        .number("/refine/mean_step", "assembly", mean.assembly)
-        .number("/refine/mean_step", "solve", mean.solve)
-        .number("/refine/mean_step", "gradient", mean.gradient)
-        .number("/refine/mean_step", "network", network)
-        .number("/refine/mean_step", "total", mean.total() + network);
-    file.column("/prefit/loss", fit.prefit.loss.clone(), "1")
-        .number("/prefit", "centre_accuracy", fit.prefit.centre_accuracy)
-        .number("/prefit", "sign_loss", fit.prefit.sign_loss)
-        .number("/prefit", "eikonal_loss", fit.prefit.eikonal_loss)
-        .number("/prefit", "seconds", fit.prefit.seconds);
-    let n = &fit.network;
-    file.column(
-        "/network/parameters",
-        fit.refinement.best_parameters.clone(),
-        "1",
-    )
-    .column(
-        "/network/prefit_parameters",
-        fit.prefit_parameters.clone(),
-        "1",
-    )
-    .number("/network", "octaves", n.octaves as f64)
-    .number("/network", "length", n.length)
-    .number("/network", "centre_x", n.centre[0])
-    .number("/network", "centre_y", n.centre[1])
-    .number("/network", "centre_z", n.centre[2])
-    .text(
-        "/network",
-        "hidden",
-        &n.hidden
-            .iter()
-            .map(|w| w.to_string())
-            .collect::<Vec<_>>()
-            .join(","),
-    )
-    .text(
-        "/network",
-        "config_json",
-        &serde_json::to_string(n).map_err(|e| e.to_string())?,
-    );
-    let v = &fit.voxels;
-    file.number("/voxels", "resolution", v.resolution as f64)
-        .number("/voxels", "occupied", v.occupied() as f64)
-        .number("/voxels", "edge_x", v.size[0])
-        .number("/voxels", "edge_y", v.size[1])
-        .number("/voxels", "edge_z", v.size[2]);
-    file.number("/material", "youngs_modulus", job.material.youngs_modulus)
-        .number("/material", "poisson_ratio", job.material.poisson_ratio)
-        .number("/material", "density", job.material.density);
-    let t = &fit.timings;
-    for (k, value) in [
-        ("voxelise", t.voxelise),
-        ("prefit", t.prefit),
-        ("target", t.target),
-        ("refine", t.refine),
-        ("assess", t.assess),
-        ("final_body", final_seconds),
-        ("total", total),
-    ] {
-        file.number("/timings", k, value);
-    }
-    file.write(&job.out).map_err(|e| e.to_string())?;
-
-    let frequencies = hz(&body.eigenvalues);
-    let mesh_file = ModesFile {
-        nodes: &body.mesh.nodes,
-        connectivity: &body.mesh.connectivity,
-        nodes_per_tet: body.mesh.nodes_per_tet(),
-        material: MaterialRecord {
-            name: "refined geometry (MLP SDF)".into(),
-            youngs_modulus: job.material.youngs_modulus,
-            poisson_ratio: job.material.poisson_ratio,
-            density: job.material.density,
-            rayleigh_alpha: job.material.rayleigh_alpha,
-            rayleigh_beta: job.material.rayleigh_beta,
-        },
-        eigenvalues: &body.eigenvalues,
-        frequencies_hz: &frequencies,
-        mode_shapes: &body.shapes,
-        residual_norms: &body.residuals,
-        rigid_eigenvalues: &body.rigid_eigenvalues,
-        solver: Vec::new(),
-        n_ranks,
-        element_order: 2,
-        timings: Vec::new(),
-        provenance: vec![
-            (
-                "command".into(),
-                std::env::args().collect::<Vec<_>>().join(" "),
-            ),
-            ("fit".into(), job.out.display().to_string()),
-        ],
-        extra_datasets: Vec::new(),
-        node_fields: Vec::new(),
-    };
-    write_modes(&job.mesh_out, &mesh_file).map_err(|e| e.to_string())
 }

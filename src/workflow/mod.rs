@@ -6,7 +6,9 @@
 //! test, prints timed lines on a terminal, or feeds another program.
 
 pub mod diagnose;
+pub mod fit_geometry;
 pub mod fit_material;
+pub mod fit_shape;
 pub mod locate_impact;
 pub mod modes;
 pub mod render;
