@@ -11,10 +11,11 @@
 //! | audio      | [`audio`]    | damped-sinusoid synthesis and WAV I/O |
 //! | inverse    | [`inverse`]  | modal estimates, damping and material fits from recordings; shape (thickness, morph) from eigenvalues |
 //! | diagnose   | [`diagnose`] | simulation–recording mismatch: modal parameters with uncertainties |
+//! | workflow   | [`workflow`] | the jobs: each command as a `Job` in and a `Report` out, progress as a callback |
 //! | io         | [`io`]       | HDF5 results with an XDMF sidecar, written atomically |
 //!
 //! [`petsc`] is the one thin unsafe boundary: raw bindgen bindings under safe RAII handles.
-//! [`cli`] is the `diffsound` command line; [`random`] the seeded generator every stage shares.
+//! [`cli`] is the `diffsound` command line (arguments, configuration files, printing); [`random`] the seeded generator every stage shares.
 
 pub mod assembly;
 pub mod audio;
