@@ -113,6 +113,18 @@ fn rms(x: &[f64]) -> f64 {
     (x.iter().map(|v| v * v).sum::<f64>() / x.len() as f64).sqrt()
 }
 
+/// [`assess`] on a loaded recording, its pre-roll before [`crate::audio::recording::Recording::onset_sample`].
+pub fn assess_recording(rec: &crate::audio::recording::Recording) -> Vec<ChannelHealth> {
+    assess(
+        &rec.names,
+        &rec.channels,
+        rec.onset_sample(),
+        f64::from(rec.sample_rate),
+        &rec.channel_onsets_s,
+        rec.onset_s,
+    )
+}
+
 /// Measures every channel (module docs). `channels` hold the pre-roll, then the strike from
 /// sample `onset`; `own_onsets_s` are each channel's own strike times and `shared_onset_s`
 /// the shared one, in any common time origin.

@@ -115,6 +115,15 @@ pub struct Recording {
     pub names: Vec<String>,
 }
 
+impl Recording {
+    /// Index of the shared onset within `channels` (0 without pre-roll).
+    pub fn onset_sample(&self) -> usize {
+        let fs = f64::from(self.sample_rate);
+        (((self.onset_s - self.start_s) * fs).round().max(0.0) as usize)
+            .min(self.channels.first().map_or(0, Vec::len))
+    }
+}
+
 /// Why a recording could not be loaded.
 #[derive(thiserror::Error, Debug)]
 pub enum RecordingError {

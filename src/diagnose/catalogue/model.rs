@@ -932,9 +932,12 @@ fn minus_two_log_likelihood(table: &ModeTable, p: &Prediction, tau2: &FloorVaria
 /// the beating-pair effect explains; judged with it, the baseline (splits as the mesh has
 /// them) would prefer whichever poles lie closest together, not the partial's own.
 pub fn assignment_cost(fit: &Fit, table: &ModeTable) -> f64 {
-    minus_two_log_likelihood_where(table, &fit.prediction, &fit.tau2, |row| {
-        row.kind.quantity() != Quantity::Split
-    })
+    minus_two_log_likelihood_where(table, &fit.prediction, &fit.tau2, not_a_split)
+}
+
+/// The rows [`assignment_cost`] counts: all but the splits.
+fn not_a_split(row: &Row) -> bool {
+    row.kind.quantity() != Quantity::Split
 }
 
 fn minus_two_log_likelihood_where(
@@ -1470,7 +1473,6 @@ pub fn held_out_chi2(fit: &Fit, held: &ModeTable, tau2: &FloorVariances) -> Opti
     }
     let mut z = vec![0.0; held.n_residuals()];
     residuals(&min.x, &mut z);
-    let held_prediction = model.prediction(held, &min.x);
     // Count only the nuisance parameters the held-out rows can see.
     let channels_seen = (0..held.channels)
         .filter(|&c| {
@@ -1485,9 +1487,8 @@ pub fn held_out_chi2(fit: &Fit, held: &ModeTable, tau2: &FloorVariances) -> Opti
         chi2: min.cost,
         dof,
         dispersion: robust_dispersion(&z),
-        assignment_cost: minus_two_log_likelihood_where(held, &held_prediction, tau2, |row| {
-            row.kind.quantity() != Quantity::Split
-        }),
+        // `scratch` holds the prediction at min.x, left by the residuals just evaluated there.
+        assignment_cost: minus_two_log_likelihood_where(held, &scratch, tau2, not_a_split),
     })
 }
 

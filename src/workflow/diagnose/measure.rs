@@ -51,17 +51,7 @@ pub(super) fn healthy_channels(job: &Job) -> Result<ChannelChoice, String> {
         ..Default::default()
     };
     let rec = load_recording(&job.recordings, &options).map_err(|e| e.to_string())?;
-    let fs = f64::from(rec.sample_rate);
-    let onset =
-        (((rec.onset_s - rec.start_s) * fs).round().max(0.0) as usize).min(rec.channels[0].len());
-    let health = crate::audio::health::assess(
-        &rec.names,
-        &rec.channels,
-        onset,
-        fs,
-        &rec.channel_onsets_s,
-        rec.onset_s,
-    );
+    let health = crate::audio::health::assess_recording(&rec);
     let healthy = crate::audio::health::healthy_channels(&health).map_err(|e| e.to_string())?;
     let ok = |c: &usize| healthy.contains(c);
     let mut fit: Vec<usize> = job.fit_channels.iter().copied().filter(ok).collect();
@@ -96,8 +86,7 @@ pub(super) fn measure(job: &Job, progress: &Progress) -> Result<Measured, String
     };
     let rec = load_recording(&job.recordings, &options).map_err(|e| e.to_string())?;
     let fs = f64::from(rec.sample_rate);
-    let onset =
-        (((rec.onset_s - rec.start_s) * fs).round().max(0.0) as usize).min(rec.channels[0].len());
+    let onset = rec.onset_sample();
     let (pre, post): (Vec<Vec<f64>>, Vec<Vec<f64>>) = rec
         .channels
         .iter()

@@ -38,18 +38,10 @@ pub fn measure(job: &Job, progress: &Progress) -> Result<Measured, String> {
     };
     let rec = load_recording(&job.recordings, &options).map_err(|e| e.to_string())?;
     let fs = f64::from(rec.sample_rate);
-    let onset =
-        (((rec.onset_s - rec.start_s) * fs).round().max(0.0) as usize).min(rec.channels[0].len());
+    let onset = rec.onset_sample();
     // Channel health: a dead, noise-only or misaligned microphone would move the map; it is
     // left out with a warning naming its file.
-    let health = crate::audio::health::assess(
-        &rec.names,
-        &rec.channels,
-        onset,
-        fs,
-        &rec.channel_onsets_s,
-        rec.onset_s,
-    );
+    let health = crate::audio::health::assess_recording(&rec);
     for h in health.iter().filter(|h| !h.is_healthy()) {
         eprintln!("{}", h.left_out_warning("the map"));
     }
