@@ -44,6 +44,14 @@
 //! candidate added-mass region. Because the region is *chosen* from the data, the catalogue
 //! charges the point variant for it ([`super::catalogue::CatalogueSettings`]'s
 //! `mass_region_search_params`).
+//!
+//! [`localise_decay_residuals`]: the same for a support. Where the object rests is a property
+//! of the recording session, not of the mesh: a bowl stands on its foot ring, but a plate or
+//! a tube lies on a strip, a pad or two points anywhere on its underside. A support at vertex
+//! v adds Δd_k = γ w_k(v) to the decay rates, so the standardised ln d residuals are regressed
+//! on +w_k(v) (γ̂(v) ≥ 0 for a passive support) over the candidate vertices a support can
+//! touch (outward normal within 60° of the support direction); the charge is
+//! `support_region_search_params`.
 
 use crate::audio::stft::StftPlan;
 use crate::diagnose::catalogue::{
@@ -522,6 +530,25 @@ pub fn localise_frequency_residuals(
     vertex_energy: &[Vec<f64>],
     residuals: &[(Vec<usize>, f64)],
 ) -> Vec<(f64, f64)> {
+    localise(vertex_energy, residuals, -0.5)
+}
+
+/// The support's map over candidate vertices (module docs): as
+/// [`localise_frequency_residuals`], with `residuals` the z of each observation's ln d
+/// residual, regressed on +w. Returns (γ̂(v) in units of the residuals' σ, ζ(v)) per vertex.
+pub fn localise_decay_residuals(
+    vertex_energy: &[Vec<f64>],
+    residuals: &[(Vec<usize>, f64)],
+) -> Vec<(f64, f64)> {
+    localise(vertex_energy, residuals, 1.0)
+}
+
+/// Regression of `residuals` on `slope`·w_k(v) at every vertex (slope, z).
+fn localise(
+    vertex_energy: &[Vec<f64>],
+    residuals: &[(Vec<usize>, f64)],
+    slope: f64,
+) -> Vec<(f64, f64)> {
     vertex_energy
         .iter()
         .map(|energy| {
@@ -543,7 +570,7 @@ pub fn localise_frequency_residuals(
                         .sum::<f64>()
                         / modes.len() as f64
                         / top;
-                    (-0.5 * w, *z, 1.0)
+                    (slope * w, *z, 1.0)
                 })
                 .collect();
             // Standardised residuals have unit variance, so the regression's z is μ̂ / σ(μ̂).
@@ -694,6 +721,27 @@ mod tests {
         );
         assert!(map[1].0 > 0.0 && map[1].1 > 3.0, "{:?}", map[1]);
         assert!(map[2].0 < 0.0, "{:?}", map[2]);
+    }
+
+    /// The support's map: the modes that move at vertex 2 decay faster than the law (z > 0),
+    /// so a support there (γ > 0) explains them; vertex 1's modes are the others.
+    #[test]
+    fn support_localisation_peaks_where_the_fast_decaying_modes_move() {
+        let energy = vec![
+            vec![1.0, 1.0, 1.0, 1.0, 1.0, 1.0],
+            vec![1.0, 0.0, 0.9, 0.1, 1.0, 0.0],
+            vec![0.0, 1.0, 0.1, 0.9, 0.0, 1.0],
+        ];
+        let residuals: Vec<(Vec<usize>, f64)> = (0..6)
+            .map(|k| (vec![k], if k % 2 == 1 { 3.0 } else { -0.5 }))
+            .collect();
+        let map = localise_decay_residuals(&energy, &residuals);
+        assert_eq!(map[0], (0.0, 0.0));
+        assert!(map[2].0 > 0.0 && map[2].1 > 3.0, "{:?}", map[2]);
+        assert!(map[1].0 < 0.0 && map[1].1 < 0.0, "{:?}", map[1]);
+        // The same residuals read as frequencies point the other way (−½ w).
+        let as_frequency = localise_frequency_residuals(&energy, &residuals);
+        assert!((as_frequency[2].0 + 2.0 * map[2].0).abs() < 1e-9 * map[2].0.abs());
     }
 
     /// Residual envelopes: with the modes extracted well the residual is the noise, so its band

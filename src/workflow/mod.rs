@@ -61,7 +61,16 @@ pub fn broadcast_from_root<T: serde::Serialize + serde::de::DeserializeOwned>(
     petsc: &Petsc,
     value: Option<T>,
 ) -> Result<T, String> {
-    let root = petsc.world().process_at_rank(0);
+    broadcast_from(petsc, 0, value)
+}
+
+/// [`broadcast_from_root`] from rank `root` (which passes `Some`; the others `None`).
+pub fn broadcast_from<T: serde::Serialize + serde::de::DeserializeOwned>(
+    petsc: &Petsc,
+    root: i32,
+    value: Option<T>,
+) -> Result<T, String> {
+    let root = petsc.world().process_at_rank(root);
     let (mut bytes, failure) = match value.as_ref().map(encode_for_broadcast) {
         Some(Ok(bytes)) => (bytes, None),
         Some(Err(e)) => (Vec::new(), Some(e)),
@@ -76,8 +85,9 @@ pub fn broadcast_from_root<T: serde::Serialize + serde::de::DeserializeOwned>(
     root.broadcast_into(&mut len);
     if len == u64::MAX {
         return Err(format!(
-            "broadcast from rank 0: {}",
-            failure.unwrap_or_else(|| "rank 0 could not encode its result".into())
+            "broadcast from rank {}: {}",
+            root.rank(),
+            failure.unwrap_or_else(|| "the rank could not encode its result".into())
         ));
     }
     bytes.resize(len as usize, 0);

@@ -147,6 +147,10 @@ pub enum Rejection {
     /// The fit improves the likelihood, but the fitted effect lacks a property its physics
     /// requires (e.g. a "reverberant" excess confined to a single band); the detail says which.
     SignatureMissing,
+    /// Accepted at its greedy step, but once the effects accepted after it were in the model
+    /// it no longer paid its way (its last-in ΔBIC or held-out gain failed the rule): the
+    /// others explain what it had explained (parent docs, "Selection").
+    RedundantGivenOthers,
 }
 
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]

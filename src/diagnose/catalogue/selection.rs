@@ -9,7 +9,7 @@ use super::model::{
 use super::report::*;
 use super::{
     catalogue, CatalogueError, CatalogueSettings, Detection, Effect, Evidence, HeldOutChange,
-    OwnOutcome, Quantity,
+    OwnOutcome, Quantity, Term,
 };
 
 /// One effect's evaluation against the current model.
@@ -31,6 +31,8 @@ struct Candidate {
     /// The refit with the effect (None for effects evaluated on their own data).
     fit: Option<Fit>,
     params: Vec<FittedParam>,
+    /// Greedy step at which it entered (set when accepted).
+    step: usize,
 }
 
 /// The acceptance rule (parent docs): ΔBIC above the threshold and a held-out Σz² that falls
@@ -108,14 +110,7 @@ fn evaluate(
         let mut x0 = current.x.clone();
         x0.extend(proposal.init);
         let candidate = fit(table, model, x0);
-        // A candidate region the caller chose from these data costs parameters of its own
-        // (parent docs, `mass_region_search_params`).
-        let searched =
-            if proposal.term.effect() == "added_mass" && proposal.term.variant() == "added_mass" {
-                settings.mass_region_search_params as f64
-            } else {
-                0.0
-            };
+        let searched = search_charge(proposal.term.as_ref(), settings);
         let delta_bic =
             current.bic() - candidate.bic() - searched * (table.n_residuals() as f64).ln();
         let better = match &best {
@@ -166,7 +161,70 @@ fn evaluate(
         rejection,
         params: term_params(&candidate, i),
         fit: Some(candidate),
+        step: 0,
     }))
+}
+
+/// Parameters charged to a term whose candidate region the caller chose from these data
+/// (parent docs, `mass_region_search_params`, `support_region_search_params`).
+fn search_charge(term: &dyn Term, settings: &CatalogueSettings) -> f64 {
+    match (term.effect(), term.variant()) {
+        ("added_mass", "added_mass") => settings.mass_region_search_params as f64,
+        ("support_contact", _) => settings.support_region_search_params as f64,
+        _ => 0.0,
+    }
+}
+
+/// The last-in test of accepted term `i` of `full`: refit without it and apply the
+/// acceptance rule to putting it back (ΔBIC with the same region-search charge as when it
+/// entered; held-out Σz² with the reduced model's floors as the yardstick).
+pub(super) struct LastIn {
+    pub without: Fit,
+    pub delta_bic: f64,
+    pub held_out: Option<HeldOutChange>,
+    pub rejection: Option<Rejection>,
+}
+
+pub(super) fn last_in(
+    full: &Fit,
+    i: usize,
+    table: &ModeTable,
+    held: Option<&ModeTable>,
+    settings: &CatalogueSettings,
+) -> LastIn {
+    let mut terms = full.model.terms.clone();
+    let term = terms.remove(i);
+    let model = Model::new(terms, full.model.ln_f_ref, full.model.channels);
+    let off = full.model.term_offset(i);
+    let n = term.params().len();
+    let mut x0 = full.x.clone();
+    x0.drain(off..off + n);
+    let without = fit(table, model, x0);
+    let searched = search_charge(term.as_ref(), settings);
+    let delta_bic = without.bic() - full.bic() - searched * (table.n_residuals() as f64).ln();
+    let held_out = held.and_then(|h| {
+        let before = held_out_chi2(&without, h, &without.tau2)?;
+        let after = held_out_chi2(full, h, &without.tau2)?;
+        let dispersion = if settings.held_out_dispersion {
+            before.dispersion
+        } else {
+            1.0
+        };
+        Some(HeldOutChange::with_dispersion(
+            before.chi2,
+            before.dof,
+            after.chi2,
+            after.dof,
+            dispersion,
+        ))
+    });
+    let rejection = acceptance(delta_bic, held_out, settings);
+    LastIn {
+        without,
+        delta_bic,
+        held_out,
+        rejection,
+    }
 }
 
 fn floors(tau2: &FloorVariances) -> Floors {
@@ -518,8 +576,43 @@ pub fn diagnose_with(
             unreachable!("best is a fitted outcome")
         };
         current = c.fit.take().expect("modal candidates carry their fit");
+        c.step = accepted.len();
         remaining.retain(|&r| r != e);
         accepted.push((e, c));
+    }
+
+    // Backward pass (parent docs, "Selection"): every accepted effect must still pay its way
+    // once the effects after it are in; the weakest that does not leaves, and the rest are
+    // tried again.
+    let mut redundant: Vec<(usize, Box<Candidate>, String)> = Vec::new();
+    while accepted.len() >= 2 {
+        let mut weakest: Option<(usize, LastIn)> = None;
+        for i in 0..accepted.len() {
+            let last_in = last_in(&current, i, &table, held_table, settings);
+            if last_in.rejection.is_some()
+                && weakest
+                    .as_ref()
+                    .is_none_or(|w| last_in.delta_bic < w.1.delta_bic)
+            {
+                weakest = Some((i, last_in));
+            }
+        }
+        let Some((i, last_in)) = weakest else { break };
+        let (e, c) = accepted.remove(i);
+        let others: Vec<&str> = accepted.iter().map(|(o, _)| effects[*o].name()).collect();
+        let held = last_in.held_out.map_or(String::new(), |h| {
+            format!(", held-out Σz² gain {:.3}", h.gain)
+        });
+        let detail = format!(
+            "{}; entered at step {} (ΔBIC {:.2}), but given {} its last-in ΔBIC is {:.2}{held}",
+            c.detail,
+            c.step,
+            c.delta_bic,
+            others.join(" and "),
+            last_in.delta_bic,
+        );
+        current = last_in.without;
+        redundant.push((e, c, detail));
     }
 
     let mut report_accepted = Vec::new();
@@ -529,7 +622,7 @@ pub fn diagnose_with(
             signature: effects[*e].signature().into(),
             variant: c.variant.clone(),
             detector: c.detail.clone(),
-            step: i,
+            step: c.step,
             n_params: c.n_params,
             delta_bic: c.delta_bic,
             held_out_before: c.held_out.map(|h| h.before),
@@ -556,6 +649,15 @@ pub fn diagnose_with(
         held_out_after: c.and_then(|c| c.held_out.map(|h| h.after)),
         held_out_gain: c.and_then(|c| c.held_out.map(|h| h.gain)),
     };
+    for (e, c, detail) in &redundant {
+        rejected.push(reject(
+            *e,
+            Rejection::RedundantGivenOthers,
+            detail.clone(),
+            Some(c.statistic),
+            Some(c),
+        ));
+    }
     for &e in &remaining {
         match &last[e] {
             Some(Outcome::NotEnoughData(why)) => {
@@ -625,6 +727,7 @@ pub fn diagnose_with(
                     rejection,
                     fit: None,
                     params,
+                    step: 0,
                 };
                 match c.rejection {
                     None => {

@@ -2109,3 +2109,57 @@ fn detection_power_at_realistic_strengths() {
         "{others} of 200 draws accepted an effect not injected"
     );
 }
+
+/// The backward pass's last-in test (selection module): an effect that carries its data
+/// passes it, one that carries nothing fails it, and the model without it is the model
+/// before it.
+#[test]
+fn last_in_test_keeps_a_real_effect_and_drops_an_empty_one() {
+    let settings = CatalogueSettings::default();
+    let with_mass = |truth: &Truth, seed: u64| {
+        let (ev, _) = evidence(truth, seed);
+        let ln: Vec<f64> = ev.fit.iter().map(|m| m.frequency_hz.ln()).collect();
+        let matching = match_modes(&ln, &ev.simulated, None, &settings);
+        let table = ModeTable::build(&ev.fit, &ev.simulated, &matching, 0, 3.0);
+        let held_obs = ev.held_out.clone().expect("held-out data");
+        let ln_h: Vec<f64> = held_obs.iter().map(|m| m.frequency_hz.ln()).collect();
+        let mh = match_modes(&ln_h, &ev.simulated, Some(matching.ln_scale), &settings);
+        let held = ModeTable::build(&held_obs, &ev.simulated, &mh, table.channels, 3.0);
+        let ln_f_ref = matching.ln_scale
+            + table.modes.iter().map(|m| m.ln_f_sim).sum::<f64>() / table.modes.len() as f64;
+        let base_model = Model::new(vec![], ln_f_ref, table.channels);
+        let x0 = model::baseline_start(&table, &base_model, matching.ln_scale);
+        let baseline = fit(&table, base_model, x0);
+        let term: Arc<dyn Term> = Arc::new(MassLoading { fluid_ln_f1: None });
+        let mut x = baseline.x.clone();
+        x.push(0.01);
+        let full = fit(&table, baseline.model.with_term(term), x);
+        let last = selection::last_in(&full, 0, &table, Some(&held), &settings);
+        (baseline, last)
+    };
+    let (baseline, real) = with_mass(
+        &Truth {
+            added_mass: Some(0.06),
+            ..Truth::default()
+        },
+        31,
+    );
+    assert!(
+        real.rejection.is_none() && real.delta_bic > 20.0,
+        "a 6 % mass must pay its way: ΔBIC {}, {:?}",
+        real.delta_bic,
+        real.rejection
+    );
+    assert!(
+        (real.without.minus_two_log_likelihood - baseline.minus_two_log_likelihood).abs() < 1e-3,
+        "without the term the fit is the baseline: {} vs {}",
+        real.without.minus_two_log_likelihood,
+        baseline.minus_two_log_likelihood
+    );
+    let (_, empty) = with_mass(&Truth::default(), 31);
+    assert!(
+        empty.rejection.is_some() && empty.delta_bic < settings.delta_bic_threshold,
+        "a mass on clean data must not pay its way: ΔBIC {}",
+        empty.delta_bic
+    );
+}

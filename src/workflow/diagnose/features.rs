@@ -180,6 +180,12 @@ pub struct Localised {
     pub best: Option<(usize, f64)>,
     /// The region offered to the catalogue (empty when z is at most [`MASS_REGION_Z`]).
     pub region: Vec<usize>,
+    /// The support's best candidate vertex (facing the support) and its z, from the
+    /// baseline's decay residuals ([`evidence::localise_decay_residuals`]).
+    pub support_best: Option<(usize, f64)>,
+    /// The support region offered to the catalogue instead of the lowest band (empty when z is
+    /// at most [`SUPPORT_REGION_Z`] or the band's own z is as large).
+    pub support_region: Vec<usize>,
 }
 
 /// Near-degenerate clusters: neighbouring simulated frequencies within 0.5 % whose motion has
@@ -196,7 +202,20 @@ const MASS_REGION_VERTICES: usize = 5;
 /// ζ above which the best region is offered to the catalogue.
 const MASS_REGION_Z: f64 = 2.0;
 
-pub(super) fn localise(report: &CatalogueReport, feats: &Features, mesh: &TetMesh) -> Localised {
+/// Nodes of the candidate support region around the best vertex, and the ζ above which it is
+/// offered: the same as the mass's (a contact region is no better known than a mass's).
+const SUPPORT_REGION_VERTICES: usize = MASS_REGION_VERTICES;
+const SUPPORT_REGION_Z: f64 = MASS_REGION_Z;
+/// A support can touch the surface vertices whose outward normal is within 60° of the support
+/// direction (n·down > ½), the complement of the strike candidates' rule.
+const SUPPORT_FACING: f64 = 0.5;
+
+pub(super) fn localise(
+    report: &CatalogueReport,
+    feats: &Features,
+    mesh: &TetMesh,
+    down: [f64; 3],
+) -> Localised {
     let residuals: Vec<(Vec<usize>, f64)> = report
         .residuals
         .iter()
@@ -216,5 +235,65 @@ pub(super) fn localise(report: &CatalogueReport, feats: &Features, mesh: &TetMes
         }
         _ => Vec::new(),
     };
-    Localised { map, best, region }
+    let (support_best, support_region) = localise_support(report, feats, mesh, down);
+    Localised {
+        map,
+        best,
+        region,
+        support_best,
+        support_region,
+    }
+}
+
+/// Where the support is, from the baseline's decay residuals (module docs of
+/// [`evidence`], "Where on the object"): the best downward-facing vertex, and its region when
+/// its z exceeds [`SUPPORT_REGION_Z`] and the default band's weights' own z.
+fn localise_support(
+    report: &CatalogueReport,
+    feats: &Features,
+    mesh: &TetMesh,
+    down: [f64; 3],
+) -> (Option<(usize, f64)>, Vec<usize>) {
+    let residuals: Vec<(Vec<usize>, f64)> = report
+        .residuals
+        .iter()
+        .filter_map(|r| {
+            let z = r.before.ln_decay?;
+            z.is_finite().then(|| (r.simulated.clone(), z))
+        })
+        .collect();
+    let norm = down.iter().map(|c| c * c).sum::<f64>().sqrt();
+    let normals: std::collections::HashMap<usize, [f64; 3]> =
+        mesh.vertex_normals().into_iter().collect();
+    let facing: Vec<usize> = (0..feats.surface.len())
+        .filter(|&i| {
+            normals.get(&feats.surface[i]).is_some_and(|n| {
+                (0..3).map(|c| n[c] * down[c]).sum::<f64>() > SUPPORT_FACING * norm
+            })
+        })
+        .collect();
+    let energy: Vec<Vec<f64>> = facing
+        .iter()
+        .map(|&i| feats.surface_energy[i].clone())
+        .collect();
+    let map = evidence::localise_decay_residuals(&energy, &residuals);
+    let best = map
+        .iter()
+        .zip(&facing)
+        .filter(|(m, _)| m.1.is_finite())
+        .max_by(|a, b| a.0 .1.total_cmp(&b.0 .1))
+        .map(|(m, &i)| (feats.surface[i], m.1));
+    // The default band's own z on the same residuals: the localised region replaces it only
+    // when it explains the decays better.
+    let band =
+        evidence::localise_decay_residuals(std::slice::from_ref(&feats.support_energy), &residuals)
+            [0]
+        .1;
+    let region = match best {
+        Some((v, z)) if z > SUPPORT_REGION_Z && !(band >= z) => {
+            nearest_surface_vertices(mesh, v, SUPPORT_REGION_VERTICES)
+        }
+        _ => Vec::new(),
+    };
+    (best, region)
 }

@@ -1,6 +1,8 @@
-//! Stages 0–2 of the diagnosis, on rank 0: each recording's health, then the recording cut at
-//! its onset, its modes (extraction and the chirp-aware glide stage) for the fit and the
-//! held-out microphones, and the residual envelopes against the pre-roll's floor.
+//! Stages 0–2 of the diagnosis: each recording's health, then the recording cut at its onset,
+//! its modes (extraction and the chirp-aware glide stage) for the fit and the held-out
+//! microphones, and the residual envelopes against the pre-roll's floor. Rank 0 measures; with
+//! two ranks or more and held-out microphones, rank 1 extracts those at the same time (the
+//! extraction is the diagnosis's largest serial cost, and rank 1 would otherwise wait).
 
 use super::Job;
 use crate::audio::health::ChannelHealth;
@@ -74,8 +76,17 @@ pub(super) fn healthy_channels(job: &Job) -> Result<ChannelChoice, String> {
     Ok((health, fit, held))
 }
 
-pub(super) fn measure(job: &Job, progress: &Progress) -> Result<Measured, String> {
-    let t = Instant::now();
+/// The recording loaded, gain-set and cut at its shared onset (every rank that extracts
+/// loads it alike: the load is deterministic).
+struct Cut {
+    names: Vec<String>,
+    onset_s: f64,
+    fs: f64,
+    pre: Vec<Vec<f64>>,
+    post: Vec<Vec<f64>>,
+}
+
+fn cut(job: &Job) -> Result<Cut, String> {
     let options = RecordingOptions {
         target_rate: Some(job.sample_rate),
         pre_roll_s: job.pre_roll,
@@ -100,61 +111,144 @@ pub(super) fn measure(job: &Job, progress: &Progress) -> Result<Measured, String
             rec.onset_s
         ));
     }
-    progress.say(format!("{} channel(s) at {} Hz, onset at {:.4} s, {:.3} s pre-roll, {:.3} s after; fit microphones {:?}, held out {:?}", rec.channels.len(), rec.sample_rate, rec.onset_s, onset as f64 / fs, n as f64 / fs, job.fit_channels, job.held_channels));
-    // Extraction, then the chirp-aware stage: a gliding mode comes out as one mode with its
-    // glide instead of a cluster of constant poles (which would read as a split pair).
-    let extract = |channels: &[Vec<f64>], what: &str| -> Result<ModalExtraction, String> {
-        let t = Instant::now();
-        let ex = extract_modes(channels, fs, &job.extract)
-            .map_err(|e| format!("mode extraction ({what}): {e}"))?;
-        let stage = fit_glides(channels, &ex, &job.glide)
-            .map_err(|e| format!("glide stage ({what}): {e}"))?;
-        let selected: Vec<_> = stage.decisions.iter().filter(|d| d.selected).collect();
-        let merged: usize = selected.iter().map(|d| d.poles_hz.len()).sum();
-        let gliding: usize = selected.iter().map(|d| d.f0_hz.len()).sum();
-        progress.say(format!("extraction ({what}): {} modes, {} after the glide stage ({} groups tried, {} gliding modes from {} poles) in {:.1} s", ex.modes.len(), stage.extraction.modes.len(), stage.decisions.len(), gliding, merged, t.elapsed().as_secs_f64()));
-        for d in &selected {
-            let round = |v: &[f64]| {
-                v.iter()
-                    .map(|f| (f * 100.0).round() / 100.0)
-                    .collect::<Vec<_>>()
-            };
-            let glides: Vec<String> = d
-                .glide
-                .iter()
-                .zip(&d.glide_sd)
-                .map(|(g, s)| format!("{g:.3e} ± {s:.1e}"))
-                .collect();
-            progress.say(format!(
-                "    glide: poles {:?} Hz → f₀ = {:?} Hz, d = {:?} 1/s, g = [{}] (ΔBIC {:.1})",
-                round(&d.poles_hz),
-                round(&d.f0_hz),
-                round(&d.decay_rate),
-                glides.join(", "),
-                d.delta_bic
-            ));
+    Ok(Cut {
+        names: rec.names,
+        onset_s: rec.onset_s,
+        fs,
+        pre,
+        post,
+    })
+}
+
+/// Extraction, then the chirp-aware stage: a gliding mode comes out as one mode with its glide
+/// instead of a cluster of constant poles (which would read as a split pair). What it has to
+/// say goes to `say`.
+fn extract_set(
+    job: &Job,
+    channels: &[Vec<f64>],
+    fs: f64,
+    what: &str,
+    say: &mut dyn FnMut(String),
+) -> Result<ModalExtraction, String> {
+    let t = Instant::now();
+    let ex = extract_modes(channels, fs, &job.extract)
+        .map_err(|e| format!("mode extraction ({what}): {e}"))?;
+    let stage =
+        fit_glides(channels, &ex, &job.glide).map_err(|e| format!("glide stage ({what}): {e}"))?;
+    let selected: Vec<_> = stage.decisions.iter().filter(|d| d.selected).collect();
+    let merged: usize = selected.iter().map(|d| d.poles_hz.len()).sum();
+    let gliding: usize = selected.iter().map(|d| d.f0_hz.len()).sum();
+    say(format!("extraction ({what}): {} modes, {} after the glide stage ({} groups tried, {} gliding modes from {} poles) in {:.1} s", ex.modes.len(), stage.extraction.modes.len(), stage.decisions.len(), gliding, merged, t.elapsed().as_secs_f64()));
+    for d in &selected {
+        let round = |v: &[f64]| {
+            v.iter()
+                .map(|f| (f * 100.0).round() / 100.0)
+                .collect::<Vec<_>>()
+        };
+        let glides: Vec<String> = d
+            .glide
+            .iter()
+            .zip(&d.glide_sd)
+            .map(|(g, s)| format!("{g:.3e} ± {s:.1e}"))
+            .collect();
+        say(format!(
+            "    glide: poles {:?} Hz → f₀ = {:?} Hz, d = {:?} 1/s, g = [{}] (ΔBIC {:.1})",
+            round(&d.poles_hz),
+            round(&d.f0_hz),
+            round(&d.decay_rate),
+            glides.join(", "),
+            d.delta_bic
+        ));
+    }
+    Ok(stage.extraction)
+}
+
+/// The held-out microphones' extraction and what it said, for a rank other than 0 to run
+/// while rank 0 extracts the fit microphones ([`measure`]'s `held_elsewhere`).
+pub(super) type HeldExtraction = Result<(ModalExtraction, Vec<String>), String>;
+
+pub(super) fn extract_held(job: &Job) -> HeldExtraction {
+    let cut = cut(job)?;
+    let mut lines = Vec::new();
+    let ex = extract_set(
+        job,
+        &pick(&cut.post, &job.held_channels),
+        cut.fs,
+        "held-out microphones",
+        &mut |l| lines.push(l),
+    )?;
+    Ok((ex, lines))
+}
+
+/// Stages 1–2 on rank 0. With `held_elsewhere` the held-out microphones were extracted by
+/// another rank at the same time ([`extract_held`]), and it is called (exactly once, also
+/// after an error here, so that the other rank is never left waiting) to receive them.
+pub(super) fn measure(
+    job: &Job,
+    progress: &Progress,
+    held_elsewhere: Option<&dyn Fn() -> HeldExtraction>,
+) -> Result<Measured, String> {
+    let t = Instant::now();
+    let fit_part = measure_fit(job, progress);
+    let held = match (held_elsewhere, job.held_channels.is_empty()) {
+        (_, true) => None,
+        (Some(receive), false) => Some(receive()),
+        (None, false) => Some(
+            fit_part
+                .as_ref()
+                .map_err(|e| e.clone())
+                .and_then(|(cut, _)| {
+                    let mut lines = Vec::new();
+                    let ex = extract_set(
+                        job,
+                        &pick(&cut.post, &job.held_channels),
+                        cut.fs,
+                        "held-out microphones",
+                        &mut |l| lines.push(l),
+                    )?;
+                    Ok((ex, lines))
+                }),
+        ),
+    };
+    let (_, mut measured) = fit_part?;
+    if let Some(held) = held {
+        let (ex, lines) = held?;
+        for line in lines {
+            progress.say(line);
         }
-        Ok(stage.extraction)
-    };
-    let fit_post = pick(&post, &job.fit_channels);
-    let full = extract(&fit_post, "fit microphones")?;
-    let in_band = |mut modes: Vec<ObservedMode>| {
-        modes.retain(|m| m.frequency_hz <= job.max_frequency_hz);
-        modes
-    };
-    let fit = in_band(evidence::observed_modes(&full, None, None, &job.observed));
-    let (held_out, extraction_held) = if job.held_channels.is_empty() {
-        (Vec::new(), None)
-    } else {
-        let held = extract(&pick(&post, &job.held_channels), "held-out microphones")?;
-        (
-            in_band(evidence::observed_modes(&held, None, None, &job.observed)),
-            Some(held),
-        )
-    };
+        measured.held_out = in_band(
+            job,
+            evidence::observed_modes(&ex, None, None, &job.observed),
+        );
+        measured.extraction_held = Some(ex);
+    }
+    measured.seconds = t.elapsed().as_secs_f64();
+    Ok(measured)
+}
+
+fn in_band(job: &Job, mut modes: Vec<ObservedMode>) -> Vec<ObservedMode> {
+    modes.retain(|m| m.frequency_hz <= job.max_frequency_hz);
+    modes
+}
+
+/// The fit microphones' part of [`measure`]: everything but the held-out extraction.
+fn measure_fit(job: &Job, progress: &Progress) -> Result<(Cut, Measured), String> {
+    let t = Instant::now();
+    let cut = cut(job)?;
+    let n = cut.post[0].len();
+    let fs = cut.fs;
+    progress.say(format!("{} channel(s) at {} Hz, onset at {:.4} s, {:.3} s pre-roll, {:.3} s after; fit microphones {:?}, held out {:?}", cut.post.len(), job.sample_rate, cut.onset_s, cut.pre[0].len() as f64 / fs, n as f64 / fs, job.fit_channels, job.held_channels));
+    let fit_post = pick(&cut.post, &job.fit_channels);
+    let full = extract_set(job, &fit_post, fs, "fit microphones", &mut |l| {
+        progress.say(l)
+    })?;
+    let fit = in_band(
+        job,
+        evidence::observed_modes(&full, None, None, &job.observed),
+    );
     let envelopes = match evidence::residual_envelopes(
         &fit_post,
-        &pick(&pre, &job.fit_channels),
+        &pick(&cut.pre, &job.fit_channels),
         &full,
         &job.envelopes,
     ) {
@@ -170,16 +264,17 @@ pub(super) fn measure(job: &Job, progress: &Progress) -> Result<Measured, String
         .zip(&model0)
         .map(|(a, b)| a - b)
         .collect();
-    Ok(Measured {
-        names: rec.names,
-        onset_s: rec.onset_s,
+    let measured = Measured {
+        names: cut.names.clone(),
+        onset_s: cut.onset_s,
         fit,
-        held_out,
+        held_out: Vec::new(),
         envelopes,
         extraction_fit: full,
-        extraction_held,
+        extraction_held: None,
         plot_signal: fit_post[0].clone(),
         plot_residual,
         seconds: t.elapsed().as_secs_f64(),
-    })
+    };
+    Ok((cut, measured))
 }

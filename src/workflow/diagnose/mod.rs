@@ -71,7 +71,14 @@
 //!    ([`crate::diagnose::evidence::localise_frequency_residuals`]); when the best region's
 //!    z exceeds 2, the catalogue runs again with that region as the candidate added-mass site,
 //!    charged 2 parameters for having been chosen from the data (not when the simulation
-//!    carries the loaded match's mass: its site is the candidate). `<out stem>.json` records
+//!    carries the loaded match's mass: its site is the candidate). Likewise the support: the
+//!    baseline's decay residuals regressed on the |φ_k|² pattern of each surface vertex that
+//!    faces the support ([`crate::diagnose::evidence::localise_decay_residuals`]); when the
+//!    first pass did not accept a support at the lowest band and the best vertex's z exceeds 2
+//!    and the band's own z, its region replaces the band, charged 2 parameters. Why: the band
+//!    is where a bowl stands, but a plate or a tube lies on a strip or a pad anywhere on its
+//!    underside, and a whole flat underside moves alike in every bending mode, so the band's
+//!    weights carry no contrast there. `<out stem>.json` records
 //!    the loaded match under `material.loaded_line_match` (`used`: whether it was carried).
 //!
 //! # Output
@@ -267,7 +274,25 @@ pub fn run(petsc: &Petsc, job: &Job, progress: &Progress) -> Result<Option<Repor
     let job = &adjusted;
 
     // 1–2: the recording (rank 0), shared so that every rank stops together on an error.
-    let local = (rank == 0).then(|| measure(job, progress));
+    // With two ranks or more, rank 1 extracts the held-out microphones meanwhile.
+    let held_on_rank_1 = petsc.size() > 1 && !job.held_channels.is_empty();
+    let receive_held = || -> measure::HeldExtraction {
+        crate::workflow::broadcast_from(petsc, 1, None::<measure::HeldExtraction>)?
+    };
+    let local = if rank == 0 {
+        Some(measure(
+            job,
+            progress,
+            held_on_rank_1.then_some(&receive_held as &dyn Fn() -> measure::HeldExtraction),
+        ))
+    } else {
+        if held_on_rank_1 {
+            let mine = (rank == 1).then(|| measure::extract_held(job));
+            // Every rank takes part in the broadcast; only rank 0 uses it.
+            let _ = crate::workflow::broadcast_from(petsc, 1, mine);
+        }
+        None
+    };
     let measured: Measured = broadcast_from_root(petsc, local)
         .map_err(Error::Broadcast)?
         .map_err(Error::Recording)?;
@@ -434,15 +459,34 @@ pub fn run(petsc: &Petsc, job: &Job, progress: &Progress) -> Result<Option<Repor
                     first_settings.mass_region_search_params = 2;
                 }
                 let first = catalogue::diagnose(&evidence, &first_settings).map_err(|e| format!("catalogue: {e}"))?;
-                let localised = localise(&first, &feats, &mesh_model);
+                let localised = localise(&first, &feats, &mesh_model, job.support_direction);
                 let mut final_settings = first_settings.clone();
-                let report = if localised.region.is_empty() || carried.is_some() {
+                let mass_localised = !localised.region.is_empty() && carried.is_none();
+                // The support region found from the data replaces the lowest band only when the
+                // band's support was not accepted (it then stays as it was, uncharged).
+                let support_localised = !localised.support_region.is_empty() && !first.accepted.iter().any(|a| a.name == "support_contact");
+                let report = if !mass_localised && !support_localised {
                     first
                 } else {
-                    let mass_energy = evidence::cluster_region_energies(&shapes, &feats.frequencies_hz, &feats.clusters, &localised.region, true);
-                    evidence.simulated = evidence::simulated_modes(&feats.frequencies_hz, &feats.drive, &feats.support_energy, Some(&mass_energy), feats.transfer.as_deref(), &feats.clusters).map_err(|e| e.to_string())?;
-                    final_settings.mass_region_search_params = 2;
-                    progress.say(format!("frequency residuals point at surface vertex {} (z = {:.1}); catalogue again with it as the candidate added-mass region", localised.best.map_or(0, |b| b.0), localised.best.map_or(0.0, |b| b.1)));
+                    let mass_energy = if mass_localised {
+                        final_settings.mass_region_search_params = 2;
+                        progress.say(format!("frequency residuals point at surface vertex {} (z = {:.1}); catalogue again with it as the candidate added-mass region", localised.best.map_or(0, |b| b.0), localised.best.map_or(0.0, |b| b.1)));
+                        Some(evidence::cluster_region_energies(&shapes, &feats.frequencies_hz, &feats.clusters, &localised.region, true))
+                    } else {
+                        mass_weights.clone()
+                    };
+                    let support_energy = if support_localised {
+                        final_settings.support_region_search_params = 2;
+                        progress.say(format!("decay residuals point at surface vertex {} facing the support (z = {:.1}); catalogue again with it as the candidate support region", localised.support_best.map_or(0, |b| b.0), localised.support_best.map_or(0.0, |b| b.1)));
+                        evidence::cluster_region_energies(&shapes, &feats.frequencies_hz, &feats.clusters, &localised.support_region, false)
+                    } else {
+                        feats.support_energy.clone()
+                    };
+                    let match_hz: Vec<Option<f64>> = evidence.simulated.iter().map(|m| m.match_frequency_hz).collect();
+                    evidence.simulated = evidence::simulated_modes(&feats.frequencies_hz, &feats.drive, &support_energy, mass_energy.as_deref(), feats.transfer.as_deref(), &feats.clusters).map_err(|e| e.to_string())?;
+                    for (sim, hz) in evidence.simulated.iter_mut().zip(match_hz) {
+                        sim.match_frequency_hz = hz;
+                    }
                     catalogue::diagnose(&evidence, &final_settings).map_err(|e| format!("catalogue: {e}"))?
                 };
                 let diagnose_seconds = t_diag.elapsed().as_secs_f64();
