@@ -294,12 +294,7 @@ fn no_microphone_with_the_strike_is_refused_with_every_file_named() {
 #[test]
 fn a_folded_curved_tet_is_named_by_its_gmsh_tag_and_straightened_on_request() {
     let dir = scratch("bad_folded");
-    let mesh = dir.join("folded.msh");
-    std::fs::write(
-        &mesh,
-        "$MeshFormat\n2.2 0 8\n$EndMeshFormat\n$Nodes\n10\n1 0 0 0\n2 1 0 0\n3 0 1 0\n4 0 0 1\n5 0.5 0.9 0.9\n6 0.5 0.5 0\n7 0 0.5 0\n8 0 0 0.5\n9 0 0.5 0.5\n10 0.5 0 0.5\n$EndNodes\n$Elements\n1\n4287 11 2 0 1 1 2 3 4 5 6 7 8 9 10\n$EndElements\n",
-    )
-    .unwrap();
+    let mesh = folded_mesh(&dir);
     let out = dir.join("folded_modes.h5");
     refused(
         &[
@@ -343,4 +338,56 @@ fn a_folded_curved_tet_is_named_by_its_gmsh_tag_and_straightened_on_request() {
         run.stderr
     );
     assert!(out.exists());
+}
+
+/// A folded curved mesh: one 10-node tet, Gmsh tag 4287, whose mid-edge node of
+/// edge (0,1) is pushed across the element.
+fn folded_mesh(dir: &Path) -> PathBuf {
+    let mesh = dir.join("folded.msh");
+    std::fs::write(
+        &mesh,
+        "$MeshFormat\n2.2 0 8\n$EndMeshFormat\n$Nodes\n10\n1 0 0 0\n2 1 0 0\n3 0 1 0\n4 0 0 1\n5 0.5 0.9 0.9\n6 0.5 0.5 0\n7 0 0.5 0\n8 0 0 0.5\n9 0 0.5 0.5\n10 0.5 0 0.5\n$EndNodes\n$Elements\n1\n4287 11 2 0 1 1 2 3 4 5 6 7 8 9 10\n$EndElements\n",
+    )
+    .unwrap();
+    mesh
+}
+
+/// Every job that assembles a mesh it reads (not only `modes`) refuses folded curved tets
+/// with the file, the Gmsh tag and both ways forward, before the recordings are analysed.
+#[test]
+fn every_job_that_assembles_a_mesh_refuses_folded_curved_tets_by_gmsh_tag() {
+    let dir = scratch("bad_folded_jobs");
+    let mesh = folded_mesh(&dir);
+    let needles = [
+        "folded.msh",
+        "fold over",
+        "Gmsh element tags 4287",
+        "--straighten-invalid",
+        "gmsh -optimize_ho",
+    ];
+    for job in ["diagnose", "fit-material", "locate-impact"] {
+        let out = dir.join(format!("{job}.h5"));
+        refused(
+            &[
+                job,
+                "--mesh",
+                s(&mesh),
+                "--recording",
+                s(&bowl_wav(0)),
+                "--recording",
+                s(&bowl_wav(1)),
+                "--density",
+                "2400",
+                "--youngs",
+                "7e10",
+                "--poisson",
+                "0.2",
+                "--out",
+                s(&out),
+            ],
+            &needles,
+            &out,
+            30.0,
+        );
+    }
 }
