@@ -391,3 +391,81 @@ fn every_job_that_assembles_a_mesh_refuses_folded_curved_tets_by_gmsh_tag() {
         );
     }
 }
+
+/// The shape fits refuse an output that is one of their inputs (a surface, the target file),
+/// as the other jobs do, and leave the input untouched.
+#[test]
+fn shape_fit_outputs_may_not_overwrite_their_inputs() {
+    let dir = scratch("bad_shape_outputs");
+    let surface = box_obj(&dir, "box.obj", [1.0, 0.8, 0.6]);
+    let other = box_obj(&dir, "other.obj", [1.0, 1.0, 0.5]);
+    let before = std::fs::read(&surface).unwrap();
+    let never = dir.join("never.h5");
+    refused(
+        &[
+            "fit-thickness",
+            "--surface",
+            s(&surface),
+            "--target-thickness",
+            "0.5",
+            "--out",
+            s(&surface),
+        ],
+        &["box.obj", "also an input of this job (the surface)"],
+        &never,
+        20.0,
+    );
+    refused(
+        &[
+            "fit-morph",
+            "--shape-a",
+            s(&surface),
+            "--shape-b",
+            s(&other),
+            "--target-weight",
+            "0.4",
+            "--out",
+            s(&other),
+        ],
+        &["other.obj", "also an input of this job (shape B)"],
+        &never,
+        20.0,
+    );
+    let target = dir.join("target.txt");
+    std::fs::write(
+        &target,
+        "1000 1200 1500 1800 2000 2300 2600 2900 3200 3500\n",
+    )
+    .unwrap();
+    refused(
+        &[
+            "fit-thickness",
+            "--surface",
+            s(&surface),
+            "--target",
+            s(&target),
+            "--out",
+            s(&target),
+        ],
+        &["target.txt", "also an input of this job (the target)"],
+        &never,
+        20.0,
+    );
+    refused(
+        &[
+            "fit-geometry",
+            "--surface",
+            s(&surface),
+            "--out",
+            s(&surface),
+        ],
+        &["box.obj", "also an input of this job (the surface)"],
+        &never,
+        20.0,
+    );
+    assert_eq!(std::fs::read(&surface).unwrap(), before);
+    assert_eq!(
+        std::fs::read_to_string(&target).unwrap(),
+        "1000 1200 1500 1800 2000 2300 2600 2900 3200 3500\n"
+    );
+}
