@@ -469,3 +469,42 @@ fn shape_fit_outputs_may_not_overwrite_their_inputs() {
         "1000 1200 1500 1800 2000 2300 2600 2900 3200 3500\n"
     );
 }
+
+/// A write that fails after the work (here the file size limit, `ulimit -f 64` in the ranks'
+/// shell, as a disk filling during the run would) is one line naming the final path and the
+/// cause, and leaves neither the file nor a hidden temporary. The ranks talk over TCP: the
+/// limit would also stop OpenMPI's shared-memory segment.
+#[test]
+fn a_write_that_fails_after_the_work_names_the_output_and_the_cause() {
+    let dir = scratch("bad_write_late");
+    let out = dir.join("cube.h5");
+    let mut cmd = std::process::Command::new("mpirun");
+    cmd.args(["--mca", "btl", "self,tcp", "-np", "2", "sh", "-c"])
+        .arg("ulimit -f 64; exec \"$0\" \"$@\"")
+        .arg(binary())
+        .args([
+            "modes",
+            "--mesh",
+            s(&fixture("mesh/cube_tet4_msh22_ascii.msh")),
+            "--modes",
+            "5",
+            "--out",
+            s(&out),
+        ]);
+    let started = Instant::now();
+    let run = run_with_limit(cmd, LIMIT);
+    let took = started.elapsed().as_secs_f64();
+    assert!(!run.success() && !run.timed_out, "{}", run.describe());
+    let line = format!(
+        "error: cannot write {}: file too large for the process's file size limit (`ulimit -f`)",
+        out.display()
+    );
+    assert!(run.stderr.contains(&line), "{}", run.describe());
+    assert!(!run.stderr.contains(".tmp."), "{}", run.describe());
+    let left: Vec<_> = std::fs::read_dir(&dir)
+        .unwrap()
+        .map(|e| e.unwrap().file_name())
+        .collect();
+    assert!(left.is_empty(), "nothing may be left: {left:?}");
+    println!("refused in {took:.1} s: {line}");
+}

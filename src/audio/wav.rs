@@ -40,6 +40,10 @@ pub enum AudioError {
     /// A well-formed WAV file in an encoding this module does not read.
     #[error("{path}: unsupported WAV encoding: {reason}")]
     Unsupported { path: PathBuf, reason: String },
+    /// Writing failed for a cause found by [`crate::io::atomic::replace_atomically`] (disk
+    /// full, quota, file size limit, …); nothing was written at `path`.
+    #[error("cannot write {path}: {reason}")]
+    WriteFailed { path: PathBuf, reason: String },
 }
 
 /// Writes mono `samples` to `path` as a WAV file at `sample_rate` Hz.
@@ -94,6 +98,15 @@ pub fn write_wav(
             WavFormat::Float32 => hound::SampleFormat::Float,
         },
     };
+    // hound checks the RIFF size limit only when the header is finalised; failing here gives
+    // the clearer message, names the final path and writes nothing.
+    let bytes = samples.len() as u64 * u64::from(spec.bits_per_sample / 8);
+    if bytes > u64::from(u32::MAX) - 64 {
+        return invalid(format!(
+            "{} samples exceed the 4 GiB WAV size limit",
+            samples.len()
+        ));
+    }
 
     crate::io::atomic::replace_atomically(path, |tmp| {
         write_wav_file(tmp, spec, samples, gain, format)
@@ -114,6 +127,23 @@ impl crate::io::atomic::AtomicWriteError for AudioError {
             reason: "path has no file name".into(),
         }
     }
+    fn write_failed(path: &Path, reason: String) -> Self {
+        AudioError::WriteFailed {
+            path: path.to_path_buf(),
+            reason,
+        }
+    }
+    fn os_error(&self) -> Option<std::io::Error> {
+        let io = match self {
+            AudioError::Fs { source, .. } => source,
+            AudioError::Wav {
+                source: hound::Error::IoError(source),
+                ..
+            } => source,
+            _ => return None,
+        };
+        io.raw_os_error().map(std::io::Error::from_raw_os_error)
+    }
 }
 
 fn write_wav_file(
@@ -132,15 +162,6 @@ fn write_wav_file(
         }
     };
     let mut writer = hound::WavWriter::create(tmp, spec).map_err(wav_err("creating WAV file"))?;
-    // hound checks the RIFF size limit only when the header is finalised;
-    // failing here gives the clearer message and writes nothing.
-    let bytes = samples.len() as u64 * u64::from(spec.bits_per_sample / 8);
-    if bytes > u64::from(u32::MAX) - 64 {
-        return Err(AudioError::InvalidInput {
-            path: tmp.to_path_buf(),
-            reason: format!("{} samples exceed the 4 GiB WAV size limit", samples.len()),
-        });
-    }
     match format {
         WavFormat::Pcm16 => {
             for &s in samples {

@@ -89,6 +89,7 @@ fn abort_job(code: i32) -> ! {
 /// Entry point of the binary.
 pub fn main() {
     pin_blas_threads();
+    ignore_file_size_signal();
     let cli = Cli::parse();
     match cli.command {
         Command::Materials => print_materials(),
@@ -111,6 +112,16 @@ fn run_serial(result: Result<(), String>) {
     if let Err(message) = result {
         eprintln!("error: {message}");
         std::process::exit(1);
+    }
+}
+
+/// A write past the file size limit (`ulimit -f`) kills the process with SIGXFSZ by default,
+/// after the work and with no word on what happened. Ignored, the write fails with EFBIG
+/// instead, which the writers report on the output's path ([`crate::io::atomic`]).
+fn ignore_file_size_signal() {
+    // SAFETY: setting a signal's disposition to "ignore" before any other thread starts.
+    unsafe {
+        libc::signal(libc::SIGXFSZ, libc::SIG_IGN);
     }
 }
 
