@@ -508,3 +508,57 @@ fn a_write_that_fails_after_the_work_names_the_output_and_the_cause() {
     assert!(left.is_empty(), "nothing may be left: {left:?}");
     println!("refused in {took:.1} s: {line}");
 }
+
+/// The bowl's first microphone as a float WAV with `bad` at sample `at`.
+fn bowl_wav_with(dir: &Path, name: &str, at: usize, bad: f64) -> PathBuf {
+    let (mut x, rate) = read_wav(&bowl_wav(0));
+    x[at] = bad;
+    let path = dir.join(name);
+    write_wav(&path, &x, rate);
+    path
+}
+
+/// A float WAV holding NaN or ∞ is refused where WAVs are read, naming the file and the first
+/// bad sample: the spectrogram (which drew it black) and a 2-rank job.
+#[test]
+fn a_float_wav_with_nan_samples_is_refused_naming_the_first() {
+    let dir = scratch("bad_nan_wav");
+    let nan = bowl_wav_with(&dir, "nan.wav", 4800, f64::NAN);
+    let inf = bowl_wav_with(&dir, "inf.wav", 9600, f64::INFINITY);
+    let png = dir.join("spec.png");
+    let mut cmd = std::process::Command::new(binary());
+    cmd.args(["spectrogram", s(&nan), "--out", s(&png)]);
+    let run = run_with_limit(cmd, LIMIT);
+    assert_eq!(run.status, Some(1), "{}", run.describe());
+    assert!(
+        run.stderr
+            .contains("nan.wav: holds NaN or infinite samples (1 in all), the first (NaN) at sample 4800 of channel 0 (0.100000 s)"),
+        "{}",
+        run.describe()
+    );
+    assert!(!png.exists());
+    println!("spectrogram: {}", run.stderr.trim());
+    let out = dir.join("fit.h5");
+    refused(
+        &[
+            "fit-material",
+            "--mesh",
+            s(&bowl_mesh()),
+            "--recording",
+            s(&bowl_wav(1)),
+            "--recording",
+            s(&inf),
+            "--density",
+            "2400",
+            "--youngs",
+            "7e10",
+            "--poisson",
+            "0.2",
+            "--out",
+            s(&out),
+        ],
+        &["inf.wav", "(inf) at sample 9600", "0.200000 s", "re-export"],
+        &out,
+        30.0,
+    );
+}

@@ -44,6 +44,19 @@ pub enum AudioError {
     /// full, quota, file size limit, …); nothing was written at `path`.
     #[error("cannot write {path}: {reason}")]
     WriteFailed { path: PathBuf, reason: String },
+    /// A float WAV holding NaN or infinite samples (an integer file cannot).
+    #[error("{path}: holds NaN or infinite samples ({count} in all), the first ({value}) at sample {frame} of channel {channel} ({seconds:.6} s): re-export the recording with finite samples")]
+    NonFinite {
+        path: PathBuf,
+        /// How many samples (over all channels) are NaN or ±∞.
+        count: usize,
+        /// The first one: its frame (0-based sample index within a channel), channel (0-based),
+        /// time from the start [s] and value.
+        frame: usize,
+        channel: usize,
+        seconds: f64,
+        value: f64,
+    },
 }
 
 /// Writes mono `samples` to `path` as a WAV file at `sample_rate` Hz.
@@ -188,7 +201,8 @@ fn pcm16(x: f64) -> i16 {
 
 /// Reads a WAV file into one vector per channel, scaled to [−1, 1], and its
 /// sample rate in Hz. Integer files of 8, 16, 24 or 32 bits and 32-bit float
-/// files are accepted; a truncated or corrupt file is an error, never a panic.
+/// files are accepted; a truncated or corrupt file is an error, never a panic, and so is a
+/// float file holding NaN or infinite samples ([`AudioError::NonFinite`], naming the first).
 pub fn read_wav(path: &Path) -> Result<(Vec<Vec<f64>>, u32), AudioError> {
     let wav_err = |context: &str| {
         let context = context.to_string();
@@ -237,6 +251,18 @@ pub fn read_wav(path: &Path) -> Result<(Vec<Vec<f64>>, u32), AudioError> {
             path: path.to_path_buf(),
             context: "reading samples".into(),
             source: hound::Error::FormatError("data ends inside a sample frame"),
+        });
+    }
+    // A float file can hold NaN or ±∞, which every analysis would spread silently (a
+    // spectrogram draws them black, an onset detector never fires).
+    if let Some(i) = interleaved.iter().position(|s| !s.is_finite()) {
+        return Err(AudioError::NonFinite {
+            path: path.to_path_buf(),
+            count: interleaved.iter().filter(|s| !s.is_finite()).count(),
+            frame: i / n_channels,
+            channel: i % n_channels,
+            seconds: (i / n_channels) as f64 / f64::from(spec.sample_rate.max(1)),
+            value: interleaved[i],
         });
     }
     let frames = interleaved.len() / n_channels;
