@@ -562,3 +562,159 @@ fn a_float_wav_with_nan_samples_is_refused_naming_the_first() {
         30.0,
     );
 }
+
+/// The state letter of process `pid` from /proc (`T`: stopped).
+fn process_state(pid: u32) -> Option<char> {
+    let stat = std::fs::read_to_string(format!("/proc/{pid}/stat")).ok()?;
+    stat.rsplit_once(')')?.1.trim_start().chars().next()
+}
+
+/// The child processes of `parent` with their MPI rank (from their environment).
+fn ranks_of(parent: u32) -> Vec<(usize, u32)> {
+    let mut found = Vec::new();
+    for entry in std::fs::read_dir("/proc").unwrap().flatten() {
+        let Ok(pid) = entry.file_name().to_string_lossy().parse::<u32>() else {
+            continue;
+        };
+        let Ok(stat) = std::fs::read_to_string(format!("/proc/{pid}/stat")) else {
+            continue;
+        };
+        let ppid = stat
+            .rsplit_once(')')
+            .and_then(|(_, rest)| rest.split_whitespace().nth(1))
+            .and_then(|p| p.parse::<u32>().ok());
+        if ppid != Some(parent) {
+            continue;
+        }
+        let env = std::fs::read(format!("/proc/{pid}/environ")).unwrap_or_default();
+        let rank = env
+            .split(|&b| b == 0)
+            .filter_map(|v| std::str::from_utf8(v).ok())
+            .find_map(|v| v.strip_prefix("OMPI_COMM_WORLD_RANK="))
+            .and_then(|r| r.parse().ok());
+        if let Some(rank) = rank {
+            found.push((rank, pid));
+        }
+    }
+    found.sort();
+    found
+}
+
+/// A rank stopped with SIGSTOP in the middle of a solve: the other rank's watchdog ends the job
+/// after `--rank-timeout` with a line naming the stopped rank, instead of spinning forever.
+#[test]
+fn a_stopped_rank_ends_the_job_after_the_rank_timeout_naming_it() {
+    use std::io::{BufRead, BufReader};
+    use std::process::{Command, Stdio};
+    let dir = scratch("bad_stopped_rank");
+    let out = dir.join("bowl.h5");
+    let mut child = Command::new("mpirun")
+        .args(["-np", "2"])
+        .arg(binary())
+        .args([
+            "modes",
+            "--mesh",
+            s(&bowl_mesh()),
+            "--modes",
+            "20",
+            "--out",
+            s(&out),
+            "--rank-timeout",
+            "5",
+            "--verbose",
+        ])
+        .env("OMPI_ALLOW_RUN_AS_ROOT", "1")
+        .env("OMPI_ALLOW_RUN_AS_ROOT_CONFIRM", "1")
+        .env("OPENBLAS_NUM_THREADS", "1")
+        .env("OMPI_MCA_btl", "self,vader")
+        .current_dir(repo())
+        .stdin(Stdio::null())
+        .stdout(Stdio::null())
+        .stderr(Stdio::piped())
+        .spawn()
+        .expect("spawn mpirun");
+    let mpirun_pid = child.id();
+    // Rank 0 prints its first progress line after start-up (watchdog armed on every rank).
+    let (tx, rx) = std::sync::mpsc::channel::<String>();
+    let stderr = child.stderr.take().unwrap();
+    let reader = std::thread::spawn(move || {
+        for line in BufReader::new(stderr).lines().map_while(Result::ok) {
+            let _ = tx.send(line);
+        }
+    });
+    let mut log = Vec::new();
+    let launched = Instant::now();
+    while launched.elapsed() < LIMIT {
+        match rx.recv_timeout(Duration::from_millis(100)) {
+            Ok(line) => {
+                let started = line.contains("reading");
+                log.push(line);
+                if started {
+                    break;
+                }
+            }
+            Err(std::sync::mpsc::RecvTimeoutError::Timeout) => {}
+            Err(_) => break,
+        }
+    }
+    let ranks = ranks_of(mpirun_pid);
+    assert_eq!(ranks.len(), 2, "two ranks under mpirun: {ranks:?}\n{log:?}");
+    let stopped = ranks[1].1;
+    let signal = |sig: &str, pid: u32| {
+        let _ = Command::new("kill").args([sig, &pid.to_string()]).status();
+    };
+    signal("-STOP", stopped);
+    let stopped_at = Instant::now();
+    let status = loop {
+        if let Some(st) = child.try_wait().unwrap() {
+            break Some(st);
+        }
+        if stopped_at.elapsed() > Duration::from_secs(60) {
+            break None;
+        }
+        std::thread::sleep(Duration::from_millis(100));
+    };
+    let took = stopped_at.elapsed().as_secs_f64();
+    if status.is_none() {
+        // Clean up before failing: resume and end our own processes.
+        for (_, pid) in &ranks {
+            signal("-CONT", *pid);
+        }
+        let _ = child.kill();
+        let _ = child.wait();
+    }
+    reader.join().unwrap();
+    log.extend(rx.try_iter());
+    let text = log.join("\n");
+    assert!(status.is_some(), "the job must end, not hang:\n{text}");
+    assert!(!status.unwrap().success(), "{text}");
+    assert!(
+        text.contains(&format!("error (rank 0 of 2): rank 1 (pid {stopped} on "))
+            && text.contains("has been stopped for 5 s (SIGSTOP)")
+            && text.contains(&format!("kill -CONT {stopped}")),
+        "{text}"
+    );
+    assert!(took < 30.0, "the job ended {took:.1} s after the stop");
+    assert!(!out.exists());
+    // mpirun ends the stopped rank too.
+    let gone = Instant::now();
+    while matches!(process_state(stopped), Some(c) if c != 'Z')
+        && gone.elapsed() < Duration::from_secs(10)
+    {
+        std::thread::sleep(Duration::from_millis(100));
+    }
+    let state = process_state(stopped);
+    if matches!(state, Some(c) if c != 'Z') {
+        signal("-KILL", stopped);
+    }
+    assert!(
+        matches!(state, None | Some('Z')),
+        "the stopped rank must be ended too (state {state:?})"
+    );
+    println!(
+        "ended {took:.1} s after the stop: {}",
+        text.lines()
+            .find(|l| l.contains("has been stopped"))
+            .unwrap_or("")
+    );
+}
