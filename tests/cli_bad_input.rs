@@ -294,12 +294,7 @@ fn no_microphone_with_the_strike_is_refused_with_every_file_named() {
 #[test]
 fn a_folded_curved_tet_is_named_by_its_gmsh_tag_and_straightened_on_request() {
     let dir = scratch("bad_folded");
-    let mesh = dir.join("folded.msh");
-    std::fs::write(
-        &mesh,
-        "$MeshFormat\n2.2 0 8\n$EndMeshFormat\n$Nodes\n10\n1 0 0 0\n2 1 0 0\n3 0 1 0\n4 0 0 1\n5 0.5 0.9 0.9\n6 0.5 0.5 0\n7 0 0.5 0\n8 0 0 0.5\n9 0 0.5 0.5\n10 0.5 0 0.5\n$EndNodes\n$Elements\n1\n4287 11 2 0 1 1 2 3 4 5 6 7 8 9 10\n$EndElements\n",
-    )
-    .unwrap();
+    let mesh = folded_mesh(&dir);
     let out = dir.join("folded_modes.h5");
     refused(
         &[
@@ -343,4 +338,383 @@ fn a_folded_curved_tet_is_named_by_its_gmsh_tag_and_straightened_on_request() {
         run.stderr
     );
     assert!(out.exists());
+}
+
+/// A folded curved mesh: one 10-node tet, Gmsh tag 4287, whose mid-edge node of
+/// edge (0,1) is pushed across the element.
+fn folded_mesh(dir: &Path) -> PathBuf {
+    let mesh = dir.join("folded.msh");
+    std::fs::write(
+        &mesh,
+        "$MeshFormat\n2.2 0 8\n$EndMeshFormat\n$Nodes\n10\n1 0 0 0\n2 1 0 0\n3 0 1 0\n4 0 0 1\n5 0.5 0.9 0.9\n6 0.5 0.5 0\n7 0 0.5 0\n8 0 0 0.5\n9 0 0.5 0.5\n10 0.5 0 0.5\n$EndNodes\n$Elements\n1\n4287 11 2 0 1 1 2 3 4 5 6 7 8 9 10\n$EndElements\n",
+    )
+    .unwrap();
+    mesh
+}
+
+/// Every job that assembles a mesh it reads (not only `modes`) refuses folded curved tets
+/// with the file, the Gmsh tag and both ways forward, before the recordings are analysed.
+#[test]
+fn every_job_that_assembles_a_mesh_refuses_folded_curved_tets_by_gmsh_tag() {
+    let dir = scratch("bad_folded_jobs");
+    let mesh = folded_mesh(&dir);
+    let needles = [
+        "folded.msh",
+        "fold over",
+        "Gmsh element tags 4287",
+        "--straighten-invalid",
+        "gmsh -optimize_ho",
+    ];
+    for job in ["diagnose", "fit-material", "locate-impact"] {
+        let out = dir.join(format!("{job}.h5"));
+        refused(
+            &[
+                job,
+                "--mesh",
+                s(&mesh),
+                "--recording",
+                s(&bowl_wav(0)),
+                "--recording",
+                s(&bowl_wav(1)),
+                "--density",
+                "2400",
+                "--youngs",
+                "7e10",
+                "--poisson",
+                "0.2",
+                "--out",
+                s(&out),
+            ],
+            &needles,
+            &out,
+            30.0,
+        );
+    }
+}
+
+/// The shape fits refuse an output that is one of their inputs (a surface, the target file),
+/// as the other jobs do, and leave the input untouched.
+#[test]
+fn shape_fit_outputs_may_not_overwrite_their_inputs() {
+    let dir = scratch("bad_shape_outputs");
+    let surface = box_obj(&dir, "box.obj", [1.0, 0.8, 0.6]);
+    let other = box_obj(&dir, "other.obj", [1.0, 1.0, 0.5]);
+    let before = std::fs::read(&surface).unwrap();
+    let never = dir.join("never.h5");
+    refused(
+        &[
+            "fit-thickness",
+            "--surface",
+            s(&surface),
+            "--target-thickness",
+            "0.5",
+            "--out",
+            s(&surface),
+        ],
+        &["box.obj", "also an input of this job (the surface)"],
+        &never,
+        20.0,
+    );
+    refused(
+        &[
+            "fit-morph",
+            "--shape-a",
+            s(&surface),
+            "--shape-b",
+            s(&other),
+            "--target-weight",
+            "0.4",
+            "--out",
+            s(&other),
+        ],
+        &["other.obj", "also an input of this job (shape B)"],
+        &never,
+        20.0,
+    );
+    let target = dir.join("target.txt");
+    std::fs::write(
+        &target,
+        "1000 1200 1500 1800 2000 2300 2600 2900 3200 3500\n",
+    )
+    .unwrap();
+    refused(
+        &[
+            "fit-thickness",
+            "--surface",
+            s(&surface),
+            "--target",
+            s(&target),
+            "--out",
+            s(&target),
+        ],
+        &["target.txt", "also an input of this job (the target)"],
+        &never,
+        20.0,
+    );
+    refused(
+        &[
+            "fit-geometry",
+            "--surface",
+            s(&surface),
+            "--out",
+            s(&surface),
+        ],
+        &["box.obj", "also an input of this job (the surface)"],
+        &never,
+        20.0,
+    );
+    assert_eq!(std::fs::read(&surface).unwrap(), before);
+    assert_eq!(
+        std::fs::read_to_string(&target).unwrap(),
+        "1000 1200 1500 1800 2000 2300 2600 2900 3200 3500\n"
+    );
+}
+
+/// A write that fails after the work (here the file size limit, `ulimit -f 64` in the ranks'
+/// shell, as a disk filling during the run would) is one line naming the final path and the
+/// cause, and leaves neither the file nor a hidden temporary. The ranks talk over TCP: the
+/// limit would also stop OpenMPI's shared-memory segment.
+#[test]
+fn a_write_that_fails_after_the_work_names_the_output_and_the_cause() {
+    let dir = scratch("bad_write_late");
+    let out = dir.join("cube.h5");
+    let mut cmd = std::process::Command::new("mpirun");
+    cmd.args(["--mca", "btl", "self,tcp", "-np", "2", "sh", "-c"])
+        .arg("ulimit -f 64; exec \"$0\" \"$@\"")
+        .arg(binary())
+        .args([
+            "modes",
+            "--mesh",
+            s(&fixture("mesh/cube_tet4_msh22_ascii.msh")),
+            "--modes",
+            "5",
+            "--out",
+            s(&out),
+        ]);
+    let started = Instant::now();
+    let run = run_with_limit(cmd, LIMIT);
+    let took = started.elapsed().as_secs_f64();
+    assert!(!run.success() && !run.timed_out, "{}", run.describe());
+    let line = format!(
+        "error: cannot write {}: file too large for the process's file size limit (`ulimit -f`)",
+        out.display()
+    );
+    assert!(run.stderr.contains(&line), "{}", run.describe());
+    assert!(!run.stderr.contains(".tmp."), "{}", run.describe());
+    let left: Vec<_> = std::fs::read_dir(&dir)
+        .unwrap()
+        .map(|e| e.unwrap().file_name())
+        .collect();
+    assert!(left.is_empty(), "nothing may be left: {left:?}");
+    println!("refused in {took:.1} s: {line}");
+}
+
+/// The bowl's first microphone as a float WAV with `bad` at sample `at`.
+fn bowl_wav_with(dir: &Path, name: &str, at: usize, bad: f64) -> PathBuf {
+    let (mut x, rate) = read_wav(&bowl_wav(0));
+    x[at] = bad;
+    let path = dir.join(name);
+    write_wav(&path, &x, rate);
+    path
+}
+
+/// A float WAV holding NaN or ∞ is refused where WAVs are read, naming the file and the first
+/// bad sample: the spectrogram (which drew it black) and a 2-rank job.
+#[test]
+fn a_float_wav_with_nan_samples_is_refused_naming_the_first() {
+    let dir = scratch("bad_nan_wav");
+    let nan = bowl_wav_with(&dir, "nan.wav", 4800, f64::NAN);
+    let inf = bowl_wav_with(&dir, "inf.wav", 9600, f64::INFINITY);
+    let png = dir.join("spec.png");
+    let mut cmd = std::process::Command::new(binary());
+    cmd.args(["spectrogram", s(&nan), "--out", s(&png)]);
+    let run = run_with_limit(cmd, LIMIT);
+    assert_eq!(run.status, Some(1), "{}", run.describe());
+    assert!(
+        run.stderr
+            .contains("nan.wav: holds NaN or infinite samples (1 in all), the first (NaN) at sample 4800 of channel 0 (0.100000 s)"),
+        "{}",
+        run.describe()
+    );
+    assert!(!png.exists());
+    println!("spectrogram: {}", run.stderr.trim());
+    let out = dir.join("fit.h5");
+    refused(
+        &[
+            "fit-material",
+            "--mesh",
+            s(&bowl_mesh()),
+            "--recording",
+            s(&bowl_wav(1)),
+            "--recording",
+            s(&inf),
+            "--density",
+            "2400",
+            "--youngs",
+            "7e10",
+            "--poisson",
+            "0.2",
+            "--out",
+            s(&out),
+        ],
+        &["inf.wav", "(inf) at sample 9600", "0.200000 s", "re-export"],
+        &out,
+        30.0,
+    );
+}
+
+/// The state letter of process `pid` from /proc (`T`: stopped).
+fn process_state(pid: u32) -> Option<char> {
+    let stat = std::fs::read_to_string(format!("/proc/{pid}/stat")).ok()?;
+    stat.rsplit_once(')')?.1.trim_start().chars().next()
+}
+
+/// The child processes of `parent` with their MPI rank (from their environment).
+fn ranks_of(parent: u32) -> Vec<(usize, u32)> {
+    let mut found = Vec::new();
+    for entry in std::fs::read_dir("/proc").unwrap().flatten() {
+        let Ok(pid) = entry.file_name().to_string_lossy().parse::<u32>() else {
+            continue;
+        };
+        let Ok(stat) = std::fs::read_to_string(format!("/proc/{pid}/stat")) else {
+            continue;
+        };
+        let ppid = stat
+            .rsplit_once(')')
+            .and_then(|(_, rest)| rest.split_whitespace().nth(1))
+            .and_then(|p| p.parse::<u32>().ok());
+        if ppid != Some(parent) {
+            continue;
+        }
+        let env = std::fs::read(format!("/proc/{pid}/environ")).unwrap_or_default();
+        let rank = env
+            .split(|&b| b == 0)
+            .filter_map(|v| std::str::from_utf8(v).ok())
+            .find_map(|v| v.strip_prefix("OMPI_COMM_WORLD_RANK="))
+            .and_then(|r| r.parse().ok());
+        if let Some(rank) = rank {
+            found.push((rank, pid));
+        }
+    }
+    found.sort();
+    found
+}
+
+/// A rank stopped with SIGSTOP in the middle of a solve: the other rank's watchdog ends the job
+/// after `--rank-timeout` with a line naming the stopped rank, instead of spinning forever.
+#[test]
+fn a_stopped_rank_ends_the_job_after_the_rank_timeout_naming_it() {
+    use std::io::{BufRead, BufReader};
+    use std::process::{Command, Stdio};
+    let dir = scratch("bad_stopped_rank");
+    let out = dir.join("bowl.h5");
+    let mut child = Command::new("mpirun")
+        .args(["-np", "2"])
+        .arg(binary())
+        .args([
+            "modes",
+            "--mesh",
+            s(&bowl_mesh()),
+            "--modes",
+            "20",
+            "--out",
+            s(&out),
+            "--rank-timeout",
+            "5",
+            "--verbose",
+        ])
+        .env("OMPI_ALLOW_RUN_AS_ROOT", "1")
+        .env("OMPI_ALLOW_RUN_AS_ROOT_CONFIRM", "1")
+        .env("OPENBLAS_NUM_THREADS", "1")
+        .env("OMPI_MCA_btl", "self,vader")
+        .current_dir(repo())
+        .stdin(Stdio::null())
+        .stdout(Stdio::null())
+        .stderr(Stdio::piped())
+        .spawn()
+        .expect("spawn mpirun");
+    let mpirun_pid = child.id();
+    // Rank 0 prints its first progress line after start-up (watchdog armed on every rank).
+    let (tx, rx) = std::sync::mpsc::channel::<String>();
+    let stderr = child.stderr.take().unwrap();
+    let reader = std::thread::spawn(move || {
+        for line in BufReader::new(stderr).lines().map_while(Result::ok) {
+            let _ = tx.send(line);
+        }
+    });
+    let mut log = Vec::new();
+    let launched = Instant::now();
+    while launched.elapsed() < LIMIT {
+        match rx.recv_timeout(Duration::from_millis(100)) {
+            Ok(line) => {
+                let started = line.contains("reading");
+                log.push(line);
+                if started {
+                    break;
+                }
+            }
+            Err(std::sync::mpsc::RecvTimeoutError::Timeout) => {}
+            Err(_) => break,
+        }
+    }
+    let ranks = ranks_of(mpirun_pid);
+    assert_eq!(ranks.len(), 2, "two ranks under mpirun: {ranks:?}\n{log:?}");
+    let stopped = ranks[1].1;
+    let signal = |sig: &str, pid: u32| {
+        let _ = Command::new("kill").args([sig, &pid.to_string()]).status();
+    };
+    signal("-STOP", stopped);
+    let stopped_at = Instant::now();
+    let status = loop {
+        if let Some(st) = child.try_wait().unwrap() {
+            break Some(st);
+        }
+        if stopped_at.elapsed() > Duration::from_secs(60) {
+            break None;
+        }
+        std::thread::sleep(Duration::from_millis(100));
+    };
+    let took = stopped_at.elapsed().as_secs_f64();
+    if status.is_none() {
+        // Clean up before failing: resume and end our own processes.
+        for (_, pid) in &ranks {
+            signal("-CONT", *pid);
+        }
+        let _ = child.kill();
+        let _ = child.wait();
+    }
+    reader.join().unwrap();
+    log.extend(rx.try_iter());
+    let text = log.join("\n");
+    assert!(status.is_some(), "the job must end, not hang:\n{text}");
+    assert!(!status.unwrap().success(), "{text}");
+    assert!(
+        text.contains(&format!("error (rank 0 of 2): rank 1 (pid {stopped} on "))
+            && text.contains("has been stopped for 5 s (SIGSTOP)")
+            && text.contains(&format!("kill -CONT {stopped}")),
+        "{text}"
+    );
+    assert!(took < 30.0, "the job ended {took:.1} s after the stop");
+    assert!(!out.exists());
+    // mpirun ends the stopped rank too.
+    let gone = Instant::now();
+    while matches!(process_state(stopped), Some(c) if c != 'Z')
+        && gone.elapsed() < Duration::from_secs(10)
+    {
+        std::thread::sleep(Duration::from_millis(100));
+    }
+    let state = process_state(stopped);
+    if matches!(state, Some(c) if c != 'Z') {
+        signal("-KILL", stopped);
+    }
+    assert!(
+        matches!(state, None | Some('Z')),
+        "the stopped rank must be ended too (state {state:?})"
+    );
+    println!(
+        "ended {took:.1} s after the stop: {}",
+        text.lines()
+            .find(|l| l.contains("has been stopped"))
+            .unwrap_or("")
+    );
 }

@@ -239,6 +239,48 @@ fn corrupt_or_truncated_wav_is_a_clear_error() {
 }
 
 #[test]
+fn a_float_wav_with_nan_or_inf_is_refused_naming_the_first_sample() {
+    let dir = TempDir::new("nonfinite");
+    let path = dir.path("nan.wav");
+    let spec = hound::WavSpec {
+        channels: 2,
+        sample_rate: 1000,
+        bits_per_sample: 32,
+        sample_format: hound::SampleFormat::Float,
+    };
+    let mut w = hound::WavWriter::create(&path, spec).unwrap();
+    for k in 0..100 {
+        w.write_sample(0.1f32).unwrap();
+        // Channel 1 turns NaN at frame 25 and infinite at frame 60.
+        let right = match k {
+            25 => f32::NAN,
+            60 => f32::INFINITY,
+            _ => -0.1,
+        };
+        w.write_sample(right).unwrap();
+    }
+    w.finalize().unwrap();
+    let err = read_wav(&path).unwrap_err();
+    let msg = err.to_string();
+    assert!(
+        matches!(
+            err,
+            AudioError::NonFinite {
+                count: 2,
+                frame: 25,
+                channel: 1,
+                ..
+            }
+        ),
+        "{msg}"
+    );
+    assert!(
+        msg.contains("nan.wav") && msg.contains("(NaN) at sample 25 of channel 1 (0.025000 s)"),
+        "{msg}"
+    );
+}
+
+#[test]
 fn write_wav_refuses_bad_input_and_leaves_nothing() {
     let dir = TempDir::new("badwrite");
     let path = dir.path("x.wav");

@@ -40,6 +40,23 @@ pub enum AudioError {
     /// A well-formed WAV file in an encoding this module does not read.
     #[error("{path}: unsupported WAV encoding: {reason}")]
     Unsupported { path: PathBuf, reason: String },
+    /// Writing failed for a cause found by [`crate::io::atomic::replace_atomically`] (disk
+    /// full, quota, file size limit, …); nothing was written at `path`.
+    #[error("cannot write {path}: {reason}")]
+    WriteFailed { path: PathBuf, reason: String },
+    /// A float WAV holding NaN or infinite samples (an integer file cannot).
+    #[error("{path}: holds NaN or infinite samples ({count} in all), the first ({value}) at sample {frame} of channel {channel} ({seconds:.6} s): re-export the recording with finite samples")]
+    NonFinite {
+        path: PathBuf,
+        /// How many samples (over all channels) are NaN or ±∞.
+        count: usize,
+        /// The first one: its frame (0-based sample index within a channel), channel (0-based),
+        /// time from the start [s] and value.
+        frame: usize,
+        channel: usize,
+        seconds: f64,
+        value: f64,
+    },
 }
 
 /// Writes mono `samples` to `path` as a WAV file at `sample_rate` Hz.
@@ -94,6 +111,15 @@ pub fn write_wav(
             WavFormat::Float32 => hound::SampleFormat::Float,
         },
     };
+    // hound checks the RIFF size limit only when the header is finalised; failing here gives
+    // the clearer message, names the final path and writes nothing.
+    let bytes = samples.len() as u64 * u64::from(spec.bits_per_sample / 8);
+    if bytes > u64::from(u32::MAX) - 64 {
+        return invalid(format!(
+            "{} samples exceed the 4 GiB WAV size limit",
+            samples.len()
+        ));
+    }
 
     crate::io::atomic::replace_atomically(path, |tmp| {
         write_wav_file(tmp, spec, samples, gain, format)
@@ -114,6 +140,23 @@ impl crate::io::atomic::AtomicWriteError for AudioError {
             reason: "path has no file name".into(),
         }
     }
+    fn write_failed(path: &Path, reason: String) -> Self {
+        AudioError::WriteFailed {
+            path: path.to_path_buf(),
+            reason,
+        }
+    }
+    fn os_error(&self) -> Option<std::io::Error> {
+        let io = match self {
+            AudioError::Fs { source, .. } => source,
+            AudioError::Wav {
+                source: hound::Error::IoError(source),
+                ..
+            } => source,
+            _ => return None,
+        };
+        io.raw_os_error().map(std::io::Error::from_raw_os_error)
+    }
 }
 
 fn write_wav_file(
@@ -132,15 +175,6 @@ fn write_wav_file(
         }
     };
     let mut writer = hound::WavWriter::create(tmp, spec).map_err(wav_err("creating WAV file"))?;
-    // hound checks the RIFF size limit only when the header is finalised;
-    // failing here gives the clearer message and writes nothing.
-    let bytes = samples.len() as u64 * u64::from(spec.bits_per_sample / 8);
-    if bytes > u64::from(u32::MAX) - 64 {
-        return Err(AudioError::InvalidInput {
-            path: tmp.to_path_buf(),
-            reason: format!("{} samples exceed the 4 GiB WAV size limit", samples.len()),
-        });
-    }
     match format {
         WavFormat::Pcm16 => {
             for &s in samples {
@@ -167,7 +201,8 @@ fn pcm16(x: f64) -> i16 {
 
 /// Reads a WAV file into one vector per channel, scaled to [−1, 1], and its
 /// sample rate in Hz. Integer files of 8, 16, 24 or 32 bits and 32-bit float
-/// files are accepted; a truncated or corrupt file is an error, never a panic.
+/// files are accepted; a truncated or corrupt file is an error, never a panic, and so is a
+/// float file holding NaN or infinite samples ([`AudioError::NonFinite`], naming the first).
 pub fn read_wav(path: &Path) -> Result<(Vec<Vec<f64>>, u32), AudioError> {
     let wav_err = |context: &str| {
         let context = context.to_string();
@@ -216,6 +251,18 @@ pub fn read_wav(path: &Path) -> Result<(Vec<Vec<f64>>, u32), AudioError> {
             path: path.to_path_buf(),
             context: "reading samples".into(),
             source: hound::Error::FormatError("data ends inside a sample frame"),
+        });
+    }
+    // A float file can hold NaN or ±∞, which every analysis would spread silently (a
+    // spectrogram draws them black, an onset detector never fires).
+    if let Some(i) = interleaved.iter().position(|s| !s.is_finite()) {
+        return Err(AudioError::NonFinite {
+            path: path.to_path_buf(),
+            count: interleaved.iter().filter(|s| !s.is_finite()).count(),
+            frame: i / n_channels,
+            channel: i % n_channels,
+            seconds: (i / n_channels) as f64 / f64::from(spec.sample_rate.max(1)),
+            value: interleaved[i],
         });
     }
     let frames = interleaved.len() / n_channels;

@@ -39,6 +39,10 @@ pub struct DiagnoseArgs {
     /// Length unit of the mesh (m, cm, mm, … or metres per unit).
     #[arg(long)]
     pub units: Option<String>,
+    /// Straighten the mid-edge nodes of curved 10-node tets whose map folds over (Jacobian
+    /// determinant ≤ 0 inside) instead of rejecting the mesh; the count is reported.
+    #[arg(long)]
+    pub straighten_invalid: bool,
     /// A WAV file of the strike (repeat for several microphones).
     #[arg(long = "recording")]
     pub recordings: Vec<PathBuf>,
@@ -302,6 +306,7 @@ pub fn resolve(args: &DiagnoseArgs) -> Result<Job, String> {
         map: with_suffix(&out, "_map.h5"),
         mesh,
         unit_scale,
+        straighten_invalid: args.straighten_invalid,
         recordings,
         fit_channels,
         held_channels,

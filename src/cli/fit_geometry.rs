@@ -293,7 +293,6 @@ pub fn resolve(args: &FitGeometryArgs) -> Result<Job, String> {
         .clone()
         .or(file.out.clone())
         .unwrap_or_else(|| PathBuf::from("fit_geometry.h5"));
-    super::resolve::check_output(&out, &[])?;
     let stem = out.with_extension("");
     let mesh_out = crate::io::paths::plot_path(&stem, "_mesh.h5");
     let png = args
@@ -301,7 +300,14 @@ pub fn resolve(args: &FitGeometryArgs) -> Result<Job, String> {
         .clone()
         .or(file.png.clone())
         .unwrap_or_else(|| crate::io::paths::plot_path(&stem, ".png"));
-    super::resolve::check_output(&png, &[])?;
+    // No output may be one of the inputs: the surface or the config file.
+    let mut given: Vec<(&str, &std::path::Path)> = vec![("the surface", surface.as_path())];
+    if let Some(c) = &args.config {
+        given.push(("the config file", c.as_path()));
+    }
+    for o in [&out, &mesh_out, &mesh_out.with_extension("xdmf"), &png] {
+        super::resolve::check_output(o, &given)?;
+    }
     let mut petsc_options = file.solver.petsc_options.clone();
     petsc_options.extend(args.petsc_options.iter().cloned());
     Ok(Job {

@@ -30,6 +30,10 @@ pub struct FitMaterialArgs {
     /// Length unit of the mesh (m, cm, mm, … or metres per unit).
     #[arg(long)]
     pub units: Option<String>,
+    /// Straighten the mid-edge nodes of curved 10-node tets whose map folds over (Jacobian
+    /// determinant ≤ 0 inside) instead of rejecting the mesh; the count is reported.
+    #[arg(long)]
+    pub straighten_invalid: bool,
     /// Element order of the model: 2 (default) or 1.
     #[arg(long)]
     pub order: Option<u32>,
@@ -257,6 +261,7 @@ pub fn resolve(args: &FitMaterialArgs) -> Result<Job, String> {
     Ok(Job {
         mesh,
         unit_scale,
+        straighten_invalid: args.straighten_invalid,
         order,
         recordings,
         sample_rate,

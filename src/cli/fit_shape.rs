@@ -313,8 +313,21 @@ fn resolve(
         .clone()
         .or(file.out.clone())
         .unwrap_or_else(|| PathBuf::from(format!("fit_{}.h5", task.name())));
-    super::resolve::check_output(&out, &[])?;
     let mesh_out = crate::io::paths::plot_path(&out.with_extension(""), "_mesh.h5");
+    // No output may be one of the inputs: a shape, the target file or the config file.
+    let mut given: Vec<(&str, &std::path::Path)> = match &task {
+        Task::Thickness { surface, .. } => vec![("the surface", surface.as_path())],
+        Task::Morph { a, b } => vec![("shape A", a.as_path()), ("shape B", b.as_path())],
+    };
+    if let TargetSource::Given { path, .. } = &target {
+        given.push(("the target", path.as_path()));
+    }
+    if let Some(c) = &common.config {
+        given.push(("the config file", c.as_path()));
+    }
+    for o in [&out, &mesh_out, &mesh_out.with_extension("xdmf")] {
+        super::resolve::check_output(o, &given)?;
+    }
     let mut petsc_options = file.solver.petsc_options.clone();
     petsc_options.extend(common.petsc_options.iter().cloned());
     Ok(Job {

@@ -36,6 +36,10 @@ pub struct ImpactArgs {
     /// Length unit of the mesh (m, cm, mm, … or metres per unit).
     #[arg(long)]
     pub units: Option<String>,
+    /// Straighten the mid-edge nodes of curved 10-node tets whose map folds over (Jacobian
+    /// determinant ≤ 0 inside) instead of rejecting the mesh; the count is reported.
+    #[arg(long)]
+    pub straighten_invalid: bool,
     /// A WAV file of the strike (repeat for several microphones).
     #[arg(long = "recording")]
     pub recordings: Vec<PathBuf>,
@@ -299,6 +303,7 @@ pub fn resolve(args: &ImpactArgs) -> Result<Job, String> {
         png: with_suffix(&out, "_map.png"),
         mesh,
         unit_scale,
+        straighten_invalid: args.straighten_invalid,
         recordings,
         sample_rate,
         pre_roll,

@@ -11,7 +11,8 @@
 //! Everything after `--` goes to PETSc/SLEPc and overrides our defaults.
 //!
 //! A failure on any rank ends the whole MPI job with a message and a non-zero exit (MPI_Abort),
-//! so a job never hangs waiting for a rank that gave up; a panic does the same.
+//! so a job never hangs waiting for a rank that gave up; a panic does the same. A rank that is
+//! stopped (SIGSTOP) ends the job after `--rank-timeout` seconds ([`watchdog`]).
 
 pub mod config;
 pub mod diagnose;
@@ -23,6 +24,7 @@ pub mod modes;
 pub mod render;
 pub mod resolve;
 pub mod spectrogram;
+pub mod watchdog;
 
 use clap::{Parser, Subcommand};
 use std::io::IsTerminal;
@@ -36,6 +38,10 @@ use std::io::IsTerminal;
 pub struct Cli {
     #[command(subcommand)]
     pub command: Command,
+    /// End the MPI job when one of its ranks has been stopped (SIGSTOP) this many seconds, naming
+    /// it (default 600, or $DIFFSOUND_RANK_TIMEOUT; 0: never). Watches the ranks on this host.
+    #[arg(long, global = true, value_name = "SECS")]
+    pub rank_timeout: Option<f64>,
 }
 
 #[derive(Subcommand, Debug)]
@@ -89,18 +95,32 @@ fn abort_job(code: i32) -> ! {
 /// Entry point of the binary.
 pub fn main() {
     pin_blas_threads();
+    ignore_file_size_signal();
     let cli = Cli::parse();
+    let limit = match watchdog::limit(cli.rank_timeout) {
+        Ok(l) => l,
+        Err(message) => {
+            eprintln!("error: {message}");
+            std::process::exit(1);
+        }
+    };
     match cli.command {
         Command::Materials => print_materials(),
-        Command::Modes(args) => run_under_mpi(|universe| modes::run(universe, args)),
-        Command::FitMaterial(args) => run_under_mpi(|universe| fit_material::run(universe, args)),
-        Command::Diagnose(args) => run_under_mpi(|universe| diagnose::run(universe, args)),
-        Command::LocateImpact(args) => run_under_mpi(|universe| impact::run(universe, args)),
-        Command::FitThickness(args) => {
-            run_under_mpi(|universe| fit_shape::run_thickness(universe, args))
+        Command::Modes(args) => run_under_mpi(limit, |universe| modes::run(universe, args)),
+        Command::FitMaterial(args) => {
+            run_under_mpi(limit, |universe| fit_material::run(universe, args))
         }
-        Command::FitMorph(args) => run_under_mpi(|universe| fit_shape::run_morph(universe, args)),
-        Command::FitGeometry(args) => run_under_mpi(|universe| fit_geometry::run(universe, args)),
+        Command::Diagnose(args) => run_under_mpi(limit, |universe| diagnose::run(universe, args)),
+        Command::LocateImpact(args) => run_under_mpi(limit, |universe| impact::run(universe, args)),
+        Command::FitThickness(args) => {
+            run_under_mpi(limit, |universe| fit_shape::run_thickness(universe, args))
+        }
+        Command::FitMorph(args) => {
+            run_under_mpi(limit, |universe| fit_shape::run_morph(universe, args))
+        }
+        Command::FitGeometry(args) => {
+            run_under_mpi(limit, |universe| fit_geometry::run(universe, args))
+        }
         Command::Render(args) => run_serial(render::run(args)),
         Command::Spectrogram(args) => run_serial(spectrogram::run(args)),
     }
@@ -111,6 +131,16 @@ fn run_serial(result: Result<(), String>) {
     if let Err(message) = result {
         eprintln!("error: {message}");
         std::process::exit(1);
+    }
+}
+
+/// A write past the file size limit (`ulimit -f`) kills the process with SIGXFSZ by default,
+/// after the work and with no word on what happened. Ignored, the write fails with EFBIG
+/// instead, which the writers report on the output's path ([`crate::io::atomic`]).
+fn ignore_file_size_signal() {
+    // SAFETY: setting a signal's disposition to "ignore" before any other thread starts.
+    unsafe {
+        libc::signal(libc::SIGXFSZ, libc::SIG_IGN);
     }
 }
 
@@ -148,7 +178,10 @@ fn print_materials() {
     }
 }
 
-fn run_under_mpi(job: impl FnOnce(mpi::environment::Universe) -> Result<(), String>) {
+fn run_under_mpi(
+    rank_timeout: Option<std::time::Duration>,
+    job: impl FnOnce(mpi::environment::Universe) -> Result<(), String>,
+) {
     let Some(universe) = mpi::initialize() else {
         eprintln!("error: MPI could not be initialised");
         std::process::exit(2);
@@ -167,6 +200,7 @@ fn run_under_mpi(job: impl FnOnce(mpi::environment::Universe) -> Result<(), Stri
         default_hook(info);
         abort_job(101);
     }));
+    watchdog::start(&universe.world(), rank_timeout);
 
     if let Err(message) = job(universe) {
         fail(rank as usize, size as usize, &message);

@@ -271,6 +271,10 @@ pub enum IoError {
     /// The file exists and is HDF5 but does not hold the layout documented above.
     #[error("{path}: not a valid diffsound modes file: {reason}")]
     BadLayout { path: PathBuf, reason: String },
+    /// Writing failed for a cause found by [`atomic::replace_atomically`] (disk full, quota,
+    /// file size limit, …); nothing was written at `path`.
+    #[error("cannot write {path}: {reason}")]
+    WriteFailed { path: PathBuf, reason: String },
 }
 
 impl IoError {
@@ -333,6 +337,21 @@ impl atomic::AtomicWriteError for IoError {
         IoError::InvalidInput {
             path: path.to_path_buf(),
             reason: "path has no file name".into(),
+        }
+    }
+    fn write_failed(path: &Path, reason: String) -> Self {
+        IoError::WriteFailed {
+            path: path.to_path_buf(),
+            reason,
+        }
+    }
+    fn os_error(&self) -> Option<std::io::Error> {
+        match self {
+            IoError::Fs { source, .. } => {
+                source.raw_os_error().map(std::io::Error::from_raw_os_error)
+            }
+            IoError::Hdf5 { source, .. } => atomic::errno_in(&source.to_string()),
+            _ => None,
         }
     }
 }

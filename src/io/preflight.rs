@@ -38,6 +38,10 @@ pub fn describe_write_error(e: &std::io::Error) -> String {
         Some(28) => "no space left on the device (disk full)".into(),
         Some(13) | Some(1) => "permission denied".into(),
         Some(122) => "disk quota exceeded".into(),
+        Some(27) => {
+            "file too large for the process's file size limit (`ulimit -f`) or the file system"
+                .into()
+        }
         _ => e.to_string(),
     }
 }

@@ -42,8 +42,10 @@
 //! `D/1000` has `V ~ 1e-10 D^3`) yet far above round-off of the determinant.
 //! Both are errors when reading; inverted tets can instead be flipped with
 //! [`ReadOptions::fix_inverted`]. Curved 10-node tets whose Jacobian becomes
-//! non-positive inside the element are not detected here (only corners are
-//! checked): [`straighten`] finds and, on request, straightens them.
+//! non-positive inside the element are not detected by [`read_mesh`] (only
+//! corners are checked): [`read_for_fem`], the reader of every job that
+//! assembles a mesh, finds them ([`straighten`]) and refuses the file or, on
+//! request, straightens them.
 //!
 //! # Shapes from signed distances
 //!
@@ -97,6 +99,7 @@ pub use marching::{
     VertexOrigin,
 };
 pub use sdf::SignedDistance;
+pub use straighten::read_for_fem;
 pub use surface::{parse_obj, read_obj, SurfaceError, SurfaceRead, TriangleSurface};
 pub use validate::ZERO_VOLUME_RELATIVE_TOLERANCE;
 pub use write::write_msh22_ascii;
@@ -467,6 +470,15 @@ pub enum MeshError {
     },
     #[error("{}: invalid read option: {message}", path.display())]
     BadOption { path: PathBuf, message: String },
+    /// Curved 10-node tets whose map folds over ([`straighten`]), refused by
+    /// [`read_for_fem`] unless asked to straighten them.
+    #[error("{}: {count} curved 10-node tetrahedra fold over (Jacobian determinant ≤ 0 inside the element; Gmsh element tags {tags}): rerun with --straighten-invalid to straighten their mid-edge nodes, or untangle the mesh with `gmsh -optimize_ho`", path.display())]
+    FoldedTets {
+        path: PathBuf,
+        count: usize,
+        /// The first Gmsh element tags, with an ellipsis when there are more.
+        tags: String,
+    },
     #[error("invalid length unit {input:?}: expected m, cm, mm, um, in, ft or a positive number of metres")]
     BadUnit { input: String },
 }

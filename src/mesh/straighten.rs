@@ -15,8 +15,18 @@
 //! corner mesh); its neighbours that share the edge see that edge straightened too, which
 //! lowers their curvature. The geometry loses its curvature on those edges only (a user can
 //! instead let Gmsh untangle the mesh with `gmsh -optimize_ho`).
+//!
+//! **Every job that assembles a mesh** reads it with [`read_for_fem`]: the reader's checks, then
+//! this one, refusing the file with its name, the count and the first Gmsh element tags
+//! ([`MeshError::FoldedTets`]) unless asked to straighten (`--straighten-invalid`), in which case
+//! the straightening is one of the read's warnings. (The shape fits read a `.msh` only for its
+//! boundary triangles' corners, which a fold inside does not change, and mesh the body anew.)
 
-use super::{TetMesh, TET10_EDGES};
+use super::{MeshError, MeshRead, ReadOptions, TetMesh, TET10_EDGES};
+use std::path::Path;
+
+/// How many Gmsh element tags a message lists before an ellipsis.
+const TAGS_SHOWN: usize = 5;
 
 /// Barycentric lattice step of the detection (module docs).
 const LATTICE: usize = 4;
@@ -108,6 +118,51 @@ pub fn straighten(mesh: &mut TetMesh, tets: &[usize]) -> usize {
     moved.len()
 }
 
+/// Reads the tet mesh a job assembles: [`super::read_mesh`], then the fold check of the module
+/// docs. Folded curved tets are an error naming the file, their count and first Gmsh element
+/// tags, or with `straighten_invalid` are straightened, which is reported as the first of the
+/// read's warnings.
+pub fn read_for_fem(
+    path: &Path,
+    opts: &ReadOptions,
+    straighten_invalid: bool,
+) -> Result<MeshRead, MeshError> {
+    let mut read = super::read_mesh(path, opts)?;
+    let folded = folded_tets(&read.mesh);
+    if folded.is_empty() {
+        return Ok(read);
+    }
+    let mut tags: Vec<String> = folded
+        .iter()
+        .take(TAGS_SHOWN)
+        .map(|&e| {
+            read.element_tags
+                .get(e)
+                .map_or(format!("#{e}"), |t| t.to_string())
+        })
+        .collect();
+    if folded.len() > TAGS_SHOWN {
+        tags.push("…".into());
+    }
+    let tags = tags.join(", ");
+    if !straighten_invalid {
+        return Err(MeshError::FoldedTets {
+            path: path.to_path_buf(),
+            count: folded.len(),
+            tags,
+        });
+    }
+    let moved = straighten(&mut read.mesh, &folded);
+    read.warnings.insert(
+        0,
+        format!(
+            "straightened {} folded curved tetrahedra ({moved} mid-edge nodes moved to their edge midpoints; Gmsh element tags {tags})",
+            folded.len()
+        ),
+    );
+    Ok(read)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -156,5 +211,32 @@ mod tests {
         assert!(folded_tets(&tet10(0, [0.0, 0.1, 0.0])).is_empty());
         assert_eq!(straighten(&mut m, &[0]), 1);
         assert!((min_det_jacobian(&m, 0) - 1.0).abs() < 1e-12);
+    }
+
+    #[test]
+    fn read_for_fem_refuses_a_folded_file_by_tag_or_straightens_it_with_a_warning() {
+        let path =
+            std::env::temp_dir().join(format!("diffsound_folded_{}.msh", std::process::id()));
+        std::fs::write(
+            &path,
+            "$MeshFormat\n2.2 0 8\n$EndMeshFormat\n$Nodes\n10\n1 0 0 0\n2 1 0 0\n3 0 1 0\n4 0 0 1\n5 0.5 0.9 0.9\n6 0.5 0.5 0\n7 0 0.5 0\n8 0 0 0.5\n9 0 0.5 0.5\n10 0.5 0 0.5\n$EndNodes\n$Elements\n1\n4287 11 2 0 1 1 2 3 4 5 6 7 8 9 10\n$EndElements\n",
+        )
+        .unwrap();
+        let e = read_for_fem(&path, &ReadOptions::default(), false).unwrap_err();
+        let text = e.to_string();
+        assert!(
+            matches!(e, MeshError::FoldedTets { count: 1, .. })
+                && text.contains("Gmsh element tags 4287")
+                && text.contains(&path.display().to_string()),
+            "{text}"
+        );
+        let read = read_for_fem(&path, &ReadOptions::default(), true).unwrap();
+        assert!(folded_tets(&read.mesh).is_empty());
+        assert!(
+            read.warnings[0].starts_with("straightened 1 folded curved tetrahedra (1 mid-edge"),
+            "{:?}",
+            read.warnings
+        );
+        let _ = std::fs::remove_file(&path);
     }
 }

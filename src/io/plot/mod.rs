@@ -107,6 +107,10 @@ pub enum PlotError {
     /// The figure description is inconsistent; nothing was written.
     #[error("{path}: refusing to plot: {reason}")]
     InvalidInput { path: PathBuf, reason: String },
+    /// Writing failed for a cause found by [`crate::io::atomic::replace_atomically`] (disk
+    /// full, quota, file size limit, …); nothing was written at `path`.
+    #[error("cannot write {path}: {reason}")]
+    WriteFailed { path: PathBuf, reason: String },
 }
 
 impl crate::io::atomic::AtomicWriteError for PlotError {
@@ -122,6 +126,23 @@ impl crate::io::atomic::AtomicWriteError for PlotError {
             path: path.to_path_buf(),
             reason: "path has no file name".into(),
         }
+    }
+    fn write_failed(path: &Path, reason: String) -> Self {
+        PlotError::WriteFailed {
+            path: path.to_path_buf(),
+            reason,
+        }
+    }
+    fn os_error(&self) -> Option<std::io::Error> {
+        let io = match self {
+            PlotError::Fs { source, .. } => source,
+            PlotError::Png {
+                source: png::EncodingError::IoError(source),
+                ..
+            } => source,
+            _ => return None,
+        };
+        io.raw_os_error().map(std::io::Error::from_raw_os_error)
     }
 }
 

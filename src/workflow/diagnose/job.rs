@@ -25,6 +25,8 @@ pub enum MaterialSource {
 pub struct Job {
     pub mesh: PathBuf,
     pub unit_scale: f64,
+    /// Straighten folded curved tets instead of refusing the mesh ([`crate::mesh::read_for_fem`]).
+    pub straighten_invalid: bool,
     pub recordings: Vec<PathBuf>,
     pub fit_channels: Vec<usize>,
     pub held_channels: Vec<usize>,

@@ -231,13 +231,19 @@ type PassOutcome = (
 pub fn run(petsc: &Petsc, job: &Job, progress: &Progress) -> Result<Option<Report>, Error> {
     let total = Instant::now();
     let rank = petsc.rank();
-    let read = mesh::read_mesh(
+    let read = mesh::read_for_fem(
         &job.mesh,
         &ReadOptions {
             unit_scale: job.unit_scale,
             fix_inverted: false,
         },
+        job.straighten_invalid,
     )?;
+    if rank == 0 {
+        for w in &read.warnings {
+            eprintln!("warning: {w}");
+        }
+    }
     let mesh_model: TetMesh = mesh::lift_to_quadratic(&read.mesh);
     drop(read);
     if let Some(v) = job.strike_vertex {

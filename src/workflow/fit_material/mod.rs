@@ -68,6 +68,8 @@ use std::path::PathBuf;
 pub struct Job {
     pub mesh: PathBuf,
     pub unit_scale: f64,
+    /// Straighten folded curved tets instead of refusing the mesh ([`crate::mesh::read_for_fem`]).
+    pub straighten_invalid: bool,
     pub order: u32,
     pub recordings: Vec<PathBuf>,
     /// Analysis sample rate [Hz].
@@ -185,13 +187,19 @@ pub fn run(petsc: &Petsc, job: &Job, progress: &Progress) -> Result<Report, Erro
     let fs = f64::from(job.sample_rate);
 
     // Check the mesh before the long stage 1.
-    let read = mesh::read_mesh(
+    let read = mesh::read_for_fem(
         &job.mesh,
         &ReadOptions {
             unit_scale: job.unit_scale,
             fix_inverted: false,
         },
+        job.straighten_invalid,
     )?;
+    if rank == 0 {
+        for w in &read.warnings {
+            eprintln!("warning: {w}");
+        }
+    }
     let mesh_model: TetMesh = if job.order == 2 {
         mesh::lift_to_quadratic(&read.mesh)
     } else {

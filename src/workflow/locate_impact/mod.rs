@@ -119,6 +119,8 @@ impl std::str::FromStr for TransferChoice {
 pub struct Job {
     pub mesh: PathBuf,
     pub unit_scale: f64,
+    /// Straighten folded curved tets instead of refusing the mesh ([`crate::mesh::read_for_fem`]).
+    pub straighten_invalid: bool,
     pub recordings: Vec<PathBuf>,
     pub sample_rate: u32,
     pub pre_roll: f64,
@@ -212,13 +214,19 @@ const CLUSTER_RTOL: f64 = 0.005;
 pub fn run(petsc: &Petsc, job: &Job, progress: &Progress) -> Result<Option<Report>, Error> {
     let total = Instant::now();
     let rank = petsc.rank();
-    let read = mesh::read_mesh(
+    let read = mesh::read_for_fem(
         &job.mesh,
         &ReadOptions {
             unit_scale: job.unit_scale,
             fix_inverted: false,
         },
+        job.straighten_invalid,
     )?;
+    if rank == 0 {
+        for w in &read.warnings {
+            eprintln!("warning: {w}");
+        }
+    }
     let mesh_model: TetMesh = mesh::lift_to_quadratic(&read.mesh);
     drop(read);
     if let Some(v) = job.true_vertex {

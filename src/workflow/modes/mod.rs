@@ -61,14 +61,6 @@ pub struct Job {
 pub enum Error {
     #[error(transparent)]
     Mesh(#[from] MeshError),
-    /// Curved 10-node tets whose map folds over, and no `straighten_invalid`.
-    #[error("{}: {count} curved 10-node tetrahedra fold over (Jacobian determinant ≤ 0 inside the element; Gmsh element tags {tags}): rerun with --straighten-invalid to straighten their mid-edge nodes, or untangle the mesh with `gmsh -optimize_ho`", mesh.display())]
-    FoldedTets {
-        mesh: PathBuf,
-        count: usize,
-        /// The first tags, with an ellipsis when there are more.
-        tags: String,
-    },
     /// The strike point of the WAV: no surface, or the node asked for is not on it.
     #[error("{0}")]
     Strike(String),
@@ -136,42 +128,16 @@ pub fn run<'p>(petsc: &'p Petsc, job: &Job, progress: &Progress) -> Result<Repor
     let rank = petsc.rank();
 
     progress.say(format!("reading {}", job.mesh.display()));
-    let mut read = mesh::read_mesh(
+    // Curved 10-node tets that fold over are refused with the file and Gmsh tags named, or
+    // straightened on request (`mesh::straighten`), before any assembly.
+    let read = mesh::read_for_fem(
         &job.mesh,
         &ReadOptions {
             unit_scale: job.unit_scale,
             fix_inverted: job.fix_inverted,
         },
+        job.straighten_invalid,
     )?;
-    // Curved 10-node tets that fold over: refused with the file and Gmsh tags named, or
-    // straightened on request (`mesh::straighten`), before any assembly.
-    let folded = mesh::straighten::folded_tets(&read.mesh);
-    if !folded.is_empty() {
-        let tags: Vec<String> = folded
-            .iter()
-            .take(5)
-            .map(|&e| {
-                read.element_tags
-                    .get(e)
-                    .map_or(format!("#{e}"), |t| t.to_string())
-            })
-            .collect();
-        if !job.straighten_invalid {
-            return Err(Error::FoldedTets {
-                mesh: job.mesh.clone(),
-                count: folded.len(),
-                tags: format!(
-                    "{}{}",
-                    tags.join(", "),
-                    if folded.len() > 5 { ", …" } else { "" }
-                ),
-            });
-        }
-        let moved = mesh::straighten::straighten(&mut read.mesh, &folded);
-        if rank == 0 {
-            eprintln!("warning: straightened {} folded curved tetrahedra ({moved} mid-edge nodes moved to their edge midpoints; Gmsh element tags {}{})", folded.len(), tags.join(", "), if folded.len() > 5 { ", …" } else { "" });
-        }
-    }
     if rank == 0 {
         for w in &read.warnings {
             eprintln!("warning: {w}");
