@@ -4,12 +4,13 @@
 //!
 //! | stage      | module       | what it does |
 //! |------------|--------------|--------------|
-//! | mesh       | [`mesh`]     | reads Gmsh tet meshes, validates them, lifts P1 to P2 |
+//! | mesh       | [`mesh`]     | reads Gmsh tet meshes, validates, lifts P1 to P2, straightens, locates, writes, generates |
 //! | fem        | [`fem`]      | pure, serial element kernels: mass, Lamé-split stiffness, materials |
 //! | assembly   | [`assembly`] | node partition, exact preallocation, distributed PETSc matrices |
 //! | eigen      | [`eigen`]    | SLEPc shift-invert Krylov–Schur, rigid-mode removal, spectrum slicing |
+//! | shape      | [`shape`]    | differentiable shapes: surfaces, signed distances, marching tetrahedra, the spectrum of the body inside a field and its gradient |
 //! | audio      | [`audio`]    | damped-sinusoid synthesis and WAV I/O |
-//! | inverse    | [`inverse`]  | modal estimates, damping and material fits from recordings; shape (thickness, morph) from eigenvalues |
+//! | inverse    | [`inverse`]  | modal estimates, damping and material fits from recordings; shape fits (thickness, morph, geometry) from eigenvalues |
 //! | diagnose   | [`diagnose`] | simulation–recording mismatch: modal parameters with uncertainties |
 //! | workflow   | [`workflow`] | the jobs: each command as a `Job` in and a `Report` out, progress as a callback |
 //! | io         | [`io`]       | HDF5 results with an XDMF sidecar, written atomically |
@@ -28,6 +29,7 @@ pub mod io;
 pub mod mesh;
 pub mod petsc;
 pub mod random;
+pub mod shape;
 #[cfg(test)]
 mod testing;
 pub mod workflow;

@@ -59,7 +59,7 @@ fn unit(a: [f64; 3]) -> [f64; 3] {
 
 /// Closest point of triangle (a, b, c) to p, as weights (wa, wb, wc) summing to 1. Region
 /// tests on the triangle's Voronoi regions (vertices, edges, interior).
-pub(super) fn closest_on_triangle(p: [f64; 3], a: [f64; 3], b: [f64; 3], c: [f64; 3]) -> [f64; 3] {
+pub(crate) fn closest_on_triangle(p: [f64; 3], a: [f64; 3], b: [f64; 3], c: [f64; 3]) -> [f64; 3] {
     let (ab, ac, ap) = (sub(b, a), sub(c, a), sub(p, a));
     let (d1, d2) = (dot(ab, ap), dot(ac, ap));
     if d1 <= 0.0 && d2 <= 0.0 {

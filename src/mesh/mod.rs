@@ -1,5 +1,7 @@
-//! Tetrahedral meshes: reading Gmsh files, checking them, and the geometric
-//! queries the FEM and audio stages need.
+//! Tetrahedral meshes: reading Gmsh files, checking them, lifting, straightening,
+//! locating points on them, writing and generating them, and the geometric queries
+//! the FEM and audio stages need. Meshes built from implicit shapes (signed distances,
+//! marching tetrahedra) are made in [`crate::shape`].
 //!
 //! # Formats
 //! [`read_mesh`] reads Gmsh MSH files in version **2.2** (2.0 and 2.1 share its
@@ -45,17 +47,6 @@
 //! non-positive inside the element are not detected here (only corners are
 //! checked): [`straighten`] finds and, on request, straightens them.
 //!
-//! # Shapes from signed distances
-//!
-//! For shape optimisation the crate also builds its own meshes:
-//! [`surface`] reads triangle surfaces (OBJ, or the boundary of a tet mesh),
-//! [`sdf`] turns one into a signed distance field (positive inside, sign from
-//! the generalised winding number), and [`marching`] meshes the region
-//! {s > 0} of values on a background grid with marching tetrahedra, keeping
-//! the record of every vertex (grid vertex or interpolated crossing) so that
-//! gradients flow from node positions back to the values and grid offsets
-//! ([`MarchedMesh::vjp`], and [`linear_node_gradient`] from a lifted P2 mesh).
-//!
 //! # Errors and warnings
 //! Every [`MeshError`] names the file and where: the line (ASCII), the byte
 //! offset (binary) or the element tag. Problems that leave a usable mesh
@@ -65,39 +56,22 @@
 use std::fmt;
 use std::path::PathBuf;
 
-pub mod curve;
-pub mod distance;
 mod generate;
 mod gmsh;
 mod lift;
-pub mod marching;
-pub mod refine;
-pub mod sdf;
 pub mod straighten;
-pub mod surface;
 mod validate;
 mod write;
 
 #[cfg(test)]
-mod tests;
+pub(crate) mod tests;
 
 pub mod locate;
-pub use curve::{curve_boundary, CurvedNode, CurvingReport, FieldGradient};
-pub use distance::{
-    compare_shapes, sample_surface, surface_distance, volume_iou, DistanceError, ShapeComparison,
-    SurfaceDistance,
-};
 pub use generate::box_mesh;
+pub(crate) use generate::KUHN_TETS;
 pub use gmsh::{read_mesh, read_mesh_from_bytes};
 pub use lift::{lift_to_quadratic, linear_node_gradient, to_linear, LiftError};
 pub use locate::SurfacePoint;
-pub use marching::{
-    march, morph, morph_vjp, shell, shell_of_depth, BackgroundGrid, MarchedMesh, MarchingError,
-    MarchingGradient, MarchingOptions, MarchingReport, MorphGradient, Shell, ShellGradient,
-    VertexOrigin,
-};
-pub use sdf::SignedDistance;
-pub use surface::{parse_obj, read_obj, SurfaceError, SurfaceRead, TriangleSurface};
 pub use validate::ZERO_VOLUME_RELATIVE_TOLERANCE;
 pub use write::write_msh22_ascii;
 
