@@ -10,7 +10,8 @@
 //! | eigen      | [`eigen`]    | SLEPc shift-invert Krylov–Schur, rigid-mode removal, spectrum slicing |
 //! | shape      | [`shape`]    | differentiable shapes: surfaces, signed distances, marching tetrahedra, the spectrum of the body inside a field and its gradient |
 //! | audio      | [`audio`]    | damped-sinusoid synthesis and WAV I/O |
-//! | inverse    | [`inverse`]  | modal estimates, damping and material fits from recordings; shape fits (thickness, morph, geometry) from eigenvalues |
+//! | analysis   | [`analysis`] | recording analysis: onset, trim and gain, modal estimates and extraction with uncertainties, glides |
+//! | inverse    | [`inverse`]  | damping and material fits from recordings; shape fits (thickness, morph, geometry) from eigenvalues |
 //! | diagnose   | [`diagnose`] | simulation–recording mismatch: modal parameters with uncertainties |
 //! | workflow   | [`workflow`] | the jobs: each command as a `Job` in and a `Report` out, progress as a callback |
 //! | io         | [`io`]       | HDF5 results with an XDMF sidecar, written atomically |
@@ -18,6 +19,7 @@
 //! [`petsc`] is the one thin unsafe boundary: raw bindgen bindings under safe RAII handles.
 //! [`cli`] is the `diffsound` command line (arguments, configuration files, printing); [`random`] the seeded generator every stage shares.
 
+pub mod analysis;
 pub mod assembly;
 pub mod audio;
 pub mod cli;

@@ -9,9 +9,9 @@
 //! ```
 
 use super::fail;
+use crate::analysis::extract::{ExtractOptions, GlideOptions};
 use crate::diagnose::catalogue::{self, CatalogueSettings};
 use crate::diagnose::evidence::{EnvelopeOptions, ObservedOptions};
-use crate::diagnose::extract::{ExtractOptions, GlideOptions};
 use crate::io::paths::with_suffix;
 use crate::petsc::Petsc;
 use crate::workflow::diagnose::{

@@ -333,7 +333,7 @@ fn print_summary(job: &Job, report: &Report) {
     );
     println!(
         "  damping: {} real modes, Rayleigh α = {:.4} 1/s, β = {:.4e} s; curve knots at {:?} Hz",
-        damping.modes.iter().filter(|m| m.kept).count(),
+        damping.modes.iter().filter(|m| m.kept()).count(),
         damping.rayleigh.alpha,
         damping.rayleigh.beta,
         damping

@@ -5,8 +5,8 @@
 //! metadata merged into a [`Job`], the job run, and its summary printed.
 
 use super::{fail, stderr_progress};
+use crate::analysis::extract::ExtractOptions;
 use crate::audio::chain::DampingCurve;
-use crate::diagnose::extract::ExtractOptions;
 use crate::fem::Material;
 use crate::inverse::impact::MapOptions;
 use crate::io::fit_material::read_material as read_fit_material;

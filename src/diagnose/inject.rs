@@ -129,7 +129,7 @@
 //! * **`pitch_glide`**: the generator's g is the relative offset at t = 0 of every mode,
 //!   f(t) = f₀(1 + g e^(−2dt)). Reports whose glide observable is the chirp fit's offset at the
 //!   onset (`glide_observable = "offset_at_onset"`, the CLI since the chirp-aware stage of
-//!   [`crate::diagnose::extract::glide`]) detect that same g: expected = the labels' g. For
+//!   [`crate::analysis::extract::glide`]) detect that same g: expected = the labels' g. For
 //!   older reports the detector's g is the early-minus-late frequency
 //!   difference y = (f_early − f_late)/f of its most energetic mode (largest mean_c a_c²/ω²),
 //!   with f_early, f_late fitted on the two halves of the analysis span L after the onset. A
@@ -142,7 +142,7 @@
 //!   detector's model y_k = g Q_k² is itself misspecified for this law (the injected y_k
 //!   depends on d_k, not on the energy), so only its reference mode is like for like. This
 //!   is a first-order reference, exact for one least-squares tone per half: measured with
-//!   [`crate::diagnose::extract_modes`] on each half of 1 s of three gliding modes
+//!   [`crate::analysis::extract_modes`] on each half of 1 s of three gliding modes
 //!   (g = 0.3 %, d = 4, 12, 27 1/s, about 60 dB SNR), each half of a mode came out as about
 //!   four poles spread over a few Hz, and the loudest pole's y/g was 0.37, 0.22, (late half
 //!   lost) against 0.31, 0.25, 0.25 here. What the diagnosis reports as early and late
@@ -622,7 +622,7 @@ pub struct ModeTrack {
 
 /// θ(t) [rad], the exact phase of a glide f(t) = f₀(1 + g e^(−2dt)): one function for the
 /// generator and the extraction that measures it.
-pub use super::extract::glide::glide_phase;
+pub use crate::analysis::extract::glide::glide_phase;
 
 /// Renders `n_channels` channels of `n_samples` samples at `sample_rate` [Hz] from `tracks`,
 /// with relative pitch glide g (`glide`, module docs) or without (then each channel is a

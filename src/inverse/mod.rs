@@ -3,7 +3,6 @@
 //!
 //! | module       | what it does |
 //! |--------------|--------------|
-//! | [`estimate`] | high-resolution modal estimates (f, d, amplitudes) straight from a recording |
 //! | [`damping`]  | stage 1 of the material fit: many free modes + filtered noise fitted to a recording, real modes → damping curve d(f) and Rayleigh α, β |
 //! | [`optim`]    | Adam with bounds, the optimiser the fits share |
 //! | [`material`] | stage 2 of the material fit: E and ν by the hybrid transport→spectral schedule |
@@ -13,7 +12,6 @@
 //! | [`shape`]    | shape from sound: the thickness and morph fits on the forward chain of [`crate::shape`] (scan, safeguarded Gauss–Newton per grid level, extrapolation in the grid spacing) |
 
 pub mod damping;
-pub mod estimate;
 pub mod geometry;
 pub mod impact;
 pub mod loaded_match;

@@ -3,11 +3,11 @@
 //! held-out microphones, and the residual envelopes against the pre-roll's floor.
 
 use super::Job;
+use crate::analysis::extract::{extract_modes, fit_glides, ModalExtraction};
+use crate::analysis::recording::{load_recording, GainPolicy, RecordingOptions};
 use crate::audio::health::ChannelHealth;
-use crate::audio::recording::{load_recording, GainPolicy, RecordingOptions};
 use crate::diagnose::catalogue::{ObservedMode, ResidualEnvelopes};
 use crate::diagnose::evidence;
-use crate::diagnose::extract::{extract_modes, fit_glides, ModalExtraction};
 use crate::workflow::Progress;
 use serde::{Deserialize, Serialize};
 use std::time::Instant;
