@@ -17,6 +17,7 @@
 //! | io         | [`io`]       | HDF5 results with an XDMF sidecar, written atomically |
 //!
 //! [`petsc`] is the one thin unsafe boundary: raw bindgen bindings under safe RAII handles.
+//! [`numerics`] holds the small numerical tools the stages share (3-vectors, median, golden section).
 //! [`cli`] is the `diffsound` command line (arguments, configuration files, printing); [`random`] the seeded generator every stage shares.
 
 pub mod analysis;
@@ -29,6 +30,7 @@ pub mod fem;
 pub mod inverse;
 pub mod io;
 pub mod mesh;
+pub mod numerics;
 pub mod petsc;
 pub mod random;
 pub mod shape;

@@ -920,9 +920,7 @@ pub fn add_noise(
 // Geometry: strike, support, added mass, stiffened sector
 // ---------------------------------------------------------------------------------------------
 
-fn dot(a: [f64; 3], b: [f64; 3]) -> f64 {
-    a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
-}
+use crate::numerics::{dot, median};
 
 fn unit(a: [f64; 3]) -> [f64; 3] {
     let n = dot(a, a).sqrt();
@@ -1354,25 +1352,13 @@ pub fn equivalent_half_sine_duration(
     let best = (0..n)
         .min_by(|&a, &b| cost(grid[a]).total_cmp(&cost(grid[b])))
         .expect("grid is not empty");
-    let (mut lo, mut hi) = (grid[best.saturating_sub(1)], grid[(best + 1).min(n - 1)]);
-    let phi = 0.5 * (5f64.sqrt() - 1.0);
-    let (mut a, mut b) = (hi - phi * (hi - lo), lo + phi * (hi - lo));
-    let (mut ca, mut cb) = (cost(a), cost(b));
-    for _ in 0..100 {
-        if ca < cb {
-            hi = b;
-            b = a;
-            cb = ca;
-            a = hi - phi * (hi - lo);
-            ca = cost(a);
-        } else {
-            lo = a;
-            a = b;
-            ca = cb;
-            b = lo + phi * (hi - lo);
-            cb = cost(b);
-        }
-    }
+    let (lo, hi) = crate::numerics::golden_section(
+        grid[best.saturating_sub(1)],
+        grid[(best + 1).min(n - 1)],
+        100,
+        &cost,
+        |ca, cb| ca < cb,
+    );
     Ok((0.5 * (lo + hi)).exp())
 }
 
@@ -1506,21 +1492,6 @@ pub fn frequency_in_name(name: &str) -> Option<f64> {
         });
     let value: f64 = head[start..].parse().ok()?;
     (value > 0.0 && value.is_finite()).then_some(value)
-}
-
-/// The median (mean of the two middle values for an even count); `None` if empty.
-pub fn median(values: &[f64]) -> Option<f64> {
-    let mut v: Vec<f64> = values.to_vec();
-    if v.is_empty() {
-        return None;
-    }
-    v.sort_by(f64::total_cmp);
-    let n = v.len();
-    Some(if n % 2 == 1 {
-        v[n / 2]
-    } else {
-        0.5 * (v[n / 2 - 1] + v[n / 2])
-    })
 }
 
 /// Relative errors of one parameter over the cases.
@@ -2732,9 +2703,6 @@ mod tests {
         // Nearest first, one to one, beyond the tolerance unpaired.
         let pairs = pair_by_frequency(&[1000.0, 1003.0, 5000.0], &[1002.5, 1000.5, 7000.0], 0.002);
         assert_eq!(pairs, vec![(1, 0), (0, 1)]);
-        assert_eq!(median(&[3.0, 1.0, 2.0]), Some(2.0));
-        assert_eq!(median(&[4.0, 1.0, 2.0, 3.0]), Some(2.5));
-        assert_eq!(median(&[]), None);
         let e = ErrorSummary::of(&[0.1, -0.3, 0.2, f64::NAN]).unwrap();
         assert_eq!((e.n, e.max_abs), (3, 0.3));
         assert!((e.median_abs - 0.2).abs() < 1e-15 && (e.median - 0.1).abs() < 1e-15);

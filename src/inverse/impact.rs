@@ -230,6 +230,7 @@ use crate::audio::chain::Strike;
 use crate::audio::excitation::modal_factor;
 use crate::audio::ChannelFault;
 use crate::mesh::TetMesh;
+use crate::numerics::{cross, golden_section, norm, sub};
 
 #[cfg(test)]
 mod tests;
@@ -1469,28 +1470,13 @@ fn score_vertex(
                 .collect();
             let i = argmax(grid.iter().copied());
             // Golden section on [x_(i−1), x_(i+1)] (clamped to the range).
-            let (mut a, mut b) = (
+            let (a, b) = golden_section(
                 (lo + step * (i as f64 - 1.0)).max(lo),
                 (lo + step * (i as f64 + 1.0)).min(hi),
+                SIGMA_GOLDEN_STEPS,
+                |x| eval(x).0,
+                |f1, f2| f1 >= f2,
             );
-            let g = 0.5 * (5f64.sqrt() - 1.0);
-            let (mut x1, mut x2) = (b - g * (b - a), a + g * (b - a));
-            let (mut f1, mut f2) = (eval(x1).0, eval(x2).0);
-            for _ in 0..SIGMA_GOLDEN_STEPS {
-                if f1 >= f2 {
-                    b = x2;
-                    x2 = x1;
-                    f2 = f1;
-                    x1 = b - g * (b - a);
-                    f1 = eval(x1).0;
-                } else {
-                    a = x1;
-                    x1 = x2;
-                    f1 = f2;
-                    x2 = a + g * (b - a);
-                    f2 = eval(x2).0;
-                }
-            }
             let x = 0.5 * (a + b);
             let inner = eval(x);
             // The grid point wins when the optimum sits on the range's edge.
@@ -1831,20 +1817,4 @@ pub fn symmetry_orbit(
         })
         .map(|(u, _)| u)
         .collect())
-}
-
-fn sub(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
-    [a[0] - b[0], a[1] - b[1], a[2] - b[2]]
-}
-
-fn cross(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
-    [
-        a[1] * b[2] - a[2] * b[1],
-        a[2] * b[0] - a[0] * b[2],
-        a[0] * b[1] - a[1] * b[0],
-    ]
-}
-
-fn norm(a: [f64; 3]) -> f64 {
-    (a[0] * a[0] + a[1] * a[1] + a[2] * a[2]).sqrt()
 }
