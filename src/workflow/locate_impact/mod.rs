@@ -66,6 +66,7 @@
 //!   candidates (and the truth, when known) marked.
 
 pub mod evaluate;
+pub mod job;
 pub mod measure;
 pub mod transfer;
 pub mod write;
