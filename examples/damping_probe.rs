@@ -3,7 +3,7 @@
 //! `cargo run --release --example damping_probe [duration_s] [steps] [skip_s] [max_modes] [out.json]`
 //! (defaults 1 s, the fit's default steps, skip and mode count; with a fifth argument the
 //! whole fit is written there as JSON).
-use diffsound::audio::recording::{load_recording, RecordingOptions};
+use diffsound::analysis::recording::{load_recording, RecordingOptions};
 use diffsound::inverse::damping::{fit_damping, DampingFitSettings, ModeVerdict};
 
 fn main() {
@@ -52,7 +52,7 @@ fn main() {
     })
     .expect("damping fit");
     let total = started.elapsed().as_secs_f64();
-    let count = |v: ModeVerdict| fit.modes.iter().filter(|m| m.reason == v).count();
+    let count = |v: ModeVerdict| fit.modes.iter().filter(|m| m.verdict().reason == v).count();
     println!(
         "modes: {} estimated, {} refined, {} kept in {} of {} peaks; rejected: {} too fast, {} too slow, {} low SNR, {} weak, {} in peaks off the curve",
         fit.n_estimated,

@@ -58,7 +58,7 @@
 //!      (f_base/f)² − 1, so expected μ = its largest value (the lowest mode's for the
 //!      `fluid_loading` variant). n/a when another FEM effect moved the frequencies too.
 //!    * `pitch_glide`: reports with `glide_observable = "offset_at_onset"` (the chirp fit of
-//!      `diagnose::extract::glide`) detect the generator's own g, the offset at t = 0 of
+//!      `analysis::extract::glide`) detect the generator's own g, the offset at t = 0 of
 //!      f₀(1 + g e^(−2dt)): expected = the labels' g. In older reports
 //!      the detector's g is (f_early − f_late)/f of its most energetic mode;
 //!      the generator's g is the offset at t = 0 of f₀(1 + g e^(−2dt)). Expected:

@@ -148,7 +148,7 @@ fn main() {
                     .iter()
                     .filter(|st| st.failure.is_none())
                 {
-                    let net = diffsound::inverse::neural_sdf::NeuralSdf::from_parameters(
+                    let net = diffsound::shape::neural_sdf::NeuralSdf::from_parameters(
                         fit.network.clone(),
                         st.parameters.clone(),
                     )

@@ -38,6 +38,7 @@
 //!       [--orbit-rtol 0.1] [MESH...]
 //! Default meshes: examples/bowl/bowl.msh (the shared bowl), examples/solids/plate.msh,
 //! examples/solids/mug.msh.
+use diffsound::analysis::MeasuredMode;
 use diffsound::assembly;
 use diffsound::audio::chain::{DampingCurve, DampingModel, ModalChain, Strike};
 use diffsound::audio::excitation::{ContactForce, Response};
@@ -49,8 +50,7 @@ use diffsound::eigen::{self, EigenConfig, ModeRequest};
 use diffsound::fem::Material;
 use diffsound::inverse::impact::{
     cluster_amplitudes, drive_signatures, fit_amplitudes, forward_amplitudes, likelihood_map,
-    surface_candidates, symmetry_orbit, AmplitudeFitOptions, MapOptions, Pole, SurfaceGraph,
-    Transfer,
+    surface_candidates, symmetry_orbit, AmplitudeFitOptions, MapOptions, SurfaceGraph, Transfer,
 };
 use diffsound::mesh::{self, ReadOptions};
 use diffsound::petsc::Petsc;
@@ -305,12 +305,9 @@ fn main() {
         let damping = DampingModel::PerMode {
             decay_rates: decays.clone(),
         };
-        let poles: Vec<Pole> = keep
+        let poles: Vec<MeasuredMode> = keep
             .iter()
-            .map(|&k| Pole {
-                frequency_hz: bank1.frequencies_hz[k],
-                decay_rate: bank1.decay_rates[k],
-            })
+            .map(|&k| MeasuredMode::pole(bank1.frequencies_hz[k], bank1.decay_rates[k]))
             .collect();
         let frequencies: Vec<f64> = poles.iter().map(|p| p.frequency_hz).collect();
         let ids = cluster_ids(&frequencies, CLUSTER_RTOL);

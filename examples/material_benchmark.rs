@@ -26,12 +26,12 @@
 //!        [--json FILE] MESH...
 //! (LIST: comma-separated among p1-fixed, p2-fixed, p1-learned, p2-learned; default all four.)
 //! Markdown tables go to stdout, progress to stderr.
+use diffsound::analysis::estimate::{estimate_modes, EstimateOptions};
 use diffsound::assembly::{self, Assembled};
 use diffsound::audio::chain::{DampingModel, ModalChain, Strike};
 use diffsound::audio::stft::spectrogram_error;
 use diffsound::audio::synth::render_samples;
 use diffsound::eigen::reduced::PoissonBasis;
-use diffsound::inverse::estimate::{estimate_modes, EstimateOptions};
 use diffsound::inverse::material::{
     fit_material, render_channels, rms_matched_log_gains, FitStep, MaterialFitSettings,
     MaterialProblem,

@@ -90,7 +90,7 @@ fn main() {
         .fold(0.0, f64::max);
     println!("reduced vs full at true nu: max rel {rel:e}");
     let estimate =
-        diffsound::inverse::estimate::estimate_modes(&[target.clone()], fs, &Default::default())
+        diffsound::analysis::estimate::estimate_modes(&[target.clone()], fs, &Default::default())
             .unwrap();
     let target_modes_hz: Vec<f64> = estimate.modes.iter().map(|m| m.frequency_hz).collect();
     println!("estimated {} target modes", target_modes_hz.len());

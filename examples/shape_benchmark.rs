@@ -29,13 +29,13 @@
 //! `diffsound::inverse::shape`, "Grid bias").
 use diffsound::fem::Material;
 use diffsound::inverse::shape::{
-    answers_with_line, fit_morph, fit_thickness, normalise_surface, read_surface, reference_depth,
-    replica_levels, replica_line_levels, replica_shift, union_box, FitEvaluation, SampledField,
-    ShapeFamily, ShapeFit, ShapeFitSettings, SpectrumTarget,
+    answers_with_line, fit_morph, fit_thickness, replica_levels, replica_line_levels,
+    replica_shift, FitEvaluation, ShapeFamily, ShapeFit, ShapeFitSettings, SpectrumTarget,
 };
-use diffsound::mesh::{BackgroundGrid, MarchingOptions, SignedDistance, TriangleSurface};
 use diffsound::petsc::Petsc;
 use diffsound::random::SplitMix64;
+use diffsound::shape::{normalise_surface, read_surface, reference_depth, union_box, SampledField};
+use diffsound::shape::{BackgroundGrid, MarchingOptions, SignedDistance, TriangleSurface};
 use std::sync::Arc;
 use std::time::Instant;
 

@@ -13,8 +13,8 @@
 //! point S of the continuous signed distance, and for every t the tets, volume, pieces, snapped
 //! values, clusters, time split and the first modes' frequencies. `--grid-max` uses S_grid as the
 //! reference depth (the first version's definition); `--exact` moves every crossing onto the
-//! continuous field's zero ([`diffsound::inverse::shape::refine_crossings`]); `--curved` does that
-//! and moves every boundary mid-edge node onto it too ([`diffsound::mesh::curve_boundary`], the
+//! continuous field's zero ([`diffsound::shape::refine_crossings`]); `--curved` does that
+//! and moves every boundary mid-edge node onto it too ([`diffsound::shape::curve_boundary`], the
 //! thickness fit's default body); `--subdivide` splits
 //! every marched tet into eight (the same polyhedral body: what changes is the finite-element
 //! error alone). `--scan` prints
@@ -25,9 +25,11 @@
 //! side on the same matrices, and prints both times, SLEPc's restarts and the largest
 //! eigenvalue difference.
 use diffsound::fem::Material;
-use diffsound::inverse::shape::{shape_spectrum, ShapeSpectrum};
-use diffsound::mesh::{self, BackgroundGrid, MarchingOptions, SignedDistance, TriangleSurface};
+use diffsound::mesh::{self};
 use diffsound::petsc::Petsc;
+use diffsound::shape;
+use diffsound::shape::{shape_spectrum, ShapeSpectrum};
+use diffsound::shape::{BackgroundGrid, MarchingOptions, SignedDistance, TriangleSurface};
 
 fn list<T: std::str::FromStr>(s: &str) -> Vec<T> {
     s.split(',')
@@ -128,20 +130,19 @@ fn main() {
                             s.min(depth - s)
                         })
                         .collect();
-                    let marched = mesh::march(&grid, &values, None, &options).unwrap();
+                    let marched = shape::march(&grid, &values, None, &options).unwrap();
                     let f = |p: [f64; 3]| {
                         let s = radius - (p[0] * p[0] + p[1] * p[1] + p[2] * p[2]).sqrt();
                         s.min(depth - s)
                     };
                     let linear = if exact {
-                        diffsound::inverse::shape::refine_crossings(&marched, &grid, &f, None, 0.01)
-                            .0
+                        diffsound::shape::refine_crossings(&marched, &grid, &f, None, 0.01).0
                     } else {
                         marched.mesh.clone()
                     };
                     let quadratic = mesh::lift_to_quadratic(&linear);
                     let quadratic = if curved {
-                        mesh::curve_boundary(&quadratic, &f, None, 0.5, 0.05).0
+                        shape::curve_boundary(&quadratic, &f, None, 0.5, 0.05).0
                     } else {
                         quadratic
                     };
@@ -200,7 +201,9 @@ fn main() {
         }
         return;
     }
-    let mut surface: TriangleSurface = mesh::read_obj(std::path::Path::new(&path)).unwrap().surface;
+    let mut surface: TriangleSurface = shape::read_obj(std::path::Path::new(&path))
+        .unwrap()
+        .surface;
     let (lo, hi) = surface.bounding_box();
     let diag = (0..3).map(|d| (hi[d] - lo[d]).powi(2)).sum::<f64>().sqrt();
     let centre = [0, 1, 2].map(|d| 0.5 * (lo[d] + hi[d]));
@@ -255,13 +258,13 @@ fn main() {
         }
         // Crossings moved onto the continuous shell's zero along their edges.
         let clock = std::time::Instant::now();
-        let marched = mesh::march(g, &shell, None, &options).map_err(|e| e.to_string())?;
+        let marched = shape::march(g, &shell, None, &options).map_err(|e| e.to_string())?;
         let f = |x: [f64; 3]| {
             let d = sdf.signed_distance(x);
             d.min(depth - d)
         };
         let (linear, moved, kept) = if exact {
-            diffsound::inverse::shape::refine_crossings(&marched, g, &f, None, 0.01)
+            diffsound::shape::refine_crossings(&marched, g, &f, None, 0.01)
         } else {
             (marched.mesh.clone(), Vec::new(), 0)
         };
@@ -272,7 +275,7 @@ fn main() {
         };
         let quadratic = mesh::lift_to_quadratic(&linear);
         let quadratic = if curved {
-            let (q, _, report) = mesh::curve_boundary(&quadratic, &f, None, 0.5, 0.05);
+            let (q, _, report) = shape::curve_boundary(&quadratic, &f, None, 0.5, 0.05);
             if root {
                 eprintln!("  curved: {report:?}");
             }
@@ -343,7 +346,7 @@ fn main() {
             tets: linear.n_tets(),
             p2_nodes: quadratic.n_nodes(),
             volume: linear.volume(),
-            timings: diffsound::inverse::shape::StepTimings {
+            timings: diffsound::shape::StepTimings {
                 meshing,
                 assembly,
                 solve,

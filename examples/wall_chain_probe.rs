@@ -5,20 +5,21 @@
 //!
 //!   mpirun -np 2 target/release/examples/wall_chain_probe
 use diffsound::fem::Material;
-use diffsound::inverse::shape::{reference_depth, refine_near_wall, ShapeFamily};
-use diffsound::mesh;
+use diffsound::inverse::shape::{refine_near_wall, ShapeFamily};
 use diffsound::petsc::Petsc;
+use diffsound::shape;
+use diffsound::shape::reference_depth;
 
 fn main() {
     let universe = mpi::initialize().unwrap();
     let petsc = Petsc::initialize(universe, "probe", &[]).unwrap();
-    let surface = mesh::TriangleSurface::ellipsoid([0.05, 0.04, 0.03], 24);
-    let sdf = std::sync::Arc::new(mesh::SignedDistance::new(&surface).unwrap());
+    let surface = shape::TriangleSurface::ellipsoid([0.05, 0.04, 0.03], 24);
+    let sdf = std::sync::Arc::new(shape::SignedDistance::new(&surface).unwrap());
     let depth = reference_depth(&sdf, &surface).unwrap();
-    let grid0 =
-        mesh::BackgroundGrid::covering([-0.05, -0.04, -0.03], [0.05, 0.04, 0.03], 12, 1.0).unwrap();
+    let grid0 = shape::BackgroundGrid::covering([-0.05, -0.04, -0.03], [0.05, 0.04, 0.03], 12, 1.0)
+        .unwrap();
     let solid0 = sdf.evaluate(&grid0.vertex_positions());
-    let options = mesh::MarchingOptions::default();
+    let options = shape::MarchingOptions::default();
     let material = Material::preset("ceramic").unwrap();
     let n = 8;
     let t0 = 0.45;

@@ -17,12 +17,12 @@
 //! that the spread reads as a thickness: spread / |d ln f/dt| per mode.
 
 use diffsound::fem::Material;
-use diffsound::inverse::shape::{
-    curved_shell_spectrum, normalise_surface, read_surface, reference_depth, refine_unresolved,
-    shifted_covering,
-};
-use diffsound::mesh::{MarchingOptions, SignedDistance};
+use diffsound::inverse::shape::refine_unresolved;
 use diffsound::petsc::Petsc;
+use diffsound::shape::{
+    curved_shell_spectrum, normalise_surface, read_surface, reference_depth, shifted_covering,
+};
+use diffsound::shape::{MarchingOptions, SignedDistance};
 
 fn list<T: std::str::FromStr>(s: &str) -> Vec<T> {
     s.split(',')

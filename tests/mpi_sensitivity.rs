@@ -61,6 +61,7 @@ use diffsound::inverse::loaded_match::{
 };
 use diffsound::mesh::{self, TetMesh};
 use diffsound::petsc::Petsc;
+use diffsound::shape;
 use mpi::collective::{CommunicatorCollectives, SystemOperation};
 use std::path::PathBuf;
 use std::process::Command;
@@ -710,8 +711,8 @@ fn check_audio_loss(petsc: &Petsc, c: &mut Checker, label: &str, m: &TetMesh, n:
 /// Members of a near-degenerate cluster (modes 3–4 here, 0.16 % apart) are compared as the
 /// cluster mean, which is what the chain differentiates. Bar: 1e-4 relative to λ_k/t.
 fn check_shape_chain(petsc: &Petsc, c: &mut Checker) {
-    use diffsound::inverse::shape::shape_spectrum;
-    let grid = mesh::BackgroundGrid::covering([-0.05, -0.04, -0.03], [0.05, 0.04, 0.03], 12, 1.0)
+    use diffsound::shape::shape_spectrum;
+    let grid = shape::BackgroundGrid::covering([-0.05, -0.04, -0.03], [0.05, 0.04, 0.03], 12, 1.0)
         .expect("grid");
     let solid: Vec<f64> = grid
         .vertex_positions()
@@ -720,17 +721,17 @@ fn check_shape_chain(petsc: &Petsc, c: &mut Checker) {
             1.0 - ((p[0] / 0.05).powi(2) + (p[1] / 0.04).powi(2) + (p[2] / 0.03).powi(2)).sqrt()
         })
         .collect();
-    let options = mesh::MarchingOptions::default();
+    let options = shape::MarchingOptions::default();
     let material = Material::preset("ceramic").expect("preset");
     let n = 6;
     let t0 = 0.45;
-    let shell = mesh::shell(&solid, t0).expect("shell");
+    let shell = shape::shell(&solid, t0).expect("shell");
     let base = shape_spectrum(petsc, &grid, &shell.values, &options, &material, n, true)
         .expect("spectrum");
     let gradient = base.gradient.as_ref().expect("gradient");
     let h = 1e-5;
     let at = |t: f64| {
-        let s = mesh::shell(&solid, t).expect("shell");
+        let s = shape::shell(&solid, t).expect("shell");
         let sp = shape_spectrum(petsc, &grid, &s.values, &options, &material, n, false)
             .expect("spectrum");
         (sp.eigenvalues, sp.tets, sp.report.snapped_vertices)
@@ -767,7 +768,7 @@ fn check_shape_chain(petsc: &Petsc, c: &mut Checker) {
 }
 
 /// Curved shell chain (issue 7): dλ_k/dt of the hollow body meshed with exact crossings and a
-/// curved P2 boundary ([`diffsound::inverse::shape::curved_shell_spectrum`]: crossings and
+/// curved P2 boundary ([`diffsound::shape::curved_shell_spectrum`]: crossings and
 /// boundary mid-edge nodes move with t on the inner wall) against central differences of
 /// re-meshed, re-solved spectra. The solid is a triangulated ellipsoid (semi-axes 50, 40, 30 mm,
 /// 24 bands), its signed distance sampled on a 12×10×8-cell grid, S its deepest point's depth,
@@ -785,11 +786,12 @@ fn check_shape_chain(petsc: &Petsc, c: &mut Checker) {
 /// exact gradient (the serial check: `curved_shell_chain_follows_the_nodes_on_plain_and_refined_grids`
 /// in `src/inverse/shape/tests.rs`).
 fn check_curved_shell_chain(petsc: &Petsc, c: &mut Checker, wall_levels: usize) {
-    use diffsound::inverse::shape::{curved_shell_spectrum, reference_depth, refine_near_wall};
-    let surface = mesh::TriangleSurface::ellipsoid([0.05, 0.04, 0.03], 24);
-    let sdf = mesh::SignedDistance::new(&surface).expect("sdf");
+    use diffsound::inverse::shape::refine_near_wall;
+    use diffsound::shape::{curved_shell_spectrum, reference_depth};
+    let surface = shape::TriangleSurface::ellipsoid([0.05, 0.04, 0.03], 24);
+    let sdf = shape::SignedDistance::new(&surface).expect("sdf");
     let depth = reference_depth(&sdf, &surface).expect("depth");
-    let grid = mesh::BackgroundGrid::covering([-0.05, -0.04, -0.03], [0.05, 0.04, 0.03], 12, 1.0)
+    let grid = shape::BackgroundGrid::covering([-0.05, -0.04, -0.03], [0.05, 0.04, 0.03], 12, 1.0)
         .expect("grid");
     let solid = sdf.evaluate(&grid.vertex_positions());
     let (grid, solid) = if wall_levels > 0 {
@@ -798,7 +800,7 @@ fn check_curved_shell_chain(petsc: &Petsc, c: &mut Checker, wall_levels: usize) 
     } else {
         (grid, solid)
     };
-    let options = mesh::MarchingOptions::default();
+    let options = shape::MarchingOptions::default();
     let material = Material::preset("ceramic").expect("preset");
     let (n, t0, h) = (if wall_levels > 0 { 8 } else { 6 }, 0.45, 1e-5);
     let bar = 1e-4;
@@ -846,15 +848,16 @@ fn check_curved_shell_chain(petsc: &Petsc, c: &mut Checker, wall_levels: usize) 
 }
 
 /// Morph chain (issue 7): dλ_k/dc of m = c·A + (1 − c)·B through marching → P2 → SLEPc → back
-/// to the field → [`mesh::morph_vjp`], against central differences of re-meshed, re-solved
+/// to the field → [`shape::morph_vjp`], against central differences of re-meshed, re-solved
 /// spectra. A = 1 − |x/a| for the ellipsoid of semi-axes (50, 40, 30) mm, B the same for
 /// (38, 46, 27) mm turned by 20° about z (so the morph changes shape, not only size), c = 0.4,
 /// on the 12×10×8-cell grid of the shell check, 6 modes, ceramic; h = 1e-5, cluster means,
 /// bar 1e-4 relative to λ_k (c is a dimensionless weight of order 1).
 fn check_morph_chain(petsc: &Petsc, c: &mut Checker) {
-    use diffsound::inverse::shape::shape_spectrum;
-    let grid = mesh::BackgroundGrid::covering([-0.05, -0.046, -0.03], [0.05, 0.046, 0.03], 12, 1.0)
-        .expect("grid");
+    use diffsound::shape::shape_spectrum;
+    let grid =
+        shape::BackgroundGrid::covering([-0.05, -0.046, -0.03], [0.05, 0.046, 0.03], 12, 1.0)
+            .expect("grid");
     let ellipsoid = |axes: [f64; 3], angle: f64| -> Vec<f64> {
         let (cs, sn) = (angle.cos(), angle.sin());
         grid.vertex_positions()
@@ -868,14 +871,14 @@ fn check_morph_chain(petsc: &Petsc, c: &mut Checker) {
     };
     let a = ellipsoid([0.05, 0.04, 0.03], 0.0);
     let b = ellipsoid([0.038, 0.046, 0.027], 20f64.to_radians());
-    let options = mesh::MarchingOptions::default();
+    let options = shape::MarchingOptions::default();
     let material = Material::preset("ceramic").expect("preset");
     let n = 6;
     let c0 = 0.4;
     let base = shape_spectrum(
         petsc,
         &grid,
-        &mesh::morph(&a, &b, c0).expect("morph"),
+        &shape::morph(&a, &b, c0).expect("morph"),
         &options,
         &material,
         n,
@@ -888,7 +891,7 @@ fn check_morph_chain(petsc: &Petsc, c: &mut Checker) {
         let sp = shape_spectrum(
             petsc,
             &grid,
-            &mesh::morph(&a, &b, cw).expect("morph"),
+            &shape::morph(&a, &b, cw).expect("morph"),
             &options,
             &material,
             n,
@@ -911,7 +914,7 @@ fn check_morph_chain(petsc: &Petsc, c: &mut Checker) {
             .find(|r| r.contains(&k))
             .cloned()
             .unwrap_or(k..k + 1);
-        let exact = mesh::morph_vjp(&a, &b, c0, &gradient[k]).expect("vjp").c;
+        let exact = shape::morph_vjp(&a, &b, c0, &gradient[k]).expect("vjp").c;
         let fd = group
             .clone()
             .map(|j| (plus[j] - minus[j]) / (2.0 * h))
@@ -927,7 +930,7 @@ fn check_morph_chain(petsc: &Petsc, c: &mut Checker) {
 }
 
 /// Neural-field chain (issue 7, task 3): θ → s(x_i; θ) at the grid vertices (the MLP of
-/// `inverse::neural_sdf`) → marching → P2 → SLEPc → dλ/ds → the network's backpropagation.
+/// `shape::neural_sdf`) → marching → P2 → SLEPc → dλ/ds → the network's backpropagation.
 /// The network (2 octaves, 12 × 12 softplus units) is pre-fitted for 200 updates to 8³ voxels of
 /// the ellipsoid of the shell check (semi-axes 50, 40, 30 mm), built here from the analytic
 /// field, so it encloses one smooth body; 12×10×8-cell grid, 6 modes, ceramic. For three seeded
@@ -947,7 +950,7 @@ fn check_morph_chain(petsc: &Petsc, c: &mut Checker) {
 /// turns with θ. Without those turns this check missed by 1e-2.
 fn check_neural_chain(petsc: &Petsc, c: &mut Checker, curved: bool) {
     use diffsound::inverse::geometry::{field_spectrum, prefit, PrefitSettings, Voxels};
-    use diffsound::inverse::neural_sdf::{NeuralSdf, NeuralSdfConfig};
+    use diffsound::shape::neural_sdf::{NeuralSdf, NeuralSdfConfig};
     let axes = [0.05, 0.04, 0.03];
     let inside = |p: [f64; 3]| {
         (p[0] / axes[0]).powi(2) + (p[1] / axes[1]).powi(2) + (p[2] / axes[2]).powi(2) < 1.0
@@ -984,10 +987,10 @@ fn check_neural_chain(petsc: &Petsc, c: &mut Checker, curved: bool) {
         },
     )
     .expect("pre-fit");
-    let grid = mesh::BackgroundGrid::covering([-0.05, -0.04, -0.03], [0.05, 0.04, 0.03], 12, 1.0)
+    let grid = shape::BackgroundGrid::covering([-0.05, -0.04, -0.03], [0.05, 0.04, 0.03], 12, 1.0)
         .expect("grid");
     let points = grid.vertex_positions();
-    let options = mesh::MarchingOptions::default();
+    let options = shape::MarchingOptions::default();
     let material = Material::preset("ceramic").expect("preset");
     let modes = 6;
     let theta0 = net.parameters().to_vec();

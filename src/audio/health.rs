@@ -113,8 +113,8 @@ fn rms(x: &[f64]) -> f64 {
     (x.iter().map(|v| v * v).sum::<f64>() / x.len() as f64).sqrt()
 }
 
-/// [`assess`] on a loaded recording, its pre-roll before [`crate::audio::recording::Recording::onset_sample`].
-pub fn assess_recording(rec: &crate::audio::recording::Recording) -> Vec<ChannelHealth> {
+/// [`assess`] on a loaded recording, its pre-roll before [`crate::analysis::recording::Recording::onset_sample`].
+pub fn assess_recording(rec: &crate::analysis::recording::Recording) -> Vec<ChannelHealth> {
     assess(
         &rec.names,
         &rec.channels,

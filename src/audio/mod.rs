@@ -9,7 +9,7 @@
 //! | [`radiation`] | acoustic transfer of a mode: multipole fit to the surface motion, pressure at microphones, power |
 //! | [`stft`]      | magnitude spectrograms and their gradient |
 //! | [`loss`]      | multi-scale spectral loss, 1-D optimal-transport loss, hybrid schedule |
-//! | [`resample`], [`onset`], [`recording`] | recordings: rate conversion, onset, trim, gain |
+//! | [`resample`] | rate conversion (onset, trim and gain of a recording are in [`crate::analysis`]) |
 //! | WAV           | [`read_wav`], [`write_wav`] |
 
 pub mod chain;
@@ -17,9 +17,7 @@ pub mod excitation;
 pub mod health;
 pub mod loss;
 pub mod noise;
-pub mod onset;
 pub mod radiation;
-pub mod recording;
 pub mod resample;
 pub mod stft;
 pub mod synth;

@@ -123,6 +123,7 @@ use nalgebra::{DMatrix, DVector};
 use rustfft::num_complex::Complex64;
 
 use crate::mesh::{ElementOrder, TetMesh, TET10_EDGES};
+use crate::numerics::{cross, dot, norm, sub};
 
 /// Highest multipole degree a fit may use ((L+1)² unknowns; 441 at L = 20).
 pub const MAX_SUPPORTED_DEGREE: usize = 20;
@@ -625,7 +626,7 @@ impl SurfaceQuadrature {
                     .zip(values)
                     .map(|(&node, &v)| {
                         v * dot(
-                            normal,
+                            *normal,
                             [mode[3 * node], mode[3 * node + 1], mode[3 * node + 2]],
                         )
                     })
@@ -1148,26 +1149,6 @@ impl MultipoleExpansion {
         let p = self.direction_averaged_pressure(radius)?;
         Ok(vec![Complex64::new(p, 0.0); n_microphones])
     }
-}
-
-fn sub(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
-    [a[0] - b[0], a[1] - b[1], a[2] - b[2]]
-}
-
-fn dot(a: &[f64; 3], b: [f64; 3]) -> f64 {
-    a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
-}
-
-fn norm(a: [f64; 3]) -> f64 {
-    dot(&a, a).sqrt()
-}
-
-fn cross(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
-    [
-        a[1] * b[2] - a[2] * b[1],
-        a[2] * b[0] - a[0] * b[2],
-        a[0] * b[1] - a[1] * b[0],
-    ]
 }
 
 #[cfg(test)]

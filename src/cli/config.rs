@@ -147,6 +147,73 @@ pub struct OutputConfig {
     pub node_gradients: Option<bool>,
 }
 
+/// A command's TOML file (`--config`): read and parsed, or the defaults without one.
+pub fn load_toml<T: serde::de::DeserializeOwned + Default>(
+    path: &Option<PathBuf>,
+) -> Result<T, String> {
+    match path {
+        Some(p) => {
+            let text = std::fs::read_to_string(p).map_err(|e| format!("{}: {e}", p.display()))?;
+            toml::from_str::<T>(&text).map_err(|e| format!("{}: {e}", p.display()))
+        }
+        None => Ok(T::default()),
+    }
+}
+
+/// The `[material]` table of the shape fits' TOML files: a preset and E, ν, ρ (no damping).
+#[derive(Clone, Debug, Default, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ElasticConfig {
+    pub preset: Option<String>,
+    pub youngs_modulus: Option<f64>,
+    pub poisson_ratio: Option<f64>,
+    pub density: Option<f64>,
+}
+
+/// The shape fits' material flags.
+#[derive(clap::Args, Debug, Clone, Default)]
+pub struct ElasticArgs {
+    /// Material preset (default ceramic); --youngs Pa, --poisson, --density kg/m³ override it.
+    #[arg(long)]
+    pub material: Option<String>,
+    #[arg(long)]
+    pub youngs: Option<f64>,
+    #[arg(long)]
+    pub poisson: Option<f64>,
+    #[arg(long)]
+    pub density: Option<f64>,
+}
+
+impl ElasticConfig {
+    /// The preset with the flags' and then the file's E, ν, ρ, validated: the shared
+    /// resolution of [`MaterialConfig::resolve`] (shape fits take no damping).
+    pub fn resolve(&self, args: &ElasticArgs) -> Result<Material, String> {
+        let flags = MaterialConfig {
+            preset: args.material.clone(),
+            youngs_modulus: args.youngs,
+            poisson_ratio: args.poisson,
+            density: args.density,
+            ..Default::default()
+        };
+        let shared = MaterialConfig {
+            preset: self.preset.clone(),
+            youngs_modulus: self.youngs_modulus,
+            poisson_ratio: self.poisson_ratio,
+            density: self.density,
+            ..Default::default()
+        };
+        shared.resolve(&flags).map(|(material, _)| material)
+    }
+}
+
+/// The `[solver]` table of the fits' and the diagnosis's TOML files: PETSc options only.
+#[derive(Clone, Debug, Default, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct PetscConfig {
+    #[serde(default)]
+    pub petsc_options: Vec<String>,
+}
+
 impl FileConfig {
     pub fn load(path: &std::path::Path) -> Result<FileConfig, String> {
         let text = std::fs::read_to_string(path)

@@ -8,12 +8,12 @@
 //! diffsound diagnose --mesh bowl.msh --recording mic0.wav --recording mic1.wav --material fit.h5
 //! ```
 
-use super::fail;
+use super::config::{load_toml, PetscConfig};
+use super::resolve::{path_or, require_files, MeshArgs, RunArgs, StrikeArgs};
+use crate::analysis::extract::{ExtractOptions, GlideOptions};
 use crate::diagnose::catalogue::{self, CatalogueSettings};
 use crate::diagnose::evidence::{EnvelopeOptions, ObservedOptions};
-use crate::diagnose::extract::{ExtractOptions, GlideOptions};
 use crate::io::paths::with_suffix;
-use crate::petsc::Petsc;
 use crate::workflow::diagnose::{
     self as workflow, check_recording_window, resolve_material, split_microphones, unit_vector,
     CaseMeta, Job, Report,
@@ -29,35 +29,10 @@ pub struct DiagnoseArgs {
     /// TOML configuration file (see the README); flags given here override it.
     #[arg(long)]
     pub config: Option<PathBuf>,
-    /// A benchmark case's metadata.toml (examples/diagnose_generate.rs): mesh, recordings,
-    /// strike, microphones and support from there.
-    #[arg(long)]
-    pub case: Option<PathBuf>,
-    /// Tet mesh of the object (Gmsh .msh).
-    #[arg(long)]
-    pub mesh: Option<PathBuf>,
-    /// Length unit of the mesh (m, cm, mm, … or metres per unit).
-    #[arg(long)]
-    pub units: Option<String>,
-    /// Straighten the mid-edge nodes of curved 10-node tets whose map folds over (Jacobian
-    /// determinant ≤ 0 inside) instead of rejecting the mesh; the count is reported.
-    #[arg(long)]
-    pub straighten_invalid: bool,
-    /// A WAV file of the strike (repeat for several microphones).
-    #[arg(long = "recording")]
-    pub recordings: Vec<PathBuf>,
-    /// A fit-material HDF5 result to take E, ν and ρ from.
-    #[arg(long)]
-    pub material: Option<PathBuf>,
-    /// Young's modulus in Pa (instead of --material).
-    #[arg(long)]
-    pub youngs: Option<f64>,
-    /// Poisson's ratio (instead of --material).
-    #[arg(long)]
-    pub poisson: Option<f64>,
-    /// Density in kg/m³ (default 2700).
-    #[arg(long)]
-    pub density: Option<f64>,
+    #[command(flatten)]
+    pub input: MeshArgs,
+    #[command(flatten)]
+    pub strike: StrikeArgs,
     /// Held-out microphones, 0-based, comma separated (default: every second one).
     #[arg(long, value_delimiter = ',')]
     pub held_out: Vec<usize>,
@@ -84,12 +59,8 @@ pub struct DiagnoseArgs {
     /// costs minutes per case where the plain match leaves a distance above 10⁻³).
     #[arg(long)]
     pub no_loaded_mass_match: bool,
-    /// Print progress even when stderr is not a terminal.
-    #[arg(long, short)]
-    pub verbose: bool,
-    /// PETSc/SLEPc options, after `--`.
-    #[arg(last = true, allow_hyphen_values = true)]
-    pub petsc_options: Vec<String>,
+    #[command(flatten)]
+    pub run: RunArgs,
 }
 
 /// The TOML file (every key optional).
@@ -121,7 +92,7 @@ pub struct DiagnoseFileConfig {
     #[serde(default)]
     pub catalogue: CatalogueSettings,
     #[serde(default)]
-    pub solver: SolverSection,
+    pub solver: PetscConfig,
 }
 
 #[derive(Clone, Debug, Default, Deserialize)]
@@ -152,25 +123,17 @@ pub struct ModelSection {
     pub loaded_mass_match: Option<bool>,
 }
 
-#[derive(Clone, Debug, Default, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct SolverSection {
-    #[serde(default)]
-    pub petsc_options: Vec<String>,
-}
-
 /// Merges defaults < case metadata < config file < flags and validates.
 pub fn resolve(args: &DiagnoseArgs) -> Result<Job, String> {
-    let file = match &args.config {
-        Some(p) => {
-            let text = std::fs::read_to_string(p).map_err(|e| format!("{}: {e}", p.display()))?;
-            toml::from_str::<DiagnoseFileConfig>(&text)
-                .map_err(|e| format!("{}: {e}", p.display()))?
-        }
-        None => DiagnoseFileConfig::default(),
-    };
-    let case = args.case.as_deref().map(CaseMeta::read).transpose()?;
+    let file: DiagnoseFileConfig = load_toml(&args.config)?;
+    let case = args
+        .strike
+        .case
+        .as_deref()
+        .map(CaseMeta::read)
+        .transpose()?;
     let case_dir = args
+        .strike
         .case
         .as_ref()
         .and_then(|p| p.parent())
@@ -180,18 +143,13 @@ pub fn resolve(args: &DiagnoseArgs) -> Result<Job, String> {
     let units_from_case = case.as_ref().map(|c| c.mesh_unit.clone());
     let crate::cli::resolve::MeshChoice {
         mesh, unit_scale, ..
-    } = crate::cli::resolve::resolve_mesh(
-        &args.mesh,
+    } = args.input.resolve_existing(
         &file.mesh.clone().or(mesh_from_case),
-        &args.units,
         &file.units.clone().or(units_from_case),
         Some(2),
     )?;
-    if !mesh.is_file() {
-        return Err(format!("mesh {} does not exist", mesh.display()));
-    }
-    let recordings: Vec<PathBuf> = if !args.recordings.is_empty() {
-        args.recordings.clone()
+    let recordings: Vec<PathBuf> = if !args.strike.recordings.is_empty() {
+        args.strike.recordings.clone()
     } else if !file.recordings.is_empty() {
         file.recordings.clone()
     } else if let Some(c) = &case {
@@ -205,11 +163,7 @@ pub fn resolve(args: &DiagnoseArgs) -> Result<Job, String> {
     if recordings.is_empty() {
         return Err("no recordings given: use --recording FILE (repeatable), `recordings = [...]` in the config file, or --case".into());
     }
-    for r in &recordings {
-        if !r.is_file() {
-            return Err(format!("recording {} does not exist", r.display()));
-        }
-    }
+    require_files(&recordings, "recording")?;
     let n_mics = recordings.len();
     let held_channels: Vec<usize> = if !args.held_out.is_empty() {
         args.held_out.clone()
@@ -241,15 +195,16 @@ pub fn resolve(args: &DiagnoseArgs) -> Result<Job, String> {
         .unwrap_or(12_000.0);
     check_recording_window(sample_rate, duration, pre_roll, max_frequency_hz)?;
     let density = args
+        .strike
         .density
         .or(file.model.density)
         .or(case.as_ref().map(|c| c.density_kg_m3))
         .unwrap_or(2700.0);
     let (material, material_source, density) = resolve_material(
-        args.material.clone().or(file.material_fit.clone()),
+        args.strike.material.clone().or(file.material_fit.clone()),
         (
-            args.youngs.or(file.model.youngs_modulus),
-            args.poisson.or(file.model.poisson_ratio),
+            args.strike.youngs.or(file.model.youngs_modulus),
+            args.strike.poisson.or(file.model.poisson_ratio),
         ),
         density,
     )?;
@@ -286,11 +241,7 @@ pub fn resolve(args: &DiagnoseArgs) -> Result<Job, String> {
         }
     }
     file.catalogue.validate().map_err(|e| e.to_string())?;
-    let out = args
-        .out
-        .clone()
-        .or(file.out.clone())
-        .unwrap_or_else(|| PathBuf::from("diagnosis.h5"));
+    let out = path_or(&args.out, &file.out, "diagnosis.h5");
     let plots = args
         .plots
         .clone()
@@ -300,13 +251,13 @@ pub fn resolve(args: &DiagnoseArgs) -> Result<Job, String> {
     crate::cli::resolve::check_output(&out, &given)?;
     crate::cli::resolve::check_output(&plots, &given)?;
     let mut petsc_options = file.solver.petsc_options.clone();
-    petsc_options.extend(args.petsc_options.iter().cloned());
+    petsc_options.extend(args.run.petsc_options.iter().cloned());
     Ok(Job {
         json: out.with_extension("json"),
         map: with_suffix(&out, "_map.h5"),
         mesh,
         unit_scale,
-        straighten_invalid: args.straighten_invalid,
+        straighten_invalid: args.input.straighten_invalid,
         recordings,
         fit_channels,
         held_channels,
@@ -332,27 +283,24 @@ pub fn resolve(args: &DiagnoseArgs) -> Result<Job, String> {
         out,
         plots,
         petsc_options,
-        verbose: args.verbose,
+        verbose: args.run.verbose,
     })
 }
 
 pub fn run(universe: Universe, args: DiagnoseArgs) -> Result<(), String> {
     let job = resolve(&args)?;
-    let petsc =
-        Petsc::initialize(universe, "diffsound", &job.petsc_options).map_err(|e| e.to_string())?;
-    let (rank, size) = (petsc.rank(), petsc.size());
-    let progress = super::stderr_progress(rank, job.verbose);
-    let outcome = workflow::run(&petsc, &job, &progress).and_then(|report| match report {
-        Some(report) => {
-            print_report(&report);
-            write_outputs(&report)
-        }
-        None => Ok(()),
-    });
-    match outcome {
-        Ok(()) => Ok(()),
-        Err(e) => fail(rank, size, &e.to_string()),
-    }
+    super::with_petsc(
+        universe,
+        &job.petsc_options,
+        job.verbose,
+        |petsc, progress| match workflow::run(petsc, &job, progress)? {
+            Some(report) => {
+                print_report(&report);
+                write_outputs(&report)
+            }
+            None => Ok(()),
+        },
+    )
 }
 
 /// Writes the report's files (rank 0), naming each as it is written.

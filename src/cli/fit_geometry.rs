@@ -5,11 +5,9 @@
 //! inputs, the method and the files): the flags and the TOML file merged into a [`Job`], the
 //! job run, its summary printed and its files written.
 
-use super::fail;
-use crate::fem::Material;
+use super::config::{load_toml, ElasticArgs, ElasticConfig, PetscConfig};
+use super::resolve::{existing, path_or, set, RunArgs, SurfaceArgs};
 use crate::inverse::geometry::{GeometryFit, GeometrySettings};
-use crate::mesh;
-use crate::petsc::Petsc;
 use crate::workflow::fit_geometry;
 pub use crate::workflow::fit_geometry::{load_surface, Job};
 use clap::Args;
@@ -26,12 +24,8 @@ pub struct FitGeometryArgs {
     /// The true surface: OBJ, or a Gmsh .msh whose boundary is used.
     #[arg(long)]
     pub surface: Option<PathBuf>,
-    /// Length unit of the surface file: m, cm, mm, um, in, ft, or metres per unit (default m).
-    #[arg(long)]
-    pub units: Option<String>,
-    /// Scale the surface to this bounding-box diagonal in metres (default: keep its size).
-    #[arg(long)]
-    pub diagonal: Option<f64>,
+    #[command(flatten)]
+    pub scale: SurfaceArgs,
     /// Voxels per axis over the bounding box (default 16).
     #[arg(long)]
     pub voxels: Option<usize>,
@@ -92,27 +86,16 @@ pub struct FitGeometryArgs {
     /// Seed of the network's initialisation, the pre-fit's batches and the eikonal points (default 1).
     #[arg(long)]
     pub seed: Option<u64>,
-    /// Material preset (default ceramic); --youngs Pa, --poisson, --density kg/m³ override it.
-    #[arg(long)]
-    pub material: Option<String>,
-    #[arg(long)]
-    pub youngs: Option<f64>,
-    #[arg(long)]
-    pub poisson: Option<f64>,
-    #[arg(long)]
-    pub density: Option<f64>,
+    #[command(flatten)]
+    pub elastic: ElasticArgs,
     /// HDF5 result (default fit_geometry.h5); the mesh goes to <stem>_mesh.h5 + .xdmf.
     #[arg(long)]
     pub out: Option<PathBuf>,
     /// Before/after/true picture (default <out stem>.png).
     #[arg(long)]
     pub png: Option<PathBuf>,
-    /// Print progress even when stderr is not a terminal.
-    #[arg(long, short)]
-    pub verbose: bool,
-    /// PETSc/SLEPc options, after `--`.
-    #[arg(last = true, allow_hyphen_values = true)]
-    pub petsc_options: Vec<String>,
+    #[command(flatten)]
+    pub run: RunArgs,
 }
 
 /// The TOML file (every key optional; flags override).
@@ -143,108 +126,31 @@ pub struct GeometryFileConfig {
     pub png: Option<PathBuf>,
     pub geometry: Option<GeometrySettings>,
     #[serde(default)]
-    pub material: MaterialConfig,
+    pub material: ElasticConfig,
     #[serde(default)]
-    pub solver: SolverConfig,
-}
-
-/// The `[material]` table of the shape fits' TOML files (fit-thickness, fit-morph,
-/// fit-geometry).
-#[derive(Clone, Debug, Default, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct MaterialConfig {
-    pub preset: Option<String>,
-    pub youngs_modulus: Option<f64>,
-    pub poisson_ratio: Option<f64>,
-    pub density: Option<f64>,
-}
-
-impl MaterialConfig {
-    /// The preset with the flags' and then the file's E, ν, ρ, validated: the shared
-    /// resolution of [`super::config::MaterialConfig::resolve`] (shape fits take no damping).
-    pub fn resolve(&self, flags: &super::config::MaterialConfig) -> Result<Material, String> {
-        let shared = super::config::MaterialConfig {
-            preset: self.preset.clone(),
-            youngs_modulus: self.youngs_modulus,
-            poisson_ratio: self.poisson_ratio,
-            density: self.density,
-            ..Default::default()
-        };
-        shared.resolve(flags).map(|(material, _)| material)
-    }
-}
-
-/// The `[solver]` table of the shape fits' TOML files.
-#[derive(Clone, Debug, Default, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct SolverConfig {
-    #[serde(default)]
-    pub petsc_options: Vec<String>,
+    pub solver: PetscConfig,
 }
 
 /// Merges defaults < config file < flags and validates.
 pub fn resolve(args: &FitGeometryArgs) -> Result<Job, String> {
-    let file = match &args.config {
-        Some(p) => {
-            let text = std::fs::read_to_string(p).map_err(|e| format!("{}: {e}", p.display()))?;
-            toml::from_str::<GeometryFileConfig>(&text)
-                .map_err(|e| format!("{}: {e}", p.display()))?
-        }
-        None => GeometryFileConfig::default(),
-    };
-    let surface = args
-        .surface
-        .clone()
-        .or(file.surface.clone())
-        .ok_or("no surface given: use --surface FILE")?;
-    if !surface.is_file() {
-        return Err(format!("surface {} does not exist", surface.display()));
-    }
-    let units = args
-        .units
-        .clone()
-        .or(file.units.clone())
-        .unwrap_or_else(|| "m".into());
-    let unit_scale = mesh::parse_unit(&units).map_err(|e| e.to_string())?;
-    let diagonal = args.diagonal.or(file.diagonal);
-    if let Some(d) = diagonal {
-        if !(d.is_finite() && d > 0.0) {
-            return Err(format!(
-                "--diagonal must be a positive length in metres, got {d}"
-            ));
-        }
-    }
+    let file: GeometryFileConfig = load_toml(&args.config)?;
+    let surface = existing(
+        args.surface.clone().or(file.surface.clone()),
+        "surface",
+        "--surface",
+    )?;
+    let (unit_scale, diagonal) = args.scale.resolve(&file.units, file.diagonal)?;
     let mut s = file.geometry.clone().unwrap_or_default();
-    if let Some(v) = args.voxels {
-        s.voxels = v;
-    }
-    if let Some(v) = args.cells {
-        s.cells = v;
-    }
-    if let Some(v) = args.target_cells {
-        s.target_cells = v;
-    }
-    if let Some(v) = args.target_seed {
-        s.target_seed = v;
-    }
-    if let Some(v) = args.modes {
-        s.modes = v;
-    }
-    if let Some(v) = args.steps {
-        s.refine.steps = v;
-    }
-    if let Some(v) = args.learning_rate {
-        s.refine.learning_rate = v;
-    }
-    if let Some(v) = args.max_field_change {
-        s.refine.max_field_change = v;
-    }
-    if let Some(v) = args.method {
-        s.refine.method = v;
-    }
-    if let Some(v) = args.damping {
-        s.refine.damping = v;
-    }
+    set(&mut s.voxels, args.voxels);
+    set(&mut s.cells, args.cells);
+    set(&mut s.target_cells, args.target_cells);
+    set(&mut s.target_seed, args.target_seed);
+    set(&mut s.modes, args.modes);
+    set(&mut s.refine.steps, args.steps);
+    set(&mut s.refine.learning_rate, args.learning_rate);
+    set(&mut s.refine.max_field_change, args.max_field_change);
+    set(&mut s.refine.method, args.method);
+    set(&mut s.refine.damping, args.damping);
     if args.free_scale {
         s.refine.free_scale = true;
     }
@@ -257,18 +163,10 @@ pub fn resolve(args: &FitGeometryArgs) -> Result<Job, String> {
     if args.straight_boundary {
         s.refine.curved_boundary = false;
     }
-    if let Some(v) = args.voxel_weight {
-        s.refine.voxel_weight = v;
-    }
-    if let Some(v) = args.eikonal_weight {
-        s.refine.eikonal_weight = v;
-    }
-    if let Some(v) = args.prefit_steps {
-        s.prefit.steps = v;
-    }
-    if let Some(v) = args.octaves {
-        s.octaves = v;
-    }
+    set(&mut s.refine.voxel_weight, args.voxel_weight);
+    set(&mut s.refine.eikonal_weight, args.eikonal_weight);
+    set(&mut s.prefit.steps, args.prefit_steps);
+    set(&mut s.octaves, args.octaves);
     if !args.hidden.is_empty() {
         s.hidden = args.hidden.clone();
     }
@@ -279,20 +177,9 @@ pub fn resolve(args: &FitGeometryArgs) -> Result<Job, String> {
     }
     s.validate().map_err(|e| e.to_string())?;
 
-    let flags = super::config::MaterialConfig {
-        preset: args.material.clone(),
-        youngs_modulus: args.youngs,
-        poisson_ratio: args.poisson,
-        density: args.density,
-        ..Default::default()
-    };
-    let material = file.material.resolve(&flags)?;
+    let material = file.material.resolve(&args.elastic)?;
 
-    let out = args
-        .out
-        .clone()
-        .or(file.out.clone())
-        .unwrap_or_else(|| PathBuf::from("fit_geometry.h5"));
+    let out = path_or(&args.out, &file.out, "fit_geometry.h5");
     let stem = out.with_extension("");
     let mesh_out = crate::io::paths::plot_path(&stem, "_mesh.h5");
     let png = args
@@ -309,7 +196,7 @@ pub fn resolve(args: &FitGeometryArgs) -> Result<Job, String> {
         super::resolve::check_output(o, &given)?;
     }
     let mut petsc_options = file.solver.petsc_options.clone();
-    petsc_options.extend(args.petsc_options.iter().cloned());
+    petsc_options.extend(args.run.petsc_options.iter().cloned());
     Ok(Job {
         surface,
         unit_scale,
@@ -320,39 +207,38 @@ pub fn resolve(args: &FitGeometryArgs) -> Result<Job, String> {
         mesh_out,
         png,
         petsc_options,
-        verbose: args.verbose,
+        verbose: args.run.verbose,
     })
 }
 
 pub fn run(universe: Universe, args: FitGeometryArgs) -> Result<(), String> {
     let job = resolve(&args)?;
     let (surface, sdf, warnings) = load_surface(&job.surface, job.unit_scale, job.diagonal)?;
-    let petsc =
-        Petsc::initialize(universe, "diffsound", &job.petsc_options).map_err(|e| e.to_string())?;
-    let (rank, size) = (petsc.rank(), petsc.size());
-    if rank == 0 {
-        for w in &warnings {
-            eprintln!("warning: {}: {w}", job.surface.display());
-        }
-    }
-    let progress = super::stderr_progress(rank, job.verbose);
-    let result = fit_geometry::run(&petsc, &job, &surface, &sdf, &progress).and_then(|report| {
-        if rank == 0 {
-            print_summary(&report.fit);
-            fit_geometry::write::write_outputs(&job, &report, &surface)?;
-            println!(
-                "wrote {}, {} (+ .xdmf) and {}",
-                job.out.display(),
-                job.mesh_out.display(),
-                job.png.display()
-            );
-        }
-        Ok(())
-    });
-    match result {
-        Ok(()) => Ok(()),
-        Err(error) => fail(rank, size, &error.to_string()),
-    }
+    super::with_petsc(
+        universe,
+        &job.petsc_options,
+        job.verbose,
+        |petsc, progress| {
+            let rank = petsc.rank();
+            if rank == 0 {
+                for w in &warnings {
+                    eprintln!("warning: {}: {w}", job.surface.display());
+                }
+            }
+            let report = fit_geometry::run(petsc, &job, &surface, &sdf, progress)?;
+            if rank == 0 {
+                print_summary(&report.fit);
+                fit_geometry::write::write_outputs(&job, &report, &surface)?;
+                println!(
+                    "wrote {}, {} (+ .xdmf) and {}",
+                    job.out.display(),
+                    job.mesh_out.display(),
+                    job.png.display()
+                );
+            }
+            Ok::<(), fit_geometry::Error>(())
+        },
+    )
 }
 
 /// The before/after table on stdout.

@@ -8,10 +8,10 @@
 //! diffsound fit-material --mesh bowl.msh --recording mic0.wav --recording mic1.wav --out fit.h5
 //! ```
 
-use super::fail;
+use super::config::{load_toml, PetscConfig};
+use super::resolve::{path_or, require_files, set, MeshArgs, RunArgs};
 use crate::inverse::damping::DampingFitSettings;
 use crate::inverse::material::MaterialFitSettings;
-use crate::petsc::Petsc;
 use crate::workflow::fit_material::{self as workflow, Job, Report, MAX_MATCH_ERROR};
 use clap::Args;
 use mpi::environment::Universe;
@@ -24,16 +24,8 @@ pub struct FitMaterialArgs {
     /// TOML configuration file (see the README); flags given here override it.
     #[arg(long)]
     pub config: Option<PathBuf>,
-    /// Tet mesh of the object (Gmsh .msh).
-    #[arg(long)]
-    pub mesh: Option<PathBuf>,
-    /// Length unit of the mesh (m, cm, mm, … or metres per unit).
-    #[arg(long)]
-    pub units: Option<String>,
-    /// Straighten the mid-edge nodes of curved 10-node tets whose map folds over (Jacobian
-    /// determinant ≤ 0 inside) instead of rejecting the mesh; the count is reported.
-    #[arg(long)]
-    pub straighten_invalid: bool,
+    #[command(flatten)]
+    pub input: MeshArgs,
     /// Element order of the model: 2 (default) or 1.
     #[arg(long)]
     pub order: Option<u32>,
@@ -80,12 +72,8 @@ pub struct FitMaterialArgs {
     /// Prefix of the PNG plots (default: the HDF5 path without its extension).
     #[arg(long)]
     pub plots: Option<PathBuf>,
-    /// Print progress even when stderr is not a terminal.
-    #[arg(long, short)]
-    pub verbose: bool,
-    /// PETSc/SLEPc options, after `--`.
-    #[arg(last = true, allow_hyphen_values = true)]
-    pub petsc_options: Vec<String>,
+    #[command(flatten)]
+    pub run: RunArgs,
 }
 
 /// The TOML file (every key optional; see the README for an example).
@@ -108,7 +96,7 @@ pub struct FitFileConfig {
     #[serde(default)]
     pub fit: MaterialFitSettings,
     #[serde(default)]
-    pub solver: SolverConfig,
+    pub solver: PetscConfig,
 }
 
 #[derive(Clone, Debug, Default, Deserialize)]
@@ -134,34 +122,17 @@ pub struct MaterialConfig {
     pub strike_position: Option<[f64; 3]>,
 }
 
-#[derive(Clone, Debug, Default, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct SolverConfig {
-    #[serde(default)]
-    pub petsc_options: Vec<String>,
-}
-
 /// Merges defaults < config file < flags and validates.
 pub fn resolve(args: &FitMaterialArgs) -> Result<Job, String> {
-    let file = match &args.config {
-        Some(p) => {
-            let text = std::fs::read_to_string(p).map_err(|e| format!("{}: {e}", p.display()))?;
-            toml::from_str::<FitFileConfig>(&text).map_err(|e| format!("{}: {e}", p.display()))?
-        }
-        None => FitFileConfig::default(),
-    };
+    let file: FitFileConfig = load_toml(&args.config)?;
     let super::resolve::MeshChoice {
         mesh,
         unit_scale,
         order,
         ..
-    } = super::resolve::resolve_mesh(
-        &args.mesh,
-        &file.mesh,
-        &args.units,
-        &file.units,
-        args.order.or(file.order),
-    )?;
+    } = args
+        .input
+        .resolve(&file.mesh, &file.units, args.order.or(file.order))?;
     let recordings = if args.recordings.is_empty() {
         file.recordings.clone()
     } else {
@@ -170,11 +141,7 @@ pub fn resolve(args: &FitMaterialArgs) -> Result<Job, String> {
     if recordings.is_empty() {
         return Err("no recordings given: use --recording FILE (repeatable) or `recordings = [...]` in the config file".into());
     }
-    for r in &recordings {
-        if !r.is_file() {
-            return Err(format!("recording {} does not exist", r.display()));
-        }
-    }
+    require_files(&recordings, "recording")?;
     let sample_rate = args
         .sample_rate
         .or(file.recording.sample_rate)
@@ -207,9 +174,7 @@ pub fn resolve(args: &FitMaterialArgs) -> Result<Job, String> {
     if args.fix_poisson {
         fit.learn_poisson = false;
     }
-    if let Some(n) = args.max_steps {
-        fit.max_steps = n;
-    }
+    set(&mut fit.max_steps, args.max_steps);
     let start_poisson = args.poisson.or(file.material.poisson_ratio).unwrap_or(0.25);
     let (lo, hi) = fit.poisson_bounds;
     if !(lo >= -0.99 && lo < hi && hi < 0.5) {
@@ -243,11 +208,7 @@ pub fn resolve(args: &FitMaterialArgs) -> Result<Job, String> {
             "basis_samples must be one or more ν in (−0.99, 0.499), got {basis_samples:?}"
         ));
     }
-    let out = args
-        .out
-        .clone()
-        .or(file.out.clone())
-        .unwrap_or_else(|| PathBuf::from("fit_material.h5"));
+    let out = path_or(&args.out, &file.out, "fit_material.h5");
     let plots = args
         .plots
         .clone()
@@ -257,11 +218,11 @@ pub fn resolve(args: &FitMaterialArgs) -> Result<Job, String> {
     super::resolve::check_output(&out, &given)?;
     super::resolve::check_output(&plots, &given)?;
     let mut petsc_options = file.solver.petsc_options.clone();
-    petsc_options.extend(args.petsc_options.iter().cloned());
+    petsc_options.extend(args.run.petsc_options.iter().cloned());
     Ok(Job {
         mesh,
         unit_scale,
-        straighten_invalid: args.straighten_invalid,
+        straighten_invalid: args.input.straighten_invalid,
         order,
         recordings,
         sample_rate,
@@ -280,27 +241,25 @@ pub fn resolve(args: &FitMaterialArgs) -> Result<Job, String> {
         out,
         plots,
         petsc_options,
-        verbose: args.verbose,
+        verbose: args.run.verbose,
     })
 }
 
 pub fn run(universe: Universe, args: FitMaterialArgs) -> Result<(), String> {
     let job = resolve(&args)?;
-    let petsc =
-        Petsc::initialize(universe, "diffsound", &job.petsc_options).map_err(|e| e.to_string())?;
-    let (rank, size) = (petsc.rank(), petsc.size());
-    let progress = super::stderr_progress(rank, job.verbose);
-    let outcome = workflow::run(&petsc, &job, &progress).and_then(|report| {
-        if rank == 0 {
-            print_summary(&job, &report);
-            write_outputs(&job, &report)?;
-        }
-        Ok(())
-    });
-    match outcome {
-        Ok(()) => Ok(()),
-        Err(e) => fail(rank, size, &e.to_string()),
-    }
+    super::with_petsc(
+        universe,
+        &job.petsc_options,
+        job.verbose,
+        |petsc, progress| {
+            let report = workflow::run(petsc, &job, progress)?;
+            if petsc.rank() == 0 {
+                print_summary(&job, &report);
+                write_outputs(&job, &report)?;
+            }
+            Ok::<(), workflow::Error>(())
+        },
+    )
 }
 
 /// Rank 0: the HDF5 result, then the plots, each announced on stdout when written.
@@ -338,7 +297,7 @@ fn print_summary(job: &Job, report: &Report) {
     );
     println!(
         "  damping: {} real modes, Rayleigh α = {:.4} 1/s, β = {:.4e} s; curve knots at {:?} Hz",
-        damping.modes.iter().filter(|m| m.kept).count(),
+        damping.modes.iter().filter(|m| m.kept()).count(),
         damping.rayleigh.alpha,
         damping.rayleigh.beta,
         damping

@@ -5,11 +5,10 @@
 //! inputs, the method and the files): the flags and the TOML file merged into a [`Job`], the
 //! job run, its summary printed and its files written.
 
-use super::fit_geometry::{MaterialConfig, SolverConfig};
-use super::{fail, stderr_progress};
+use super::config::{load_toml, ElasticArgs, ElasticConfig, PetscConfig};
+use super::resolve::{existing, path_or, set, RunArgs, SurfaceArgs};
+
 use crate::inverse::shape::ShapeFitSettings;
-use crate::mesh;
-use crate::petsc::Petsc;
 use crate::workflow::fit_shape::{self, Report};
 pub use crate::workflow::fit_shape::{parse_target, Job, TargetChoice, TargetSource, Task};
 use clap::Args;
@@ -24,12 +23,8 @@ pub struct ShapeArgs {
     /// TOML configuration file (keys in the module docs of src/cli/fit_shape.rs); flags override it.
     #[arg(long)]
     pub config: Option<PathBuf>,
-    /// Length unit of the surface files: m, cm, mm, um, in, ft, or metres per unit (default m).
-    #[arg(long)]
-    pub units: Option<String>,
-    /// Scale every shape to this bounding-box diagonal in metres (default: keep its size).
-    #[arg(long)]
-    pub diagonal: Option<f64>,
+    #[command(flatten)]
+    pub scale: SurfaceArgs,
     /// Grid levels, coarse to fine: cells along the longest axis (default 20,28).
     #[arg(long, value_delimiter = ',')]
     pub cells: Vec<usize>,
@@ -74,24 +69,13 @@ pub struct ShapeArgs {
     /// Most refinement evaluations per level (default 8).
     #[arg(long)]
     pub max_refinements: Option<usize>,
-    /// Material preset (default ceramic); --youngs Pa, --poisson, --density kg/m³ override it.
-    #[arg(long)]
-    pub material: Option<String>,
-    #[arg(long)]
-    pub youngs: Option<f64>,
-    #[arg(long)]
-    pub poisson: Option<f64>,
-    #[arg(long)]
-    pub density: Option<f64>,
+    #[command(flatten)]
+    pub elastic: ElasticArgs,
     /// HDF5 result (default fit_thickness.h5 / fit_morph.h5); the mesh goes to <stem>_mesh.h5 + .xdmf.
     #[arg(long)]
     pub out: Option<PathBuf>,
-    /// Print progress even when stderr is not a terminal.
-    #[arg(long, short)]
-    pub verbose: bool,
-    /// PETSc/SLEPc options, after `--`.
-    #[arg(last = true, allow_hyphen_values = true)]
-    pub petsc_options: Vec<String>,
+    #[command(flatten)]
+    pub run: RunArgs,
 }
 
 #[derive(Args, Debug, Clone, Default)]
@@ -183,10 +167,10 @@ pub struct ShapeFileConfig {
     #[serde(default)]
     pub target: TargetConfig,
     #[serde(default)]
-    pub material: MaterialConfig,
+    pub material: ElasticConfig,
     pub fit: Option<ShapeFitSettings>,
     #[serde(default)]
-    pub solver: SolverConfig,
+    pub solver: PetscConfig,
 }
 
 #[derive(Clone, Debug, Default, Deserialize)]
@@ -201,24 +185,6 @@ pub struct TargetConfig {
     pub spacing: Option<f64>,
 }
 
-fn load_config(path: &Option<PathBuf>) -> Result<ShapeFileConfig, String> {
-    match path {
-        Some(p) => {
-            let text = std::fs::read_to_string(p).map_err(|e| format!("{}: {e}", p.display()))?;
-            toml::from_str::<ShapeFileConfig>(&text).map_err(|e| format!("{}: {e}", p.display()))
-        }
-        None => Ok(ShapeFileConfig::default()),
-    }
-}
-
-fn existing(path: Option<PathBuf>, what: &str, flag: &str) -> Result<PathBuf, String> {
-    let p = path.ok_or_else(|| format!("no {what} given: use {flag} FILE"))?;
-    if !p.is_file() {
-        return Err(format!("{what} {} does not exist", p.display()));
-    }
-    Ok(p)
-}
-
 /// Merges defaults < config file < flags and validates, for either command.
 fn resolve(
     task: Task,
@@ -228,20 +194,7 @@ fn resolve(
     common: &ShapeArgs,
     file: &ShapeFileConfig,
 ) -> Result<Job, String> {
-    let units = common
-        .units
-        .clone()
-        .or(file.units.clone())
-        .unwrap_or_else(|| "m".into());
-    let unit_scale = mesh::parse_unit(&units).map_err(|e| e.to_string())?;
-    let diagonal = common.diagonal.or(file.diagonal);
-    if let Some(d) = diagonal {
-        if !(d.is_finite() && d > 0.0) {
-            return Err(format!(
-                "--diagonal must be a positive length in metres, got {d}"
-            ));
-        }
-    }
+    let (unit_scale, diagonal) = common.scale.resolve(&file.units, file.diagonal)?;
     let cells = if common.cells.is_empty() {
         file.cells.clone().unwrap_or_else(|| vec![20, 28])
     } else {
@@ -253,18 +206,10 @@ fn resolve(
         Task::Thickness { .. } => ShapeFitSettings::default(),
         Task::Morph { .. } => ShapeFitSettings::morph(),
     });
-    if let Some(m) = common.modes {
-        settings.modes = m;
-    }
-    if let Some(b) = bounds {
-        settings.bounds = b;
-    }
-    if let Some(n) = common.scan_points {
-        settings.scan_points = n;
-    }
-    if let Some(n) = common.max_refinements {
-        settings.max_refinements = n;
-    }
+    set(&mut settings.modes, common.modes);
+    set(&mut settings.bounds, bounds);
+    set(&mut settings.scan_points, common.scan_points);
+    set(&mut settings.max_refinements, common.max_refinements);
     if common.no_extrapolate && common.extrapolate {
         return Err("--extrapolate and --no-extrapolate exclude each other".into());
     }
@@ -277,15 +222,9 @@ fn resolve(
     if common.free_scale {
         settings.free_scale = true;
     }
-    if let Some(n) = wall.0 {
-        settings.wall_refinement = n;
-    }
-    if let Some(w) = wall.1 {
-        settings.wall_band = w;
-    }
-    if let Some(e) = wall.2 {
-        settings.wall_tolerance = e;
-    }
+    set(&mut settings.wall_refinement, wall.0);
+    set(&mut settings.wall_band, wall.1);
+    set(&mut settings.wall_tolerance, wall.2);
     fit_shape::job::finish_settings(&task, &mut settings, replicas)?;
 
     let choice = TargetChoice {
@@ -299,20 +238,9 @@ fn resolve(
     };
     let target = choice.resolve(&task, &settings, *cells.last().expect("non-empty"))?;
 
-    let flags = super::config::MaterialConfig {
-        preset: common.material.clone(),
-        youngs_modulus: common.youngs,
-        poisson_ratio: common.poisson,
-        density: common.density,
-        ..Default::default()
-    };
-    let material = file.material.resolve(&flags)?;
+    let material = file.material.resolve(&common.elastic)?;
 
-    let out = common
-        .out
-        .clone()
-        .or(file.out.clone())
-        .unwrap_or_else(|| PathBuf::from(format!("fit_{}.h5", task.name())));
+    let out = path_or(&common.out, &file.out, &format!("fit_{}.h5", task.name()));
     let mesh_out = crate::io::paths::plot_path(&out.with_extension(""), "_mesh.h5");
     // No output may be one of the inputs: a shape, the target file or the config file.
     let mut given: Vec<(&str, &std::path::Path)> = match &task {
@@ -329,7 +257,7 @@ fn resolve(
         super::resolve::check_output(o, &given)?;
     }
     let mut petsc_options = file.solver.petsc_options.clone();
-    petsc_options.extend(common.petsc_options.iter().cloned());
+    petsc_options.extend(common.run.petsc_options.iter().cloned());
     Ok(Job {
         task,
         unit_scale,
@@ -342,12 +270,12 @@ fn resolve(
         out,
         mesh_out,
         petsc_options,
-        verbose: common.verbose,
+        verbose: common.run.verbose,
     })
 }
 
 pub fn resolve_thickness(args: &FitThicknessArgs) -> Result<Job, String> {
-    let file = load_config(&args.common.config)?;
+    let file = load_toml::<ShapeFileConfig>(&args.common.config)?;
     if file.shape_a.is_some() || file.shape_b.is_some() || file.target.weight.is_some() {
         return Err(
             "shape_a, shape_b and target.weight are fit-morph keys, not fit-thickness ones".into(),
@@ -375,7 +303,7 @@ pub fn resolve_thickness(args: &FitThicknessArgs) -> Result<Job, String> {
 }
 
 pub fn resolve_morph(args: &FitMorphArgs) -> Result<Job, String> {
-    let file = load_config(&args.common.config)?;
+    let file = load_toml::<ShapeFileConfig>(&args.common.config)?;
     if file.surface.is_some() || file.target.thickness.is_some() || file.straight_boundary.is_some()
     {
         return Err("surface, straight_boundary and target.thickness are fit-thickness keys, not fit-morph ones".into());
@@ -413,33 +341,32 @@ pub fn run_morph(universe: Universe, args: FitMorphArgs) -> Result<(), String> {
 fn run(universe: Universe, job: Job) -> Result<(), String> {
     // The shapes are read before PETSc starts: a bad file ends the job with its message.
     let shapes = fit_shape::load_shapes(&job).map_err(|e| e.to_string())?;
-    let petsc =
-        Petsc::initialize(universe, "diffsound", &job.petsc_options).map_err(|e| e.to_string())?;
-    let (rank, size) = (petsc.rank(), petsc.size());
-    if rank == 0 {
-        for shape in &shapes {
-            for w in &shape.warnings {
-                eprintln!("warning: {}: {w}", shape.path.display());
+    super::with_petsc(
+        universe,
+        &job.petsc_options,
+        job.verbose,
+        |petsc, progress| {
+            let rank = petsc.rank();
+            if rank == 0 {
+                for shape in &shapes {
+                    for w in &shape.warnings {
+                        eprintln!("warning: {}: {w}", shape.path.display());
+                    }
+                }
             }
-        }
-    }
-    let progress = stderr_progress(rank, job.verbose);
-    let result = fit_shape::run(&petsc, &job, shapes, &progress).and_then(|report| {
-        if rank == 0 {
-            print_summary(&job, &report);
-            fit_shape::write::write_outputs(&job, &report)?;
-            println!(
-                "wrote {} and {} (+ .xdmf)",
-                job.out.display(),
-                job.mesh_out.display()
-            );
-        }
-        Ok(())
-    });
-    match result {
-        Ok(()) => Ok(()),
-        Err(error) => fail(rank, size, &error.to_string()),
-    }
+            let report = fit_shape::run(petsc, &job, shapes, progress)?;
+            if rank == 0 {
+                print_summary(&job, &report);
+                fit_shape::write::write_outputs(&job, &report)?;
+                println!(
+                    "wrote {} and {} (+ .xdmf)",
+                    job.out.display(),
+                    job.mesh_out.display()
+                );
+            }
+            Ok::<(), fit_shape::Error>(())
+        },
+    )
 }
 
 /// The answer, each level's, the extrapolation and the compared modes, on stdout.

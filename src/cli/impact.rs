@@ -4,15 +4,13 @@
 //! steps, the equations and the files): the flags, the TOML file and a benchmark case's
 //! metadata merged into a [`Job`], the job run, and its summary printed.
 
-use super::{fail, stderr_progress};
-use crate::audio::chain::DampingCurve;
-use crate::diagnose::extract::ExtractOptions;
-use crate::fem::Material;
+use super::config::load_toml;
+use super::resolve::{path_or, require_files, set, MeshArgs, RunArgs, StrikeArgs};
+
+use crate::analysis::extract::ExtractOptions;
 use crate::inverse::impact::MapOptions;
-use crate::io::fit_material::read_material as read_fit_material;
 use crate::io::paths::with_suffix;
-use crate::io::results::read_dataset;
-use crate::petsc::Petsc;
+use crate::workflow::locate_impact::job::{resolve_material, CaseMeta};
 use crate::workflow::locate_impact::{self, Report};
 pub use crate::workflow::locate_impact::{Job, TransferChoice};
 use clap::Args;
@@ -26,35 +24,10 @@ pub struct ImpactArgs {
     /// TOML configuration file (see the README); flags given here override it.
     #[arg(long)]
     pub config: Option<PathBuf>,
-    /// A benchmark case's metadata.toml (examples/diagnose_generate.rs): mesh, recordings,
-    /// microphone positions and the true strike (for the evaluation) from there.
-    #[arg(long)]
-    pub case: Option<PathBuf>,
-    /// Tet mesh of the object (Gmsh .msh).
-    #[arg(long)]
-    pub mesh: Option<PathBuf>,
-    /// Length unit of the mesh (m, cm, mm, … or metres per unit).
-    #[arg(long)]
-    pub units: Option<String>,
-    /// Straighten the mid-edge nodes of curved 10-node tets whose map folds over (Jacobian
-    /// determinant ≤ 0 inside) instead of rejecting the mesh; the count is reported.
-    #[arg(long)]
-    pub straighten_invalid: bool,
-    /// A WAV file of the strike (repeat for several microphones).
-    #[arg(long = "recording")]
-    pub recordings: Vec<PathBuf>,
-    /// A fit-material HDF5 result to take E, ν, ρ and the damping curve from.
-    #[arg(long)]
-    pub material: Option<PathBuf>,
-    /// Young's modulus in Pa (instead of --material).
-    #[arg(long)]
-    pub youngs: Option<f64>,
-    /// Poisson's ratio (instead of --material).
-    #[arg(long)]
-    pub poisson: Option<f64>,
-    /// Density in kg/m³ (with --youngs/--poisson; default 2700).
-    #[arg(long)]
-    pub density: Option<f64>,
+    #[command(flatten)]
+    pub input: MeshArgs,
+    #[command(flatten)]
+    pub strike: StrikeArgs,
     /// Highest frequency used, Hz (default 12000).
     #[arg(long)]
     pub fmax: Option<f64>,
@@ -77,12 +50,8 @@ pub struct ImpactArgs {
     /// HDF5 result (default impact.h5; JSON, map and PNG beside it).
     #[arg(long)]
     pub out: Option<PathBuf>,
-    /// Print progress even when stderr is not a terminal.
-    #[arg(long, short)]
-    pub verbose: bool,
-    /// PETSc/SLEPc options, after `--`.
-    #[arg(last = true, allow_hyphen_values = true)]
-    pub petsc_options: Vec<String>,
+    #[command(flatten)]
+    pub run: RunArgs,
 }
 
 /// The TOML file (every key optional).
@@ -123,44 +92,17 @@ pub struct ImpactFileConfig {
     pub petsc_options: Vec<String>,
 }
 
-/// The parts of a benchmark case's metadata this job reads.
-#[derive(Clone, Debug, Deserialize)]
-struct CaseMeta {
-    mesh: PathBuf,
-    mesh_unit: String,
-    density_kg_m3: f64,
-    sample_rate_hz: u32,
-    onset_time_s: f64,
-    microphone_files: Vec<PathBuf>,
-    microphone_positions_m: Vec<[f64; 3]>,
-    strike: CaseStrike,
-}
-
-#[derive(Clone, Debug, Deserialize)]
-struct CaseStrike {
-    vertex: usize,
-}
-
-/// The damping curve of a fit-material result, if it has one.
-fn read_damping_curve(path: &Path) -> Option<DampingCurve> {
-    let (f, _) = read_dataset(path, "/damping/curve/frequencies_hz").ok()?;
-    let (d, _) = read_dataset(path, "/damping/curve/decay_rates").ok()?;
-    DampingCurve::new(f, &d).ok()
-}
-
-fn read_toml<T: serde::de::DeserializeOwned>(path: &Path) -> Result<T, String> {
-    let text = std::fs::read_to_string(path).map_err(|e| format!("{}: {e}", path.display()))?;
-    toml::from_str(&text).map_err(|e| format!("{}: {e}", path.display()))
-}
-
 /// Merges defaults < case metadata < config file < flags and validates.
 pub fn resolve(args: &ImpactArgs) -> Result<Job, String> {
-    let file: ImpactFileConfig = match &args.config {
-        Some(p) => read_toml(p)?,
-        None => ImpactFileConfig::default(),
-    };
-    let case: Option<CaseMeta> = args.case.as_deref().map(read_toml).transpose()?;
+    let file: ImpactFileConfig = load_toml(&args.config)?;
+    let case: Option<CaseMeta> = args
+        .strike
+        .case
+        .as_deref()
+        .map(CaseMeta::read)
+        .transpose()?;
     let case_dir = args
+        .strike
         .case
         .as_ref()
         .and_then(|p| p.parent())
@@ -168,21 +110,16 @@ pub fn resolve(args: &ImpactArgs) -> Result<Job, String> {
         .unwrap_or_default();
     let super::resolve::MeshChoice {
         mesh, unit_scale, ..
-    } = super::resolve::resolve_mesh(
-        &args.mesh,
+    } = args.input.resolve_existing(
         &file.mesh.clone().or(case.as_ref().map(|c| c.mesh.clone())),
-        &args.units,
         &file
             .units
             .clone()
             .or(case.as_ref().map(|c| c.mesh_unit.clone())),
         Some(2),
     )?;
-    if !mesh.is_file() {
-        return Err(format!("mesh {} does not exist", mesh.display()));
-    }
-    let recordings: Vec<PathBuf> = if !args.recordings.is_empty() {
-        args.recordings.clone()
+    let recordings: Vec<PathBuf> = if !args.strike.recordings.is_empty() {
+        args.strike.recordings.clone()
     } else if !file.recordings.is_empty() {
         file.recordings.clone()
     } else if let Some(c) = &case {
@@ -193,9 +130,7 @@ pub fn resolve(args: &ImpactArgs) -> Result<Job, String> {
     } else {
         return Err("no recordings given: use --recording FILE (repeatable), `recordings = [...]` in the config file, or --case".into());
     };
-    if let Some(r) = recordings.iter().find(|r| !r.is_file()) {
-        return Err(format!("recording {} does not exist", r.display()));
-    }
+    require_files(&recordings, "recording")?;
     let sample_rate = file
         .sample_rate
         .or(case.as_ref().map(|c| c.sample_rate_hz))
@@ -227,26 +162,20 @@ pub fn resolve(args: &ImpactArgs) -> Result<Job, String> {
             0.5 * f64::from(sample_rate)
         ));
     }
-    let material_path = args.material.clone().or(file.material_fit.clone());
-    let given = (
-        args.youngs.or(file.youngs_modulus),
-        args.poisson.or(file.poisson_ratio),
-    );
-    let (material, material_source, damping_curve) = match (material_path, given) {
-        (Some(p), (None, None)) => {
-            let (e, nu, rho) = read_fit_material(&p)?;
-            let curve = read_damping_curve(&p);
-            (Material { youngs_modulus: e, poisson_ratio: nu, density: rho, rayleigh_alpha: 0.0, rayleigh_beta: 0.0 }, format!("fit-material result {}", p.display()), curve)
-        }
-        (Some(_), _) => return Err("give the material either as a fit-material result (--material) or as --youngs/--poisson, not both".into()),
-        (None, (Some(e), Some(nu))) => {
-            let density = args.density.or(file.density).or(case.as_ref().map(|c| c.density_kg_m3)).unwrap_or(2700.0);
-            (Material { youngs_modulus: e, poisson_ratio: nu, density, rayleigh_alpha: 0.0, rayleigh_beta: 0.0 }, "given".to_string(), None)
-        }
-        (None, (None, None)) => return Err("the material is needed: --material FIT.h5 (a fit-material result) or --youngs and --poisson".into()),
-        (None, _) => return Err("--youngs and --poisson go together".into()),
-    };
-    material.validate().map_err(|e| format!("material: {e}"))?;
+    let (material, material_source, damping_curve) = resolve_material(
+        args.strike.material.clone().or(file.material_fit.clone()),
+        (
+            args.strike.youngs.or(file.youngs_modulus),
+            args.strike.poisson.or(file.poisson_ratio),
+        ),
+        || {
+            args.strike
+                .density
+                .or(file.density)
+                .or(case.as_ref().map(|c| c.density_kg_m3))
+                .unwrap_or(2700.0)
+        },
+    )?;
     let microphones = file
         .microphone_positions
         .clone()
@@ -284,26 +213,20 @@ pub fn resolve(args: &ImpactArgs) -> Result<Job, String> {
         ));
     }
     let mut map = file.map.clone();
-    if let Some(k) = args.top {
-        map.top_k = k;
-    }
+    set(&mut map.top_k, args.top);
     // Microphones are uncalibrated unless the file says otherwise (module docs, step 6).
     map.free_microphone_gains = !file.calibrated_microphones.unwrap_or(false);
-    let out = args
-        .out
-        .clone()
-        .or(file.out.clone())
-        .unwrap_or_else(|| PathBuf::from("impact.h5"));
+    let out = path_or(&args.out, &file.out, "impact.h5");
     super::resolve::check_output(&out, &super::resolve::inputs(&mesh, &recordings))?;
     let mut petsc_options = file.petsc_options.clone();
-    petsc_options.extend(args.petsc_options.iter().cloned());
+    petsc_options.extend(args.run.petsc_options.iter().cloned());
     Ok(Job {
         json: out.with_extension("json"),
         map_file: with_suffix(&out, "_map.h5"),
         png: with_suffix(&out, "_map.png"),
         mesh,
         unit_scale,
-        straighten_invalid: args.straighten_invalid,
+        straighten_invalid: args.input.straighten_invalid,
         recordings,
         sample_rate,
         pre_roll,
@@ -331,17 +254,15 @@ pub fn resolve(args: &ImpactArgs) -> Result<Job, String> {
 
 pub fn run(universe: Universe, args: ImpactArgs) -> Result<(), String> {
     let job = resolve(&args)?;
-    let petsc =
-        Petsc::initialize(universe, "diffsound", &job.petsc_options).map_err(|e| e.to_string())?;
-    let (rank, size) = (petsc.rank(), petsc.size());
-    let progress = stderr_progress(rank, args.verbose);
-    match locate_impact::run(&petsc, &job, &progress).and_then(|report| match report {
-        Some(report) => print_and_write(&job, &report),
-        None => Ok(()),
-    }) {
-        Ok(()) => Ok(()),
-        Err(error) => fail(rank, size, &error.to_string()),
-    }
+    super::with_petsc(
+        universe,
+        &job.petsc_options,
+        args.run.verbose,
+        |petsc, progress| match locate_impact::run(petsc, &job, progress)? {
+            Some(report) => print_and_write(&job, &report),
+            None => Ok(()),
+        },
+    )
 }
 
 /// Rank 0: the summary on stdout, then each file with a line saying it was written.

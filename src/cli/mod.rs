@@ -83,6 +83,24 @@ pub fn stderr_progress(rank: usize, verbose: bool) -> Progress {
     }
 }
 
+/// Starts PETSc with `petsc_options` and runs `work` with the rank's progress ([`stderr_progress`]);
+/// an error ends the job on every rank ([`fail`], while PETSc is still up).
+pub(crate) fn with_petsc<E: ToString>(
+    universe: mpi::environment::Universe,
+    petsc_options: &[String],
+    verbose: bool,
+    work: impl FnOnce(&crate::petsc::Petsc, &Progress) -> Result<(), E>,
+) -> Result<(), String> {
+    let petsc = crate::petsc::Petsc::initialize(universe, "diffsound", petsc_options)
+        .map_err(|e| e.to_string())?;
+    let (rank, size) = (petsc.rank(), petsc.size());
+    let progress = stderr_progress(rank, verbose);
+    match work(&petsc, &progress) {
+        Ok(()) => Ok(()),
+        Err(e) => fail(rank, size, &e.to_string()),
+    }
+}
+
 /// Ends the whole MPI job: the one way out after an error or panic on any rank.
 fn abort_job(code: i32) -> ! {
     // SAFETY: MPI is initialised whenever this is reachable from `main` after `initialize`.
@@ -94,7 +112,7 @@ fn abort_job(code: i32) -> ! {
 
 /// Entry point of the binary.
 pub fn main() {
-    pin_blas_threads();
+    crate::petsc::pin_blas_threads();
     ignore_file_size_signal();
     let cli = Cli::parse();
     let limit = match watchdog::limit(cli.rank_timeout) {
@@ -141,26 +159,6 @@ fn ignore_file_size_signal() {
     // SAFETY: setting a signal's disposition to "ignore" before any other thread starts.
     unsafe {
         libc::signal(libc::SIGXFSZ, libc::SIG_IGN);
-    }
-}
-
-/// MUMPS calls BLAS, and OpenBLAS starts one thread per core at library load: under MPI every
-/// rank would then fight the others for the same cores. OpenBLAS reads `OPENBLAS_NUM_THREADS`
-/// only when it is loaded, so if the user has not chosen a value we set 1 and re-execute
-/// ourselves once (before MPI starts, so mpirun is unaffected).
-fn pin_blas_threads() {
-    const VAR: &str = "OPENBLAS_NUM_THREADS";
-    if std::env::var_os(VAR).is_some() {
-        return;
-    }
-    std::env::set_var(VAR, "1");
-    if let Ok(exe) = std::env::current_exe() {
-        use std::os::unix::process::CommandExt;
-        let err = std::process::Command::new(exe)
-            .args(std::env::args_os().skip(1))
-            .exec();
-        // exec only returns on failure; carry on with the threads OpenBLAS already started.
-        eprintln!("warning: could not re-execute with {VAR}=1 ({err}); BLAS threads may compete with MPI ranks");
     }
 }
 

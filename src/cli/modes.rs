@@ -2,8 +2,7 @@
 //! printed summary. The job itself is [`crate::workflow::modes`].
 
 use super::config::{FileConfig, MaterialConfig};
-use super::fail;
-use super::resolve::{check_output, inputs, resolve_mesh, MeshChoice};
+use super::resolve::{check_output, inputs, MeshArgs, MeshChoice, RunArgs};
 use crate::eigen::ModeRequest;
 use crate::petsc::Petsc;
 use crate::workflow::modes::{self as workflow, inertia_line, Job, Report};
@@ -18,22 +17,14 @@ pub struct ModesArgs {
     /// TOML configuration file (see the README); flags given here override it.
     #[arg(long)]
     pub config: Option<PathBuf>,
-    /// Tet mesh: Gmsh .msh 2.2 or 4.1, ASCII or binary, 4- or 10-node tets.
-    #[arg(long)]
-    pub mesh: Option<PathBuf>,
-    /// Length unit of the mesh: m, cm, mm, um, in, ft, or metres per unit (e.g. 0.1).
-    #[arg(long)]
-    pub units: Option<String>,
+    #[command(flatten)]
+    pub input: MeshArgs,
     /// Element order: 2 (quadratic, default) or 1 (linear baseline).
     #[arg(long)]
     pub order: Option<u32>,
     /// Flip inverted tets instead of rejecting the mesh.
     #[arg(long)]
     pub fix_inverted: bool,
-    /// Straighten the mid-edge nodes of curved 10-node tets whose map folds over (Jacobian
-    /// determinant ≤ 0 inside) instead of rejecting the mesh; the count is reported.
-    #[arg(long)]
-    pub straighten_invalid: bool,
     /// Material preset (ceramic, glass, steel, aluminium, wood, plastic, …); default ceramic.
     #[arg(long)]
     pub material: Option<String>,
@@ -92,12 +83,8 @@ pub struct ModesArgs {
     /// Write assembly/solve timings, memory and eigenvalues as JSON (for benchmarks).
     #[arg(long)]
     pub timings_json: Option<PathBuf>,
-    /// Print progress even when stderr is not a terminal.
-    #[arg(long, short)]
-    pub verbose: bool,
-    /// PETSc/SLEPc options, after `--` (e.g. -- -eps_ncv 64 -st_type sinvert).
-    #[arg(last = true, allow_hyphen_values = true)]
-    pub petsc_options: Vec<String>,
+    #[command(flatten)]
+    pub run: RunArgs,
 }
 
 /// Merges defaults < config file < command-line flags and validates the result.
@@ -111,13 +98,9 @@ pub fn resolve(args: &ModesArgs) -> Result<Job, String> {
         units,
         unit_scale,
         order,
-    } = resolve_mesh(
-        &args.mesh,
-        &file.mesh,
-        &args.units,
-        &file.units,
-        args.order.or(file.order),
-    )?;
+    } = args
+        .input
+        .resolve(&file.mesh, &file.units, args.order.or(file.order))?;
     let flags = MaterialConfig {
         preset: args.material.clone(),
         youngs_modulus: args.youngs,
@@ -187,14 +170,14 @@ pub fn resolve(args: &ModesArgs) -> Result<Job, String> {
             PathBuf::from(format!("{stem}_modes.h5"))
         });
     let mut petsc_options = file.solver.petsc_options.clone();
-    petsc_options.extend(args.petsc_options.iter().cloned());
+    petsc_options.extend(args.run.petsc_options.iter().cloned());
     Ok(Job {
         mesh,
         unit_scale,
         units,
         order,
         fix_inverted: args.fix_inverted || file.fix_inverted.unwrap_or(false),
-        straighten_invalid: args.straighten_invalid,
+        straighten_invalid: args.input.straighten_invalid,
         material,
         material_name,
         request,
@@ -232,30 +215,31 @@ pub fn run(universe: Universe, args: ModesArgs) -> Result<(), String> {
     if let Some(t) = &job.timings_json {
         check_output(t, &given)?;
     }
-    let petsc =
-        Petsc::initialize(universe, "diffsound", &job.petsc_options).map_err(|e| e.to_string())?;
-    let (rank, size) = (petsc.rank(), petsc.size());
-    // Fault injection for the tests: a panic on one rank must end the whole job, not hang it.
-    if std::env::var("DIFFSOUND_TEST_PANIC_ON_RANK")
-        .ok()
-        .and_then(|v| v.parse::<usize>().ok())
-        == Some(rank)
-    {
-        panic!("injected panic (DIFFSOUND_TEST_PANIC_ON_RANK={rank})");
-    }
-    match compute(&petsc, &job, args.verbose) {
-        Ok(()) => Ok(()),
-        Err(e) => fail(rank, size, &e.to_string()),
-    }
+    super::with_petsc(
+        universe,
+        &job.petsc_options,
+        args.run.verbose,
+        |petsc, progress| {
+            let rank = petsc.rank();
+            // Fault injection for the tests: a panic on one rank must end the whole job, not hang it.
+            if std::env::var("DIFFSOUND_TEST_PANIC_ON_RANK")
+                .ok()
+                .and_then(|v| v.parse::<usize>().ok())
+                == Some(rank)
+            {
+                panic!("injected panic (DIFFSOUND_TEST_PANIC_ON_RANK={rank})");
+            }
+            compute(petsc, &job, progress)
+        },
+    )
 }
 
 /// The job, then on rank 0 its files and the summary (printed before the timings JSON is
 /// written, as the files' "total" times are measured when each is written).
-fn compute(petsc: &Petsc, job: &Job, verbose: bool) -> Result<(), workflow::Error> {
-    let progress = super::stderr_progress(petsc.rank(), verbose);
-    let report = workflow::run(petsc, job, &progress)?;
+fn compute(petsc: &Petsc, job: &Job, progress: &super::Progress) -> Result<(), workflow::Error> {
+    let report = workflow::run(petsc, job, progress)?;
     if petsc.rank() == 0 {
-        workflow::write_outputs(job, &report, &progress)?;
+        workflow::write_outputs(job, &report, progress)?;
         print_summary(job, &report);
         if let Some(path) = &job.timings_json {
             workflow::write_timings_json(path, &report)?;

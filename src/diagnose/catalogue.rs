@@ -289,7 +289,7 @@ pub struct ObservedMode {
     #[serde(default)]
     pub late_frequency_hz: Option<(f64, f64)>,
     /// Relative glide at the onset g and its σ [1] from the chirp fit of
-    /// [`crate::diagnose::extract::glide`] (f(t) = f (1 + g e^(−2dt))); when present it is the
+    /// [`crate::analysis::extract::glide`] (f(t) = f (1 + g e^(−2dt))); when present it is the
     /// mode's pitch-glide observable instead of the early/late difference.
     #[serde(default)]
     pub glide: Option<(f64, f64)>,

@@ -3,7 +3,7 @@
 //!
 //! # Observed modes
 //!
-//! [`observed_modes`] turns an extraction ([`crate::diagnose::extract`]) into
+//! [`observed_modes`] turns an extraction ([`crate::analysis::extract`]) into
 //! [`ObservedMode`]s: frequency f [Hz], decay rate d [1/s] and per-channel amplitude a_c, each with
 //! its standard deviation, keeping the modes at or above `min_snr_db`. For the pitch-glide
 //! signature the same channels are extracted again on an early and a late stretch of the span
@@ -11,7 +11,7 @@
 //! is its *mutual* nearest neighbour in frequency within `glide_match` (relative; default 1 %).
 //! A σ-based gate would reject exactly the glides it is meant to find (σ_f / f ~ 10⁻⁵, glides
 //! 10⁻³), and mutual nearness keeps a close pair from swapping its halves.
-//! When the extraction went through the chirp-aware stage ([`crate::diagnose::extract::glide`]),
+//! When the extraction went through the chirp-aware stage ([`crate::analysis::extract::glide`]),
 //! every mode that came out as one component carries its fitted relative glide at the onset,
 //! g ± σ_g ([`ObservedMode::glide`]); the catalogue then uses that instead of early and late
 //! frequencies (the CLI no longer extracts the two windows).
@@ -53,11 +53,11 @@
 //! touch (outward normal within 60° of the support direction); the charge is
 //! `support_region_search_params`.
 
+use crate::analysis::extract::ModalExtraction;
 use crate::audio::stft::StftPlan;
 use crate::diagnose::catalogue::{
     weighted_regression, ObservedMode, ResidualEnvelopes, SimulatedMode,
 };
-use crate::diagnose::extract::ModalExtraction;
 
 /// Everything that can be wrong with the input of this module.
 #[derive(Debug, thiserror::Error, Clone, PartialEq)]
@@ -133,7 +133,7 @@ pub fn observed_modes(
     let kept: Vec<_> = full
         .modes
         .iter()
-        .filter(|m| m.snr_db >= options.min_snr_db && m.frequency_hz > 0.0)
+        .filter(|m| m.snr() >= options.min_snr_db && m.frequency_hz > 0.0)
         .collect();
     let freqs: Vec<f64> = kept.iter().map(|m| m.frequency_hz).collect();
     let half = |ex: Option<&ModalExtraction>| -> Vec<Option<(f64, f64)>> {
@@ -143,12 +143,12 @@ pub fn observed_modes(
                 let other: Vec<_> = ex
                     .modes
                     .iter()
-                    .filter(|m| m.snr_db >= options.min_snr_db && m.frequency_hz > 0.0)
+                    .filter(|m| m.snr() >= options.min_snr_db && m.frequency_hz > 0.0)
                     .collect();
                 let of: Vec<f64> = other.iter().map(|m| m.frequency_hz).collect();
                 mutual_nearest(&freqs, &of, options.glide_match)
                     .into_iter()
-                    .map(|j| j.map(|j| (other[j].frequency_hz, other[j].frequency_sd_hz)))
+                    .map(|j| j.map(|j| (other[j].frequency_hz, other[j].sd().frequency_hz)))
                     .collect()
             }
         }
@@ -158,11 +158,11 @@ pub fn observed_modes(
         .enumerate()
         .map(|(i, m)| ObservedMode {
             frequency_hz: m.frequency_hz,
-            sigma_frequency_hz: m.frequency_sd_hz,
+            sigma_frequency_hz: m.sd().frequency_hz,
             decay_rate: m.decay_rate,
-            sigma_decay_rate: m.decay_rate_sd,
+            sigma_decay_rate: m.sd().decay_rate,
             amplitudes: m.amplitudes.clone(),
-            sigma_amplitudes: m.amplitude_sds.clone(),
+            sigma_amplitudes: m.sd().amplitudes.clone(),
             early_frequency_hz: e[i],
             late_frequency_hz: l[i],
             glide: m.glide.as_ref().map(|g| (g.glide, g.glide_sd)),
@@ -586,9 +586,9 @@ fn localise(
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::analysis::extract::{extract_modes, ExtractOptions};
     use crate::audio::synth::render_samples;
     use crate::audio::synth::ModalBank;
-    use crate::diagnose::extract::{extract_modes, ExtractOptions};
     use crate::diagnose::inject::SplitMix64;
 
     #[test]

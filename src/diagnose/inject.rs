@@ -129,7 +129,7 @@
 //! * **`pitch_glide`**: the generator's g is the relative offset at t = 0 of every mode,
 //!   f(t) = f₀(1 + g e^(−2dt)). Reports whose glide observable is the chirp fit's offset at the
 //!   onset (`glide_observable = "offset_at_onset"`, the CLI since the chirp-aware stage of
-//!   [`crate::diagnose::extract::glide`]) detect that same g: expected = the labels' g. For
+//!   [`crate::analysis::extract::glide`]) detect that same g: expected = the labels' g. For
 //!   older reports the detector's g is the early-minus-late frequency
 //!   difference y = (f_early − f_late)/f of its most energetic mode (largest mean_c a_c²/ω²),
 //!   with f_early, f_late fitted on the two halves of the analysis span L after the onset. A
@@ -142,7 +142,7 @@
 //!   detector's model y_k = g Q_k² is itself misspecified for this law (the injected y_k
 //!   depends on d_k, not on the energy), so only its reference mode is like for like. This
 //!   is a first-order reference, exact for one least-squares tone per half: measured with
-//!   [`crate::diagnose::extract_modes`] on each half of 1 s of three gliding modes
+//!   [`crate::analysis::extract_modes`] on each half of 1 s of three gliding modes
 //!   (g = 0.3 %, d = 4, 12, 27 1/s, about 60 dB SNR), each half of a mode came out as about
 //!   four poles spread over a few Hz, and the loudest pole's y/g was 0.37, 0.22, (late half
 //!   lost) against 0.31, 0.25, 0.25 here. What the diagnosis reports as early and late
@@ -622,7 +622,7 @@ pub struct ModeTrack {
 
 /// θ(t) [rad], the exact phase of a glide f(t) = f₀(1 + g e^(−2dt)): one function for the
 /// generator and the extraction that measures it.
-pub use super::extract::glide::glide_phase;
+pub use crate::analysis::extract::glide::glide_phase;
 
 /// Renders `n_channels` channels of `n_samples` samples at `sample_rate` [Hz] from `tracks`,
 /// with relative pitch glide g (`glide`, module docs) or without (then each channel is a
@@ -920,9 +920,7 @@ pub fn add_noise(
 // Geometry: strike, support, added mass, stiffened sector
 // ---------------------------------------------------------------------------------------------
 
-fn dot(a: [f64; 3], b: [f64; 3]) -> f64 {
-    a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
-}
+use crate::numerics::{dot, median};
 
 fn unit(a: [f64; 3]) -> [f64; 3] {
     let n = dot(a, a).sqrt();
@@ -1354,25 +1352,13 @@ pub fn equivalent_half_sine_duration(
     let best = (0..n)
         .min_by(|&a, &b| cost(grid[a]).total_cmp(&cost(grid[b])))
         .expect("grid is not empty");
-    let (mut lo, mut hi) = (grid[best.saturating_sub(1)], grid[(best + 1).min(n - 1)]);
-    let phi = 0.5 * (5f64.sqrt() - 1.0);
-    let (mut a, mut b) = (hi - phi * (hi - lo), lo + phi * (hi - lo));
-    let (mut ca, mut cb) = (cost(a), cost(b));
-    for _ in 0..100 {
-        if ca < cb {
-            hi = b;
-            b = a;
-            cb = ca;
-            a = hi - phi * (hi - lo);
-            ca = cost(a);
-        } else {
-            lo = a;
-            a = b;
-            ca = cb;
-            b = lo + phi * (hi - lo);
-            cb = cost(b);
-        }
-    }
+    let (lo, hi) = crate::numerics::golden_section(
+        grid[best.saturating_sub(1)],
+        grid[(best + 1).min(n - 1)],
+        100,
+        &cost,
+        |ca, cb| ca < cb,
+    );
     Ok((0.5 * (lo + hi)).exp())
 }
 
@@ -1506,21 +1492,6 @@ pub fn frequency_in_name(name: &str) -> Option<f64> {
         });
     let value: f64 = head[start..].parse().ok()?;
     (value > 0.0 && value.is_finite()).then_some(value)
-}
-
-/// The median (mean of the two middle values for an even count); `None` if empty.
-pub fn median(values: &[f64]) -> Option<f64> {
-    let mut v: Vec<f64> = values.to_vec();
-    if v.is_empty() {
-        return None;
-    }
-    v.sort_by(f64::total_cmp);
-    let n = v.len();
-    Some(if n % 2 == 1 {
-        v[n / 2]
-    } else {
-        0.5 * (v[n / 2 - 1] + v[n / 2])
-    })
 }
 
 /// Relative errors of one parameter over the cases.
@@ -2732,9 +2703,6 @@ mod tests {
         // Nearest first, one to one, beyond the tolerance unpaired.
         let pairs = pair_by_frequency(&[1000.0, 1003.0, 5000.0], &[1002.5, 1000.5, 7000.0], 0.002);
         assert_eq!(pairs, vec![(1, 0), (0, 1)]);
-        assert_eq!(median(&[3.0, 1.0, 2.0]), Some(2.0));
-        assert_eq!(median(&[4.0, 1.0, 2.0, 3.0]), Some(2.5));
-        assert_eq!(median(&[]), None);
         let e = ErrorSummary::of(&[0.1, -0.3, 0.2, f64::NAN]).unwrap();
         assert_eq!((e.n, e.max_abs), (3, 0.3));
         assert!((e.median_abs - 0.2).abs() < 1e-15 && (e.median - 0.1).abs() < 1e-15);

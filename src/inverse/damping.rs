@@ -23,7 +23,7 @@
 //! # Steps of [`fit_damping`]
 //!
 //! 1. Crop to [`DampingFitSettings::duration_s`] if given.
-//! 2. Estimate modes with sub-band ESPRIT ([`crate::inverse::estimate`]) on the record after
+//! 2. Estimate modes with sub-band ESPRIT ([`crate::analysis::estimate`]) on the record after
 //!    skipping t₀ = [`DampingFitSettings::estimate_skip_s`] (n₀ = round(t₀ f_s) samples; default
 //!    20 ms): the contact transient gives fast spurious poles. A mode estimated as
 //!    a′ e^(−d t′) sin(2π f t′ + φ′) with t′ = t − t₀ is, from the onset, a = a′ e^(d t₀),
@@ -78,7 +78,7 @@
 //!   60 dB in 23 ms, half the longest frame of the loss (2048 samples = 43 ms at 48 kHz): faster
 //!   poles are not resolved in time by the loss and are the contact transient. It is also the
 //!   default cap of the estimate, so nothing faster is initialised unless asked.
-//! * SNR (of the estimate, over the residual noise in its band; [`crate::inverse::estimate`]) ≥
+//! * SNR (of the estimate, over the residual noise in its band; [`crate::analysis::estimate`]) ≥
 //!   [`DampingFitSettings::min_snr_db`], default 30 dB: by the Cramér–Rao bound above, the
 //!   relative error of d is at least 2/√SNR, 6 % at 30 dB (20 % at the estimate's own 20 dB,
 //!   which only separates modes from noise poles). Note that this SNR is measured against the
@@ -187,8 +187,10 @@ use std::time::Instant;
 use nalgebra::{DMatrix, DVector};
 use rustfft::num_complex::Complex64;
 
-use super::estimate::{estimate_modes, EstimateError, EstimateOptions};
 use super::optim::Adam;
+use crate::analysis::estimate::{estimate_modes, EstimateError, EstimateOptions};
+pub use crate::analysis::mode::ModeVerdict;
+use crate::analysis::mode::{MeasuredMode, RefinedFrom, Verdict};
 use crate::audio::chain::DampingCurve;
 use crate::audio::loss::{LossError, MultiScaleSpectralLoss, SpectralLossConfig};
 use crate::audio::noise::{FilteredNoise, NoiseError};
@@ -331,52 +333,6 @@ impl Default for DampingFitSettings {
     }
 }
 
-/// Why a mode was kept or rejected (the first test it fails, in the order of the module docs).
-#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
-#[serde(rename_all = "snake_case")]
-pub enum ModeVerdict {
-    Kept,
-    /// d ≤ min_decay_rate.
-    DecayTooSlow,
-    /// d > max_decay_rate.
-    DecayTooFast,
-    /// SNR of the estimate below min_snr_db.
-    LowSnr,
-    /// Level below min_level_db.
-    Weak,
-    /// The mode's peak has d more than max_curve_ratio times off the robust curve through the
-    /// kept peaks.
-    OffCurve,
-}
-
-/// One mode after the refinement.
-#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
-pub struct FittedMode {
-    /// f (damped, as heard), Hz.
-    pub frequency_hz: f64,
-    /// f₀ = √(f² + (d/2π)²), the undamped frequency the curve is a function of, Hz.
-    pub undamped_frequency_hz: f64,
-    /// d, 1/s.
-    pub decay_rate: f64,
-    /// f and d of the estimate, before the refinement.
-    pub estimated_frequency_hz: f64,
-    pub estimated_decay_rate: f64,
-    /// a_c per channel at the onset, units of the signal.
-    pub amplitudes: Vec<f64>,
-    /// φ_c per channel at the onset, rad, in (−π, π].
-    pub phases: Vec<f64>,
-    /// ℓ, dB relative to the strongest mode (module docs).
-    pub level_db: f64,
-    /// SNR of the estimate, dB.
-    pub snr_db: f64,
-    /// Whether the mode counts: it passed the mode thresholds and its peak is kept.
-    pub kept: bool,
-    pub reason: ModeVerdict,
-    /// Index into [`DampingFit::peaks`] of the peak the mode belongs to, if it passed the
-    /// mode thresholds.
-    pub peak: Option<usize>,
-}
-
 /// One spectral peak: modes whose lines overlap (module docs), with one decay rate.
 #[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct FittedPeak {
@@ -444,7 +400,7 @@ pub struct DampingFit {
     /// Modes found by the estimate (before `max_modes`).
     pub n_estimated: usize,
     /// Every refined mode, by frequency.
-    pub modes: Vec<FittedMode>,
+    pub modes: Vec<MeasuredMode>,
     /// The spectral peaks formed by the modes that passed the mode thresholds, by frequency.
     pub peaks: Vec<FittedPeak>,
     /// d(f₀) through the kept peaks.
@@ -470,8 +426,8 @@ pub struct DampingFit {
 
 impl DampingFit {
     /// The kept modes.
-    pub fn kept(&self) -> impl Iterator<Item = &FittedMode> {
-        self.modes.iter().filter(|m| m.kept)
+    pub fn kept(&self) -> impl Iterator<Item = &MeasuredMode> {
+        self.modes.iter().filter(|m| m.kept())
     }
 
     /// The kept peaks.
@@ -576,19 +532,18 @@ pub fn fit_damping<S: AsRef<[f64]>>(
     }
     chosen.sort_by(|a, b| a.frequency_hz.total_cmp(&b.frequency_hz));
     let t0 = skip as f64 / sample_rate;
-    let start: Vec<StartMode> = chosen
+    let start: Vec<MeasuredMode> = chosen
         .iter()
         .map(|m| {
             // f·n₀/f_s modulo one cycle, so the phase shift is exact for long skips too.
             let cycles = m.frequency_hz * skip as f64 / sample_rate;
             let shift = 2.0 * PI * (cycles - cycles.round());
             let growth = (m.decay_rate * t0).exp();
-            StartMode {
-                frequency_hz: m.frequency_hz,
-                decay_rate: m.decay_rate,
+            MeasuredMode {
                 amplitudes: m.amplitudes.iter().map(|a| a * growth).collect(),
                 phases: m.phases.iter().map(|p| wrap_phase(p - shift)).collect(),
                 snr_db: m.snr_db,
+                ..MeasuredMode::pole(m.frequency_hz, m.decay_rate)
             }
         })
         .collect();
@@ -647,9 +602,10 @@ pub fn fit_damping<S: AsRef<[f64]>>(
         }
     };
     for m in modes.iter_mut() {
-        if let Some(p) = m.peak {
-            m.kept = peaks[p].kept;
-            m.reason = peaks[p].reason;
+        let v = m.verdict_mut();
+        if let Some(p) = v.peak {
+            v.kept = peaks[p].kept;
+            v.reason = peaks[p].reason;
         }
     }
     let curve_rms_log_error = weighted_rms(
@@ -683,15 +639,6 @@ pub fn fit_damping<S: AsRef<[f64]>>(
     })
 }
 
-/// A mode as the refinement starts it.
-struct StartMode {
-    frequency_hz: f64,
-    decay_rate: f64,
-    amplitudes: Vec<f64>,
-    phases: Vec<f64>,
-    snr_db: f64,
-}
-
 /// What [`Problem::refine`] returns.
 struct Refined {
     loss: f64,
@@ -715,7 +662,7 @@ impl Problem {
     fn new(
         signals: &[&[f64]],
         sample_rate: f64,
-        start: &[StartMode],
+        start: &[MeasuredMode],
         settings: &DampingFitSettings,
     ) -> Result<Problem, DampingError> {
         let n_samples = signals[0].len();
@@ -786,7 +733,7 @@ impl Problem {
     fn initial_parameters(
         &self,
         signals: &[&[f64]],
-        start: &[StartMode],
+        start: &[MeasuredMode],
         settings: &DampingFitSettings,
     ) -> Result<Vec<f64>, DampingError> {
         let mut params = vec![0.0; self.n_parameters()];
@@ -831,7 +778,7 @@ impl Problem {
 
     fn bounds(
         &self,
-        start: &[StartMode],
+        start: &[MeasuredMode],
         signals: &[&[f64]],
         s: &DampingFitSettings,
     ) -> (Vec<f64>, Vec<f64>) {
@@ -877,7 +824,7 @@ impl Problem {
     fn refine(
         &self,
         signals: &[&[f64]],
-        start: &[StartMode],
+        start: &[MeasuredMode],
         mut params: Vec<f64>,
         settings: &DampingFitSettings,
         on_step: &mut impl FnMut(&DampingStep),
@@ -959,7 +906,7 @@ impl Problem {
     }
 
     /// The modes at `params`, verdicts not yet given.
-    fn modes(&self, params: &[f64], start: &[StartMode]) -> Vec<FittedMode> {
+    fn modes(&self, params: &[f64], start: &[MeasuredMode]) -> Vec<MeasuredMode> {
         let k = self.n_modes;
         let banks: Vec<ModalBank> = (0..self.n_channels())
             .map(|c| self.bank(params, c))
@@ -968,19 +915,21 @@ impl Problem {
             .map(|i| {
                 let f = params[i];
                 let d = params[k + i].exp();
-                FittedMode {
-                    frequency_hz: f,
-                    undamped_frequency_hz: f.hypot(d / (2.0 * PI)),
-                    decay_rate: d,
-                    estimated_frequency_hz: start[i].frequency_hz,
-                    estimated_decay_rate: start[i].decay_rate,
+                MeasuredMode {
                     amplitudes: banks.iter().map(|b| b.amplitudes[i]).collect(),
                     phases: banks.iter().map(|b| wrap_phase(b.phases[i])).collect(),
-                    level_db: f64::NEG_INFINITY,
                     snr_db: start[i].snr_db,
-                    kept: false,
-                    reason: ModeVerdict::Weak,
-                    peak: None,
+                    refined_from: Some(RefinedFrom {
+                        frequency_hz: start[i].frequency_hz,
+                        decay_rate: start[i].decay_rate,
+                    }),
+                    verdict: Some(Verdict {
+                        level_db: f64::NEG_INFINITY,
+                        kept: false,
+                        reason: ModeVerdict::Weak,
+                        peak: None,
+                    }),
+                    ..MeasuredMode::pole(f, d)
                 }
             })
             .collect()
@@ -1066,11 +1015,11 @@ fn residual_envelope(noise: &FilteredNoise, residual: &[f64], gain: f64) -> Vec<
 /// linkage of neighbours, module docs) and gives each peak its frequency, decay and level.
 /// `duration_s` is the record length T.
 fn group_peaks(
-    modes: &mut [FittedMode],
+    modes: &mut [MeasuredMode],
     s: &DampingFitSettings,
     duration_s: f64,
 ) -> Result<Vec<FittedPeak>, DampingError> {
-    let passed: Vec<usize> = (0..modes.len()).filter(|&k| modes[k].kept).collect();
+    let passed: Vec<usize> = (0..modes.len()).filter(|&k| modes[k].kept()).collect();
     let mut groups: Vec<Vec<usize>> = Vec::new();
     for &k in &passed {
         let joins = groups.last().and_then(|g| g.last()).is_some_and(|&j| {
@@ -1127,10 +1076,10 @@ fn group_peaks(
             / total;
         let snr = members
             .iter()
-            .map(|&k| 10f64.powf(modes[k].snr_db / 10.0))
+            .map(|&k| 10f64.powf(modes[k].snr() / 10.0))
             .sum::<f64>();
         for &k in &members {
-            modes[k].peak = Some(index);
+            modes[k].verdict_mut().peak = Some(index);
         }
         peaks.push(FittedPeak {
             frequency_hz,
@@ -1242,33 +1191,36 @@ impl EnergyDecay {
 }
 
 /// Gives every mode its level and verdict (module docs).
-fn classify(modes: &mut [FittedMode], s: &DampingFitSettings) {
-    let power = |m: &FittedMode| m.amplitudes.iter().map(|a| a * a).sum::<f64>();
+fn classify(modes: &mut [MeasuredMode], s: &DampingFitSettings) {
+    let power = |m: &MeasuredMode| m.amplitudes.iter().map(|a| a * a).sum::<f64>();
     let decay_ok =
-        |m: &FittedMode| m.decay_rate > s.min_decay_rate && m.decay_rate <= s.max_decay_rate;
+        |m: &MeasuredMode| m.decay_rate > s.min_decay_rate && m.decay_rate <= s.max_decay_rate;
     let reference = modes
         .iter()
         .filter(|m| decay_ok(m))
         .map(power)
         .fold(0.0_f64, f64::max);
     for m in modes.iter_mut() {
-        m.level_db = if reference > 0.0 {
+        let level_db = if reference > 0.0 {
             10.0 * (power(m) / reference).log10()
         } else {
             f64::NEG_INFINITY
         };
-        m.reason = if m.decay_rate <= s.min_decay_rate {
+        let reason = if m.decay_rate <= s.min_decay_rate {
             ModeVerdict::DecayTooSlow
         } else if m.decay_rate > s.max_decay_rate {
             ModeVerdict::DecayTooFast
-        } else if !(m.snr_db >= s.min_snr_db) {
+        } else if !(m.snr() >= s.min_snr_db) {
             ModeVerdict::LowSnr
-        } else if !(m.level_db >= s.min_level_db) {
+        } else if !(level_db >= s.min_level_db) {
             ModeVerdict::Weak
         } else {
             ModeVerdict::Kept
         };
-        m.kept = m.reason == ModeVerdict::Kept;
+        let v = m.verdict_mut();
+        v.level_db = level_db;
+        v.reason = reason;
+        v.kept = reason == ModeVerdict::Kept;
     }
 }
 

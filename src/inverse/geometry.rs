@@ -32,7 +32,7 @@
 //! gradient is the network's plain vector–Jacobian product at six points per sample (exact
 //! for this discretised term; no second derivatives of the network). The zero level set settles
 //! on the faces between differently labelled voxels, smoothed by the network's limited
-//! bandwidth (a few octaves, [`crate::inverse::neural_sdf`]). Adam on all of θ with one step
+//! bandwidth (a few octaves, [`crate::shape::neural_sdf`]). Adam on all of θ with one step
 //! size, decayed exponentially from `learning_rate` to `final_learning_rate`.
 //!
 //! # Refinement
@@ -137,7 +137,7 @@
 //!
 //! With `curved_boundary` (default; `--straight-boundary` turns it off) every body of the task
 //! is meshed as the thickness fit's is (the shape module's "Curved boundary",
-//! [`crate::inverse::shape::curved_body`]): the marching's topology from the samples s_i, every
+//! [`crate::shape::curved_body`]): the marching's topology from the samples s_i, every
 //! crossing moved onto the zero of the continuous field along its grid edge, every boundary
 //! mid-edge node moved onto it along the central-difference gradient D s at the edge's midpoint
 //! p₀. The field is the network for the fit's bodies and the true signed distance for the target
@@ -151,7 +151,7 @@
 //!   a = G·n/(∇s·n),  T = G − a ∇s(x),  b = u (I − n nᵀ) T/|D|
 //! ```
 //!
-//! (G the node's eigenvalue gradient, δ the difference step; [`crate::inverse::shape::FieldWeights`]).
+//! (G the node's eigenvalue gradient, δ the difference step; [`crate::shape::FieldWeights`]).
 //! The last two terms are the turn of the node's direction of move with the field: a signed
 //! distance does not turn along its normal, so the thickness fit leaves them out, but the
 //! network does, and without them the chain missed central differences by 1e-2 (with them
@@ -186,7 +186,7 @@
 //!
 //! [`fit_geometry`] synthesises the target as the spectrum of the true signed distance sampled
 //! on a finer grid (`target_cells`) shifted by a random fraction of a cell (`target_seed`), as
-//! the thickness fits do. Shapes are compared by [`crate::mesh::distance`] on the boundary of the
+//! the thickness fits do. Shapes are compared by [`crate::shape::distance`] on the boundary of the
 //! marched tet mesh (the body the physics sees) against the true surface: Chamfer, Hausdorff and
 //! volume IoU. As a floor, the same metrics and eigenvalues are reported for the true signed
 //! distance marched on the fit grid: no field on that grid can be expected to do better.
@@ -325,18 +325,17 @@
 //! tried then on spot 16³ (voxel weight 10, 6 modes, eikonal weight 1 with a 0.1-cell cap) did
 //! not help.
 
-use super::neural_sdf::{NeuralSdf, NeuralSdfConfig, NeuralSdfError};
 use super::optim::Adam;
-use super::shape::{
-    curved_field_spectrum, refine_crossings, shape_spectrum, shifted_covering, PointGradient,
-    ShapeError, ShapeSpectrum, SpectrumTarget, StepTimings,
-};
+use super::shape::SpectrumTarget;
 use crate::fem::Material;
-use crate::mesh::{
-    self, BackgroundGrid, MarchingOptions, ShapeComparison, SignedDistance, TriangleSurface,
-};
 use crate::petsc::{collective, Petsc};
 use crate::random::SplitMix64;
+use crate::shape::neural_sdf::{NeuralSdf, NeuralSdfConfig, NeuralSdfError};
+use crate::shape::{
+    self, curved_field_spectrum, refine_crossings, shape_spectrum, shifted_covering,
+    BackgroundGrid, MarchingOptions, PointGradient, ShapeComparison, ShapeError, ShapeSpectrum,
+    SignedDistance, StepTimings, TriangleSurface,
+};
 use std::collections::HashMap;
 
 /// Why the geometry task failed.
@@ -347,7 +346,7 @@ pub enum GeometryError {
     #[error("{0}")]
     Network(#[from] NeuralSdfError),
     #[error("shape comparison: {0}")]
-    Distance(#[from] mesh::DistanceError),
+    Distance(#[from] shape::DistanceError),
     #[error("{0}")]
     Invalid(String),
 }
@@ -1682,13 +1681,13 @@ pub fn assess(
     settings: &GeometrySettings,
 ) -> Result<Assessed, GeometryError> {
     let marched =
-        mesh::march(grid, values, None, &MarchingOptions::default()).map_err(ShapeError::from)?;
+        shape::march(grid, values, None, &MarchingOptions::default()).map_err(ShapeError::from)?;
     let linear = match f {
         Some(f) => refine_crossings(&marched, grid, f, None, 0.01).0,
         None => marched.mesh,
     };
     let surface = TriangleSurface::from_mesh_boundary(&linear);
-    let comparison = mesh::compare_shapes(
+    let comparison = shape::compare_shapes(
         &surface,
         truth,
         settings.surface_samples,
@@ -1820,7 +1819,7 @@ pub fn fit_geometry(
     let clock = std::time::Instant::now();
     let voxels = Voxels::of_sdf(sdf, lo, hi, settings.voxels)?;
     let voxel_surface = voxels.boundary_surface();
-    let voxel_comparison = mesh::compare_shapes(
+    let voxel_comparison = shape::compare_shapes(
         &voxel_surface,
         truth,
         settings.surface_samples,

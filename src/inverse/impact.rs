@@ -34,7 +34,7 @@
 //!
 //! **Solve.** The unknowns (Re a_k, Im a_k) are linear; the 2K × 2K Gram matrix GᵀG comes in
 //! closed form from geometric sums and the right-hand sides in one pass over the window per mode
-//! ([`crate::inverse::estimate`]'s full-rate fit, shared with the modal estimate). GᵀG is scaled
+//! ([`crate::analysis::estimate`]'s full-rate fit, shared with the modal estimate). GᵀG is scaled
 //! to a unit diagonal (D GᵀG D, D = diag(GᵀG)^(−½)) and decomposed, D GᵀG D = V Λ Vᵀ;
 //! eigenvalues below `rcond` (default 10⁻¹⁰) of the largest are dropped and the solution is the
 //! minimum-norm one, D V Λ⁺ Vᵀ D Gᵀy_c for channel c (y_c its samples in the window). Two poles
@@ -224,11 +224,13 @@ use std::collections::{BTreeMap, BinaryHeap, HashMap};
 use nalgebra::{DMatrix, SymmetricEigen};
 use rustfft::num_complex::Complex64;
 
+use crate::analysis::estimate::lsq;
+use crate::analysis::MeasuredMode;
 use crate::audio::chain::Strike;
 use crate::audio::excitation::modal_factor;
 use crate::audio::ChannelFault;
-use crate::inverse::estimate::lsq;
 use crate::mesh::TetMesh;
+use crate::numerics::{cross, golden_section, norm, sub};
 
 #[cfg(test)]
 mod tests;
@@ -394,15 +396,6 @@ fn check_len(what: &'static str, got: usize, expected: usize) -> Result<(), Impa
 // 1. Amplitudes with known poles
 // ---------------------------------------------------------------------------------------------
 
-/// A damped mode as the recording shows it.
-#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
-pub struct Pole {
-    /// f [Hz], the damped frequency (the synthesiser bank's).
-    pub frequency_hz: f64,
-    /// d [1/s]: amplitude ∝ e^(−d t).
-    pub decay_rate: f64,
-}
-
 /// Settings of [`fit_amplitudes`] (module docs, section 1).
 #[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 #[serde(default, deny_unknown_fields)]
@@ -437,7 +430,7 @@ pub struct AmplitudeFit {
     pub first_sample: usize,
     /// N, samples in the window.
     pub window_samples: usize,
-    pub poles: Vec<Pole>,
+    pub poles: Vec<MeasuredMode>,
     /// a_kc at t₀, `[channel][mode]`, units of the recording: x = Re{a e^(s(t − t₀))}.
     pub amplitudes: Vec<Vec<Complex64>>,
     /// σ(|a_kc|), first order, `[channel][mode]` (∞ for an unresolved mode).
@@ -481,7 +474,7 @@ pub fn fit_amplitudes(
     channels: &[Vec<f64>],
     sample_rate: f64,
     start_s: f64,
-    poles: &[Pole],
+    poles: &[MeasuredMode],
     options: &AmplitudeFitOptions,
 ) -> Result<AmplitudeFit, ImpactError> {
     let signals: Vec<&[f64]> = channels.iter().map(|c| c.as_slice()).collect();
@@ -1477,28 +1470,13 @@ fn score_vertex(
                 .collect();
             let i = argmax(grid.iter().copied());
             // Golden section on [x_(i−1), x_(i+1)] (clamped to the range).
-            let (mut a, mut b) = (
+            let (a, b) = golden_section(
                 (lo + step * (i as f64 - 1.0)).max(lo),
                 (lo + step * (i as f64 + 1.0)).min(hi),
+                SIGMA_GOLDEN_STEPS,
+                |x| eval(x).0,
+                |f1, f2| f1 >= f2,
             );
-            let g = 0.5 * (5f64.sqrt() - 1.0);
-            let (mut x1, mut x2) = (b - g * (b - a), a + g * (b - a));
-            let (mut f1, mut f2) = (eval(x1).0, eval(x2).0);
-            for _ in 0..SIGMA_GOLDEN_STEPS {
-                if f1 >= f2 {
-                    b = x2;
-                    x2 = x1;
-                    f2 = f1;
-                    x1 = b - g * (b - a);
-                    f1 = eval(x1).0;
-                } else {
-                    a = x1;
-                    x1 = x2;
-                    f1 = f2;
-                    x2 = a + g * (b - a);
-                    f2 = eval(x2).0;
-                }
-            }
             let x = 0.5 * (a + b);
             let inner = eval(x);
             // The grid point wins when the optimum sits on the range's edge.
@@ -1839,20 +1817,4 @@ pub fn symmetry_orbit(
         })
         .map(|(u, _)| u)
         .collect())
-}
-
-fn sub(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
-    [a[0] - b[0], a[1] - b[1], a[2] - b[2]]
-}
-
-fn cross(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
-    [
-        a[1] * b[2] - a[2] * b[1],
-        a[2] * b[0] - a[0] * b[2],
-        a[0] * b[1] - a[1] * b[0],
-    ]
-}
-
-fn norm(a: [f64; 3]) -> f64 {
-    (a[0] * a[0] + a[1] * a[1] + a[2] * a[2]).sqrt()
 }

@@ -6,7 +6,7 @@ use super::{ElementOrder, TetMesh};
 /// path from (0,0,0) to (1,1,1) that steps along the axes in the order of a
 /// permutation. Odd permutations would give negative volume, so their middle
 /// two corners are swapped to keep every tet positively oriented.
-pub(super) const KUHN_TETS: [[[usize; 3]; 4]; 6] = {
+pub(crate) const KUHN_TETS: [[[usize; 3]; 4]; 6] = {
     const fn path(first: usize, second: usize, third: usize, odd: bool) -> [[usize; 3]; 4] {
         let mut v1 = [0; 3];
         v1[first] = 1;

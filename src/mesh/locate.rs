@@ -19,6 +19,7 @@
 //! blind benchmark's generator to place its effects.
 
 use super::TetMesh;
+use crate::numerics::{cross, dot, sub};
 
 /// A point on the boundary of a mesh.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -35,19 +36,6 @@ pub struct SurfacePoint {
     pub distance: f64,
 }
 
-fn sub(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
-    [a[0] - b[0], a[1] - b[1], a[2] - b[2]]
-}
-fn dot(a: [f64; 3], b: [f64; 3]) -> f64 {
-    a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
-}
-fn cross(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
-    [
-        a[1] * b[2] - a[2] * b[1],
-        a[2] * b[0] - a[0] * b[2],
-        a[0] * b[1] - a[1] * b[0],
-    ]
-}
 fn unit(a: [f64; 3]) -> [f64; 3] {
     let n = dot(a, a).sqrt();
     if n > 0.0 {
@@ -59,7 +47,7 @@ fn unit(a: [f64; 3]) -> [f64; 3] {
 
 /// Closest point of triangle (a, b, c) to p, as weights (wa, wb, wc) summing to 1. Region
 /// tests on the triangle's Voronoi regions (vertices, edges, interior).
-pub(super) fn closest_on_triangle(p: [f64; 3], a: [f64; 3], b: [f64; 3], c: [f64; 3]) -> [f64; 3] {
+pub(crate) fn closest_on_triangle(p: [f64; 3], a: [f64; 3], b: [f64; 3], c: [f64; 3]) -> [f64; 3] {
     let (ab, ac, ap) = (sub(b, a), sub(c, a), sub(p, a));
     let (d1, d2) = (dot(ab, ap), dot(ac, ap));
     if d1 <= 0.0 && d2 <= 0.0 {

@@ -1,5 +1,7 @@
-//! Tetrahedral meshes: reading Gmsh files, checking them, and the geometric
-//! queries the FEM and audio stages need.
+//! Tetrahedral meshes: reading Gmsh files, checking them, lifting, straightening,
+//! locating points on them, writing and generating them, and the geometric queries
+//! the FEM and audio stages need. Meshes built from implicit shapes (signed distances,
+//! marching tetrahedra) are made in [`crate::shape`].
 //!
 //! # Formats
 //! [`read_mesh`] reads Gmsh MSH files in version **2.2** (2.0 and 2.1 share its
@@ -47,17 +49,6 @@
 //! assembles a mesh, finds them ([`straighten`]) and refuses the file or, on
 //! request, straightens them.
 //!
-//! # Shapes from signed distances
-//!
-//! For shape optimisation the crate also builds its own meshes:
-//! [`surface`] reads triangle surfaces (OBJ, or the boundary of a tet mesh),
-//! [`sdf`] turns one into a signed distance field (positive inside, sign from
-//! the generalised winding number), and [`marching`] meshes the region
-//! {s > 0} of values on a background grid with marching tetrahedra, keeping
-//! the record of every vertex (grid vertex or interpolated crossing) so that
-//! gradients flow from node positions back to the values and grid offsets
-//! ([`MarchedMesh::vjp`], and [`linear_node_gradient`] from a lifted P2 mesh).
-//!
 //! # Errors and warnings
 //! Every [`MeshError`] names the file and where: the line (ASCII), the byte
 //! offset (binary) or the element tag. Problems that leave a usable mesh
@@ -67,40 +58,23 @@
 use std::fmt;
 use std::path::PathBuf;
 
-pub mod curve;
-pub mod distance;
 mod generate;
 mod gmsh;
 mod lift;
-pub mod marching;
-pub mod refine;
-pub mod sdf;
 pub mod straighten;
-pub mod surface;
 mod validate;
 mod write;
 
 #[cfg(test)]
-mod tests;
+pub(crate) mod tests;
 
 pub mod locate;
-pub use curve::{curve_boundary, CurvedNode, CurvingReport, FieldGradient};
-pub use distance::{
-    compare_shapes, sample_surface, surface_distance, volume_iou, DistanceError, ShapeComparison,
-    SurfaceDistance,
-};
 pub use generate::box_mesh;
+pub(crate) use generate::KUHN_TETS;
 pub use gmsh::{read_mesh, read_mesh_from_bytes};
 pub use lift::{lift_to_quadratic, linear_node_gradient, to_linear, LiftError};
 pub use locate::SurfacePoint;
-pub use marching::{
-    march, morph, morph_vjp, shell, shell_of_depth, BackgroundGrid, MarchedMesh, MarchingError,
-    MarchingGradient, MarchingOptions, MarchingReport, MorphGradient, Shell, ShellGradient,
-    VertexOrigin,
-};
-pub use sdf::SignedDistance;
 pub use straighten::read_for_fem;
-pub use surface::{parse_obj, read_obj, SurfaceError, SurfaceRead, TriangleSurface};
 pub use validate::ZERO_VOLUME_RELATIVE_TOLERANCE;
 pub use write::write_msh22_ascii;
 
@@ -509,25 +483,7 @@ pub fn parse_unit(s: &str) -> Result<f64, MeshError> {
 
 // ---- small geometry helpers shared by the submodules ----
 
-pub(crate) fn sub(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
-    [a[0] - b[0], a[1] - b[1], a[2] - b[2]]
-}
-
-pub(crate) fn cross(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
-    [
-        a[1] * b[2] - a[2] * b[1],
-        a[2] * b[0] - a[0] * b[2],
-        a[0] * b[1] - a[1] * b[0],
-    ]
-}
-
-pub(crate) fn dot(a: [f64; 3], b: [f64; 3]) -> f64 {
-    a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
-}
-
-pub(crate) fn norm(a: [f64; 3]) -> f64 {
-    dot(a, a).sqrt()
-}
+pub(crate) use crate::numerics::{cross, dot, norm, sub};
 
 /// `det[b-a, c-a, d-a] / 6`.
 pub(crate) fn signed_tet_volume(a: [f64; 3], b: [f64; 3], c: [f64; 3], d: [f64; 3]) -> f64 {

@@ -24,7 +24,7 @@ pub(super) fn fixture(name: &str) -> PathBuf {
 
 /// The shared data directory: `$DIFFSOUND_SHARED`, else `../shared` next to
 /// the repository, else `/work/shared`. `None` (and a note) if absent.
-pub(super) fn shared_file(relative: &str) -> Option<PathBuf> {
+pub(crate) fn shared_file(relative: &str) -> Option<PathBuf> {
     let candidates: Vec<PathBuf> = match std::env::var_os("DIFFSOUND_SHARED") {
         Some(dir) => vec![PathBuf::from(dir)],
         None => vec![repo_root().join("../shared"), PathBuf::from("/work/shared")],

@@ -24,7 +24,7 @@ pub use eps::{Eps, EpsWhich, Pc, St};
 pub use error::{PetscError, Result};
 pub use factor::{FactorError, FactorLog, FactorUse, Inertia, MumpsCholesky};
 pub use mat::{Mat, NonzeroPattern};
-pub use runtime::Petsc;
+pub use runtime::{pin_blas_threads, Petsc};
 pub use vector::Vector;
 
 /// PETSc's index type (32-bit in Debian's build).

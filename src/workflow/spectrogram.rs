@@ -1,12 +1,12 @@
 //! The `spectrogram` job: a PNG of one WAV file, or of several side by side (e.g. a rendered
 //! strike against a recording), on one dB colour scale.
 //!
-//! Each file's channel is optionally trimmed to its onset ([`crate::audio::onset`]), then
+//! Each file's channel is optionally trimmed to its onset ([`crate::analysis::onset`]), then
 //! transformed with the STFT of [`crate::audio::stft`] (periodic Hann window of `n_fft`
 //! samples, hop `hop`). Levels are 20·log10(|X| / peak) dB with the peak of all panels at
 //! 0 dB, so quieter files look quieter; `each_own_peak` puts every panel's peak at 0 dB.
 
-use crate::audio::onset::{detect_shared_onset, OnsetOptions};
+use crate::analysis::onset::{detect_shared_onset, OnsetOptions};
 use crate::audio::stft::StftPlan;
 use crate::audio::{read_wav, AudioError};
 use crate::io::plot::{spectrogram_png, PlotError, SpectrogramFigure, SpectrogramPanel};

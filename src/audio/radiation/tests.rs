@@ -97,7 +97,7 @@ fn coned_icosphere(level: usize, a: f64, quadratic: bool) -> TetMesh {
             for k in j + 1..12 {
                 let close = |a: usize, b: usize| (norm(sub(v[a], v[b])) - 2.0).abs() < 1e-9;
                 if close(i, j) && close(j, k) && close(i, k) {
-                    let outward = dot(&v[i], cross(v[j], v[k])) > 0.0;
+                    let outward = dot(v[i], cross(v[j], v[k])) > 0.0;
                     faces.push(if outward { [i, j, k] } else { [i, k, j] });
                 }
             }
@@ -673,7 +673,7 @@ fn mesh_sampling_converges_p1_at_second_and_p2_at_higher_order() {
                 .points
                 .iter()
                 .zip(&s.normals)
-                .all(|(x, n)| dot(n, *x) > 0.9 * a));
+                .all(|(x, n)| dot(*n, *x) > 0.9 * a));
             let area_err = (s.area() / (4.0 * PI * a * a) - 1.0).abs();
             let un = quad
                 .normal_displacement(&nodal_field(&mesh, |x| [(x[0] / a).exp(), 0.0, 0.0]))

@@ -210,26 +210,7 @@ pub(super) fn minimise_nonnegative(h: impl Fn(f64) -> f64, t_lo: f64, t_hi: f64)
     let lo = if best == 0 { 0.0 } else { grid[best - 1] };
     let hi = grid[(best + 1).min(grid.len() - 1)];
     // Golden section on [lo, hi] (h is unimodal between the neighbours of the grid minimum).
-    let g = 0.5 * (5f64.sqrt() - 1.0);
-    let (mut a, mut b) = (lo, hi);
-    let mut c = b - g * (b - a);
-    let mut d = a + g * (b - a);
-    let (mut fc, mut fd) = (h(c), h(d));
-    for _ in 0..60 {
-        if fc < fd {
-            b = d;
-            d = c;
-            fd = fc;
-            c = b - g * (b - a);
-            fc = h(c);
-        } else {
-            a = c;
-            c = d;
-            fc = fd;
-            d = a + g * (b - a);
-            fd = h(d);
-        }
-    }
+    let (a, b) = crate::numerics::golden_section(lo, hi, 60, &h, |fc, fd| fc < fd);
     let t = 0.5 * (a + b);
     let candidates = [(t, h(t)), (grid[best], values[best]), (0.0, values[0])];
     candidates

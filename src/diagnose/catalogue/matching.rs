@@ -38,6 +38,7 @@
 //!    therefore take a unit's place; the selection keeps the exchange when the baseline's
 //!    likelihood prefers it (parent docs, "Selection").
 
+use crate::numerics::median;
 use std::collections::BTreeMap;
 
 use super::{CatalogueSettings, Role, SimulatedMode};
@@ -152,16 +153,6 @@ impl Matching {
     }
 }
 
-fn median(values: &mut [f64]) -> f64 {
-    values.sort_by(f64::total_cmp);
-    let n = values.len();
-    if n % 2 == 1 {
-        values[n / 2]
-    } else {
-        0.5 * (values[n / 2 - 1] + values[n / 2])
-    }
-}
-
 /// Step 1 of the module docs.
 fn search_scale(observed: &[f64], sim_sorted: &[f64], settings: &CatalogueSettings) -> f64 {
     let tol = settings.match_tolerance;
@@ -193,15 +184,15 @@ fn search_scale(observed: &[f64], sim_sorted: &[f64], settings: &CatalogueSettin
     }
     let mut ln_s = best.1;
     for _ in 0..3 {
-        let mut within: Vec<f64> = observed
+        let within: Vec<f64> = observed
             .iter()
             .map(|&x| nearest(sim_sorted, x - ln_s).1)
             .filter(|e| e.abs() <= tol)
             .collect();
-        if within.is_empty() {
+        let Some(m) = median(&within) else {
             break;
-        }
-        ln_s += median(&mut within);
+        };
+        ln_s += m;
     }
     ln_s
 }

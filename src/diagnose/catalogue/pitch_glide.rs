@@ -6,7 +6,7 @@
 //! Δω/ω ∝ (strain amplitude)², and the strain energy of mode k is ∝ ω_k² q_k² ∝ a_k²/ω_k² (a the
 //! acceleration amplitude, a = ω² q). The observable y_k is the relative glide at the onset
 //! g_k ± σ_g of the chirp fit f(t) = f_k (1 + g_k e^(−2 d_k t)) ([`super::ObservedMode::glide`],
-//! from [`crate::diagnose::extract::glide`]; one gliding mode, not the constant poles a glide
+//! from [`crate::analysis::extract::glide`]; one gliding mode, not the constant poles a glide
 //! used to be broken into); without it, the frequency difference of an early and a late
 //! stretch of the decay, y_k = (f_early − f_late)/f_k ([`super::ObservedMode::early_frequency_hz`]).
 //! With the chirp fit a constant mode gives y_k = 0 ± σ_g, so modes that do not glide still

@@ -305,9 +305,10 @@ fn synthetic_strike_gives_curve_and_rayleigh_and_rejects_junk() {
             s.freqs[k]
         );
         assert!(
-            m.kept,
+            m.kept(),
             "mode {k} at {} Hz rejected: {:?}",
-            s.freqs[k], m.reason
+            s.freqs[k],
+            m.verdict().reason
         );
         assert!(
             (m.decay_rate / s.decays[k]).ln().abs() < 0.03,
@@ -325,31 +326,35 @@ fn synthetic_strike_gives_curve_and_rayleigh_and_rejects_junk() {
             .map(|m| (
                 m.frequency_hz,
                 m.decay_rate,
-                m.estimated_decay_rate,
-                m.level_db,
-                m.snr_db,
-                m.reason
+                m.refined_from.unwrap().decay_rate,
+                m.verdict().level_db,
+                m.snr(),
+                m.verdict().reason
             ))
             .collect::<Vec<_>>()
     );
     let fast = nearest(FAST_HZ);
     assert!(
-        (fast.frequency_hz - FAST_HZ).abs() < 5.0 && fast.reason == ModeVerdict::DecayTooFast,
+        (fast.frequency_hz - FAST_HZ).abs() < 5.0
+            && fast.verdict().reason == ModeVerdict::DecayTooFast,
         "{fast:?}"
     );
     let weak = nearest(WEAK_HZ);
     assert!(
-        (weak.frequency_hz - WEAK_HZ).abs() < 1.0 && weak.reason == ModeVerdict::Weak,
+        (weak.frequency_hz - WEAK_HZ).abs() < 1.0 && weak.verdict().reason == ModeVerdict::Weak,
         "{weak:?}"
     );
-    assert!(weak.level_db < -70.0 && weak.snr_db > 30.0, "{weak:?}");
+    assert!(
+        weak.verdict().level_db < -70.0 && weak.snr() > 30.0,
+        "{weak:?}"
+    );
     // Isolated modes are peaks of their own, with their own decay.
     assert_eq!(fit.kept_peaks().count(), 12);
     for p in fit.kept_peaks() {
         assert_eq!(p.members.len(), 1, "{p:?}");
         let m = &fit.modes[p.members[0]];
         assert!(
-            (p.decay_rate / m.decay_rate - 1.0).abs() < 1e-6 && m.peak.is_some(),
+            (p.decay_rate / m.decay_rate - 1.0).abs() < 1e-6 && m.verdict().peak.is_some(),
             "{p:?} {m:?}"
         );
     }
@@ -387,13 +392,15 @@ fn refinement_pulls_perturbed_modes_back_to_the_truth() {
         step_log_noise: 0.2,
         ..test_settings()
     };
-    let start: Vec<StartMode> = (0..12)
-        .map(|k| StartMode {
-            frequency_hz: s.freqs[k] + if k % 2 == 0 { 0.3 } else { -0.3 },
-            decay_rate: s.decays[k] * if k % 2 == 0 { 1.25 } else { 0.8 },
+    let start: Vec<MeasuredMode> = (0..12)
+        .map(|k| MeasuredMode {
             amplitudes: s.amps[k].iter().map(|a| a * 1.3).collect(),
             phases: s.phases[k].iter().map(|p| p + 0.3).collect(),
-            snr_db: 100.0,
+            snr_db: Some(100.0),
+            ..MeasuredMode::pole(
+                s.freqs[k] + if k % 2 == 0 { 0.3 } else { -0.3 },
+                s.decays[k] * if k % 2 == 0 { 1.25 } else { 0.8 },
+            )
         })
         .collect();
     let problem = Problem::new(&signals, s.fs, &start, &settings).unwrap();

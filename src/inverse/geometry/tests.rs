@@ -178,9 +178,9 @@ fn prefit_to_a_voxelised_ball_gets_the_signs_and_a_distance_scale() {
     assert!(report.eikonal_loss < 0.1, "eikonal {}", report.eikonal_loss);
     let grid = BackgroundGrid::covering([-r; 3], [r; 3], 12, 1.0).unwrap();
     let values = net.values(&grid.vertex_positions());
-    let marched = mesh::march(&grid, &values, None, &MarchingOptions::default()).unwrap();
+    let marched = shape::march(&grid, &values, None, &MarchingOptions::default()).unwrap();
     let surface = TriangleSurface::from_mesh_boundary(&marched.mesh);
-    let c = mesh::compare_shapes(&surface, &truth, 2000, 20_000, 1).unwrap();
+    let c = shape::compare_shapes(&surface, &truth, 2000, 20_000, 1).unwrap();
     assert!(c.iou > 0.75 && c.chamfer < 0.2 * r, "{c:?}");
     // Same seed, same network.
     let mut again = NeuralSdf::new(net.config().clone(), 3).unwrap();

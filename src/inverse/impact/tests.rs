@@ -9,7 +9,7 @@ const TWO_PI: f64 = 2.0 * std::f64::consts::PI;
 /// x_c[n] = Σ_k Re{a_kc e^(s_k (t_n − t₀))} for t_n ≥ t₀, `pre` before.
 fn synthesise(
     amplitudes: &[Vec<Complex64>],
-    poles: &[Pole],
+    poles: &[MeasuredMode],
     fs: f64,
     len: usize,
     start_s: f64,
@@ -37,11 +37,8 @@ fn synthesise(
         .collect()
 }
 
-fn pole(f: f64, d: f64) -> Pole {
-    Pole {
-        frequency_hz: f,
-        decay_rate: d,
-    }
+fn pole(f: f64, d: f64) -> MeasuredMode {
+    MeasuredMode::pole(f, d)
 }
 
 #[test]
@@ -431,7 +428,7 @@ fn forward_amplitudes_match_the_renderer_through_the_transfer() {
             render_samples(&heard, fs, 4000)
         })
         .collect();
-    let poles: Vec<Pole> = (0..k_modes)
+    let poles: Vec<MeasuredMode> = (0..k_modes)
         .map(|k| pole(bank.frequencies_hz[k], bank.decay_rates[k]))
         .collect();
     let fit = fit_amplitudes(&channels, fs, 0.0, &poles, &AmplitudeFitOptions::default()).unwrap();
@@ -915,7 +912,7 @@ fn noisy_strike_is_found_end_to_end() {
                 .collect()
         })
         .collect();
-    let poles: Vec<Pole> = (0..k_modes)
+    let poles: Vec<MeasuredMode> = (0..k_modes)
         .map(|k| pole(bank.frequencies_hz[k], bank.decay_rates[k]))
         .collect();
     let fit = fit_amplitudes(&channels, fs, 0.0, &poles, &AmplitudeFitOptions::default()).unwrap();

@@ -4,7 +4,12 @@
 //! normalisation. The chain through PETSc is checked under MPI in `tests/mpi_sensitivity.rs`.
 
 use super::*;
+use crate::shape::{
+    curved_body, normalise_surface, reference_depth, refine_crossings, shifted_covering,
+    CurvedBody, TriangleSurface,
+};
 use crate::testing::Rng;
+use std::sync::Arc;
 
 /// λ_k(p) = λ*_k · exp(a_k (p − p*) + b_k (p − p*)²): a smooth model whose spectrum meets the
 /// target at p*.
@@ -528,13 +533,13 @@ fn refined_crossings_lie_on_the_continuous_surface_and_keep_the_mesh_valid() {
     };
     let grid = BackgroundGrid::covering([-0.35; 3], [0.35; 3], 10, 1.0).unwrap();
     let values: Vec<f64> = grid.vertex_positions().into_iter().map(s).collect();
-    let marched = mesh::march(&grid, &values, None, &MarchingOptions::default()).unwrap();
+    let marched = shape::march(&grid, &values, None, &MarchingOptions::default()).unwrap();
     let (moved_mesh, moved, kept_linear) = refine_crossings(&marched, &grid, &s, None, 0.01);
     assert_eq!(kept_linear, 0);
     let crossings = marched
         .origins
         .iter()
-        .filter(|o| matches!(o, mesh::VertexOrigin::Crossing { .. }))
+        .filter(|o| matches!(o, shape::VertexOrigin::Crossing { .. }))
         .count();
     assert_eq!(moved.len(), crossings);
     for c in &moved {

@@ -2,10 +2,10 @@
 //! that read or validate input data (a benchmark case's metadata, a fit-material result, the
 //! choice of held-out microphones, directions).
 
+use crate::analysis::extract::{ExtractOptions, GlideOptions};
 use crate::audio::health::ChannelHealth;
 use crate::diagnose::catalogue::CatalogueSettings;
 use crate::diagnose::evidence::{EnvelopeOptions, ObservedOptions};
-use crate::diagnose::extract::{ExtractOptions, GlideOptions};
 use crate::fem::Material;
 use crate::io::fit_material::read_material as read_fit_material;
 use serde::{Deserialize, Serialize};

@@ -5,11 +5,11 @@
 //! extraction is the diagnosis's largest serial cost, and rank 1 would otherwise wait).
 
 use super::Job;
+use crate::analysis::extract::{extract_modes, fit_glides, ModalExtraction};
+use crate::analysis::recording::{load_recording, GainPolicy, RecordingOptions};
 use crate::audio::health::ChannelHealth;
-use crate::audio::recording::{load_recording, GainPolicy, RecordingOptions};
 use crate::diagnose::catalogue::{ObservedMode, ResidualEnvelopes};
 use crate::diagnose::evidence;
-use crate::diagnose::extract::{extract_modes, fit_glides, ModalExtraction};
 use crate::workflow::Progress;
 use serde::{Deserialize, Serialize};
 use std::time::Instant;

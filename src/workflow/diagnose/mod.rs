@@ -18,8 +18,8 @@
 //!    split into a *fit* set and a *held-out* set (`held_out_microphones`; default every
 //!    second one), so that every accepted effect must also improve the fit of microphones it
 //!    never saw.
-//! 2. **Modes of the recording** ([`crate::diagnose::extract`], rank 0): the fit set's modes
-//!    with standard deviations, then the chirp-aware stage ([`crate::diagnose::extract::glide`]:
+//! 2. **Modes of the recording** ([`crate::analysis::extract`], rank 0): the fit set's modes
+//!    with standard deviations, then the chirp-aware stage ([`crate::analysis::extract::glide`]:
 //!    each mode, or each cluster of poles within 0.4 %, fitted as one gliding mode
 //!    f(t) = f₀(1 + g e^(−2dt)) and kept as such where the BIC prefers it, with g ± σ_g per
 //!    mode for the pitch-glide rows); the held-out set's the same way, separately; the

@@ -42,7 +42,7 @@
 //! | `/refine/history/{step,loss,eigen_loss,voxel_loss,eikonal_loss,tets,p2_nodes,meshing_s,assembly_s,solve_s,gradient_s,network_s,step_scale,backtracked,failed}` | every evaluation (step 0 = the pre-fit; step_scale: the fraction of Adam's update taken after it; backtracked: the next update restarted from the best θ); attrs `best_step`, `seconds` |
 //! | `/refine/mean_step` attrs | `meshing`, `assembly`, `solve`, `gradient`, `network`, `total` [s] per evaluation |
 //! | `/prefit/loss` | L_pre per update; attrs `centre_accuracy`, `sign_loss`, `eikonal_loss`, `seconds` |
-//! | `/network/parameters`, `/network/prefit_parameters` | θ after and before refinement (layout in [`crate::inverse::neural_sdf`]); attrs `octaves`, `length` [m], `centre_x/y/z` [m], text `hidden`, `config_json` |
+//! | `/network/parameters`, `/network/prefit_parameters` | θ after and before refinement (layout in [`crate::shape::neural_sdf`]); attrs `octaves`, `length` [m], `centre_x/y/z` [m], text `hidden`, `config_json` |
 //! | `/voxels` attrs | `resolution`, `occupied`, `edge_x/y/z` [m] |
 //! | `/material` attrs, `/timings` attrs | E, ν, ρ; `voxelise`, `prefit`, `target`, `refine`, `assess`, `final_body`, `total` [s] |
 //!
@@ -59,11 +59,11 @@ pub mod write;
 
 use crate::fem::Material;
 use crate::inverse::geometry::{fit_geometry, GeometryFit, GeometryProgress, GeometrySettings};
-use crate::inverse::shape::{
-    curved_field_modes, normalise_surface, read_surface, shape_modes, ShapeModes,
-};
-use crate::mesh::{MarchingOptions, SignedDistance, TriangleSurface};
 use crate::petsc::Petsc;
+use crate::shape::{
+    curved_field_modes, normalise_surface, read_surface, shape_modes, MarchingOptions, ShapeModes,
+    SignedDistance, TriangleSurface,
+};
 use crate::workflow::Progress;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
@@ -156,7 +156,7 @@ fn compute(
     .map_err(|e| format!("{}: {e}", job.surface.display()))?;
     // The refined body with its modes, for ParaView.
     let clock = Instant::now();
-    let net = crate::inverse::neural_sdf::NeuralSdf::from_parameters(
+    let net = crate::shape::neural_sdf::NeuralSdf::from_parameters(
         fit.network.clone(),
         fit.refinement.best_parameters.clone(),
     )

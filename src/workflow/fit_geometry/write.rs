@@ -7,7 +7,7 @@ use crate::inverse::geometry::GeometryFit;
 use crate::io::plot::{surface_png, SurfaceFigure, SurfacePanel, View};
 use crate::io::results::ResultsFile;
 use crate::io::{write_modes, MaterialRecord, ModesFile};
-use crate::mesh::TriangleSurface;
+use crate::shape::TriangleSurface;
 use std::path::Path;
 
 /// Writes `job.out`, `job.mesh_out` (+ .xdmf) and `job.png` from the report (rank 0); `truth`

@@ -4,7 +4,7 @@
 //! # Stages
 //!
 //! 1. **Recording.** Every file is read, resampled to `sample_rate`, cut at the shared strike
-//!    onset ([`crate::audio::recording`]; pre-roll before the onset is dropped) and kept for
+//!    onset ([`crate::analysis::recording`]; pre-roll before the onset is dropped) and kept for
 //!    `duration` s; one gain for all channels (their relative levels are data).
 //! 2. **Damping** ([`crate::inverse::damping`], rank 0): many free modes + filtered noise fitted
 //!    to all channels at once (frequencies and decay rates shared, amplitudes per channel); the

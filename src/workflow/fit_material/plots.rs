@@ -79,7 +79,7 @@ fn draw(job: &Job, report: &Report) -> Result<PlotsWritten, String> {
 
     // Damping: per-mode decay rates (kept / rejected), the curve, the Rayleigh fit.
     let modes = &stage.damping.modes;
-    let (kept, rejected): (Vec<_>, Vec<_>) = modes.iter().partition(|m| m.kept);
+    let (kept, rejected): (Vec<_>, Vec<_>) = modes.iter().partition(|m| m.kept());
     let f_lo = modes
         .iter()
         .map(|m| m.frequency_hz)

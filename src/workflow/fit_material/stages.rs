@@ -3,9 +3,9 @@
 //! simulated modes.
 
 use super::Job;
+use crate::analysis::recording::{load_recording, GainPolicy, RecordingOptions};
 use crate::assembly;
 use crate::audio::chain::{DampingModel, ModalChain, Strike};
-use crate::audio::recording::{load_recording, GainPolicy, RecordingOptions};
 use crate::audio::synth::{render_samples, ModalBank};
 use crate::inverse::damping::{fit_damping, DampingFit};
 use crate::inverse::material::{band_weight, MaterialFit};
@@ -76,7 +76,7 @@ pub(super) fn stage_one(petsc: &Petsc, job: &Job, progress: &Progress) -> Result
             }
         })
         .map_err(|e| format!("damping fit: {e}"))?;
-        let kept = damping.modes.iter().filter(|m| m.kept).count();
+        let kept = damping.modes.iter().filter(|m| m.kept()).count();
         progress.say(format!("damping fit: {} modes, {} kept, loss {:.4e} → {:.4e}, α = {:.3} 1/s, β = {:.3e} s, {:.1} s", damping.modes.len(), kept, damping.loss_initial, damping.loss_final, damping.rayleigh.alpha, damping.rayleigh.beta, t.elapsed().as_secs_f64()));
         Ok(StageOne { channels: rec.channels, names: rec.names, onset_s: rec.onset_s, damping })
     });
@@ -108,7 +108,7 @@ pub(super) fn recorded_lines(fit: &DampingFit) -> Vec<usize> {
             peak.members
                 .iter()
                 .copied()
-                .filter(|&i| fit.modes[i].kept && energy(i) >= LINE_ENERGY_FRACTION * strongest),
+                .filter(|&i| fit.modes[i].kept() && energy(i) >= LINE_ENERGY_FRACTION * strongest),
         );
     }
     lines.sort_by(|&a, &b| {

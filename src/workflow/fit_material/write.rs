@@ -72,8 +72,8 @@ pub fn result_record(job: &Job, report: &Report, command: String) -> FitMaterial
                 .map(|m| DampingModeRecord {
                     frequency_hz: m.frequency_hz,
                     decay_rate: m.decay_rate,
-                    level_db: m.level_db,
-                    kept: m.kept,
+                    level_db: m.verdict().level_db,
+                    kept: m.kept(),
                     amplitudes: m.amplitudes.clone(),
                     phases: m.phases.clone(),
                 })

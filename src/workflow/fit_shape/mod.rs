@@ -74,13 +74,15 @@ pub mod write;
 pub use job::{parse_target, replicate_every_level, Job, TargetChoice, TargetSource, Task};
 
 use crate::inverse::shape::{
-    fit_shape, normalise_surface, read_surface, reference_depth, replica_levels, replica_shift,
-    shifted_covering, union_box, FitEvaluation, SearchPhase, ShapeFamily, ShapeFit, ShapeLevel,
-    ShapeModes, SpectrumTarget,
+    fit_shape, replica_levels, replica_shift, FitEvaluation, SearchPhase, ShapeFamily, ShapeFit,
+    ShapeLevel, SpectrumTarget,
 };
-use crate::mesh::{self, MarchingOptions, SignedDistance, TriangleSurface};
 use crate::petsc::Petsc;
 use crate::random::SplitMix64;
+use crate::shape::{
+    self, normalise_surface, read_surface, reference_depth, shifted_covering, union_box,
+    MarchingOptions, ShapeModes, SignedDistance, TriangleSurface,
+};
 use crate::workflow::Progress;
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
@@ -145,7 +147,7 @@ pub fn load_shapes(job: &Job) -> Result<Vec<Shape>, Error> {
 }
 
 /// The family of the task on one grid.
-fn family_on(job: &Job, shapes: &[Shape], grid: &mesh::BackgroundGrid, depth: f64) -> ShapeFamily {
+fn family_on(job: &Job, shapes: &[Shape], grid: &shape::BackgroundGrid, depth: f64) -> ShapeFamily {
     let positions = grid.vertex_positions();
     match job.task {
         Task::Thickness { curved, .. } => ShapeFamily::Thickness {

@@ -2,9 +2,10 @@
 //! docs of [`super`]) and the fitted body's mesh with its modes (HDF5 + XDMF).
 
 use super::{Error, Job, Report, Task};
-use crate::inverse::shape::{union_box, SearchPhase};
+use crate::inverse::shape::SearchPhase;
 use crate::io::results::ResultsFile;
 use crate::io::{write_modes, MaterialRecord, ModesFile};
+use crate::shape::union_box;
 
 /// Writes `job.out` and `job.mesh_out` (+ .xdmf) from the report (rank 0).
 pub fn write_outputs(job: &Job, report: &Report) -> Result<(), Error> {

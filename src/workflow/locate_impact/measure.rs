@@ -4,9 +4,10 @@
 //! [`super`]).
 
 use super::Job;
-use crate::audio::recording::{load_recording, GainPolicy, RecordingOptions};
-use crate::diagnose::extract::extract_modes;
-use crate::inverse::impact::{self, ClusterAmplitudes, Pole};
+use crate::analysis::extract::extract_modes;
+use crate::analysis::recording::{load_recording, GainPolicy, RecordingOptions};
+use crate::analysis::MeasuredMode;
+use crate::inverse::impact::{self, ClusterAmplitudes};
 use crate::workflow::Progress;
 use serde::{Deserialize, Serialize};
 use std::time::Instant;
@@ -21,8 +22,8 @@ pub struct Measured {
     /// Channels from the onset on, recording units.
     pub channels: Vec<Vec<f64>>,
     pub sample_rate: f64,
-    /// Recorded poles below fmax: (f [Hz], d [1/s], SNR [dB]).
-    pub poles: Vec<(f64, f64, f64)>,
+    /// Recorded poles below fmax: f [Hz], d [1/s] and SNR [dB].
+    pub poles: Vec<MeasuredMode>,
     pub seconds: f64,
 }
 
@@ -60,11 +61,14 @@ pub fn measure(job: &Job, progress: &Progress) -> Result<Measured, String> {
     }
     let ex =
         extract_modes(&channels, fs, &job.extract).map_err(|e| format!("mode extraction: {e}"))?;
-    let poles: Vec<(f64, f64, f64)> = ex
+    let poles: Vec<MeasuredMode> = ex
         .modes
         .iter()
         .filter(|m| m.frequency_hz <= job.max_frequency_hz && m.decay_rate >= 0.0)
-        .map(|m| (m.frequency_hz, m.decay_rate, m.snr_db))
+        .map(|m| MeasuredMode {
+            snr_db: m.snr_db,
+            ..MeasuredMode::pole(m.frequency_hz, m.decay_rate)
+        })
         .collect();
     progress.say(format!("{} channel(s) at {} Hz, onset at {:.4} s, {:.3} s fitted; {} recorded poles below {:.0} Hz", channels.len(), rec.sample_rate, rec.onset_s, channels[0].len() as f64 / fs, poles.len(), job.max_frequency_hz));
     Ok(Measured {
@@ -83,7 +87,7 @@ pub struct PoleAssignment {
     /// Global frequency scale s = f_obs / f_sim.
     pub scale: f64,
     /// Poles of the amplitude fit: one per recorded pole, then one per unclaimed cluster.
-    pub poles: Vec<Pole>,
+    pub poles: Vec<MeasuredMode>,
     /// Cluster id of each pole (a simulated cluster index), or None for an unclaimed pole.
     pub pole_cluster: Vec<Option<usize>>,
     /// Per simulated cluster: whether a recorded pole was assigned to it.
@@ -113,7 +117,7 @@ pub fn assign_poles(
         .filter_map(|p| {
             centre
                 .iter()
-                .map(|c| (p.0 / c).ln())
+                .map(|c| (p.frequency_hz / c).ln())
                 .min_by(|a, b| a.abs().total_cmp(&b.abs()))
         })
         .collect();
@@ -125,14 +129,12 @@ pub fn assign_poles(
     let mut poles = Vec::new();
     let mut pole_cluster = Vec::new();
     let mut observed = vec![false; n_clusters];
-    for &(f, d, _) in &measured.poles {
+    for p in &measured.poles {
+        let (f, d) = (p.frequency_hz, p.decay_rate);
         let nearest = (0..n_clusters)
             .map(|c| (c, (f.ln() - ln_scale - centre[c].ln()).abs()))
             .min_by(|a, b| a.1.total_cmp(&b.1));
-        poles.push(Pole {
-            frequency_hz: f,
-            decay_rate: d,
-        });
+        poles.push(MeasuredMode::pole(f, d));
         match nearest {
             Some((c, dist)) if dist <= tolerance => {
                 observed[c] = true;
@@ -148,10 +150,7 @@ pub fn assign_poles(
             if f >= 0.95 * nyquist {
                 return Err(format!("simulated mode at {f:.0} Hz is too close to the recording's Nyquist frequency ({nyquist:.0} Hz); lower max_frequency_hz"));
             }
-            poles.push(Pole {
-                frequency_hz: f,
-                decay_rate: decay_of(f),
-            });
+            poles.push(MeasuredMode::pole(f, decay_of(f)));
             pole_cluster.push(Some(c));
         }
     }

@@ -14,7 +14,7 @@
 //! 1. **Recording** (rank 0): the channels after the onset, at the samples' own scale
 //!    (`GainPolicy::Unity`, so the strength stays in the recording's units); the poles of the
 //!    recording below `fmax` by the sub-band ESPRIT + variable-projection extraction
-//!    ([`crate::diagnose::extract`]).
+//!    ([`crate::analysis::extract`]).
 //! 2. **Modes** (all ranks): the P2 modes of the mesh at the fitted material (a `fit-material`
 //!    result, or `--youngs/--poisson/--density`) up to 1.05 × `fmax`; shapes gathered to
 //!    rank 0. Modes whose scaled frequency (step 3) lies above `fmax` are dropped: the
@@ -66,6 +66,7 @@
 //!   candidates (and the truth, when known) marked.
 
 pub mod evaluate;
+pub mod job;
 pub mod measure;
 pub mod transfer;
 pub mod write;
@@ -73,11 +74,11 @@ pub mod write;
 pub use evaluate::Evaluation;
 pub use measure::{Measured, PoleAssignment};
 
+use crate::analysis::extract::ExtractOptions;
 use crate::assembly::{self, AssemblyError};
 use crate::audio::chain::{DampingCurve, Strike};
 use crate::audio::excitation::{ContactForce, Response};
 use crate::diagnose::evidence;
-use crate::diagnose::extract::ExtractOptions;
 use crate::eigen::{self, EigenConfig, ModeRequest};
 use crate::fem::Material;
 use crate::inverse::impact::{
@@ -307,7 +308,7 @@ pub fn run(petsc: &Petsc, job: &Job, progress: &Progress) -> Result<Option<Repor
     // 3: poles per simulated cluster, for the modes whose scaled frequency lies in the band (a
     // mode above it is neither heard nor missed: the recording was not analysed there).
     let median_decay = {
-        let mut d: Vec<f64> = measured.poles.iter().map(|p| p.1).collect();
+        let mut d: Vec<f64> = measured.poles.iter().map(|p| p.decay_rate).collect();
         d.sort_by(f64::total_cmp);
         d[d.len() / 2]
     };

@@ -422,7 +422,7 @@ fn bowl_height_map_example() {
         &crate::mesh::ReadOptions::default(),
     )
     .unwrap();
-    let surf = crate::mesh::TriangleSurface::from_mesh_boundary(&read.mesh);
+    let surf = crate::shape::TriangleSurface::from_mesh_boundary(&read.mesh);
     let z: Vec<f64> = surf.vertices.iter().map(|p| p[2]).collect();
     // Markers: the outer top edge of the rim on the +x side, and the highest
     // (inside floor) and lowest (outside bottom) vertices near the axis.

@@ -329,7 +329,8 @@ pub fn detect_onset(x: &[f64], sample_rate: u32, opts: &OnsetOptions) -> Result<
         .map(|frame| frame.iter().map(|v| v * v).sum::<f64>() / frame.len() as f64)
         .collect();
     let noise_frames = plan.noise_window_frames.min(energies.len() / 2);
-    let floor = median(&energies[..noise_frames]);
+    let floor =
+        crate::numerics::median(&energies[..noise_frames]).expect("the noise window has frames");
     let peak = energies.iter().fold(0.0_f64, |m, &e| m.max(e));
     let level = (floor * plan.threshold).max(peak * plan.within_peak);
     let Some(onset_frame) = energies
@@ -435,17 +436,6 @@ pub fn detect_shared_onset<C: AsRef<[f64]>>(
 }
 
 /// Median of a non-empty slice (mean of the middle two for even lengths).
-fn median(values: &[f64]) -> f64 {
-    let mut sorted = values.to_vec();
-    sorted.sort_unstable_by(f64::total_cmp);
-    let mid = sorted.len() / 2;
-    if sorted.len() % 2 == 1 {
-        sorted[mid]
-    } else {
-        0.5 * (sorted[mid - 1] + sorted[mid])
-    }
-}
-
 /// Second-order IIR section, coefficients normalised so that a₀ = 1.
 #[derive(Clone, Debug)]
 struct Biquad {

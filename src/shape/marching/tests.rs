@@ -9,10 +9,10 @@ use nalgebra::{DMatrix, DVector, SymmetricEigen};
 
 use super::*;
 use crate::fem::{ElasticCoefficients, ElementKernel, SensitivityKernel};
-use crate::mesh::sdf::SignedDistance;
-use crate::mesh::surface::{read_obj, TriangleSurface};
 use crate::mesh::tests::shared_file;
 use crate::mesh::{lift_to_quadratic, linear_node_gradient, read_mesh, ReadOptions, TET10_EDGES};
+use crate::shape::sdf::SignedDistance;
+use crate::shape::surface::{read_obj, TriangleSurface};
 use crate::testing::Rng;
 
 // ---------------------------------------------------------------- helpers
@@ -148,9 +148,9 @@ fn losses(mesh: &TetMesh) -> [(f64, Vec<f64>); 2] {
         let e1 = sub3(x[1], x[0]);
         let e2 = sub3(x[2], x[0]);
         let e3 = sub3(x[3], x[0]);
-        let d1 = super::super::cross(e2, e3).map(|c| c / 6.0);
-        let d2 = super::super::cross(e3, e1).map(|c| c / 6.0);
-        let d3 = super::super::cross(e1, e2).map(|c| c / 6.0);
+        let d1 = crate::mesh::cross(e2, e3).map(|c| c / 6.0);
+        let d2 = crate::mesh::cross(e3, e1).map(|c| c / 6.0);
+        let d3 = crate::mesh::cross(e1, e2).map(|c| c / 6.0);
         let d0 = [0, 1, 2].map(|k| -d1[k] - d2[k] - d3[k]);
         let dv = [d0, d1, d2, d3];
         let c = [0, 1, 2].map(|k| 0.25 * (x[0][k] + x[1][k] + x[2][k] + x[3][k]));
@@ -901,7 +901,7 @@ fn shared_shapes_mesh_into_valid_p2_meshes() {
     assert!(relative.abs() < 0.05);
 }
 
-/// Timings for the report: `cargo test --release --lib mesh::marching::tests::timings --
+/// Timings for the report: `cargo test --release --lib shape::marching::tests::timings --
 /// --ignored --nocapture`.
 #[test]
 #[ignore]
@@ -1107,7 +1107,7 @@ fn a_locally_refined_grid_marches_a_thin_shell_closer_to_its_volume() {
     };
     let (coarse_error, _) = error_of(&grid, &values);
     // Tets whose value range, widened by their longest edge, reaches the wall's middle.
-    let band = |v: &crate::mesh::refine::TetView| {
+    let band = |v: &crate::shape::refine::TetView| {
         let (a, b) = v
             .values
             .iter()

@@ -4,8 +4,8 @@
 
 use super::*;
 use crate::mesh::box_mesh;
-use crate::mesh::surface::read_obj;
 use crate::mesh::tests::shared_file;
+use crate::shape::surface::read_obj;
 use crate::testing::Rng;
 
 /// The shared icosphere ([`crate::testing::icosphere`]) as a surface.

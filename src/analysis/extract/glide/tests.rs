@@ -1,6 +1,7 @@
 use super::*;
-use crate::audio::onset::test_support::SplitMix64;
-use crate::diagnose::extract::BandFit;
+use crate::analysis::extract::BandFit;
+use crate::analysis::mode::RefinedFrom;
+use crate::analysis::onset::test_support::SplitMix64;
 
 const FS: f64 = 16_000.0;
 const N: usize = 8_000;
@@ -48,24 +49,28 @@ fn render(modes: &[Truth], sigma: f64, rng: &mut SplitMix64) -> Vec<Vec<f64>> {
 fn stand_in(poles: &[(f64, f64, f64)], channels: usize, sigma: f64) -> ModalExtraction {
     let modes = poles
         .iter()
-        .map(|&(f, d, a)| ExtractedMode {
-            frequency_hz: f,
-            frequency_sd_hz: 0.01,
-            decay_rate: d,
-            decay_rate_sd: 0.1,
+        .map(|&(f, d, a)| MeasuredMode {
             amplitudes: vec![a; channels],
-            amplitude_sds: vec![0.01; channels],
             phases: vec![0.0; channels],
-            phase_sds: vec![0.01; channels],
-            snr_db: 40.0,
-            band: 0,
-            esprit_frequency_hz: f,
-            esprit_decay_rate: d,
-            shift_sigma: 0.0,
-            converged: true,
-            moved: false,
-            left_band: false,
-            glide: None,
+            snr_db: Some(40.0),
+            band: Some(0),
+            sd: Some(ModeSd {
+                frequency_hz: 0.01,
+                decay_rate: 0.1,
+                amplitudes: vec![0.01; channels],
+                phases: vec![0.01; channels],
+            }),
+            refined_from: Some(RefinedFrom {
+                frequency_hz: f,
+                decay_rate: d,
+            }),
+            refinement: Some(Refinement {
+                shift_sigma: 0.0,
+                converged: true,
+                moved: false,
+                left_band: false,
+            }),
+            ..MeasuredMode::pole(f, d)
         })
         .collect();
     let band = BandFit {
@@ -229,8 +234,8 @@ fn gliding_modes_are_recovered_within_their_standard_deviations() {
         let m = &stage.extraction.modes[0];
         let gl = m.glide.as_ref().expect("a glide estimate");
         selected += usize::from(gl.selected);
-        zf.push((m.frequency_hz - f0) / m.frequency_sd_hz);
-        zd.push((m.decay_rate - d) / m.decay_rate_sd);
+        zf.push((m.frequency_hz - f0) / m.sd().frequency_hz);
+        zd.push((m.decay_rate - d) / m.sd().decay_rate);
         zg.push((gl.glide - g) / gl.glide_sd);
     }
     assert_eq!(selected, 60, "a 0.3 % glide at 50 dB must always win");
@@ -269,7 +274,7 @@ fn a_glide_split_into_two_poles_is_merged() {
     );
     assert!(
         ((gl.glide - g) / gl.glide_sd).abs() < 4.0
-            && ((m.frequency_hz - f0) / m.frequency_sd_hz).abs() < 4.0,
+            && ((m.frequency_hz - f0) / m.sd().frequency_hz).abs() < 4.0,
         "{m:?}"
     );
 }

@@ -84,9 +84,9 @@
 
 use std::f64::consts::PI;
 
-use super::locate::closest_on_triangle;
 use super::surface::{SurfaceError, TriangleSurface};
-use super::{cross, dot, norm, sub};
+use crate::mesh::locate::closest_on_triangle;
+use crate::mesh::{cross, dot, norm, sub};
 
 /// Largest number of triangles in a leaf of the tree.
 pub const LEAF_SIZE: usize = 8;
@@ -382,7 +382,8 @@ impl SignedDistance {
 /// nodes to `nodes` and returns the root's index.
 fn build(tris: &mut [[[f64; 3]; 3]], offset: usize, nodes: &mut Vec<Node>) -> usize {
     let index = nodes.len();
-    let (lo, hi) = super::bounding_box_of(&tris.iter().flatten().copied().collect::<Vec<_>>());
+    let (lo, hi) =
+        crate::mesh::bounding_box_of(&tris.iter().flatten().copied().collect::<Vec<_>>());
     let (center, area_normal, moment, radius) = expansion(tris, lo, hi);
     nodes.push(Node {
         lo,
@@ -399,7 +400,7 @@ fn build(tris: &mut [[[f64; 3]; 3]], offset: usize, nodes: &mut Vec<Node>) -> us
         return index;
     }
     let centroid = |t: &[[f64; 3]; 3], k: usize| (t[0][k] + t[1][k] + t[2][k]) / 3.0;
-    let (clo, chi) = super::bounding_box_of(
+    let (clo, chi) = crate::mesh::bounding_box_of(
         &tris
             .iter()
             .map(|t| [centroid(t, 0), centroid(t, 1), centroid(t, 2)])

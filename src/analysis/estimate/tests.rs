@@ -53,7 +53,7 @@ impl Truth {
 }
 
 /// The estimated mode closest in frequency to f.
-fn closest(est: &ModalEstimate, f: f64) -> &EstimatedMode {
+fn closest(est: &ModalEstimate, f: f64) -> &MeasuredMode {
     est.modes
         .iter()
         .min_by(|a, b| {
@@ -227,7 +227,7 @@ fn synthetic_twenty_modes_with_noise() {
             .iter()
             .zip(&matched)
             .filter(|(_, &m)| !m)
-            .map(|(m, _)| format!("{:.2} Hz ({:.1} dB)", m.frequency_hz, m.snr_db))
+            .map(|(m, _)| format!("{:.2} Hz ({:.1} dB)", m.frequency_hz, m.snr()))
             .collect();
         assert!(
             spurious.is_empty(),
@@ -250,7 +250,7 @@ fn synthetic_twenty_modes_with_noise() {
         let all = estimate_modes(&signals, fs, &loose).unwrap();
         for m in &all.modes {
             if truth.freqs.iter().all(|f| (f - m.frequency_hz).abs() > 0.5) {
-                max_spurious_snr = max_spurious_snr.max(m.snr_db);
+                max_spurious_snr = max_spurious_snr.max(m.snr());
             }
         }
         println!(
@@ -369,7 +369,7 @@ fn silence_and_pure_noise_give_no_modes() {
         "modes in white noise: {:?}",
         est.modes
             .iter()
-            .map(|m| (m.frequency_hz, m.snr_db))
+            .map(|m| (m.frequency_hz, m.snr()))
             .collect::<Vec<_>>()
     );
 }
@@ -553,7 +553,7 @@ fn bowl_strike(seconds: f64) -> Option<(Vec<Vec<f64>>, f64)> {
         channels.push(c.swap_remove(0));
         rate = r;
     }
-    let onset = crate::audio::onset::detect_shared_onset(&channels, rate, &Default::default())
+    let onset = crate::analysis::onset::detect_shared_onset(&channels, rate, &Default::default())
         .expect("bowl onset");
     let n = (seconds * rate as f64) as usize;
     let trimmed = channels
@@ -588,7 +588,7 @@ fn bowl_recording() {
             "{:10.2} {:9.2} {:9.1} {:12.2e}",
             m.frequency_hz,
             m.decay_rate,
-            m.snr_db,
+            m.snr(),
             m.amplitudes.iter().sum::<f64>() / 8.0
         );
     }
@@ -604,14 +604,14 @@ fn bowl_recording() {
     }
     // Sanity only. The ceramic bowl's first mode pair is at 1647.9/1651.3 Hz in simulation; the
     // recording's lowest strong modes must be that pair, within a few per cent, slowly decaying.
-    let strong: Vec<&EstimatedMode> = est.modes.iter().filter(|m| m.snr_db >= 40.0).collect();
+    let strong: Vec<&MeasuredMode> = est.modes.iter().filter(|m| m.snr() >= 40.0).collect();
     let lowest = strong.first().expect("strong modes");
     assert!(
         (1_550.0..1_800.0).contains(&lowest.frequency_hz),
         "lowest strong mode at {:.1} Hz",
         lowest.frequency_hz
     );
-    let pair: Vec<&&EstimatedMode> = strong
+    let pair: Vec<&&MeasuredMode> = strong
         .iter()
         .filter(|m| (1_550.0..1_800.0).contains(&m.frequency_hz) && m.decay_rate < 20.0)
         .collect();

@@ -130,7 +130,8 @@ use nalgebra::{DMatrix, DVector, SVD};
 use rustfft::num_complex::Complex64 as C64;
 use rustfft::{Fft, FftPlanner};
 
-use super::{ExtractError, ExtractedMode, ModalExtraction};
+use super::{ExtractError, ModalExtraction};
+use crate::analysis::mode::{MeasuredMode, ModeSd, Refinement};
 
 /// Singular values of B below this fraction of the largest are dropped.
 const SVD_CUTOFF: f64 = 1e-12;
@@ -611,12 +612,12 @@ impl BandFitResult {
     fn mode(
         &self,
         q: usize,
-        template: &ExtractedMode,
+        template: &MeasuredMode,
         spectra: &Spectra,
         merged: usize,
         delta_bic: f64,
         glide_selected: bool,
-    ) -> ExtractedMode {
+    ) -> MeasuredMode {
         let comp = self.comps[q];
         let offset: usize = self.comps[..q].iter().map(|c| c.n_params()).sum();
         let sd = |i: usize| self.cov[(offset + i, offset + i)].max(0.0).sqrt();
@@ -666,8 +667,11 @@ impl BandFitResult {
         let noise_total: f64 = self.noise.iter().sum();
         let frequency_sd_hz = sd(0);
         let decay_rate_sd = sd(1);
-        let z_f = (comp.f - template.esprit_frequency_hz) / frequency_sd_hz;
-        let z_d = (comp.d - template.esprit_decay_rate) / decay_rate_sd;
+        let esprit = template
+            .refined_from
+            .expect("an extracted mode records where its refinement started");
+        let z_f = (comp.f - esprit.frequency_hz) / frequency_sd_hz;
+        let z_d = (comp.d - esprit.decay_rate) / decay_rate_sd;
         let glide = comp.glide_free.then(|| ModeGlide {
             glide: comp.g,
             glide_sd: sd(2),
@@ -675,24 +679,27 @@ impl BandFitResult {
             merged_poles: merged,
             delta_bic,
         });
-        ExtractedMode {
-            frequency_hz: comp.f,
-            frequency_sd_hz,
-            decay_rate: comp.d,
-            decay_rate_sd,
+        let was = template.refinement();
+        MeasuredMode {
             amplitudes,
-            amplitude_sds,
             phases,
-            phase_sds,
-            snr_db: 10.0 * (energy / noise_total).log10(),
+            snr_db: Some(10.0 * (energy / noise_total).log10()),
             band: template.band,
-            esprit_frequency_hz: template.esprit_frequency_hz,
-            esprit_decay_rate: template.esprit_decay_rate,
-            shift_sigma: z_f.abs().max(z_d.abs()),
-            converged: template.converged,
-            moved: template.moved,
-            left_band: template.left_band,
+            sd: Some(ModeSd {
+                frequency_hz: frequency_sd_hz,
+                decay_rate: decay_rate_sd,
+                amplitudes: amplitude_sds,
+                phases: phase_sds,
+            }),
+            refined_from: Some(esprit),
+            refinement: Some(Refinement {
+                shift_sigma: z_f.abs().max(z_d.abs()),
+                converged: was.converged,
+                moved: was.moved,
+                left_band: was.left_band,
+            }),
             glide,
+            ..MeasuredMode::pole(comp.f, comp.d)
         }
     }
 }
@@ -791,24 +798,24 @@ pub fn fit_glides(
             _ => groups.push(vec![i]),
         }
     }
-    let mut out_modes: Vec<ExtractedMode> = Vec::with_capacity(modes.len());
+    let mut out_modes: Vec<MeasuredMode> = Vec::with_capacity(modes.len());
     let mut decisions = Vec::new();
     // Loudest groups first: their glides leak furthest, and once decided they are subtracted as
     // they are for the groups that follow.
     let loudness = |g: &Vec<usize>| {
         g.iter()
-            .map(|&i| modes[i].snr_db)
+            .map(|&i| modes[i].snr())
             .fold(f64::NEG_INFINITY, f64::max)
     };
     groups.sort_by(|a, b| loudness(b).total_cmp(&loudness(a)));
     for group in groups {
-        let members: Vec<&ExtractedMode> = group.iter().map(|&i| &modes[i]).collect();
+        let members: Vec<&MeasuredMode> = group.iter().map(|&i| &modes[i]).collect();
         let loudest = *members
             .iter()
-            .max_by(|a, b| a.snr_db.total_cmp(&b.snr_db))
+            .max_by(|a, b| a.snr().total_cmp(&b.snr()))
             .expect("non-empty");
         let skip = members.len() > options.max_group
-            || loudest.snr_db < options.min_snr_db
+            || loudest.snr() < options.min_snr_db
             || members
                 .iter()
                 .any(|m| m.glide.as_ref().is_some_and(|g| g.selected))
@@ -877,7 +884,7 @@ pub fn fit_glides(
                 v
             })
             .collect();
-        let band = extraction.bands.get(loudest.band);
+        let band = loudest.band.and_then(|b| extraction.bands.get(b));
         let noise_var: Vec<f64> = (0..n_channels)
             .map(|c| {
                 band.and_then(|b| b.noise_rms.get(c))
@@ -907,8 +914,8 @@ pub fn fit_glides(
         // either end of the group with the glide spanning it. K' ≥ 2: from the K' loudest poles
         // (K' = K: every pole, in the members' order, so component q is pole q).
         let mut by_snr: Vec<usize> = (0..members.len()).collect();
-        by_snr.sort_by(|&a, &b| members[b].snr_db.total_cmp(&members[a].snr_db));
-        let gliding = |m: &ExtractedMode| Component {
+        by_snr.sort_by(|&a, &b| members[b].snr().total_cmp(&members[a].snr()));
+        let gliding = |m: &MeasuredMode| Component {
             f: m.frequency_hz,
             d: m.decay_rate,
             g: 0.0,
@@ -1001,7 +1008,7 @@ pub fn fit_glides(
         });
         if selected {
             // Each component as a mode, its bookkeeping from the pole it is nearest to.
-            let new_modes: Vec<ExtractedMode> = (0..glide_fit.comps.len())
+            let new_modes: Vec<MeasuredMode> = (0..glide_fit.comps.len())
                 .map(|q| {
                     let f = glide_fit.comps[q].f;
                     let template = members

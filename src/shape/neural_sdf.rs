@@ -21,7 +21,7 @@
 //! ```
 //!
 //! A network that is a distance in u-units is then a distance in metres, and one learning rate
-//! suits every body size. Positive inside (the convention of [`crate::mesh::sdf`] and of the
+//! suits every body size. Positive inside (the convention of [`crate::shape::sdf`] and of the
 //! marching).
 //!
 //! # Choices

@@ -6,7 +6,7 @@
 //! [`BackgroundGrid`]: `cells[k]` cells of size `spacing[k]` per axis from `origin`; vertex
 //! (i, j, k) has index v = i + (n_x+1)·(j + (n_y+1)·k) and rest position
 //! X_v = origin + (i h_x, j h_y, k h_z). Every cell is split into the same 6 Kuhn
-//! (Freudenthal) tets along its (0,0,0)–(1,1,1) diagonal (those of [`super::box_mesh`]), so
+//! (Freudenthal) tets along its (0,0,0)–(1,1,1) diagonal (those of [`crate::mesh::box_mesh`]), so
 //! the faces of neighbouring cells match and every background tet is positively oriented at
 //! rest. Background tet e is Kuhn tet e mod 6 of cell ⌊e/6⌋ (cells numbered like vertices).
 //! [`BackgroundGrid::covering`] puts cubic cells around a bounding box.
@@ -105,7 +105,7 @@
 //!    none with τ = 0.05).
 //! 2. **Volume.** Every sub-tet whose volume V ≤ max(ε_D D³, φ h_x h_y h_z / 6) is dropped,
 //!    with D the diagonal of the background grid, ε_D =
-//!    [`super::ZERO_VOLUME_RELATIVE_TOLERANCE`] and φ = [`MarchingOptions::min_volume_fraction`].
+//!    [`crate::mesh::ZERO_VOLUME_RELATIVE_TOLERANCE`] and φ = [`MarchingOptions::min_volume_fraction`].
 //!    The output mesh fits inside the grid, so its own diagonal is at most D and every kept
 //!    tet passes the mesh module's zero-volume rule. Dropping a tet keeps the mesh conforming
 //!    (its faces become boundary faces of the neighbours). Counted in
@@ -132,7 +132,7 @@
 //! connectivity, the snapping and the kept component) is piecewise constant in s and θ and
 //! has no derivative. If the values themselves depend on the vertex positions (an SDF
 //! evaluated at the displaced vertices), the caller adds ∇s_v · dL/ds_v to dL/dθ_v.
-//! [`linear_node_gradient`](super::linear_node_gradient) maps a gradient on a lifted P2 mesh
+//! [`linear_node_gradient`](crate::mesh::linear_node_gradient) maps a gradient on a lifted P2 mesh
 //! back to these P1 vertices first.
 //!
 //! # Implicit functions for the shape tasks
@@ -150,9 +150,9 @@
 use std::collections::HashMap;
 use std::fmt;
 
-use super::generate::KUHN_TETS;
-use super::{
-    signed_tet_volume, DisjointSets, ElementOrder, TetMesh, ZERO_VOLUME_RELATIVE_TOLERANCE,
+use crate::mesh::{
+    signed_tet_volume, DisjointSets, ElementOrder, TetMesh, KUHN_TETS,
+    ZERO_VOLUME_RELATIVE_TOLERANCE,
 };
 
 #[cfg(test)]
@@ -989,7 +989,7 @@ fn barycentric(sv: &[f64; 4], p: Local) -> [f64; 4] {
 fn barycentric_det(piece: &[Local; 4], sv: &[f64; 4]) -> f64 {
     let l = piece.map(|p| barycentric(sv, p));
     let col = |k: usize| [l[k][1] - l[0][1], l[k][2] - l[0][2], l[k][3] - l[0][3]];
-    super::dot(col(1), super::cross(col(2), col(3)))
+    crate::mesh::dot(col(1), crate::mesh::cross(col(2), col(3)))
 }
 
 /// Indices of the tets to keep: all, or those of the face-connected piece of largest volume.

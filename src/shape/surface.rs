@@ -26,7 +26,7 @@
 use std::fmt;
 use std::path::{Path, PathBuf};
 
-use super::{bounding_box_of, cross, dot, sub, TetMesh};
+use crate::mesh::{bounding_box_of, cross, dot, sub, TetMesh};
 
 /// A triangle soup with shared vertices.
 #[derive(Clone, Debug, PartialEq)]
@@ -368,8 +368,8 @@ impl fmt::Display for TriangleSurface {
 
 #[cfg(test)]
 mod tests {
-    use super::super::box_mesh;
     use super::*;
+    use crate::mesh::box_mesh;
 
     fn parse(text: &str) -> Result<SurfaceRead, SurfaceError> {
         parse_obj(text, Path::new("inline.obj"))

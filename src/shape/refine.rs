@@ -41,7 +41,7 @@
 
 use std::collections::HashMap;
 
-use super::TET10_EDGES as TET_EDGES;
+use crate::mesh::TET10_EDGES as TET_EDGES;
 
 /// A refined mesh: every vertex (the input's first, in their order, then the midpoints), the
 /// tets (positively oriented if the input's were) with their generation, and every edge once.

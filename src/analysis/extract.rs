@@ -1,11 +1,11 @@
 //! Modal parameters of a recording with uncertainties: sub-band, multi-channel ESPRIT
-//! ([`crate::inverse::estimate`]) refined by nonlinear least squares in every band, and the
+//! ([`crate::analysis::estimate`]) refined by nonlinear least squares in every band, and the
 //! Gauss–Newton covariance of the refined parameters mapped to frequency, decay rate, amplitude
 //! and phase.
 //!
 //! # Model
 //!
-//! As in [`crate::inverse::estimate`] (whose module docs define every symbol used here): channels
+//! As in [`crate::analysis::estimate`] (whose module docs define every symbol used here): channels
 //! s_c[n] = Σ_k Im(c_{kc} z_kⁿ) + e_c[n], z_k = e^((−d_k + i 2π f_k)/f_s), c_{kc} = a_{kc} e^(iφ_{kc}).
 //! Band b with demodulation frequency f_b, low-pass h (T taps) and decimation D turns this into
 //! exactly
@@ -184,10 +184,11 @@
 
 use nalgebra::{Cholesky, DMatrix, DVector, SymmetricEigen, SVD};
 
-use crate::audio::synth::ModalBank;
-use crate::inverse::estimate::{
-    self, lsq, BandData, BandReport, Decimator, EstimateError, EstimateOptions, EstimatedMode, C64,
+use crate::analysis::estimate::{
+    self, lsq, BandData, BandReport, Decimator, EstimateError, EstimateOptions, C64,
 };
+use crate::analysis::mode::{MeasuredMode, ModeSd, RefinedFrom, Refinement};
+use crate::audio::synth::ModalBank;
 
 pub mod glide;
 #[cfg(test)]
@@ -243,54 +244,6 @@ impl Default for ExtractOptions {
     }
 }
 
-/// One mode of the recording, with standard deviations (see the module docs).
-#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
-pub struct ExtractedMode {
-    /// f, Hz.
-    pub frequency_hz: f64,
-    /// σ_f, Hz.
-    pub frequency_sd_hz: f64,
-    /// d, 1/s (amplitude ∝ e^(−d t)).
-    pub decay_rate: f64,
-    /// σ_d, 1/s.
-    pub decay_rate_sd: f64,
-    /// a_c per channel, units of the signal (peak at t = 0).
-    pub amplitudes: Vec<f64>,
-    /// σ_a per channel, units of the signal.
-    pub amplitude_sds: Vec<f64>,
-    /// φ_c per channel, rad, in (−π, π]: the mode is a_c e^(−d t) sin(2π f t + φ_c).
-    pub phases: Vec<f64>,
-    /// σ_φ per channel, rad.
-    pub phase_sds: Vec<f64>,
-    /// Σ_c E_c over the band's noise energy per sample, dB, with the refined values.
-    pub snr_db: f64,
-    /// Index into [`ModalExtraction::bands`] of the band it belongs to.
-    pub band: usize,
-    /// ESPRIT's frequency (Hz) and decay rate (1/s), before the refinement.
-    pub esprit_frequency_hz: f64,
-    pub esprit_decay_rate: f64,
-    /// max(|Δf|/σ_f, |Δd|/σ_d) of the refinement's move from ESPRIT.
-    pub shift_sigma: f64,
-    /// The band's refinement converged, or this mode's own last step was below the tolerance.
-    pub converged: bool,
-    /// The refinement moved it more than [`ExtractOptions::shift_flag_sigma`] from ESPRIT.
-    pub moved: bool,
-    /// The refined frequency left the band's (widened) centre region.
-    pub left_band: bool,
-    /// The chirp-aware stage's glide ([`glide`]): `None` from [`extract_modes`] and for the
-    /// poles of a group that stays split; with `selected` the mode glides,
-    /// f(t) = f (1 + g e^(−2dt)), and `frequency_hz` is its small-amplitude frequency f₀.
-    #[serde(default)]
-    pub glide: Option<ModeGlide>,
-}
-
-impl ExtractedMode {
-    /// Any reason to distrust this mode: not converged, moved far from ESPRIT, or out of band.
-    pub fn is_flagged(&self) -> bool {
-        !self.converged || self.moved || self.left_band
-    }
-}
-
 /// What the refinement did in one band.
 #[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct BandFit {
@@ -326,7 +279,7 @@ pub struct ModalExtraction {
     /// N, samples per channel.
     pub n_samples: usize,
     /// The modes, sorted by frequency.
-    pub modes: Vec<ExtractedMode>,
+    pub modes: Vec<MeasuredMode>,
     /// One per band of the estimate.
     pub bands: Vec<BandFit>,
     /// Full-rate RMS of s_c − model per channel for ESPRIT's poles with the estimate's
@@ -367,8 +320,8 @@ impl ModalExtraction {
     /// # Panics
     /// If `channel` is not a channel of the extraction.
     pub fn render_channel(&self, channel: usize, n: usize) -> Vec<f64> {
-        let gliding = |m: &ExtractedMode| m.glide.as_ref().is_some_and(|g| g.selected);
-        let steady: Vec<&ExtractedMode> = self.modes.iter().filter(|m| !gliding(m)).collect();
+        let gliding = |m: &MeasuredMode| m.glide.as_ref().is_some_and(|g| g.selected);
+        let steady: Vec<&MeasuredMode> = self.modes.iter().filter(|m| !gliding(m)).collect();
         let bank = ModalBank {
             frequencies_hz: steady.iter().map(|m| m.frequency_hz).collect(),
             decay_rates: steady.iter().map(|m| m.decay_rate).collect(),
@@ -431,13 +384,13 @@ pub fn extract_modes(
         widen_hz: estimate::MERGE_RAYLEIGH_FRACTION * sample_rate / n as f64,
     };
 
-    let mut modes: Vec<Option<ExtractedMode>> = vec![None; est.modes.len()];
+    let mut modes: Vec<Option<MeasuredMode>> = vec![None; est.modes.len()];
     let mut coeffs: Vec<Vec<C64>> = vec![vec![]; est.modes.len()];
     let mut log_zs: Vec<C64> = vec![C64::new(0.0, 0.0); est.modes.len()];
     let mut bands = Vec::with_capacity(est.bands.len());
     for (b, (report, data)) in est.bands.iter().zip(&detailed.bands).enumerate() {
-        let esprit: Vec<(usize, &EstimatedMode, usize)> = (0..est.modes.len())
-            .filter(|&i| est.modes[i].band == b)
+        let esprit: Vec<(usize, &MeasuredMode, usize)> = (0..est.modes.len())
+            .filter(|&i| est.modes[i].band == Some(b))
             .map(|i| (i, &est.modes[i], detailed.mode_poles[i]))
             .collect();
         let (fit, found) = refine_band(&setup, b, report, data, &esprit);
@@ -458,7 +411,7 @@ pub fn extract_modes(
             .collect(),
         None => vec![f64::NAN; signals.len()],
     };
-    let mut modes: Vec<ExtractedMode> = modes.into_iter().flatten().collect();
+    let mut modes: Vec<MeasuredMode> = modes.into_iter().flatten().collect();
     modes.sort_by(|a, b| a.frequency_hz.total_cmp(&b.frequency_hz));
     Ok(ModalExtraction {
         sample_rate,
@@ -495,7 +448,7 @@ struct Setup<'a> {
 struct RefinedMode {
     /// Index of the mode in the estimate.
     index: usize,
-    mode: ExtractedMode,
+    mode: MeasuredMode,
     /// c_c per channel.
     coeffs: Vec<C64>,
     /// ln z, per full-rate sample.
@@ -509,7 +462,7 @@ fn refine_band(
     b: usize,
     report: &BandReport,
     data: &BandData,
-    esprit: &[(usize, &EstimatedMode, usize)],
+    esprit: &[(usize, &MeasuredMode, usize)],
 ) -> (BandFit, Vec<RefinedMode>) {
     let options = setup.options;
     let factor = setup.dec.factor as f64;
@@ -623,10 +576,10 @@ fn map_to_full_rate(
     slot: usize,
     ell: C64,
     fitted: Option<(&BandModel, &BandCovariance)>,
-    esprit_mode: &EstimatedMode,
+    esprit_mode: &MeasuredMode,
     noise_total: f64,
     converged: bool,
-) -> (ExtractedMode, Vec<C64>, C64) {
+) -> (MeasuredMode, Vec<C64>, C64) {
     let (dec, sample_rate) = (setup.dec, setup.sample_rate);
     let factor = dec.factor as f64;
     let rate_d = sample_rate / factor;
@@ -690,25 +643,29 @@ fn map_to_full_rate(
     let shift_sigma = z_f.abs().max(z_d.abs());
     let widen = setup.widen_hz;
     let in_band = frequency_hz >= report.lo_hz - widen && frequency_hz < report.hi_hz + widen;
-    let mode = ExtractedMode {
-        frequency_hz,
-        frequency_sd_hz,
-        decay_rate,
-        decay_rate_sd,
+    let mode = MeasuredMode {
         amplitudes: coeffs.iter().map(|v| v.norm()).collect(),
-        amplitude_sds: spread.iter().map(|s| s.0).collect(),
         phases: coeffs.iter().map(|v| v.arg()).collect(),
-        phase_sds: spread.iter().map(|s| s.1).collect(),
-        snr_db: 10.0 * (energy / noise_total).log10(),
-        band: b,
-        esprit_frequency_hz: esprit_mode.frequency_hz,
-        esprit_decay_rate: esprit_mode.decay_rate,
-        shift_sigma,
-        converged,
-        // An undefined shift (0/0) is flagged too.
-        moved: shift_sigma.is_nan() || shift_sigma > setup.options.shift_flag_sigma,
-        left_band: !in_band,
-        glide: None,
+        snr_db: Some(10.0 * (energy / noise_total).log10()),
+        band: Some(b),
+        sd: Some(ModeSd {
+            frequency_hz: frequency_sd_hz,
+            decay_rate: decay_rate_sd,
+            amplitudes: spread.iter().map(|s| s.0).collect(),
+            phases: spread.iter().map(|s| s.1).collect(),
+        }),
+        refined_from: Some(RefinedFrom {
+            frequency_hz: esprit_mode.frequency_hz,
+            decay_rate: esprit_mode.decay_rate,
+        }),
+        refinement: Some(Refinement {
+            shift_sigma,
+            converged,
+            // An undefined shift (0/0) is flagged too.
+            moved: shift_sigma.is_nan() || shift_sigma > setup.options.shift_flag_sigma,
+            left_band: !in_band,
+        }),
+        ..MeasuredMode::pole(frequency_hz, decay_rate)
     };
     (mode, coeffs, log_z)
 }

@@ -30,12 +30,12 @@
 
 use std::path::{Path, PathBuf};
 
-use super::onset::{
+use crate::analysis::onset::{
     apply_gain_db, detect_shared_onset, normalise_peak, normalise_rms, GainError, OnsetError,
     OnsetOptions,
 };
-use super::resample::{ResampleError, Resampler};
-use super::{read_wav, AudioError};
+use crate::audio::resample::{ResampleError, Resampler};
+use crate::audio::{read_wav, AudioError};
 
 /// Default peak of the loudest channel under [`GainPolicy::CommonPeak`].
 pub const DEFAULT_PEAK: f64 = 0.9;
@@ -350,7 +350,7 @@ fn describe_files<P: AsRef<Path>>(paths: &[P]) -> String {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::audio::onset::test_support::{bowl_dir, synthetic_strike};
+    use crate::analysis::onset::test_support::{bowl_dir, synthetic_strike};
     use crate::audio::resample::resample;
     use crate::audio::{write_wav, WavFormat};
 
@@ -517,7 +517,7 @@ mod tests {
         ));
 
         let noise = tmp.0.join("noise.wav");
-        let mut rng = crate::audio::onset::test_support::SplitMix64(8);
+        let mut rng = crate::analysis::onset::test_support::SplitMix64(8);
         let hiss: Vec<f64> = (0..48_000).map(|_| 1e-3 * rng.normal()).collect();
         write_wav(&noise, &hiss, RATE, WavFormat::Float32, None).unwrap();
         let err = load_recording(&[&noise], &opts).unwrap_err();

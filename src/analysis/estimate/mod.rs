@@ -157,6 +157,7 @@ pub(crate) mod lsq;
 #[cfg(test)]
 mod tests;
 
+use crate::analysis::mode::MeasuredMode;
 use crate::audio::synth::ModalBank;
 pub(crate) use filter::{Decimator, C64};
 
@@ -239,25 +240,6 @@ impl Default for EstimateOptions {
     }
 }
 
-/// One estimated mode.
-#[derive(Clone, Debug, PartialEq)]
-pub struct EstimatedMode {
-    /// f, Hz.
-    pub frequency_hz: f64,
-    /// d, 1/s (amplitude ∝ e^(−d t)).
-    pub decay_rate: f64,
-    /// a_c per channel, units of the signal (peak at t = 0).
-    pub amplitudes: Vec<f64>,
-    /// φ_c per channel, rad, in (−π, π]: the mode is a_c e^(−d t) sin(2π f t + φ_c).
-    pub phases: Vec<f64>,
-    /// E_c per channel: the mode's energy Σ_n (its samples)², units².
-    pub energies: Vec<f64>,
-    /// Σ_c E_c over the band's noise energy per sample, dB (see the module docs).
-    pub snr_db: f64,
-    /// Index into [`ModalEstimate::bands`] of the band that found it.
-    pub band: usize,
-}
-
 /// What one band saw.
 #[derive(Clone, Debug, PartialEq)]
 pub struct BandReport {
@@ -284,7 +266,7 @@ pub struct ModalEstimate {
     /// N, samples per channel.
     pub n_samples: usize,
     /// The modes, sorted by frequency.
-    pub modes: Vec<EstimatedMode>,
+    pub modes: Vec<MeasuredMode>,
     /// RMS of s_c − model per channel, full rate, units.
     pub residual_rms: Vec<f64>,
     /// RMS of s_c per channel, units.
@@ -311,9 +293,9 @@ impl ModalEstimate {
     }
 
     /// The `n` modes of highest SNR, strongest first.
-    pub fn strongest(&self, n: usize) -> Vec<&EstimatedMode> {
-        let mut modes: Vec<&EstimatedMode> = self.modes.iter().collect();
-        modes.sort_by(|a, b| b.snr_db.total_cmp(&a.snr_db));
+    pub fn strongest(&self, n: usize) -> Vec<&MeasuredMode> {
+        let mut modes: Vec<&MeasuredMode> = self.modes.iter().collect();
+        modes.sort_by(|a, b| b.snr().total_cmp(&a.snr()));
         modes.truncate(n);
         modes
     }
@@ -513,28 +495,29 @@ pub(crate) fn estimate_with_bands(
 
     let log_z: Vec<C64> = candidates.iter().map(|c| c.log_z).collect();
     let residual = lsq::residuals(signals, &log_z, &coeffs);
-    let mut modes: Vec<(EstimatedMode, usize)> = candidates
+    let mut modes: Vec<(MeasuredMode, usize)> = candidates
         .iter()
         .zip(&coeffs)
         .zip(&snr)
         .map(|((cand, ck), &snr_db)| {
-            let mode = EstimatedMode {
+            let mode = MeasuredMode {
                 frequency_hz: cand.frequency_hz,
                 decay_rate: cand.decay_rate,
                 amplitudes: ck.iter().map(|c| c.norm()).collect(),
                 phases: ck.iter().map(|c| c.arg()).collect(),
-                energies: energies(cand.log_z, ck, n),
-                snr_db,
-                band: cand.band,
+                snr_db: Some(snr_db),
+                band: Some(cand.band),
+                energies: Some(energies(cand.log_z, ck, n)),
+                ..MeasuredMode::pole(cand.frequency_hz, cand.decay_rate)
             };
             (mode, cand.pole)
         })
         .collect();
     modes.sort_by(|a, b| a.0.frequency_hz.total_cmp(&b.0.frequency_hz));
     for (m, _) in &modes {
-        reports[m.band].modes += 1;
+        reports[m.band.expect("an estimated mode has a band")].modes += 1;
     }
-    let (modes, mode_poles): (Vec<EstimatedMode>, Vec<usize>) = modes.into_iter().unzip();
+    let (modes, mode_poles): (Vec<MeasuredMode>, Vec<usize>) = modes.into_iter().unzip();
     let estimate = ModalEstimate {
         sample_rate,
         n_samples: n,

@@ -35,7 +35,7 @@
 
 use super::sdf::SignedDistance;
 use super::surface::{SurfaceError, TriangleSurface};
-use super::{cross, norm, sub};
+use crate::mesh::{cross, norm, sub};
 use crate::random::SplitMix64;
 
 /// Why two surfaces could not be compared.

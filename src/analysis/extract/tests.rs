@@ -1,7 +1,7 @@
 use super::*;
-use crate::audio::onset::test_support::SplitMix64;
+use crate::analysis::estimate::filter::kaiser_lowpass;
+use crate::analysis::onset::test_support::SplitMix64;
 use crate::audio::synth::render_samples;
-use crate::inverse::estimate::filter::kaiser_lowpass;
 
 /// Modes shared by every channel, amplitude and phase per channel.
 struct Truth {
@@ -61,7 +61,7 @@ fn wrap(phase: f64) -> f64 {
 }
 
 /// The extracted mode closest in frequency to `f`.
-fn closest(x: &ModalExtraction, f: f64) -> &ExtractedMode {
+fn closest(x: &ModalExtraction, f: f64) -> &MeasuredMode {
     x.modes
         .iter()
         .min_by(|a, b| {
@@ -373,12 +373,19 @@ fn refinement_lowers_the_residual_and_the_error_of_esprit() {
                 "seed {seed}: {f} Hz found at {}",
                 m.frequency_hz
             );
-            assert!(m.converged && !m.left_band, "seed {seed}: {m:?}");
+            assert!(
+                m.refinement().converged && !m.refinement().left_band,
+                "seed {seed}: {m:?}"
+            );
             let z = |est: f64, truth: f64, sd: f64| ((est - truth) / sd).powi(2);
-            chi2_esprit += z(m.esprit_frequency_hz, f, m.frequency_sd_hz)
-                + z(m.esprit_decay_rate, decays[k], m.decay_rate_sd);
-            chi2_refined += z(m.frequency_hz, f, m.frequency_sd_hz)
-                + z(m.decay_rate, decays[k], m.decay_rate_sd);
+            chi2_esprit += z(m.refined_from.unwrap().frequency_hz, f, m.sd().frequency_hz)
+                + z(
+                    m.refined_from.unwrap().decay_rate,
+                    decays[k],
+                    m.sd().decay_rate,
+                );
+            chi2_refined += z(m.frequency_hz, f, m.sd().frequency_hz)
+                + z(m.decay_rate, decays[k], m.sd().decay_rate);
         }
         // The refinement weighs the channels together, so one channel may lose a little
         // (measured: 5e-5 of its RMS) while the total gains: compare the total.
@@ -426,7 +433,7 @@ fn close_pair_at_six_tenths_of_the_rayleigh_width_is_resolved() {
         let truth = Truth::random(&freqs, &decays, 4, &mut rng);
         let signals = truth.noisy(fs, n, 0.01, &mut rng);
         let x = extract_modes(&signals, fs, &options).unwrap();
-        let pair: Vec<&ExtractedMode> = x
+        let pair: Vec<&MeasuredMode> = x
             .modes
             .iter()
             .filter(|m| (m.frequency_hz - (freqs[0] + 0.5 * df)).abs() < df)
@@ -438,24 +445,28 @@ fn close_pair_at_six_tenths_of_the_rayleigh_width_is_resolved() {
             x.modes.iter().map(|m| m.frequency_hz).collect::<Vec<_>>()
         );
         for (m, f) in pair.iter().zip(&freqs) {
-            let z = (m.frequency_hz - f) / m.frequency_sd_hz;
+            let z = (m.frequency_hz - f) / m.sd().frequency_hz;
             println!(
                 "seed {seed}: {f:.2} Hz → {:.4} ± {:.4} Hz (z = {z:+.2}); d {:.3} ± {:.3}",
-                m.frequency_hz, m.frequency_sd_hz, m.decay_rate, m.decay_rate_sd
+                m.frequency_hz,
+                m.sd().frequency_hz,
+                m.decay_rate,
+                m.sd().decay_rate
             );
             assert!(
                 z.abs() < 3.0,
                 "seed {seed}: {f} Hz estimated {:.4} ± {:.4}",
                 m.frequency_hz,
-                m.frequency_sd_hz
+                m.sd().frequency_hz
             );
             assert!(
-                m.frequency_sd_hz < 0.2 * df,
+                m.sd().frequency_hz < 0.2 * df,
                 "σ_f {:.3} Hz is not small against the spacing {df:.2} Hz",
-                m.frequency_sd_hz
+                m.sd().frequency_hz
             );
             chi2_refined += z * z;
-            chi2_esprit += ((m.esprit_frequency_hz - f) / m.frequency_sd_hz).powi(2);
+            chi2_esprit +=
+                ((m.refined_from.unwrap().frequency_hz - f) / m.sd().frequency_hz).powi(2);
         }
     }
     // Over 100 realisations (one draw of amplitudes) ESPRIT's frequency errors on this pair were
@@ -492,11 +503,11 @@ fn standard_deviations_are_calibrated_over_noise_realisations() {
         for k in 0..3 {
             let m = closest(&x, truth.freqs[k]);
             flagged += usize::from(m.is_flagged());
-            z[0].push((m.frequency_hz - truth.freqs[k]) / m.frequency_sd_hz);
-            z[1].push((m.decay_rate - truth.decays[k]) / m.decay_rate_sd);
+            z[0].push((m.frequency_hz - truth.freqs[k]) / m.sd().frequency_hz);
+            z[1].push((m.decay_rate - truth.decays[k]) / m.sd().decay_rate);
             for c in 0..2 {
-                z[2].push((m.amplitudes[c] - truth.amps[k][c]) / m.amplitude_sds[c]);
-                z[3].push(wrap(m.phases[c] - truth.phases[k][c]) / m.phase_sds[c]);
+                z[2].push((m.amplitudes[c] - truth.amps[k][c]) / m.sd().amplitudes[c]);
+                z[3].push(wrap(m.phases[c] - truth.phases[k][c]) / m.sd().phases[c]);
             }
         }
     }
@@ -617,17 +628,20 @@ fn bad_input_gives_errors_not_panics() {
     let m = closest(&x, 1_500.0);
     assert!(
         (m.frequency_hz - 1_500.0).abs() < 0.01
-            && m.frequency_sd_hz.is_finite()
-            && m.frequency_sd_hz > 0.0,
+            && m.sd().frequency_hz.is_finite()
+            && m.sd().frequency_hz > 0.0,
         "{m:?}"
     );
     assert_eq!(m.amplitudes[1], 0.0);
     assert!(
-        m.converged && x.bands[m.band].cost_refined.is_some_and(f64::is_finite),
+        m.refinement().converged
+            && x.bands[m.band.unwrap()]
+                .cost_refined
+                .is_some_and(f64::is_finite),
         "{m:?}"
     );
     assert!(
-        (m.phase_sds[1] - std::f64::consts::PI / 3f64.sqrt()).abs() < 1e-12,
+        (m.sd().phases[1] - std::f64::consts::PI / 3f64.sqrt()).abs() < 1e-12,
         "{m:?}"
     );
 }
@@ -679,8 +693,8 @@ fn result_round_trips_through_json() {
 /// The eight bowl recordings at 48 kHz, trimmed at the shared onset as `fit-material` does (no
 /// pre-roll), `seconds` long, at full scale (gain 1); `None` if absent.
 fn bowl_strike(seconds: f64) -> Option<(Vec<Vec<f64>>, f64)> {
-    use crate::audio::recording::{load_recording, GainPolicy, RecordingOptions};
-    let Some(dir) = crate::audio::onset::test_support::bowl_dir() else {
+    use crate::analysis::recording::{load_recording, GainPolicy, RecordingOptions};
+    let Some(dir) = crate::analysis::onset::test_support::bowl_dir() else {
         println!("skipping the bowl check: no bowl recordings");
         return None;
     };
@@ -712,14 +726,14 @@ fn bowl_recording_first_pair_is_two_modes_with_tight_frequencies() {
     let x = extract_modes(&signals, fs, &options).unwrap();
     let elapsed = start.elapsed().as_secs_f64();
     let flagged = x.modes.iter().filter(|m| m.is_flagged()).count();
-    let count = |f: &dyn Fn(&ExtractedMode) -> bool| x.modes.iter().filter(|m| f(m)).count();
+    let count = |f: &dyn Fn(&MeasuredMode) -> bool| x.modes.iter().filter(|m| f(m)).count();
     println!(
         "bowl: 8 × {} samples up to 12 kHz: {} modes in {elapsed:.2} s; flagged {flagged}: {} moved, {} not converged, {} out of band",
         x.n_samples,
         x.modes.len(),
-        count(&|m| m.moved),
-        count(&|m| !m.converged),
-        count(&|m| m.left_band)
+        count(&|m| m.refinement().moved),
+        count(&|m| !m.refinement().converged),
+        count(&|m| m.refinement().left_band)
     );
     for b in x.bands.iter().filter(|b| b.modes > 0) {
         println!(
@@ -756,26 +770,34 @@ fn bowl_recording_first_pair_is_two_modes_with_tight_frequencies() {
         ratio(&x.residual_rms_reported)
     );
     println!("    f [Hz]       σ_f [Hz]   d [1/s]   σ_d [1/s]  SNR [dB]  shift [σ]  flags");
-    for m in x.modes.iter().filter(|m| m.snr_db >= 40.0) {
+    for m in x.modes.iter().filter(|m| m.snr() >= 40.0) {
         println!(
             "{:11.4} {:11.2e} {:9.3} {:10.2e} {:8.1} {:10.1}  {}{}{}",
             m.frequency_hz,
-            m.frequency_sd_hz,
+            m.sd().frequency_hz,
             m.decay_rate,
-            m.decay_rate_sd,
-            m.snr_db,
-            m.shift_sigma,
-            if m.converged { "" } else { "not-converged " },
-            if m.moved { "moved " } else { "" },
-            if m.left_band { "left-band" } else { "" }
+            m.sd().decay_rate,
+            m.snr(),
+            m.refinement().shift_sigma,
+            if m.refinement().converged {
+                ""
+            } else {
+                "not-converged "
+            },
+            if m.refinement().moved { "moved " } else { "" },
+            if m.refinement().left_band {
+                "left-band"
+            } else {
+                ""
+            }
         );
     }
     // The first recorded pair: 1681/1684 Hz, two modes, each frequency pinned far below the
     // separation.
-    let pair: Vec<&ExtractedMode> = x
+    let pair: Vec<&MeasuredMode> = x
         .modes
         .iter()
-        .filter(|m| (1_679.0..1_686.0).contains(&m.frequency_hz) && m.snr_db >= 40.0)
+        .filter(|m| (1_679.0..1_686.0).contains(&m.frequency_hz) && m.snr() >= 40.0)
         .collect();
     assert_eq!(
         pair.len(),
@@ -791,12 +813,12 @@ fn bowl_recording_first_pair_is_two_modes_with_tight_frequencies() {
     );
     for m in &pair {
         assert!(
-            m.frequency_sd_hz > 0.0 && m.frequency_sd_hz < 0.01 * separation,
+            m.sd().frequency_hz > 0.0 && m.sd().frequency_hz < 0.01 * separation,
             "σ_f = {:.2e} Hz against a separation of {separation:.3} Hz",
-            m.frequency_sd_hz
+            m.sd().frequency_hz
         );
         assert!(
-            m.decay_rate > 0.0 && m.decay_rate < 20.0 && m.converged,
+            m.decay_rate > 0.0 && m.decay_rate < 20.0 && m.refinement().converged,
             "{m:?}"
         );
     }
@@ -821,8 +843,8 @@ fn bowl_recording_first_pair_is_two_modes_with_tight_frequencies() {
             "mic{c}: refined residual {r:e} vs ESPRIT's {e:e}"
         );
     }
-    assert!(x.modes.iter().all(|m| m.frequency_sd_hz.is_finite()
-        && m.decay_rate_sd.is_finite()
-        && m.amplitude_sds.iter().all(|s| s.is_finite())));
+    assert!(x.modes.iter().all(|m| m.sd().frequency_hz.is_finite()
+        && m.sd().decay_rate.is_finite()
+        && m.sd().amplitudes.iter().all(|s| s.is_finite())));
     assert!(elapsed < 30.0, "took {elapsed:.1} s");
 }

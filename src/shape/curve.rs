@@ -40,9 +40,9 @@
 //! of f that only moves the surface along itself (a thickness's inner wall: ∂f/∂p is the
 //! same at all six points) gives that term no weight.
 
-use super::{ElementOrder, TetMesh, TET10_EDGES};
 use crate::fem::element::{affine_jacobian, det3, jacobian};
 use crate::fem::p2_grad_ref;
+use crate::mesh::{ElementOrder, TetMesh, TET10_EDGES};
 use std::collections::HashMap;
 
 /// The gradient of f where it is known in closed form (None where it is not defined there,
@@ -275,7 +275,8 @@ fn keeps_orientation(coords: &[[f64; 3]], lattice: &[[[f64; 3]; 10]], ratio: f64
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::mesh::{lift_to_quadratic, march, BackgroundGrid, MarchingOptions};
+    use crate::mesh::lift_to_quadratic;
+    use crate::shape::{march, BackgroundGrid, MarchingOptions};
 
     fn ball(radius: f64) -> impl Fn([f64; 3]) -> f64 {
         move |p: [f64; 3]| radius - (p[0] * p[0] + p[1] * p[1] + p[2] * p[2]).sqrt()
@@ -291,7 +292,7 @@ mod tests {
             let values: Vec<f64> = grid.vertex_positions().iter().map(|&p| f(p)).collect();
             let marched = march(&grid, &values, None, &MarchingOptions::default()).unwrap();
             let (exact_linear, _, _) =
-                crate::inverse::shape::refine_crossings(&marched, &grid, &f, None, 0.01);
+                crate::shape::spectrum::refine_crossings(&marched, &grid, &f, None, 0.01);
             let straight = lift_to_quadratic(&exact_linear);
             let (curved, moved, report) = curve_boundary(&straight, &f, None, 0.5, 0.05);
             assert!(report.moved > 0 && report.moved == moved.len());
