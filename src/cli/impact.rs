@@ -14,7 +14,7 @@ use crate::io::paths::with_suffix;
 use crate::io::results::read_dataset;
 use crate::petsc::Petsc;
 use crate::workflow::locate_impact::{self, Report};
-pub use crate::workflow::locate_impact::{Job, TransferChoice};
+pub use crate::workflow::locate_impact::{Job, MaterialSource, TransferChoice};
 use clap::Args;
 use mpi::environment::Universe;
 use serde::Deserialize;
@@ -230,14 +230,14 @@ pub fn resolve(args: &ImpactArgs) -> Result<Job, String> {
     );
     let (material, material_source, damping_curve) = match (material_path, given) {
         (Some(p), (None, None)) => {
-            let (e, nu, rho) = read_fit_material(&p)?;
+            let (e, nu, rho) = read_fit_material(&p).map_err(|e| e.to_string())?;
             let curve = read_damping_curve(&p);
-            (Material { youngs_modulus: e, poisson_ratio: nu, density: rho, rayleigh_alpha: 0.0, rayleigh_beta: 0.0 }, format!("fit-material result {}", p.display()), curve)
+            (Material { youngs_modulus: e, poisson_ratio: nu, density: rho, rayleigh_alpha: 0.0, rayleigh_beta: 0.0 }, MaterialSource::FitFile(p), curve)
         }
         (Some(_), _) => return Err("give the material either as a fit-material result (--material) or as --youngs/--poisson, not both".into()),
         (None, (Some(e), Some(nu))) => {
             let density = args.density.or(file.density).or(case.as_ref().map(|c| c.density_kg_m3)).unwrap_or(2700.0);
-            (Material { youngs_modulus: e, poisson_ratio: nu, density, rayleigh_alpha: 0.0, rayleigh_beta: 0.0 }, "given".to_string(), None)
+            (Material { youngs_modulus: e, poisson_ratio: nu, density, rayleigh_alpha: 0.0, rayleigh_beta: 0.0 }, MaterialSource::Given, None)
         }
         (None, (None, None)) => return Err("the material is needed: --material FIT.h5 (a fit-material result) or --youngs and --poisson".into()),
         (None, _) => return Err("--youngs and --poisson go together".into()),
