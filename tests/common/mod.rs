@@ -11,12 +11,13 @@ pub fn s(p: &Path) -> &str {
     p.to_str().unwrap()
 }
 
-/// A numeric attribute of an HDF5 result file (panics with the path if it is not a number).
+/// A numeric attribute of an HDF5 result file, float or integer, as f64 (panics with the
+/// path if it is not a number).
 pub fn number_attribute(path: &Path, group: &str, key: &str) -> f64 {
-    match diffsound::io::results::read_attribute(path, group, key).unwrap() {
-        diffsound::io::results::AttrValue::Number(v) => v,
-        other => panic!("{group}/{key} is not a number: {other:?}"),
-    }
+    let value = diffsound::io::results::read_attribute(path, group, key).unwrap();
+    value
+        .as_f64()
+        .unwrap_or_else(|| panic!("{group}/{key} is not a number: {value:?}"))
 }
 
 /// A closed box surface [0, a] × [0, b] × [0, c] (in the file's units), outward triangles,
