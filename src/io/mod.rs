@@ -86,7 +86,7 @@
 //!
 //! Readers checked by the tests: meshio (Python; `meshio.read` gives `tetra10` or
 //! `tetra` cells and every Attribute as a point field, scalars 1-D; the CLI test of
-//! every command that writes a sidecar reads it so, `tests/common/python.rs`) and, when `pvbatch` is
+//! every command that writes a sidecar reads it so, `tests/python/check_sidecar.py`) and, when `pvbatch` is
 //! installed, ParaView's default `.xdmf` reader
 //! (`Xdmf3ReaderS`) and the legacy "XDMF Reader" (quadratic tets, every mode as
 //! a point vector with the stored values, and every node field likewise). The per-mode virtual datasets are
