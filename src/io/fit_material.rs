@@ -413,13 +413,13 @@ pub fn read_material(path: &Path) -> Result<(f64, f64, f64), IoError> {
     };
     match read_attribute(path, "/", "format")? {
         AttrValue::Text(t) if t == FORMAT => {}
-        other => return Err(wrong(format!("format {other:?}"))),
+        other => return Err(wrong(format!("format {other}"))),
     }
     match read_attribute(path, "/", "format_version")? {
         AttrValue::Integer(v) if (1..=FORMAT_VERSION as i64).contains(&v) => {}
         other => {
             return Err(wrong(format!(
-                "format_version {other:?}; this build reads 1 to {FORMAT_VERSION}"
+                "format_version {other}; this build reads 1 to {FORMAT_VERSION}"
             )))
         }
     }
@@ -428,7 +428,7 @@ pub fn read_material(path: &Path) -> Result<(f64, f64, f64), IoError> {
             AttrValue::Number(v) => Ok(v),
             other => Err(IoError::BadLayout {
                 path: path.to_path_buf(),
-                reason: format!("/material {key} is {other:?}, expected a number"),
+                reason: format!("/material {key} is {other}, expected a number"),
             }),
         }
     };
@@ -619,6 +619,11 @@ mod tests {
                 .unwrap();
             let err = read_material(&path).unwrap_err();
             assert!(matches!(err, IoError::WrongFormat { .. }), "{err}");
+            assert!(
+                err.to_string()
+                    .contains("not a diffsound.fit_material file"),
+                "{err}"
+            );
         }
     }
 }

@@ -38,6 +38,20 @@ pub enum AttrValue {
     Texts(Vec<String>),
 }
 
+impl std::fmt::Display for AttrValue {
+    /// The value as a reader would write it: `7`, `0.5`, `"text"`, `[0, 2]`, `["a", "b"]`.
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            AttrValue::Number(v) => write!(f, "{v}"),
+            AttrValue::Integer(i) => write!(f, "{i}"),
+            AttrValue::Text(t) => write!(f, "{t:?}"),
+            AttrValue::Numbers(v) => write!(f, "{v:?}"),
+            AttrValue::Integers(v) => write!(f, "{v:?}"),
+            AttrValue::Texts(v) => write!(f, "{v:?}"),
+        }
+    }
+}
+
 impl AttrValue {
     /// The value as an f64, for a number or an integer (what older files stored as f64).
     pub fn as_f64(&self) -> Option<f64> {
