@@ -10,6 +10,8 @@ APT_PACKAGES=(
   openmpi-bin libopenmpi-dev     # mpirun
   libopenblas0                   # fast BLAS for MUMPS (switches the Debian alternatives)
   gmsh                           # meshing of test solids and refinement for benchmarks
+  python3-h5py python3-meshio    # the tests read every output as a Python user would (README)
+  python3-numpy
 )
 
 missing=()

@@ -102,6 +102,18 @@ fn diagnose_writes_a_consistent_report_and_agrees_across_ranks() {
         }
         let report = read_json(&bench.join(case).join("diagnosis.json"));
         assert_eq!(report["format"], "diffsound.diagnose");
+        check_hdf5_types(
+            &out,
+            if case == "case_000" {
+                "line_spectrum"
+            } else {
+                "given"
+            },
+        );
+        check_sidecar(
+            &bench.join(case).join("diagnosis_map.xdmf"),
+            &[("mass_region_z", "scalar")],
+        );
         let found = accepted(&report);
         eprintln!(
             "{case}: truth {truth:?}, diagnosed {found:?}\n{}",
@@ -410,4 +422,36 @@ fn diagnose_rejects_bad_input_clearly() {
         !dir.join("d.h5").exists() && !dir.join("d.json").exists(),
         "no output after a failed run"
     );
+}
+
+/// The HDF5 result's types (format 2): lists are arrays, indices integers, the material's
+/// source a word, the rejected effects' reasons snake_case words beside their names.
+fn check_hdf5_types(out: &std::path::Path, source: &str) {
+    use diffsound::io::results::{read_attribute, read_integers, AttrValue};
+    let attr = |g: &str, k: &str| read_attribute(out, g, k).unwrap();
+    assert_eq!(attr("/", "format_version"), AttrValue::Integer(2));
+    assert!(matches!(attr("/", "n_ranks"), AttrValue::Integer(2)));
+    for key in ["fit_microphones", "held_out_microphones"] {
+        match attr("/", key) {
+            AttrValue::Integers(v) => {
+                assert!(v.iter().all(|&c| (0..4).contains(&c)), "{key} {v:?}")
+            }
+            other => panic!("{key} is {other:?}"),
+        }
+    }
+    assert!(matches!(attr("/", "recordings"), AttrValue::Texts(v) if v.len() == 4));
+    assert_eq!(attr("/material", "source"), AttrValue::Text(source.into()));
+    let (vertices, _) = read_integers(out, "/localisation/vertex").unwrap();
+    assert!(!vertices.is_empty() && vertices.iter().all(|&v| v >= 0));
+    let (names, reasons) = (
+        attr("/effects", "rejected"),
+        attr("/effects", "rejected_reasons"),
+    );
+    match (names, reasons) {
+        (AttrValue::Texts(n), AttrValue::Texts(r)) => {
+            assert_eq!(n.len(), r.len());
+            assert!(r.iter().all(|w| !w.is_empty() && w.chars().all(|c| c.is_ascii_lowercase() || c == '_')), "{r:?}");
+        }
+        other => panic!("/effects rejected: {other:?}"),
+    }
 }

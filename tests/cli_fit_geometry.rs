@@ -145,6 +145,7 @@ fn a_tiny_box_is_prefitted_refined_and_written() {
     assert!(summary.n_modes >= 4 && summary.n_tets > 50);
     let xdmf = std::fs::read_to_string(dir.join("geometry_mesh.xdmf")).unwrap();
     assert!(xdmf.contains("Tetrahedron_10") && xdmf.contains("geometry_mesh.h5:/mesh/nodes"));
+    check_sidecar(&dir.join("geometry_mesh.xdmf"), &[]);
     let png = std::fs::read(dir.join("geometry.png")).unwrap();
     assert!(png.len() > 1000 && png.starts_with(b"\x89PNG"));
 }

@@ -109,6 +109,7 @@ fn thickness_and_morph_fits_write_results_and_a_paraview_mesh() {
     assert!(summary.n_modes >= 4 && summary.n_tets > 100);
     let xdmf = std::fs::read_to_string(dir.join("thickness_mesh.xdmf")).unwrap();
     assert!(xdmf.contains("Tetrahedron_10") && xdmf.contains("thickness_mesh.h5:/mesh/nodes"));
+    check_sidecar(&dir.join("thickness_mesh.xdmf"), &[]);
 
     // A morph between two boxes of different proportions, from a target file in Hz.
     let a = box_obj(&dir, "a.obj", [60.0, 40.0, 30.0]);

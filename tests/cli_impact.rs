@@ -85,6 +85,15 @@ fn locate_impact_finds_the_strike_and_agrees_across_ranks() {
         }
         let report = read_json(&bench.join(case).join("impact.json"));
         assert_eq!(report["format"], "diffsound.locate_impact");
+        // The map as Python sees it: scalars, one value per node.
+        check_sidecar(
+            &bench.join(case).join("impact_map.xdmf"),
+            &[
+                ("log_likelihood_ratio", "scalar"),
+                ("posterior_density", "scalar"),
+            ],
+        );
+        check_hdf5_types(&out, report["best_vertex"].as_i64().unwrap());
         let ev = &report["evaluation"];
         let truth = ev["true_vertex"].as_u64().unwrap();
         // The plate has three mirror planes: a strike is found when the best candidate lies on
@@ -268,4 +277,24 @@ fn locate_impact_rejects_bad_input_clearly() {
     for f in ["i.h5", "i.json", "i_map.h5", "i_map.xdmf", "i_map.png"] {
         assert!(!dir.join(f).exists(), "no output after a failed run: {f}");
     }
+}
+
+/// The HDF5 result's types (format 2): vertex indices integers, flags u8, lists arrays.
+fn check_hdf5_types(out: &std::path::Path, best_vertex: i64) {
+    use diffsound::io::results::{read_attribute, read_integers, AttrValue};
+    let attr = |g: &str, k: &str| read_attribute(out, g, k).unwrap();
+    assert_eq!(attr("/", "format_version"), AttrValue::Integer(2));
+    assert_eq!(attr("/", "n_ranks"), AttrValue::Integer(2));
+    assert_eq!(
+        attr("/impact", "best_vertex"),
+        AttrValue::Integer(best_vertex)
+    );
+    assert!(matches!(attr("/", "recordings"), AttrValue::Texts(v) if v.len() == 4));
+    assert_eq!(attr("/material", "source"), AttrValue::Text("given".into()));
+    let (vertices, _) = read_integers(out, "/map/vertex").unwrap();
+    assert!(vertices.contains(&best_vertex));
+    let (heard, _) = read_integers(out, "/clusters/heard").unwrap();
+    assert!(heard.iter().all(|&h| h == 0 || h == 1));
+    let (poles, _) = read_integers(out, "/poles/cluster").unwrap();
+    assert!(poles.iter().all(|&c| c >= -1));
 }

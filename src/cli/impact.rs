@@ -12,7 +12,7 @@ use crate::inverse::impact::MapOptions;
 use crate::io::paths::with_suffix;
 use crate::workflow::locate_impact::job::{resolve_material, CaseMeta};
 use crate::workflow::locate_impact::{self, Report};
-pub use crate::workflow::locate_impact::{Job, TransferChoice};
+pub use crate::workflow::locate_impact::{Job, MaterialSource, TransferChoice};
 use clap::Args;
 use mpi::environment::Universe;
 use serde::Deserialize;

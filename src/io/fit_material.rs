@@ -8,22 +8,31 @@
 //!
 //! | path | contents |
 //! |------|----------|
-//! | `/` attrs | `format` = `diffsound.fit_material`, `format_version` = 1, `mesh`, `recordings`, `order`, `n_ranks`, `command`, `version` |
-//! | `/material` attrs | `youngs_modulus` [Pa], `poisson_ratio`, `density` [kg/m³], `youngs_over_density` [m²/s²], `start_youngs_modulus`, `start_poisson_ratio`, `poisson_learned` (0/1) |
-//! | `/fit/history/{step,phase,loss,youngs_modulus,poisson_ratio}` | per step; phase 0 = transport, 1 = spectral |
+//! Types follow [`super::results`]: values f64, indices and counts u64 (datasets) or i64
+//! (attributes), flags u8 (0/1), lists 1-D arrays.
+//!
+//! | path | contents |
+//! |------|----------|
+//! | `/` attrs | `format` = `diffsound.fit_material`, `format_version` = 2, `mesh` (string), `recordings` (string array), `order` (i64), `n_ranks` (i64), `command`, `version` |
+//! | `/material` attrs | `youngs_modulus` [Pa], `poisson_ratio`, `density` [kg/m³], `youngs_over_density` [m²/s²], `start_youngs_modulus`, `start_poisson_ratio`, `poisson_learned` (u8 flag) |
+//! | `/fit/history/{step,phase,loss,youngs_modulus,poisson_ratio}` | per step; `step` u64, `phase` u8: 0 = transport, 1 = spectral |
 //! | `/fit/log_gains` `[C]`, `/fit/log_amplitude_offsets` `[K, C]` | learned levels (natural log) |
-//! | `/fit` attrs | `steps`, `switched_at` (−1: never), `seconds`, `basis_samples` (string), `max_ritz_residual`, `line_start_youngs_modulus`, `line_start_poisson_ratio`, `line_start_distance` |
+//! | `/fit` attrs | `steps` (i64), `switched_at` (i64, −1: never), `seconds`, `basis_samples` (f64 array: ν of the basis solves), `max_ritz_residual`, `line_start_youngs_modulus`, `line_start_poisson_ratio`, `line_start_distance` |
 //! | `/damping/curve/{frequencies_hz,decay_rates}` | knots of d(f) [Hz, 1/s] |
-//! | `/damping/modes/{frequency_hz,decay_rate,level_db,kept}` `[M]`, `…/amplitudes`, `…/phases` `[M, C]` | every stage-1 mode |
-//! | `/damping/peaks/{frequency_hz,decay_rate,level_db,kept}` | the peaks the curve is fitted to |
+//! | `/damping/modes/{frequency_hz,decay_rate,level_db,kept}` `[M]`, `…/amplitudes`, `…/phases` `[M, C]` | every stage-1 mode; `kept` u8 flag |
+//! | `/damping/peaks/{frequency_hz,decay_rate,level_db,kept}` | the peaks the curve is fitted to; `kept` u8 flag |
 //! | `/damping` attrs | `rayleigh_alpha` [1/s], `rayleigh_beta` [s], `curve_rms_log_error`, `rayleigh_rms_log_error`, `loss_initial`, `loss_final` |
 //! | `/modes/simulated/{frequency_hz,eigenvalues,full_eigenvalues,relative_difference}` `[K]` | fitted modes, reduced vs full solve |
-//! | `/modes/matched/{recorded_frequency_hz,simulated_frequency_hz,error_hz,relative_error,recorded_decay_rate,simulated_decay_rate,simulated_index}` | one row per recorded mode in the band that found a partner |
+//! | `/modes/matched/{recorded_frequency_hz,simulated_frequency_hz,error_hz,relative_error,recorded_decay_rate,simulated_decay_rate,simulated_index}` | one row per recorded mode in the band that found a partner; `simulated_index` u64 |
 //! | `/errors` attrs | `spectrogram_start`, `spectrogram_fit`, `max_relative_eigenvalue_difference`, `mean_abs_relative_frequency_error`, `line_start_mean_abs_relative_frequency_error` |
 //! | `/timings` attrs | seconds per stage |
 //!
 //! The `line_start_*` attributes are present only when the fit began from a line-spectrum
 //! start.
+//!
+//! Version 1 stored every index, count and flag as f64, `recordings` as one string joined by
+//! ", " and `basis_samples` as Rust's debug text of a list; [`read_material`] reads both
+//! versions (the attributes it reads did not change).
 
 use super::results::{read_attribute, AttrValue, ResultsFile};
 use super::IoError;
@@ -31,15 +40,15 @@ use std::path::Path;
 
 /// The `format` attribute at the root of a fit-material result.
 pub const FORMAT: &str = "diffsound.fit_material";
-/// The `format_version` written by [`write_result`].
-pub const FORMAT_VERSION: u64 = 1;
+/// The `format_version` written by [`write_result`] (module docs for what changed).
+pub const FORMAT_VERSION: u64 = 2;
 
 /// Everything a fit-material result file holds (module docs for the layout).
 #[derive(Clone, Debug)]
 pub struct FitMaterialResult {
     /// The mesh path as given.
     pub mesh: String,
-    /// The recording paths as given (stored joined by ", ").
+    /// The recording paths as given (a string array).
     pub recordings: Vec<String>,
     pub order: u32,
     pub n_ranks: usize,
@@ -97,7 +106,7 @@ pub struct FitRecord {
     pub switched_at: Option<usize>,
     pub seconds: f64,
     pub max_ritz_residual: f64,
-    /// ν of the full solves spanning the reduced basis (stored as text).
+    /// ν of the full solves spanning the reduced basis (an f64 array attribute).
     pub basis_samples: Vec<f64>,
     pub line_start: Option<LineStartRecord>,
 }
@@ -182,18 +191,14 @@ pub struct ErrorsRecord {
     pub mean_abs_relative_frequency_error: f64,
 }
 
-fn flag(b: bool) -> f64 {
-    f64::from(u8::from(b))
-}
-
 /// Writes a fit-material result (atomically, see [`ResultsFile::write`]).
 pub fn write_result(path: &Path, r: &FitMaterialResult) -> Result<(), IoError> {
     let mut file = ResultsFile::new(FORMAT, FORMAT_VERSION);
     let m = &r.material;
     file.text("/", "mesh", &r.mesh)
-        .text("/", "recordings", &r.recordings.join(", "))
-        .number("/", "order", f64::from(r.order))
-        .number("/", "n_ranks", r.n_ranks as f64)
+        .texts("/", "recordings", r.recordings.clone())
+        .integer("/", "order", i64::from(r.order))
+        .integer("/", "n_ranks", r.n_ranks as i64)
         .text("/", "command", &r.command)
         .text("/", "version", &r.version)
         .number("/material", "youngs_modulus", m.youngs_modulus)
@@ -206,48 +211,41 @@ pub fn write_result(path: &Path, r: &FitMaterialResult) -> Result<(), IoError> {
         )
         .number("/material", "start_youngs_modulus", m.start_youngs_modulus)
         .number("/material", "start_poisson_ratio", m.start_poisson_ratio)
-        .number("/material", "poisson_learned", flag(m.poisson_learned));
+        .flag("/material", "poisson_learned", m.poisson_learned);
     let fit = &r.fit;
     let h = &fit.history;
-    file.column(
-        "/fit/history/step",
-        h.iter().map(|s| s.step as f64).collect(),
-        "",
-    )
-    .column(
-        "/fit/history/phase",
-        h.iter()
-            .map(|s| if s.transport { 0.0 } else { 1.0 })
-            .collect(),
-        "",
-    )
-    .column("/fit/history/loss", h.iter().map(|s| s.loss).collect(), "1")
-    .column(
-        "/fit/history/youngs_modulus",
-        h.iter().map(|s| s.youngs_modulus).collect(),
-        "Pa",
-    )
-    .column(
-        "/fit/history/poisson_ratio",
-        h.iter().map(|s| s.poisson_ratio).collect(),
-        "1",
-    )
-    .column("/fit/log_gains", fit.log_gains.clone(), "1")
-    .dataset(
-        "/fit/log_amplitude_offsets",
-        &[fit.log_amplitude_offsets.len() / r.channels, r.channels],
-        fit.log_amplitude_offsets.clone(),
-        "1",
-    )
-    .number("/fit", "steps", fit.steps as f64)
-    .number(
-        "/fit",
-        "switched_at",
-        fit.switched_at.map_or(-1.0, |s| s as f64),
-    )
-    .number("/fit", "seconds", fit.seconds)
-    .number("/fit", "max_ritz_residual", fit.max_ritz_residual)
-    .text("/fit", "basis_samples", &format!("{:?}", fit.basis_samples));
+    file.indices("/fit/history/step", h.iter().map(|s| s.step).collect())
+        .flags(
+            "/fit/history/phase",
+            h.iter().map(|s| !s.transport).collect(),
+        )
+        .column("/fit/history/loss", h.iter().map(|s| s.loss).collect(), "1")
+        .column(
+            "/fit/history/youngs_modulus",
+            h.iter().map(|s| s.youngs_modulus).collect(),
+            "Pa",
+        )
+        .column(
+            "/fit/history/poisson_ratio",
+            h.iter().map(|s| s.poisson_ratio).collect(),
+            "1",
+        )
+        .column("/fit/log_gains", fit.log_gains.clone(), "1")
+        .dataset(
+            "/fit/log_amplitude_offsets",
+            &[fit.log_amplitude_offsets.len() / r.channels, r.channels],
+            fit.log_amplitude_offsets.clone(),
+            "1",
+        )
+        .integer("/fit", "steps", fit.steps as i64)
+        .integer(
+            "/fit",
+            "switched_at",
+            fit.switched_at.map_or(-1, |s| s as i64),
+        )
+        .number("/fit", "seconds", fit.seconds)
+        .number("/fit", "max_ritz_residual", fit.max_ritz_residual)
+        .numbers("/fit", "basis_samples", fit.basis_samples.clone());
     let d = &r.damping;
     let dm = &d.modes;
     let c = r.channels;
@@ -276,11 +274,7 @@ pub fn write_result(path: &Path, r: &FitMaterialResult) -> Result<(), IoError> {
         dm.iter().map(|m| m.level_db).collect(),
         "dB",
     )
-    .column(
-        "/damping/modes/kept",
-        dm.iter().map(|m| flag(m.kept)).collect(),
-        "",
-    )
+    .flags("/damping/modes/kept", dm.iter().map(|m| m.kept).collect())
     .dataset(
         "/damping/modes/amplitudes",
         &[dm.len(), c],
@@ -308,10 +302,9 @@ pub fn write_result(path: &Path, r: &FitMaterialResult) -> Result<(), IoError> {
         d.peaks.iter().map(|p| p.level_db).collect(),
         "dB",
     )
-    .column(
+    .flags(
         "/damping/peaks/kept",
-        d.peaks.iter().map(|p| flag(p.kept)).collect(),
-        "",
+        d.peaks.iter().map(|p| p.kept).collect(),
     )
     .number("/damping", "rayleigh_alpha", d.rayleigh_alpha)
     .number("/damping", "rayleigh_beta", d.rayleigh_beta)
@@ -379,10 +372,9 @@ pub fn write_result(path: &Path, r: &FitMaterialResult) -> Result<(), IoError> {
         matched.iter().map(|m| m.simulated_decay_rate).collect(),
         "1/s",
     )
-    .column(
+    .indices(
         "/modes/matched/simulated_index",
-        matched.iter().map(|m| m.simulated_index as f64).collect(),
-        "",
+        matched.iter().map(|m| m.simulated_index).collect(),
     )
     .number("/errors", "spectrogram_start", e.spectrogram_start)
     .number("/errors", "spectrogram_fit", e.spectrogram_fit)
@@ -412,28 +404,34 @@ pub fn write_result(path: &Path, r: &FitMaterialResult) -> Result<(), IoError> {
     file.write(path)
 }
 
-/// Reads E, ν, ρ from a fit-material result.
-pub fn read_material(path: &Path) -> Result<(f64, f64, f64), String> {
-    let number = |key: &str| -> Result<f64, String> {
-        match read_attribute(path, "/material", key)
-            .map_err(|e| format!("{}: {e}", path.display()))?
-        {
-            AttrValue::Number(v) => Ok(v),
-            AttrValue::Text(t) => Err(format!(
-                "{}: /material {key} is text {t:?}, expected a number",
-                path.display()
-            )),
-        }
+/// Reads E [Pa], ν and ρ [kg/m³] from a fit-material result (format version 1 or 2).
+pub fn read_material(path: &Path) -> Result<(f64, f64, f64), IoError> {
+    let wrong = |found: String| IoError::WrongFormat {
+        path: path.to_path_buf(),
+        expected: FORMAT,
+        found,
     };
-    match read_attribute(path, "/", "format").map_err(|e| format!("{}: {e}", path.display()))? {
+    match read_attribute(path, "/", "format")? {
         AttrValue::Text(t) if t == FORMAT => {}
+        other => return Err(wrong(format!("format {other}"))),
+    }
+    match read_attribute(path, "/", "format_version")? {
+        AttrValue::Integer(v) if (1..=FORMAT_VERSION as i64).contains(&v) => {}
         other => {
-            return Err(format!(
-                "{} is not a fit-material result (format {other:?})",
-                path.display()
-            ))
+            return Err(wrong(format!(
+                "format_version {other}; this build reads 1 to {FORMAT_VERSION}"
+            )))
         }
     }
+    let number = |key: &str| -> Result<f64, IoError> {
+        match read_attribute(path, "/material", key)? {
+            AttrValue::Number(v) => Ok(v),
+            other => Err(IoError::BadLayout {
+                path: path.to_path_buf(),
+                reason: format!("/material {key} is {other}, expected a number"),
+            }),
+        }
+    };
     Ok((
         number("youngs_modulus")?,
         number("poisson_ratio")?,
@@ -444,7 +442,7 @@ pub fn read_material(path: &Path) -> Result<(f64, f64, f64), String> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::io::results::read_dataset;
+    use crate::io::results::{read_dataset, read_integers};
     use crate::io::test_support::TempDir;
 
     fn sample(line_start: bool) -> FitMaterialResult {
@@ -552,25 +550,39 @@ mod tests {
         assert_eq!(read_material(&path).unwrap(), (5e10, 0.3, 2500.0));
         let number = |group: &str, key: &str| match read_attribute(&path, group, key).unwrap() {
             AttrValue::Number(v) => v,
-            AttrValue::Text(t) => panic!("{group} {key} is text {t:?}"),
+            other => panic!("{group} {key} is {other:?}"),
         };
+        let attr = |group: &str, key: &str| read_attribute(&path, group, key).unwrap();
         assert_eq!(number("/material", "youngs_over_density"), 5e10 / 2500.0);
-        assert_eq!(number("/fit", "switched_at"), -1.0);
+        assert_eq!(attr("/fit", "switched_at"), AttrValue::Integer(-1));
+        assert_eq!(attr("/", "n_ranks"), AttrValue::Integer(2));
+        assert_eq!(attr("/", "format_version"), AttrValue::Integer(2));
+        assert_eq!(attr("/material", "poisson_learned"), AttrValue::Integer(1));
         assert_eq!(number("/fit", "line_start_distance"), 0.01);
         assert_eq!(
             number("/errors", "line_start_mean_abs_relative_frequency_error"),
             0.002
         );
         assert_eq!(
-            read_attribute(&path, "/", "recordings").unwrap(),
-            AttrValue::Text("a.wav, b.wav".into())
+            attr("/", "recordings"),
+            AttrValue::Texts(vec!["a.wav".into(), "b.wav".into()])
         );
         assert_eq!(
-            read_attribute(&path, "/fit", "basis_samples").unwrap(),
-            AttrValue::Text("[0.15, 0.35]".into())
+            attr("/fit", "basis_samples"),
+            AttrValue::Numbers(vec![0.15, 0.35])
         );
-        let (phase, _) = read_dataset(&path, "/fit/history/phase").unwrap();
-        assert_eq!(phase, vec![0.0, 1.0]);
+        let (phase, _) = read_integers(&path, "/fit/history/phase").unwrap();
+        assert_eq!(phase, vec![0, 1]);
+        assert_eq!(
+            read_integers(&path, "/damping/modes/kept").unwrap().0,
+            vec![1]
+        );
+        assert_eq!(
+            read_integers(&path, "/modes/matched/simulated_index")
+                .unwrap()
+                .0,
+            vec![0]
+        );
         let (offsets, shape) = read_dataset(&path, "/fit/log_amplitude_offsets").unwrap();
         assert_eq!((offsets.len(), shape), (6, vec![3, 2]));
         let (amplitudes, shape) = read_dataset(&path, "/damping/modes/amplitudes").unwrap();
@@ -582,5 +594,36 @@ mod tests {
         let path = dir.path("plain.h5");
         write_result(&path, &sample(false)).unwrap();
         assert!(read_attribute(&path, "/fit", "line_start_distance").is_err());
+    }
+
+    /// A version-1 file (everything f64, lists as text) still gives its material; another
+    /// format or a future version is refused by name.
+    #[test]
+    fn read_material_takes_version_1_and_refuses_other_files() {
+        let dir = TempDir::new("fit-material-v1");
+        let path = dir.path("v1.h5");
+        ResultsFile::new(FORMAT, 1)
+            .text("/", "recordings", "a.wav, b.wav")
+            .number("/", "n_ranks", 2.0)
+            .number("/material", "youngs_modulus", 7e10)
+            .number("/material", "poisson_ratio", 0.2)
+            .number("/material", "density", 2400.0)
+            .write(&path)
+            .unwrap();
+        assert_eq!(read_material(&path).unwrap(), (7e10, 0.2, 2400.0));
+        for (format, version) in [("diffsound.diagnose", 1), (FORMAT, FORMAT_VERSION + 1)] {
+            let path = dir.path("other.h5");
+            ResultsFile::new(format, version)
+                .number("/material", "youngs_modulus", 7e10)
+                .write(&path)
+                .unwrap();
+            let err = read_material(&path).unwrap_err();
+            assert!(matches!(err, IoError::WrongFormat { .. }), "{err}");
+            assert!(
+                err.to_string()
+                    .contains("not a diffsound.fit_material file"),
+                "{err}"
+            );
+        }
     }
 }

@@ -9,23 +9,26 @@
 //!
 //! # HDF5 layout
 //!
+//! Every dataset carries a string attribute `units` ("1" for dimensionless, "" for indices),
+//! the same convention as the fit results ([`results`]).
+//!
 //! | path                        | type / shape                        | units, meaning |
 //! |-----------------------------|-------------------------------------|----------------|
-//! | `/` attrs                   | `format` = `"diffsound.modes"`, `format_version` (u64) = 3 | identifies the file (1: no `/modes/by_mode`; 2: no `/node_fields`, no extra datasets) |
-//! | `/mesh/nodes`               | f64 `[n_nodes, 3]`                  | m, original mesh numbering |
-//! | `/mesh/tets`                | u64 `[n_tets, nodes_per_tet]`       | 0-based node ids, Gmsh order; attr `element_order` (u32, 1 or 2) |
-//! | `/mesh/tets_vtk`            | u64 `[n_tets, nodes_per_tet]`       | same cells in VTK/XDMF order (used by the sidecar) |
+//! | `/` attrs                   | `format` = `"diffsound.modes"`, `format_version` (u64) = 4 | identifies the file (1: no `/modes/by_mode`; 2: no `/node_fields`, no extra datasets; 3: no `units` attributes, node fields always `[n_nodes, 3]`) |
+//! | `/mesh/nodes`               | f64 `[n_nodes, 3]`                  | `m`, original mesh numbering |
+//! | `/mesh/tets`                | u64 `[n_tets, nodes_per_tet]`       | `""`: 0-based node ids, Gmsh order; attr `element_order` (u32, 1 or 2) |
+//! | `/mesh/tets_vtk`            | u64 `[n_tets, nodes_per_tet]`       | `""`: same cells in VTK/XDMF order (used by the sidecar, and what meshio returns) |
 //! | `/material` attrs           | `youngs_modulus` f64, `poisson_ratio` f64, `density` f64, `rayleigh_alpha` f64, `rayleigh_beta` f64, `name` string | Pa, –, kg/m³, 1/s, s |
-//! | `/modes/eigenvalues`        | f64 `[n_modes]`                     | λ = ω², rad²/s², elastic modes only, ascending |
-//! | `/modes/frequencies`        | f64 `[n_modes]`                     | Hz, f = √λ / 2π |
-//! | `/modes/shapes`             | f64 `[n_modes, n_nodes, 3]`         | mass-normalised φ (φᵀMφ = 1), node-major x,y,z |
-//! | `/modes/by_mode/mode_KKK`   | f64 `[n_nodes, 3]`, virtual         | mode `KKK` = `/modes/shapes[KKK, :, :]`, no copy (see below) |
-//! | `/modes/residual_norms`     | f64 `[n_modes]`                     | relative residual ‖Kφ − λMφ‖ / … |
-//! | `/modes/rigid_eigenvalues`  | f64 `[k]`                           | rad²/s², the near-zero modes that were removed |
+//! | `/modes/eigenvalues`        | f64 `[n_modes]`                     | `rad^2/s^2`: λ = ω², elastic modes only, ascending |
+//! | `/modes/frequencies`        | f64 `[n_modes]`                     | `Hz`, f = √λ / 2π |
+//! | `/modes/shapes`             | f64 `[n_modes, n_nodes, 3]`         | `kg^-1/2`: mass-normalised φ (φᵀMφ = 1), node-major x,y,z |
+//! | `/modes/by_mode/mode_KKK`   | f64 `[n_nodes, 3]`, virtual         | `kg^-1/2`: mode `KKK` = `/modes/shapes[KKK, :, :]`, no copy (see below) |
+//! | `/modes/residual_norms`     | f64 `[n_modes]`                     | `1`: relative residual ‖Kφ − λMφ‖ / … |
+//! | `/modes/rigid_eigenvalues`  | f64 `[k]`                           | `rad^2/s^2`, the near-zero modes that were removed |
 //! | `/solver` attrs             | key → value strings, plus `n_ranks` (u64) | solver settings and PETSc options |
 //! | `/timings` attrs            | key → f64                           | seconds (assembly, solve, total, …) |
 //! | `/provenance` attrs         | key → value strings                 | mesh path, units, command line, diffsound version |
-//! | `/node_fields/<name>`       | f64 `[n_nodes, 3]`; attr `units` (string) | optional per-node vectors (e.g. `d_lambda_dx_mode_003`), node-major x,y,z, original numbering; also in the XDMF sidecar |
+//! | `/node_fields/<name>`       | f64 `[n_nodes]` (scalar) or `[n_nodes, 3]` (vector); attr `units` | optional per-node fields ([`NodeField`], e.g. `d_lambda_dx_mode_003`), vectors node-major x,y,z, original numbering; also in the XDMF sidecar |
 //! | `/sensitivities/…`          | f64, any shape; string attrs (e.g. `units`) | written when sensitivities are requested: see `eigen::sensitivity` |
 //! | any other `/<group>/…/<name>` | f64, any shape; string attrs      | extra datasets ([`ExtraDataset`]), e.g. the `/sensitivities/…` above |
 //!
@@ -58,24 +61,34 @@
 //!
 //! # XDMF sidecar
 //!
-//! `<path>` with the extension replaced by `.xdmf`, XDMF 3 (`<Xdmf Version="3.0">`):
-//! one uniform Grid `mesh` (with an `Information` element naming the material)
+//! `<path>` with the extension replaced by `.xdmf`, XDMF 3 (`<Xdmf Version="3.0">`),
+//! written by [`xdmf_document`] for every file [`write_modes`] writes (the modes job and the
+//! maps of `locate-impact`, `diagnose` and the shape fits): one uniform Grid `mesh`
 //! whose Topology is `Tetrahedron` (4 nodes) or
 //! `Tetrahedron_10` (10 nodes) reading `/mesh/tets_vtk`, Geometry `XYZ` reading
 //! `/mesh/nodes`, and per mode `k` a node-centred vector Attribute named
 //! `mode_KKK (F Hz)` whose plain HDF DataItem (`Dimensions="n_nodes 3"`)
 //! reads `/modes/by_mode/mode_KKK`; then per node field a node-centred
-//! vector Attribute named `<name>` (with an `Information` element
-//! `units`) whose plain HDF DataItem (`Dimensions="n_nodes 3"`) reads
-//! `/node_fields/<name>`. The HDF5 file is named
+//! Attribute named `<name>`: `AttributeType="Scalar"` with a DataItem of
+//! `Dimensions="n_nodes"` for a scalar field (ParaView colours it by its value, sign
+//! included), `AttributeType="Vector"` with `Dimensions="n_nodes 3"` for a vector
+//! field, reading `/node_fields/<name>`. The HDF5 file is named
 //! by its file name only (relative to the sidecar), so the pair can be moved
 //! together. Connectivity is declared `NumberType="Int" Precision="8"`: HDF5
 //! converts the stored u64 on read, and signed 64-bit is the index type every
 //! XDMF reader accepts.
 //!
-//! ParaView opens the sidecar with its default `.xdmf` reader
-//! (`Xdmf3ReaderS`) or the legacy "XDMF Reader"; the tests check both with
-//! ParaView 5.11 `pvbatch` when it is installed (quadratic tets, every mode as
+//! Every element holds exactly one DataItem and nothing else: no `<Information>`
+//! (meshio's reader refuses a Grid `Information` without text and an Attribute with
+//! two children, "Couldn't read file … as xdmf"). What such elements carried lives in
+//! the HDF5 file: the material's name in `/material`, a field's units in the `units`
+//! attribute of `/node_fields/<name>`.
+//!
+//! Readers checked by the tests: meshio (Python; `meshio.read` gives `tetra10` or
+//! `tetra` cells and every Attribute as a point field, scalars 1-D; the CLI test of
+//! every command that writes a sidecar reads it so, `tests/python/check_sidecar.py`) and, when `pvbatch` is
+//! installed, ParaView's default `.xdmf` reader
+//! (`Xdmf3ReaderS`) and the legacy "XDMF Reader" (quadratic tets, every mode as
 //! a point vector with the stored values, and every node field likewise). The per-mode virtual datasets are
 //! what makes the Xdmf3 readers work: given a HyperSlab DataItem instead they
 //! load the mesh but drop the attribute ("Skipping unrecognized array type
@@ -114,9 +127,10 @@ pub(crate) mod test_support;
 pub const FORMAT_NAME: &str = "diffsound.modes";
 /// Value of the root attribute `format_version`; bump on any layout change.
 /// Version 2 added `/modes/by_mode`, version 3 the optional `/node_fields`
-/// and extra datasets; [`read_modes`] still reads versions 1 and 2 (it needs
-/// only `/modes/shapes`, and reads the optional parts only where present).
-pub const FORMAT_VERSION: u64 = 3;
+/// and extra datasets, version 4 the `units` attributes and scalar node fields;
+/// [`read_modes`] still reads versions 1 to 3 (it needs only `/modes/shapes`,
+/// and reads the optional parts only where present).
+pub const FORMAT_VERSION: u64 = 4;
 
 /// Top-level groups of the fixed layout. An [`ExtraDataset`] may not live in
 /// (or be) any of them.
@@ -146,18 +160,86 @@ pub struct ExtraDataset {
     pub attrs: Vec<(String, String)>,
 }
 
-/// A per-node vector field shown on the mesh, stored as
-/// `/node_fields/<name>` and referenced from the XDMF sidecar.
+/// Values per node of a [`NodeField`].
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+pub enum FieldKind {
+    /// One value per node: dataset `[n_nodes]`, XDMF `AttributeType="Scalar"`.
+    Scalar,
+    /// x, y, z per node: dataset `[n_nodes, 3]`, XDMF `AttributeType="Vector"`.
+    Vector,
+}
+
+impl FieldKind {
+    /// Values per node: 1 or 3.
+    pub fn components(self) -> usize {
+        match self {
+            FieldKind::Scalar => 1,
+            FieldKind::Vector => 3,
+        }
+    }
+
+    /// The dataset shape for `n_nodes` nodes.
+    fn shape(self, n_nodes: usize) -> Vec<usize> {
+        match self {
+            FieldKind::Scalar => vec![n_nodes],
+            FieldKind::Vector => vec![n_nodes, 3],
+        }
+    }
+}
+
+/// A per-node field shown on the mesh, stored as `/node_fields/<name>` and
+/// referenced from the XDMF sidecar.
 #[derive(Clone, Debug, PartialEq)]
 pub struct NodeField<'a> {
     /// Non-empty `[A-Za-z0-9_]`, unique; dataset and ParaView array name
     /// (e.g. `d_lambda_dx_mode_003`).
     pub name: String,
-    /// 3·n_nodes values, node-major (x,y,z), original mesh numbering.
+    pub kind: FieldKind,
+    /// `kind.components()`·n_nodes values, node-major (x,y,z for a vector),
+    /// original mesh numbering.
     pub data: &'a [f64],
-    /// Stored as the dataset's `units` attribute (e.g. `rad²/s²/m`).
+    /// Stored as the dataset's `units` attribute (e.g. `rad^2/s^2/m`).
     pub units: String,
 }
+
+impl<'a> NodeField<'a> {
+    /// One value per node.
+    pub fn scalar(name: &str, data: &'a [f64], units: &str) -> NodeField<'a> {
+        NodeField {
+            name: name.into(),
+            kind: FieldKind::Scalar,
+            data,
+            units: units.into(),
+        }
+    }
+
+    /// x, y, z per node, node-major.
+    pub fn vector(name: &str, data: &'a [f64], units: &str) -> NodeField<'a> {
+        NodeField {
+            name: name.into(),
+            kind: FieldKind::Vector,
+            data,
+            units: units.into(),
+        }
+    }
+}
+
+/// A node field as [`read_modes`] returns it.
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct NodeFieldData {
+    pub name: String,
+    /// Scalar for a `[n_nodes]` dataset, vector for `[n_nodes, 3]` (every
+    /// field of a format-3 file).
+    pub kind: FieldKind,
+    /// `kind.components()`·n_nodes values, node-major.
+    pub data: Vec<f64>,
+    pub units: String,
+}
+
+/// `units` of the eigenvalue datasets (λ = ω²).
+pub const EIGENVALUE_UNITS: &str = "rad^2/s^2";
+/// `units` of the mass-normalised mode shapes (φᵀMφ = 1 with M in kg).
+pub const SHAPE_UNITS: &str = "kg^-1/2";
 
 /// `vtk[i] = gmsh[GMSH_TO_VTK_TET10[i]]` for one 10-node tet (see module docs).
 pub const GMSH_TO_VTK_TET10: [usize; 10] = [0, 1, 2, 3, 4, 5, 6, 7, 9, 8];
@@ -210,7 +292,7 @@ pub struct ModesFile<'a> {
     pub provenance: Vec<(String, String)>,
     /// Additional f64 datasets outside the fixed layout (e.g. `/sensitivities/…`).
     pub extra_datasets: Vec<ExtraDataset>,
-    /// Per-node vector fields, written to `/node_fields` and the sidecar.
+    /// Per-node scalar or vector fields, written to `/node_fields` and the sidecar.
     pub node_fields: Vec<NodeField<'a>>,
 }
 
@@ -243,9 +325,9 @@ pub struct ModesSummary {
     /// Every dataset outside [`RESERVED_GROUPS`], sorted by path; attributes
     /// in HDF5's (name) order. Empty for files without any.
     pub extra_datasets: Vec<ExtraDataset>,
-    /// `/node_fields/<name>` as (name, 3·n_nodes node-major values, units),
-    /// sorted by name. Empty for files without `/node_fields`.
-    pub node_fields: Vec<(String, Vec<f64>, String)>,
+    /// `/node_fields/<name>`, sorted by name. Empty for files without
+    /// `/node_fields`.
+    pub node_fields: Vec<NodeFieldData>,
 }
 
 /// Errors of this module; every variant names the file it concerns.
@@ -275,6 +357,16 @@ pub enum IoError {
     /// file size limit, …); nothing was written at `path`.
     #[error("cannot write {path}: {reason}")]
     WriteFailed { path: PathBuf, reason: String },
+    /// The file is HDF5 but not the kind of result the reader wants (its root `format`
+    /// attribute differs), or a version this build cannot read.
+    #[error("{path}: not a {expected} file ({found})")]
+    WrongFormat {
+        path: PathBuf,
+        /// The `format` the reader wants, e.g. `diffsound.fit_material`.
+        expected: &'static str,
+        /// What the file holds instead.
+        found: String,
+    },
 }
 
 impl IoError {
@@ -492,11 +584,12 @@ fn validate_node_fields(path: &Path, f: &ModesFile) -> Result<(), IoError> {
         if !seen.insert(name.as_str()) {
             return bad(format!("node field '{name}' is given twice"));
         }
-        if field.data.len() != 3 * n_nodes {
+        let per_node = field.kind.components();
+        if field.data.len() != per_node * n_nodes {
             return bad(format!(
-                "node field '{name}' has length {}, expected 3·n_nodes = {}",
+                "node field '{name}' has length {}, expected {per_node}·n_nodes = {}",
                 field.data.len(),
-                3 * n_nodes
+                per_node * n_nodes
             ));
         }
         check_no_nul(path, &format!("units of node field '{name}'"), &field.units)?;
@@ -617,15 +710,18 @@ fn fill_h5(path: &Path, file: &hdf5::File, f: &ModesFile) -> Result<(), IoError>
 
     let mesh = create_group(path, file, "mesh")?;
     let flat_nodes: Vec<f64> = f.nodes.iter().flatten().copied().collect();
-    write_dataset(path, &mesh, "nodes", &[n_nodes, 3], &flat_nodes)?;
+    let ds = write_dataset(path, &mesh, "nodes", &[n_nodes, 3], &flat_nodes)?;
+    write_units(path, &ds, "m")?;
     let tets: Vec<u64> = f.connectivity.iter().map(|&i| i as u64).collect();
     let tets_ds = write_dataset(path, &mesh, "tets", &[n_tets, npt], &tets)?;
     write_attr(path, &tets_ds, "element_order", &f.element_order)?;
+    write_units(path, &tets_ds, "")?;
     let tets_vtk: Vec<u64> = gmsh_to_vtk_connectivity(f.connectivity, npt)
         .into_iter()
         .map(|i| i as u64)
         .collect();
-    write_dataset(path, &mesh, "tets_vtk", &[n_tets, npt], &tets_vtk)?;
+    let ds = write_dataset(path, &mesh, "tets_vtk", &[n_tets, npt], &tets_vtk)?;
+    write_units(path, &ds, "")?;
 
     let mat = create_group(path, file, "material")?;
     let m = &f.material;
@@ -641,23 +737,28 @@ fn fill_h5(path: &Path, file: &hdf5::File, f: &ModesFile) -> Result<(), IoError>
     write_str_attr(path, &mat, "name", &m.name)?;
 
     let modes = create_group(path, file, "modes")?;
-    write_dataset(path, &modes, "eigenvalues", &[n_modes], f.eigenvalues)?;
-    write_dataset(path, &modes, "frequencies", &[n_modes], f.frequencies_hz)?;
+    let ds = write_dataset(path, &modes, "eigenvalues", &[n_modes], f.eigenvalues)?;
+    write_units(path, &ds, EIGENVALUE_UNITS)?;
+    let ds = write_dataset(path, &modes, "frequencies", &[n_modes], f.frequencies_hz)?;
+    write_units(path, &ds, "Hz")?;
     // One contiguous buffer: hdf5-metno writes multi-dimensional slabs only
     // from ndarray views, which this crate does not depend on. The cost is
     // a transient copy of the shapes.
     let shapes: Vec<f64> = f.mode_shapes.iter().flatten().copied().collect();
-    write_dataset(path, &modes, "shapes", &[n_modes, n_nodes, 3], &shapes)?;
+    let ds = write_dataset(path, &modes, "shapes", &[n_modes, n_nodes, 3], &shapes)?;
+    write_units(path, &ds, SHAPE_UNITS)?;
     drop(shapes);
     write_mode_views(path, &modes, n_modes, n_nodes)?;
-    write_dataset(path, &modes, "residual_norms", &[n_modes], f.residual_norms)?;
-    write_dataset(
+    let ds = write_dataset(path, &modes, "residual_norms", &[n_modes], f.residual_norms)?;
+    write_units(path, &ds, "1")?;
+    let ds = write_dataset(
         path,
         &modes,
         "rigid_eigenvalues",
         &[f.rigid_eigenvalues.len()],
         f.rigid_eigenvalues,
     )?;
+    write_units(path, &ds, EIGENVALUE_UNITS)?;
 
     let solver = create_group(path, file, "solver")?;
     for (key, value) in &f.solver {
@@ -678,8 +779,9 @@ fn fill_h5(path: &Path, file: &hdf5::File, f: &ModesFile) -> Result<(), IoError>
     if !f.node_fields.is_empty() {
         let fields = create_group(path, file, "node_fields")?;
         for field in &f.node_fields {
-            let ds = write_dataset(path, &fields, &field.name, &[n_nodes, 3], field.data)?;
-            write_str_attr(path, &ds, "units", &field.units)?;
+            let shape = field.kind.shape(n_nodes);
+            let ds = write_dataset(path, &fields, &field.name, &shape, field.data)?;
+            write_units(path, &ds, &field.units)?;
         }
     }
 
@@ -752,10 +854,11 @@ fn write_mode_views(
                 hdf5::Selection::All,
             );
         }
-        builder.create(name.as_str()).map_err(IoError::hdf5(
+        let ds = builder.create(name.as_str()).map_err(IoError::hdf5(
             path,
             format!("creating virtual dataset /modes/by_mode/{name}"),
         ))?;
+        write_units(path, &ds, SHAPE_UNITS)?;
     }
     Ok(())
 }
@@ -815,6 +918,11 @@ fn write_attr<T: hdf5::H5Type>(
         .map_err(IoError::hdf5(path, format!("writing {where_}")))
 }
 
+/// The `units` string attribute of a dataset.
+fn write_units(path: &Path, ds: &hdf5::Dataset, units: &str) -> Result<(), IoError> {
+    write_str_attr(path, ds, "units", units)
+}
+
 fn write_str_attr(
     path: &Path,
     loc: &hdf5::Location,
@@ -852,15 +960,13 @@ pub fn xdmf_document(h5_name: &str, f: &ModesFile) -> String {
 <Xdmf Version="3.0">
   <Domain>
     <Grid Name="mesh" GridType="Uniform">
-      <Information Name="material" Value="{material}"/>
       <Topology TopologyType="{topology}" NumberOfElements="{n_tets}" NodesPerElement="{npt}">
         <DataItem Dimensions="{n_tets} {npt}" NumberType="Int" Precision="8" Format="HDF">{h5}:/mesh/tets_vtk</DataItem>
       </Topology>
       <Geometry GeometryType="XYZ">
         <DataItem Dimensions="{n_nodes} 3" NumberType="Float" Precision="8" Format="HDF">{h5}:/mesh/nodes</DataItem>
       </Geometry>
-"#,
-        material = xml_escape(&f.material.name),
+"#
     );
     for (k, freq) in f.frequencies_hz.iter().enumerate() {
         let name = mode_name(k, n_modes);
@@ -873,13 +979,16 @@ pub fn xdmf_document(h5_name: &str, f: &ModesFile) -> String {
         );
     }
     for field in &f.node_fields {
-        let name = xml_escape(&field.name);
-        let units = xml_escape(&field.units);
+        // Names are [A-Za-z0-9_] (validated): nothing to escape. Units stay in the HDF5 file.
+        let name = &field.name;
+        let (kind, dims) = match field.kind {
+            FieldKind::Scalar => ("Scalar", format!("{n_nodes}")),
+            FieldKind::Vector => ("Vector", format!("{n_nodes} 3")),
+        };
         let _ = write!(
             x,
-            r#"      <Attribute Name="{name}" Center="Node" AttributeType="Vector">
-        <Information Name="units" Value="{units}"/>
-        <DataItem Dimensions="{n_nodes} 3" NumberType="Float" Precision="8" Format="HDF">{h5}:/node_fields/{name}</DataItem>
+            r#"      <Attribute Name="{name}" Center="Node" AttributeType="{kind}">
+        <DataItem Dimensions="{dims}" NumberType="Float" Precision="8" Format="HDF">{h5}:/node_fields/{name}</DataItem>
       </Attribute>
 "#
         );
@@ -1035,16 +1144,25 @@ pub fn read_modes(path: &Path) -> Result<ModesSummary, IoError> {
         for name in names {
             let full = format!("/node_fields/{name}");
             let (data, shape) = read_dataset::<f64>(path, &file, &full)?;
-            if shape != [n_nodes, 3] {
+            let kind = if shape == [n_nodes, 3] {
+                FieldKind::Vector
+            } else if shape == [n_nodes] {
+                FieldKind::Scalar
+            } else {
                 return Err(bad(format!(
-                    "{full} has shape {shape:?}, expected [{n_nodes}, 3]"
+                    "{full} has shape {shape:?}, expected [{n_nodes}] or [{n_nodes}, 3]"
                 )));
-            }
+            };
             let ds = file
                 .dataset(&full)
                 .map_err(IoError::hdf5(path, format!("opening {full}")))?;
             let units = read_str_attr(path, &ds, "units")?;
-            node_fields.push((name, data, units));
+            node_fields.push(NodeFieldData {
+                name,
+                kind,
+                data,
+                units,
+            });
         }
     }
 

@@ -12,8 +12,8 @@ struct Fixture {
     shapes: Vec<Vec<f64>>,
     residuals: Vec<f64>,
     rigid: Vec<f64>,
-    /// Node fields as (name, 3·n values, units), sorted by name.
-    fields: Vec<(String, Vec<f64>, String)>,
+    /// Node fields, sorted by name.
+    fields: Vec<NodeFieldData>,
     /// Sorted by path.
     extras: Vec<ExtraDataset>,
 }
@@ -71,18 +71,27 @@ fn fixture(quadratic: bool) -> Fixture {
         residuals: vec![1e-12, 2e-12, 3e-11],
         rigid: vec![1e-6, -2e-6, 3e-7, 0.0, 1e-7, -1e-7],
         fields: vec![
-            (
-                "d_lambda_dx_mode_001".into(),
-                (0..3 * n).map(|i| -1.5e9 + i as f64 * 0.25).collect(),
-                "rad²/s²/m".into(),
-            ),
-            (
-                "marker".into(),
-                (0..3 * n)
+            NodeFieldData {
+                name: "d_lambda_dx_mode_001".into(),
+                kind: FieldKind::Vector,
+                data: (0..3 * n).map(|i| -1.5e9 + i as f64 * 0.25).collect(),
+                units: "rad²/s²/m".into(),
+            },
+            NodeFieldData {
+                name: "marker".into(),
+                kind: FieldKind::Vector,
+                data: (0..3 * n)
                     .map(|i| (i % 3) as f64 + (i / 3) as f64 * 10.0)
                     .collect(),
-                String::new(),
-            ),
+                units: String::new(),
+            },
+            // A signed scalar: one value per node, not three equal components.
+            NodeFieldData {
+                name: "z_ratio".into(),
+                kind: FieldKind::Scalar,
+                data: (0..n).map(|i| -(i as f64) * 0.5).collect(),
+                units: "1 (a ≤ 0 ratio)".into(),
+            },
         ],
         extras: vec![
             ExtraDataset {
@@ -166,10 +175,11 @@ fn modes_file(fx: &Fixture) -> ModesFile<'_> {
         node_fields: fx
             .fields
             .iter()
-            .map(|(name, data, units)| NodeField {
-                name: name.clone(),
-                data,
-                units: units.clone(),
+            .map(|f| NodeField {
+                name: f.name.clone(),
+                kind: f.kind,
+                data: &f.data,
+                units: f.units.clone(),
             })
             .collect(),
     }
@@ -272,12 +282,38 @@ fn node_fields_and_extras_are_stored_as_documented() {
     let file = hdf5::File::open(&path).unwrap();
     let v: u64 = file.attr("format_version").unwrap().read_scalar().unwrap();
     assert_eq!(v, FORMAT_VERSION);
-    for (name, data, units) in &fx.fields {
+    for field in &fx.fields {
+        let name = &field.name;
         let ds = file.dataset(&format!("/node_fields/{name}")).unwrap();
-        assert_eq!(ds.shape(), [n, 3], "{name}");
-        assert_eq!(&ds.read_raw::<f64>().unwrap(), data, "{name}");
+        let shape = match field.kind {
+            FieldKind::Scalar => vec![n],
+            FieldKind::Vector => vec![n, 3],
+        };
+        assert_eq!(ds.shape(), shape, "{name}");
+        assert_eq!(ds.read_raw::<f64>().unwrap(), field.data, "{name}");
         let u: VarLenUnicode = ds.attr("units").unwrap().read_scalar().unwrap();
-        assert_eq!(u.as_str(), units);
+        assert_eq!(u.as_str(), field.units);
+    }
+    // Every dataset of the fixed layout says its units.
+    for (dataset, units) in [
+        ("/mesh/nodes", "m"),
+        ("/mesh/tets", ""),
+        ("/mesh/tets_vtk", ""),
+        ("/modes/eigenvalues", "rad^2/s^2"),
+        ("/modes/frequencies", "Hz"),
+        ("/modes/shapes", "kg^-1/2"),
+        ("/modes/by_mode/mode_000", "kg^-1/2"),
+        ("/modes/residual_norms", "1"),
+        ("/modes/rigid_eigenvalues", "rad^2/s^2"),
+    ] {
+        let u: VarLenUnicode = file
+            .dataset(dataset)
+            .unwrap()
+            .attr("units")
+            .unwrap()
+            .read_scalar()
+            .unwrap();
+        assert_eq!(u.as_str(), units, "{dataset}");
     }
     for e in &fx.extras {
         let ds = file.dataset(&e.path).unwrap();
@@ -406,12 +442,17 @@ fn xdmf_sidecar_references_the_h5_by_name_and_per_mode_datasets() {
         r#"<DataItem Dimensions="{n} 3" NumberType="Float" Precision="8" Format="HDF">results.h5:/modes/by_mode/mode_002</DataItem>"#
     )));
     assert!(!xml.contains("HyperSlab"), "Xdmf3 readers drop HyperSlabs");
-    assert!(xml.contains(r#"<Information Name="material" Value="steel &amp; &lt;co&gt;"/>"#));
+    // meshio refuses <Information>: the material's name and the units stay in the HDF5 file.
+    assert!(!xml.contains("<Information"), "{xml}");
     assert!(xml.contains(&format!(
         r#"<DataItem Dimensions="{n} 3" NumberType="Float" Precision="8" Format="HDF">results.h5:/node_fields/d_lambda_dx_mode_001</DataItem>"#
     )));
     assert!(xml.contains(r#"<Attribute Name="marker" Center="Node" AttributeType="Vector">"#));
-    assert!(xml.contains(r#"<Information Name="units" Value="rad²/s²/m"/>"#));
+    // A scalar: one value per node, so ParaView colours by the value (sign included).
+    assert!(xml.contains(r#"<Attribute Name="z_ratio" Center="Node" AttributeType="Scalar">"#));
+    assert!(xml.contains(&format!(
+        r#"<DataItem Dimensions="{n}" NumberType="Float" Precision="8" Format="HDF">results.h5:/node_fields/z_ratio</DataItem>"#
+    )));
     assert_eq!(xml.matches("<Attribute ").count(), 3 + fx.fields.len());
     check_xdmf_with_python(&dir.path("results.xdmf"), &fx);
     check_with_paraview(&dir.path("results.xdmf"), &fx);
@@ -559,74 +600,32 @@ with h5py.File(path, "r") as f:
     run_python(SCRIPT, &[h5.as_os_str(), k.as_ref()]);
 }
 
-/// Parses the sidecar with Python's xml.etree and, where h5py is importable,
-/// checks every HDF DataItem's Dimensions against the real dataset, every
-/// mode attribute's data against `/modes/shapes[k]`, and that exactly the
-/// fixture's node fields follow, each with its units. Skipped (with a note)
-/// without python3.
+/// Reads the sidecar with meshio and h5py (`tests/python/check_sidecar.py`): tetra10 or
+/// tetra cells, every mode and node field as a point array of the right shape (scalars
+/// 1-D) equal to its dataset, no `<Information>`. meshio and h5py are project dependencies
+/// (`scripts/install-deps.sh`): without them the check fails.
 fn check_xdmf_with_python(xdmf: &Path, fx: &Fixture) {
-    const SCRIPT: &str = r#"
-import sys, os, xml.etree.ElementTree as ET
-path = sys.argv[1]
-root = ET.parse(path).getroot()
-assert root.tag == "Xdmf" and root.get("Version") == "3.0", root.attrib
-grids = root.findall("./Domain/Grid")
-assert len(grids) == 1
-grid = grids[0]
-topo = grid.find("Topology")
-assert topo.get("TopologyType") in ("Tetrahedron", "Tetrahedron_10")
-dims = lambda e: [int(x) for x in e.get("Dimensions").split()]
-try:
-    import h5py, numpy as np
-except ImportError:
-    h5py = None
-    print("note: h5py not importable, dataset dimensions not checked")
-def h5file(item):
-    fname, dset = item.text.strip().split(":", 1)
-    assert os.sep not in fname, fname
-    return os.path.join(os.path.dirname(path), fname), dset
-def check_hdf(item):
-    assert item.get("Format") == "HDF", item.attrib
-    fname, dset = h5file(item)
-    if h5py:
-        with h5py.File(fname, "r") as f:
-            assert list(f[dset].shape) == dims(item), (dset, f[dset].shape, dims(item))
-    return dims(item)
-n_elem = int(topo.get("NumberOfElements"))
-assert check_hdf(topo.find("DataItem"))[0] == n_elem
-n_nodes = check_hdf(grid.find("Geometry/DataItem"))[0]
-attrs = grid.findall("Attribute")
-fields = [tuple(x.split("=", 1)) for x in sys.argv[2:]]
-n_modes = len(attrs) - len(fields)
-for k, a in enumerate(attrs):
-    assert a.get("Center") == "Node" and a.get("AttributeType") == "Vector"
-    (item,) = a.findall("DataItem")
-    assert check_hdf(item) == [n_nodes, 3]
-    fname, dset = h5file(item)
-    if k < n_modes:
-        assert dset == "/modes/by_mode/mode_%03d" % k, dset
-        assert a.get("Name").startswith("mode_%03d " % k), a.get("Name")
-        if h5py:
-            with h5py.File(fname, "r") as f:
-                assert np.array_equal(f[dset][()], f["/modes/shapes"][k]), dset
-    else:
-        name, units = fields[k - n_modes]
-        assert a.get("Name") == name and dset == "/node_fields/" + name, (a.attrib, dset)
-        (info,) = a.findall("Information")
-        assert info.get("Name") == "units" and info.get("Value") == units, info.attrib
-        if h5py:
-            with h5py.File(fname, "r") as f:
-                assert f[dset].attrs["units"] == units, dset
-print("xdmf ok", n_modes, "modes,", len(fields), "node fields")
-"#;
-    let fields: Vec<std::ffi::OsString> = fx
-        .fields
-        .iter()
-        .map(|(name, _, units)| format!("{name}={units}").into())
-        .collect();
-    let mut args = vec![xdmf.as_os_str()];
-    args.extend(fields.iter().map(|a| a.as_os_str()));
-    run_python(SCRIPT, &args);
+    let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/python/check_sidecar.py");
+    let python = std::env::var_os("DIFFSOUND_PYTHON").unwrap_or_else(|| "/usr/bin/python3".into());
+    let out = std::process::Command::new(&python)
+        .arg(&script)
+        .arg(xdmf)
+        .args(fx.fields.iter().map(|f| {
+            let kind = match f.kind {
+                FieldKind::Scalar => "scalar",
+                FieldKind::Vector => "vector",
+            };
+            format!("{}={kind}", f.name)
+        }))
+        .output()
+        .unwrap_or_else(|e| panic!("{}: {e}", python.to_string_lossy()));
+    let text = format!(
+        "{}{}",
+        String::from_utf8_lossy(&out.stdout),
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert!(out.status.success(), "meshio/h5py check failed:\n{text}");
+    eprintln!("{}", text.trim());
 }
 
 /// Loads the sidecar in ParaView through `pvbatch` (if installed) with both
@@ -651,8 +650,9 @@ for label, make in (("default", lambda p: pv.OpenDataFile(p)),
     arrays = []
     for i in range(pd.GetNumberOfArrays()):
         a = pd.GetArray(i)
-        arrays.append([pd.GetArrayName(i), a.GetNumberOfComponents(),
-                       [a.GetComponent(t, c) for t in range(a.GetNumberOfTuples()) for c in range(3)]])
+        k = a.GetNumberOfComponents()
+        arrays.append([pd.GetArrayName(i), k,
+                       [a.GetComponent(t, c) for t in range(a.GetNumberOfTuples()) for c in range(k)]])
     # VTK's own view of each cell edge: ends 0 and 1, mid-edge node 2 (quadratic).
     worst = 0.0
     for i in range(ds.GetNumberOfCells()):
@@ -714,12 +714,16 @@ for label, make in (("default", lambda p: pv.OpenDataFile(p)),
         let mut arrays = v["arrays"].as_array().unwrap().clone();
         // Readers differ in array order; compare sorted by name.
         arrays.sort_by_key(|a| a[0].as_str().unwrap().to_owned());
-        let mut expected: Vec<(String, &Vec<f64>)> = fx
+        let mut expected: Vec<(String, usize, &Vec<f64>)> = fx
             .shapes
             .iter()
             .enumerate()
-            .map(|(k, s)| (format!("mode_{k:03} ({:.1} Hz)", fx.frequencies[k]), s))
-            .chain(fx.fields.iter().map(|(name, data, _)| (name.clone(), data)))
+            .map(|(k, s)| (format!("mode_{k:03} ({:.1} Hz)", fx.frequencies[k]), 3, s))
+            .chain(
+                fx.fields
+                    .iter()
+                    .map(|f| (f.name.clone(), f.kind.components(), &f.data)),
+            )
             .collect();
         expected.sort_by(|a, b| a.0.cmp(&b.0));
         assert_eq!(
@@ -727,9 +731,9 @@ for label, make in (("default", lambda p: pv.OpenDataFile(p)),
             expected.len(),
             "{reader}: one point array per mode and node field"
         );
-        for (a, (name, want)) in arrays.iter().zip(&expected) {
+        for (a, (name, components, want)) in arrays.iter().zip(&expected) {
             assert_eq!(a[0].as_str().unwrap(), name, "{reader}");
-            assert_eq!(a[1], 3, "{reader}");
+            assert_eq!(a[1], *components, "{reader}: {name}");
             let values: Vec<f64> = a[2]
                 .as_array()
                 .unwrap()
@@ -796,17 +800,18 @@ fn empty_mesh_with_a_mode_still_round_trips() {
     f.frequencies_hz = &fx.frequencies[..1];
     f.residual_norms = &fx.residuals[..1];
     f.mode_shapes = &empty_shape;
-    f.node_fields = vec![NodeField {
-        name: "empty".into(),
-        data: &[],
-        units: "m".into(),
-    }];
+    f.node_fields = vec![NodeField::vector("empty", &[], "m")];
     let path = dir.path("empty.h5");
     write_modes(&path, &f).unwrap();
     let s = read_modes(&path).unwrap();
     assert_eq!(
         s.node_fields,
-        [("empty".to_string(), Vec::new(), "m".to_string())]
+        [NodeFieldData {
+            name: "empty".into(),
+            kind: FieldKind::Vector,
+            data: Vec::new(),
+            units: "m".into()
+        }]
     );
     assert_eq!((s.n_nodes, s.n_modes, s.mode_shapes), (0, 1, empty_shape));
     let file = hdf5::File::open(&path).unwrap();

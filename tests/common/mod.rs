@@ -11,12 +11,13 @@ pub fn s(p: &Path) -> &str {
     p.to_str().unwrap()
 }
 
-/// A numeric attribute of an HDF5 result file (panics with the path if it is not a number).
+/// A numeric attribute of an HDF5 result file, float or integer, as f64 (panics with the
+/// path if it is not a number).
 pub fn number_attribute(path: &Path, group: &str, key: &str) -> f64 {
-    match diffsound::io::results::read_attribute(path, group, key).unwrap() {
-        diffsound::io::results::AttrValue::Number(v) => v,
-        other => panic!("{group}/{key} is not a number: {other:?}"),
-    }
+    let value = diffsound::io::results::read_attribute(path, group, key).unwrap();
+    value
+        .as_f64()
+        .unwrap_or_else(|| panic!("{group}/{key} is not a number: {value:?}"))
 }
 
 /// A closed box surface [0, a] × [0, b] × [0, c] (in the file's units), outward triangles,
@@ -205,4 +206,31 @@ pub fn generator() -> PathBuf {
     let path = profile_dir.join("examples").join("diagnose_generate");
     assert!(path.is_file(), "{} is missing: build it with `cargo build --release --example diagnose_generate` (cargo test builds it too)", path.display());
     path
+}
+
+/// Reads an XDMF sidecar the way a Python user would (`tests/python/check_sidecar.py`):
+/// meshio must give tetra10 (or tetra) cells and every mode and node field as a point array,
+/// `fields` naming each node field with its kind ("scalar": one value per node, a 1-D array;
+/// "vector": three), each equal to its HDF5 dataset read with h5py. meshio and h5py come from
+/// `scripts/install-deps.sh`; `DIFFSOUND_PYTHON` overrides the interpreter (default Debian's
+/// `/usr/bin/python3`, which has them where a pyenv `python3` may not).
+pub fn check_sidecar(xdmf: &Path, fields: &[(&str, &str)]) {
+    let python = std::env::var_os("DIFFSOUND_PYTHON").unwrap_or_else(|| "/usr/bin/python3".into());
+    let out = Command::new(&python)
+        .arg(repo().join("tests/python/check_sidecar.py"))
+        .arg(xdmf)
+        .args(fields.iter().map(|(name, kind)| format!("{name}={kind}")))
+        .output()
+        .unwrap_or_else(|e| panic!("{}: {e}", python.to_string_lossy()));
+    let text = format!(
+        "{}{}",
+        String::from_utf8_lossy(&out.stdout),
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert!(
+        out.status.success(),
+        "{}: meshio/h5py check failed:\n{text}",
+        xdmf.display()
+    );
+    eprintln!("{}", text.trim());
 }

@@ -20,6 +20,25 @@ pub enum MaterialSource {
     LineSpectrum,
 }
 
+impl MaterialSource {
+    /// The word stored in the HDF5 result (`/material` attr `source`).
+    pub fn kind(&self) -> &'static str {
+        match self {
+            MaterialSource::FitFile(_) => "fit_file",
+            MaterialSource::Given => "given",
+            MaterialSource::LineSpectrum => "line_spectrum",
+        }
+    }
+
+    /// The fit-material result, if that is the source.
+    pub fn path(&self) -> Option<&Path> {
+        match self {
+            MaterialSource::FitFile(p) => Some(p),
+            _ => None,
+        }
+    }
+}
+
 /// Everything resolved and checked before PETSc starts.
 #[derive(Clone, Debug)]
 pub struct Job {
@@ -137,7 +156,7 @@ pub fn resolve_material(
 ) -> Result<(Option<(f64, f64)>, MaterialSource, f64), String> {
     let (material, material_source) = match (material_path, given) {
         (Some(p), (None, None)) => {
-            let (e, nu, rho) = read_fit_material(&p)?;
+            let (e, nu, rho) = read_fit_material(&p).map_err(|e| e.to_string())?;
             density = rho;
             (Some((e, nu)), MaterialSource::FitFile(p))
         }

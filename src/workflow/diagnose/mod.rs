@@ -84,21 +84,33 @@
 //! # Output
 //!
 //! * `out` (HDF5, written atomically), `/` attrs `format` = `diffsound.diagnose`,
-//!   `format_version` = 1, provenance; `/material` attrs; `/observed/{frequency_hz,
+//!   `format_version` = 2, `mesh`, `recordings` (string array), `fit_microphones` and
+//!   `held_out_microphones` (i64 arrays of recording indices), `n_ranks` (i64), `command`,
+//!   `version`; `/material` attrs `youngs_modulus`, `poisson_ratio`, `density`, `source`
+//!   (`fit_file`, `given` or `line_spectrum`) and, with `fit_file`, `source_path`;
+//!   `/channels/snr_db` and `/channels/used` (u8 flag) per recording with `/channels` attrs
+//!   `names` and `verdicts` (string arrays: `healthy`, `dead`, `noise_only`, `misaligned`);
+//!   `/observed/{frequency_hz,
 //!   frequency_sd_hz,decay_rate,decay_rate_sd}` `[K]` and `/observed/amplitudes` `[K, C]`;
-//!   `/held_out/...` the same; `/simulated/{frequency_hz,drive,support_weight,mass_weight,
-//!   cluster}`; `/matching/{observed,simulated_first,observed_hz,simulated_hz}`;
+//!   `/held_out/...` the same; `/simulated/{frequency_hz,drive,support_weight,mass_weight}`
+//!   and `/simulated/cluster` (u64); `/matching/observed` (u64), `/matching/simulated_first`
+//!   (i64, −1: none), `/matching/{observed_hz,simulated_hz}`;
 //!   `/residuals/{frequency_hz,z_ln_f_before,z_ln_f_after,z_ln_d_before,z_ln_d_after,
 //!   z_ln_a_before,z_ln_a_after}` (amplitude: RMS over channels); `/envelopes/{times_s,
 //!   band_edges_hz,noise_floor}` and `/envelopes/energy` `[B, T]`; `/effects` attrs
-//!   `accepted`, `rejected` (names), `held_out_before`, `held_out_after`;
-//!   `/localisation/{vertex,mu,z}` over the surface vertices.
+//!   `accepted` with `accepted_variants`, `rejected` with `rejected_reasons` (parallel string
+//!   arrays; a reason is the catalogue's `Rejection` in snake_case, e.g.
+//!   `delta_bic_too_small`), `held_out_before`, `held_out_after`, `bic_baseline`,
+//!   `bic_final`; `/localisation/vertex` (u64 node index) and `/localisation/{mu,z}` over
+//!   the surface vertices. Types as in [`crate::io::results`]. Version 1 stored indices and
+//!   flags as f64 and every list as one string (Rust's debug text for the microphones, the
+//!   material source and the rejection reasons).
 //! * `<out stem>.json`: the whole report (the catalogue's [`CatalogueReport`] under
 //!   `catalogue`; the [`Evidence`] and [`CatalogueSettings`] of its final pass under
 //!   `catalogue_input`, so that `examples/catalogue_replay` can re-run it; material, channels,
 //!   timings).
 //! * `<out stem>_map.h5` + `.xdmf` (ParaView): the simulated modes and the node field
-//!   `mass_region_z` (ζ(v) in every component) of the localisation.
+//!   `mass_region_z` (ζ(v), a scalar; 0 off the surface) of the localisation.
 //! * Plots (prefix `plots`): `_residuals.png` (standardised residuals of ln f, ln d and ln a per
 //!   matched mode, baseline vs final model), `_timefreq.png` (spectrograms of the recording
 //!   and of recording − modal resynthesis, fit channel 0), `_envelopes.png` (residual energy

@@ -61,30 +61,39 @@ pub fn write_json(r: &Report) -> Result<(), Error> {
     Ok(())
 }
 
+/// The `format` attribute of the HDF5 result.
+pub const FORMAT: &str = "diffsound.diagnose";
+/// Its `format_version` (module docs, "Output", for what changed).
+pub const FORMAT_VERSION: u64 = 2;
+
+/// An enum's serde name (`snake_case`), the word the HDF5 file stores.
+fn serde_word<T: serde::Serialize>(value: &T) -> String {
+    serde_json::to_value(value)
+        .ok()
+        .and_then(|v| v.as_str().map(str::to_owned))
+        .unwrap_or_default()
+}
+
 /// Writes the HDF5 result `out` (module docs, "Output"), atomically.
 pub fn write_hdf5(r: &Report) -> Result<(), Error> {
     let (job, n_ranks, measured, evidence, report) =
         (&r.job, r.n_ranks, &r.measured, &r.evidence, &r.catalogue);
     let (youngs, poisson, localised, feats, timings) =
         (r.youngs, r.poisson, &r.localised, &r.features, &r.timings);
-    let mut file = ResultsFile::new("diffsound.diagnose", 1);
+    let mut file = ResultsFile::new(FORMAT, FORMAT_VERSION);
+    let integers = |v: &[usize]| v.iter().map(|&i| i as i64).collect::<Vec<i64>>();
     file.text("/", "mesh", &job.mesh.display().to_string())
-        .text(
+        .texts(
             "/",
             "recordings",
-            &job.recordings
+            job.recordings
                 .iter()
                 .map(|p| p.display().to_string())
-                .collect::<Vec<_>>()
-                .join(", "),
+                .collect(),
         )
-        .text("/", "fit_microphones", &format!("{:?}", job.fit_channels))
-        .text(
-            "/",
-            "held_out_microphones",
-            &format!("{:?}", job.held_channels),
-        )
-        .number("/", "n_ranks", n_ranks as f64)
+        .integers("/", "fit_microphones", integers(&job.fit_channels))
+        .integers("/", "held_out_microphones", integers(&job.held_channels))
+        .integer("/", "n_ranks", n_ranks as i64)
         .text(
             "/",
             "command",
@@ -94,7 +103,10 @@ pub fn write_hdf5(r: &Report) -> Result<(), Error> {
         .number("/material", "youngs_modulus", youngs)
         .number("/material", "poisson_ratio", poisson)
         .number("/material", "density", job.density)
-        .text("/material", "source", &format!("{:?}", job.material_source));
+        .text("/material", "source", job.material_source.kind());
+    if let Some(p) = job.material_source.path() {
+        file.text("/material", "source_path", &p.display().to_string());
+    }
     if !job.channel_health.is_empty() {
         // Per recording: its SNR, whether it was used (fit or held out), and the verdict.
         let used = |c: usize| job.fit_channels.contains(&c) || job.held_channels.contains(&c);
@@ -103,21 +115,22 @@ pub fn write_hdf5(r: &Report) -> Result<(), Error> {
             job.channel_health.iter().map(|h| h.snr_db).collect(),
             "dB",
         )
-        .column(
+        .flags(
             "/channels/used",
-            (0..job.channel_health.len())
-                .map(|c| if used(c) { 1.0 } else { 0.0 })
-                .collect(),
-            "1",
+            (0..job.channel_health.len()).map(used).collect(),
         )
-        .text(
+        .texts(
+            "/channels",
+            "names",
+            job.channel_health.iter().map(|h| h.name.clone()).collect(),
+        )
+        .texts(
             "/channels",
             "verdicts",
-            &job.channel_health
+            job.channel_health
                 .iter()
-                .map(|h| format!("{}: {}", h.name, h.verdict.word()))
-                .collect::<Vec<_>>()
-                .join("; "),
+                .map(|h| serde_word(&h.verdict))
+                .collect(),
         );
     }
     for (group, modes) in [
@@ -176,25 +189,16 @@ pub fn write_hdf5(r: &Report) -> Result<(), Error> {
         s.iter().map(|m| m.mass_weight).collect(),
         "1",
     )
-    .column(
-        "/simulated/cluster",
-        s.iter().map(|m| m.cluster as f64).collect(),
-        "",
-    );
+    .indices("/simulated/cluster", s.iter().map(|m| m.cluster).collect());
     let pairs = &report.matching.pairs;
     if !pairs.is_empty() {
-        file.column(
+        file.indices(
             "/matching/observed",
-            pairs.iter().map(|p| p.observed as f64).collect(),
-            "",
+            pairs.iter().map(|p| p.observed).collect(),
         )
-        .column(
+        .signed(
             "/matching/simulated_first",
-            pairs
-                .iter()
-                .map(|p| p.simulated.first().map_or(-1.0, |&k| k as f64))
-                .collect(),
-            "",
+            pairs.iter().map(|p| p.simulated.first().copied()).collect(),
         )
         .column(
             "/matching/observed_hz",
@@ -272,25 +276,29 @@ pub fn write_hdf5(r: &Report) -> Result<(), Error> {
                 "full scale^2",
             );
     }
-    file.text(
+    file.texts(
         "/effects",
         "accepted",
-        &report
-            .accepted
-            .iter()
-            .map(|a| format!("{} ({})", a.name, a.variant))
-            .collect::<Vec<_>>()
-            .join(", "),
+        report.accepted.iter().map(|a| a.name.clone()).collect(),
     )
-    .text(
+    .texts(
+        "/effects",
+        "accepted_variants",
+        report.accepted.iter().map(|a| a.variant.clone()).collect(),
+    )
+    .texts(
         "/effects",
         "rejected",
-        &report
+        report.rejected.iter().map(|r| r.name.clone()).collect(),
+    )
+    .texts(
+        "/effects",
+        "rejected_reasons",
+        report
             .rejected
             .iter()
-            .map(|r| format!("{}: {:?}", r.name, r.reason))
-            .collect::<Vec<_>>()
-            .join(", "),
+            .map(|r| serde_word(&r.reason))
+            .collect(),
     )
     .number(
         "/effects",
@@ -304,21 +312,17 @@ pub fn write_hdf5(r: &Report) -> Result<(), Error> {
     )
     .number("/effects", "bic_baseline", report.baseline.bic)
     .number("/effects", "bic_final", report.final_model.bic);
-    file.column(
-        "/localisation/vertex",
-        feats.surface.iter().map(|&v| v as f64).collect(),
-        "",
-    )
-    .column(
-        "/localisation/mu",
-        localised.map.iter().map(|m| m.0).collect(),
-        "1",
-    )
-    .column(
-        "/localisation/z",
-        localised.map.iter().map(|m| m.1).collect(),
-        "1",
-    );
+    file.indices("/localisation/vertex", feats.surface.to_vec())
+        .column(
+            "/localisation/mu",
+            localised.map.iter().map(|m| m.0).collect(),
+            "1",
+        )
+        .column(
+            "/localisation/z",
+            localised.map.iter().map(|m| m.1).collect(),
+            "1",
+        );
     for (k, v) in timings {
         file.number("/timings", k, *v);
     }
@@ -337,16 +341,23 @@ pub fn write_map(r: &Report) -> Result<(), Error> {
         &r.rigid_eigenvalues,
     );
     let (youngs, poisson, feats, localised) = (r.youngs, r.poisson, &r.features, &r.localised);
-    let mut field = vec![0.0; 3 * mesh.n_nodes()];
+    let mut field = vec![0.0; mesh.n_nodes()];
     for (&v, m) in feats.surface.iter().zip(&localised.map) {
-        field[3 * v..3 * v + 3].fill(m.1);
+        field[v] = m.1;
     }
     let residual_norms = vec![f64::NAN; eigenvalues.len()];
     let file = ModesFile {
         nodes: &mesh.nodes,
         connectivity: &mesh.connectivity,
         nodes_per_tet: mesh.nodes_per_tet(),
-        material: MaterialRecord { name: "diagnosis".into(), youngs_modulus: youngs, poisson_ratio: poisson, density: job.density, rayleigh_alpha: 0.0, rayleigh_beta: 0.0 },
+        material: MaterialRecord {
+            name: "diagnosis".into(),
+            youngs_modulus: youngs,
+            poisson_ratio: poisson,
+            density: job.density,
+            rayleigh_alpha: 0.0,
+            rayleigh_beta: 0.0,
+        },
         eigenvalues,
         frequencies_hz: &feats.frequencies_hz,
         mode_shapes: shapes,
@@ -356,9 +367,16 @@ pub fn write_map(r: &Report) -> Result<(), Error> {
         n_ranks: 1,
         element_order: 2,
         timings: Vec::new(),
-        provenance: vec![("command".into(), std::env::args().collect::<Vec<_>>().join(" "))],
+        provenance: vec![(
+            "command".into(),
+            std::env::args().collect::<Vec<_>>().join(" "),
+        )],
         extra_datasets: Vec::new(),
-        node_fields: vec![NodeField { name: "mass_region_z".into(), data: &field, units: "1 (z of the added-mass regression at this surface vertex; all three components equal)".into() }],
+        node_fields: vec![NodeField::scalar(
+            "mass_region_z",
+            &field,
+            "1 (z of the added-mass regression at this surface vertex; 0 inside)",
+        )],
     };
     write_modes(&job.map, &file).map_err(output)?;
     Ok(())

@@ -48,17 +48,17 @@ pub fn resolve_material(
     material_path: Option<PathBuf>,
     given: (Option<f64>, Option<f64>),
     density: impl FnOnce() -> f64,
-) -> Result<(Material, String, Option<DampingCurve>), String> {
+) -> Result<(Material, super::MaterialSource, Option<DampingCurve>), String> {
     let (material, material_source, damping_curve) = match (material_path, given) {
         (Some(p), (None, None)) => {
-            let (e, nu, rho) = read_fit_material(&p)?;
+            let (e, nu, rho) = read_fit_material(&p).map_err(|e| e.to_string())?;
             let curve = read_damping_curve(&p);
-            (Material { youngs_modulus: e, poisson_ratio: nu, density: rho, rayleigh_alpha: 0.0, rayleigh_beta: 0.0 }, format!("fit-material result {}", p.display()), curve)
+            (Material { youngs_modulus: e, poisson_ratio: nu, density: rho, rayleigh_alpha: 0.0, rayleigh_beta: 0.0 }, super::MaterialSource::FitFile(p.clone()), curve)
         }
         (Some(_), _) => return Err("give the material either as a fit-material result (--material) or as --youngs/--poisson, not both".into()),
         (None, (Some(e), Some(nu))) => {
             let density = density();
-            (Material { youngs_modulus: e, poisson_ratio: nu, density, rayleigh_alpha: 0.0, rayleigh_beta: 0.0 }, "given".to_string(), None)
+            (Material { youngs_modulus: e, poisson_ratio: nu, density, rayleigh_alpha: 0.0, rayleigh_beta: 0.0 }, super::MaterialSource::Given, None)
         }
         (None, (None, None)) => return Err("the material is needed: --material FIT.h5 (a fit-material result) or --youngs and --poisson".into()),
         (None, _) => return Err("--youngs and --poisson go together".into()),

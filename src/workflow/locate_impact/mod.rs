@@ -54,12 +54,26 @@
 //!
 //! # Output
 //!
-//! * `OUT.h5`: `/impact` (best vertex, position, strength ± σ, σ_model, terms), `/map` (per
-//!   surface vertex: node, posterior, log-likelihood, cosine, area share, strength),
-//!   `/top` (candidates), `/modes` (simulated frequency, cluster, pole used, measured and
-//!   predicted amplitudes at the best vertex), `/evaluation` when the truth is known,
-//!   `/timings`.
-//! * `OUT_map.h5` + `.xdmf`: the mesh with node fields `posterior_density` (posterior / area
+//! * `OUT.h5` (`format` = `diffsound.locate_impact`, `format_version` = 2, written by
+//!   [`write::write_hdf5`]; types as in [`crate::io::results`]):
+//!
+//!   | path | contents |
+//!   |------|----------|
+//!   | `/` attrs | `mesh`, `recordings` (string array), `n_ranks` (i64), `command`, `version` |
+//!   | `/material` attrs | `youngs_modulus` [Pa], `poisson_ratio`, `density` [kg/m³], `source` (`fit_file` or `given`), `source_path` (the fit-material result, with `fit_file`) |
+//!   | `/impact` attrs | `best_vertex`, `terms`, `terms_below_limit` (i64), `strength`, `strength_sd`, `strength_units`, `sigma_model_at_best`, `frequency_scale`, `transfer` |
+//!   | `/impact/best_position` `[3]` | m |
+//!   | `/map/vertex` (u64 node index), `/map/{posterior,log_likelihood,cosine,area_share,log_strength,sigma_model}` | per surface vertex |
+//!   | `/top/vertex` (u64), `/top/position` `[T, 3]`, `/top/{neighbourhood_mass,log_likelihood,strength}` | the candidates |
+//!   | `/modes/simulated_hz`, `/modes/cluster` (u64) | per simulated mode |
+//!   | `/poles/{frequency_hz,decay_rate}`, `/poles/cluster` (i64, −1: none) | per recorded pole |
+//!   | `/clusters/{measured_amplitude,measured_sd,predicted_at_best}` `[K, C]`, `/clusters/heard` (u8 flag) | per cluster (and microphone) |
+//!   | `/evaluation` attrs | when the truth is known: `true_vertex`, `orbit_size` (i64), `best_on_orbit` (u8 flag), `geodesic_error_m`, `area_rank`, `orbit_error_m` |
+//!   | `/timings` attrs | seconds per stage |
+//!
+//!   Version 1 stored every index, count and flag as f64, `recordings` joined by ", " and
+//!   `source` as one sentence.
+//! * `OUT_map.h5` + `.xdmf`: the mesh with scalar node fields `posterior_density` (posterior / area
 //!   share, normalised to a maximum of 1) and `log_likelihood_ratio` (ℓ − max ℓ), 0 and −∞
 //!   clipped to −50 off the surface (ParaView: colour by either).
 //! * `OUT.json`: the summary; `OUT_map.png`: the map seen from three sides, with the top
@@ -115,6 +129,42 @@ impl std::str::FromStr for TransferChoice {
     }
 }
 
+/// Where E, ν and ρ come from.
+#[derive(Clone, Debug, PartialEq)]
+pub enum MaterialSource {
+    /// A fit-material result (`--material FIT.h5`).
+    FitFile(PathBuf),
+    /// `--youngs` and `--poisson`.
+    Given,
+}
+
+impl MaterialSource {
+    /// The word stored in the HDF5 result (`/material` attr `source`).
+    pub fn kind(&self) -> &'static str {
+        match self {
+            MaterialSource::FitFile(_) => "fit_file",
+            MaterialSource::Given => "given",
+        }
+    }
+
+    /// The fit-material result, if that is the source.
+    pub fn path(&self) -> Option<&std::path::Path> {
+        match self {
+            MaterialSource::FitFile(p) => Some(p),
+            MaterialSource::Given => None,
+        }
+    }
+}
+
+impl std::fmt::Display for MaterialSource {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            MaterialSource::FitFile(p) => write!(f, "fit-material result {}", p.display()),
+            MaterialSource::Given => f.write_str("given"),
+        }
+    }
+}
+
 /// Everything resolved and checked before PETSc starts.
 #[derive(Clone, Debug)]
 pub struct Job {
@@ -128,7 +178,7 @@ pub struct Job {
     pub window: f64,
     pub max_frequency_hz: f64,
     pub material: Material,
-    pub material_source: String,
+    pub material_source: MaterialSource,
     pub damping_curve: Option<DampingCurve>,
     /// Metres, one per recording, in the mesh's frame.
     pub microphones: Option<Vec<[f64; 3]>>,

@@ -7,30 +7,35 @@ use crate::io::plot::{surface_png, SurfaceFigure, SurfaceMarker, SurfacePanel, V
 use crate::io::results::ResultsFile;
 use crate::io::{write_modes, MaterialRecord, ModesFile, NodeField};
 
+/// The `format` attribute of `OUT.h5`.
+pub const FORMAT: &str = "diffsound.locate_impact";
+/// Its `format_version`: 2 stores indices as integers, flags as u8, `recordings` as a string
+/// array and the material's source as `source` + `source_path` (1: all f64, joined text).
+pub const FORMAT_VERSION: u64 = 2;
+
 /// `OUT.h5`: the result (the material, the map, the top candidates, the modes and poles, the
 /// clusters' amplitudes, the evaluation, the timings).
 pub fn write_hdf5(job: &Job, r: &Report) -> Result<(), Error> {
     let (map, table) = (&r.map, &r.table);
     let best = table.candidates[map.best].vertex;
-    let mut file = ResultsFile::new("diffsound.locate_impact", 1);
+    let mut file = ResultsFile::new(FORMAT, FORMAT_VERSION);
     file.text("/", "mesh", &job.mesh.display().to_string())
-        .text(
+        .texts(
             "/",
             "recordings",
-            &job.recordings
+            job.recordings
                 .iter()
                 .map(|p| p.display().to_string())
-                .collect::<Vec<_>>()
-                .join(", "),
+                .collect(),
         )
-        .number("/", "n_ranks", r.n_ranks as f64)
+        .integer("/", "n_ranks", r.n_ranks as i64)
         .text("/", "command", &job.command)
         .text("/", "version", env!("CARGO_PKG_VERSION"))
         .number("/material", "youngs_modulus", job.material.youngs_modulus)
         .number("/material", "poisson_ratio", job.material.poisson_ratio)
         .number("/material", "density", job.material.density)
-        .text("/material", "source", &job.material_source)
-        .number("/impact", "best_vertex", best as f64)
+        .text("/material", "source", job.material_source.kind())
+        .integer("/impact", "best_vertex", best as i64)
         .number("/impact", "strength", map.strength)
         .number("/impact", "strength_sd", map.strength_sd)
         .text(
@@ -39,8 +44,8 @@ pub fn write_hdf5(job: &Job, r: &Report) -> Result<(), Error> {
             "recording units per N·s of impulse",
         )
         .number("/impact", "sigma_model_at_best", map.sigma_model[map.best])
-        .number("/impact", "terms", map.terms as f64)
-        .number("/impact", "terms_below_limit", map.terms_below_limit as f64)
+        .integer("/impact", "terms", map.terms as i64)
+        .integer("/impact", "terms_below_limit", map.terms_below_limit as i64)
         .number("/impact", "frequency_scale", r.assignment.scale)
         .text("/impact", "transfer", &r.transfer_note)
         .dataset(
@@ -49,50 +54,47 @@ pub fn write_hdf5(job: &Job, r: &Report) -> Result<(), Error> {
             r.mesh.nodes[best].to_vec(),
             "m",
         );
-    let vertices: Vec<f64> = table.candidates.iter().map(|c| c.vertex as f64).collect();
-    file.column("/map/vertex", vertices, "")
-        .column("/map/posterior", map.posterior.clone(), "1")
-        .column("/map/log_likelihood", map.log_likelihood.clone(), "1")
-        .column("/map/cosine", map.cosine.clone(), "1")
-        .column("/map/area_share", map.area_share.clone(), "1")
-        .column(
-            "/map/log_strength",
-            map.log_strength.clone(),
-            "ln(recording units per N·s)",
+    if let Some(p) = job.material_source.path() {
+        file.text("/material", "source_path", &p.display().to_string());
+    }
+    file.indices(
+        "/map/vertex",
+        table.candidates.iter().map(|c| c.vertex).collect(),
+    )
+    .column("/map/posterior", map.posterior.clone(), "1")
+    .column("/map/log_likelihood", map.log_likelihood.clone(), "1")
+    .column("/map/cosine", map.cosine.clone(), "1")
+    .column("/map/area_share", map.area_share.clone(), "1")
+    .column(
+        "/map/log_strength",
+        map.log_strength.clone(),
+        "ln(recording units per N·s)",
+    )
+    .column("/map/sigma_model", map.sigma_model.clone(), "ln amplitude");
+    file.indices("/top/vertex", map.top.iter().map(|t| t.vertex).collect())
+        .dataset(
+            "/top/position",
+            &[map.top.len(), 3],
+            map.top.iter().flat_map(|t| t.position).collect(),
+            "m",
         )
-        .column("/map/sigma_model", map.sigma_model.clone(), "ln amplitude");
-    file.column(
-        "/top/vertex",
-        map.top.iter().map(|t| t.vertex as f64).collect(),
-        "",
-    )
-    .dataset(
-        "/top/position",
-        &[map.top.len(), 3],
-        map.top.iter().flat_map(|t| t.position).collect(),
-        "m",
-    )
-    .column(
-        "/top/neighbourhood_mass",
-        map.top.iter().map(|t| t.neighbourhood_mass).collect(),
-        "1",
-    )
-    .column(
-        "/top/log_likelihood",
-        map.top.iter().map(|t| t.log_likelihood).collect(),
-        "1",
-    )
-    .column(
-        "/top/strength",
-        map.top.iter().map(|t| t.strength).collect(),
-        "recording units per N·s",
-    );
-    file.column("/modes/simulated_hz", r.sim_hz.to_vec(), "Hz")
         .column(
-            "/modes/cluster",
-            r.cluster_of.iter().map(|&c| c as f64).collect(),
-            "",
+            "/top/neighbourhood_mass",
+            map.top.iter().map(|t| t.neighbourhood_mass).collect(),
+            "1",
+        )
+        .column(
+            "/top/log_likelihood",
+            map.top.iter().map(|t| t.log_likelihood).collect(),
+            "1",
+        )
+        .column(
+            "/top/strength",
+            map.top.iter().map(|t| t.strength).collect(),
+            "recording units per N·s",
         );
+    file.column("/modes/simulated_hz", r.sim_hz.to_vec(), "Hz")
+        .indices("/modes/cluster", r.cluster_of.to_vec());
     file.column(
         "/poles/frequency_hz",
         r.assignment.poles.iter().map(|p| p.frequency_hz).collect(),
@@ -103,15 +105,7 @@ pub fn write_hdf5(job: &Job, r: &Report) -> Result<(), Error> {
         r.assignment.poles.iter().map(|p| p.decay_rate).collect(),
         "1/s",
     )
-    .column(
-        "/poles/cluster",
-        r.assignment
-            .pole_cluster
-            .iter()
-            .map(|c| c.map_or(-1.0, |c| c as f64))
-            .collect(),
-        "",
-    );
+    .signed("/poles/cluster", r.assignment.pole_cluster.to_vec());
     let (nc, nm) = (table.clusters.len(), table.microphones);
     let flat = |v: &Vec<Vec<f64>>| v.iter().flatten().copied().collect::<Vec<f64>>();
     let predicted: Vec<f64> = (0..nc)
@@ -136,25 +130,13 @@ pub fn write_hdf5(job: &Job, r: &Report) -> Result<(), Error> {
         predicted,
         "recording units",
     )
-    .column(
-        "/clusters/heard",
-        r.assignment
-            .observed
-            .iter()
-            .map(|&o| if o { 1.0 } else { 0.0 })
-            .collect(),
-        "",
-    );
+    .flags("/clusters/heard", r.assignment.observed.to_vec());
     if let Some(e) = &r.evaluation {
-        file.number("/evaluation", "true_vertex", e.true_vertex as f64)
+        file.integer("/evaluation", "true_vertex", e.true_vertex as i64)
             .number("/evaluation", "geodesic_error_m", e.geodesic_error_m)
             .number("/evaluation", "area_rank", e.area_rank)
-            .number("/evaluation", "orbit_size", e.orbit_size as f64)
-            .number(
-                "/evaluation",
-                "best_on_orbit",
-                if e.best_on_orbit { 1.0 } else { 0.0 },
-            )
+            .integer("/evaluation", "orbit_size", e.orbit_size as i64)
+            .flag("/evaluation", "best_on_orbit", e.best_on_orbit)
             .number("/evaluation", "orbit_error_m", e.orbit_error_m);
     }
     for (k, v) in &r.timings {
@@ -176,7 +158,7 @@ pub fn write_json(job: &Job, r: &Report) -> Result<(), Error> {
         "mesh": job.mesh.display().to_string(),
         "recordings": job.recordings.iter().map(|p| p.display().to_string()).collect::<Vec<_>>(),
         "onset_s": r.measured.onset_s,
-        "material": {"youngs_modulus": job.material.youngs_modulus, "poisson_ratio": job.material.poisson_ratio, "density": job.material.density, "source": job.material_source},
+        "material": {"youngs_modulus": job.material.youngs_modulus, "poisson_ratio": job.material.poisson_ratio, "density": job.material.density, "source": job.material_source.to_string()},
         "transfer": r.transfer_note,
         "frequency_scale": r.assignment.scale,
         "clusters": table.clusters.len(),
@@ -236,15 +218,20 @@ const LOG_RATIO_FLOOR: f64 = -50.0;
 pub fn write_map(job: &Job, r: &Report) -> Result<(), Error> {
     let (eigenvalues, shapes, rigid) = (&r.eigenvalues, &r.shapes, &r.rigid_eigenvalues);
     let (dens, ratio) = node_fields(r);
-    let triple = |v: &[f64]| v.iter().flat_map(|&x| [x, x, x]).collect::<Vec<f64>>();
-    let (dens3, ratio3) = (triple(&dens), triple(&ratio));
     let residual_norms = vec![f64::NAN; eigenvalues.len()];
     let m = &job.material;
     let file = ModesFile {
         nodes: &r.mesh.nodes,
         connectivity: &r.mesh.connectivity,
         nodes_per_tet: r.mesh.nodes_per_tet(),
-        material: MaterialRecord { name: "locate-impact".into(), youngs_modulus: m.youngs_modulus, poisson_ratio: m.poisson_ratio, density: m.density, rayleigh_alpha: 0.0, rayleigh_beta: 0.0 },
+        material: MaterialRecord {
+            name: "locate-impact".into(),
+            youngs_modulus: m.youngs_modulus,
+            poisson_ratio: m.poisson_ratio,
+            density: m.density,
+            rayleigh_alpha: 0.0,
+            rayleigh_beta: 0.0,
+        },
         eigenvalues,
         frequencies_hz: &r.sim_hz,
         mode_shapes: shapes,
@@ -257,8 +244,16 @@ pub fn write_map(job: &Job, r: &Report) -> Result<(), Error> {
         provenance: vec![("command".into(), job.command.clone())],
         extra_datasets: Vec::new(),
         node_fields: vec![
-            NodeField { name: "posterior_density".into(), data: &dens3, units: "1 (posterior per unit area over its maximum; all three components equal; 0 off the surface)".into() },
-            NodeField { name: "log_likelihood_ratio".into(), data: &ratio3, units: "1 (ℓ − max ℓ, floored at −50; all three components equal)".into() },
+            NodeField::scalar(
+                "posterior_density",
+                &dens,
+                "1 (posterior per unit area over its maximum; 0 off the surface)",
+            ),
+            NodeField::scalar(
+                "log_likelihood_ratio",
+                &ratio,
+                "1 (ℓ − max ℓ, floored at −50)",
+            ),
         ],
     };
     write_modes(&job.map_file, &file).map_err(|e| Error::Output(e.to_string()))?;

@@ -94,11 +94,7 @@ pub fn write_outputs(job: &Job, report: &Report<'_>, progress: &Progress) -> Res
         node_fields: node_field_names
             .iter()
             .zip(report.node_gradients.iter().flatten())
-            .map(|(name, data)| io::NodeField {
-                name: name.clone(),
-                data,
-                units: "rad^2/s^2/m".into(),
-            })
+            .map(|(name, data)| io::NodeField::vector(name, data, "rad^2/s^2/m"))
             .collect(),
     };
     io::write_modes(&job.out, &file)?;
