@@ -581,7 +581,11 @@ fn failed_writes_leave_no_file() {
     // Missing directory: an error naming the path, nothing anywhere.
     let missing: PathBuf = dir.path("no/such/dir/x.png");
     let e = canvas.write_png(&missing).unwrap_err();
-    assert!(matches!(e, PlotError::Fs { .. }), "{e:?}");
+    // The atomic writer names the cause when it finds one (io::atomic), else the raw error.
+    assert!(
+        matches!(e, PlotError::Fs { .. } | PlotError::WriteFailed { .. }),
+        "{e:?}"
+    );
     assert!(e.to_string().contains("x.png"), "{e}");
     assert!(dir.entries().is_empty());
     // The target is a directory: the temporary is written, the rename
@@ -589,7 +593,11 @@ fn failed_writes_leave_no_file() {
     let target = dir.path("taken.png");
     std::fs::create_dir(&target).unwrap();
     let e = canvas.write_png(&target).unwrap_err();
-    assert!(matches!(e, PlotError::Fs { .. }), "{e:?}");
+    assert!(
+        matches!(e, PlotError::Fs { .. } | PlotError::WriteFailed { .. }),
+        "{e:?}"
+    );
+    assert!(e.to_string().contains("taken.png"), "{e}");
     assert_eq!(dir.entries(), vec!["taken.png"]);
     assert!(target.is_dir());
     // No file name at all.
