@@ -124,22 +124,7 @@ fn evaluate(
     let Some((candidate, delta_bic)) = best else {
         return Outcome::Nothing { statistic, detail };
     };
-    let held_out = held.and_then(|h| {
-        let before = held_out_chi2(current, h, &current.tau2)?;
-        let after = held_out_chi2(&candidate, h, &current.tau2)?;
-        let dispersion = if settings.held_out_dispersion {
-            before.dispersion
-        } else {
-            1.0
-        };
-        Some(HeldOutChange::with_dispersion(
-            before.chi2,
-            before.dof,
-            after.chi2,
-            after.dof,
-            dispersion,
-        ))
-    });
+    let held_out = held.and_then(|h| held_out_change(current, &candidate, h, settings));
     let i = candidate.model.terms.len() - 1;
     let term = &candidate.model.terms[i];
     let off = candidate.model.term_offset(i);
@@ -163,6 +148,26 @@ fn evaluate(
         fit: Some(candidate),
         step: 0,
     }))
+}
+
+/// The held-out change from `before` to `after` (a model with one more effect), with
+/// `before`'s floors as the yardstick for both (parent docs, "Selection").
+fn held_out_change(
+    before: &Fit,
+    after: &Fit,
+    held: &ModeTable,
+    settings: &CatalogueSettings,
+) -> Option<HeldOutChange> {
+    let b = held_out_chi2(before, held, &before.tau2)?;
+    let a = held_out_chi2(after, held, &before.tau2)?;
+    let dispersion = if settings.held_out_dispersion {
+        b.dispersion
+    } else {
+        1.0
+    };
+    Some(HeldOutChange::with_dispersion(
+        b.chi2, b.dof, a.chi2, a.dof, dispersion,
+    ))
 }
 
 /// Parameters charged to a term whose candidate region the caller chose from these data
@@ -202,22 +207,7 @@ pub(super) fn last_in(
     let without = fit(table, model, x0);
     let searched = search_charge(term.as_ref(), settings);
     let delta_bic = without.bic() - full.bic() - searched * (table.n_residuals() as f64).ln();
-    let held_out = held.and_then(|h| {
-        let before = held_out_chi2(&without, h, &without.tau2)?;
-        let after = held_out_chi2(full, h, &without.tau2)?;
-        let dispersion = if settings.held_out_dispersion {
-            before.dispersion
-        } else {
-            1.0
-        };
-        Some(HeldOutChange::with_dispersion(
-            before.chi2,
-            before.dof,
-            after.chi2,
-            after.dof,
-            dispersion,
-        ))
-    });
+    let held_out = held.and_then(|h| held_out_change(&without, full, h, settings));
     let rejection = acceptance(delta_bic, held_out, settings);
     LastIn {
         without,

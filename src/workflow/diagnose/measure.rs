@@ -168,7 +168,11 @@ fn extract_set(
 pub(super) type HeldExtraction = Result<(ModalExtraction, Vec<String>), String>;
 
 pub(super) fn extract_held(job: &Job) -> HeldExtraction {
-    let cut = cut(job)?;
+    extract_held_from(job, &cut(job)?)
+}
+
+/// The held-out microphones' extraction from a recording already cut.
+fn extract_held_from(job: &Job, cut: &Cut) -> HeldExtraction {
     let mut lines = Vec::new();
     let ex = extract_set(
         job,
@@ -197,17 +201,7 @@ pub(super) fn measure(
             fit_part
                 .as_ref()
                 .map_err(|e| e.clone())
-                .and_then(|(cut, _)| {
-                    let mut lines = Vec::new();
-                    let ex = extract_set(
-                        job,
-                        &pick(&cut.post, &job.held_channels),
-                        cut.fs,
-                        "held-out microphones",
-                        &mut |l| lines.push(l),
-                    )?;
-                    Ok((ex, lines))
-                }),
+                .and_then(|(cut, _)| extract_held_from(job, cut)),
         ),
     };
     let (_, mut measured) = fit_part?;
