@@ -120,6 +120,17 @@ pub struct DiagnoseFileConfig {
     pub solver: SolverSection,
 }
 
+impl super::config::ConfigPaths for DiagnoseFileConfig {
+    fn rebase(&mut self, base: &Path) {
+        use super::config::{rebase_all, rebase_opt};
+        rebase_opt(base, &mut self.mesh);
+        rebase_all(base, &mut self.recordings);
+        rebase_opt(base, &mut self.material_fit);
+        rebase_opt(base, &mut self.out);
+        rebase_opt(base, &mut self.plots);
+    }
+}
+
 #[derive(Clone, Debug, Default, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct RecordingSection {
@@ -158,11 +169,7 @@ pub struct SolverSection {
 /// Merges defaults < case metadata < config file < flags and validates.
 pub fn resolve(args: &DiagnoseArgs) -> Result<Job, String> {
     let file = match &args.config {
-        Some(p) => {
-            let text = std::fs::read_to_string(p).map_err(|e| format!("{}: {e}", p.display()))?;
-            toml::from_str::<DiagnoseFileConfig>(&text)
-                .map_err(|e| format!("{}: {e}", p.display()))?
-        }
+        Some(p) => super::config::load_toml::<DiagnoseFileConfig>(p)?,
         None => DiagnoseFileConfig::default(),
     };
     let case = args.case.as_deref().map(CaseMeta::read).transpose()?;
@@ -383,7 +390,7 @@ fn print_report(r: &Report) {
         (&r.job, &r.measured, &r.catalogue, &r.features, &r.localised);
     let (youngs, poisson) = (r.youngs, r.poisson);
     println!(
-        "diagnose: E = {youngs:.5e} Pa, ν = {poisson:.4}, ρ = {} kg/m³ ({:?}); strike {}",
+        "diagnose: E = {youngs:.5e} Pa, ν = {poisson:.4}, ρ = {} kg/m³ ({}); strike {}",
         job.density, job.material_source, feats.strike_note
     );
     println!(
@@ -451,7 +458,7 @@ fn print_report(r: &Report) {
             (Some(d), _, _) => format!(" (ΔBIC {d:.1})"),
             _ => String::new(),
         };
-        println!("  rejected {}: {:?}{extra}: {}", r.name, r.reason, r.detail);
+        println!("  rejected {}: {}{extra}: {}", r.name, r.reason, r.detail);
     }
     let untested = report.untested();
     if !untested.is_empty() {
@@ -469,9 +476,9 @@ fn print_report(r: &Report) {
         println!("  unexplained ({}):", report.unexplained.len());
         for u in report.unexplained.iter().take(12) {
             println!(
-                "      {:.2} Hz {:?}{}: {}",
+                "      {:.2} Hz{}{}: {}",
                 u.frequency_hz,
-                u.quantity,
+                u.quantity.map_or(String::new(), |q| format!(", {q}")),
                 u.z.map_or(String::new(), |z| format!(" z = {z:.1}")),
                 u.reason
             );

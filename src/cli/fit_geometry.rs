@@ -148,6 +148,15 @@ pub struct GeometryFileConfig {
     pub solver: SolverConfig,
 }
 
+impl super::config::ConfigPaths for GeometryFileConfig {
+    fn rebase(&mut self, base: &std::path::Path) {
+        use super::config::rebase_opt;
+        rebase_opt(base, &mut self.surface);
+        rebase_opt(base, &mut self.out);
+        rebase_opt(base, &mut self.png);
+    }
+}
+
 /// The `[material]` table of the shape fits' TOML files (fit-thickness, fit-morph,
 /// fit-geometry).
 #[derive(Clone, Debug, Default, Deserialize)]
@@ -185,11 +194,7 @@ pub struct SolverConfig {
 /// Merges defaults < config file < flags and validates.
 pub fn resolve(args: &FitGeometryArgs) -> Result<Job, String> {
     let file = match &args.config {
-        Some(p) => {
-            let text = std::fs::read_to_string(p).map_err(|e| format!("{}: {e}", p.display()))?;
-            toml::from_str::<GeometryFileConfig>(&text)
-                .map_err(|e| format!("{}: {e}", p.display()))?
-        }
+        Some(p) => super::config::load_toml::<GeometryFileConfig>(p)?,
         None => GeometryFileConfig::default(),
     };
     let surface = args
@@ -301,6 +306,8 @@ pub fn resolve(args: &FitGeometryArgs) -> Result<Job, String> {
         .clone()
         .or(file.png.clone())
         .unwrap_or_else(|| crate::io::paths::plot_path(&stem, ".png"));
+    crate::io::plot::ImageFormat::for_path(&png, crate::io::plot::RASTER_FORMATS)
+        .map_err(|e| e.to_string())?;
     super::resolve::check_output(&png, &[])?;
     let mut petsc_options = file.solver.petsc_options.clone();
     petsc_options.extend(args.petsc_options.iter().cloned());

@@ -107,6 +107,16 @@ pub struct FitFileConfig {
     pub solver: SolverConfig,
 }
 
+impl super::config::ConfigPaths for FitFileConfig {
+    fn rebase(&mut self, base: &std::path::Path) {
+        use super::config::{rebase_all, rebase_opt};
+        rebase_opt(base, &mut self.mesh);
+        rebase_all(base, &mut self.recordings);
+        rebase_opt(base, &mut self.out);
+        rebase_opt(base, &mut self.plots);
+    }
+}
+
 #[derive(Clone, Debug, Default, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct RecordingConfig {
@@ -140,10 +150,7 @@ pub struct SolverConfig {
 /// Merges defaults < config file < flags and validates.
 pub fn resolve(args: &FitMaterialArgs) -> Result<Job, String> {
     let file = match &args.config {
-        Some(p) => {
-            let text = std::fs::read_to_string(p).map_err(|e| format!("{}: {e}", p.display()))?;
-            toml::from_str::<FitFileConfig>(&text).map_err(|e| format!("{}: {e}", p.display()))?
-        }
+        Some(p) => super::config::load_toml::<FitFileConfig>(p)?,
         None => FitFileConfig::default(),
     };
     let super::resolve::MeshChoice {
@@ -332,16 +339,19 @@ fn print_summary(job: &Job, report: &Report) {
         fit.poisson
     );
     println!(
-        "  damping: {} real modes, Rayleigh α = {:.4} 1/s, β = {:.4e} s; curve knots at {:?} Hz",
+        "  damping: {} real modes, Rayleigh α = {:.4} 1/s, β = {:.4e} s; curve knots at {} Hz",
         damping.modes.iter().filter(|m| m.kept).count(),
         damping.rayleigh.alpha,
         damping.rayleigh.beta,
-        damping
-            .curve
-            .frequencies_hz
-            .iter()
-            .map(|f| f.round())
-            .collect::<Vec<_>>()
+        crate::workflow::short_list(
+            &damping
+                .curve
+                .frequencies_hz
+                .iter()
+                .map(|f| format!("{f:.0}"))
+                .collect::<Vec<_>>(),
+            12
+        )
     );
     println!("  spectrogram error vs target: start {error_start:.4}, fit {error_fit:.4}");
     if let (Some(l), Some(check)) = (fit.line_start, report.line_start_check) {

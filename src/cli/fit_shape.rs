@@ -201,12 +201,20 @@ pub struct TargetConfig {
     pub spacing: Option<f64>,
 }
 
+impl super::config::ConfigPaths for ShapeFileConfig {
+    fn rebase(&mut self, base: &std::path::Path) {
+        use super::config::rebase_opt;
+        rebase_opt(base, &mut self.surface);
+        rebase_opt(base, &mut self.shape_a);
+        rebase_opt(base, &mut self.shape_b);
+        rebase_opt(base, &mut self.out);
+        rebase_opt(base, &mut self.target.file);
+    }
+}
+
 fn load_config(path: &Option<PathBuf>) -> Result<ShapeFileConfig, String> {
     match path {
-        Some(p) => {
-            let text = std::fs::read_to_string(p).map_err(|e| format!("{}: {e}", p.display()))?;
-            toml::from_str::<ShapeFileConfig>(&text).map_err(|e| format!("{}: {e}", p.display()))
-        }
+        Some(p) => super::config::load_toml(p),
         None => Ok(ShapeFileConfig::default()),
     }
 }

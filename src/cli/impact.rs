@@ -119,6 +119,16 @@ pub struct ImpactFileConfig {
     pub petsc_options: Vec<String>,
 }
 
+impl super::config::ConfigPaths for ImpactFileConfig {
+    fn rebase(&mut self, base: &Path) {
+        use super::config::{rebase_all, rebase_opt};
+        rebase_opt(base, &mut self.mesh);
+        rebase_all(base, &mut self.recordings);
+        rebase_opt(base, &mut self.material_fit);
+        rebase_opt(base, &mut self.out);
+    }
+}
+
 /// The parts of a benchmark case's metadata this job reads.
 #[derive(Clone, Debug, Deserialize)]
 struct CaseMeta {
@@ -152,7 +162,7 @@ fn read_toml<T: serde::de::DeserializeOwned>(path: &Path) -> Result<T, String> {
 /// Merges defaults < case metadata < config file < flags and validates.
 pub fn resolve(args: &ImpactArgs) -> Result<Job, String> {
     let file: ImpactFileConfig = match &args.config {
-        Some(p) => read_toml(p)?,
+        Some(p) => super::config::load_toml(p)?,
         None => ImpactFileConfig::default(),
     };
     let case: Option<CaseMeta> = args.case.as_deref().map(read_toml).transpose()?;
