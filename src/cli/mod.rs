@@ -103,16 +103,18 @@ pub fn wrap(text: &str, width: usize) -> Vec<String> {
     let width = width.max(20);
     let mut lines = Vec::new();
     for para in text.split('\n') {
-        let mut line = String::new();
-        let mut len = 0;
-        for word in para.split(' ') {
+        // Leading spaces indent the message (nested progress lines): keep them.
+        let body = para.trim_start_matches(' ');
+        let mut line = " ".repeat(para.len() - body.len());
+        let mut len = line.len();
+        for word in body.split(' ') {
             let wl = word.chars().count();
             let limit = if lines.is_empty() { width } else { width - 2 };
-            if len > 0 && len + 1 + wl > limit {
+            if len > 0 && !line.trim().is_empty() && len + 1 + wl > limit {
                 lines.push(std::mem::take(&mut line));
                 len = 0;
             }
-            if len > 0 {
+            if !line.trim().is_empty() {
                 line.push(' ');
                 len += 1;
             }
@@ -261,6 +263,7 @@ mod tests {
         );
         // A short line is left alone; a word longer than the width stays whole.
         assert_eq!(wrap("basis: 4 solves", 60), vec!["basis: 4 solves"]);
+        assert_eq!(wrap("    glide: a b", 60), vec!["    glide: a b"]);
         let long = "x".repeat(80);
         assert_eq!(
             wrap(&format!("a {long} b"), 40),
