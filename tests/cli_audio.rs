@@ -307,4 +307,17 @@ fn spectrogram_of_a_render_against_the_bowl_recording() {
         "{}",
         bad_channel.stderr
     );
+    // A format we do not write fails up front, before the (unreadable) input is read, and
+    // leaves nothing behind.
+    let pdf = dir.join("x.pdf");
+    let bad_format = diffsound(&["spectrogram", s(&garbage), "--out", s(&pdf)]);
+    assert_eq!(bad_format.status, Some(1), "{}", bad_format.describe());
+    assert!(
+        bad_format.stderr.contains("x.pdf")
+            && bad_format.stderr.contains(".png")
+            && !bad_format.stderr.contains("garbage.wav"),
+        "{}",
+        bad_format.stderr
+    );
+    assert!(!pdf.exists());
 }

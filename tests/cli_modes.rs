@@ -510,3 +510,50 @@ fn sensitivities_and_node_gradients_reach_the_hdf5_file() {
     let fields: Vec<(&str, &str)> = names.iter().map(|n| (n.as_str(), "vector")).collect();
     check_sidecar(&out.with_extension("xdmf"), &fields);
 }
+
+#[test]
+fn config_paths_are_relative_to_the_config_file() {
+    // The config and its mesh live in a folder of their own; mpirun runs from the repository
+    // root, so the old behaviour (paths from the current directory) would not find the mesh.
+    let dir = scratch("config_relative");
+    let conf = dir.join("conf");
+    std::fs::create_dir_all(conf.join("out")).unwrap();
+    std::fs::copy(
+        fixture("mesh/cube_tet4_msh22_ascii.msh"),
+        conf.join("cube.msh"),
+    )
+    .unwrap();
+    let config = conf.join("run.toml");
+    std::fs::write(
+        &config,
+        "mesh = \"cube.msh\"\norder = 1\n[solver]\nmodes = 4\n[output]\nh5 = \"out/cube.h5\"\n",
+    )
+    .unwrap();
+    let run = mpirun(
+        1,
+        &["modes", "--config", s(&config), "--verbose", "--quiet"],
+        LIMIT,
+    );
+    assert!(run.success(), "{}", run.describe());
+    let out = conf.join("out/cube.h5");
+    assert!(out.exists(), "{} not written", out.display());
+    assert!(run.stdout.contains("cube.h5"), "{}", run.stdout);
+    // --quiet wins over --verbose: no timed progress lines.
+    assert!(!run.stderr.contains(" s] "), "{}", run.stderr);
+    // A flag path stays relative to the current directory (the repository root here).
+    let elsewhere = dir.join("flag.h5");
+    let run = mpirun(
+        1,
+        &[
+            "modes",
+            "--config",
+            s(&config),
+            "--out",
+            s(&elsewhere),
+            "-q",
+        ],
+        LIMIT,
+    );
+    assert!(run.success(), "{}", run.describe());
+    assert!(elsewhere.exists());
+}

@@ -60,6 +60,26 @@ impl Response {
     }
 }
 
+impl std::fmt::Display for ContactForce {
+    /// As the command line takes it: `impulse`, `half-sine:0.0005`.
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            ContactForce::Impulse => f.write_str("impulse"),
+            ContactForce::HalfSine { duration_s } => write!(f, "half-sine:{duration_s}"),
+        }
+    }
+}
+
+impl std::fmt::Display for Response {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(match self {
+            Response::Displacement => "displacement",
+            Response::Velocity => "velocity",
+            Response::Acceleration => "acceleration",
+        })
+    }
+}
+
 impl std::str::FromStr for ContactForce {
     type Err = String;
     /// `impulse` or `half-sine:<duration in s>`.

@@ -770,6 +770,15 @@ pub enum LossPhase {
     Spectral,
 }
 
+impl std::fmt::Display for LossPhase {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(match self {
+            LossPhase::Transport => "transport",
+            LossPhase::Spectral => "spectral",
+        })
+    }
+}
+
 /// Transport first, then spectral once the transport loss stops improving (module docs).
 #[derive(Clone, Debug)]
 pub struct HybridSchedule {

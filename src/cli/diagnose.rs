@@ -95,6 +95,17 @@ pub struct DiagnoseFileConfig {
     pub solver: PetscConfig,
 }
 
+impl super::config::ConfigPaths for DiagnoseFileConfig {
+    fn rebase(&mut self, base: &Path) {
+        use super::config::{rebase_all, rebase_opt};
+        rebase_opt(base, &mut self.mesh);
+        rebase_all(base, &mut self.recordings);
+        rebase_opt(base, &mut self.material_fit);
+        rebase_opt(base, &mut self.out);
+        rebase_opt(base, &mut self.plots);
+    }
+}
+
 #[derive(Clone, Debug, Default, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct RecordingSection {
@@ -336,7 +347,7 @@ fn print_report(r: &Report) {
         (&r.job, &r.measured, &r.catalogue, &r.features, &r.localised);
     let (youngs, poisson) = (r.youngs, r.poisson);
     println!(
-        "diagnose: E = {youngs:.5e} Pa, ν = {poisson:.4}, ρ = {} kg/m³ ({:?}); strike {}",
+        "diagnose: E = {youngs:.5e} Pa, ν = {poisson:.4}, ρ = {} kg/m³ ({}); strike {}",
         job.density, job.material_source, feats.strike_note
     );
     println!(
@@ -404,7 +415,7 @@ fn print_report(r: &Report) {
             (Some(d), _, _) => format!(" (ΔBIC {d:.1})"),
             _ => String::new(),
         };
-        println!("  rejected {}: {:?}{extra}: {}", r.name, r.reason, r.detail);
+        println!("  rejected {}: {}{extra}: {}", r.name, r.reason, r.detail);
     }
     let untested = report.untested();
     if !untested.is_empty() {
@@ -422,9 +433,9 @@ fn print_report(r: &Report) {
         println!("  unexplained ({}):", report.unexplained.len());
         for u in report.unexplained.iter().take(12) {
             println!(
-                "      {:.2} Hz {:?}{}: {}",
+                "      {:.2} Hz{}{}: {}",
                 u.frequency_hz,
-                u.quantity,
+                u.quantity.map_or(String::new(), |q| format!(", {q}")),
                 u.z.map_or(String::new(), |z| format!(" z = {z:.1}")),
                 u.reason
             );

@@ -131,6 +131,15 @@ pub struct GeometryFileConfig {
     pub solver: PetscConfig,
 }
 
+impl super::config::ConfigPaths for GeometryFileConfig {
+    fn rebase(&mut self, base: &std::path::Path) {
+        use super::config::rebase_opt;
+        rebase_opt(base, &mut self.surface);
+        rebase_opt(base, &mut self.out);
+        rebase_opt(base, &mut self.png);
+    }
+}
+
 /// Merges defaults < config file < flags and validates.
 pub fn resolve(args: &FitGeometryArgs) -> Result<Job, String> {
     let file: GeometryFileConfig = load_toml(&args.config)?;
@@ -187,6 +196,9 @@ pub fn resolve(args: &FitGeometryArgs) -> Result<Job, String> {
         .clone()
         .or(file.png.clone())
         .unwrap_or_else(|| crate::io::paths::plot_path(&stem, ".png"));
+    // The figure's format from --png's extension, before any work.
+    crate::io::plot::ImageFormat::for_path(&png, crate::io::plot::RASTER_FORMATS)
+        .map_err(|e| e.to_string())?;
     // No output may be one of the inputs: the surface or the config file.
     let mut given: Vec<(&str, &std::path::Path)> = vec![("the surface", surface.as_path())];
     if let Some(c) = &args.config {

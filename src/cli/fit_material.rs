@@ -99,6 +99,16 @@ pub struct FitFileConfig {
     pub solver: PetscConfig,
 }
 
+impl super::config::ConfigPaths for FitFileConfig {
+    fn rebase(&mut self, base: &std::path::Path) {
+        use super::config::{rebase_all, rebase_opt};
+        rebase_opt(base, &mut self.mesh);
+        rebase_all(base, &mut self.recordings);
+        rebase_opt(base, &mut self.out);
+        rebase_opt(base, &mut self.plots);
+    }
+}
+
 #[derive(Clone, Debug, Default, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct RecordingConfig {
@@ -296,16 +306,19 @@ fn print_summary(job: &Job, report: &Report) {
         fit.poisson
     );
     println!(
-        "  damping: {} real modes, Rayleigh α = {:.4} 1/s, β = {:.4e} s; curve knots at {:?} Hz",
+        "  damping: {} real modes, Rayleigh α = {:.4} 1/s, β = {:.4e} s; curve knots at {} Hz",
         damping.modes.iter().filter(|m| m.kept()).count(),
         damping.rayleigh.alpha,
         damping.rayleigh.beta,
-        damping
-            .curve
-            .frequencies_hz
-            .iter()
-            .map(|f| f.round())
-            .collect::<Vec<_>>()
+        crate::workflow::short_list(
+            &damping
+                .curve
+                .frequencies_hz
+                .iter()
+                .map(|f| format!("{f:.0}"))
+                .collect::<Vec<_>>(),
+            12
+        )
     );
     println!("  spectrogram error vs target: start {error_start:.4}, fit {error_fit:.4}");
     if let (Some(l), Some(check)) = (fit.line_start, report.line_start_check) {

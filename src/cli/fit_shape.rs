@@ -185,6 +185,17 @@ pub struct TargetConfig {
     pub spacing: Option<f64>,
 }
 
+impl super::config::ConfigPaths for ShapeFileConfig {
+    fn rebase(&mut self, base: &std::path::Path) {
+        use super::config::rebase_opt;
+        rebase_opt(base, &mut self.surface);
+        rebase_opt(base, &mut self.shape_a);
+        rebase_opt(base, &mut self.shape_b);
+        rebase_opt(base, &mut self.out);
+        rebase_opt(base, &mut self.target.file);
+    }
+}
+
 /// Merges defaults < config file < flags and validates, for either command.
 fn resolve(
     task: Task,

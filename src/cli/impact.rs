@@ -92,6 +92,16 @@ pub struct ImpactFileConfig {
     pub petsc_options: Vec<String>,
 }
 
+impl super::config::ConfigPaths for ImpactFileConfig {
+    fn rebase(&mut self, base: &Path) {
+        use super::config::{rebase_all, rebase_opt};
+        rebase_opt(base, &mut self.mesh);
+        rebase_all(base, &mut self.recordings);
+        rebase_opt(base, &mut self.material_fit);
+        rebase_opt(base, &mut self.out);
+    }
+}
+
 /// Merges defaults < case metadata < config file < flags and validates.
 pub fn resolve(args: &ImpactArgs) -> Result<Job, String> {
     let file: ImpactFileConfig = load_toml(&args.config)?;

@@ -36,6 +36,10 @@ use std::io::IsTerminal;
     about = "Physics-based modal sound: P2 tet FEM → SLEPc modes → HDF5 and audio"
 )]
 pub struct Cli {
+    /// Print results, warnings and errors only: no progress lines (even with --verbose) and
+    /// no notes.
+    #[arg(long, short, global = true)]
+    pub quiet: bool,
     #[command(subcommand)]
     pub command: Command,
     /// End the MPI job when one of its ranks has been stopped (SIGSTOP) this many seconds, naming
@@ -50,16 +54,16 @@ pub enum Command {
     Modes(modes::ModesArgs),
     /// Render a strike from a modes HDF5 file to WAV (impact point, direction, force, damping).
     Render(render::RenderArgs),
-    /// Spectrogram PNG of one WAV file or several side by side (e.g. rendered vs recorded).
+    /// Spectrogram image of one WAV file or several side by side (e.g. rendered vs recorded).
     Spectrogram(spectrogram::SpectrogramArgs),
     /// Fit damping, Young's modulus and Poisson's ratio to recordings of a strike.
     FitMaterial(fit_material::FitMaterialArgs),
-    /// Relative thickness of a hollow body from target eigenvalues (shape from sound, issue 7).
+    /// Relative thickness of a hollow body from target eigenvalues (shape from sound).
     FitThickness(fit_shape::FitThicknessArgs),
     /// Geometry from a coarse voxel constraint: an MLP signed distance pre-fitted to voxels and
-    /// refined by target eigenvalues (issue 7).
+    /// refined by target eigenvalues.
     FitGeometry(fit_geometry::FitGeometryArgs),
-    /// Weight c of a morph c·A + (1 − c)·B of two shapes from target eigenvalues (issue 7).
+    /// Weight c of a morph c·A + (1 − c)·B of two shapes from target eigenvalues.
     FitMorph(fit_shape::FitMorphArgs),
     /// Where simulation and recording differ, which physics the model left out, and how much
     /// the fit improves with it (report, HDF5, plots).
@@ -74,10 +78,21 @@ pub enum Command {
 pub use crate::workflow::Progress;
 pub use modes::ModesArgs;
 
-/// Rank-0 progress lines on stderr: shown on a terminal (or with --verbose), silent in batch logs.
+/// Rank-0 progress lines on stderr: shown on a terminal (or with --verbose), silent in batch logs
+/// and with --quiet. A message longer than [`PROGRESS_WIDTH`] characters is wrapped at spaces,
+/// its continuation lines indented under the message, so a log stays readable at 80–160 columns.
 pub fn stderr_progress(rank: usize, verbose: bool) -> Progress {
-    if rank == 0 && (verbose || std::io::stderr().is_terminal()) {
-        Progress::new(|seconds, msg| eprintln!("[{seconds:7.2} s] {msg}"))
+    if rank == 0 && !crate::workflow::quiet() && (verbose || std::io::stderr().is_terminal()) {
+        Progress::new(|seconds, msg| {
+            let lines = wrap(msg, PROGRESS_WIDTH - PROGRESS_PREFIX);
+            let mut text = format!("[{seconds:7.2} s] {}", lines[0]);
+            for l in &lines[1..] {
+                text.push('\n');
+                text.push_str(&" ".repeat(PROGRESS_PREFIX + 2));
+                text.push_str(l);
+            }
+            eprintln!("{text}");
+        })
     } else {
         Progress::silent()
     }
@@ -101,6 +116,40 @@ pub(crate) fn with_petsc<E: ToString>(
     }
 }
 
+/// Width (characters) progress lines are wrapped at, the `[   1.23 s] ` prefix included.
+pub const PROGRESS_WIDTH: usize = 160;
+const PROGRESS_PREFIX: usize = 12;
+
+/// `text` cut into lines of at most `width` characters at spaces (a word longer than `width`
+/// stays whole on its own line); continuation lines are 2 characters narrower, for the indent
+/// they get. Existing line breaks are kept.
+pub fn wrap(text: &str, width: usize) -> Vec<String> {
+    let width = width.max(20);
+    let mut lines = Vec::new();
+    for para in text.split('\n') {
+        // Leading spaces indent the message (nested progress lines): keep them.
+        let body = para.trim_start_matches(' ');
+        let mut line = " ".repeat(para.len() - body.len());
+        let mut len = line.len();
+        for word in body.split(' ') {
+            let wl = word.chars().count();
+            let limit = if lines.is_empty() { width } else { width - 2 };
+            if len > 0 && !line.trim().is_empty() && len + 1 + wl > limit {
+                lines.push(std::mem::take(&mut line));
+                len = 0;
+            }
+            if !line.trim().is_empty() {
+                line.push(' ');
+                len += 1;
+            }
+            line.push_str(word);
+            len += wl;
+        }
+        lines.push(line);
+    }
+    lines
+}
+
 /// Ends the whole MPI job: the one way out after an error or panic on any rank.
 fn abort_job(code: i32) -> ! {
     // SAFETY: MPI is initialised whenever this is reachable from `main` after `initialize`.
@@ -122,6 +171,7 @@ pub fn main() {
             std::process::exit(1);
         }
     };
+    crate::workflow::set_quiet(cli.quiet);
     match cli.command {
         Command::Materials => print_materials(),
         Command::Modes(args) => run_under_mpi(limit, |universe| modes::run(universe, args)),
@@ -165,7 +215,7 @@ fn ignore_file_size_signal() {
 fn print_materials() {
     println!(
         "{:<11} {:>12} {:>6} {:>9} {:>8} {:>9}",
-        "preset", "E [Pa]", "nu", "rho", "alpha", "beta"
+        "preset", "E [Pa]", "ν", "ρ", "α", "β"
     );
     for name in crate::fem::Material::preset_names() {
         let m = crate::fem::Material::preset(name).expect("listed preset exists");
@@ -223,4 +273,56 @@ pub(crate) fn fail(rank: usize, size: usize, message: &str) -> ! {
         abort_job(1);
     }
     std::process::exit(1);
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn long_progress_lines_wrap_at_spaces() {
+        let msg = (0..60)
+            .map(|k| format!("{k}.5"))
+            .collect::<Vec<_>>()
+            .join(", ");
+        let lines = wrap(&msg, 60);
+        assert!(lines.len() > 3, "{lines:?}");
+        assert_eq!(lines.join(" "), msg);
+        assert!(lines[0].chars().count() <= 60);
+        assert!(
+            lines[1..].iter().all(|l| l.chars().count() <= 58),
+            "{lines:?}"
+        );
+        // A short line is left alone; a word longer than the width stays whole.
+        assert_eq!(wrap("basis: 4 solves", 60), vec!["basis: 4 solves"]);
+        assert_eq!(wrap("    glide: a b", 60), vec!["    glide: a b"]);
+        let long = "x".repeat(80);
+        assert_eq!(
+            wrap(&format!("a {long} b"), 40),
+            vec!["a", long.as_str(), "b"]
+        );
+    }
+
+    #[test]
+    fn quiet_is_a_global_flag() {
+        let cli = Cli::try_parse_from(["diffsound", "materials", "--quiet"]).unwrap();
+        assert!(cli.quiet);
+        let cli = Cli::try_parse_from(["diffsound", "-q", "materials"]).unwrap();
+        assert!(cli.quiet);
+        let cli = Cli::try_parse_from(["diffsound", "materials"]).unwrap();
+        assert!(!cli.quiet);
+    }
+
+    #[test]
+    fn help_has_no_tracker_words() {
+        use clap::CommandFactory;
+        let mut cmd = Cli::command();
+        let mut texts = vec![cmd.render_long_help().to_string()];
+        for sub in cmd.get_subcommands_mut() {
+            texts.push(sub.render_long_help().to_string());
+        }
+        for t in &texts {
+            assert!(!t.to_lowercase().contains("issue"), "{t}");
+        }
+    }
 }

@@ -266,7 +266,7 @@ fn print_summary(job: &Job, report: &Report<'_>) {
         ranks
     );
     println!(
-        "material: {} E={:.4e} Pa nu={} rho={} kg/m3",
+        "material: {} E = {:.4e} Pa, ν = {}, ρ = {} kg/m³",
         job.material_name,
         job.material.youngs_modulus,
         job.material.poisson_ratio,
@@ -281,13 +281,13 @@ fn print_summary(job: &Job, report: &Report<'_>) {
         println!("inertia check: {}", inertia_line(c));
     }
     let sens_header = if sens.is_some() {
-        format!(" {:>14} {:>12}", "df/dE [Hz/GPa]", "df/dnu [Hz]")
+        format!(" {:>14} {:>12}", "df/dE [Hz/GPa]", "df/dν [Hz]")
     } else {
         String::new()
     };
     println!(
         "{:>5} {:>14} {:>18} {:>10}{}",
-        "mode", "freq [Hz]", "lambda [rad2/s2]", "residual", sens_header
+        "mode", "freq [Hz]", "λ [rad²/s²]", "residual", sens_header
     );
     for (i, (&l, &f)) in modes.eigenvalues.iter().zip(freqs).enumerate() {
         let tag = if modes.clusters.iter().any(|r| r.contains(&i)) {

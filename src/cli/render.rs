@@ -150,7 +150,7 @@ pub fn run(args: RenderArgs) -> Result<(), String> {
     workflow::write_wav(&job, &report).map_err(|e| e.to_string())?;
     let (point, direction) = (report.point, report.direction);
     println!(
-        "wrote {} ({:.2} s at {} Hz): {} of {} modes audible, strike at ({:.4}, {:.4}, {:.4}) m along ({:.3}, {:.3}, {:.3}), {:?}, {:?}, physical peak {:.3e}",
+        "wrote {} ({:.2} s at {} Hz): {} of {} modes audible, strike at ({:.4}, {:.4}, {:.4}) m along ({:.3}, {:.3}, {:.3}), {} force, {} response, physical peak {:.3e}",
         job.out.display(),
         job.duration,
         job.sample_rate,

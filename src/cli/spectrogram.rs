@@ -2,6 +2,7 @@
 //! one dB scale over all panels, the PNG) is [`crate::workflow::spectrogram`].
 
 use crate::audio::stft::StftPlan;
+use crate::io::plot::{ImageFormat, RASTER_FORMATS};
 use crate::workflow::spectrogram::{self as workflow, Job};
 use clap::Args;
 use std::path::PathBuf;
@@ -11,7 +12,7 @@ pub struct SpectrogramArgs {
     /// WAV files, one panel each (e.g. `rendered.wav recording.wav`).
     #[arg(required = true)]
     pub inputs: Vec<PathBuf>,
-    /// Output PNG.
+    /// Output image (.png).
     #[arg(long)]
     pub out: PathBuf,
     /// Channel of multichannel files (0-based).
@@ -54,6 +55,8 @@ pub fn resolve(args: &SpectrogramArgs) -> Result<Job, String> {
             args.range_db
         ));
     }
+    // A figure format we do not write fails here, before any file is read.
+    ImageFormat::for_path(&args.out, RASTER_FORMATS).map_err(|e| e.to_string())?;
     let plan = StftPlan::new(args.fft, args.hop.unwrap_or(args.fft / 4).max(1))
         .map_err(|e| format!("--fft/--hop: {e}"))?;
     let titles: Vec<String> = match &args.titles {

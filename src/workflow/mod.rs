@@ -54,6 +54,38 @@ impl Progress {
     }
 }
 
+static QUIET: std::sync::atomic::AtomicBool = std::sync::atomic::AtomicBool::new(false);
+
+/// Silences (or restores) progress lines made by [`crate::cli::stderr_progress`] and [`note`]s
+/// for the rest of the process (`--quiet`). Warnings, errors and results still print: they are
+/// what a quiet run is for.
+pub fn set_quiet(quiet: bool) {
+    QUIET.store(quiet, std::sync::atomic::Ordering::Relaxed);
+}
+
+/// Whether [`set_quiet`] silenced progress and notes.
+pub fn quiet() -> bool {
+    QUIET.load(std::sync::atomic::Ordering::Relaxed)
+}
+
+/// A non-essential remark on stderr (`note: …`), unless quiet.
+pub fn note(msg: impl std::fmt::Display) {
+    if !quiet() {
+        eprintln!("note: {msg}");
+    }
+}
+
+/// `items` joined with ", " for a message, at most `max` of them, then "… (N in all)", so a
+/// list of forty frequencies does not make a 400-character progress line.
+pub fn short_list<T: std::fmt::Display>(items: &[T], max: usize) -> String {
+    let shown: Vec<String> = items.iter().take(max).map(|v| v.to_string()).collect();
+    let mut s = shown.join(", ");
+    if items.len() > max {
+        s.push_str(&format!(", … ({} in all)", items.len()));
+    }
+    s
+}
+
 /// Broadcasts a value from rank 0 (a length, then the bytes of [`encode_for_broadcast`]).
 /// Every rank returns the same value or the same error: a value rank 0 cannot encode is an
 /// error on every rank, not a rank waiting forever for bytes that never come.

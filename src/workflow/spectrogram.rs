@@ -96,7 +96,7 @@ pub fn run(job: &Job) -> Result<Report, Error> {
             // noise floor in; it is shown from its start.
             match detect_shared_onset(&[signal.as_slice()], rate, &OnsetOptions::default()) {
                 Ok(onset) => start = onset.sample,
-                Err(e) => eprintln!("note: {}: showing from the start ({e})", path.display()),
+                Err(e) => super::note(format!("{}: showing from the start ({e})", path.display())),
             }
         }
         let mut end = signal.len();

@@ -121,6 +121,30 @@ impl Quantity {
     }
 }
 
+impl std::fmt::Display for Quantity {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(self.label())
+    }
+}
+
+impl Role {
+    /// The role in words, for people.
+    pub fn describe(self) -> &'static str {
+        match self {
+            Role::Single => "single mode",
+            Role::SplitLower => "lower of a split pair",
+            Role::SplitUpper => "upper of a split pair",
+            Role::Member => "member of a cluster",
+        }
+    }
+}
+
+impl std::fmt::Display for Role {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(self.describe())
+    }
+}
+
 /// What one likelihood row compares (mode indices into [`ModeTable::modes`]).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum RowKind {

@@ -153,6 +153,29 @@ pub enum Rejection {
     RedundantGivenOthers,
 }
 
+impl Rejection {
+    /// The reason in words, for people (the JSON keeps the snake_case name).
+    pub fn describe(self) -> &'static str {
+        match self {
+            Rejection::NotEnoughData => "not enough data to test it",
+            Rejection::DetectorFoundNothing => "its detector found nothing",
+            Rejection::DeltaBicTooSmall => "ΔBIC below the threshold",
+            Rejection::HeldOutDidNotImprove => "the held-out error did not fall",
+            Rejection::HeldOutCannotTest => "the held-out data cannot test it",
+            Rejection::NoHeldOutData => "no held-out data",
+            Rejection::FitFailed => "the fit failed",
+            Rejection::SignatureMissing => "its physical signature is missing",
+            Rejection::RedundantGivenOthers => "redundant once the later effects were in the model",
+        }
+    }
+}
+
+impl std::fmt::Display for Rejection {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(self.describe())
+    }
+}
+
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct RejectedEffect {
     pub name: String,

@@ -1,7 +1,12 @@
 //! Drawing shared by the figure types: frame, ticks, tick labels, grid and
 //! the look (colours, sizes) they have in common.
+//!
+//! Sizes scale together with a figure's `scale` ([`Look`]), like a DPI
+//! setting: a figure drawn at scale 2 is the scale-1 figure with every
+//! length doubled, so a large image for print keeps its proportions.
 
-use super::canvas::{text_size, Canvas, HAlign, PixelRect, Rgb, TextStyle, VAlign};
+use super::canvas::{text_size, HAlign, PixelRect, Rgb, TextStyle, VAlign};
+use super::draw::Draw;
 use super::ticks::{AxisMap, Tick};
 
 pub(crate) const BACKGROUND: Rgb = [255, 255, 255];
@@ -9,48 +14,101 @@ pub(crate) const BACKGROUND: Rgb = [255, 255, 255];
 pub(crate) const INK: Rgb = [34, 34, 34];
 pub(crate) const GRID_MAJOR: Rgb = [226, 226, 226];
 pub(crate) const GRID_MINOR: Rgb = [242, 242, 242];
-/// Font magnification for all figure text: 14 px capitals, legible on any
-/// screen without being dominant.
-pub(crate) const FONT_SCALE: u32 = 2;
-/// Cap height of figure text in pixels.
-pub(crate) const TEXT_H: i32 = 7 * FONT_SCALE as i32;
-/// Major tick length (outside the frame, so ticks never hide data).
-pub(crate) const TICK: i32 = 6;
-pub(crate) const MINOR_TICK: i32 = 3;
-/// Gap between a tick and its label.
-pub(crate) const LABEL_GAP: i32 = 4;
-/// Outer margin of every figure.
-pub(crate) const MARGIN: i32 = 16;
 
-pub(crate) fn style() -> TextStyle {
-    TextStyle::new(FONT_SCALE, INK)
+/// The sizes of a figure at a given scale (1 = the base look: 15 px per em
+/// for labels, about 11 px capitals, 6 px ticks, 16 px margins).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub(crate) struct Look {
+    pub scale: f64,
 }
 
-pub(crate) fn text_w(s: &str) -> i32 {
-    text_size(s, FONT_SCALE).0 as i32
+impl Look {
+    pub fn new(scale: f64) -> Look {
+        Look {
+            scale: if scale.is_finite() && scale > 0.0 {
+                scale
+            } else {
+                1.0
+            },
+        }
+    }
+    /// A length of `base` pixels at scale 1, rounded, at least 1.
+    pub fn px(&self, base: f64) -> i32 {
+        (base * self.scale).round().max(1.0) as i32
+    }
+    /// Em size of labels, tick labels and legends.
+    pub fn font_size(&self) -> f32 {
+        (15.0 * self.scale) as f32
+    }
+    /// Em size of titles (bold).
+    pub fn title_size(&self) -> f32 {
+        (17.0 * self.scale) as f32
+    }
+    /// The label style: near-black, top-left anchored.
+    pub fn style(&self) -> TextStyle {
+        TextStyle::new(self.font_size(), INK)
+    }
+    pub fn title_style(&self) -> TextStyle {
+        TextStyle::new(self.title_size(), INK).bold()
+    }
+    /// Cap height of label text in pixels.
+    pub fn text_h(&self) -> i32 {
+        text_size("H", &self.style()).1 as i32
+    }
+    /// Cap height of the title in pixels.
+    pub fn title_h(&self) -> i32 {
+        text_size("H", &self.title_style()).1 as i32
+    }
+    /// Depth of descenders below the baseline of label text.
+    pub fn descent(&self) -> i32 {
+        (0.24 * self.font_size() as f64).ceil() as i32
+    }
+    /// Width of `s` as a label.
+    pub fn text_w(&self, s: &str) -> i32 {
+        text_size(s, &self.style()).0 as i32
+    }
+    /// Major tick length (outside the frame, so ticks never hide data).
+    pub fn tick(&self) -> i32 {
+        self.px(6.0)
+    }
+    pub fn minor_tick(&self) -> i32 {
+        self.px(3.0)
+    }
+    /// Gap between a tick and its label.
+    pub fn label_gap(&self) -> i32 {
+        self.px(4.0)
+    }
+    /// Outer margin of every figure.
+    pub fn margin(&self) -> i32 {
+        self.px(16.0)
+    }
+    /// Width of the frame and tick lines.
+    pub fn rule(&self) -> i32 {
+        self.px(1.0)
+    }
+    /// Widest label among `ticks` in pixels (0 if none).
+    pub fn max_label_w(&self, ticks: &[Tick]) -> i32 {
+        ticks
+            .iter()
+            .filter_map(|t| t.label.as_deref())
+            .map(|l| self.text_w(l))
+            .max()
+            .unwrap_or(0)
+    }
 }
 
-/// Widest label among `ticks` in pixels (0 if none).
-pub(crate) fn max_label_w(ticks: &[Tick]) -> i32 {
-    ticks
-        .iter()
-        .filter_map(|t| t.label.as_deref())
-        .map(text_w)
-        .max()
-        .unwrap_or(0)
-}
-
-/// A 1 px frame drawn just outside `plot`, so the plot area itself is
-/// entirely data.
-pub(crate) fn frame(c: &mut Canvas, plot: PixelRect) {
+/// A frame `look.rule()` pixels wide drawn just outside `plot`, so the plot
+/// area itself is entirely data.
+pub(crate) fn frame<D: Draw>(c: &mut D, look: &Look, plot: PixelRect) {
     c.set_clip(None);
-    c.stroke_rect(plot.inflate(1), INK, 1);
+    let t = look.rule();
+    c.stroke_rect(plot.inflate(t), INK, t);
 }
 
 /// Light grid lines across `plot` at the ticks of both axes (major ticks
 /// darker than minor ones).
-pub(crate) fn grid(
-    c: &mut Canvas,
+pub(crate) fn grid<D: Draw>(
+    c: &mut D,
     plot: PixelRect,
     x: &AxisMap,
     xt: &[Tick],
@@ -77,8 +135,9 @@ pub(crate) fn grid(
 /// labels centred under them. A label that would overlap the previous one
 /// or leave `[lim_lo, lim_hi)` horizontally is skipped rather than drawn
 /// over something else. Returns the row just below the labels.
-pub(crate) fn x_axis(
-    c: &mut Canvas,
+pub(crate) fn x_axis<D: Draw>(
+    c: &mut D,
+    look: &Look,
     plot: PixelRect,
     map: &AxisMap,
     ticks: &[Tick],
@@ -86,40 +145,55 @@ pub(crate) fn x_axis(
     (lim_lo, lim_hi): (i32, i32),
 ) -> i32 {
     c.set_clip(None);
-    let base = plot.y1 + 1; // the frame row is plot.y1
+    let rule = look.rule();
+    let base = plot.y1 + rule; // the frame rows are plot.y1 .. plot.y1 + rule
     let mut last_right = i32::MIN;
     for t in ticks {
         let px = map.tick_pixel(t.value);
-        let len = if t.label.is_some() { TICK } else { MINOR_TICK };
-        c.fill_rect(PixelRect::new(px, base, px + 1, base + len), INK);
+        let len = if t.label.is_some() {
+            look.tick()
+        } else {
+            look.minor_tick()
+        };
+        let x0 = px - (rule - 1) / 2;
+        c.fill_rect(PixelRect::new(x0, base, x0 + rule, base + len), INK);
         if let (true, Some(l)) = (labels, &t.label) {
-            let w = text_w(l);
+            let w = look.text_w(l);
             let (l0, l1) = (px - w / 2, px - w / 2 + w);
-            if l0 >= last_right + 8 && l0 >= lim_lo && l1 <= lim_hi {
+            if l0 >= last_right + look.px(8.0) && l0 >= lim_lo && l1 <= lim_hi {
                 c.text(
                     px,
-                    base + TICK + LABEL_GAP,
+                    base + look.tick() + look.label_gap(),
                     l,
-                    &style().align(HAlign::Center, VAlign::Top),
+                    &look.style().align(HAlign::Center, VAlign::Top),
                 );
                 last_right = l1;
             }
         }
     }
-    base + TICK + LABEL_GAP + TEXT_H
+    base + look.tick() + look.label_gap() + look.text_h() + look.descent()
 }
 
 /// Ticks left of the left frame line of `plot` and, if `labels`, their
 /// labels right-aligned against them, vertically centred on the tick.
 /// Labels that would overlap the previous one are skipped.
-pub(crate) fn y_axis(c: &mut Canvas, plot: PixelRect, map: &AxisMap, ticks: &[Tick], labels: bool) {
-    y_axis_at(c, plot.x0 - 1, map, ticks, labels, true);
+pub(crate) fn y_axis<D: Draw>(
+    c: &mut D,
+    look: &Look,
+    plot: PixelRect,
+    map: &AxisMap,
+    ticks: &[Tick],
+    labels: bool,
+) {
+    y_axis_at(c, look, plot.x0 - look.rule(), map, ticks, labels, true);
 }
 
-/// Ticks and labels on the vertical line at column `edge` (the frame
-/// column); on its left side if `left`, else on its right (colour bars).
-pub(crate) fn y_axis_at(
-    c: &mut Canvas,
+/// Ticks and labels on the vertical rule starting at column `edge` (the
+/// frame's first column on the left, its last on the right); on its left
+/// side if `left`, else on its right (colour bars).
+pub(crate) fn y_axis_at<D: Draw>(
+    c: &mut D,
+    look: &Look,
     edge: i32,
     map: &AxisMap,
     ticks: &[Tick],
@@ -127,28 +201,34 @@ pub(crate) fn y_axis_at(
     left: bool,
 ) {
     c.set_clip(None);
+    let rule = look.rule();
     let mut last: Option<i32> = None;
     for t in ticks {
         let py = map.tick_pixel(t.value);
-        let len = if t.label.is_some() { TICK } else { MINOR_TICK };
-        if left {
-            c.fill_rect(PixelRect::new(edge - len, py, edge, py + 1), INK);
+        let len = if t.label.is_some() {
+            look.tick()
         } else {
-            c.fill_rect(PixelRect::new(edge + 1, py, edge + 1 + len, py + 1), INK);
+            look.minor_tick()
+        };
+        let y0 = py - (rule - 1) / 2;
+        if left {
+            c.fill_rect(PixelRect::new(edge - len, y0, edge, y0 + rule), INK);
+        } else {
+            c.fill_rect(PixelRect::new(edge + 1, y0, edge + 1 + len, y0 + rule), INK);
         }
         if let (true, Some(l)) = (labels, &t.label) {
-            if last.is_some_and(|p| (p - py).abs() < TEXT_H + 4) {
+            if last.is_some_and(|p| (p - py).abs() < look.text_h() + look.px(4.0)) {
                 continue;
             }
             let st = if left {
-                style().align(HAlign::Right, VAlign::Middle)
+                look.style().align(HAlign::Right, VAlign::Middle)
             } else {
-                style().align(HAlign::Left, VAlign::Middle)
+                look.style().align(HAlign::Left, VAlign::Middle)
             };
             let x = if left {
-                edge - TICK - LABEL_GAP
+                edge - look.tick() - look.label_gap()
             } else {
-                edge + 1 + TICK + LABEL_GAP
+                edge + 1 + look.tick() + look.label_gap()
             };
             c.text(x, py, l, &st);
             last = Some(py);

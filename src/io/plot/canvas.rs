@@ -15,6 +15,7 @@ use std::path::Path;
 
 use super::font;
 use super::PlotError;
+use ab_glyph::Font as _;
 
 /// 8-bit sRGB colour.
 pub type Rgb = [u8; 3];
@@ -88,22 +89,22 @@ pub enum VAlign {
 /// How text is drawn by [`Canvas::text`].
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct TextStyle {
-    /// Integer magnification of the 5×7 font (1 = 7 px capitals).
-    pub scale: u32,
+    /// Em size in pixels (a capital is about 0.73 of it).
+    pub size: f32,
     pub color: Rgb,
     pub halign: HAlign,
     pub valign: VAlign,
     /// Rotated 90° counter-clockwise (reads bottom to top, as y-axis labels do).
     pub rotated: bool,
-    /// Strokes thickened by one screen pixel, for titles.
+    /// The bold face, for titles.
     pub bold: bool,
 }
 
 impl TextStyle {
-    /// `scale` and `color`, anchored at the top-left corner, upright, regular.
-    pub fn new(scale: u32, color: Rgb) -> TextStyle {
+    /// `size` (px per em) and `color`, anchored at the top-left corner, upright, regular.
+    pub fn new(size: f32, color: Rgb) -> TextStyle {
         TextStyle {
-            scale,
+            size,
             color,
             halign: HAlign::Left,
             valign: VAlign::Top,
@@ -124,19 +125,50 @@ impl TextStyle {
         self.bold = true;
         self
     }
+    pub(crate) fn face(&self) -> font::Face {
+        if self.bold {
+            font::Face::Bold
+        } else {
+            font::Face::Regular
+        }
+    }
 }
 
-/// Width and cap height in pixels of `text` drawn upright at `scale`
-/// (a rotated text box is the same with the two swapped). The width counts
-/// characters, not bytes, and excludes the gap after the last glyph.
-pub fn text_size(text: &str, scale: u32) -> (u32, u32) {
-    let n = text.chars().count() as u32;
-    let w = if n == 0 {
-        0
-    } else {
-        n * font::ADVANCE * scale - (font::ADVANCE - font::GLYPH_W) * scale
+/// Width (the advance, rounded up) and cap height in pixels of `text` drawn
+/// upright in `style` (a rotated text box is the same with the two swapped).
+/// Descenders hang below the box, round letters and accents may overshoot it
+/// by a pixel.
+pub fn text_size(text: &str, style: &TextStyle) -> (u32, u32) {
+    let line = font::layout(text, style.size, style.face());
+    (
+        line.width.ceil().max(0.0) as u32,
+        line.cap_height().round().max(1.0) as u32,
+    )
+}
+
+/// Where the box of `text` lies for the anchor `(x, y)`, and the offsets
+/// `(du, dv)` of the anchor inside the upright box.
+pub(crate) fn text_box(x: i32, y: i32, w: i32, h: i32, style: &TextStyle) -> (PixelRect, i32, i32) {
+    // Offsets of the anchor inside the upright box (u along the text,
+    // v down from the cap line).
+    let du = match style.halign {
+        HAlign::Left => 0,
+        HAlign::Center => w / 2,
+        HAlign::Right => w,
     };
-    (w, font::CAP_H * scale)
+    let dv = match style.valign {
+        VAlign::Top => 0,
+        VAlign::Middle => h / 2,
+        VAlign::Bottom => h,
+    };
+    let rect = if style.rotated {
+        // Upright pixel (u, v) relative to the anchor lands on screen pixel
+        // (x + v, y - u): reading upwards, glyph rows running to +x.
+        PixelRect::new(x - dv, y - (w - du) + 1, x - dv + h, y + du + 1)
+    } else {
+        PixelRect::new(x - du, y - dv, x - du + w, y - dv + h)
+    };
+    (rect, du, dv)
 }
 
 /// An 8-bit RGB image with a clip rectangle.
@@ -303,6 +335,17 @@ impl Canvas {
     /// A filled, anti-aliased marker of overall size `size` pixels centred
     /// at `(x, y)` (continuous coordinates).
     pub fn marker(&mut self, x: f64, y: f64, marker: Marker, size: f64, color: Rgb) {
+        self.any_marker(x, y, marker, size, color, false);
+    }
+
+    /// The outline of a marker (the inside left as it was), so a second
+    /// series at the same points stays visible; crosses are strokes anyway
+    /// and draw as [`Canvas::marker`] does.
+    pub fn hollow_marker(&mut self, x: f64, y: f64, marker: Marker, size: f64, color: Rgb) {
+        self.any_marker(x, y, marker, size, color, true);
+    }
+
+    fn any_marker(&mut self, x: f64, y: f64, marker: Marker, size: f64, color: Rgb, hollow: bool) {
         if !(x.is_finite() && y.is_finite()) {
             return;
         }
@@ -318,32 +361,33 @@ impl Canvas {
             return;
         }
         let mut mask = Coverage::new(rect);
+        // A hollow marker is the band of the filled shape's signed distance
+        // between -stroke and 0: the outline drawn just inside the edge.
+        let stroke = marker_stroke(size);
+        let ring = |sd: f64| {
+            if hollow {
+                (sd + stroke / 2.0).abs() - stroke / 2.0
+            } else {
+                sd
+            }
+        };
         match marker {
-            Marker::Circle => mask.shape(|px, py| ((px - x).hypot(py - y)) - h),
+            Marker::Circle => mask.shape(|px, py| ring((px - x).hypot(py - y) - h)),
             Marker::Square => {
                 // Squares and diamonds look larger than circles of the same
                 // width; shrink them so mixed markers read as one size.
                 let s = h * 0.85;
-                mask.shape(|px, py| (px - x).abs().max((py - y).abs()) - s)
+                mask.shape(|px, py| ring((px - x).abs().max((py - y).abs()) - s))
             }
             Marker::Diamond => {
                 let s = h * 1.1;
                 mask.shape(|px, py| {
-                    ((px - x).abs() + (py - y).abs() - s) / std::f64::consts::SQRT_2
+                    ring(((px - x).abs() + (py - y).abs() - s) / std::f64::consts::SQRT_2)
                 })
             }
             Marker::Cross | Marker::Plus => {
                 let w = (size / 4.0).clamp(1.0, 3.0) / 2.0;
-                let d = if marker == Marker::Cross { h * 0.8 } else { h };
-                let arms: [((f64, f64), (f64, f64)); 2] = if marker == Marker::Cross {
-                    [
-                        ((x - d, y - d), (x + d, y + d)),
-                        ((x - d, y + d), (x + d, y - d)),
-                    ]
-                } else {
-                    [((x - d, y), (x + d, y)), ((x, y - d), (x, y + d))]
-                };
-                for (a, b) in arms {
+                for (a, b) in cross_arms(x, y, marker, size) {
                     mask.capsule(a, b, w);
                 }
             }
@@ -351,52 +395,71 @@ impl Canvas {
         mask.blend_into(self, color);
     }
 
+    /// Like [`Canvas::polyline`], broken into dashes: `dash` holds the
+    /// lengths in pixels of on, off, on, off, … along the line (empty: solid).
+    pub fn dashed_polyline(&mut self, points: &[(f64, f64)], color: Rgb, width: f64, dash: &[f64]) {
+        self.polyline(&dash_points(points, dash), color, width);
+    }
+
     /// Draws `text` anchored at pixel `(x, y)` as `style` says, and returns
-    /// the pixel box it occupies (cap height; descenders may hang below it).
-    /// Only ink is drawn: the background shows between strokes.
+    /// the pixel box it occupies (cap height; descenders hang below it).
+    /// Glyphs are anti-aliased: coverage is accumulated upright, then blended
+    /// in (turned a quarter for rotated text), so only ink is drawn and the
+    /// background shows between strokes.
     pub fn text(&mut self, x: i32, y: i32, text: &str, style: &TextStyle) -> PixelRect {
-        let s = style.scale.max(1) as i32;
-        let (w, h) = text_size(text, s as u32);
+        let line = font::layout(text, style.size, style.face());
+        let (w, h) = text_size(text, style);
         let (w, h) = (w as i32, h as i32);
-        // Offsets of the anchor inside the upright box (u along the text,
-        // v down the glyph rows).
-        let du = match style.halign {
-            HAlign::Left => 0,
-            HAlign::Center => w / 2,
-            HAlign::Right => w,
-        };
-        let dv = match style.valign {
-            VAlign::Top => 0,
-            VAlign::Middle => h / 2,
-            VAlign::Bottom => h,
-        };
-        let extra = style.bold as i32;
-        for (k, ch) in text.chars().enumerate() {
-            let g = font::glyph(ch);
-            for (row, bits) in g.iter().enumerate() {
-                for col in 0..font::GLYPH_W as i32 {
-                    if bits & (1 << (font::GLYPH_W as i32 - 1 - col)) == 0 {
-                        continue;
-                    }
-                    let u = k as i32 * font::ADVANCE as i32 * s + col * s - du;
-                    let v = row as i32 * s - dv;
-                    // Screen block of this font pixel; bold widens it by one
-                    // pixel along the reading direction.
-                    let (bx, by, bw, bh) = if style.rotated {
-                        // Reading upwards: u runs to -y, v (glyph rows) to +x.
-                        (x + v, y - u - s + 1 - extra, s, s + extra)
-                    } else {
-                        (x + u, y + v, s + extra, s)
-                    };
-                    self.fill_rect(PixelRect::new(bx, by, bx + bw, by + bh), style.color);
+        let (rect, du, dv) = text_box(x, y, w, h, style);
+        // Upright coverage buffer, anchor-relative: u from -du - pad, v from
+        // the ascender above the cap line to the descender below the baseline.
+        let pad = 2 + (style.size / 8.0).ceil() as i32;
+        let up = (line.ascent() - line.cap_height()).ceil().max(0.0) as i32 + pad;
+        let down = line.descent().ceil() as i32 + pad;
+        let (u0, v0) = (-du - pad, -dv - up);
+        let (bw, bh) = (w + 2 * pad, h + up + down);
+        if bw <= 0 || bh <= 0 || line.glyphs.is_empty() {
+            return rect;
+        }
+        let mut cov = vec![0.0f32; bw as usize * bh as usize];
+        let px_scale = style.size * font::face(line.face).font.height_unscaled()
+            / font::face(line.face).units_per_em;
+        let baseline = (h - dv - v0) as f32; // baseline row in buffer coordinates
+        let ff = &font::face(line.face).font;
+        for g in &line.glyphs {
+            let glyph = g.id.with_scale_and_position(
+                px_scale,
+                ab_glyph::point((-du - u0) as f32 + g.x, baseline),
+            );
+            let Some(outlined) = ff.outline_glyph(glyph) else {
+                continue;
+            };
+            let b = outlined.px_bounds();
+            let (gx, gy) = (b.min.x as i32, b.min.y as i32);
+            outlined.draw(|px, py, c| {
+                let (bx, by) = (gx + px as i32, gy + py as i32);
+                if bx >= 0 && by >= 0 && bx < bw && by < bh {
+                    let i = by as usize * bw as usize + bx as usize;
+                    cov[i] = (cov[i] + c).min(1.0);
                 }
+            });
+        }
+        for by in 0..bh {
+            for bx in 0..bw {
+                let c = cov[by as usize * bw as usize + bx as usize];
+                if c <= 0.0 {
+                    continue;
+                }
+                let (u, v) = (u0 + bx, v0 + by);
+                let (sx, sy) = if style.rotated {
+                    (x + v, y - u)
+                } else {
+                    (x + u, y + v)
+                };
+                self.blend(sx, sy, style.color, c);
             }
         }
-        if style.rotated {
-            PixelRect::new(x - dv, y - (w - du) + 1, x - dv + h, y + du + 1)
-        } else {
-            PixelRect::new(x - du, y - dv, x - du + w, y - dv + h)
-        }
+        rect
     }
 
     /// Writes the canvas to `path` as an 8-bit RGB PNG, atomically (see
@@ -422,6 +485,81 @@ impl Canvas {
             writer.finish().map_err(png_err)
         })
     }
+}
+
+/// Stroke width of a hollow marker of overall size `size`.
+pub(crate) fn marker_stroke(size: f64) -> f64 {
+    (size / 6.0).clamp(1.5, 3.0)
+}
+
+/// The two strokes of a cross (×) or plus (+) marker of size `size` at `(x, y)`.
+pub(crate) fn cross_arms(
+    x: f64,
+    y: f64,
+    marker: Marker,
+    size: f64,
+) -> [((f64, f64), (f64, f64)); 2] {
+    let h = size.max(1.0) / 2.0;
+    if marker == Marker::Cross {
+        let d = h * 0.8;
+        [
+            ((x - d, y - d), (x + d, y + d)),
+            ((x - d, y + d), (x + d, y - d)),
+        ]
+    } else {
+        [((x - h, y), (x + h, y)), ((x, y - h), (x, y + h))]
+    }
+}
+
+/// `points` cut into dashes: the pieces drawn, separated by a non-finite
+/// point (the gap [`Canvas::polyline`] understands). `dash` alternates on and
+/// off lengths in pixels; the pattern runs on across vertices and across a
+/// gap in the data. An empty or non-positive pattern returns the points as
+/// they are.
+pub(crate) fn dash_points(points: &[(f64, f64)], dash: &[f64]) -> Vec<(f64, f64)> {
+    if dash.is_empty() || dash.iter().any(|d| !(d.is_finite() && *d > 0.0)) {
+        return points.to_vec();
+    }
+    let gap = (f64::NAN, f64::NAN);
+    let mut out = Vec::new();
+    let (mut k, mut left) = (0usize, dash[0]);
+    let mut prev: Option<(f64, f64)> = None;
+    for &p in points {
+        if !(p.0.is_finite() && p.1.is_finite()) {
+            prev = None;
+            out.push(gap);
+            continue;
+        }
+        let Some(a) = prev else {
+            if k % 2 == 0 {
+                out.push(p);
+            }
+            prev = Some(p);
+            continue;
+        };
+        let len = (p.0 - a.0).hypot(p.1 - a.1);
+        let mut t = 0.0;
+        while len - t > 1e-9 {
+            let step = left.min(len - t);
+            t += step;
+            left -= step;
+            let q = (a.0 + (p.0 - a.0) * t / len, a.1 + (p.1 - a.1) * t / len);
+            if k % 2 == 0 {
+                out.push(q);
+            }
+            if left <= 1e-9 {
+                k = (k + 1) % dash.len();
+                left = dash[k];
+                if k % 2 == 0 {
+                    out.push(q);
+                } else {
+                    out.push(gap);
+                }
+            }
+        }
+        prev = Some(p);
+    }
+    out
 }
 
 /// Per-pixel coverage (0..=1) over a rectangle, combined by maximum and

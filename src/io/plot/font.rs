@@ -1,248 +1,142 @@
-//! The embedded bitmap font: 5×7 glyphs (cap height 7 px) with two extra
-//! rows for descenders, on a 6 px advance. Designed for this module; drawn at
-//! integer scales (2 is the default for figure text, so a capital is 14 px).
+//! Figure text: DejaVu Sans (regular and bold), embedded in the binary and
+//! rasterised with `ab_glyph`.
 //!
-//! The glyphs live in [`ART`] as picture bands so they can be read and edited
-//! by eye: a header line names up to eight characters at columns 0, 6, 12, …
-//! and the nine lines below it hold their rows (`#` = ink, `.` = paper).
-//! Rows 0–6 sit on the baseline (row 6 is the last row above it); rows 7–8
-//! are descenders (g, j, p, q, y, comma, underscore).
+//! Why a real outline font: figures go into papers, where a scaled bitmap
+//! font looks jagged and cannot write the symbols the quantities are named
+//! with (α, ν, λ, Δ, σ, ², µ, −, ×, …). Why embedded: a figure must not
+//! depend on which fonts a machine has, and a clone alone must build, so the
+//! two TTF files live in `assets/fonts/` (licence beside them: the Bitstream
+//! Vera and Arev licences, free to redistribute unmodified) and are compiled
+//! in with `include_bytes!`; no system font is ever read.
+//!
+//! Sizes are em sizes in pixels (what CSS calls `font-size`). Layout is a
+//! single line: advances plus pair kerning, no shaping (neither Latin nor
+//! Greek labels need it). A character the font lacks draws as the font's
+//! `.notdef` box, so a missing glyph is visible rather than silently dropped.
+//!
+//! [`layout`] places glyphs along a baseline; the raster ([`super::Canvas`])
+//! and vector ([`super::svg`]) writers both start from it, so a label takes
+//! the same room in a PNG and in an SVG.
 
+use ab_glyph::{Font, FontRef, GlyphId, Outline};
 use std::sync::OnceLock;
 
-/// Glyph width in font pixels.
-pub(crate) const GLYPH_W: u32 = 5;
-/// Horizontal advance per character in font pixels (glyph + 1 px gap).
-pub(crate) const ADVANCE: u32 = 6;
-/// Cap height (rows 0–6): what text alignment uses as the text's height.
-pub(crate) const CAP_H: u32 = 7;
-/// All rows, descenders included.
-pub(crate) const ROWS: usize = 9;
+static REGULAR_TTF: &[u8] = include_bytes!("../../../assets/fonts/DejaVuSans.ttf");
+static BOLD_TTF: &[u8] = include_bytes!("../../../assets/fonts/DejaVuSans-Bold.ttf");
 
-/// One glyph: `ROWS` rows, bit 4 = leftmost column.
-pub(crate) type Glyph = [u8; ROWS];
-
-const ART: &str = r##"
-!     "     #     $     %     &     '     (
-..#.. .#.#. .#.#. ..#.. ##... .##.. ..#.. ...#.
-..#.. .#.#. .#.#. .#### ##..# #..#. ..#.. ..#..
-..#.. .#.#. ##### #.#.. ...#. #.#.. ..#.. .#...
-..#.. ..... .#.#. .###. ..#.. .#... ..... .#...
-..#.. ..... ##### ..#.# .#... #.#.# ..... .#...
-..... ..... .#.#. ####. #..## #..#. ..... ..#..
-..#.. ..... .#.#. ..#.. ...## .##.# ..... ...#.
-..... ..... ..... ..... ..... ..... ..... .....
-..... ..... ..... ..... ..... ..... ..... .....
-)     *     +     ,     -     .     /     0
-.#... ..... ..... ..... ..... ..... ....# .###.
-..#.. ..#.. ..#.. ..... ..... ..... ....# #...#
-...#. #.#.# ..#.. ..... ..... ..... ...#. #..##
-...#. .###. ##### ..... ##### ..... ..#.. #.#.#
-...#. #.#.# ..#.. ..... ..... ..... .#... ##..#
-..#.. ..#.. ..#.. .##.. ..... .##.. #.... #...#
-.#... ..... ..... ..#.. ..... .##.. #.... .###.
-..... ..... ..... .#... ..... ..... ..... .....
-..... ..... ..... ..... ..... ..... ..... .....
-1     2     3     4     5     6     7     8
-..#.. .###. ##### ...#. ##### ..##. ##### .###.
-.##.. #...# ...#. ..##. #.... .#... ....# #...#
-..#.. ....# ..#.. .#.#. ####. #.... ...#. #...#
-..#.. ...#. ...#. #..#. ....# ####. ..#.. .###.
-..#.. ..#.. ....# ##### ....# #...# .#... #...#
-..#.. .#... #...# ...#. #...# #...# .#... #...#
-.###. ##### .###. ...#. .###. .###. .#... .###.
-..... ..... ..... ..... ..... ..... ..... .....
-..... ..... ..... ..... ..... ..... ..... .....
-9     :     ;     <     =     >     ?     @
-.###. ..... ..... ...#. ..... .#... .###. .###.
-#...# .##.. .##.. ..#.. ..... ..#.. #...# #...#
-#...# .##.. .##.. .#... ##### ...#. ....# #.###
-.#### ..... ..... #.... ..... ....# ...#. #.#.#
-....# .##.. .##.. .#... ##### ...#. ..#.. #.###
-...#. .##.. ..#.. ..#.. ..... ..#.. ..... #....
-.##.. ..... .#... ...#. ..... .#... ..#.. .####
-..... ..... ..... ..... ..... ..... ..... .....
-..... ..... ..... ..... ..... ..... ..... .....
-A     B     C     D     E     F     G     H
-.###. ####. .###. ###.. ##### ##### .###. #...#
-#...# #...# #...# #..#. #.... #.... #...# #...#
-#...# #...# #.... #...# #.... #.... #.... #...#
-##### ####. #.... #...# ####. ####. #.### #####
-#...# #...# #.... #...# #.... #.... #...# #...#
-#...# #...# #...# #..#. #.... #.... #...# #...#
-#...# ####. .###. ###.. ##### #.... .#### #...#
-..... ..... ..... ..... ..... ..... ..... .....
-..... ..... ..... ..... ..... ..... ..... .....
-I     J     K     L     M     N     O     P
-.###. ..### #...# #.... #...# #...# .###. ####.
-..#.. ...#. #..#. #.... ##.## #...# #...# #...#
-..#.. ...#. #.#.. #.... #.#.# ##..# #...# #...#
-..#.. ...#. ##... #.... #.#.# #.#.# #...# ####.
-..#.. ...#. #.#.. #.... #...# #..## #...# #....
-..#.. #..#. #..#. #.... #...# #...# #...# #....
-.###. .##.. #...# ##### #...# #...# .###. #....
-..... ..... ..... ..... ..... ..... ..... .....
-..... ..... ..... ..... ..... ..... ..... .....
-Q     R     S     T     U     V     W     X
-.###. ####. .#### ##### #...# #...# #...# #...#
-#...# #...# #.... ..#.. #...# #...# #...# #...#
-#...# #...# #.... ..#.. #...# #...# #...# .#.#.
-#...# ####. .###. ..#.. #...# #...# #.#.# ..#..
-#.#.# #.#.. ....# ..#.. #...# #...# #.#.# .#.#.
-#..#. #..#. ....# ..#.. #...# .#.#. #.#.# #...#
-.##.# #...# ####. ..#.. .###. ..#.. .#.#. #...#
-..... ..... ..... ..... ..... ..... ..... .....
-..... ..... ..... ..... ..... ..... ..... .....
-Y     Z     [     \     ]     ^     _     `
-#...# ##### .###. #.... .###. ..#.. ..... .#...
-#...# ....# .#... #.... ...#. .#.#. ..... ..#..
-.#.#. ...#. .#... .#... ...#. #...# ..... .....
-..#.. ..#.. .#... ..#.. ...#. ..... ..... .....
-..#.. .#... .#... ...#. ...#. ..... ..... .....
-..#.. #.... .#... ....# ...#. ..... ..... .....
-..#.. ##### .###. ....# .###. ..... ..... .....
-..... ..... ..... ..... ..... ..... ##### .....
-..... ..... ..... ..... ..... ..... ..... .....
-a     b     c     d     e     f     g     h
-..... #.... ..... ....# ..... ..##. ..... #....
-..... #.... ..... ....# ..... .#..# ..... #....
-.###. #.##. .###. .##.# .###. .#... .#### #.##.
-....# ##..# #.... #..## #...# ###.. #...# ##..#
-.#### #...# #.... #...# ##### .#... #...# #...#
-#...# #...# #...# #...# #.... .#... #...# #...#
-.#### ####. .###. .#### .###. .#... .#### #...#
-..... ..... ..... ..... ..... ..... ....# .....
-..... ..... ..... ..... ..... ..... .###. .....
-i     j     k     l     m     n     o     p
-..#.. ...#. #.... .##.. ..... ..... ..... .....
-..... ..... #.... ..#.. ..... ..... ..... .....
-.##.. ..##. #..#. ..#.. ##.#. #.##. .###. ####.
-..#.. ...#. #.#.. ..#.. #.#.# ##..# #...# #...#
-..#.. ...#. ##... ..#.. #.#.# #...# #...# #...#
-..#.. ...#. #.#.. ..#.. #.#.# #...# #...# #...#
-.###. ...#. #..#. .###. #.#.# #...# .###. ####.
-..... #..#. ..... ..... ..... ..... ..... #....
-..... .##.. ..... ..... ..... ..... ..... #....
-q     r     s     t     u     v     w     x
-..... ..... ..... .#... ..... ..... ..... .....
-..... ..... ..... .#... ..... ..... ..... .....
-.#### #.##. .#### ###.. #...# #...# #...# #...#
-#...# ##..# #.... .#... #...# #...# #...# .#.#.
-#...# #.... .###. .#... #...# #...# #.#.# ..#..
-#...# #.... ....# .#..# #..## .#.#. #.#.# .#.#.
-.#### #.... ####. ..##. .##.# ..#.. .#.#. #...#
-....# ..... ..... ..... ..... ..... ..... .....
-....# ..... ..... ..... ..... ..... ..... .....
-y     z     {     |     }     ~     °     µ
-..... ..... ...## ..#.. ##... ..... .##.. .....
-..... ..... ..#.. ..#.. ..#.. ..... #..#. .....
-#...# ##### ..#.. ..#.. ..#.. .#... #..#. #...#
-#...# ...#. .#... ..#.. ...#. #.#.# .##.. #...#
-#...# ..#.. ..#.. ..#.. ..#.. ...#. ..... #...#
-#...# .#... ..#.. ..#.. ..#.. ..... ..... #..##
-.#### ##### ...## ..#.. ##... ..... ..... ###.#
-....# ..... ..... ..... ..... ..... ..... #....
-.###. ..... ..... ..... ..... ..... ..... #....
-²     ×
-.##.. .....
-#..#. #...#
-..#.. .#.#.
-.#... ..#..
-####. .#.#.
-..... #...#
-..... .....
-..... .....
-..... .....
-"##;
-
-struct Font {
-    /// Printable ASCII 33..=126 (space has no ink and is handled apart).
-    ascii: [Glyph; 94],
-    /// The few non-ASCII symbols drawn in [`ART`] (°, µ, ², ×).
-    extra: Vec<(char, Glyph)>,
+/// Which of the two embedded faces.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub(crate) enum Face {
+    Regular,
+    Bold,
 }
 
-fn font() -> &'static Font {
-    static FONT: OnceLock<Font> = OnceLock::new();
-    FONT.get_or_init(|| parse_art(ART))
+/// One embedded face with the metrics layout needs, in font units.
+pub(crate) struct LoadedFace {
+    pub font: FontRef<'static>,
+    pub units_per_em: f32,
+    /// Height of a flat capital (from the outline of `H`): what text
+    /// alignment measures, so labels line up on their capitals.
+    pub cap_height: f32,
+    /// Depth of the lowest descender below the baseline (positive).
+    pub descent: f32,
+    /// Height of the tallest ascender or accent above the baseline.
+    pub ascent: f32,
 }
 
-/// Parses the picture bands. Panics on malformed art: it is a compile-time
-/// constant, and the unit tests parse it, so a typo fails the test suite.
-fn parse_art(art: &str) -> Font {
-    let lines: Vec<Vec<char>> = art
-        .lines()
-        .filter(|l| !l.trim().is_empty())
-        .map(|l| l.chars().collect())
-        .collect();
-    assert!(
-        lines.len() % (ROWS + 1) == 0,
-        "font art: bands must have a header and {ROWS} rows"
-    );
-    let mut ascii = [[0u8; ROWS]; 94];
-    let mut seen = [false; 94];
-    let mut extra = Vec::new();
-    for band in lines.chunks(ROWS + 1) {
-        let header = &band[0];
-        // Glyph k of the band starts at column 6·k of its header and rows.
-        for (col, &ch) in header.iter().enumerate().step_by(ADVANCE as usize) {
-            let mut glyph = [0u8; ROWS];
-            for (r, row) in band[1..].iter().enumerate() {
-                let cells = row
-                    .get(col..col + GLYPH_W as usize)
-                    .unwrap_or_else(|| panic!("font art: row {r} of '{ch}' is too short"));
-                for (c, &cell) in cells.iter().enumerate() {
-                    match cell {
-                        '#' => glyph[r] |= 1 << (GLYPH_W as usize - 1 - c),
-                        '.' => {}
-                        other => panic!("font art: '{other}' in glyph '{ch}'"),
-                    }
-                }
-            }
-            match ch as u32 {
-                33..=126 => {
-                    let i = ch as usize - 33;
-                    assert!(!seen[i], "font art: '{ch}' drawn twice");
-                    seen[i] = true;
-                    ascii[i] = glyph;
-                }
-                _ => extra.push((ch, glyph)),
-            }
+fn load(bytes: &'static [u8]) -> LoadedFace {
+    // The bytes are compiled in and checked by the unit tests; a failure here
+    // is a broken build, not a user error.
+    let font = FontRef::try_from_slice(bytes).expect("embedded DejaVu Sans parses");
+    let units_per_em = font.units_per_em().unwrap_or(2048.0);
+    let cap_height = font
+        .outline(font.glyph_id('H'))
+        // ab_glyph keeps the top (y max, font units point up) in `min.y`.
+        .map(|o| (o.bounds.min.y - o.bounds.max.y).abs())
+        .unwrap_or(0.73 * units_per_em);
+    LoadedFace {
+        units_per_em,
+        cap_height,
+        descent: -font.descent_unscaled(),
+        ascent: font.ascent_unscaled(),
+        font,
+    }
+}
+
+pub(crate) fn face(f: Face) -> &'static LoadedFace {
+    static REGULAR: OnceLock<LoadedFace> = OnceLock::new();
+    static BOLD: OnceLock<LoadedFace> = OnceLock::new();
+    match f {
+        Face::Regular => REGULAR.get_or_init(|| load(REGULAR_TTF)),
+        Face::Bold => BOLD.get_or_init(|| load(BOLD_TTF)),
+    }
+}
+
+/// A glyph placed on a baseline: `x` is its origin in pixels from the start
+/// of the line.
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct Placed {
+    pub id: GlyphId,
+    pub x: f32,
+}
+
+/// A laid-out line of text at `size` px per em.
+pub(crate) struct Line {
+    pub face: Face,
+    pub size: f32,
+    pub glyphs: Vec<Placed>,
+    /// Advance width of the whole line in pixels.
+    pub width: f32,
+}
+
+impl Line {
+    /// Pixels per font unit.
+    pub fn scale(&self) -> f32 {
+        self.size / face(self.face).units_per_em
+    }
+    /// Cap height in pixels.
+    pub fn cap_height(&self) -> f32 {
+        face(self.face).cap_height * self.scale()
+    }
+    pub fn descent(&self) -> f32 {
+        face(self.face).descent * self.scale()
+    }
+    pub fn ascent(&self) -> f32 {
+        face(self.face).ascent * self.scale()
+    }
+    /// The outline of glyph `id` in font units (y up), if it has ink.
+    pub fn outline(&self, id: GlyphId) -> Option<Outline> {
+        face(self.face).font.outline(id)
+    }
+}
+
+/// Lays `text` out on one line at `size` px per em.
+pub(crate) fn layout(text: &str, size: f32, f: Face) -> Line {
+    let lf = face(f);
+    let s = size / lf.units_per_em;
+    let mut x = 0.0f32;
+    let mut prev: Option<GlyphId> = None;
+    let mut glyphs = Vec::with_capacity(text.len());
+    for ch in text.chars() {
+        let id = lf.font.glyph_id(ch);
+        if let Some(p) = prev {
+            x += lf.font.kern_unscaled(p, id) * s;
         }
+        glyphs.push(Placed { id, x });
+        x += lf.font.h_advance_unscaled(id) * s;
+        prev = Some(id);
     }
-    if let Some(i) = seen.iter().position(|s| !s) {
-        panic!("font art: no glyph for '{}'", (i as u8 + 33) as char);
-    }
-    Font { ascii, extra }
-}
-
-/// The glyph for `c`: space is blank, a few look-alikes map onto drawn
-/// glyphs (the Unicode minus onto '-', the Greek mu onto the micro sign),
-/// anything else becomes a hollow box so a missing glyph is visible, not
-/// silently dropped.
-pub(crate) fn glyph(c: char) -> Glyph {
-    const BOX: Glyph = [
-        0b11111, 0b10001, 0b10001, 0b10001, 0b10001, 0b10001, 0b11111, 0, 0,
-    ];
-    let c = match c {
-        '\u{2212}' | '\u{2013}' => '-',
-        '\u{3bc}' => '\u{b5}',
-        _ => c,
-    };
-    let f = font();
-    match c as u32 {
-        32 => [0; ROWS],
-        33..=126 => f.ascii[c as usize - 33],
-        _ => f
-            .extra
-            .iter()
-            .find(|(e, _)| *e == c)
-            .map_or(BOX, |(_, g)| *g),
+    Line {
+        face: f,
+        size,
+        glyphs,
+        width: x,
     }
 }
 
-#[cfg(test)]
-pub(crate) fn parse_check() -> usize {
-    let f = parse_art(ART);
-    94 + f.extra.len()
+/// Whether the font has a glyph for `ch` (tests and callers that want to
+/// fall back to a spelled-out name).
+#[cfg_attr(not(test), allow(dead_code))]
+pub(crate) fn has_glyph(ch: char, f: Face) -> bool {
+    face(f).font.glyph_id(ch).0 != 0
 }

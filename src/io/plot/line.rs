@@ -1,9 +1,20 @@
-//! Line and scatter figures on linear or log axes, with a legend.
+//! Line and scatter figures on linear or log axes, with a legend; written
+//! as PNG or SVG (by the file's extension) from one layout.
+//!
+//! Series are told apart by colour first; past the eight colours of
+//! [`PALETTE`] the next eight repeat them dashed (lines) or hollow
+//! (markers), then dotted, so a figure of 12 or 20 series has no two alike.
+//! The legend never covers data: it goes to the emptiest corner of the plot
+//! area only if that corner holds no data, else outside, right of the plot.
+//! A series with no point to draw (empty, or nothing valid on a log axis)
+//! stays out of the legend, so the legend lists only what is drawn.
 
 use std::path::Path;
 
-use super::axes::{self, MARGIN, TEXT_H, TICK};
-use super::canvas::{Canvas, HAlign, Marker, PixelRect, Rgb, VAlign};
+use super::axes::{self, Look};
+use super::canvas::{text_size, Canvas, HAlign, Marker, PixelRect, Rgb, VAlign};
+use super::draw::{Draw, ImageFormat, LINE_PLOT_FORMATS};
+use super::svg::Svg;
 use super::ticks::{axis_ticks, AxisMap, AxisScale, Tick};
 use super::PlotError;
 
@@ -35,6 +46,29 @@ pub enum SeriesStyle {
     Stems(Marker),
 }
 
+/// The stroke pattern of a line (and of stems).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Dash {
+    Solid,
+    Dashed,
+    Dotted,
+    DashDot,
+}
+
+impl Dash {
+    /// On, off, … lengths in pixels for a line `width` pixels wide (round
+    /// caps add half a width at each end of a dash, so the gaps are wider).
+    pub(crate) fn pattern(self, width: f64) -> Vec<f64> {
+        let w = width.max(1.0);
+        match self {
+            Dash::Solid => Vec::new(),
+            Dash::Dashed => vec![4.0 * w, 3.0 * w],
+            Dash::Dotted => vec![0.01 * w, 2.5 * w],
+            Dash::DashDot => vec![4.0 * w, 2.5 * w, 0.01 * w, 2.5 * w],
+        }
+    }
+}
+
 /// One data series. `x` and `y` must have the same length.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Series {
@@ -45,6 +79,14 @@ pub struct Series {
     pub style: SeriesStyle,
     /// Default: [`PALETTE`] by the series' position in the figure.
     pub color: Option<Rgb>,
+    /// Line pattern; default: solid for the first eight series, then dashed,
+    /// dotted, dash-dot for each further eight (see the module docs); solid
+    /// when `color` is set.
+    pub dash: Option<Dash>,
+    /// Markers drawn as outlines; default: filled for the first eight
+    /// series, hollow for the next eight, and so on alternately; filled when
+    /// `color` is set.
+    pub hollow: Option<bool>,
 }
 
 impl Series {
@@ -55,6 +97,8 @@ impl Series {
             y,
             style,
             color: None,
+            dash: None,
+            hollow: None,
         }
     }
     pub fn line(label: impl Into<String>, x: Vec<f64>, y: Vec<f64>) -> Series {
@@ -67,14 +111,38 @@ impl Series {
         self.color = Some(color);
         self
     }
+    pub fn with_dash(mut self, dash: Dash) -> Series {
+        self.dash = Some(dash);
+        self
+    }
+    /// Markers drawn as outlines (`true`) or filled (`false`).
+    pub fn with_hollow(mut self, hollow: bool) -> Series {
+        self.hollow = Some(hollow);
+        self
+    }
+    /// Colour, dash and fill of the series at position `k` of a figure. A series whose colour
+    /// is set is solid and filled unless told otherwise: whoever chose its colour chose its look.
+    pub(crate) fn look(&self, k: usize) -> (Rgb, Dash, bool) {
+        let n = PALETTE.len();
+        let round = if self.color.is_some() { 0 } else { k / n };
+        let dash = [Dash::Solid, Dash::Dashed, Dash::Dotted, Dash::DashDot][round % 4];
+        (
+            self.color.unwrap_or(PALETTE[k % n]),
+            self.dash.unwrap_or(dash),
+            self.hollow.unwrap_or(round % 2 == 1),
+        )
+    }
 }
 
-/// Where the legend goes, inside the plot area.
+/// Where the legend goes.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub enum LegendPlacement {
-    /// The corner covering the fewest data.
+    /// A corner of the plot area that covers no data (tried in the order
+    /// top right, top left, bottom right, bottom left), else [`Self::Outside`].
     #[default]
     Auto,
+    /// Right of the plot area, which narrows to make room.
+    Outside,
     TopLeft,
     TopRight,
     BottomLeft,
@@ -98,13 +166,18 @@ pub struct LineFigure {
     pub y_range: Option<(f64, f64)>,
     pub series: Vec<Series>,
     pub legend: LegendPlacement,
-    /// Whole image size in pixels.
+    /// Whole image size in pixels (SVG user units).
     pub width: u32,
     pub height: u32,
+    /// Size of text, lines, markers, ticks and margins, like a DPI setting
+    /// (1 = 15 px per em labels and 2 px lines).
+    pub scale: f64,
 }
 
 impl LineFigure {
-    /// Linear axes, automatic limits, legend placed automatically, 960 × 640 px.
+    /// Linear axes, automatic limits, legend placed automatically,
+    /// 1600 × 1000 px at scale 1.6 (the proportions of a 1000 × 625 figure,
+    /// sharp when a paper shrinks it to a column).
     pub fn new(
         title: impl Into<String>,
         x_label: impl Into<String>,
@@ -120,32 +193,50 @@ impl LineFigure {
             y_range: None,
             series: Vec::new(),
             legend: LegendPlacement::Auto,
-            width: 960,
-            height: 640,
+            width: 1600,
+            height: 1000,
+            scale: 1.6,
         }
     }
 }
 
+/// Line width and marker size at scale 1, in pixels.
 const LINE_WIDTH: f64 = 2.0;
 const MARKER_SIZE: f64 = 9.0;
 
-/// Where everything landed (for the tests).
+/// Where everything landed (read by the tests; the writers draw from it).
 #[derive(Clone, Debug)]
-// Only the tests read the fields; rendering just fills them in.
+// Only the tests read some of the fields.
 #[cfg_attr(not(test), allow(dead_code))]
 pub(crate) struct LineLayout {
     pub plot: PixelRect,
     pub x: AxisMap,
     pub y: AxisMap,
     pub x_ticks: Vec<Tick>,
+    pub y_ticks: Vec<Tick>,
+    /// The legend box, if there is one.
     pub legend: Option<PixelRect>,
+    /// Whether the legend sits outside the plot area.
+    pub legend_outside: bool,
+    /// Indices of the series listed in the legend, in order.
+    pub legend_entries: Vec<usize>,
 }
 
-/// Renders `fig` and writes it to `path` as a PNG, atomically. Nothing is
-/// written if the figure is invalid (see [`PlotError::InvalidInput`]).
+/// Renders `fig` and writes it to `path` as a PNG or an SVG, by the path's
+/// extension (`.png`, `.svg`; any other is [`PlotError::UnsupportedFormat`]),
+/// atomically. Nothing is written if the figure is invalid (see
+/// [`PlotError::InvalidInput`]).
+pub fn line_plot(path: &Path, fig: &LineFigure) -> Result<(), PlotError> {
+    match ImageFormat::for_path(path, LINE_PLOT_FORMATS)? {
+        ImageFormat::Png => render_line_plot(path, fig)?.0.write_png(path),
+        ImageFormat::Svg => render_line_plot_svg(path, fig)?.0.write(path),
+    }
+}
+
+/// [`line_plot`] for a path that must end in `.png`.
 pub fn line_plot_png(path: &Path, fig: &LineFigure) -> Result<(), PlotError> {
-    let (canvas, _) = render_line_plot(path, fig)?;
-    canvas.write_png(path)
+    ImageFormat::for_path(path, &[ImageFormat::Png])?;
+    line_plot(path, fig)
 }
 
 fn valid(scale: AxisScale, v: f64) -> bool {
@@ -196,10 +287,8 @@ fn axis_range(
     })
 }
 
-pub(crate) fn render_line_plot(
-    path: &Path,
-    fig: &LineFigure,
-) -> Result<(Canvas, LineLayout), PlotError> {
+/// The data limits of both axes, checked.
+fn data_limits(path: &Path, fig: &LineFigure) -> Result<((f64, f64), (f64, f64)), PlotError> {
     let bad = |reason: String| PlotError::InvalidInput {
         path: path.to_path_buf(),
         reason,
@@ -212,6 +301,9 @@ pub(crate) fn render_line_plot(
             "image size {}x{} px is outside 200x150 ..= 8192x8192",
             fig.width, fig.height
         )));
+    }
+    if !(fig.scale.is_finite() && fig.scale > 0.0 && fig.scale <= 16.0) {
+        return Err(bad(format!("scale {} is outside (0, 16]", fig.scale)));
     }
     let (mut xmin, mut xmax, mut ymin, mut ymax) = (
         f64::INFINITY,
@@ -284,45 +376,162 @@ pub(crate) fn render_line_plot(
             )));
         }
     }
+    Ok(((x_lo, x_hi), (y_lo, y_hi)))
+}
 
+/// Legend metrics at a look: sample width, row height, padding.
+struct LegendMetrics {
+    pad: i32,
+    sample_w: i32,
+    row: i32,
+    inset: i32,
+}
+
+impl LegendMetrics {
+    fn new(look: &Look) -> LegendMetrics {
+        LegendMetrics {
+            pad: look.px(10.0),
+            sample_w: look.px(40.0),
+            row: look.text_h() + look.px(11.0),
+            inset: look.px(10.0),
+        }
+    }
+    /// Width and height of the box for `labels`.
+    fn size(&self, look: &Look, labels: &[&str]) -> (i32, i32) {
+        let text_w = labels.iter().map(|l| look.text_w(l)).max().unwrap_or(0);
+        (
+            self.pad * 2 + self.sample_w + self.pad + text_w,
+            self.pad * 2 + self.row * labels.len() as i32 - (self.row - look.text_h()),
+        )
+    }
+}
+
+/// The series that appear in the legend: labelled, with a point to draw.
+fn legend_entries(fig: &LineFigure) -> Vec<usize> {
+    fig.series
+        .iter()
+        .enumerate()
+        .filter(|(_, s)| {
+            !s.label.is_empty()
+                && s.x
+                    .iter()
+                    .zip(&s.y)
+                    .any(|(&x, &y)| valid(fig.x_scale, x) && valid(fig.y_scale, y))
+        })
+        .map(|(k, _)| k)
+        .collect()
+}
+
+/// A series' valid points in pixels (non-finite where a point is invalid).
+fn screen_points(fig: &LineFigure, s: &Series, xm: &AxisMap, ym: &AxisMap) -> Vec<(f64, f64)> {
+    s.x.iter()
+        .zip(&s.y)
+        .map(|(&x, &y)| {
+            if valid(fig.x_scale, x) && valid(fig.y_scale, y) {
+                (xm.to_px(x), ym.to_px(y))
+            } else {
+                (f64::NAN, f64::NAN)
+            }
+        })
+        .collect()
+}
+
+/// Where the data are drawn, as samples in pixels: the points, and samples
+/// every few pixels along lines and stems, so a line crossing a corner
+/// counts even with no point there.
+fn data_samples(fig: &LineFigure, xm: &AxisMap, ym: &AxisMap, base_y: f64) -> Vec<(f64, f64)> {
+    let mut out = Vec::new();
+    let along = |a: (f64, f64), b: (f64, f64), out: &mut Vec<(f64, f64)>| {
+        let n = ((b.0 - a.0).hypot(b.1 - a.1) / 6.0).ceil().min(500.0) as usize;
+        for i in 0..n {
+            let t = i as f64 / n as f64;
+            out.push((a.0 + t * (b.0 - a.0), a.1 + t * (b.1 - a.1)));
+        }
+    };
+    for s in &fig.series {
+        let pts = screen_points(fig, s, xm, ym);
+        match s.style {
+            SeriesStyle::Line | SeriesStyle::LineMarkers(_) => {
+                for win in pts.windows(2) {
+                    if win[0].0.is_finite() && win[1].0.is_finite() {
+                        along(win[0], win[1], &mut out);
+                    }
+                }
+            }
+            SeriesStyle::Stems(_) => {
+                for &p in pts.iter().filter(|p| p.0.is_finite()) {
+                    along((p.0, base_y), p, &mut out);
+                }
+            }
+            SeriesStyle::Markers(_) => {}
+        }
+        out.extend(pts.iter().filter(|p| p.0.is_finite()));
+    }
+    out
+}
+
+/// The plot area and axes for a figure whose right part (`reserve_right`
+/// pixels) is kept for an outside legend.
+fn frame_layout(
+    path: &Path,
+    fig: &LineFigure,
+    look: &Look,
+    limits: ((f64, f64), (f64, f64)),
+    reserve_right: i32,
+) -> Result<(PixelRect, AxisMap, AxisMap, Vec<Tick>, Vec<Tick>), PlotError> {
+    let ((x_lo, x_hi), (y_lo, y_hi)) = limits;
+    let (w, h) = (fig.width as i32, fig.height as i32);
+    let text_line = look.text_h() + look.descent();
     // Vertical layout first: the y ticks (and so the left margin) depend
     // only on the plot height.
-    let (w, h) = (fig.width as i32, fig.height as i32);
-    let title_h = if fig.title.is_empty() { 0 } else { TEXT_H + 14 };
+    let title_h = if fig.title.is_empty() {
+        0
+    } else {
+        look.title_h() + look.px(16.0)
+    };
     // Half a label of headroom so the top y tick label is not cut.
-    let plot_y0 = MARGIN + title_h + TEXT_H / 2 + 2;
+    let plot_y0 = look.margin() + title_h + look.text_h() / 2 + look.px(2.0);
     let x_label_h = if fig.x_label.is_empty() {
         0
     } else {
-        TEXT_H + 10
+        text_line + look.px(8.0)
     };
-    let plot_y1 = h - MARGIN - x_label_h - TEXT_H - axes::LABEL_GAP - TICK - 1;
+    let plot_y1 =
+        h - look.margin() - x_label_h - text_line - look.label_gap() - look.tick() - look.rule();
     let y_ticks = axis_ticks(
         fig.y_scale,
         y_lo,
         y_hi,
-        axes::tick_budget(plot_y1 - plot_y0, 56),
+        axes::tick_budget(plot_y1 - plot_y0, look.px(56.0)),
     );
     let y_label_w = if fig.y_label.is_empty() {
         0
     } else {
-        TEXT_H + 10
+        text_line + look.px(10.0)
     };
-    let plot_x0 = MARGIN + y_label_w + axes::max_label_w(&y_ticks) + axes::LABEL_GAP + TICK + 1;
+    let plot_x0 = look.margin()
+        + y_label_w
+        + look.max_label_w(&y_ticks)
+        + look.label_gap()
+        + look.tick()
+        + look.rule();
     // Room for half of a tick label centred on the right edge.
-    let plot_x1 = w - MARGIN - 24;
+    let plot_x1 = w - look.margin() - reserve_right - look.px(24.0);
     if plot_x1 - plot_x0 < 40 || plot_y1 - plot_y0 < 40 {
-        return Err(bad(format!(
-            "image size {}x{} px leaves no room for the plot",
-            fig.width, fig.height
-        )));
+        return Err(PlotError::InvalidInput {
+            path: path.to_path_buf(),
+            reason: format!(
+                "image size {}x{} px leaves no room for the plot",
+                fig.width, fig.height
+            ),
+        });
     }
     let plot = PixelRect::new(plot_x0, plot_y0, plot_x1, plot_y1);
     let x_ticks = axis_ticks(
         fig.x_scale,
         x_lo,
         x_hi,
-        axes::tick_budget(plot.width(), 100),
+        axes::tick_budget(plot.width(), look.px(100.0)),
     );
     let xm = AxisMap {
         scale: fig.x_scale,
@@ -338,213 +547,271 @@ pub(crate) fn render_line_plot(
         px_lo: plot.y1 as f64,
         px_hi: plot.y0 as f64,
     };
+    Ok((plot, xm, ym, x_ticks, y_ticks))
+}
 
-    let mut c = Canvas::new(fig.width, fig.height, axes::BACKGROUND);
-    axes::grid(&mut c, plot, &xm, &x_ticks, &ym, &y_ticks);
-
-    // Data, clipped to the plot area. Stem bases: y = 0 on a linear axis
-    // (drawn as a baseline), the bottom edge on a log axis.
-    let base_y = match fig.y_scale {
+/// Stem base: y = 0 on a linear axis, the bottom edge on a log axis.
+fn stem_base(fig: &LineFigure, plot: PixelRect, ym: &AxisMap) -> f64 {
+    match fig.y_scale {
         AxisScale::Linear => ym.to_px(0.0),
         AxisScale::Log => plot.y1 as f64,
+    }
+}
+
+/// The whole layout: limits, plot area, ticks and the legend's place.
+fn layout(path: &Path, fig: &LineFigure) -> Result<LineLayout, PlotError> {
+    let limits = data_limits(path, fig)?;
+    let look = Look::new(fig.scale);
+    let entries = if fig.legend == LegendPlacement::Hidden {
+        Vec::new()
+    } else {
+        legend_entries(fig)
     };
+    let lm = LegendMetrics::new(&look);
+    let labels: Vec<&str> = entries
+        .iter()
+        .map(|&k| fig.series[k].label.as_str())
+        .collect();
+    let (bw, bh) = lm.size(&look, &labels);
+    let inside = |plot: PixelRect, p: LegendPlacement| {
+        let x0 = match p {
+            LegendPlacement::TopLeft | LegendPlacement::BottomLeft => plot.x0 + lm.inset,
+            _ => plot.x1 - lm.inset - bw,
+        };
+        let y0 = match p {
+            LegendPlacement::TopLeft | LegendPlacement::TopRight => plot.y0 + lm.inset,
+            _ => plot.y1 - lm.inset - bh,
+        };
+        PixelRect::new(x0, y0, x0 + bw, y0 + bh)
+    };
+    let finish =
+        |(plot, x, y, x_ticks, y_ticks): (PixelRect, AxisMap, AxisMap, Vec<Tick>, Vec<Tick>),
+         legend: Option<PixelRect>,
+         outside: bool| LineLayout {
+            plot,
+            x,
+            y,
+            x_ticks,
+            y_ticks,
+            legend,
+            legend_outside: outside,
+            legend_entries: entries.clone(),
+        };
+    let outside = |look: &Look| -> Result<LineLayout, PlotError> {
+        let f = frame_layout(path, fig, look, limits, bw + look.px(16.0))?;
+        let x0 = fig.width as i32 - look.margin() - bw;
+        let r = PixelRect::new(x0, f.0.y0, x0 + bw, f.0.y0 + bh);
+        Ok(finish(f, Some(r), true))
+    };
+    if entries.is_empty() {
+        let f = frame_layout(path, fig, &look, limits, 0)?;
+        return Ok(finish(f, None, false));
+    }
+    match fig.legend {
+        LegendPlacement::Outside => outside(&look),
+        LegendPlacement::Auto => {
+            let f = frame_layout(path, fig, &look, limits, 0)?;
+            let base = stem_base(fig, f.0, &f.2);
+            let data = data_samples(fig, &f.1, &f.2, base);
+            let covered = |r: PixelRect| {
+                let r = r.inflate(look.px(4.0));
+                data.iter()
+                    .filter(|p| r.contains(p.0.floor() as i32, p.1.floor() as i32))
+                    .count()
+            };
+            let free = [
+                LegendPlacement::TopRight,
+                LegendPlacement::TopLeft,
+                LegendPlacement::BottomRight,
+                LegendPlacement::BottomLeft,
+            ]
+            .into_iter()
+            .map(|p| inside(f.0, p))
+            .find(|&r| covered(r) == 0 && f.0.intersect(&r) == r);
+            match free {
+                Some(r) => Ok(finish(f, Some(r), false)),
+                None => outside(&look),
+            }
+        }
+        LegendPlacement::Hidden => unreachable!("no entries when hidden"),
+        p => {
+            let f = frame_layout(path, fig, &look, limits, 0)?;
+            let r = inside(f.0, p);
+            Ok(finish(f, Some(r), false))
+        }
+    }
+}
+
+/// Renders `fig` into a canvas (used by [`line_plot`] and the tests).
+pub(crate) fn render_line_plot(
+    path: &Path,
+    fig: &LineFigure,
+) -> Result<(Canvas, LineLayout), PlotError> {
+    let layout = layout(path, fig)?;
+    let mut c = Canvas::new(fig.width, fig.height, axes::BACKGROUND);
+    draw(&mut c, fig, &layout);
+    Ok((c, layout))
+}
+
+/// Renders `fig` into an SVG document with the same layout as the PNG.
+pub(crate) fn render_line_plot_svg(
+    path: &Path,
+    fig: &LineFigure,
+) -> Result<(Svg, LineLayout), PlotError> {
+    let layout = layout(path, fig)?;
+    let mut d = Svg::new(fig.width, fig.height, axes::BACKGROUND);
+    draw(&mut d, fig, &layout);
+    Ok((d, layout))
+}
+
+/// One series' line or stems and markers.
+#[allow(clippy::too_many_arguments)]
+fn draw_series<D: Draw>(
+    c: &mut D,
+    style: SeriesStyle,
+    pts: &[(f64, f64)],
+    base_y: f64,
+    color: Rgb,
+    dash: Dash,
+    hollow: bool,
+    look: &Look,
+) {
+    let lw = LINE_WIDTH * look.scale;
+    let ms = MARKER_SIZE * look.scale;
+    let pattern = dash.pattern(lw);
+    match style {
+        SeriesStyle::Line | SeriesStyle::LineMarkers(_) => {
+            c.dashed_polyline(pts, color, lw, &pattern)
+        }
+        SeriesStyle::Stems(_) => {
+            for &(x, y) in pts.iter().filter(|p| p.0.is_finite()) {
+                c.dashed_polyline(&[(x, base_y), (x, y)], color, lw, &pattern);
+            }
+        }
+        SeriesStyle::Markers(_) => {}
+    }
+    if let SeriesStyle::Markers(m) | SeriesStyle::LineMarkers(m) | SeriesStyle::Stems(m) = style {
+        for &(x, y) in pts {
+            if hollow {
+                c.hollow_marker(x, y, m, ms, color);
+            } else {
+                c.marker(x, y, m, ms, color);
+            }
+        }
+    }
+}
+
+fn draw<D: Draw>(c: &mut D, fig: &LineFigure, l: &LineLayout) {
+    let look = Look::new(fig.scale);
+    let plot = l.plot;
+    axes::grid(c, plot, &l.x, &l.x_ticks, &l.y, &l.y_ticks);
+    let stems = fig
+        .series
+        .iter()
+        .any(|s| matches!(s.style, SeriesStyle::Stems(_)));
+    // Data, clipped to the plot area; a linear axis with stems gets a
+    // baseline at y = 0.
+    let base_y = stem_base(fig, plot, &l.y);
+    c.set_clip(Some(plot));
     if stems && fig.y_scale == AxisScale::Linear {
-        c.set_clip(Some(plot));
         c.line(
             plot.x0 as f64,
             base_y,
             plot.x1 as f64,
             base_y,
             axes::INK,
-            1.0,
+            look.scale,
         );
     }
-    let mut screen_pts: Vec<(f64, f64)> = Vec::new();
     for (k, s) in fig.series.iter().enumerate() {
-        let color = s.color.unwrap_or(PALETTE[k % PALETTE.len()]);
-        let pts: Vec<(f64, f64)> =
-            s.x.iter()
-                .zip(&s.y)
-                .map(|(&x, &y)| {
-                    if valid(fig.x_scale, x) && valid(fig.y_scale, y) {
-                        (xm.to_px(x), ym.to_px(y))
-                    } else {
-                        (f64::NAN, f64::NAN)
-                    }
-                })
-                .collect();
-        c.set_clip(Some(plot));
+        let (color, dash, hollow) = s.look(k);
+        let pts = screen_points(fig, s, &l.x, &l.y);
+        draw_series(c, s.style, &pts, base_y, color, dash, hollow, &look);
+    }
+    c.set_clip(None);
+
+    axes::frame(c, &look, plot);
+    let w = fig.width as i32;
+    let below = axes::x_axis(c, &look, plot, &l.x, &l.x_ticks, true, (0, w));
+    axes::y_axis(c, &look, plot, &l.y, &l.y_ticks, true);
+    if !fig.x_label.is_empty() {
+        c.text(
+            (plot.x0 + plot.x1) / 2,
+            below + look.px(8.0),
+            &fig.x_label,
+            &look.style().align(HAlign::Center, VAlign::Top),
+        );
+    }
+    if !fig.y_label.is_empty() {
+        c.text(
+            look.margin(),
+            (plot.y0 + plot.y1) / 2,
+            &fig.y_label,
+            &look.style().align(HAlign::Center, VAlign::Top).rotated(),
+        );
+    }
+    if !fig.title.is_empty() {
+        // Centred on the plot area, or on the image if it is too wide for that.
+        let tw = text_size(&fig.title, &look.title_style()).0 as i32;
+        let mid = (plot.x0 + plot.x1) / 2;
+        let x = if mid - tw / 2 >= look.margin() && mid + tw / 2 <= w - look.margin() {
+            mid
+        } else {
+            w / 2
+        };
+        c.text(
+            x,
+            look.margin(),
+            &fig.title,
+            &look.title_style().align(HAlign::Center, VAlign::Top),
+        );
+    }
+    if let Some(r) = l.legend {
+        draw_legend(c, fig, l, r, &look);
+    }
+}
+
+/// Draws the legend box `r` with one row per entry.
+fn draw_legend<D: Draw>(c: &mut D, fig: &LineFigure, l: &LineLayout, r: PixelRect, look: &Look) {
+    let lm = LegendMetrics::new(look);
+    c.set_clip(None);
+    c.fill_rect(r, axes::BACKGROUND);
+    c.stroke_rect(r, [170, 170, 170], look.rule());
+    let lw = LINE_WIDTH * look.scale;
+    let ms = MARKER_SIZE * look.scale;
+    for (row, &k) in l.legend_entries.iter().enumerate() {
+        let s = &fig.series[k];
+        let (color, dash, hollow) = s.look(k);
+        let cy = r.y0 + lm.pad + row as i32 * lm.row + look.text_h() / 2;
+        let (sx0, sx1) = ((r.x0 + lm.pad) as f64, (r.x0 + lm.pad + lm.sample_w) as f64);
+        let y = cy as f64 + 0.5;
+        let mid = (sx0 + sx1) / 2.0;
         match s.style {
-            SeriesStyle::Line | SeriesStyle::LineMarkers(_) => c.polyline(&pts, color, LINE_WIDTH),
-            SeriesStyle::Stems(_) => {
-                for &(x, y) in pts.iter().filter(|p| p.0.is_finite()) {
-                    c.line(x, base_y, x, y, color, LINE_WIDTH);
-                }
+            SeriesStyle::Line | SeriesStyle::LineMarkers(_) => {
+                c.dashed_polyline(&[(sx0, y), (sx1, y)], color, lw, &dash.pattern(lw))
             }
+            SeriesStyle::Stems(_) => c.dashed_polyline(
+                &[(mid, y + ms * 0.8), (mid, y)],
+                color,
+                lw,
+                &dash.pattern(lw),
+            ),
             SeriesStyle::Markers(_) => {}
         }
         if let SeriesStyle::Markers(m) | SeriesStyle::LineMarkers(m) | SeriesStyle::Stems(m) =
             s.style
         {
-            for &(x, y) in &pts {
-                c.marker(x, y, m, MARKER_SIZE, color);
-            }
-        }
-        // For legend placement: points, plus samples along segments so a
-        // line crossing a corner counts even with no point there.
-        for win in pts.windows(2) {
-            let (a, b) = (win[0], win[1]);
-            if a.0.is_finite() && b.0.is_finite() {
-                let n = ((b.0 - a.0).hypot(b.1 - a.1) / 6.0).ceil().min(500.0) as usize;
-                for i in 0..n {
-                    let t = i as f64 / n as f64;
-                    screen_pts.push((a.0 + t * (b.0 - a.0), a.1 + t * (b.1 - a.1)));
-                }
-            }
-        }
-        screen_pts.extend(pts.iter().filter(|p| p.0.is_finite()));
-    }
-    c.set_clip(None);
-
-    axes::frame(&mut c, plot);
-    let below = axes::x_axis(&mut c, plot, &xm, &x_ticks, true, (0, w));
-    axes::y_axis(&mut c, plot, &ym, &y_ticks, true);
-    if !fig.x_label.is_empty() {
-        c.text(
-            (plot.x0 + plot.x1) / 2,
-            below + 10,
-            &fig.x_label,
-            &axes::style().align(HAlign::Center, VAlign::Top),
-        );
-    }
-    if !fig.y_label.is_empty() {
-        c.text(
-            MARGIN,
-            (plot.y0 + plot.y1) / 2,
-            &fig.y_label,
-            &axes::style().align(HAlign::Center, VAlign::Top).rotated(),
-        );
-    }
-    if !fig.title.is_empty() {
-        c.text(
-            w / 2,
-            MARGIN,
-            &fig.title,
-            &axes::style().align(HAlign::Center, VAlign::Top).bold(),
-        );
-    }
-    let legend = draw_legend(&mut c, plot, fig, &screen_pts);
-    Ok((
-        c,
-        LineLayout {
-            plot,
-            x: xm,
-            y: ym,
-            x_ticks,
-            legend,
-        },
-    ))
-}
-
-const LEGEND_PAD: i32 = 10;
-const LEGEND_SAMPLE_W: i32 = 32;
-const LEGEND_ROW: i32 = TEXT_H + 10;
-const LEGEND_INSET: i32 = 10;
-
-/// Draws the legend box; returns where it went (`None` if there is none).
-fn draw_legend(
-    c: &mut Canvas,
-    plot: PixelRect,
-    fig: &LineFigure,
-    data: &[(f64, f64)],
-) -> Option<PixelRect> {
-    let entries: Vec<(usize, &Series)> = fig
-        .series
-        .iter()
-        .enumerate()
-        .filter(|(_, s)| !s.label.is_empty())
-        .collect();
-    if entries.is_empty() || fig.legend == LegendPlacement::Hidden {
-        return None;
-    }
-    let text_w = entries
-        .iter()
-        .map(|(_, s)| axes::text_w(&s.label))
-        .max()
-        .unwrap_or(0);
-    let bw = LEGEND_PAD * 2 + LEGEND_SAMPLE_W + 10 + text_w;
-    let bh = LEGEND_PAD * 2 + LEGEND_ROW * entries.len() as i32 - 10;
-    let corner = |p: LegendPlacement| {
-        let x0 = match p {
-            LegendPlacement::TopLeft | LegendPlacement::BottomLeft => plot.x0 + LEGEND_INSET,
-            _ => plot.x1 - LEGEND_INSET - bw,
-        };
-        let y0 = match p {
-            LegendPlacement::TopLeft | LegendPlacement::TopRight => plot.y0 + LEGEND_INSET,
-            _ => plot.y1 - LEGEND_INSET - bh,
-        };
-        PixelRect::new(x0, y0, x0 + bw, y0 + bh)
-    };
-    let place = match fig.legend {
-        LegendPlacement::Auto => {
-            // Fewest data samples under the box wins; ties keep this order.
-            let order = [
-                LegendPlacement::TopRight,
-                LegendPlacement::TopLeft,
-                LegendPlacement::BottomRight,
-                LegendPlacement::BottomLeft,
-            ];
-            let count = |r: PixelRect| {
-                let r = r.inflate(4);
-                data.iter()
-                    .filter(|p| r.contains(p.0.floor() as i32, p.1.floor() as i32))
-                    .count()
-            };
-            let mut best = order[0];
-            let mut best_n = usize::MAX;
-            for p in order {
-                let n = count(corner(p));
-                if n < best_n {
-                    best = p;
-                    best_n = n;
-                }
-            }
-            best
-        }
-        p => p,
-    };
-    let r = corner(place);
-    c.set_clip(Some(plot));
-    c.fill_rect(r, axes::BACKGROUND);
-    c.stroke_rect(r, [170, 170, 170], 1);
-    for (row, (k, s)) in entries.iter().enumerate() {
-        let color = s.color.unwrap_or(PALETTE[k % PALETTE.len()]);
-        let cy = r.y0 + LEGEND_PAD + row as i32 * LEGEND_ROW + TEXT_H / 2;
-        let (sx0, sx1) = (
-            (r.x0 + LEGEND_PAD) as f64,
-            (r.x0 + LEGEND_PAD + LEGEND_SAMPLE_W) as f64,
-        );
-        let y = cy as f64 + 0.5;
-        let mid = (sx0 + sx1) / 2.0;
-        match s.style {
-            SeriesStyle::Line => c.line(sx0, y, sx1, y, color, LINE_WIDTH),
-            SeriesStyle::LineMarkers(m) => {
-                c.line(sx0, y, sx1, y, color, LINE_WIDTH);
-                c.marker(mid, y, m, MARKER_SIZE, color);
-            }
-            SeriesStyle::Markers(m) => c.marker(mid, y, m, MARKER_SIZE, color),
-            SeriesStyle::Stems(m) => {
-                c.line(mid, y + 7.0, mid, y, color, LINE_WIDTH);
-                c.marker(mid, y - 1.0, m, MARKER_SIZE, color);
+            if hollow {
+                c.hollow_marker(mid, y, m, ms, color);
+            } else {
+                c.marker(mid, y, m, ms, color);
             }
         }
         c.text(
-            r.x0 + LEGEND_PAD + LEGEND_SAMPLE_W + 10,
+            r.x0 + lm.pad + lm.sample_w + lm.pad,
             cy,
             &s.label,
-            &axes::style().align(HAlign::Left, VAlign::Middle),
+            &look.style().align(HAlign::Left, VAlign::Middle),
         );
     }
-    c.set_clip(None);
-    Some(r)
 }

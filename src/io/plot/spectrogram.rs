@@ -3,19 +3,20 @@
 
 use std::path::Path;
 
-use super::axes::{self, MARGIN, TEXT_H, TICK};
+use super::axes::{self, Look};
 use super::canvas::{Canvas, HAlign, PixelRect, Rgb, VAlign};
 use super::colormap::colormap;
+use super::draw::{ImageFormat, RASTER_FORMATS};
 use super::ticks::{linear_ticks, AxisMap, AxisScale, Tick};
 use super::PlotError;
 
 /// Colour of plot area that no panel data covers (a shorter recording, a
 /// lower Nyquist frequency): light grey, distinct from every map colour.
 const NO_DATA: Rgb = [232, 232, 232];
-/// Horizontal gap between panels; their tick labels share it.
-const PANEL_GAP: i32 = 40;
-const COLORBAR_W: i32 = 20;
-const COLORBAR_GAP: i32 = 24;
+/// Horizontal gap between panels at scale 1; their tick labels share it.
+const PANEL_GAP: f64 = 40.0;
+const COLORBAR_W: f64 = 20.0;
+const COLORBAR_GAP: f64 = 24.0;
 /// Frequencies shown in kHz from this top frequency up (labels stay short).
 const KHZ_FROM_HZ: f64 = 2000.0;
 /// Refuse figures beyond this many pixels (300 MB of RGB): a mistake, not
@@ -75,6 +76,9 @@ pub struct SpectrogramFigure<'a> {
     /// figure adds margins, labels and the colour bar around the panels.
     pub panel_width: u32,
     pub panel_height: u32,
+    /// Size of text, ticks, margins and gaps (1 = 15 px per em labels), like
+    /// a DPI setting; the panels keep their pixel size.
+    pub scale: f64,
 }
 
 impl<'a> SpectrogramFigure<'a> {
@@ -90,6 +94,7 @@ impl<'a> SpectrogramFigure<'a> {
             resampling: Resampling::Nearest,
             panel_width: 480,
             panel_height: 320,
+            scale: 1.0,
         }
     }
 }
@@ -108,8 +113,10 @@ pub(crate) struct SpectrogramLayout {
 }
 
 /// Renders `fig` and writes it to `path` as a PNG, atomically. Nothing is
-/// written if the figure is invalid (see [`PlotError::InvalidInput`]).
+/// written if the figure is invalid (see [`PlotError::InvalidInput`]) or
+/// `path` does not end in `.png` ([`PlotError::UnsupportedFormat`]).
 pub fn spectrogram_png(path: &Path, fig: &SpectrogramFigure) -> Result<(), PlotError> {
+    ImageFormat::for_path(path, RASTER_FORMATS)?;
     let (canvas, _) = render_spectrogram(path, fig)?;
     canvas.write_png(path)
 }
@@ -246,37 +253,66 @@ pub(crate) fn render_spectrogram(
     let unit = if khz { 1000.0 } else { 1.0 };
 
     // Frequency ticks are nice in the display unit, then mapped back to Hz.
-    let y_ticks: Vec<Tick> = linear_ticks(0.0, f_top / unit, axes::tick_budget(ph, 48))
-        .into_iter()
-        .map(|t| Tick {
-            value: t.value * unit,
-            label: t.label,
-        })
-        .collect();
-    let db_ticks = linear_ticks(db_min, db_max, axes::tick_budget(ph, 48));
-    let x_ticks = linear_ticks(t_lo, t_hi, axes::tick_budget(pw, 90));
+    let y_ticks: Vec<Tick> = linear_ticks(
+        0.0,
+        f_top / unit,
+        axes::tick_budget(ph, Look::new(fig.scale).px(48.0)),
+    )
+    .into_iter()
+    .map(|t| Tick {
+        value: t.value * unit,
+        label: t.label,
+    })
+    .collect();
+    let db_ticks = linear_ticks(
+        db_min,
+        db_max,
+        axes::tick_budget(ph, Look::new(fig.scale).px(48.0)),
+    );
+    let x_ticks = linear_ticks(
+        t_lo,
+        t_hi,
+        axes::tick_budget(pw, Look::new(fig.scale).px(90.0)),
+    );
 
     // Layout, top to bottom: title, panel titles (and "dB"), plots, tick
     // labels, axis label. Left to right: rotated y label, y tick labels,
     // panels, colour bar and its labels.
-    let title_h = if fig.title.is_empty() { 0 } else { TEXT_H + 14 };
-    let plot_y0 = MARGIN + title_h + TEXT_H + 12;
+    let look = Look::new(fig.scale);
+    let (text_h, rule) = (look.text_h(), look.rule());
+    let (panel_gap, cb_w, cb_gap) = (
+        look.px(PANEL_GAP),
+        look.px(COLORBAR_W),
+        look.px(COLORBAR_GAP),
+    );
+    let title_h = if fig.title.is_empty() {
+        0
+    } else {
+        look.title_h() + look.px(16.0)
+    };
+    let plot_y0 = look.margin() + title_h + text_h + look.px(14.0);
     let plot_y1 = plot_y0 + ph;
-    let x_label_y = plot_y1 + 1 + TICK + axes::LABEL_GAP + TEXT_H + 10;
-    let height = x_label_y + TEXT_H + MARGIN;
-    let y_label_x = MARGIN; // left edge of the rotated label
-    let plot_x0 =
-        y_label_x + TEXT_H + 10 + axes::max_label_w(&y_ticks) + axes::LABEL_GAP + TICK + 1;
+    let x_label_y = plot_y1 + rule + look.tick() + look.label_gap() + text_h + look.px(12.0);
+    let height = x_label_y + text_h + look.descent() + look.margin();
+    let y_label_x = look.margin(); // left edge of the rotated label
+    let plot_x0 = y_label_x
+        + text_h
+        + look.descent()
+        + look.px(10.0)
+        + look.max_label_w(&y_ticks)
+        + look.label_gap()
+        + look.tick()
+        + rule;
     let n = fig.panels.len() as i32;
-    let panels_x1 = plot_x0 + n * pw + (n - 1) * PANEL_GAP;
-    let cb_x0 = panels_x1 + 1 + COLORBAR_GAP;
-    let cb_x1 = cb_x0 + COLORBAR_W;
+    let panels_x1 = plot_x0 + n * pw + (n - 1) * panel_gap;
+    let cb_x0 = panels_x1 + rule + cb_gap;
+    let cb_x1 = cb_x0 + cb_w;
     let width = cb_x1
-        + 1
-        + TICK
-        + axes::LABEL_GAP
-        + axes::max_label_w(&db_ticks).max(axes::text_w("dB"))
-        + MARGIN;
+        + rule
+        + look.tick()
+        + look.label_gap()
+        + look.max_label_w(&db_ticks).max(look.text_w("dB"))
+        + look.margin();
 
     if width as i64 * height as i64 > MAX_PIXELS {
         return Err(invalid(
@@ -300,7 +336,7 @@ pub(crate) fn render_spectrogram(
     let color_of = |v: f64| colormap((v - db_min) / (db_max - db_min));
 
     for (k, p) in fig.panels.iter().enumerate() {
-        let x0 = plot_x0 + k as i32 * (pw + PANEL_GAP);
+        let x0 = plot_x0 + k as i32 * (pw + panel_gap);
         let plot = PixelRect::new(x0, plot_y0, x0 + pw, plot_y1);
         let xm = AxisMap {
             scale: AxisScale::Linear,
@@ -317,24 +353,24 @@ pub(crate) fn render_spectrogram(
             px_hi: plot.y0 as f64,
         };
         draw_image(&mut c, plot, &xm, &ym, p, fig.resampling, &color_of);
-        axes::frame(&mut c, plot);
+        axes::frame(&mut c, &look, plot);
         // Labels may spill half-way into the gaps beside the panel.
-        let lim = (plot.x0 - PANEL_GAP / 2, plot.x1 + PANEL_GAP / 2);
-        let below = axes::x_axis(&mut c, plot, &xm, &x_ticks, true, lim);
-        axes::y_axis(&mut c, plot, &ym, &y_ticks, k == 0);
+        let lim = (plot.x0 - panel_gap / 2, plot.x1 + panel_gap / 2);
+        let below = axes::x_axis(&mut c, &look, plot, &xm, &x_ticks, true, lim);
+        axes::y_axis(&mut c, &look, plot, &ym, &y_ticks, k == 0);
         let mid = (plot.x0 + plot.x1) / 2;
         c.text(
             mid,
-            below + 10,
+            below + look.px(8.0),
             "time (s)",
-            &axes::style().align(HAlign::Center, VAlign::Top),
+            &look.style().align(HAlign::Center, VAlign::Top),
         );
         if !p.title.is_empty() {
             c.text(
                 mid,
-                plot_y0 - 12,
+                plot_y0 - look.px(12.0),
                 &p.title,
-                &axes::style().align(HAlign::Center, VAlign::Bottom).bold(),
+                &look.style().align(HAlign::Center, VAlign::Bottom).bold(),
             );
         }
         layout.panels.push((plot, xm, ym));
@@ -349,7 +385,7 @@ pub(crate) fn render_spectrogram(
         y_label_x,
         (plot_y0 + plot_y1) / 2,
         y_label,
-        &axes::style().align(HAlign::Center, VAlign::Top).rotated(),
+        &look.style().align(HAlign::Center, VAlign::Top).rotated(),
     );
 
     // Colour bar: one row per pixel, coloured by the dB value at its centre.
@@ -358,21 +394,29 @@ pub(crate) fn render_spectrogram(
         let col = color_of(layout.db_map.from_px(y as f64 + 0.5));
         c.fill_rect(PixelRect::new(cb.x0, y, cb.x1, y + 1), col);
     }
-    axes::frame(&mut c, cb);
-    axes::y_axis_at(&mut c, cb.x1, &layout.db_map, &db_ticks, true, false);
+    axes::frame(&mut c, &look, cb);
+    axes::y_axis_at(
+        &mut c,
+        &look,
+        cb.x1 + rule - 1,
+        &layout.db_map,
+        &db_ticks,
+        true,
+        false,
+    );
     c.text(
         (cb.x0 + cb.x1) / 2,
-        plot_y0 - 12,
+        plot_y0 - look.px(12.0),
         "dB",
-        &axes::style().align(HAlign::Center, VAlign::Bottom),
+        &look.style().align(HAlign::Center, VAlign::Bottom),
     );
 
     if !fig.title.is_empty() {
         c.text(
             width / 2,
-            MARGIN,
+            look.margin(),
             &fig.title,
-            &axes::style().align(HAlign::Center, VAlign::Top).bold(),
+            &look.title_style().align(HAlign::Center, VAlign::Top),
         );
     }
     Ok((c, layout))

@@ -72,9 +72,10 @@
 
 use std::path::Path;
 
-use super::axes::{self, MARGIN, TEXT_H, TICK};
+use super::axes::{self, Look};
 use super::canvas::{text_size, Canvas, HAlign, Marker, PixelRect, Rgb, VAlign};
 use super::colormap::colormap;
+use super::draw::{ImageFormat, RASTER_FORMATS};
 use super::ticks::{linear_ticks, AxisMap, AxisScale};
 use super::PlotError;
 use crate::mesh::{cross, dot, norm, sub};
@@ -222,6 +223,9 @@ pub struct SurfaceFigure {
     /// Side of each square cell in pixels; the figure adds margins, labels
     /// and the colour bar.
     pub panel_size: u32,
+    /// Size of text, margins and markers (1 = 15 px per em labels), like a
+    /// DPI setting; the cells keep their pixel size.
+    pub scale: f64,
 }
 
 impl SurfaceFigure {
@@ -235,6 +239,7 @@ impl SurfaceFigure {
             value_label: String::new(),
             value_range: None,
             panel_size: 360,
+            scale: 1.0,
         }
     }
 }
@@ -482,6 +487,7 @@ pub(crate) struct SurfaceLayout {
 /// Renders `fig` and writes it to `path` as a PNG, atomically. Nothing is
 /// written if the figure is invalid (see [`PlotError::InvalidInput`]).
 pub fn surface_png(path: &Path, fig: &SurfaceFigure) -> Result<(), PlotError> {
+    ImageFormat::for_path(path, RASTER_FORMATS)?;
     let (canvas, _) = render_surface(path, fig)?;
     canvas.write_png(path)
 }
@@ -648,19 +654,25 @@ pub(crate) fn render_surface(
     // labels and its rotated label.
     let n_cols = fig.panels.len() as i32;
     let n_rows = fig.views.len() as i32;
-    let title_h = if fig.title.is_empty() { 0 } else { TEXT_H + 14 };
+    let look = Look::new(fig.scale);
+    let (text_h, margin) = (look.text_h(), look.margin());
+    let title_h = if fig.title.is_empty() {
+        0
+    } else {
+        look.title_h() + look.px(16.0)
+    };
     let col_title_h = if fig.panels.iter().any(|p| !p.title.is_empty()) {
-        TEXT_H + 12
+        text_h + look.px(14.0)
     } else {
         0
     };
     let row_label_w = if fig.views.iter().any(|v| !v.label.is_empty()) {
-        TEXT_H + 12
+        text_h + look.descent() + look.px(12.0)
     } else {
         0
     };
-    let grid_x0 = MARGIN + row_label_w;
-    let grid_y0 = MARGIN + title_h + col_title_h;
+    let grid_x0 = margin + row_label_w;
+    let grid_y0 = margin + title_h + col_title_h;
     let grid_x1 = grid_x0 + n_cols * ps + (n_cols - 1) * CELL_GAP;
     let grid_y1 = grid_y0 + n_rows * ps + (n_rows - 1) * CELL_GAP;
     let bar = range.map(|(lo, hi)| {
@@ -677,21 +689,27 @@ pub(crate) fn render_surface(
             px_lo: cb.y1 as f64,
             px_hi: cb.y0 as f64,
         };
-        let ticks = linear_ticks(lo, hi, axes::tick_budget(cb.height(), 48));
+        let ticks = linear_ticks(lo, hi, axes::tick_budget(cb.height(), look.px(48.0)));
         (cb, map, ticks)
     });
-    let mut width = grid_x1 + MARGIN;
+    let mut width = grid_x1 + margin;
     if let Some((cb, _, ticks)) = &bar {
         let label_w = if fig.value_label.is_empty() {
             0
         } else {
-            axes::LABEL_GAP + 6 + TEXT_H
+            look.label_gap() + look.px(6.0) + text_h + look.descent()
         };
-        width = cb.x1 + 1 + TICK + axes::LABEL_GAP + axes::max_label_w(ticks) + label_w + MARGIN;
+        width = cb.x1
+            + look.rule()
+            + look.tick()
+            + look.label_gap()
+            + look.max_label_w(ticks)
+            + label_w
+            + margin;
     }
     // The title may be wider than the grid.
-    width = width.max(2 * MARGIN + text_size(&fig.title, axes::FONT_SCALE).0 as i32);
-    let height = grid_y1 + MARGIN;
+    width = width.max(2 * margin + text_size(&fig.title, &look.title_style()).0 as i32);
+    let height = grid_y1 + margin;
     if width as i64 * height as i64 > MAX_PIXELS {
         return Err(PlotError::InvalidInput {
             path: path.to_path_buf(),
@@ -747,15 +765,15 @@ pub(crate) fn render_surface(
             }
             blit(&mut c, &img);
             c.stroke_rect(rect.inflate(1), CELL_FRAME, 1);
-            visible_row.push(draw_markers(&mut c, &img, &cam, &p.markers));
+            visible_row.push(draw_markers(&mut c, &look, &img, &cam, &p.markers));
             cells.push((rect, cam));
         }
         if !view.label.is_empty() {
             c.text(
-                MARGIN,
+                margin,
                 y0 + ps / 2,
                 &view.label,
-                &axes::style().align(HAlign::Center, VAlign::Top).rotated(),
+                &look.style().align(HAlign::Center, VAlign::Top).rotated(),
             );
         }
         layout.cells.push(cells);
@@ -766,9 +784,9 @@ pub(crate) fn render_surface(
             let x = grid_x0 + col as i32 * (ps + CELL_GAP) + ps / 2;
             c.text(
                 x,
-                grid_y0 - 10,
+                grid_y0 - look.px(10.0),
                 &p.title,
-                &axes::style().align(HAlign::Center, VAlign::Bottom).bold(),
+                &look.style().align(HAlign::Center, VAlign::Bottom).bold(),
             );
         }
     }
@@ -780,25 +798,31 @@ pub(crate) fn render_surface(
             let col = value_color(map.from_px(y as f64 + 0.5));
             c.fill_rect(PixelRect::new(cb.x0, y, cb.x1, y + 1), col);
         }
-        axes::frame(&mut c, *cb);
-        axes::y_axis_at(&mut c, cb.x1, map, ticks, true, false);
+        axes::frame(&mut c, &look, *cb);
+        let rule = look.rule();
+        axes::y_axis_at(&mut c, &look, cb.x1 + rule - 1, map, ticks, true, false);
         if !fig.value_label.is_empty() {
-            let x =
-                cb.x1 + 1 + TICK + axes::LABEL_GAP + axes::max_label_w(ticks) + axes::LABEL_GAP + 6;
+            let x = cb.x1
+                + rule
+                + look.tick()
+                + look.label_gap()
+                + look.max_label_w(ticks)
+                + look.label_gap()
+                + look.px(6.0);
             c.text(
                 x,
                 (cb.y0 + cb.y1) / 2,
                 &fig.value_label,
-                &axes::style().align(HAlign::Center, VAlign::Top).rotated(),
+                &look.style().align(HAlign::Center, VAlign::Top).rotated(),
             );
         }
     }
     if !fig.title.is_empty() {
         c.text(
             width / 2,
-            MARGIN,
+            margin,
             &fig.title,
-            &axes::style().align(HAlign::Center, VAlign::Top).bold(),
+            &look.title_style().align(HAlign::Center, VAlign::Top),
         );
     }
     Ok((c, layout))
@@ -831,6 +855,7 @@ fn marker_visible(img: &DepthImage, x: f64, y: f64, z: f64, tol: f64) -> bool {
 /// which were drawn as visible.
 fn draw_markers(
     c: &mut Canvas,
+    look: &Look,
     img: &DepthImage,
     cam: &Camera,
     markers: &[SurfaceMarker],
@@ -890,17 +915,19 @@ fn draw_markers(
         if m.label.is_empty() {
             continue;
         }
-        let (w, h) = text_size(&m.label, axes::FONT_SCALE);
+        let (w, h) = text_size(&m.label, &look.style());
         let (w, h) = (w as i32, h as i32);
         let gap = (r + MARKER_OUTLINE + 4.0) as i32;
         let (x, y) = (s[0].floor() as i32, s[1].floor() as i32);
-        let row = h + 9;
+        let desc = look.descent();
+        let row = h + desc + 6;
         let places = [0, row, -row]
             .into_iter()
             .flat_map(|dy| [(x + gap, y - h / 2 + dy), (x - gap - w, y - h / 2 + dy)]);
         // A light box behind the text keeps it legible on dark map colours
-        // (5 px below: descenders hang two font rows under the cap height).
-        let boxed = |(tx, ty): (i32, i32)| PixelRect::new(tx - 3, ty - 3, tx + w + 3, ty + h + 5);
+        // (with room below for the descenders).
+        let boxed =
+            |(tx, ty): (i32, i32)| PixelRect::new(tx - 3, ty - 3, tx + w + 3, ty + h + desc + 2);
         let clear = |b: &PixelRect| {
             taken.iter().all(|t| {
                 let i = t.intersect(b);
@@ -920,7 +947,7 @@ fn draw_markers(
                 c.blend(px, py, axes::BACKGROUND, 0.8);
             }
         }
-        c.text(tx, ty, &m.label, &axes::style());
+        c.text(tx, ty, &m.label, &look.style());
     }
     c.set_clip(None);
     (0..markers.len())

@@ -24,13 +24,20 @@ fn px(data: &[u8], width: u32, x: i32, y: i32) -> Rgb {
 }
 
 #[test]
-fn font_art_has_every_glyph() {
-    assert_eq!(font::parse_check(), 94 + 4);
-    // Distinct glyphs for characters that are easy to confuse.
-    for (a, b) in [('0', 'O'), ('1', 'l'), ('5', 'S'), ('8', 'B'), ('-', '_')] {
-        assert_ne!(font::glyph(a), font::glyph(b), "{a} and {b} look the same");
+fn font_has_the_symbols_labels_use() {
+    for face in [font::Face::Regular, font::Face::Bold] {
+        for ch in "αβνλΔσθρπµ²³·×−–°≈≤≥ΣAZaz09()[]/%".chars() {
+            assert!(font::has_glyph(ch, face), "{ch} missing in {face:?}");
+        }
     }
-    assert_eq!(font::glyph(' '), [0; 9]);
+    // Wider text is wider, and kerning/advances are not zero.
+    let st = TextStyle::new(15.0, [0; 3]);
+    let (w1, h) = text_size("ν", &st);
+    let (w2, _) = text_size("ν = 0.25", &st);
+    assert!(w1 > 4 && w2 > 3 * w1, "{w1} {w2}");
+    // Cap height of DejaVu Sans is 0.729 em.
+    assert_eq!(h, 11);
+    assert_eq!(text_size("", &st).0, 0);
 }
 
 #[test]
@@ -56,12 +63,13 @@ fn text_ink_stays_in_its_box() {
         ("-80 dB", HAlign::Right, VAlign::Bottom, false),
         ("time (s)", HAlign::Center, VAlign::Top, true),
         ("XY", HAlign::Left, VAlign::Top, true),
+        ("Δf/f, ν², σ", HAlign::Left, VAlign::Middle, false),
     ] {
         let mut c = Canvas::new(300, 300, [255; 3]);
-        let st = TextStyle::new(2, [0; 3]).align(ha, va);
+        let st = TextStyle::new(20.0, [0; 3]).align(ha, va);
         let st = if rotated { st.rotated() } else { st };
         let b = c.text(150, 150, text, &st);
-        let (w, h) = text_size(text, 2);
+        let (w, h) = text_size(text, &st);
         let (bw, bh) = if rotated { (h, w) } else { (w, h) };
         assert_eq!((b.width(), b.height()), (bw as i32, bh as i32), "{text}");
         // The anchor sits where the alignment says.
@@ -96,14 +104,15 @@ fn text_ink_stays_in_its_box() {
             (ax - 150).abs() <= 1 && (ay - 150).abs() <= 1,
             "{text}: anchor {ax},{ay} box {b:?}"
         );
-        // Ink: present, and only inside the box plus the descenders, two
-        // font rows past the baseline (below it upright, right of it when
-        // rotated, since a rotated glyph's bottom faces right).
-        let desc = 4;
+        // Ink: present, and only inside the box plus the descenders (a
+        // quarter em past the baseline: below it upright, right of it when
+        // rotated, since a rotated glyph's bottom faces right), accents and
+        // round overshoot above the cap line, and a pixel of anti-aliasing.
+        let (desc, accent) = (6, 4);
         let allowed = if rotated {
-            PixelRect::new(b.x0, b.y0, b.x1 + desc, b.y1)
+            PixelRect::new(b.x0 - accent, b.y0 - 1, b.x1 + desc, b.y1 + 1)
         } else {
-            PixelRect::new(b.x0, b.y0, b.x1, b.y1 + desc)
+            PixelRect::new(b.x0 - 1, b.y0 - accent, b.x1 + 1, b.y1 + desc)
         };
         let mut ink = 0;
         for y in 0..300 {
@@ -117,21 +126,113 @@ fn text_ink_stays_in_its_box() {
                 }
             }
         }
-        assert!(ink > 20 * text.len(), "{text}: only {ink} ink pixels");
+        assert!(
+            ink > 20 * text.chars().count(),
+            "{text}: only {ink} ink pixels"
+        );
     }
 }
 
 #[test]
 fn rotated_text_reads_bottom_to_top() {
-    // "L" turned 90° counter-clockwise: its stem becomes the bottom row
-    // (pointing left from the corner) and its foot the right column.
-    let mut c = Canvas::new(20, 20, [255; 3]);
-    let b = c.text(5, 15, "L", &TextStyle::new(1, [0; 3]).rotated());
-    assert_eq!(b, PixelRect::new(5, 11, 12, 16));
-    let ink = |x: i32, y: i32| c.pixel(x as u32, y as u32) == [0; 3];
-    assert!((b.x0..b.x1).all(|x| ink(x, b.y1 - 1)), "stem");
-    assert!((b.y0..b.y1).all(|y| ink(b.x1 - 1, y)), "foot");
-    assert!(!ink(b.x0, b.y0) && !ink(b.x0 + 3, b.y0 + 2));
+    // "L" turned 90° counter-clockwise: its stem becomes a row along the
+    // bottom of the box (pointing left from the corner) and its foot a
+    // column on the right.
+    let mut c = Canvas::new(60, 60, [255; 3]);
+    let st = TextStyle::new(30.0, [0; 3]).rotated();
+    let b = c.text(10, 50, "L", &st);
+    let (w, h) = text_size("L", &st);
+    assert_eq!((b.width(), b.height()), (h as i32, w as i32));
+    let dark = |x: i32, y: i32| c.pixel(x as u32, y as u32)[0] < 100;
+    // The stem: dark along a row near the box's bottom, across the cap height.
+    let stem_row = (b.y0..b.y1)
+        .rev()
+        .find(|&y| (b.x0 + 2..b.x1 - 2).all(|x| dark(x, y)));
+    assert!(
+        stem_row.is_some_and(|y| y >= b.y1 - 8),
+        "no stem row in {b:?}"
+    );
+    // The foot: dark down a column near the box's right edge (the baseline).
+    let foot_col = (b.x0..b.x1)
+        .rev()
+        .find(|&x| (b.y0..b.y1).filter(|&y| dark(x, y)).count() >= 8);
+    assert!(
+        foot_col.is_some_and(|x| x >= b.x1 - 6),
+        "no foot column in {b:?}"
+    );
+    // The top-left of the box (the L's open corner) has no ink.
+    assert!(!dark(b.x0 + 1, b.y0 + 1));
+}
+
+#[test]
+fn svg_text_and_shapes_match_the_raster_layout() {
+    let st = TextStyle::new(18.0, [10, 20, 30]).align(HAlign::Center, VAlign::Middle);
+    let mut c = Canvas::new(200, 100, [255; 3]);
+    let mut s = Svg::new(200, 100, [255; 3]);
+    let bc = c.text(100, 50, "ν = 0.25", &st);
+    let bs = Draw::text(&mut s, 100, 50, "ν = 0.25", &st);
+    assert_eq!(bc, bs);
+    Draw::set_clip(&mut s, Some(PixelRect::new(10, 10, 190, 90)));
+    Draw::dashed_polyline(
+        &mut s,
+        &[
+            (0.0, 0.0),
+            (50.0, 50.0),
+            (f64::NAN, 0.0),
+            (60.0, 10.0),
+            (90.0, 10.0),
+        ],
+        [200, 0, 0],
+        2.0,
+        &[6.0, 3.0],
+    );
+    Draw::hollow_marker(&mut s, 40.0, 40.0, Marker::Diamond, 10.0, [0, 0, 200]);
+    Draw::set_clip(&mut s, None);
+    let doc = s.finish();
+    assert!(doc.starts_with("<?xml"));
+    assert!(doc.trim_end().ends_with("</svg>"));
+    // One glyph definition per distinct glyph (ν, =, 0, ., 2, 5: the space
+    // has no outline), used once per character.
+    assert_eq!(doc.matches("<path id=\"g").count(), 6, "{doc}");
+    assert_eq!(doc.matches("<use ").count(), 6);
+    assert!(doc.contains("stroke-dasharray=\"6,3\""));
+    assert!(doc.contains("M0 0 L50 50 M60 10 L90 10"));
+    assert!(doc.contains("clip-path=\"url(#clip0)\""));
+    assert!(doc.contains("fill=\"none\" stroke=\"#0000c8\""));
+    // Balanced groups.
+    assert_eq!(doc.matches("<g").count(), doc.matches("</g>").count());
+}
+
+#[test]
+fn dashes_break_a_line_into_pieces() {
+    let pts = [(0.0, 0.0), (10.0, 0.0), (20.0, 0.0)];
+    let d = super::canvas::dash_points(&pts, &[4.0, 2.0]);
+    // Dashes [0,4], [6,10]+[10,10], [12,16], [18,20].
+    let pieces: Vec<Vec<f64>> = d
+        .split(|p| !p.0.is_finite())
+        .filter(|p| !p.is_empty())
+        .map(|p| p.iter().map(|q| q.0).collect())
+        .collect();
+    assert_eq!(
+        pieces,
+        vec![
+            vec![0.0, 4.0],
+            vec![6.0, 10.0],
+            vec![12.0, 16.0],
+            vec![18.0, 20.0]
+        ]
+    );
+    assert_eq!(super::canvas::dash_points(&pts, &[]), pts.to_vec());
+}
+
+#[test]
+fn hollow_markers_leave_their_centre() {
+    let mut c = Canvas::new(40, 40, [255; 3]);
+    c.hollow_marker(20.0, 20.0, Marker::Circle, 20.0, [0; 3]);
+    assert_eq!(c.pixel(20, 20), [255; 3]);
+    assert!(c.pixel(11, 20)[0] < 128 && c.pixel(28, 20)[0] < 128);
+    c.marker(20.0, 20.0, Marker::Square, 10.0, [0; 3]);
+    assert_eq!(c.pixel(20, 20), [0; 3]);
 }
 
 #[test]
@@ -141,7 +242,7 @@ fn clip_rectangle_confines_drawing() {
     c.set_clip(Some(clip));
     c.line(0.0, 0.0, 50.0, 50.0, [0; 3], 3.0);
     c.marker(10.0, 10.0, Marker::Circle, 12.0, [0; 3]);
-    c.text(0, 20, "WWWWWWWW", &TextStyle::new(2, [0; 3]));
+    c.text(0, 20, "WWWWWWWW", &TextStyle::new(20.0, [0; 3]));
     let mut inside = 0;
     for y in 0..50 {
         for x in 0..50 {
@@ -246,7 +347,7 @@ fn log_ticks_give_decades() {
         .collect();
     let labels: Vec<&str> = t.iter().filter_map(|t| t.label.as_deref()).collect();
     assert_eq!(major, vec![1e-7, 1e-6, 1e-5, 1e-4, 1e-3, 1e-2]);
-    assert_eq!(labels, vec!["1e-7", "1e-6", "1e-5", "1e-4", "1e-3", "1e-2"]);
+    assert_eq!(labels, vec!["10⁻⁷", "10⁻⁶", "10⁻⁵", "10⁻⁴", "10⁻³", "10⁻²"]);
     let minor: Vec<f64> = t
         .iter()
         .filter(|t| t.label.is_none())
@@ -296,7 +397,7 @@ fn tick_labels_are_compact() {
     assert_eq!(format_ticks(&[-1.0, 0.0, 1.0], 1.0), ["-1", "0", "1"]);
     assert_eq!(
         format_ticks(&[1e-7, 1.5e-7, 2e-7], 5e-8),
-        ["1e-7", "1.5e-7", "2e-7"]
+        ["10⁻⁷", "1.5·10⁻⁷", "2·10⁻⁷"]
     );
     assert_eq!(format_ticks(&[2e6, 2.5e6], 5e5), ["2M", "2.5M"]);
     assert_eq!(format_ticks(&[0.001, 0.002], 0.001), ["0.001", "0.002"]);
@@ -304,6 +405,15 @@ fn tick_labels_are_compact() {
         format_log_ticks(&[0.01, 1.0, 100.0, 1e4]),
         ["0.01", "1", "100", "10k"]
     );
+}
+
+#[test]
+fn scientific_labels_use_superscripts() {
+    assert_eq!(scientific(7.2e10, 2), "7.20·10¹⁰");
+    assert_eq!(scientific(-1.5e-8, 1), "-1.5·10⁻⁸");
+    assert_eq!(scientific(9.999e4, 2), "1.00·10⁵");
+    assert_eq!(scientific(3.25, 2), "3.25");
+    assert_eq!(scientific(0.0, 2), "0");
 }
 
 #[test]
@@ -575,6 +685,109 @@ fn invalid_figures_are_refused_and_write_nothing() {
 }
 
 #[test]
+fn unsupported_extensions_are_refused_up_front() {
+    let dir = TempDir::new("plot-format");
+    let mut fig = LineFigure::new("t", "x", "y");
+    fig.series
+        .push(Series::line("a", vec![1.0, 2.0], vec![1.0, 2.0]));
+    for name in ["x.pdf", "x", "x.PNG.txt"] {
+        let path = dir.path(name);
+        let e = line_plot(&path, &fig).unwrap_err();
+        assert!(matches!(e, PlotError::UnsupportedFormat { .. }), "{e:?}");
+        let msg = e.to_string();
+        assert!(msg.contains(name) && msg.contains(".png, .svg"), "{msg}");
+    }
+    // Rasters take .png only; the case of the extension does not matter.
+    let db = vec![0.0; 12];
+    let sfig = SpectrogramFigure::new("", vec![tiny_panel(&db, 4, 3)]);
+    let e = spectrogram_png(&dir.path("s.svg"), &sfig).unwrap_err();
+    assert!(e.to_string().contains("use .png"), "{e}");
+    assert!(dir.entries().is_empty(), "{:?}", dir.entries());
+    spectrogram_png(&dir.path("s.PNG"), &sfig).unwrap();
+    assert_eq!(
+        ImageFormat::for_path(Path::new("a/b.Svg"), LINE_PLOT_FORMATS).unwrap(),
+        ImageFormat::Svg
+    );
+}
+
+#[test]
+fn line_plot_svg_has_the_png_layout() {
+    let dir = TempDir::new("plot-svg");
+    let mut fig = LineFigure::new("Δf", "frequency (Hz)", "σ²");
+    fig.series.push(Series::markers(
+        "α",
+        vec![1.0, 2.0, 3.0],
+        vec![1.0, 4.0, 9.0],
+        Marker::Circle,
+    ));
+    let svg_path = dir.path("l.svg");
+    line_plot(&svg_path, &fig).unwrap();
+    let doc = std::fs::read_to_string(&svg_path).unwrap();
+    assert!(
+        doc.contains(r#"width="1600" height="1000""#),
+        "{}",
+        &doc[..200]
+    );
+    let (_, lp) = render_line_plot(&svg_path, &fig).unwrap();
+    let (_, ls) = super::line::render_line_plot_svg(&svg_path, &fig).unwrap();
+    assert_eq!((lp.plot, lp.legend), (ls.plot, ls.legend));
+    // The markers sit where the axes say.
+    let (cx, cy) = (lp.x.to_px(2.0), lp.y.to_px(4.0));
+    let needle = format!(r#"<circle cx="{}" cy="{}""#, fmt2(cx), fmt2(cy));
+    assert!(doc.contains(&needle), "{needle}");
+}
+
+/// A number as the SVG writer formats it (two decimals, no trailing zeros).
+fn fmt2(v: f64) -> String {
+    let s = format!("{v:.2}");
+    let s = s.trim_end_matches('0').trim_end_matches('.');
+    s.to_string()
+}
+
+#[test]
+fn legend_leaves_the_data_and_lists_only_drawn_series() {
+    let dir = TempDir::new("plot-legend");
+    let path = dir.path("l.png");
+    // Twelve series that fill every corner: the legend must go outside.
+    let mut fig = LineFigure::new("", "t", "e");
+    fig.y_scale = AxisScale::Log;
+    let t: Vec<f64> = (0..50).map(|k| k as f64).collect();
+    for b in 0..12 {
+        fig.series.push(Series::line(
+            format!("band {b}"),
+            t.clone(),
+            t.iter()
+                .map(|&x| 10f64.powf(-(b as f64) * 0.5 + 0.1 * (x * (b + 1) as f64).sin()))
+                .collect(),
+        ));
+    }
+    // An empty series and one with nothing valid on the log axis.
+    fig.series.push(Series::line("empty", vec![], vec![]));
+    fig.series
+        .push(Series::line("negative", vec![1.0, 2.0], vec![-1.0, -2.0]));
+    let (_, l) = render_line_plot(&path, &fig).unwrap();
+    assert!(l.legend_outside);
+    let lg = l.legend.unwrap();
+    assert!(lg.x0 > l.plot.x1, "{lg:?} {:?}", l.plot);
+    assert_eq!(l.legend_entries, (0..12).collect::<Vec<_>>());
+    // Series past the palette are told apart by dashes.
+    let looks: Vec<_> = (0..12).map(|k| fig.series[k].look(k)).collect();
+    for i in 0..12 {
+        for j in 0..i {
+            assert_ne!(looks[i], looks[j], "series {i} and {j} look alike");
+        }
+    }
+    // A figure with an empty corner keeps its legend inside.
+    let mut fig = LineFigure::new("", "x", "y");
+    fig.series
+        .push(Series::line("rise", vec![0.0, 1.0], vec![0.0, 1.0]));
+    let (_, l) = render_line_plot(&path, &fig).unwrap();
+    assert!(!l.legend_outside);
+    let lg = l.legend.unwrap();
+    assert_eq!(l.plot.intersect(&lg), lg);
+}
+
+#[test]
 fn failed_writes_leave_no_file() {
     let dir = TempDir::new("plot-atomic");
     let canvas = Canvas::new(8, 8, [0; 3]);
@@ -652,7 +865,13 @@ fn line_plot_points_land_on_their_axis_positions() {
     assert!(layout.x.lo < 100.0 && layout.x.hi > 10000.0 && layout.x.hi < 20000.0);
     // Unlabelled series stay out of the legend, which must not sit on data.
     let lg = layout.legend.unwrap();
-    assert_eq!(lg.height(), 10 * 2 + super::axes::TEXT_H);
+    let look = super::axes::Look::new(fig.scale);
+    assert_eq!(lg.height(), 2 * look.px(10.0) + look.text_h());
+    assert_eq!(layout.legend_entries, vec![0]);
+    for (x, y) in [(100.0, 1.0), (1000.0, 10.0), (10000.0, 300.0)] {
+        let (cx, cy) = (layout.x.to_px(x), layout.y.to_px(y));
+        assert!(!lg.contains(cx as i32, cy as i32), "legend on ({x}, {y})");
+    }
 }
 
 /// Writes the example figures when `DIFFSOUND_PLOT_EXAMPLES` names a
@@ -801,12 +1020,12 @@ mod examples {
         let mut fig = LineFigure::new(
             "Damping: Rayleigh fit vs measured decay",
             "frequency (Hz)",
-            "decay rate (1/s)",
+            "decay rate d (1/s)",
         );
         fig.x_scale = AxisScale::Log;
         fig.y_scale = AxisScale::Log;
         fig.series.push(Series::line(
-            "Rayleigh d(f), a=4/s, b=2e-8 s",
+            "Rayleigh d(f), α = 4 s⁻¹, β = 2·10⁻⁸ s",
             fs.clone(),
             fs.iter().map(|&f| d(f)).collect(),
         ));
@@ -822,7 +1041,8 @@ mod examples {
             vec![d(2100.0) * 2.5, d(11000.0) * 0.4],
             Marker::Cross,
         ));
-        line_plot_png(&dir.join("damping.png"), &fig).unwrap();
+        line_plot(&dir.join("damping.png"), &fig).unwrap();
+        line_plot(&dir.join("damping.svg"), &fig).unwrap();
         fig.x_scale = AxisScale::Linear;
         fig.x_range = Some((0.0, 16000.0));
         fig.title = "Damping, linear frequency axis".into();
@@ -848,7 +1068,7 @@ mod examples {
             .iter()
             .map(|&k| 2.5 * (k * 1.7).sin() * (1.0 + k / 10.0))
             .collect();
-        let mut fig = LineFigure::new("Frequency error per mode", "mode", "error (cents)");
+        let mut fig = LineFigure::new("Frequency error per mode", "mode", "Δf/f (%)");
         fig.series.push(Series::new(
             "rendered - measured",
             idx,
@@ -856,5 +1076,72 @@ mod examples {
             SeriesStyle::Stems(Marker::Diamond),
         ));
         line_plot_png(&dir.join("freq_error.png"), &fig).unwrap();
+
+        // Residuals: baseline hollow, final filled, one colour per quantity.
+        let f: Vec<f64> = (0..12).map(|k| 300.0 * 1.35f64.powi(k)).collect();
+        let mut fig = LineFigure::new(
+            "standardised residuals: baseline (hollow) vs final (filled)",
+            "observed frequency (Hz)",
+            "z = residual / σ",
+        );
+        fig.x_scale = AxisScale::Log;
+        for (q, (name, m)) in [("ln f", Marker::Circle), ("ln d", Marker::Square)]
+            .into_iter()
+            .enumerate()
+        {
+            let base: Vec<f64> = f
+                .iter()
+                .map(|&x| 3.0 * (x / 500.0 + q as f64).sin())
+                .collect();
+            fig.series.push(
+                Series::markers(format!("{name}, baseline"), f.clone(), base.clone(), m)
+                    .with_color(PALETTE[q])
+                    .with_hollow(true),
+            );
+            fig.series.push(
+                Series::markers(
+                    format!("{name}, final"),
+                    f.clone(),
+                    base.iter().map(|v| 0.3 * v).collect(),
+                    m,
+                )
+                .with_color(PALETTE[q])
+                .with_hollow(false),
+            );
+        }
+        line_plot(&dir.join("residuals.png"), &fig).unwrap();
+
+        // Twelve bands and their floors: legend outside, dashed floors.
+        let t: Vec<f64> = (0..100).map(|k| k as f64 * 0.01).collect();
+        let mut fig = LineFigure::new(
+            "residual energy per band vs pre-roll floor",
+            "time after the strike (s)",
+            "energy (full scale²)",
+        );
+        fig.y_scale = AxisScale::Log;
+        for b in 0..6 {
+            let c = PALETTE[b];
+            fig.series.push(
+                Series::line(
+                    format!("{}–{} Hz", 500 * (b + 1), 500 * (b + 2)),
+                    t.clone(),
+                    t.iter()
+                        .map(|&x| 1e-3 * 10f64.powf(-(b as f64)) * (-3.0 * x).exp() + 1e-9)
+                        .collect(),
+                )
+                .with_color(c),
+            );
+            fig.series.push(
+                Series::line(
+                    format!("{}–{} Hz floor", 500 * (b + 1), 500 * (b + 2)),
+                    vec![0.0, 1.0],
+                    vec![2e-8 * 10f64.powf(-(b as f64) / 2.0); 2],
+                )
+                .with_color(c)
+                .with_dash(Dash::Dashed),
+            );
+        }
+        line_plot(&dir.join("envelopes.png"), &fig).unwrap();
+        line_plot(&dir.join("envelopes.svg"), &fig).unwrap();
     }
 }

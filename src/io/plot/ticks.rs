@@ -266,7 +266,24 @@ fn decimals_for(step: f64) -> usize {
     (-(step.log10() + 1e-9).floor()).clamp(0.0, 12.0) as usize
 }
 
-/// `1.5e-7`-style label of `v`, with enough mantissa digits for `step`.
+/// The integer `e` in superscript digits, with a superscript minus: `⁻¹²`.
+pub(crate) fn superscript(e: i32) -> String {
+    const SUP: [char; 10] = ['⁰', '¹', '²', '³', '⁴', '⁵', '⁶', '⁷', '⁸', '⁹'];
+    let digits: String = e
+        .unsigned_abs()
+        .to_string()
+        .chars()
+        .map(|c| SUP[c as usize - '0' as usize])
+        .collect();
+    if e < 0 {
+        format!("⁻{digits}")
+    } else {
+        digits
+    }
+}
+
+/// `1.5·10⁻⁷`-style label of `v` (`10⁻⁷` for a mantissa of 1), with enough
+/// mantissa digits for `step`.
 fn exp_label(v: f64, step: f64) -> String {
     if v == 0.0 {
         return "0".into();
@@ -280,12 +297,13 @@ fn exp_label(v: f64, step: f64) -> String {
         0
     };
     let m = fixed(mant, d);
+    let sign = if v < 0.0 { "-" } else { "" };
     // Rounding can carry the mantissa to 10 (9.99 → "10"): renormalise.
-    if m.trim_start_matches('-') == "10" {
-        let sign = if v < 0.0 { "-" } else { "" };
-        return format!("{sign}1e{}", e + 1);
+    match m.trim_start_matches('-') {
+        "10" => format!("{sign}10{}", superscript(e + 1)),
+        "1" => format!("{sign}10{}", superscript(e)),
+        _ => format!("{m}·10{}", superscript(e)),
     }
-    format!("{m}e{e}")
 }
 
 /// Compact label of `v` for an axis whose ticks are `step` apart: plain
@@ -324,7 +342,7 @@ pub fn format_ticks(values: &[f64], step: f64) -> Vec<String> {
 
 /// Labels for log-axis ticks (each a power of ten, or 2 or 5 times one):
 /// compact (0.01, 1, 100, 1k, 10M) when all lie in [1e-3, 1e9), otherwise
-/// exponent notation throughout (1e-7, 1e-6, …).
+/// exponent notation throughout (10⁻⁷, 10⁻⁶, …).
 pub fn format_log_ticks(values: &[f64]) -> Vec<String> {
     let compact = values
         .iter()

@@ -39,6 +39,17 @@ impl MaterialSource {
     }
 }
 
+impl std::fmt::Display for MaterialSource {
+    /// Where E and ν come from, in words ("fitted in out/bowl_fit.h5").
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            MaterialSource::FitFile(p) => write!(f, "fitted in {}", p.display()),
+            MaterialSource::Given => f.write_str("given"),
+            MaterialSource::LineSpectrum => f.write_str("matched to the recorded line spectrum"),
+        }
+    }
+}
+
 /// Everything resolved and checked before PETSc starts.
 #[derive(Clone, Debug)]
 pub struct Job {

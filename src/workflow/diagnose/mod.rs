@@ -280,7 +280,7 @@ pub fn run(petsc: &Petsc, job: &Job, progress: &Progress) -> Result<Option<Repor
         if held_channels.is_empty() && !job.held_channels.is_empty() {
             eprintln!("warning: no held-out microphone carries the strike: no effect can be confirmed on held-out evidence");
         } else if held_channels != job.held_channels || fit_channels != job.fit_channels {
-            eprintln!("note: microphones used: fit {fit_channels:?}, held out {held_channels:?} (asked: fit {:?}, held out {:?})", job.fit_channels, job.held_channels);
+            crate::workflow::note(format!("microphones used: fit {fit_channels:?}, held out {held_channels:?} (asked: fit {:?}, held out {:?})", job.fit_channels, job.held_channels));
         }
     }
     let adjusted = Job {

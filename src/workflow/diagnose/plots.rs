@@ -8,8 +8,8 @@ use crate::audio::stft::StftPlan;
 use crate::diagnose::catalogue;
 use crate::io::paths::plot_path;
 use crate::io::plot::{
-    line_plot_png, spectrogram_png, AxisScale, LineFigure, Marker, Series, SpectrogramFigure,
-    SpectrogramPanel,
+    line_plot, spectrogram_png, AxisScale, Dash, LegendPlacement, LineFigure, Marker, Series,
+    SpectrogramFigure, SpectrogramPanel, PALETTE,
 };
 
 /// Writes the PNG plots (prefix `plots`): `_residuals.png`, `_timefreq.png` and, with the
@@ -46,16 +46,22 @@ pub fn write_plots(r: &Report) -> Result<(), Error> {
             }),
         ),
     ];
-    let markers = [
-        (Marker::Cross, Marker::Circle),
-        (Marker::Plus, Marker::Square),
-        (Marker::Cross, Marker::Diamond),
-    ];
-    for ((name, g), (mb, ma)) in quantities.iter().zip(markers) {
+    // One colour and shape per quantity; the baseline hollow, the final
+    // model filled, so a final point on top of its baseline stays visible.
+    let markers = [Marker::Circle, Marker::Square, Marker::Diamond];
+    for (q, ((name, g), m)) in quantities.iter().zip(markers).enumerate() {
         let (xb, yb) = pick(g.as_ref(), false);
         let (xa, ya) = pick(g.as_ref(), true);
-        series.push(Series::markers(format!("{name} baseline"), xb, yb, mb));
-        series.push(Series::markers(format!("{name} final"), xa, ya, ma));
+        series.push(
+            Series::markers(format!("{name}, baseline"), xb, yb, m)
+                .with_color(PALETTE[q])
+                .with_hollow(true),
+        );
+        series.push(
+            Series::markers(format!("{name}, final"), xa, ya, m)
+                .with_color(PALETTE[q])
+                .with_hollow(false),
+        );
     }
     if !f.is_empty() {
         let accepted: Vec<String> = report.accepted.iter().map(|a| a.name.clone()).collect();
@@ -68,18 +74,18 @@ pub fn write_plots(r: &Report) -> Result<(), Error> {
                     accepted.join(", ")
                 }
             ),
-            "observed frequency [Hz]",
-            "z (residual / sigma incl. model floor)",
+            "observed frequency (Hz)",
+            "z = residual / σ (with the model floor)",
         );
         fig.x_scale = AxisScale::Log;
         fig.series = series;
-        line_plot_png(&plot_path(&job.plots, "_residuals.png"), &fig).map_err(output)?;
+        line_plot(&plot_path(&job.plots, "_residuals.png"), &fig).map_err(output)?;
     }
     // Time–frequency: the recording and what the modes leave.
     let plan = StftPlan::new(2048, 256).map_err(output)?;
     let signals: [(&str, &[f64]); 2] = [
         ("recording (fit mic 0)", &measured.plot_signal),
-        ("recording - modal resynthesis", &measured.plot_residual),
+        ("recording − modal resynthesis", &measured.plot_residual),
     ];
     let specs: Vec<_> = signals.iter().map(|(_, s)| plan.forward(s)).collect();
     let peak = specs[0].magnitude.iter().fold(0.0_f64, |m, &v| m.max(v));
@@ -110,30 +116,48 @@ pub fn write_plots(r: &Report) -> Result<(), Error> {
     if let Some(env) = &measured.envelopes {
         let mut fig = LineFigure::new(
             "residual energy per band (lines) vs pre-roll noise floor (flat)",
-            "time after the strike [s]",
-            "energy [full scale^2]",
+            "time after the strike (s)",
+            "energy (full scale²)",
         );
         fig.y_scale = AxisScale::Log;
+        // Band b and its floor share a colour (solid: the residual, dashed:
+        // the floor); past the palette, colours repeat with dotted lines.
+        // The legend goes outside: these curves fill the whole plot.
+        fig.legend = LegendPlacement::Outside;
         for (b, band) in env.energy.iter().enumerate() {
             let label = format!(
-                "{:.0}-{:.0} Hz",
+                "{:.0}–{:.0} Hz",
                 env.band_edges_hz[b],
                 env.band_edges_hz[b + 1]
             );
-            fig.series.push(Series::line(
-                label.clone(),
-                env.times_s.clone(),
-                band.iter().map(|e| e.max(1e-300)).collect(),
-            ));
+            let color = PALETTE[b % PALETTE.len()];
+            let (band_dash, floor_dash) = if b < PALETTE.len() {
+                (Dash::Solid, Dash::Dashed)
+            } else {
+                (Dash::DashDot, Dash::Dotted)
+            };
+            fig.series.push(
+                Series::line(
+                    label.clone(),
+                    env.times_s.clone(),
+                    band.iter().map(|e| e.max(1e-300)).collect(),
+                )
+                .with_color(color)
+                .with_dash(band_dash),
+            );
             if env.noise_floor_estimate[b] > 0.0 {
-                fig.series.push(Series::line(
-                    format!("floor {label}"),
-                    vec![env.times_s[0], *env.times_s.last().unwrap_or(&1.0)],
-                    vec![env.noise_floor_estimate[b]; 2],
-                ));
+                fig.series.push(
+                    Series::line(
+                        format!("{label}, floor"),
+                        vec![env.times_s[0], *env.times_s.last().unwrap_or(&1.0)],
+                        vec![env.noise_floor_estimate[b]; 2],
+                    )
+                    .with_color(color)
+                    .with_dash(floor_dash),
+                );
             }
         }
-        line_plot_png(&plot_path(&job.plots, "_envelopes.png"), &fig).map_err(output)?;
+        line_plot(&plot_path(&job.plots, "_envelopes.png"), &fig).map_err(output)?;
     }
     Ok(())
 }

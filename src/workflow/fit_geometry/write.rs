@@ -14,7 +14,7 @@ use std::path::Path;
 /// is the true surface, drawn beside the fitted bodies.
 pub fn write_outputs(job: &Job, report: &Report, truth: &TriangleSurface) -> Result<(), Error> {
     write_results(job, report).map_err(Error::Output)?;
-    render_comparison(&job.png, &report.fit, truth, &format!("{}: {}^3 voxels -> pre-fit (before) -> refined by {} eigenvalues (after); C = Chamfer distance", job.surface.file_name().map_or(String::new(), |n| n.to_string_lossy().to_string()), job.settings.voxels, job.settings.modes)).map_err(Error::Output)
+    render_comparison(&job.png, &report.fit, truth, &format!("{}: {}³ voxels → pre-fit (before) → refined by {} eigenvalues (after); C = Chamfer distance", job.surface.file_name().map_or(String::new(), |n| n.to_string_lossy().to_string()), job.settings.voxels, job.settings.modes)).map_err(Error::Output)
 }
 
 /// The voxels, the pre-fitted and refined bodies and the true surface side by side (two views,
@@ -32,7 +32,7 @@ pub fn render_comparison(
             .collect::<Vec<_>>()
     };
     let voxels = fit.voxels.boundary_surface();
-    // The plot font is ASCII: "16^3", not "16³". Titles stay short enough for one cell.
+    // Titles stay short enough for one cell.
     let label = |name: &str, a: &crate::inverse::geometry::Assessed| {
         format!(
             "{name}: C {:.2} mm, IoU {:.3}",
@@ -43,7 +43,7 @@ pub fn render_comparison(
     let panels = vec![
         SurfacePanel::new(
             format!(
-                "{n}^3 voxels: C {:.2} mm",
+                "{n}³ voxels: C {:.2} mm",
                 1e3 * fit.voxel_comparison.chamfer,
                 n = fit.voxels.resolution
             ),

@@ -223,13 +223,16 @@ pub fn run(petsc: &Petsc, job: &Job, progress: &Progress) -> Result<Report, Erro
         });
     }
     progress.say(format!(
-        "target: the real modes below {} Hz; {} recorded lines there: {:?} Hz",
+        "target: the real modes below {} Hz; {} recorded lines there: {} Hz",
         job.max_frequency_hz,
         in_band.len(),
-        in_band
-            .iter()
-            .map(|&i| (stage.damping.modes[i].frequency_hz * 10.0).round() / 10.0)
-            .collect::<Vec<_>>()
+        super::short_list(
+            &in_band
+                .iter()
+                .map(|&i| format!("{:.1}", stage.damping.modes[i].frequency_hz))
+                .collect::<Vec<_>>(),
+            12
+        )
     ));
 
     let t2 = std::time::Instant::now();
@@ -239,7 +242,7 @@ pub fn run(petsc: &Petsc, job: &Job, progress: &Progress) -> Result<Report, Erro
     let diagonal = (0..3).map(|d| (hi[d] - lo[d]).powi(2)).sum::<f64>().sqrt();
     let (point, probe_dofs, direction_weights) =
         strike_probe(&mesh_model, job, &assembled.layout).map_err(Error::Strike)?;
-    progress.say(format!("mesh: {} tets, {} nodes (P{}), strike at ({:.4}, {:.4}, {:.4}) m; building the reduced basis at ν = {:?}", mesh_model.n_tets(), mesh_model.n_nodes(), job.order, point.position[0], point.position[1], point.position[2], job.basis_samples));
+    progress.say(format!("mesh: {} tets, {} nodes (P{}), strike at ({:.4}, {:.4}, {:.4}) m; building the reduced basis at ν = {}", mesh_model.n_tets(), mesh_model.n_nodes(), job.order, point.position[0], point.position[1], point.position[2], super::short_list(&job.basis_samples, 8)));
     let mut basis = PoissonBasis::build(
         petsc,
         &assembled,
@@ -252,10 +255,11 @@ pub fn run(petsc: &Petsc, job: &Job, progress: &Progress) -> Result<Report, Erro
     .map_err(|e| Error::Solver(e.to_string()))?;
     let basis_seconds = t2.elapsed().as_secs_f64();
     progress.say(format!(
-        "basis: {} full solves in {:.1} s, dimension {:?}",
+        "basis: {} full solves in {:.1} s, {} vectors (rank {})",
         basis.full_solves,
         basis.full_solve_seconds,
-        basis.dimensions()
+        basis.dimensions().0,
+        basis.dimensions().1
     ));
 
     let damping_model = DampingModel::Curve(stage.damping.curve.clone());
@@ -291,7 +295,7 @@ pub fn run(petsc: &Petsc, job: &Job, progress: &Progress) -> Result<Report, Erro
         |s| {
             if s.step % 20 == 0 {
                 progress.say(format!(
-                    "material step {:4} ({:?}): loss {:.5e}, E = {:.5e} Pa, ν = {:.4}",
+                    "material step {:4} ({}): loss {:.5e}, E = {:.5e} Pa, ν = {:.4}",
                     s.step, s.phase, s.loss, s.youngs, s.poisson
                 ));
             }

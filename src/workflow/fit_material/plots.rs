@@ -5,8 +5,8 @@ use crate::audio::loss::LossPhase;
 use crate::audio::stft::StftPlan;
 use crate::io::paths::plot_path;
 use crate::io::plot::{
-    line_plot_png, spectrogram_png, AxisScale, LineFigure, Marker, Series, SpectrogramFigure,
-    SpectrogramPanel,
+    line_plot, scientific as sci, spectrogram_png, AxisScale, LineFigure, Marker, Series,
+    SpectrogramFigure, SpectrogramPanel,
 };
 
 /// Which plots [`write_plots`] wrote beyond the three it always writes (`_spectrogram`,
@@ -63,11 +63,11 @@ fn draw(job: &Job, report: &Report) -> Result<PlotsWritten, String> {
             freq_step_hz: fs / plan.n_fft() as f64,
         })
         .collect();
-    // The plot font is ASCII: Greek letters are spelled out.
     let mut figure = SpectrogramFigure::new(
         format!(
-            "fit-material: E = {:.4e} Pa, nu = {:.4}",
-            fit.youngs, fit.poisson
+            "fit-material: E = {} Pa, ν = {:.4}",
+            sci(fit.youngs, 4),
+            fit.poisson
         ),
         panels,
     );
@@ -96,8 +96,8 @@ fn draw(job: &Job, report: &Report) -> Result<PlotsWritten, String> {
     let (alpha, beta) = (stage.damping.rayleigh.alpha, stage.damping.rayleigh.beta);
     let mut fig = LineFigure::new(
         "damping: measured decay rates, curve d(f) and Rayleigh fit",
-        "frequency [Hz]",
-        "decay rate d [1/s]",
+        "frequency (Hz)",
+        "decay rate d (1/s)",
     );
     fig.x_scale = AxisScale::Log;
     fig.y_scale = AxisScale::Log;
@@ -127,46 +127,59 @@ fn draw(job: &Job, report: &Report) -> Result<PlotsWritten, String> {
             grid.iter().map(|&f| stage.damping.curve.decay(f)).collect(),
         ),
         Series::line(
-            format!("Rayleigh alpha={alpha:.3}, beta={beta:.2e}"),
+            format!("Rayleigh α = {alpha:.3} s⁻¹, β = {} s", sci(beta, 2)),
             grid.clone(),
             grid.iter()
                 .map(|&f| 0.5 * (alpha + beta * (2.0 * std::f64::consts::PI * f).powi(2)))
                 .collect(),
         ),
     ];
-    line_plot_png(&plot_path(&job.plots, "_damping.png"), &fig).map_err(|e| e.to_string())?;
+    line_plot(&plot_path(&job.plots, "_damping.png"), &fig).map_err(|e| e.to_string())?;
 
-    let mut fig = LineFigure::new(
-        "material fit: loss per step (transport, then spectral)",
-        "step",
-        "loss",
-    );
-    fig.y_scale = AxisScale::Log;
+    // Loss history: one curve per phase the fit went through (the hybrid
+    // schedule's transport phase only when it ran).
     let (tr, sp): (Vec<_>, Vec<_>) = fit
         .history
         .iter()
         .partition(|s| s.phase == LossPhase::Transport);
-    fig.series = vec![
-        Series::line(
-            "transport",
-            tr.iter().map(|s| s.step as f64).collect(),
-            tr.iter().map(|s| s.loss.max(1e-300)).collect(),
+    let phases: Vec<(&str, &Vec<_>)> = [("transport", &tr), ("spectral", &sp)]
+        .into_iter()
+        .filter(|(_, h)| !h.is_empty())
+        .collect();
+    let mut fig = LineFigure::new(
+        format!(
+            "material fit: loss per step ({})",
+            phases
+                .iter()
+                .map(|(name, _)| *name)
+                .collect::<Vec<_>>()
+                .join(", then ")
         ),
-        Series::line(
-            "spectral",
-            sp.iter().map(|s| s.step as f64).collect(),
-            sp.iter().map(|s| s.loss.max(1e-300)).collect(),
-        ),
-    ];
-    line_plot_png(&plot_path(&job.plots, "_loss.png"), &fig).map_err(|e| e.to_string())?;
+        "step",
+        "loss",
+    );
+    fig.y_scale = AxisScale::Log;
+    fig.series = phases
+        .iter()
+        .map(|(name, h)| {
+            Series::line(
+                *name,
+                h.iter().map(|s| s.step as f64).collect(),
+                h.iter().map(|s| s.loss.max(1e-300)).collect(),
+            )
+        })
+        .collect();
+    if !fig.series.is_empty() {
+        line_plot(&plot_path(&job.plots, "_loss.png"), &fig).map_err(|e| e.to_string())?;
+    }
 
     if matches.is_empty() {
         return Ok(PlotsWritten { frequencies: false });
     }
     let mut fig = LineFigure::new(
         "recorded vs simulated modes: relative frequency error",
-        "recorded frequency [Hz]",
-        "(f_sim − f_rec) / f_rec [%]",
+        "recorded frequency (Hz)",
+        "(f_sim − f_rec) / f_rec (%)",
     );
     fig.series = vec![Series::markers(
         "matched modes",
@@ -179,6 +192,6 @@ fn draw(job: &Job, report: &Report) -> Result<PlotsWritten, String> {
             .collect(),
         Marker::Diamond,
     )];
-    line_plot_png(&plot_path(&job.plots, "_frequencies.png"), &fig).map_err(|e| e.to_string())?;
+    line_plot(&plot_path(&job.plots, "_frequencies.png"), &fig).map_err(|e| e.to_string())?;
     Ok(PlotsWritten { frequencies: true })
 }

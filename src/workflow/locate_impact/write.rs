@@ -272,7 +272,7 @@ pub fn write_png(job: &Job, r: &Report) -> Result<(), Error> {
     }
     let colours = [[214, 39, 40], [255, 127, 14], [255, 187, 120]];
     let mut panel = SurfacePanel::new(
-        "log-likelihood ratio l - max l",
+        "log-likelihood ratio ℓ − max ℓ",
         r.mesh.nodes.clone(),
         triangles.clone(),
     )
@@ -307,7 +307,7 @@ pub fn write_png(job: &Job, r: &Report) -> Result<(), Error> {
         View::labelled(0.0, 89.0, "top"),
         View::labelled(0.0, -89.0, "below"),
     ];
-    fig.value_label = "l - max l".into();
+    fig.value_label = "ℓ − max ℓ".into();
     fig.value_range = Some((-20.0, 0.0));
     surface_png(&job.png, &fig).map_err(|e| Error::Output(e.to_string()))?;
     Ok(())
