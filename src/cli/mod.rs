@@ -12,7 +12,7 @@
 //!
 //! A failure on any rank ends the whole MPI job with a message and a non-zero exit (MPI_Abort),
 //! so a job never hangs waiting for a rank that gave up; a panic does the same. A rank that is
-//! stopped (SIGSTOP) ends the job after `--rank-timeout` seconds ([`watchdog`]).
+//! stopped (SIGSTOP) ends the job after `--rank-timeout` seconds ([`crate::petsc::watchdog`]).
 
 pub mod config;
 pub mod diagnose;
@@ -24,7 +24,6 @@ pub mod modes;
 pub mod render;
 pub mod resolve;
 pub mod spectrogram;
-pub mod watchdog;
 
 use clap::{Parser, Subcommand};
 use std::io::IsTerminal;
@@ -164,7 +163,7 @@ pub fn main() {
     crate::petsc::pin_blas_threads();
     ignore_file_size_signal();
     let cli = Cli::parse();
-    let limit = match watchdog::limit(cli.rank_timeout) {
+    let limit = match crate::petsc::watchdog::limit(cli.rank_timeout) {
         Ok(l) => l,
         Err(message) => {
             eprintln!("error: {message}");
@@ -248,7 +247,7 @@ fn run_under_mpi(
         default_hook(info);
         abort_job(101);
     }));
-    watchdog::start(&universe.world(), rank_timeout);
+    crate::petsc::watchdog::start(&universe.world(), rank_timeout);
 
     if let Err(message) = job(universe) {
         fail(rank as usize, size as usize, &message);

@@ -18,6 +18,7 @@ mod mat;
 mod runtime;
 pub mod sys;
 mod vector;
+pub mod watchdog;
 
 pub use dense::Dense;
 pub use eps::{Eps, EpsWhich, Pc, St};

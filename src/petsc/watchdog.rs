@@ -40,23 +40,29 @@ pub const DEFAULT_LIMIT_SECONDS: f64 = 600.0;
 /// The environment variable read when `--rank-timeout` is not given.
 pub const ENV_VAR: &str = "DIFFSOUND_RANK_TIMEOUT";
 
+/// A limit that cannot be used.
+#[derive(Debug, thiserror::Error)]
+pub enum LimitError {
+    #[error("{ENV_VAR}={text:?} is not a number of seconds (0 turns the rank watchdog off)")]
+    NotANumber { text: String },
+    #[error("--rank-timeout must be a number of seconds ≥ 0 (0: off), got {seconds}")]
+    OutOfRange { seconds: f64 },
+}
+
 /// The limit from the flag, else the environment, else the default; `None`: off.
-pub fn limit(flag: Option<f64>) -> Result<Option<Duration>, String> {
+pub fn limit(flag: Option<f64>) -> Result<Option<Duration>, LimitError> {
     let seconds = match flag {
         Some(s) => s,
         None => match std::env::var(ENV_VAR) {
-            Ok(text) => text.trim().parse::<f64>().map_err(|_| {
-                format!(
-                    "{ENV_VAR}={text:?} is not a number of seconds (0 turns the rank watchdog off)"
-                )
-            })?,
+            Ok(text) => text
+                .trim()
+                .parse::<f64>()
+                .map_err(|_| LimitError::NotANumber { text: text.clone() })?,
             Err(_) => DEFAULT_LIMIT_SECONDS,
         },
     };
     if !(seconds.is_finite() && seconds >= 0.0) {
-        return Err(format!(
-            "--rank-timeout must be a number of seconds ≥ 0 (0: off), got {seconds}"
-        ));
+        return Err(LimitError::OutOfRange { seconds });
     }
     Ok((seconds > 0.0).then(|| Duration::from_secs_f64(seconds)))
 }
