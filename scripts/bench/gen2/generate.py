@@ -52,6 +52,7 @@ import numpy as np
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 ROOT = os.path.abspath(os.path.join(HERE, "..", "..", ".."))
+BIN = os.path.join(ROOT, "target/release/diffsound")  # set by --bin
 SR = 44100
 FMAX = 9000.0
 DURATION = 1.5
@@ -90,7 +91,7 @@ def solve_modes(name, msh, nu, rho, np_ranks, work):
         e_lo = OBJECTS[name][2][0]
         fmax_ref = 1.7 * FMAX * np.sqrt(1e11 / e_lo)
         cmd = ["mpirun", "--allow-run-as-root", "--oversubscribe", "-np", str(np_ranks),
-               os.path.join(ROOT, "target/release/diffsound"), "modes", "--mesh", msh,
+               BIN, "modes", "--mesh", msh,
                "--youngs", "1e11", "--poisson", str(nu), "--density", str(rho),
                "--fmax", f"{fmax_ref:.1f}", "--out", out]
         run(cmd, out + ".log")
@@ -350,7 +351,11 @@ def main():
     ap.add_argument("--cases", type=int, default=24)
     ap.add_argument("--seed", type=int, default=7)
     ap.add_argument("--np", type=int, default=2)
+    ap.add_argument("--bin", default=os.path.join(ROOT, "target/release/diffsound"),
+                    help="the diffsound binary (a frozen build for a blind run)")
     a = ap.parse_args()
+    global BIN
+    BIN = os.path.abspath(a.bin)
     os.makedirs(os.path.join(a.out, "labels"), exist_ok=True)
     work = os.path.join(a.out, "objects")
     os.makedirs(work, exist_ok=True)
