@@ -60,6 +60,16 @@
 //! `reanchor_window`; a round's best is judged by that round's model only, since a model
 //! anchored elsewhere is less accurate, not comparable. The rounds stop when ν stays within one
 //! anchor step.
+//!
+//! **Sharing the work.** The coarse pass and every fine pass are grids over ν whose points are
+//! independent, so the processes of a job ([`Share`]) each take every `parts`-th ν step and the
+//! results are gathered and combined so that every process ends with the answer one process
+//! alone finds, bit for bit: per region (coarse) or per pass (fine) the smallest distance wins
+//! and a tie goes to the earlier ν step, as it does in the single loop, where only a strictly
+//! smaller distance replaces the best. The attachment vectors a pass needs are asked for by
+//! every process, in the single loop's order, before the grid is shared out, because forming
+//! them is collective. Measured on the bowl (set-1 case 012, 53.6k DOF): the search part is
+//! run once per process instead of in full on every one.
 
 use nalgebra::{DMatrix, DVector, SymmetricEigen};
 use std::rc::Rc;
@@ -340,6 +350,64 @@ pub struct LoadedMatch {
     pub anchor_poisson: f64,
 }
 
+/// How the search's ν grid is shared among the processes of a job (module docs, "Sharing the
+/// work"). Every process runs the search with its own `part`; all must pass the same problem.
+pub trait Share {
+    /// This process's part and the number of parts: it evaluates the ν steps i with
+    /// i mod parts = part.
+    fn part(&self) -> (usize, usize);
+    /// Every part's `local` (the same length on every part), concatenated in part order.
+    /// Collective.
+    fn gather(&self, local: &[f64]) -> Vec<f64>;
+}
+
+/// One process does the whole search.
+pub struct Alone;
+
+impl Share for Alone {
+    fn part(&self) -> (usize, usize) {
+        (0, 1)
+    }
+    fn gather(&self, local: &[f64]) -> Vec<f64> {
+        local.to_vec()
+    }
+}
+
+/// A point of the search: (distance, scale c, ν, region, mass fraction).
+type Point = (f64, f64, f64, usize, f64);
+
+/// The best of `parts` per-slot bests gathered from every part, each slot's entry followed by
+/// the ν step it was found at: the smallest distance, then the earliest step (module docs,
+/// "Sharing the work"). `gathered` holds `parts` blocks of `slots` × 6 numbers.
+fn combine_parts(gathered: &[f64], slots: usize) -> Vec<(Point, usize)> {
+    let parts = gathered.len() / (6 * slots).max(1);
+    (0..slots)
+        .map(|slot| {
+            let mut best: Option<(Point, usize)> = None;
+            for part in 0..parts {
+                let e = &gathered[6 * (part * slots + slot)..6 * (part * slots + slot) + 6];
+                let point = (e[0], e[1], e[2], e[3] as usize, e[4]);
+                let step = e[5] as usize;
+                let better = match best {
+                    None => true,
+                    Some((b, b_step)) => {
+                        point.0 < b.0 || (point.0 == b.0 && step < b_step) || (b.0.is_nan() && !point.0.is_nan())
+                    }
+                };
+                if better {
+                    best = Some((point, step));
+                }
+            }
+            best.expect("at least one part")
+        })
+        .collect()
+}
+
+/// `point` found at ν step `step` as six numbers for [`combine_parts`].
+fn encode(point: &Point, step: usize, out: &mut Vec<f64>) {
+    out.extend_from_slice(&[point.0, point.1, point.2, point.3 as f64, point.4, step as f64]);
+}
+
 /// The problem: target line frequencies, the body, and the candidate regions.
 pub struct LoadedMatchProblem<'a> {
     /// ln of the target's mode frequencies [ln Hz].
@@ -372,7 +440,7 @@ pub fn loaded_line_match(
     modes_at: &dyn Fn(f64) -> ModesAtPoisson,
     settings: &LoadedMatchSettings,
 ) -> Result<LoadedMatch, String> {
-    loaded_line_candidates(problem, modes_at, settings, 1)?
+    loaded_line_candidates(problem, modes_at, settings, 1, &Alone)?
         .into_iter()
         .next()
         .ok_or_else(|| "the loaded line match found no candidate".to_string())
@@ -388,6 +456,7 @@ pub fn loaded_line_candidates(
     modes_at: &dyn Fn(f64) -> ModesAtPoisson,
     settings: &LoadedMatchSettings,
     candidates: usize,
+    share: &dyn Share,
 ) -> Result<Vec<LoadedMatch>, String> {
     let mut target: Vec<f64> = problem
         .target_ln_f
@@ -453,18 +522,37 @@ pub fn loaded_line_candidates(
             .or_else(|| RegionProblem::new(modes, region, None))
     };
 
-    // The best (distance, c, ν, region, fraction) of each coarse region, for the candidates.
-    let mut per_region: Vec<(f64, f64, f64, usize, f64)> = problem
+    let (part, parts) = share.part();
+    let parts = parts.max(1);
+    // The attachment vectors every pass needs, asked for by every part in the single loop's
+    // order before the ν grid is shared out: forming them is collective.
+    let prefetch = |regions: &[usize], anchor: f64| {
+        if let Some(enrich) = problem.enrichment {
+            for &r in regions {
+                let _ = enrich(r, anchor);
+            }
+        }
+    };
+
+    // The best (distance, c, ν, region, fraction) of each coarse region, for the candidates,
+    // with the ν step it was found at (this part's steps only, then combined).
+    let mut per_region: Vec<(Point, usize)> = problem
         .coarse
         .iter()
-        .map(|&r| (f64::INFINITY, c_plain, settings.poisson_bounds.0, r, 0.0))
+        .map(|&r| {
+            (
+                (f64::INFINITY, c_plain, settings.poisson_bounds.0, r, 0.0),
+                usize::MAX,
+            )
+        })
         .collect();
     let evaluations = std::cell::Cell::new(0usize);
     let (lo, hi) = settings.poisson_bounds;
     let n_nu = ((hi - lo) / settings.coarse_poisson_step.max(1e-4))
         .ceil()
         .max(1.0) as usize;
-    for i in 0..=n_nu {
+    prefetch(problem.coarse, problem.anchor_poisson);
+    for i in (0..=n_nu).filter(|i| i % parts == part) {
         let nu = lo + (hi - lo) * i as f64 / n_nu as f64;
         let modes = modes_at(nu);
         for (slot, &r) in problem.coarse.iter().enumerate() {
@@ -481,17 +569,25 @@ pub fn loaded_line_candidates(
                     1e-3,
                 );
                 evaluations.set(evaluations.get() + e);
-                if d < per_region[slot].0 {
-                    per_region[slot] = (d, c, nu, r, fraction);
+                if d < per_region[slot].0 .0 {
+                    per_region[slot] = ((d, c, nu, r, fraction), i);
                 }
             }
         }
     }
+    let mut local = Vec::with_capacity(6 * per_region.len());
+    for (point, step) in &per_region {
+        encode(point, *step, &mut local);
+    }
+    let mut per_region: Vec<Point> = combine_parts(&share.gather(&local), per_region.len())
+        .into_iter()
+        .map(|(point, _)| point)
+        .collect();
     // Candidates: the best coarse regions, each outside the fine neighbourhoods of those
     // already taken; a fine pass around each (ν ± 0.01 by 0.001, the neighbouring regions,
     // the mass ± 15 %).
     per_region.sort_by(|a, b| a.0.total_cmp(&b.0));
-    let mut seeds: Vec<(f64, f64, f64, usize, f64)> = Vec::new();
+    let mut seeds: Vec<Point> = Vec::new();
     let mut covered: Vec<usize> = Vec::new();
     for cand in per_region.iter().filter(|c| c.0.is_finite()) {
         if seeds.len() >= candidates.max(1) {
@@ -504,24 +600,19 @@ pub fn loaded_line_candidates(
         seeds.push(*cand);
     }
     // One fine pass around `from` with the attachment vectors at `anchor`: ν ± `half` by
-    // `step`, the first `limit` regions next to `from`'s, the mass ± 15 %. With `keep`, `from` itself stands
-    // (its distance is by the same model); otherwise only this pass's points compete.
-    let fine_pass = |from: (f64, f64, f64, usize, f64),
-                     anchor: f64,
-                     half: f64,
-                     step: f64,
-                     keep: bool,
-                     limit: usize| {
+    // `step`, the first `limit` regions next to `from`'s, the mass ± 15 %.
+    let fine_pass = |from: Point, anchor: f64, half: f64, step: f64, keep: bool, limit: usize| {
         let (_, c0, nu0, r0, fraction0) = from;
-        let mut best = if keep {
-            from
-        } else {
-            (f64::INFINITY, c0, nu0, r0, fraction0)
-        };
         let mut regions = (problem.neighbours)(r0);
         regions.truncate(limit.max(1));
+        prefetch(&regions, anchor);
         let steps = (half / step).round() as i64;
-        for j in -steps..=steps {
+        // This part's best over its ν steps, then the best of all parts.
+        let mut local: (Point, usize) = ((f64::INFINITY, c0, nu0, r0, fraction0), usize::MAX);
+        for (index, j) in (-steps..=steps).enumerate() {
+            if index % parts != part {
+                continue;
+            }
             let nu = (nu0 + j as f64 * step).clamp(lo, hi);
             let modes = modes_at(nu);
             for &r in &regions {
@@ -533,12 +624,18 @@ pub fn loaded_line_candidates(
                     let u = pattern(&reduced.solve(alpha_of(fraction, r)));
                     let (d, c, e) = best_shift(&u, c0, 0.005, 0.005, 2e-4);
                     evaluations.set(evaluations.get() + e);
-                    if d < best.0 {
-                        best = (d, c, nu, r, fraction);
+                    if d < local.0 .0 {
+                        local = ((d, c, nu, r, fraction), index);
                     }
                 }
             }
         }
+        let mut encoded = Vec::with_capacity(6);
+        encode(&local.0, local.1, &mut encoded);
+        let (grid, _) = combine_parts(&share.gather(&encoded), 1)[0];
+        // With `keep`, `from` itself stands (its distance is by the same model) unless a grid
+        // point is strictly better; otherwise only this pass's points compete.
+        let best = if keep && !(grid.0 < from.0) { from } else { grid };
         if best.0.is_finite() {
             best
         } else {
@@ -580,9 +677,14 @@ pub fn loaded_line_candidates(
             mass_kg: fraction * body_mass,
             region: r,
             distance: d,
-            evaluations: evaluations.get(),
+            evaluations: 0,
             anchor_poisson: anchor,
         });
+    }
+    // Every part's evaluations, the same total on every part.
+    let total: f64 = share.gather(&[evaluations.get() as f64]).iter().sum();
+    for found in &mut out {
+        found.evaluations = total as usize;
     }
     out.sort_by(|a, b| a.distance.total_cmp(&b.distance));
     Ok(out)
@@ -1043,7 +1145,7 @@ mod tests {
                 reanchor_rounds: rounds,
                 ..Default::default()
             };
-            let found = loaded_line_candidates(&problem, &modes_at, &settings, 3)
+            let found = loaded_line_candidates(&problem, &modes_at, &settings, 3, &Alone)
                 .unwrap()
                 .into_iter()
                 .find(|c| c.region == 1)
@@ -1161,6 +1263,112 @@ mod tests {
         let plain: Vec<f64> = modes.theta.iter().map(|t| 0.5 * t.ln()).collect();
         let c = 0.5 * (truth_youngs / density).ln() - two_pi_ln;
         assert!(capped_nearest(&target, &plain, c, 0.02) > 1e-3);
+    }
+
+    /// Two parts that swap their numbers through shared memory, as two ranks would.
+    struct Pair {
+        part: usize,
+        exchange: std::sync::Arc<(std::sync::Mutex<Vec<Vec<f64>>>, std::sync::Barrier)>,
+    }
+
+    impl Share for Pair {
+        fn part(&self) -> (usize, usize) {
+            (self.part, 2)
+        }
+        fn gather(&self, local: &[f64]) -> Vec<f64> {
+            let (slots, barrier) = &*self.exchange;
+            slots.lock().unwrap()[self.part] = local.to_vec();
+            barrier.wait();
+            let all = slots.lock().unwrap().concat();
+            // Nobody writes the next round before both have read this one.
+            barrier.wait();
+            all
+        }
+    }
+
+    #[test]
+    fn two_parts_find_what_one_finds_bit_for_bit() {
+        // Three sites that all move the split modes, so that the coarse regions, the seeds and
+        // the fine passes all have close competitors; the modes drift with ν.
+        let n = 6;
+        let mut values = DMatrix::zeros(9, n);
+        values[(0, 0)] = 150.0;
+        values[(0, 2)] = 80.0;
+        values[(4, 1)] = 120.0;
+        values[(3, 4)] = 50.0;
+        values[(6, 0)] = 90.0;
+        values[(7, 1)] = 95.0;
+        values[(8, 3)] = 60.0;
+        let base: Vec<f64> = [1.0_f64, 1.0, 2.6, 2.6, 5.1, 7.3]
+            .iter()
+            .map(|t| t * 1e7)
+            .collect();
+        let modes_at = |nu: f64| ModesAtPoisson {
+            theta: base
+                .iter()
+                .enumerate()
+                .map(|(k, t)| t * (1.0 + (k as f64 - 2.0) * 0.3 * (nu - 0.25)))
+                .collect(),
+            strike: vec![1.0; n],
+            values: values.clone(),
+            lame: (0.0, 0.0),
+            coefficients: DMatrix::zeros(0, n),
+            rigid: DMatrix::zeros(0, 0),
+            rigid_strike: Vec::new(),
+        };
+        let (density, volume, youngs) = (2700.0_f64, 1e-4, 7e10_f64);
+        let regions = vec![vec![0], vec![1], vec![2], vec![0, 2]];
+        let two_pi_ln = (2.0 * std::f64::consts::PI).ln();
+        let target: Vec<f64> = loaded_modes(&modes_at(0.27), &regions[2], 0.05 * volume)
+            .iter()
+            .map(|p| 0.5 * p.0.ln() + 0.5 * (youngs / density).ln() - two_pi_ln)
+            .collect();
+        let settings = LoadedMatchSettings {
+            poisson_bounds: (0.15, 0.35),
+            coarse_poisson_step: 0.01,
+            ..Default::default()
+        };
+        let run = |share: &dyn Share| {
+            let neighbours = |r: usize| match r {
+                0 | 3 => vec![r, 3 - r, 2],
+                _ => vec![r, 3],
+            };
+            let problem = LoadedMatchProblem {
+                target_ln_f: &target,
+                ceiling_ln_f: f64::INFINITY,
+                density,
+                volume,
+                regions: &regions,
+                coarse: &[0, 1, 2, 3],
+                neighbours: &neighbours,
+                plain_youngs: 0.9 * youngs,
+                enrichment: None,
+                anchor_poisson: 0.25,
+            };
+            let found = loaded_line_candidates(&problem, &modes_at, &settings, 3, share).unwrap();
+            format!("{found:?}")
+        };
+        let alone = run(&Alone);
+        let exchange = std::sync::Arc::new((
+            std::sync::Mutex::new(vec![Vec::new(), Vec::new()]),
+            std::sync::Barrier::new(2),
+        ));
+        let shared: Vec<String> = std::thread::scope(|scope| {
+            let handles: Vec<_> = (0..2)
+                .map(|part| {
+                    let share = Pair {
+                        part,
+                        exchange: exchange.clone(),
+                    };
+                    let run = &run;
+                    scope.spawn(move || run(&share))
+                })
+                .collect();
+            handles.into_iter().map(|h| h.join().unwrap()).collect()
+        });
+        assert!(alone.contains("region: 2"), "{alone}");
+        assert_eq!(shared[0], alone);
+        assert_eq!(shared[1], alone);
     }
 
     #[test]

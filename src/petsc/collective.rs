@@ -22,6 +22,17 @@ pub fn broadcast_slice(petsc: &Petsc, data: &mut [f64]) {
     }
 }
 
+/// Every rank's `local` (the same length on every rank), concatenated in rank order, on every
+/// rank.
+pub fn all_gather(petsc: &Petsc, local: &[f64]) -> Vec<f64> {
+    if petsc.size() == 1 {
+        return local.to_vec();
+    }
+    let mut out = vec![0.0; local.len() * petsc.size()];
+    petsc.world().all_gather_into(local, &mut out[..]);
+    out
+}
+
 /// Rank 0's result, on every rank. Rank 0 passes `Some(result)`, the others `None` (what they
 /// pass is ignored); `len` is the length of an `Ok` vector, the same on every rank. A rank-0
 /// `Ok` of another length is an error on every rank.

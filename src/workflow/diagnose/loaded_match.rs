@@ -12,7 +12,7 @@ use crate::eigen::{self, EigenConfig, ModeRequest};
 use crate::fem::Material;
 use crate::inverse::loaded_match::{
     loaded_line_candidates, loaded_modes, loaded_modes_enriched, scale_fit, Enrichment,
-    LoadedMatch, LoadedMatchProblem, LoadedMatchSettings, ModesAtPoisson,
+    LoadedMatch, LoadedMatchProblem, LoadedMatchSettings, ModesAtPoisson, Share,
 };
 use crate::inverse::material::{
     line_match_targets, LineSpectrumStart, MaterialFitSettings, MaterialProblem,
@@ -117,6 +117,19 @@ pub struct EnrichmentStats {
     pub seconds: f64,
 }
 
+/// The job's ranks as the parts of the loaded match's search
+/// ([`crate::inverse::loaded_match::Share`]).
+struct Ranks<'p>(&'p crate::petsc::Petsc);
+
+impl Share for Ranks<'_> {
+    fn part(&self) -> (usize, usize) {
+        (self.0.rank(), self.0.size())
+    }
+    fn gather(&self, local: &[f64]) -> Vec<f64> {
+        crate::petsc::collective::all_gather(self.0, local)
+    }
+}
+
 /// `n` farthest-point samples of `points`, from the first.
 fn farthest_points(points: &[[f64; 3]], n: usize) -> Vec<usize> {
     let d2 = |a: [f64; 3], b: [f64; 3]| (0..3).map(|d| (a[d] - b[d]).powi(2)).sum::<f64>();
@@ -144,7 +157,7 @@ fn farthest_points(points: &[[f64; 3]], n: usize) -> Vec<usize> {
 /// ([`crate::inverse::loaded_match::Enrichment`]), solved with a Cholesky factorisation at the
 /// anchor ν the search asks for (the plain match's ν first, then each candidate's own); a
 /// region whose enrichment fails falls back to the modes alone (counted in the report). The [`LOADED_MATCH_CANDIDATES`] best sites are each checked by a full solve.
-/// Collective: every rank runs the same search.
+/// Collective: the ranks share the search's ν grid ([`Ranks`]) and all end with the same answer.
 pub(super) fn loaded_match(
     input: &StageInput<'_, '_>,
     basis: &PoissonBasis<'_>,
@@ -380,7 +393,7 @@ pub(super) fn loaded_match(
         ..Default::default()
     };
     let candidates =
-        loaded_line_candidates(&search, &modes_at, &match_settings, LOADED_MATCH_CANDIDATES)?;
+        loaded_line_candidates(&search, &modes_at, &match_settings, LOADED_MATCH_CANDIDATES, &Ranks(petsc))?;
     // Each candidate checked by a full solve with its mass: the answer is the best verified
     // one, and its distance is the verified one.
     let top_hz = target
