@@ -103,7 +103,7 @@ pub fn resolve(args: &FitMaterialArgs) -> Result<Job, String> {
         ));
     }
     let duration = args.duration.or(file.recording.duration).unwrap_or(1.0);
-    if !(duration >= 0.05 && duration <= 30.0) {
+    if !(0.05..=30.0).contains(&duration) {
         return Err(format!(
             "the duration must lie in [0.05, 30] s, got {duration}"
         ));
