@@ -25,7 +25,7 @@ while [ $# -gt 0 ]; do
     *) echo "unknown option $1" >&2; exit 2 ;;
   esac
 done
-cargo build --release --bin diffsound --example diagnose_generate --example diagnose_score 2>&1 | tail -n 1
+cargo build --release --features bench-generators --bin diffsound --example diagnose_generate --example diagnose_score 2>&1 | tail -n 1
 mkdir -p "$out"
 if [ "$generate" = 1 ]; then
   mpirun -np "$np" target/release/examples/diagnose_generate --out "$out" --cases "$cases" --seed "$seed" --mics "$mics" --mesh "$mesh" 2> "$out/generate.log"

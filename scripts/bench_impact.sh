@@ -19,7 +19,7 @@ while [ $# -gt 0 ]; do
     *) meshes+=("$1"); shift ;;
   esac
 done
-cargo build --release --example impact_benchmark 2>&1 | tail -n 1
+cargo build --release --features bench-generators --example impact_benchmark 2>&1 | tail -n 1
 mkdir -p out/bench_impact
 out="out/bench_impact/seed${seed}.md"
 mpirun -np "$np" target/release/examples/impact_benchmark --seed "$seed" --strikes "$strikes" --snr-db "$snr" --mics "$mics" "${meshes[@]}" > "$out.tmp"

@@ -9,4 +9,7 @@ source scripts/mpi-env.sh
 # flock()-based file locking adds nothing; with many test threads writing and reopening files it
 # once failed an open with EAGAIN ("unable to lock file", io::tests, cause not yet found).
 export HDF5_USE_FILE_LOCKING=FALSE
-cargo test --release --locked "$@"
+# The house style is enforced: unformatted code fails the suite before anything is built.
+cargo fmt --check
+# bench-generators: the benchmark generator (src/diagnose/inject.rs) and the tests that use it.
+cargo test --release --locked --features bench-generators "$@"

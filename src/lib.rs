@@ -14,11 +14,11 @@
 //! | inverse    | [`inverse`]  | damping and material fits from recordings; shape fits (thickness, morph, geometry) from eigenvalues |
 //! | diagnose   | [`diagnose`] | simulation–recording mismatch: modal parameters with uncertainties |
 //! | workflow   | [`workflow`] | the jobs: each command as a `Job` in and a `Report` out, progress as a callback |
-//! | io         | [`io`]       | HDF5 results with an XDMF sidecar, written atomically |
+//! | io         | [`io`]       | HDF5 results with an XDMF sidecar, written atomically; the TOML configuration files |
 //!
 //! [`petsc`] is the one thin unsafe boundary: raw bindgen bindings under safe RAII handles.
 //! [`numerics`] holds the small numerical tools the stages share (3-vectors, median, golden section).
-//! [`cli`] is the `diffsound` command line (arguments, configuration files, printing); [`random`] the seeded generator every stage shares.
+//! [`cli`] is the `diffsound` command line (arguments merged with the configuration files, printing); [`random`] the seeded generator every stage shares.
 
 pub mod analysis;
 pub mod assembly;

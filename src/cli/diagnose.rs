@@ -1,5 +1,5 @@
-//! The `diagnose` command's line: its flags, its TOML configuration (merged with the flags and a
-//! benchmark case's metadata by [`resolve`]) and the printed summary. The job itself, its
+//! The `diagnose` command's line: its flags, its TOML configuration ([`DiagnoseFileConfig`],
+//! merged with the flags and a benchmark case's metadata by [`resolve`]) and the printed summary. The job itself, its
 //! stages and its outputs are [`crate::workflow::diagnose`].
 //!
 //! ```text
@@ -8,11 +8,9 @@
 //! diffsound diagnose --mesh bowl.msh --recording mic0.wav --recording mic1.wav --material fit.h5
 //! ```
 
-use super::config::{load_toml, PetscConfig};
 use super::resolve::{path_or, require_files, MeshArgs, RunArgs, StrikeArgs};
-use crate::analysis::extract::{ExtractOptions, GlideOptions};
-use crate::diagnose::catalogue::{self, CatalogueSettings};
-use crate::diagnose::evidence::{EnvelopeOptions, ObservedOptions};
+use crate::diagnose::catalogue;
+use crate::io::config::{load_toml, DiagnoseFileConfig};
 use crate::io::paths::with_suffix;
 use crate::workflow::diagnose::{
     self as workflow, check_recording_window, resolve_material, split_microphones, unit_vector,
@@ -20,7 +18,6 @@ use crate::workflow::diagnose::{
 };
 use clap::Args;
 use mpi::environment::Universe;
-use serde::Deserialize;
 use std::path::{Path, PathBuf};
 
 #[derive(Args, Debug, Clone, Default)]
@@ -63,80 +60,9 @@ pub struct DiagnoseArgs {
     pub run: RunArgs,
 }
 
-/// The TOML file (every key optional).
-#[derive(Clone, Debug, Default, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct DiagnoseFileConfig {
-    pub mesh: Option<PathBuf>,
-    pub units: Option<String>,
-    #[serde(default)]
-    pub recordings: Vec<PathBuf>,
-    /// fit-material result to read E, ν, ρ from.
-    pub material_fit: Option<PathBuf>,
-    pub held_out_microphones: Option<Vec<usize>>,
-    pub out: Option<PathBuf>,
-    pub plots: Option<PathBuf>,
-    #[serde(default)]
-    pub recording: RecordingSection,
-    #[serde(default)]
-    pub model: ModelSection,
-    #[serde(default)]
-    pub observed: ObservedOptions,
-    #[serde(default)]
-    pub extract: ExtractOptions,
-    /// The chirp-aware stage after the extraction.
-    #[serde(default)]
-    pub glide: GlideOptions,
-    #[serde(default)]
-    pub envelopes: EnvelopeOptions,
-    #[serde(default)]
-    pub catalogue: CatalogueSettings,
-    #[serde(default)]
-    pub solver: PetscConfig,
-}
-
-impl super::config::ConfigPaths for DiagnoseFileConfig {
-    fn rebase(&mut self, base: &Path) {
-        use super::config::{rebase_all, rebase_opt};
-        rebase_opt(base, &mut self.mesh);
-        rebase_all(base, &mut self.recordings);
-        rebase_opt(base, &mut self.material_fit);
-        rebase_opt(base, &mut self.out);
-        rebase_opt(base, &mut self.plots);
-    }
-}
-
-#[derive(Clone, Debug, Default, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct RecordingSection {
-    pub sample_rate: Option<u32>,
-    pub duration: Option<f64>,
-    pub pre_roll: Option<f64>,
-    pub max_frequency_hz: Option<f64>,
-}
-
-#[derive(Clone, Debug, Default, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct ModelSection {
-    pub density: Option<f64>,
-    pub youngs_modulus: Option<f64>,
-    pub poisson_ratio: Option<f64>,
-    pub strike_vertex: Option<usize>,
-    /// Into the surface; default: the inward normal at the vertex.
-    pub strike_direction: Option<[f64; 3]>,
-    /// Direction from the object to its support (default [0, 0, −1]).
-    pub support_direction: Option<[f64; 3]>,
-    /// Metres, one per recording, in the mesh's frame.
-    pub microphone_positions: Option<Vec<[f64; 3]>>,
-    /// With the material unknown, also try the loaded line match (a candidate added mass in the
-    /// model, module docs, stage 3). Default true: on all three blind-benchmark seeds it scores
-    /// higher than the plain match alone, with no false alarm on a clean case (README, diagnose).
-    pub loaded_mass_match: Option<bool>,
-}
-
 /// Merges defaults < case metadata < config file < flags and validates.
 pub fn resolve(args: &DiagnoseArgs) -> Result<Job, String> {
-    let file: DiagnoseFileConfig = load_toml(&args.config)?;
+    let file: DiagnoseFileConfig = load_toml(&args.config).map_err(|e| e.to_string())?;
     let case = args
         .strike
         .case

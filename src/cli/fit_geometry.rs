@@ -2,23 +2,22 @@
 //! spectrum (issue 7, task 3).
 //!
 //! The command line of the job in [`crate::workflow::fit_geometry`] (its module docs give the
-//! inputs, the method and the files): the flags and the TOML file merged into a [`Job`], the
-//! job run, its summary printed and its files written.
+//! inputs, the method and the files): the flags and the TOML file ([`GeometryFileConfig`])
+//! merged into a [`Job`], the job run, its summary printed and its files written.
 
-use super::config::{load_toml, ElasticArgs, ElasticConfig, PetscConfig};
-use super::resolve::{existing, path_or, set, RunArgs, SurfaceArgs};
-use crate::inverse::geometry::{GeometryFit, GeometrySettings};
+use super::resolve::{existing, path_or, set, ElasticArgs, RunArgs, SurfaceArgs};
+use crate::inverse::geometry::GeometryFit;
+use crate::io::config::{load_toml, GeometryFileConfig};
 use crate::workflow::fit_geometry;
 pub use crate::workflow::fit_geometry::{load_surface, Job};
 use clap::Args;
 use mpi::environment::Universe;
-use serde::Deserialize;
 use std::path::PathBuf;
 
 #[derive(Args, Debug, Clone, Default)]
 #[command(allow_negative_numbers = true)]
 pub struct FitGeometryArgs {
-    /// TOML configuration file (keys in the module docs of src/cli/fit_geometry.rs); flags override it.
+    /// TOML configuration file (keys in the module docs of src/io/config.rs); flags override it.
     #[arg(long)]
     pub config: Option<PathBuf>,
     /// The true surface: OBJ, or a Gmsh .msh whose boundary is used.
@@ -98,51 +97,9 @@ pub struct FitGeometryArgs {
     pub run: RunArgs,
 }
 
-/// The TOML file (every key optional; flags override).
-///
-/// ```toml
-/// surface = "spot.obj"
-/// units = "m"
-/// diagonal = 0.1
-/// out = "out/spot_geometry.h5"
-/// png = "out/spot_geometry.png"
-/// [geometry]                # GeometrySettings: voxels, cells, target_cells, target_seed,
-/// voxels = 16               # bias_correction, target_grid_check, modes, cluster_rtol, octaves, hidden, network_seed,
-/// [geometry.refine]         # surface_samples, volume_samples, metric_seed; [geometry.prefit]
-/// steps = 30                # PrefitSettings; [geometry.refine] RefineSettings
-/// method = "gauss_newton"   # (steps, method = "adam" | "gauss_newton", damping, free_scale, curved_boundary, learning_rate, …)
-/// [material]
-/// preset = "ceramic"
-/// [solver]
-/// petsc_options = []
-/// ```
-#[derive(Clone, Debug, Default, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct GeometryFileConfig {
-    pub surface: Option<PathBuf>,
-    pub units: Option<String>,
-    pub diagonal: Option<f64>,
-    pub out: Option<PathBuf>,
-    pub png: Option<PathBuf>,
-    pub geometry: Option<GeometrySettings>,
-    #[serde(default)]
-    pub material: ElasticConfig,
-    #[serde(default)]
-    pub solver: PetscConfig,
-}
-
-impl super::config::ConfigPaths for GeometryFileConfig {
-    fn rebase(&mut self, base: &std::path::Path) {
-        use super::config::rebase_opt;
-        rebase_opt(base, &mut self.surface);
-        rebase_opt(base, &mut self.out);
-        rebase_opt(base, &mut self.png);
-    }
-}
-
 /// Merges defaults < config file < flags and validates.
 pub fn resolve(args: &FitGeometryArgs) -> Result<Job, String> {
-    let file: GeometryFileConfig = load_toml(&args.config)?;
+    let file: GeometryFileConfig = load_toml(&args.config).map_err(|e| e.to_string())?;
     let surface = existing(
         args.surface.clone().or(file.surface.clone()),
         "surface",
@@ -186,7 +143,7 @@ pub fn resolve(args: &FitGeometryArgs) -> Result<Job, String> {
     }
     s.validate().map_err(|e| e.to_string())?;
 
-    let material = file.material.resolve(&args.elastic)?;
+    let material = args.elastic.resolve(&file.material)?;
 
     let out = path_or(&args.out, &file.out, "fit_geometry.h5");
     let stem = out.with_extension("");

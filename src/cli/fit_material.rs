@@ -1,21 +1,18 @@
 //! The `fit-material` command: damping, Young's modulus and Poisson's ratio from recordings of
 //! one strike. The job itself is [`crate::workflow::fit_material`] (stages, equations and
 //! outputs); the result file's layout is in [`crate::io::fit_material`]. Here: the flags, the
-//! TOML configuration merged under them, and the summary printed on stdout.
+//! TOML configuration ([`FitFileConfig`]) merged under them, and the summary printed on stdout.
 //!
 //! ```text
 //! mpirun -np 2 diffsound fit-material --config examples/bowl/fit.toml
 //! diffsound fit-material --mesh bowl.msh --recording mic0.wav --recording mic1.wav --out fit.h5
 //! ```
 
-use super::config::{load_toml, PetscConfig};
 use super::resolve::{path_or, require_files, set, MeshArgs, RunArgs};
-use crate::inverse::damping::DampingFitSettings;
-use crate::inverse::material::MaterialFitSettings;
+use crate::io::config::{load_toml, FitFileConfig};
 use crate::workflow::fit_material::{self as workflow, Job, Report, MAX_MATCH_ERROR};
 use clap::Args;
 use mpi::environment::Universe;
-use serde::Deserialize;
 use std::path::PathBuf;
 
 #[derive(Args, Debug, Clone, Default)]
@@ -76,65 +73,9 @@ pub struct FitMaterialArgs {
     pub run: RunArgs,
 }
 
-/// The TOML file (every key optional; see the README for an example).
-#[derive(Clone, Debug, Default, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct FitFileConfig {
-    pub mesh: Option<PathBuf>,
-    pub units: Option<String>,
-    pub order: Option<u32>,
-    #[serde(default)]
-    pub recordings: Vec<PathBuf>,
-    pub out: Option<PathBuf>,
-    pub plots: Option<PathBuf>,
-    #[serde(default)]
-    pub recording: RecordingConfig,
-    #[serde(default)]
-    pub damping: DampingFitSettings,
-    #[serde(default)]
-    pub material: MaterialConfig,
-    #[serde(default)]
-    pub fit: MaterialFitSettings,
-    #[serde(default)]
-    pub solver: PetscConfig,
-}
-
-impl super::config::ConfigPaths for FitFileConfig {
-    fn rebase(&mut self, base: &std::path::Path) {
-        use super::config::{rebase_all, rebase_opt};
-        rebase_opt(base, &mut self.mesh);
-        rebase_all(base, &mut self.recordings);
-        rebase_opt(base, &mut self.out);
-        rebase_opt(base, &mut self.plots);
-    }
-}
-
-#[derive(Clone, Debug, Default, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct RecordingConfig {
-    pub sample_rate: Option<u32>,
-    pub duration: Option<f64>,
-}
-
-#[derive(Clone, Debug, Default, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct MaterialConfig {
-    pub density: Option<f64>,
-    pub youngs_modulus: Option<f64>,
-    pub poisson_ratio: Option<f64>,
-    pub modes: Option<usize>,
-    pub max_frequency_hz: Option<f64>,
-    /// ν of the full solves that span the reduced basis.
-    pub basis_samples: Option<Vec<f64>>,
-    /// Extra modes per sample beyond `modes` (modes reorder as ν moves).
-    pub basis_margin: Option<usize>,
-    pub strike_vertex: Option<usize>,
-    pub strike_position: Option<[f64; 3]>,
-}
-
 /// Merges defaults < config file < flags and validates.
 pub fn resolve(args: &FitMaterialArgs) -> Result<Job, String> {
-    let file: FitFileConfig = load_toml(&args.config)?;
+    let file: FitFileConfig = load_toml(&args.config).map_err(|e| e.to_string())?;
     let super::resolve::MeshChoice {
         mesh,
         unit_scale,
@@ -162,7 +103,7 @@ pub fn resolve(args: &FitMaterialArgs) -> Result<Job, String> {
         ));
     }
     let duration = args.duration.or(file.recording.duration).unwrap_or(1.0);
-    if !(duration >= 0.05 && duration <= 30.0) {
+    if !(0.05..=30.0).contains(&duration) {
         return Err(format!(
             "the duration must lie in [0.05, 30] s, got {duration}"
         ));

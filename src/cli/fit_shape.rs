@@ -2,25 +2,23 @@
 //! eigenvalues (issue 7).
 //!
 //! The command line of the jobs in [`crate::workflow::fit_shape`] (its module docs give the
-//! inputs, the method and the files): the flags and the TOML file merged into a [`Job`], the
-//! job run, its summary printed and its files written.
+//! inputs, the method and the files): the flags and the TOML file ([`ShapeFileConfig`])
+//! merged into a [`Job`], the job run, its summary printed and its files written.
 
-use super::config::{load_toml, ElasticArgs, ElasticConfig, PetscConfig};
-use super::resolve::{existing, path_or, set, RunArgs, SurfaceArgs};
-
+use super::resolve::{existing, path_or, set, ElasticArgs, RunArgs, SurfaceArgs};
 use crate::inverse::shape::ShapeFitSettings;
+use crate::io::config::{load_toml, ShapeFileConfig};
 use crate::workflow::fit_shape::{self, Report};
 pub use crate::workflow::fit_shape::{parse_target, Job, TargetChoice, TargetSource, Task};
 use clap::Args;
 use mpi::environment::Universe;
-use serde::Deserialize;
 use std::path::PathBuf;
 
 /// Flags shared by both commands.
 #[derive(Args, Debug, Clone, Default)]
 #[command(allow_negative_numbers = true)]
 pub struct ShapeArgs {
-    /// TOML configuration file (keys in the module docs of src/cli/fit_shape.rs); flags override it.
+    /// TOML configuration file (keys in the module docs of src/io/config.rs); flags override it.
     #[arg(long)]
     pub config: Option<PathBuf>,
     #[command(flatten)]
@@ -129,73 +127,6 @@ pub struct FitMorphArgs {
     pub common: ShapeArgs,
 }
 
-/// The TOML file (every key optional; flags override).
-///
-/// ```toml
-/// surface = "spot.obj"          # fit-thickness; fit-morph takes shape_a and shape_b
-/// units = "m"
-/// diagonal = 0.1
-/// cells = [20, 28]
-/// replicas = 1                  # grids per replicated level (1–4): the finest, or all but the first for the line
-/// straight_boundary = false      # fit-thickness: true meshes from the grid samples alone
-/// out = "out/spot_thickness.h5"
-/// [target]
-/// file = "modes.txt"            # or: thickness = 0.5 (fit-morph: weight = 0.4), cells = 40, seed = 1
-/// units = "hz"
-/// spacing = 0.0
-/// [material]
-/// preset = "ceramic"            # youngs_modulus, poisson_ratio, density
-/// [fit]                         # ShapeFitSettings: modes, bounds, scan_points, max_refinements,
-/// modes = 8                     # tolerance, refine_window, cluster_rtol, extrapolate, free_scale,
-/// wall_refinement = 0           # wall_band, wall_tolerance (fit-thickness, curved boundary)
-/// [solver]
-/// petsc_options = []
-/// ```
-#[derive(Clone, Debug, Default, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct ShapeFileConfig {
-    pub surface: Option<PathBuf>,
-    pub shape_a: Option<PathBuf>,
-    pub shape_b: Option<PathBuf>,
-    pub units: Option<String>,
-    pub diagonal: Option<f64>,
-    pub cells: Option<Vec<usize>>,
-    pub replicas: Option<usize>,
-    /// fit-thickness: true for the straight boundary (`--straight-boundary`).
-    pub straight_boundary: Option<bool>,
-    pub out: Option<PathBuf>,
-    #[serde(default)]
-    pub target: TargetConfig,
-    #[serde(default)]
-    pub material: ElasticConfig,
-    pub fit: Option<ShapeFitSettings>,
-    #[serde(default)]
-    pub solver: PetscConfig,
-}
-
-#[derive(Clone, Debug, Default, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct TargetConfig {
-    pub file: Option<PathBuf>,
-    pub units: Option<String>,
-    pub thickness: Option<f64>,
-    pub weight: Option<f64>,
-    pub cells: Option<usize>,
-    pub seed: Option<u64>,
-    pub spacing: Option<f64>,
-}
-
-impl super::config::ConfigPaths for ShapeFileConfig {
-    fn rebase(&mut self, base: &std::path::Path) {
-        use super::config::rebase_opt;
-        rebase_opt(base, &mut self.surface);
-        rebase_opt(base, &mut self.shape_a);
-        rebase_opt(base, &mut self.shape_b);
-        rebase_opt(base, &mut self.out);
-        rebase_opt(base, &mut self.target.file);
-    }
-}
-
 /// Merges defaults < config file < flags and validates, for either command.
 fn resolve(
     task: Task,
@@ -249,7 +180,7 @@ fn resolve(
     };
     let target = choice.resolve(&task, &settings, *cells.last().expect("non-empty"))?;
 
-    let material = file.material.resolve(&common.elastic)?;
+    let material = common.elastic.resolve(&file.material)?;
 
     let out = path_or(&common.out, &file.out, &format!("fit_{}.h5", task.name()));
     let mesh_out = crate::io::paths::plot_path(&out.with_extension(""), "_mesh.h5");
@@ -286,7 +217,7 @@ fn resolve(
 }
 
 pub fn resolve_thickness(args: &FitThicknessArgs) -> Result<Job, String> {
-    let file = load_toml::<ShapeFileConfig>(&args.common.config)?;
+    let file = load_toml::<ShapeFileConfig>(&args.common.config).map_err(|e| e.to_string())?;
     if file.shape_a.is_some() || file.shape_b.is_some() || file.target.weight.is_some() {
         return Err(
             "shape_a, shape_b and target.weight are fit-morph keys, not fit-thickness ones".into(),
@@ -314,7 +245,7 @@ pub fn resolve_thickness(args: &FitThicknessArgs) -> Result<Job, String> {
 }
 
 pub fn resolve_morph(args: &FitMorphArgs) -> Result<Job, String> {
-    let file = load_toml::<ShapeFileConfig>(&args.common.config)?;
+    let file = load_toml::<ShapeFileConfig>(&args.common.config).map_err(|e| e.to_string())?;
     if file.surface.is_some() || file.target.thickness.is_some() || file.straight_boundary.is_some()
     {
         return Err("surface, straight_boundary and target.thickness are fit-thickness keys, not fit-morph ones".into());

@@ -1,21 +1,17 @@
 //! `diffsound locate-impact`: where was the object struck, and how hard (issue 8).
 //!
 //! The command line of the job in [`crate::workflow::locate_impact`] (its module docs give the
-//! steps, the equations and the files): the flags, the TOML file and a benchmark case's
-//! metadata merged into a [`Job`], the job run, and its summary printed.
+//! steps, the equations and the files): the flags, the TOML file ([`ImpactFileConfig`]) and a
+//! benchmark case's metadata merged into a [`Job`], the job run, and its summary printed.
 
-use super::config::load_toml;
 use super::resolve::{path_or, require_files, set, MeshArgs, RunArgs, StrikeArgs};
-
-use crate::analysis::extract::ExtractOptions;
-use crate::inverse::impact::MapOptions;
+use crate::io::config::{load_toml, ImpactFileConfig};
 use crate::io::paths::with_suffix;
 use crate::workflow::locate_impact::job::{resolve_material, CaseMeta};
 use crate::workflow::locate_impact::{self, Report};
 pub use crate::workflow::locate_impact::{Job, MaterialSource, TransferChoice};
 use clap::Args;
 use mpi::environment::Universe;
-use serde::Deserialize;
 use std::path::{Path, PathBuf};
 
 #[derive(Args, Debug, Clone, Default)]
@@ -54,57 +50,9 @@ pub struct ImpactArgs {
     pub run: RunArgs,
 }
 
-/// The TOML file (every key optional).
-#[derive(Clone, Debug, Default, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct ImpactFileConfig {
-    pub mesh: Option<PathBuf>,
-    pub units: Option<String>,
-    #[serde(default)]
-    pub recordings: Vec<PathBuf>,
-    /// fit-material result to read E, ν, ρ and the damping curve from.
-    pub material_fit: Option<PathBuf>,
-    pub youngs_modulus: Option<f64>,
-    pub poisson_ratio: Option<f64>,
-    pub density: Option<f64>,
-    /// Metres, one per recording, in the mesh's frame.
-    pub microphone_positions: Option<Vec<[f64; 3]>>,
-    pub transfer: Option<TransferChoice>,
-    /// Distance of the microphones for the direction-averaged transfer [m] (default 0.5).
-    pub assumed_distance_m: Option<f64>,
-    pub contact_duration_s: Option<f64>,
-    pub max_frequency_hz: Option<f64>,
-    pub window_s: Option<f64>,
-    pub pre_roll_s: Option<f64>,
-    pub sample_rate: Option<u32>,
-    /// Relative distance of a recorded pole from s·f_sim that still matches (default 0.03).
-    pub match_tolerance: Option<f64>,
-    pub true_vertex: Option<usize>,
-    /// The microphones share one calibrated gain (and their positions are known): one strength
-    /// for all of them. Default false: one gain per microphone, profiled.
-    pub calibrated_microphones: Option<bool>,
-    pub out: Option<PathBuf>,
-    #[serde(default)]
-    pub extract: ExtractOptions,
-    #[serde(default)]
-    pub map: MapOptions,
-    #[serde(default)]
-    pub petsc_options: Vec<String>,
-}
-
-impl super::config::ConfigPaths for ImpactFileConfig {
-    fn rebase(&mut self, base: &Path) {
-        use super::config::{rebase_all, rebase_opt};
-        rebase_opt(base, &mut self.mesh);
-        rebase_all(base, &mut self.recordings);
-        rebase_opt(base, &mut self.material_fit);
-        rebase_opt(base, &mut self.out);
-    }
-}
-
 /// Merges defaults < case metadata < config file < flags and validates.
 pub fn resolve(args: &ImpactArgs) -> Result<Job, String> {
-    let file: ImpactFileConfig = load_toml(&args.config)?;
+    let file: ImpactFileConfig = load_toml(&args.config).map_err(|e| e.to_string())?;
     let case: Option<CaseMeta> = args
         .strike
         .case

@@ -1,6 +1,6 @@
 //! The `diffsound` command line: argument parsing and the MPI/PETSc runtime; each command's flags,
-//! their merging with its configuration file and its printing live in a file of its own here, and
-//! its job in [`crate::workflow`].
+//! their merging with its configuration file and its printing live in a file of its own here, its
+//! job in [`crate::workflow`] and its configuration file's format in [`crate::io::config`].
 //!
 //! Sample runs:
 //! ```text
@@ -14,7 +14,6 @@
 //! so a job never hangs waiting for a rank that gave up; a panic does the same. A rank that is
 //! stopped (SIGSTOP) ends the job after `--rank-timeout` seconds ([`crate::petsc::watchdog`]).
 
-pub mod config;
 pub mod diagnose;
 pub mod fit_geometry;
 pub mod fit_material;

@@ -1,9 +1,9 @@
-//! The `modes` command: its flags, their merging with the TOML configuration file, and the
-//! printed summary. The job itself is [`crate::workflow::modes`].
+//! The `modes` command: its flags, their merging with the TOML configuration file
+//! ([`FileConfig`]), and the printed summary. The job itself is [`crate::workflow::modes`].
 
-use super::config::{FileConfig, MaterialConfig};
 use super::resolve::{check_output, inputs, MeshArgs, MeshChoice, RunArgs};
 use crate::eigen::ModeRequest;
+use crate::io::config::{load_toml, ConfigError, FileConfig, MaterialConfig};
 use crate::petsc::Petsc;
 use crate::workflow::modes::{self as workflow, inertia_line, Job, Report};
 use clap::Args;
@@ -89,10 +89,10 @@ pub struct ModesArgs {
 
 /// Merges defaults < config file < command-line flags and validates the result.
 pub fn resolve(args: &ModesArgs) -> Result<Job, String> {
-    let file = match &args.config {
-        Some(p) => FileConfig::load(p)?,
-        None => FileConfig::default(),
-    };
+    let file: FileConfig = load_toml(&args.config).map_err(|e| match e {
+        ConfigError::Read { .. } => format!("cannot read config file {e}"),
+        e => format!("config file {e}"),
+    })?;
     let MeshChoice {
         mesh,
         units,
@@ -109,7 +109,7 @@ pub fn resolve(args: &ModesArgs) -> Result<Job, String> {
         rayleigh_alpha: args.alpha,
         rayleigh_beta: args.beta,
     };
-    let (material, material_name) = file.material.resolve(&flags)?;
+    let (material, material_name) = file.material.resolve(&flags).map_err(|e| e.to_string())?;
 
     let fmax = args.fmax.or(if args.modes.is_some() {
         None

@@ -1,7 +1,10 @@
 //! What every command resolves the same way from its flags and configuration file: the mesh
 //! with its unit and element order ([`MeshArgs`]), the unit and size of surfaces
-//! ([`SurfaceArgs`]), input files that must exist, and output paths checked before the work.
+//! ([`SurfaceArgs`]), the shape fits' material ([`ElasticArgs`]), input files that must exist,
+//! and output paths checked before the work.
 
+use crate::fem::Material;
+use crate::io::config::ElasticConfig;
 use crate::mesh;
 use clap::Args;
 use std::path::{Path, PathBuf};
@@ -122,6 +125,34 @@ impl SurfaceArgs {
             }
         }
         Ok((unit_scale, diagonal))
+    }
+}
+
+/// The shape fits' material flags.
+#[derive(Args, Debug, Clone, Default)]
+pub struct ElasticArgs {
+    /// Material preset (default ceramic); --youngs Pa, --poisson, --density kg/m³ override it.
+    #[arg(long)]
+    pub material: Option<String>,
+    #[arg(long)]
+    pub youngs: Option<f64>,
+    #[arg(long)]
+    pub poisson: Option<f64>,
+    #[arg(long)]
+    pub density: Option<f64>,
+}
+
+impl ElasticArgs {
+    /// The material of these flags over the file's `[material]` table, validated
+    /// ([`ElasticConfig::resolve`]).
+    pub fn resolve(&self, file: &ElasticConfig) -> Result<Material, String> {
+        let flags = ElasticConfig {
+            preset: self.material.clone(),
+            youngs_modulus: self.youngs,
+            poisson_ratio: self.poisson,
+            density: self.density,
+        };
+        file.resolve(&flags).map_err(|e| e.to_string())
     }
 }
 

@@ -2382,7 +2382,17 @@ mod tests {
                 .sum::<f64>()
         };
         assert!((10.0 * (band_w(3200.0) / band_w(1600.0)).log10() - 3.01).abs() < 0.5);
-        assert!(add_noise(&mut channels, 10..5, 60.0, NoiseColour::White, fs, &mut rng).is_err());
+        // A reversed signal range is refused.
+        let (start, end) = (10, 5);
+        assert!(add_noise(
+            &mut channels,
+            start..end,
+            60.0,
+            NoiseColour::White,
+            fs,
+            &mut rng
+        )
+        .is_err());
     }
 
     #[test]

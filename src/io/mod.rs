@@ -7,6 +7,8 @@
 //! crash there is either the complete previous file, the complete new one, or
 //! nothing (plus possibly a stale `.<name>.tmp.<pid>`).
 //!
+//! The run configuration files (TOML, the `--config` of every command) are [`config`].
+//!
 //! # HDF5 layout
 //!
 //! Every dataset carries a string attribute `units` ("1" for dimensionless, "" for indices),
@@ -115,6 +117,7 @@ use std::path::{Path, PathBuf};
 use hdf5::types::VarLenUnicode;
 
 pub mod atomic;
+pub mod config;
 pub mod fit_material;
 pub mod paths;
 pub mod plot;

@@ -195,8 +195,8 @@ pub fn gmsh_mesh(geo: &Path, h: f64, order: u32, out: &Path) {
     );
 }
 
-/// The benchmark generator example, built next to the test binaries by `cargo test`
-/// (target/<profile>/examples).
+/// The benchmark generator example, built next to the test binaries by `cargo test --features
+/// bench-generators` (target/<profile>/examples).
 pub fn generator() -> PathBuf {
     let exe = std::env::current_exe().expect("test binary path");
     let profile_dir = exe
@@ -204,7 +204,7 @@ pub fn generator() -> PathBuf {
         .and_then(Path::parent)
         .expect("target/<profile>/deps/<test>");
     let path = profile_dir.join("examples").join("diagnose_generate");
-    assert!(path.is_file(), "{} is missing: build it with `cargo build --release --example diagnose_generate` (cargo test builds it too)", path.display());
+    assert!(path.is_file(), "{} is missing: build it with `cargo build --release --features bench-generators --example diagnose_generate` (cargo test --features bench-generators builds it too)", path.display());
     path
 }
 
