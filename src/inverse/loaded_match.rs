@@ -391,7 +391,9 @@ fn combine_parts(gathered: &[f64], slots: usize) -> Vec<(Point, usize)> {
                 let better = match best {
                     None => true,
                     Some((b, b_step)) => {
-                        point.0 < b.0 || (point.0 == b.0 && step < b_step) || (b.0.is_nan() && !point.0.is_nan())
+                        point.0 < b.0
+                            || (point.0 == b.0 && step < b_step)
+                            || (b.0.is_nan() && !point.0.is_nan())
                     }
                 };
                 if better {
@@ -405,7 +407,14 @@ fn combine_parts(gathered: &[f64], slots: usize) -> Vec<(Point, usize)> {
 
 /// `point` found at ν step `step` as six numbers for [`combine_parts`].
 fn encode(point: &Point, step: usize, out: &mut Vec<f64>) {
-    out.extend_from_slice(&[point.0, point.1, point.2, point.3 as f64, point.4, step as f64]);
+    out.extend_from_slice(&[
+        point.0,
+        point.1,
+        point.2,
+        point.3 as f64,
+        point.4,
+        step as f64,
+    ]);
 }
 
 /// The problem: target line frequencies, the body, and the candidate regions.
@@ -635,7 +644,11 @@ pub fn loaded_line_candidates(
         let (grid, _) = combine_parts(&share.gather(&encoded), 1)[0];
         // With `keep`, `from` itself stands (its distance is by the same model) unless a grid
         // point is strictly better; otherwise only this pass's points compete.
-        let best = if keep && !(grid.0 < from.0) { from } else { grid };
+        let best = if keep && !(grid.0 < from.0) {
+            from
+        } else {
+            grid
+        };
         if best.0.is_finite() {
             best
         } else {

@@ -392,8 +392,13 @@ pub(super) fn loaded_match(
         coarse_poisson_step: LOADED_MATCH_COARSE_POISSON_STEP,
         ..Default::default()
     };
-    let candidates =
-        loaded_line_candidates(&search, &modes_at, &match_settings, LOADED_MATCH_CANDIDATES, &Ranks(petsc))?;
+    let candidates = loaded_line_candidates(
+        &search,
+        &modes_at,
+        &match_settings,
+        LOADED_MATCH_CANDIDATES,
+        &Ranks(petsc),
+    )?;
     // Each candidate checked by a full solve with its mass: the answer is the best verified
     // one, and its distance is the verified one.
     let top_hz = target
