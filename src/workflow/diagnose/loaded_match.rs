@@ -211,12 +211,8 @@ pub(super) fn loaded_match(
         .first()
         .copied()
         .ok_or("the reduced basis has no modes")?;
-    let attach_nu = std::env::var("DS_ATTACH_NU")
-        .ok()
-        .and_then(|v| v.parse::<f64>().ok())
-        .unwrap_or(start.poisson);
     let solver = basis
-        .attachment_solver(petsc, assembled, &mesh.nodes, attach_nu, 0.1 * lowest)
+        .attachment_solver(petsc, assembled, &mesh.nodes, start.poisson, 0.1 * lowest)
         .map_err(|e| format!("attachment solver: {e}"))?;
     let factor_seconds = t.elapsed().as_secs_f64();
     let rigid_all = basis
