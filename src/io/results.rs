@@ -372,22 +372,16 @@ fn write_array_attr<T: hdf5::H5Type>(
 
 /// Reads one dataset back as f64 (integer and flag datasets are converted): (values, shape).
 pub fn read_dataset(path: &Path, dataset: &str) -> Result<(Vec<f64>, Vec<usize>), IoError> {
-    let file = hdf5::File::open(path).map_err(IoError::hdf5(path, "opening HDF5 file"))?;
-    let ds = file
-        .dataset(dataset)
-        .map_err(IoError::hdf5(path, format!("opening dataset {dataset}")))?;
-    let shape = ds.shape();
-    let data = if shape.iter().product::<usize>() == 0 {
-        Vec::new()
-    } else {
-        ds.read_raw::<f64>()
-            .map_err(IoError::hdf5(path, format!("reading dataset {dataset}")))?
-    };
-    Ok((data, shape))
+    read_as::<f64>(path, dataset)
 }
 
 /// Reads an integer or flag dataset back as i64: (values, shape).
 pub fn read_integers(path: &Path, dataset: &str) -> Result<(Vec<i64>, Vec<usize>), IoError> {
+    read_as::<i64>(path, dataset)
+}
+
+/// One dataset read back as `T` (HDF5 converts the stored type): (values, shape).
+fn read_as<T: hdf5::H5Type>(path: &Path, dataset: &str) -> Result<(Vec<T>, Vec<usize>), IoError> {
     let file = hdf5::File::open(path).map_err(IoError::hdf5(path, "opening HDF5 file"))?;
     let ds = file
         .dataset(dataset)
@@ -396,7 +390,7 @@ pub fn read_integers(path: &Path, dataset: &str) -> Result<(Vec<i64>, Vec<usize>
     let data = if shape.iter().product::<usize>() == 0 {
         Vec::new()
     } else {
-        ds.read_raw::<i64>()
+        ds.read_raw::<T>()
             .map_err(IoError::hdf5(path, format!("reading dataset {dataset}")))?
     };
     Ok((data, shape))
