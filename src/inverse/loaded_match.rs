@@ -390,11 +390,8 @@ fn combine_parts(gathered: &[f64], slots: usize) -> Vec<(Point, usize)> {
                 let step = e[5] as usize;
                 let better = match best {
                     None => true,
-                    Some((b, b_step)) => {
-                        point.0 < b.0
-                            || (point.0 == b.0 && step < b_step)
-                            || (b.0.is_nan() && !point.0.is_nan())
-                    }
+                    // A part's best is only ever replaced by a smaller distance, so none is NaN.
+                    Some((b, b_step)) => point.0 < b.0 || (point.0 == b.0 && step < b_step),
                 };
                 if better {
                     best = Some((point, step));
