@@ -718,3 +718,74 @@ fn a_stopped_rank_ends_the_job_after_the_rank_timeout_naming_it() {
             .unwrap_or("")
     );
 }
+
+/// A microphone that hears the strike only below about 6 kHz (the bowl's first track through a
+/// 6 kHz low-pass, over a fresh white floor 20 dB under its own) is kept, with a warning naming it, when
+/// the band reaches 16 kHz; the untouched second track reaches the band's top and is not
+/// warned about. Checked on the library's loading path that every job takes.
+#[test]
+fn a_band_whose_top_is_only_noise_is_warned_about_naming_the_file() {
+    use diffsound::analysis::recording::{load_recording, RecordingOptions};
+    use diffsound::audio::health::{assess_recording, band_warnings};
+    let dir = scratch("band_floor");
+    let (x, rate) = read_wav(&bowl_wav(0));
+    // Windowed-sinc low-pass, 6 kHz, 511 taps (Blackman: stop band under −70 dB past 6.5 kHz).
+    let taps = 511usize;
+    let fc = 6000.0 / f64::from(rate);
+    let h: Vec<f64> = (0..taps)
+        .map(|i| {
+            let m = i as f64 - (taps / 2) as f64;
+            let sinc = if m == 0.0 {
+                2.0 * fc
+            } else {
+                (2.0 * std::f64::consts::PI * fc * m).sin() / (std::f64::consts::PI * m)
+            };
+            let w = 0.42 - 0.5 * (2.0 * std::f64::consts::PI * i as f64 / (taps - 1) as f64).cos()
+                + 0.08 * (4.0 * std::f64::consts::PI * i as f64 / (taps - 1) as f64).cos();
+            sinc * w
+        })
+        .collect();
+    let floor_rms = {
+        let pre = &x[..40_000];
+        (pre.iter().map(|v| v * v).sum::<f64>() / pre.len() as f64).sqrt()
+    };
+    let mut state = 11u64;
+    let low: Vec<f64> = (0..x.len())
+        .map(|n| {
+            let y: f64 = (0..taps)
+                .filter(|&k| n + taps / 2 >= k && n + taps / 2 - k < x.len())
+                .map(|k| h[k] * x[n + taps / 2 - k])
+                .sum();
+            state = state
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            let u = ((state >> 11) as f64 / (1u64 << 53) as f64) - 0.5;
+            y + 0.1 * floor_rms * 12f64.sqrt() * u
+        })
+        .collect();
+    let lp = dir.join("lowpassed0.wav");
+    write_wav(&lp, &low, rate);
+    let opts = RecordingOptions {
+        band_max_hz: Some(16_000.0),
+        ..Default::default()
+    };
+    let rec = load_recording(&[lp.as_path(), bowl_wav(1).as_path()], &opts).unwrap();
+    let health = assess_recording(&rec);
+    assert!(health.iter().all(|h| h.is_healthy()), "{health:?}");
+    let reach: Vec<Option<f64>> = health.iter().map(|h| h.band_reach_hz).collect();
+    println!("reach {reach:?}");
+    assert!(
+        reach[0].is_some_and(|r| (3000.0..6600.0).contains(&r)),
+        "the low-passed track must end at or below the filter's 6.5 kHz stop edge: {reach:?}"
+    );
+    assert_eq!(reach[1], Some(16_000.0), "{reach:?}");
+    let warnings = band_warnings(&health, 16_000.0).unwrap();
+    println!("{warnings:?}");
+    assert_eq!(warnings.len(), 1, "{warnings:?}");
+    assert!(
+        warnings[0].contains("lowpassed0") && warnings[0].contains("--fmax"),
+        "{warnings:?}"
+    );
+    // The same track asked for a band that ends below its reach is not warned about.
+    assert!(band_warnings(&health, 4_000.0).unwrap().is_empty());
+}

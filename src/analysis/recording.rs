@@ -113,6 +113,10 @@ pub struct Recording {
     pub gain: f64,
     /// One name per channel (see the module docs).
     pub names: Vec<String>,
+    /// Per channel, how far up to [`RecordingOptions::band_max_hz`] the strike rises over the
+    /// noise floor before it, measured on the files as read
+    /// ([`crate::audio::health::band_reach_hz`]); empty without a band.
+    pub band_reach_hz: Vec<Option<f64>>,
 }
 
 impl Recording {
@@ -236,6 +240,21 @@ pub fn load_recording<P: AsRef<Path>>(
         }
     })?;
     let onset_s = onset.time_s;
+    let band_reach_hz = match opts.band_max_hz {
+        Some(band_hz) => {
+            let fs = f64::from(source_rate);
+            let n0 = ((onset_s * fs).round() as usize).min(channels[0].len());
+            let floor_end =
+                n0.saturating_sub((crate::audio::health::FLOOR_GUARD_S * fs).ceil() as usize);
+            channels
+                .iter()
+                .map(|x| {
+                    crate::audio::health::band_reach_hz(&x[..floor_end], &x[n0..], fs, band_hz)
+                })
+                .collect()
+        }
+        None => Vec::new(),
+    };
 
     let out_rate = opts.target_rate.unwrap_or(source_rate);
     let resample_err = |source| RecordingError::Resample {
@@ -295,6 +314,7 @@ pub fn load_recording<P: AsRef<Path>>(
             .collect(),
         gain,
         names,
+        band_reach_hz,
     })
 }
 

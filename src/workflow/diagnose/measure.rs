@@ -55,6 +55,10 @@ pub(super) fn healthy_channels(job: &Job) -> Result<ChannelChoice, String> {
     let rec = load_recording(&job.recordings, &options).map_err(|e| e.to_string())?;
     let health = crate::audio::health::assess_recording(&rec);
     let healthy = crate::audio::health::healthy_channels(&health).map_err(|e| e.to_string())?;
+    // Refused here when no healthy channel rises over its floor in the band; the warnings
+    // for short reaches are printed with the other channel warnings.
+    crate::audio::health::band_warnings(&health, job.max_frequency_hz)
+        .map_err(|e| e.to_string())?;
     let ok = |c: &usize| healthy.contains(c);
     let mut fit: Vec<usize> = job.fit_channels.iter().copied().filter(ok).collect();
     let mut held: Vec<usize> = job.held_channels.iter().copied().filter(ok).collect();

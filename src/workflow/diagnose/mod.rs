@@ -277,6 +277,12 @@ pub fn run(petsc: &Petsc, job: &Job, progress: &Progress) -> Result<Option<Repor
         for h in health.iter().filter(|h| !h.is_healthy()) {
             eprintln!("{}", h.left_out_warning("the diagnosis"));
         }
+        // Checked on rank 0 before the broadcast, so only warnings remain here.
+        for w in
+            crate::audio::health::band_warnings(&health, job.max_frequency_hz).unwrap_or_default()
+        {
+            eprintln!("{w}");
+        }
         if held_channels.is_empty() && !job.held_channels.is_empty() {
             eprintln!("warning: no held-out microphone carries the strike: no effect can be confirmed on held-out evidence");
         } else if held_channels != job.held_channels || fit_channels != job.fit_channels {

@@ -61,11 +61,14 @@ pub(super) fn stage_one(petsc: &Petsc, job: &Job, progress: &Progress) -> Result
         // Channel health (pre-roll 0: the floor is the track's last tenth): a dead, noise-only
         // or misaligned microphone is left out with a warning naming its file. The warning is
         // printed here, before the progress lines of the damping fit it precedes.
-        let health = crate::audio::health::assess(&rec.names, &rec.channels, 0, f64::from(rec.sample_rate), &rec.channel_onsets_s, rec.onset_s);
+        let health = crate::audio::health::assess(&rec.names, &rec.channels, 0, f64::from(rec.sample_rate), &rec.channel_onsets_s, rec.onset_s, &rec.band_reach_hz);
         for h in health.iter().filter(|h| !h.is_healthy()) {
             eprintln!("{}", h.left_out_warning("the fit"));
         }
         let keep = crate::audio::health::healthy_channels(&health).map_err(|e| e.to_string())?;
+        for w in crate::audio::health::band_warnings(&health, job.max_frequency_hz).map_err(|e| e.to_string())? {
+            eprintln!("{w}");
+        }
         rec.channels = keep.iter().map(|&c| std::mem::take(&mut rec.channels[c])).collect();
         rec.names = keep.iter().map(|&c| rec.names[c].clone()).collect();
         progress.say(format!("{} channel(s) at {} Hz, onset at {:.4} s, {:.3} s each", rec.channels.len(), rec.sample_rate, rec.onset_s, rec.channels[0].len() as f64 / f64::from(rec.sample_rate)));

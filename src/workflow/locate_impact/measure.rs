@@ -47,6 +47,11 @@ pub fn measure(job: &Job, progress: &Progress) -> Result<Measured, String> {
         eprintln!("{}", h.left_out_warning("the map"));
     }
     let kept = crate::audio::health::healthy_channels(&health).map_err(|e| e.to_string())?;
+    for w in crate::audio::health::band_warnings(&health, job.max_frequency_hz)
+        .map_err(|e| e.to_string())?
+    {
+        eprintln!("{w}");
+    }
     let channels: Vec<Vec<f64>> = kept
         .iter()
         .map(|&c| rec.channels[c][onset..].to_vec())
