@@ -338,6 +338,33 @@ fn a_folded_curved_tet_is_named_by_its_gmsh_tag_and_straightened_on_request() {
         run.stderr
     );
     assert!(out.exists());
+    // The same from a configuration file's `straighten_invalid` key.
+    let config = dir.join("straighten.toml");
+    std::fs::write(
+        &config,
+        "mesh = \"folded.msh\"\nstraighten_invalid = true\n",
+    )
+    .unwrap();
+    let out = dir.join("folded_modes_config.h5");
+    let run = mpirun(
+        2,
+        &[
+            "modes",
+            "--config",
+            s(&config),
+            "--modes",
+            "5",
+            "--out",
+            s(&out),
+        ],
+        LIMIT,
+    );
+    assert!(run.success(), "{}", run.describe());
+    assert!(
+        run.stderr.contains("straightened 1 folded curved"),
+        "{}",
+        run.stderr
+    );
 }
 
 /// A folded curved mesh: one 10-node tet, Gmsh tag 4287, whose mid-edge node of

@@ -194,7 +194,8 @@ pub fn resolve(args: &DiagnoseArgs) -> Result<Job, String> {
         map: with_suffix(&out, "_map.h5"),
         mesh,
         unit_scale,
-        straighten_invalid: args.input.straighten_invalid,
+        straighten_invalid: args.input.straighten_invalid
+            || file.straighten_invalid.unwrap_or(false),
         recordings,
         fit_channels,
         held_channels,

@@ -173,7 +173,8 @@ pub fn resolve(args: &FitMaterialArgs) -> Result<Job, String> {
     Ok(Job {
         mesh,
         unit_scale,
-        straighten_invalid: args.input.straighten_invalid,
+        straighten_invalid: args.input.straighten_invalid
+            || file.straighten_invalid.unwrap_or(false),
         order,
         recordings,
         sample_rate,

@@ -184,7 +184,8 @@ pub fn resolve(args: &ImpactArgs) -> Result<Job, String> {
         png: with_suffix(&out, "_map.png"),
         mesh,
         unit_scale,
-        straighten_invalid: args.input.straighten_invalid,
+        straighten_invalid: args.input.straighten_invalid
+            || file.straighten_invalid.unwrap_or(false),
         recordings,
         sample_rate,
         pre_roll,

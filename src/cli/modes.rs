@@ -177,7 +177,8 @@ pub fn resolve(args: &ModesArgs) -> Result<Job, String> {
         units,
         order,
         fix_inverted: args.fix_inverted || file.fix_inverted.unwrap_or(false),
-        straighten_invalid: args.input.straighten_invalid,
+        straighten_invalid: args.input.straighten_invalid
+            || file.straighten_invalid.unwrap_or(false),
         material,
         material_name,
         request,

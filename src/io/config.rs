@@ -23,6 +23,7 @@
 //! units = "m"                       # mesh length unit: m, cm, mm, um, in, ft or metres per unit
 //! order = 2                         # 1 (P1 baseline) or 2 (P2, default)
 //! fix_inverted = false              # flip inverted tets instead of rejecting the mesh
+//! straighten_invalid = false        # straighten folded curved tets (every mesh command's file)
 //!
 //! [material]                        # a preset, then any field overridden
 //! preset = "ceramic"
@@ -395,6 +396,8 @@ pub struct PetscConfig {
 pub struct FileConfig {
     pub mesh: Option<PathBuf>,
     pub units: Option<String>,
+    /// Straighten folded curved tets instead of refusing the mesh (`--straighten-invalid`).
+    pub straighten_invalid: Option<bool>,
     pub order: Option<u32>,
     pub fix_inverted: Option<bool>,
     #[serde(default)]
@@ -450,6 +453,8 @@ impl ConfigPaths for FileConfig {
 pub struct FitFileConfig {
     pub mesh: Option<PathBuf>,
     pub units: Option<String>,
+    /// Straighten folded curved tets instead of refusing the mesh (`--straighten-invalid`).
+    pub straighten_invalid: Option<bool>,
     pub order: Option<u32>,
     #[serde(default)]
     pub recordings: Vec<PathBuf>,
@@ -511,6 +516,8 @@ pub struct FitMaterialConfig {
 pub struct DiagnoseFileConfig {
     pub mesh: Option<PathBuf>,
     pub units: Option<String>,
+    /// Straighten folded curved tets instead of refusing the mesh (`--straighten-invalid`).
+    pub straighten_invalid: Option<bool>,
     #[serde(default)]
     pub recordings: Vec<PathBuf>,
     /// fit-material result to read E, ν, ρ from.
@@ -588,6 +595,8 @@ pub struct ModelSection {
 pub struct ImpactFileConfig {
     pub mesh: Option<PathBuf>,
     pub units: Option<String>,
+    /// Straighten folded curved tets instead of refusing the mesh (`--straighten-invalid`).
+    pub straighten_invalid: Option<bool>,
     #[serde(default)]
     pub recordings: Vec<PathBuf>,
     /// fit-material result to read E, ν, ρ and the damping curve from.
