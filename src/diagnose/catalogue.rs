@@ -780,6 +780,14 @@ pub trait Term: std::fmt::Debug + Send + Sync {
     ) -> Option<(Arc<dyn Term>, Vec<f64>)> {
         None
     }
+    /// Whether the held-out table `held` has any row this term predicts differently from the
+    /// model without it. False (e.g. a free split of a pair that no held-out microphone
+    /// resolves) makes the candidate [`Rejection::HeldOutCannotTest`] whatever the held-out
+    /// error did: a change there comes only from the shared parameters' refit. The default,
+    /// true, leaves the test to the held-out error.
+    fn held_out_can_test(&self, _held: &ModeTable) -> bool {
+        true
+    }
     /// After the fit: why the fitted parameters `p` ± `sigma` lack the signature the effect's
     /// physics requires (the candidate is then rejected as [`Rejection::SignatureMissing`]);
     /// None (the default): nothing more is required.
@@ -822,6 +830,15 @@ pub struct HeldOutChange {
 }
 
 impl HeldOutChange {
+    /// The change a held-out set that cannot test the effect records: none.
+    pub fn untestable(self) -> HeldOutChange {
+        HeldOutChange {
+            after: self.before,
+            gain: 0.0,
+            ..self
+        }
+    }
+
     /// From Σz² and the degrees of freedom (rows minus the nuisance parameters fitted on the
     /// held-out rows) without (`chi2_before`, `dof_before`) and with the effect. The gain
     /// compares the two at the same degrees of freedom, so a nuisance parameter the effect fits

@@ -32,7 +32,7 @@
 //! | `/provenance` attrs         | key → value strings                 | mesh path, units, command line, diffsound version |
 //! | `/node_fields/<name>`       | f64 `[n_nodes]` (scalar) or `[n_nodes, 3]` (vector); attr `units` | optional per-node fields ([`NodeField`], e.g. `d_lambda_dx_mode_003`), vectors node-major x,y,z, original numbering; also in the XDMF sidecar |
 //! | `/sensitivities/…`          | f64, any shape; string attrs (e.g. `units`) | written when sensitivities are requested: see `eigen::sensitivity` |
-//! | any other `/<group>/…/<name>` | f64, any shape; string attrs      | extra datasets ([`ExtraDataset`]), e.g. the `/sensitivities/…` above |
+//! | any other `/<group>/…/<name>` | f64 (i64 where `integer`), any shape; string attrs | extra datasets ([`ExtraDataset`]), e.g. the `/sensitivities/…` above |
 //!
 //! `/node_fields` and the extra datasets are optional: a file without them
 //! (including every format-1 and format-2 file) reads back with both lists
@@ -161,6 +161,9 @@ pub struct ExtraDataset {
     /// String attributes on the dataset (e.g. `("units", "rad²/s²/Pa")`);
     /// keys non-empty and unique.
     pub attrs: Vec<(String, String)>,
+    /// Stored as i64 (indices, counts, ranges): every value must then be a whole number
+    /// within ±2⁵³. Read back true for any integer dataset.
+    pub integer: bool,
 }
 
 /// Values per node of a [`NodeField`].
@@ -649,6 +652,13 @@ fn validate_extra_datasets(path: &Path, extras: &[ExtraDataset]) -> Result<(), I
                 e.shape
             ));
         }
+        if e.integer
+            && e.data
+                .iter()
+                .any(|v| v.fract() != 0.0 || v.abs() > 9.007_199_254_740_992e15)
+        {
+            return bad(format!("extra dataset '{p}' is integer but holds a value that is not a whole number within ±2^53"));
+        }
         if !datasets.insert(p) {
             return bad(format!("extra dataset '{p}' is given twice"));
         }
@@ -806,7 +816,12 @@ fn fill_h5(path: &Path, file: &hdf5::File, f: &ModesFile) -> Result<(), IoError>
                 ),
             ))?;
         }
-        let ds = write_dataset(path, &group, name, &e.shape, &e.data)?;
+        let ds = if e.integer {
+            let whole: Vec<i64> = e.data.iter().map(|&v| v as i64).collect();
+            write_dataset(path, &group, name, &e.shape, &whole)?
+        } else {
+            write_dataset(path, &group, name, &e.shape, &e.data)?
+        };
         for (key, value) in &e.attrs {
             write_str_attr(path, &ds, key, value)?;
         }
@@ -1234,11 +1249,19 @@ fn read_extras(
                     let value = read_str_attr(path, &ds, &key)?;
                     attrs.push((key, value));
                 }
+                let integer = ds.dtype().is_ok_and(|t| {
+                    matches!(
+                        t.to_descriptor(),
+                        Ok(hdf5::types::TypeDescriptor::Integer(_)
+                            | hdf5::types::TypeDescriptor::Unsigned(_))
+                    )
+                });
                 out.push(ExtraDataset {
                     path: full,
                     shape,
                     data,
                     attrs,
+                    integer,
                 });
             }
             // Committed datatypes and the like are not ours; ignore them.

@@ -99,24 +99,28 @@ fn fixture(quadratic: bool) -> Fixture {
                 shape: vec![],
                 data: vec![42.0],
                 attrs: vec![],
+                integer: false,
             },
             ExtraDataset {
                 path: "/a/deep/nested/cube".into(),
                 shape: vec![2, 2, 2],
                 data: (0..8).map(|i| i as f64 - 3.5).collect(),
                 attrs: vec![("note".into(), "x & <y> ünï".into())],
+                integer: false,
             },
             ExtraDataset {
                 path: "/root_level".into(),
                 shape: vec![2],
                 data: vec![f64::MIN_POSITIVE, -0.0],
                 attrs: vec![],
+                integer: false,
             },
             ExtraDataset {
                 path: "/sensitivities/d_eigenvalue_d_density".into(),
                 shape: vec![3],
                 data: vec![-510.0, -1146.5, -3184.7],
                 attrs: vec![("units".into(), "rad²/s² per kg/m³".into())],
+                integer: false,
             },
             ExtraDataset {
                 path: "/sensitivities/d_eigenvalue_d_youngs".into(),
@@ -126,12 +130,21 @@ fn fixture(quadratic: bool) -> Fixture {
                     ("method".into(), "adjoint".into()),
                     ("units".into(), "rad²/s²/Pa".into()),
                 ],
+                integer: false,
             },
             ExtraDataset {
                 path: "/sensitivities/empty".into(),
                 shape: vec![0, 3],
                 data: vec![],
                 attrs: vec![("units".into(), "m".into())],
+                integer: false,
+            },
+            ExtraDataset {
+                path: "/sensitivities/ranges".into(),
+                shape: vec![2, 2],
+                data: vec![0.0, 2.0, 5.0, 7.0],
+                attrs: vec![],
+                integer: true,
             },
         ],
     }
@@ -869,6 +882,7 @@ fn inconsistent_input_is_refused_before_touching_disk() {
             shape: shape.to_vec(),
             data: vec![1.0; len],
             attrs: Vec::new(),
+            integer: false,
         }
     }
     let dir = TempDir::new("invalid");
@@ -958,6 +972,15 @@ fn inconsistent_input_is_refused_before_touching_disk() {
         (
             case(|f| f.extra_datasets.push(extra("/a/deep", &[1], 1))),
             "'/a/deep' collides with another",
+        ),
+        (
+            case(|f| {
+                let mut e = extra("/s/counts", &[2], 2);
+                e.data[1] = 0.5;
+                e.integer = true;
+                f.extra_datasets.push(e)
+            }),
+            "not a whole number",
         ),
         (
             case(|f| f.extra_datasets[0].attrs.push((String::new(), "x".into()))),

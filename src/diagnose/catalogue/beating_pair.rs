@@ -100,6 +100,13 @@ impl Term for PairSplits {
             })
             .collect()
     }
+    /// Only a held-out table that resolves one of these clusters into a pair can test a split
+    /// (with two microphones, one member is often too weak in the held-out one).
+    fn held_out_can_test(&self, held: &ModeTable) -> bool {
+        held.pairs
+            .iter()
+            .any(|p| self.clusters.contains(&p.cluster))
+    }
     fn frequency(&self, table: &ModeTable, p: &[f64], ln_f: &mut [f64]) {
         for pair in &table.pairs {
             if let Some(i) = self.clusters.iter().position(|&c| c == pair.cluster) {

@@ -124,9 +124,16 @@ fn evaluate(
     let Some((candidate, delta_bic)) = best else {
         return Outcome::Nothing { statistic, detail };
     };
-    let held_out = held.and_then(|h| held_out_change(current, &candidate, h, settings));
     let i = candidate.model.terms.len() - 1;
     let term = &candidate.model.terms[i];
+    let held_out = held.and_then(|h| {
+        let change = held_out_change(current, &candidate, h, settings)?;
+        Some(if term.held_out_can_test(h) {
+            change
+        } else {
+            change.untestable()
+        })
+    });
     let off = candidate.model.term_offset(i);
     let n_term = term.params().len();
     let signature_missing = term.signature_missing(
@@ -207,7 +214,14 @@ pub(super) fn last_in(
     let without = fit(table, model, x0);
     let searched = search_charge(term.as_ref(), settings);
     let delta_bic = without.bic() - full.bic() - searched * (table.n_residuals() as f64).ln();
-    let held_out = held.and_then(|h| held_out_change(&without, full, h, settings));
+    let held_out = held.and_then(|h| {
+        let change = held_out_change(&without, full, h, settings)?;
+        Some(if term.held_out_can_test(h) {
+            change
+        } else {
+            change.untestable()
+        })
+    });
     let rejection = acceptance(delta_bic, held_out, settings);
     LastIn {
         without,

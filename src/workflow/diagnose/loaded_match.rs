@@ -32,29 +32,34 @@ pub(super) const LOADED_MATCH_MIN_DISTANCE: f64 = 1e-3;
 /// The simulation carries the loaded match's mass only when it at most halves the plain
 /// distance.
 pub(super) const LOADED_MATCH_RATIO: f64 = 0.5;
-/// A carried mass that the catalogue accepts stands without matching a recorded mode the
-/// plain model leaves unmatched when it cuts the plain line distance at least this many times
-/// (`run`, stages 4 and 5). On the three blind-benchmark seeds (90 cases) the cases with a
-/// mass that entered the search cut it 4.1–27.9 times (one 2.4, set2 case 012, which the
-/// unmatched-mode test keeps), the cases without one at most 2.1 times.
-const LOADED_MATCH_DECISIVE_CUT: f64 = 4.0;
+/// A carried mass that moves the line match's ν by at least this much stands without
+/// matching a recorded mode the plain model leaves unmatched ([`loaded_model_verdict`]): the
+/// fine passes' ν range (± 0.03) is the search's own scale for ν.
+pub(super) const LOADED_MATCH_DECISIVE_POISSON_SHIFT: f64 = 0.03;
+
 /// Whether the loaded model's report stands against the plain model's (`run`, stages 4 and
-/// 5): the catalogue accepted the carried mass (`accepted`), and it either leaves fewer recorded
-/// modes unmatched (`with` against `without`) or cut the plain line distance `cut` times, at
-/// least [`LOADED_MATCH_DECISIVE_CUT`]. Err: why not, for the report.
+/// 5): the catalogue accepted the carried mass (`accepted`), and either it leaves fewer
+/// recorded modes unmatched (`with` against `without`), or the plain line match could only
+/// absorb the mass by moving ν by `poisson_shift`, at least
+/// [`LOADED_MATCH_DECISIVE_POISSON_SHIFT`] (the mass then reshapes the whole spectrum, which
+/// no splitting of pairs does). Otherwise the plain model decides: its catalogue has the
+/// loaded match's site as the candidate added-mass region, so the mass competes there with
+/// the other effects on one table (a first-order mass that splits pairs against free splits
+/// of the pairs), instead of being adopted for cutting the line distance, which any
+/// explanation of the splits does. Err: why not, for the report.
 pub(super) fn loaded_model_verdict(
     accepted: bool,
     with: usize,
     without: usize,
-    cut: f64,
+    poisson_shift: f64,
 ) -> Result<(), String> {
     if !accepted {
         return Err("the catalogue rejected the carried mass".to_string());
     }
-    if with < without || cut >= LOADED_MATCH_DECISIVE_CUT {
+    if with < without || poisson_shift.abs() >= LOADED_MATCH_DECISIVE_POISSON_SHIFT {
         return Ok(());
     }
-    Err(format!("the carried mass matches no recorded mode the plain model leaves unmatched ({with} unmatched with it, {without} without) and cuts the line distance only {cut:.1} times (< {LOADED_MATCH_DECISIVE_CUT})"))
+    Err(format!("the carried mass matches no recorded mode the plain model leaves unmatched ({with} unmatched with it, {without} without) and moves ν by only {:.3} (< {LOADED_MATCH_DECISIVE_POISSON_SHIFT}); the plain model, with the loaded match's site as its candidate mass, decides", poisson_shift.abs()))
 }
 
 /// Candidate mass sites of the loaded match's coarse pass (farthest-point samples of the
@@ -511,16 +516,20 @@ pub(super) fn loaded_match(
 mod tests {
     use super::*;
 
-    /// The blind benchmark's cases: seed 303 case 028 (a 2.0 % mass whose splits the plain model
-    /// matched, line distance cut 27.9 times) stands; seed 202 case 024 (clean, cut 2.1 times,
-    /// nothing unmatched either way) does not; a mass the catalogue rejects never does.
+    /// Generator 2 seed 11: case 020 (a 5.7 % mass; the plain match took ν = 0.305, the loaded
+    /// 0.210) stands on its ν shift; case 000 (split pairs, a 0.5 % "mass" moving ν by 0.008)
+    /// does not; the first generator's masses stand on unmatched modes; a mass the catalogue
+    /// rejects never does.
     #[test]
-    fn a_loaded_model_stands_on_an_unmatched_mode_or_a_decisive_cut() {
-        assert_eq!(loaded_model_verdict(true, 0, 0, 27.9), Ok(()));
-        assert_eq!(loaded_model_verdict(true, 0, 4, 2.4), Ok(()));
-        let clean = loaded_model_verdict(true, 0, 0, 2.1).unwrap_err();
-        assert!(clean.contains("2.1 times"), "{clean}");
-        assert!(loaded_model_verdict(false, 0, 5, 30.0)
+    fn a_loaded_model_stands_on_an_unmatched_mode_or_a_decisive_poisson_shift() {
+        assert_eq!(loaded_model_verdict(true, 0, 5, 0.0), Ok(()));
+        assert_eq!(loaded_model_verdict(true, 0, 0, -0.095), Ok(()));
+        let pairs = loaded_model_verdict(true, 0, 0, 0.008).unwrap_err();
+        assert!(
+            pairs.contains("plain model") && pairs.contains("0.008"),
+            "{pairs}"
+        );
+        assert!(loaded_model_verdict(false, 0, 5, 0.1)
             .unwrap_err()
             .contains("rejected"));
         assert!(loaded_model_verdict(true, 1, 1, f64::NAN).is_err());

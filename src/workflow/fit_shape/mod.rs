@@ -46,14 +46,16 @@
 //! # Outputs
 //!
 //! `out` (HDF5, written atomically; `/` attrs `format` = `diffsound.fit_shape`,
-//! `format_version` = 1, `task` (`thickness` | `morph`), `parameter_name`, `surfaces`,
-//! `command`, `version`, `n_ranks`):
+//! `format_version` = 2, `task` (`thickness` | `morph`), `parameter_name`, `surfaces`,
+//! `command`, `version`, `n_ranks` (i64)). Counts and indices are integers (u64 datasets, i64
+//! attributes) and flags u8 (`flag` attributes as in [`crate::io::results`]); version 1 stored
+//! them as f64:
 //!
 //! | path | contents |
 //! |------|----------|
 //! | `/fit` attrs | `wall_refinement`, `wall_band`, `wall_tolerance` (the grid refinement near the walls; 0 halvings: none), `parameter` (the answer), `finest_level_parameter` (the mean over the finest spacing's replicas), `extrapolated` (if any), `target_spacing` [m], `loss` (finest level), `evaluations`, `seconds`; synthesised targets add `true_parameter`, `abs_error`, `target_cells` |
 //! | `/fit/levels/{cells,spacing,parameter,loss,log_stiffness_scale,evaluations,seconds,grid_tets,wall_centre}` | per level, coarse to fine (replicas of a spacing are consecutive entries with equal cells); spacing in m (of the structured grid); log_stiffness_scale the profiled ln factor with `--free-scale` (else 0); grid_tets the background tets after any refinement, wall_centre the t its inner-wall band was centred on (NaN: not refined) |
-//! | `/fit/history/{level,cells,phase,parameter,loss,gradient,step,tets,p2_nodes,meshing_s,assembly_s,solve_s,gradient_s,failed}` | every evaluation (phase 0 = scan, 1 = refine; failed 1 where no body could be meshed or solved, loss NaN) |
+//! | `/fit/history/{level,cells,phase,parameter,loss,gradient,step,tets,p2_nodes,meshing_s,assembly_s,solve_s,gradient_s,failed}` | every evaluation (level, cells, phase, tets, p2_nodes u64: phase 0 = scan, 1 = refine; failed u8, 1 where no body could be meshed or solved, loss NaN) |
 //! | `/modes/{target_frequency_hz,fitted_frequency_hz,target_eigenvalues,fitted_eigenvalues,relative_frequency_error}` | the compared modes: target vs the finest level's best fit (the model on that grid) |
 //! | `/modes/answer_frequency_hz` | the body at the answer (extrapolated) parameter on the finest grid: the mesh file's modes |
 //! | `/shape` attrs | `reference_depth` [m] and `curved_boundary` (1: exact crossings and curved P2 edges, 0: `--straight-boundary`) for thickness, `diagonal` [m], `finest_cells`, `tets`, `p2_nodes`, `volume` [m³] of the P2 body |

@@ -39,7 +39,7 @@ fn write_results(job: &Job, report: &Report) -> Result<(), String> {
             .map(|&l| crate::eigen::frequency_hz(l))
             .collect::<Vec<f64>>()
     };
-    let mut file = ResultsFile::new("diffsound.fit_shape", 1);
+    let mut file = ResultsFile::new("diffsound.fit_shape", 2);
     file.text("/", "task", job.task.name())
         .text("/", "parameter_name", job.task.parameter_name())
         .text(
@@ -57,13 +57,13 @@ fn write_results(job: &Job, report: &Report) -> Result<(), String> {
             &std::env::args().collect::<Vec<_>>().join(" "),
         )
         .text("/", "version", env!("CARGO_PKG_VERSION"))
-        .number("/", "n_ranks", n_ranks as f64);
+        .integer("/", "n_ranks", n_ranks as i64);
     let finest = fit.levels.last().expect("at least one level");
     file.number("/fit", "parameter", fit.parameter)
         .number("/fit", "finest_level_parameter", fit.finest_parameter())
         .number("/fit", "target_spacing", target_spacing)
         .number("/fit", "loss", finest.loss)
-        .number("/fit", "evaluations", fit.history.len() as f64)
+        .integer("/fit", "evaluations", fit.history.len() as i64)
         .number("/fit", "seconds", fit.seconds);
     if let Some(e) = fit.extrapolated {
         file.number("/fit", "extrapolated", e);
@@ -71,132 +71,103 @@ fn write_results(job: &Job, report: &Report) -> Result<(), String> {
     if let Some((value, cells)) = truth {
         file.number("/fit", "true_parameter", value)
             .number("/fit", "abs_error", (fit.parameter - value).abs())
-            .number("/fit", "target_cells", cells as f64);
+            .integer("/fit", "target_cells", cells as i64);
     }
     let l = &fit.levels;
-    file.column(
-        "/fit/levels/cells",
-        l.iter().map(|l| l.cells as f64).collect(),
-        "",
-    )
-    .column(
-        "/fit/levels/spacing",
-        l.iter().map(|l| l.spacing).collect(),
-        "m",
-    )
-    .column(
-        "/fit/levels/parameter",
-        l.iter().map(|l| l.parameter).collect(),
-        "1",
-    )
-    .column("/fit/levels/loss", l.iter().map(|l| l.loss).collect(), "1")
-    .column(
-        "/fit/levels/log_stiffness_scale",
-        l.iter().map(|l| l.log_scale).collect(),
-        "1",
-    )
-    .column(
-        "/fit/levels/evaluations",
-        l.iter().map(|l| l.evaluations as f64).collect(),
-        "",
-    )
-    .column(
-        "/fit/levels/seconds",
-        l.iter().map(|l| l.seconds).collect(),
-        "s",
-    )
-    .column(
-        "/fit/levels/grid_tets",
-        l.iter().map(|l| l.grid_tets as f64).collect(),
-        "",
-    )
-    .column(
-        "/fit/levels/wall_centre",
-        l.iter()
-            .map(|l| l.wall_centre.unwrap_or(f64::NAN))
-            .collect(),
-        "1",
-    );
-    file.number(
+    file.indices("/fit/levels/cells", l.iter().map(|l| l.cells).collect())
+        .column(
+            "/fit/levels/spacing",
+            l.iter().map(|l| l.spacing).collect(),
+            "m",
+        )
+        .column(
+            "/fit/levels/parameter",
+            l.iter().map(|l| l.parameter).collect(),
+            "1",
+        )
+        .column("/fit/levels/loss", l.iter().map(|l| l.loss).collect(), "1")
+        .column(
+            "/fit/levels/log_stiffness_scale",
+            l.iter().map(|l| l.log_scale).collect(),
+            "1",
+        )
+        .indices(
+            "/fit/levels/evaluations",
+            l.iter().map(|l| l.evaluations).collect(),
+        )
+        .column(
+            "/fit/levels/seconds",
+            l.iter().map(|l| l.seconds).collect(),
+            "s",
+        )
+        .indices(
+            "/fit/levels/grid_tets",
+            l.iter().map(|l| l.grid_tets).collect(),
+        )
+        .column(
+            "/fit/levels/wall_centre",
+            l.iter()
+                .map(|l| l.wall_centre.unwrap_or(f64::NAN))
+                .collect(),
+            "1",
+        );
+    file.integer(
         "/fit",
         "wall_refinement",
-        job.settings.wall_refinement as f64,
+        job.settings.wall_refinement as i64,
     )
     .number("/fit", "wall_band", job.settings.wall_band)
     .number("/fit", "wall_tolerance", job.settings.wall_tolerance);
     let h = &fit.history;
-    file.column(
-        "/fit/history/level",
-        h.iter().map(|e| e.level as f64).collect(),
-        "",
-    )
-    .column(
-        "/fit/history/cells",
-        h.iter().map(|e| e.cells as f64).collect(),
-        "",
-    )
-    .column(
-        "/fit/history/phase",
-        h.iter()
-            .map(|e| {
-                if e.phase == SearchPhase::Scan {
-                    0.0
-                } else {
-                    1.0
-                }
-            })
-            .collect(),
-        "",
-    )
-    .column(
-        "/fit/history/parameter",
-        h.iter().map(|e| e.parameter).collect(),
-        "1",
-    )
-    .column("/fit/history/loss", h.iter().map(|e| e.loss).collect(), "1")
-    .column(
-        "/fit/history/gradient",
-        h.iter().map(|e| e.gradient).collect(),
-        "1",
-    )
-    .column("/fit/history/step", h.iter().map(|e| e.step).collect(), "1")
-    .column(
-        "/fit/history/tets",
-        h.iter().map(|e| e.tets as f64).collect(),
-        "",
-    )
-    .column(
-        "/fit/history/p2_nodes",
-        h.iter().map(|e| e.p2_nodes as f64).collect(),
-        "",
-    )
-    .column(
-        "/fit/history/meshing_s",
-        h.iter().map(|e| e.timings.meshing).collect(),
-        "s",
-    )
-    .column(
-        "/fit/history/assembly_s",
-        h.iter().map(|e| e.timings.assembly).collect(),
-        "s",
-    )
-    .column(
-        "/fit/history/solve_s",
-        h.iter().map(|e| e.timings.solve).collect(),
-        "s",
-    )
-    .column(
-        "/fit/history/gradient_s",
-        h.iter().map(|e| e.timings.gradient).collect(),
-        "s",
-    )
-    .column(
-        "/fit/history/failed",
-        h.iter()
-            .map(|e| f64::from(u8::from(e.failure.is_some())))
-            .collect(),
-        "",
-    );
+    file.indices("/fit/history/level", h.iter().map(|e| e.level).collect())
+        .indices("/fit/history/cells", h.iter().map(|e| e.cells).collect())
+        .indices(
+            "/fit/history/phase",
+            h.iter()
+                .map(|e| usize::from(e.phase != SearchPhase::Scan))
+                .collect(),
+        )
+        .column(
+            "/fit/history/parameter",
+            h.iter().map(|e| e.parameter).collect(),
+            "1",
+        )
+        .column("/fit/history/loss", h.iter().map(|e| e.loss).collect(), "1")
+        .column(
+            "/fit/history/gradient",
+            h.iter().map(|e| e.gradient).collect(),
+            "1",
+        )
+        .column("/fit/history/step", h.iter().map(|e| e.step).collect(), "1")
+        .indices("/fit/history/tets", h.iter().map(|e| e.tets).collect())
+        .indices(
+            "/fit/history/p2_nodes",
+            h.iter().map(|e| e.p2_nodes).collect(),
+        )
+        .column(
+            "/fit/history/meshing_s",
+            h.iter().map(|e| e.timings.meshing).collect(),
+            "s",
+        )
+        .column(
+            "/fit/history/assembly_s",
+            h.iter().map(|e| e.timings.assembly).collect(),
+            "s",
+        )
+        .column(
+            "/fit/history/solve_s",
+            h.iter().map(|e| e.timings.solve).collect(),
+            "s",
+        )
+        .column(
+            "/fit/history/gradient_s",
+            h.iter().map(|e| e.timings.gradient).collect(),
+            "s",
+        )
+        .flags(
+            "/fit/history/failed",
+            h.iter().map(|e| e.failure.is_some()).collect(),
+        );
     let (target_hz, fitted_hz) = (hz(&target.eigenvalues), hz(fitted));
     file.column(
         "/modes/target_eigenvalues",
@@ -233,16 +204,13 @@ fn write_results(job: &Job, report: &Report) -> Result<(), String> {
         "diagonal",
         (0..3).map(|d| (hi[d] - lo[d]).powi(2)).sum::<f64>().sqrt(),
     )
-    .number("/shape", "finest_cells", finest.cells as f64)
-    .number("/shape", "tets", body.mesh.n_tets() as f64)
-    .number("/shape", "p2_nodes", body.mesh.n_nodes() as f64)
+    .integer("/shape", "finest_cells", finest.cells as i64)
+    .integer("/shape", "tets", body.mesh.n_tets() as i64)
+    .integer("/shape", "p2_nodes", body.mesh.n_nodes() as i64)
     .number("/shape", "volume", volume);
     if let Task::Thickness { curved, .. } = job.task {
-        file.number("/shape", "reference_depth", depth).number(
-            "/shape",
-            "curved_boundary",
-            f64::from(u8::from(curved)),
-        );
+        file.number("/shape", "reference_depth", depth)
+            .flag("/shape", "curved_boundary", curved);
     }
     file.number("/material", "youngs_modulus", job.material.youngs_modulus)
         .number("/material", "poisson_ratio", job.material.poisson_ratio)

@@ -198,6 +198,7 @@ fn sensitivity_datasets(
             ("units".into(), units.into()),
             ("meaning".into(), what.into()),
         ],
+        integer: false,
     };
     let df = |d: &[f64]| -> Vec<f64> {
         d.iter()
@@ -300,6 +301,7 @@ fn sensitivity_datasets(
             ),
             ("cluster_rtol".into(), format!("{:e}", modes.cluster_rtol)),
         ],
+        integer: true,
     });
     for (k, c) in s.clusters.iter().enumerate() {
         let mut data = Vec::new();
@@ -324,6 +326,7 @@ fn sensitivity_datasets(
                     "eigenvalues of Phi^T (dK - mean(lambda) dM) Phi over the cluster".into(),
                 ),
             ],
+            integer: false,
         });
     }
     out
