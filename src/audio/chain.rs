@@ -248,7 +248,7 @@ impl ModalChain {
             ));
         }
         damping.validate(eigenvalues.len())?;
-        strike.force.validate()?;
+        strike.force.validate().map_err(|e| e.to_string())?;
         let two_pi = 2.0 * std::f64::consts::PI;
         let mut bank = ModalBank::default();
         let mut links = Vec::with_capacity(eigenvalues.len());

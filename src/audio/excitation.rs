@@ -80,10 +80,23 @@ impl std::fmt::Display for Response {
     }
 }
 
+/// A contact force or response quantity that cannot be used, with what was given.
+#[derive(Clone, Debug, PartialEq, thiserror::Error)]
+pub enum ExcitationError {
+    #[error("half-sine duration {0:?} is not a number (seconds)")]
+    DurationNotANumber(String),
+    #[error("half-sine duration {0} s must lie in (0, 1]")]
+    DurationOutOfRange(f64),
+    #[error("unknown contact force {0:?}: use `impulse` or `half-sine:<seconds>`")]
+    UnknownForce(String),
+    #[error("unknown response {0:?}: use displacement, velocity or acceleration")]
+    UnknownResponse(String),
+}
+
 impl std::str::FromStr for ContactForce {
-    type Err = String;
+    type Err = ExcitationError;
     /// `impulse` or `half-sine:<duration in s>`.
-    fn from_str(s: &str) -> Result<Self, String> {
+    fn from_str(s: &str) -> Result<Self, ExcitationError> {
         let s = s.trim();
         if s.eq_ignore_ascii_case("impulse") {
             return Ok(ContactForce::Impulse);
@@ -95,42 +108,38 @@ impl std::str::FromStr for ContactForce {
             let duration_s: f64 = rest
                 .trim()
                 .parse()
-                .map_err(|_| format!("half-sine duration {rest:?} is not a number (seconds)"))?;
+                .map_err(|_| ExcitationError::DurationNotANumber(rest.to_string()))?;
             let force = ContactForce::HalfSine { duration_s };
             force.validate()?;
             return Ok(force);
         }
-        Err(format!(
-            "unknown contact force {s:?}: use `impulse` or `half-sine:<seconds>`"
-        ))
+        Err(ExcitationError::UnknownForce(s.to_string()))
     }
 }
 
 impl std::str::FromStr for Response {
-    type Err = String;
-    fn from_str(s: &str) -> Result<Self, String> {
+    type Err = ExcitationError;
+    fn from_str(s: &str) -> Result<Self, ExcitationError> {
         match s.trim().to_ascii_lowercase().as_str() {
             "displacement" => Ok(Response::Displacement),
             "velocity" => Ok(Response::Velocity),
             "acceleration" => Ok(Response::Acceleration),
-            other => Err(format!(
-                "unknown response {other:?}: use displacement, velocity or acceleration"
-            )),
+            other => Err(ExcitationError::UnknownResponse(other.to_string())),
         }
     }
 }
 
 impl ContactForce {
     /// A half-sine needs a duration in (0, 1] s.
-    pub fn validate(&self) -> Result<(), String> {
+    pub fn validate(&self) -> Result<(), ExcitationError> {
         match *self {
             ContactForce::Impulse => Ok(()),
             ContactForce::HalfSine { duration_s } if duration_s > 0.0 && duration_s <= 1.0 => {
                 Ok(())
             }
-            ContactForce::HalfSine { duration_s } => Err(format!(
-                "half-sine duration {duration_s} s must lie in (0, 1]"
-            )),
+            ContactForce::HalfSine { duration_s } => {
+                Err(ExcitationError::DurationOutOfRange(duration_s))
+            }
         }
     }
 

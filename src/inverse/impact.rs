@@ -935,7 +935,10 @@ pub fn forward_amplitudes(
     check_finite("mode shape value", shapes.iter().flatten().copied())?;
     check_finite("eigenvalue", eigenvalues.iter().copied())?;
     check_finite("decay rate", decay_rates.iter().copied())?;
-    strike.force.validate().map_err(ImpactError::BadStrike)?;
+    strike
+        .force
+        .validate()
+        .map_err(|e| ImpactError::BadStrike(e.to_string()))?;
     let microphones = transfer.validate(k_modes)?;
     let n_nodes = dofs / 3;
     let candidates = normalised_candidates(candidates, n_nodes)?;

@@ -1,17 +1,17 @@
-//! Eigenvalues of a small general complex matrix (the ESPRIT rotation Φ): Householder
-//! reduction to upper Hessenberg form, then the single-shift QR algorithm with Wilkinson shifts
-//! and Givens rotations, deflating from the bottom.
+//! Eigenvalues of a small general complex matrix (the ESPRIT rotation Φ), by nalgebra's complex
+//! Schur decomposition with a cap on its iterations.
 //!
-//! Written here rather than taken from nalgebra's `Schur` because the latter can loop forever on
-//! some inputs (nalgebra issue #611); this one gives up after 60 n iterations and says so, so the
-//! caller can report an error instead of hanging.
+//! The cap matters: the QR iteration can fail to converge (a hand-written single-shift QR
+//! served here until nalgebra's `Schur::try_new` took an iteration limit; without one the
+//! iteration could loop forever, nalgebra issue #611). With it, a rotation that does not
+//! converge is an error the caller reports instead of a hung job.
 
 use nalgebra::DMatrix;
 
 use super::filter::C64;
 
 /// Iterations allowed per eigenvalue before giving up (LAPACK allows 30 per eigenvalue with a
-/// double shift; single shifts need somewhat more).
+/// double shift; nalgebra's complex Schur uses single shifts, which need somewhat more).
 const MAX_ITER_PER_EIGENVALUE: usize = 60;
 
 /// All eigenvalues of the square matrix `a` (in no particular order), or `None` if the QR
@@ -22,165 +22,17 @@ pub(super) fn eigenvalues(a: &DMatrix<C64>) -> Option<Vec<C64>> {
     if a.iter().any(|v| !(v.re.is_finite() && v.im.is_finite())) {
         return None;
     }
-    let mut h = a.clone();
-    hessenberg(&mut h);
-    let scale = h.iter().map(|v| v.norm()).fold(0.0_f64, f64::max);
-    let mut eig = vec![C64::new(0.0, 0.0); n];
-    // The unreduced block being iterated is rows/columns lo..hi; everything from hi on has
-    // converged.
-    let mut hi = n;
-    let mut total = 0usize;
-    let mut since_deflation = 0usize;
-    while hi > 0 {
-        // Find lo: the start of the unreduced block ending at hi − 1.
-        let mut lo = hi - 1;
-        while lo > 0 {
-            let mut s = h[(lo - 1, lo - 1)].norm() + h[(lo, lo)].norm();
-            if s == 0.0 {
-                s = scale;
-            }
-            if h[(lo, lo - 1)].norm() <= f64::EPSILON * s {
-                h[(lo, lo - 1)] = C64::new(0.0, 0.0);
-                break;
-            }
-            lo -= 1;
-        }
-        if lo == hi - 1 {
-            eig[hi - 1] = h[(hi - 1, hi - 1)];
-            hi -= 1;
-            since_deflation = 0;
-            continue;
-        }
-        total += 1;
-        since_deflation += 1;
-        if total > MAX_ITER_PER_EIGENVALUE * n {
-            return None;
-        }
-        let mu = if since_deflation % 11 == 10 {
-            // Exceptional shift: breaks the rare cycles a Wilkinson shift can fall into.
-            h[(hi - 1, hi - 1)] + C64::new(0.75 * h[(hi - 1, hi - 2)].norm(), 0.0)
-        } else {
-            wilkinson_shift(&h, hi)
-        };
-        qr_step(&mut h, lo, hi, mu);
+    if a.iter().all(|v| v.re == 0.0 && v.im == 0.0) {
+        // nalgebra's Schur divides by the matrix's norm; the zero matrix's spectrum is zero.
+        return Some(vec![C64::new(0.0, 0.0); n]);
     }
-    Some(eig)
-}
-
-/// The eigenvalue of the trailing 2 × 2 block of rows/columns hi − 2, hi − 1 closest to its
-/// last diagonal entry.
-fn wilkinson_shift(h: &DMatrix<C64>, hi: usize) -> C64 {
-    let a = h[(hi - 2, hi - 2)];
-    let b = h[(hi - 2, hi - 1)];
-    let c = h[(hi - 1, hi - 2)];
-    let d = h[(hi - 1, hi - 1)];
-    let half_diff = (a - d) * 0.5;
-    let disc = (half_diff * half_diff + b * c).sqrt();
-    let mean = (a + d) * 0.5;
-    let (m1, m2) = (mean + disc, mean - disc);
-    if (m1 - d).norm() <= (m2 - d).norm() {
-        m1
-    } else {
-        m2
-    }
-}
-
-/// One explicitly shifted QR step H − μI = QR, H ← RQ + μI on the block lo..hi, with the
-/// Givens rotations G_k = [[c, s], [−s̄, c]] (c real) that zero the sub-diagonal. Rows above lo
-/// and columns from hi on are not updated: they do not affect the block's eigenvalues.
-fn qr_step(h: &mut DMatrix<C64>, lo: usize, hi: usize, mu: C64) {
-    for i in lo..hi {
-        h[(i, i)] -= mu;
-    }
-    let mut rotations = Vec::with_capacity(hi - lo);
-    for k in lo..hi - 1 {
-        let (c, s) = givens(h[(k, k)], h[(k + 1, k)]);
-        for j in k..hi {
-            let x = h[(k, j)];
-            let y = h[(k + 1, j)];
-            h[(k, j)] = x * c + s * y;
-            h[(k + 1, j)] = -s.conj() * x + y * c;
-        }
-        rotations.push((c, s));
-    }
-    for (k, &(c, s)) in (lo..hi - 1).zip(&rotations) {
-        // Right multiplication by G_kᴴ = [[c, −s], [s̄, c]] on columns k, k + 1.
-        for i in lo..=(k + 1).min(hi - 1) {
-            let x = h[(i, k)];
-            let y = h[(i, k + 1)];
-            h[(i, k)] = x * c + s.conj() * y;
-            h[(i, k + 1)] = -s * x + y * c;
-        }
-    }
-    for i in lo..hi {
-        h[(i, i)] += mu;
-    }
-}
-
-/// (c, s) with c real, |c|² + |s|² = 1 and [[c, s], [−s̄, c]] (a, b)ᵀ = (r, 0)ᵀ.
-fn givens(a: C64, b: C64) -> (f64, C64) {
-    let (na, nb) = (a.norm(), b.norm());
-    if nb == 0.0 {
-        (1.0, C64::new(0.0, 0.0))
-    } else if na == 0.0 {
-        (0.0, b.conj() / nb)
-    } else {
-        let norm = na.hypot(nb);
-        (na / norm, (a / na) * b.conj() / norm)
-    }
-}
-
-/// In-place reduction to upper Hessenberg form by Householder reflections P = I − 2vvᴴ
-/// (similarity transforms, so the eigenvalues are unchanged).
-fn hessenberg(a: &mut DMatrix<C64>) {
-    let n = a.nrows();
-    for k in 0..n.saturating_sub(2) {
-        let norm_x = (k + 1..n).map(|i| a[(i, k)].norm_sqr()).sum::<f64>().sqrt();
-        if norm_x == 0.0 {
-            continue;
-        }
-        let x0 = a[(k + 1, k)];
-        // α = −e^{i arg x0} ‖x‖, so v = x − α e₁ involves no cancellation.
-        let phase = if x0.norm() > 0.0 {
-            x0 / x0.norm()
-        } else {
-            C64::new(1.0, 0.0)
-        };
-        let alpha = -phase * norm_x;
-        let mut v: Vec<C64> = (k + 1..n).map(|i| a[(i, k)]).collect();
-        v[0] -= alpha;
-        let norm_v = v.iter().map(|z| z.norm_sqr()).sum::<f64>().sqrt();
-        if norm_v == 0.0 {
-            continue;
-        }
-        for z in &mut v {
-            *z /= norm_v;
-        }
-        // A ← P A on rows k+1.., then A ← A P on columns k+1...
-        for j in k..n {
-            let dot: C64 = v
-                .iter()
-                .enumerate()
-                .map(|(t, vi)| vi.conj() * a[(k + 1 + t, j)])
-                .sum();
-            for (t, vi) in v.iter().enumerate() {
-                a[(k + 1 + t, j)] -= vi * dot * 2.0;
-            }
-        }
-        for i in 0..n {
-            let dot: C64 = v
-                .iter()
-                .enumerate()
-                .map(|(t, vi)| a[(i, k + 1 + t)] * vi)
-                .sum();
-            for (t, vi) in v.iter().enumerate() {
-                a[(i, k + 1 + t)] -= dot * vi.conj() * 2.0;
-            }
-        }
-        for i in k + 2..n {
-            a[(i, k)] = C64::new(0.0, 0.0);
-        }
-    }
+    let schur = nalgebra::Schur::try_new(a.clone(), f64::EPSILON, MAX_ITER_PER_EIGENVALUE * n)?;
+    // Over the complex field the Schur form is upper triangular: its diagonal is the spectrum.
+    let (_, t) = schur.unpack();
+    let eig: Vec<C64> = (0..n).map(|i| t[(i, i)]).collect();
+    eig.iter()
+        .all(|v| v.re.is_finite() && v.im.is_finite())
+        .then_some(eig)
 }
 
 #[cfg(test)]
