@@ -1,10 +1,16 @@
 //! Node partition: which rank owns which mesh node (and so which matrix rows).
 //!
-//! Debian's PETSc has no METIS/ParMETIS, so we use recursive coordinate bisection (RCB): split
-//! the node cloud at the median of its longest axis, proportionally to the number of parts on each
-//! side, until there is one part per rank. RCB gives compact parts with short interfaces, which
-//! keeps the off-rank coupling (and the MUMPS interface fronts) small. Ties are broken by node
-//! index, so every rank computes the same partition without communicating.
+//! Recursive coordinate bisection (RCB): split the node cloud at the median of its longest axis,
+//! proportionally to the number of parts on each side, until there is one part per rank. RCB
+//! gives compact parts with short interfaces, which keeps the off-rank coupling (and the MUMPS
+//! interface fronts) small. Ties are broken by node index, so every rank computes the same
+//! partition without communicating.
+//!
+//! Why not a graph partitioner: Debian's PETSc has no METIS/ParMETIS but does have PT-Scotch
+//! (`MatPartitioning` type `ptscotch`). RCB is kept because it needs only the coordinates, so
+//! the partition exists before any matrix or node graph is built (the layout decides which rank
+//! assembles which rows), and it is deterministic and free of communication. Whether PT-Scotch
+//! would cut shorter interfaces on our meshes has not been measured.
 //!
 //! Nodes are renumbered so that rank `r` owns the contiguous range `offsets[r]..offsets[r+1]`;
 //! inside a part the original relative order is kept (mesh generators number nodes locally).

@@ -31,7 +31,9 @@
 //! # Outputs
 //!
 //! `out` (HDF5, written atomically; `/` attrs `format` = `diffsound.fit_geometry`,
-//! `format_version` = 1, `surface`, `command`, `version`, `n_ranks`, `settings_json`):
+//! `format_version` = 2, `surface`, `command`, `version`, `n_ranks` (i64), `settings_json`).
+//! Steps, counts and sizes are integers (u64 datasets, i64 attributes) and flags u8; version 1
+//! stored them as f64:
 //!
 //! | path | contents |
 //! |------|----------|

@@ -86,7 +86,7 @@ fn write_results(job: &Job, report: &Report) -> Result<(), String> {
             .map(|&l| crate::eigen::frequency_hz(l))
             .collect::<Vec<f64>>()
     };
-    let mut file = ResultsFile::new("diffsound.fit_geometry", 1);
+    let mut file = ResultsFile::new("diffsound.fit_geometry", 2);
     file.text("/", "surface", &job.surface.display().to_string())
         .text(
             "/",
@@ -99,7 +99,7 @@ fn write_results(job: &Job, report: &Report) -> Result<(), String> {
             "settings_json",
             &serde_json::to_string(&job.settings).map_err(|e| e.to_string())?,
         )
-        .number("/", "n_ranks", n_ranks as f64);
+        .integer("/", "n_ranks", n_ranks as i64);
     let c = &fit.voxel_comparison;
     file.number("/metrics/voxels", "chamfer", c.chamfer)
         .number("/metrics/voxels", "hausdorff", c.hausdorff)
@@ -151,11 +151,7 @@ fn write_results(job: &Job, report: &Report) -> Result<(), String> {
     if let Some(c) = &fit.check {
         file.number("/check", "before_loss", c.before_loss)
             .number("/check", "after_loss", c.after_loss)
-            .number(
-                "/check",
-                "refined_kept",
-                f64::from(u8::from(c.refined_kept)),
-            );
+            .flag("/check", "refined_kept", c.refined_kept);
     }
     file.column(
         "/modes/target_eigenvalues",
@@ -172,7 +168,7 @@ fn write_results(job: &Job, report: &Report) -> Result<(), String> {
     let col = |f: &dyn Fn(&crate::inverse::geometry::RefineStep) -> f64| {
         h.iter().map(f).collect::<Vec<f64>>()
     };
-    file.column("/refine/history/step", col(&|s| s.step as f64), "")
+    file.indices("/refine/history/step", h.iter().map(|s| s.step).collect())
         .column("/refine/history/loss", col(&|s| s.loss), "1")
         .column("/refine/history/eigen_loss", col(&|s| s.eigen_loss), "1")
         .column("/refine/history/voxel_loss", col(&|s| s.voxel_loss), "1")
@@ -181,8 +177,11 @@ fn write_results(job: &Job, report: &Report) -> Result<(), String> {
             col(&|s| s.eikonal_loss),
             "1",
         )
-        .column("/refine/history/tets", col(&|s| s.tets as f64), "")
-        .column("/refine/history/p2_nodes", col(&|s| s.p2_nodes as f64), "")
+        .indices("/refine/history/tets", h.iter().map(|s| s.tets).collect())
+        .indices(
+            "/refine/history/p2_nodes",
+            h.iter().map(|s| s.p2_nodes).collect(),
+        )
         .column(
             "/refine/history/meshing_s",
             col(&|s| s.timings.meshing),
@@ -205,17 +204,15 @@ fn write_results(job: &Job, report: &Report) -> Result<(), String> {
             "s",
         )
         .column("/refine/history/step_scale", col(&|s| s.step_scale), "1")
-        .column(
+        .flags(
             "/refine/history/backtracked",
-            col(&|s| f64::from(u8::from(s.backtracked))),
-            "",
+            h.iter().map(|s| s.backtracked).collect(),
         )
-        .column(
+        .flags(
             "/refine/history/failed",
-            col(&|s| f64::from(u8::from(s.failure.is_some()))),
-            "",
+            h.iter().map(|s| s.failure.is_some()).collect(),
         )
-        .number("/refine", "best_step", fit.refinement.best_step as f64)
+        .integer("/refine", "best_step", fit.refinement.best_step as i64)
         .number("/refine", "seconds", fit.refinement.seconds);
     let (mean, network) = fit.refinement.mean_timings();
     file.number("/refine/mean_step", "meshing", mean.meshing)
@@ -240,7 +237,7 @@ fn write_results(job: &Job, report: &Report) -> Result<(), String> {
         fit.prefit_parameters.clone(),
         "1",
     )
-    .number("/network", "octaves", n.octaves as f64)
+    .integer("/network", "octaves", n.octaves as i64)
     .number("/network", "length", n.length)
     .number("/network", "centre_x", n.centre[0])
     .number("/network", "centre_y", n.centre[1])
@@ -260,8 +257,8 @@ fn write_results(job: &Job, report: &Report) -> Result<(), String> {
         &serde_json::to_string(n).map_err(|e| e.to_string())?,
     );
     let v = &fit.voxels;
-    file.number("/voxels", "resolution", v.resolution as f64)
-        .number("/voxels", "occupied", v.occupied() as f64)
+    file.integer("/voxels", "resolution", v.resolution as i64)
+        .integer("/voxels", "occupied", v.occupied() as i64)
         .number("/voxels", "edge_x", v.size[0])
         .number("/voxels", "edge_y", v.size[1])
         .number("/voxels", "edge_z", v.size[2]);
