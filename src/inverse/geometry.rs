@@ -1145,7 +1145,7 @@ fn vjp_rows_across_ranks(
     rows: &[Vec<f64>],
 ) -> Result<Vec<Vec<f64>>, GeometryError> {
     use mpi::collective::{CommunicatorCollectives, SystemOperation};
-    let (rank, size) = (petsc.rank() as usize, petsc.size() as usize);
+    let (rank, size) = (petsc.rank(), petsc.size());
     if size == 1 || rows.is_empty() {
         return Ok(net.vjp_rows(points, rows)?);
     }

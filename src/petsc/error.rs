@@ -66,7 +66,7 @@ pub(crate) fn check(code: sys::PetscErrorCode, call: &str) -> Result<()> {
         message = "unknown error".into();
     }
     Err(PetscError {
-        code: code as i32,
+        code,
         call: call.to_string(),
         message,
     })

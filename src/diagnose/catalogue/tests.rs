@@ -1323,7 +1323,7 @@ fn support_pair_evidence(gamma: f64, seed: u64) -> Evidence {
     // (simulated index, true decay, ln amplitude without the channel gain)
     let mut truth = Vec::new();
     for cluster in 0..12 {
-        let f = 800.0 * 1.35f64.powi(cluster as i32);
+        let f = 800.0 * 1.35f64.powi(cluster);
         let misfit = (0.15 * normal(&mut rng)).exp();
         let members: Vec<f64> = if cluster % 2 == 0 {
             vec![f, f * 1.002]
