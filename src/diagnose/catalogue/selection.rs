@@ -126,14 +126,8 @@ fn evaluate(
     };
     let i = candidate.model.terms.len() - 1;
     let term = &candidate.model.terms[i];
-    let held_out = held.and_then(|h| {
-        let change = held_out_change(current, &candidate, h, settings)?;
-        Some(if term.held_out_can_test(h) {
-            change
-        } else {
-            change.untestable()
-        })
-    });
+    let held_out =
+        held.and_then(|h| held_out_change(term.as_ref(), current, &candidate, h, settings));
     let off = candidate.model.term_offset(i);
     let n_term = term.params().len();
     let signature_missing = term.signature_missing(
@@ -157,9 +151,11 @@ fn evaluate(
     }))
 }
 
-/// The held-out change from `before` to `after` (a model with one more effect), with
-/// `before`'s floors as the yardstick for both (parent docs, "Selection").
+/// The held-out change from `before` to `after` (`before` with `term` added), with `before`'s
+/// floors as the yardstick for both (parent docs, "Selection"); none at all when `held` has no
+/// row `term` can change ([`Term::held_out_can_test`]).
 fn held_out_change(
+    term: &dyn Term,
     before: &Fit,
     after: &Fit,
     held: &ModeTable,
@@ -172,9 +168,12 @@ fn held_out_change(
     } else {
         1.0
     };
-    Some(HeldOutChange::with_dispersion(
-        b.chi2, b.dof, a.chi2, a.dof, dispersion,
-    ))
+    let change = HeldOutChange::with_dispersion(b.chi2, b.dof, a.chi2, a.dof, dispersion);
+    Some(if term.held_out_can_test(held) {
+        change
+    } else {
+        change.untestable()
+    })
 }
 
 /// Parameters charged to a term whose candidate region the caller chose from these data
@@ -214,14 +213,7 @@ pub(super) fn last_in(
     let without = fit(table, model, x0);
     let searched = search_charge(term.as_ref(), settings);
     let delta_bic = without.bic() - full.bic() - searched * (table.n_residuals() as f64).ln();
-    let held_out = held.and_then(|h| {
-        let change = held_out_change(&without, full, h, settings)?;
-        Some(if term.held_out_can_test(h) {
-            change
-        } else {
-            change.untestable()
-        })
-    });
+    let held_out = held.and_then(|h| held_out_change(term.as_ref(), &without, full, h, settings));
     let rejection = acceptance(delta_bic, held_out, settings);
     LastIn {
         without,
