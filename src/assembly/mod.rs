@@ -358,10 +358,15 @@ pub fn assemble<'p>(petsc: &'p Petsc, mesh: &TetMesh) -> Result<Assembled<'p>, A
     petsc::to_petsc_int(n_dofs).map_err(|_| AssemblyError::TooLarge(n_dofs))?;
     let rank = petsc.rank();
     let partition = partition_nodes(&mesh.nodes, petsc.size());
-    let csr = assemble_local_csr(mesh, &partition, rank)?;
+    let mut csr = assemble_local_csr(mesh, &partition, rank)?;
+    // Each value array is released as soon as PETSc holds its copy: the peak is the pattern,
+    // three value arrays and one PETSc matrix, not three of each.
     let mass = Mat::from_csr(petsc, n_dofs, 3, &csr.row_ptr, &csr.cols, &csr.mass)?;
+    csr.mass = Vec::new();
     let k_lambda = Mat::from_csr(petsc, n_dofs, 3, &csr.row_ptr, &csr.cols, &csr.k_lambda)?;
+    csr.k_lambda = Vec::new();
     let k_mu = Mat::from_csr(petsc, n_dofs, 3, &csr.row_ptr, &csr.cols, &csr.k_mu)?;
+    csr.k_mu = Vec::new();
     let (nonzeros, m1) = mass.global_info()?;
     let (_, m2) = k_lambda.global_info()?;
     let (_, m3) = k_mu.global_info()?;
@@ -380,4 +385,45 @@ pub fn assemble<'p>(petsc: &'p Petsc, mesh: &TetMesh) -> Result<Assembled<'p>, A
         layout: DofLayout { partition, rank },
         stats,
     })
+}
+
+/// K = λK_λ + μK_μ and M = ρM₁ for `material` only, without the split parts (a forward run that
+/// asks for no sensitivities): K is combined in the local CSR arrays, so at no time do more than
+/// the pattern, two value arrays and one PETSc matrix coexist. Same values as
+/// [`Assembled::into_operators`] up to rounding.
+pub fn assemble_operators<'p>(
+    petsc: &'p Petsc,
+    mesh: &TetMesh,
+    material: &Material,
+) -> Result<(Mat<'p>, Mat<'p>, DofLayout, AssemblyStats), AssemblyError> {
+    let start = std::time::Instant::now();
+    let n_dofs = 3 * mesh.n_nodes();
+    petsc::to_petsc_int(n_dofs).map_err(|_| AssemblyError::TooLarge(n_dofs))?;
+    let rank = petsc.rank();
+    let partition = partition_nodes(&mesh.nodes, petsc.size());
+    let mut csr = assemble_local_csr(mesh, &partition, rank)?;
+    let (lambda, mu, rho) = (material.lame_lambda(), material.lame_mu(), material.density);
+    let k_mu = std::mem::take(&mut csr.k_mu);
+    for (k, kmu) in csr.k_lambda.iter_mut().zip(&k_mu) {
+        *k = lambda * *k + mu * kmu;
+    }
+    drop(k_mu);
+    csr.mass.iter_mut().for_each(|v| *v *= rho);
+    let mut m = Mat::from_csr(petsc, n_dofs, 3, &csr.row_ptr, &csr.cols, &csr.mass)?;
+    csr.mass = Vec::new();
+    let mut k = Mat::from_csr(petsc, n_dofs, 3, &csr.row_ptr, &csr.cols, &csr.k_lambda)?;
+    csr.k_lambda = Vec::new();
+    k.set_symmetric()?;
+    m.set_symmetric()?;
+    let (nonzeros, m1) = m.global_info()?;
+    let (_, m2) = k.global_info()?;
+    let stats = AssemblyStats {
+        n_dofs,
+        local_elements: csr.elements_evaluated,
+        curved_elements: csr.curved_elements,
+        nonzeros,
+        mallocs: m1 + m2,
+        seconds: start.elapsed().as_secs_f64(),
+    };
+    Ok((k, m, DofLayout { partition, rank }, stats))
 }

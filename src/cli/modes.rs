@@ -2,10 +2,10 @@
 //! ([`FileConfig`]), and the printed summary. The job itself is [`crate::workflow::modes`].
 
 use super::resolve::{check_output, inputs, MeshArgs, MeshChoice, RunArgs};
-use crate::eigen::ModeRequest;
+use crate::eigen::{ModeRequest, SolverPath};
 use crate::io::config::{load_toml, ConfigError, FileConfig, MaterialConfig};
 use crate::petsc::Petsc;
-use crate::workflow::modes::{self as workflow, inertia_line, Job, Report};
+use crate::workflow::modes::{self as workflow, inertia_line, probe_line, Job, Report};
 use clap::Args;
 use mpi::environment::Universe;
 use std::path::PathBuf;
@@ -55,6 +55,10 @@ pub struct ModesArgs {
     /// Shift σ in rad²/s² (default −10⁻²·μ/(ρL²)).
     #[arg(long, allow_hyphen_values = true)]
     pub shift: Option<f64>,
+    /// Solver path: auto (default: direct, iterative above 600k DOF), direct (MUMPS shift-invert
+    /// with the inertia proof) or iterative (LOBPCG + algebraic multigrid, no factor)
+    #[arg(long)]
+    pub solver: Option<SolverPath>,
     /// Skip the inertia check that proves no mode was missed.
     #[arg(long)]
     pub no_verify: bool,
@@ -137,7 +141,13 @@ pub fn resolve(args: &ModesArgs) -> Result<Job, String> {
         }
         (None, None) => ModeRequest::FirstN(20),
     };
-    let tolerance = args.tol.or(file.solver.tolerance).unwrap_or(1e-10);
+    let given_tolerance = args.tol.or(file.solver.tolerance);
+    let tolerance = given_tolerance.unwrap_or(1e-10);
+    let solver_path = match (args.solver, file.solver.path.as_deref()) {
+        (Some(p), _) => p,
+        (None, Some(word)) => word.parse()?,
+        (None, None) => SolverPath::Auto,
+    };
     if !(tolerance > 0.0 && tolerance < 1.0) {
         return Err(format!(
             "the solver tolerance must lie in (0, 1), got {tolerance}"
@@ -183,6 +193,8 @@ pub fn resolve(args: &ModesArgs) -> Result<Job, String> {
         material_name,
         request,
         tolerance,
+        iterative_tolerance: given_tolerance,
+        solver_path,
         verify_count: !args.no_verify && file.solver.verify_count.unwrap_or(true),
         cluster_rtol: file.solver.cluster_rtol,
         shift: args.shift.or(file.solver.shift),
@@ -280,6 +292,9 @@ fn print_summary(job: &Job, report: &Report<'_>) {
     );
     if let Some(c) = &modes.inertia_check {
         println!("inertia check: {}", inertia_line(c));
+    }
+    if let Some(c) = &modes.probe_check {
+        println!("completeness probe: {}", probe_line(c));
     }
     let sens_header = if sens.is_some() {
         format!(" {:>14} {:>12}", "df/dE [Hz/GPa]", "df/dν [Hz]")

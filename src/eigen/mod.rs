@@ -15,6 +15,14 @@
 //! slicing over [σ, (2π f_max)²], which finds every eigenvalue of the interval from MUMPS inertia
 //! counts.
 //!
+//! **Two paths** ([`SolverPath`]). *Direct*: everything below, on MUMPS factors. *Iterative*
+//! ([`iterative`]): generalised Davidson with an algebraic-multigrid preconditioner in the
+//! complement of the rigid motions, for meshes whose factor would not fit or would take too
+//! long; only for [`ModeRequest::FirstN`] and with the rigid motions given
+//! ([`solve_modes_deflated`]); its count check is a probe of the complement, weaker than the
+//! inertia proof ([`ProbeCheck`]). *Auto* takes the iterative path above
+//! [`ITERATIVE_ABOVE_DOFS`] when it can, else the direct one.
+//!
 //! **No lost modes.** For FirstN, a degenerate or near-degenerate cluster that straddles the N-th
 //! mode is completed (relative gap ≤ `cluster_rtol`), and the count is then proven: by Sylvester's
 //! law of inertia the number of negative pivots of K − τM equals the number of eigenvalues below τ.
@@ -45,6 +53,7 @@
 //! `-eps_*`, `-st_*`, `-mat_mumps_*` options, so every setting can be overridden.
 
 pub mod analytic;
+pub mod iterative;
 pub mod reduced;
 pub mod sensitivity;
 
@@ -54,6 +63,7 @@ use crate::petsc::factor::{
     ScopedOption,
 };
 use crate::petsc::{self, Eps, EpsWhich, Mat, NonzeroPattern, Petsc, PetscError, Vector};
+pub use iterative::{ProbeCheck, ProbeVerdict, ITERATIVE_TOLERANCE};
 
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub enum ModeRequest {
@@ -83,7 +93,49 @@ pub struct EigenConfig {
     pub verify_count: bool,
     /// Rigid modes expected (6 for one free body).
     pub expected_rigid: usize,
+    /// Which solver path ([`SolverPath`]; module docs, "Two paths").
+    pub path: SolverPath,
+    /// Relative residual tolerance of the iterative path ([`iterative`], "Tolerance").
+    pub iterative_tolerance: f64,
 }
+
+/// How the eigenproblem is solved (module docs, "Two paths").
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum SolverPath {
+    /// Shift-invert Krylov–Schur on a MUMPS Cholesky factor, with the inertia proof.
+    Direct,
+    /// LOBPCG with algebraic multigrid, no factor ([`iterative`]).
+    Iterative,
+    /// Direct unless the mesh is above [`ITERATIVE_ABOVE_DOFS`] degrees of freedom.
+    Auto,
+}
+
+impl SolverPath {
+    pub fn word(self) -> &'static str {
+        match self {
+            SolverPath::Direct => "direct",
+            SolverPath::Iterative => "iterative",
+            SolverPath::Auto => "auto",
+        }
+    }
+}
+
+impl std::str::FromStr for SolverPath {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, String> {
+        match s {
+            "direct" => Ok(SolverPath::Direct),
+            "iterative" => Ok(SolverPath::Iterative),
+            "auto" => Ok(SolverPath::Auto),
+            other => Err(format!(
+                "unknown solver path {other:?}: use auto, direct or iterative"
+            )),
+        }
+    }
+}
+
+/// Above this many degrees of freedom `auto` takes the iterative path (module docs).
+pub const ITERATIVE_ABOVE_DOFS: usize = 600_000;
 
 impl EigenConfig {
     pub fn new(request: ModeRequest, spectrum_scale: f64) -> Self {
@@ -96,6 +148,8 @@ impl EigenConfig {
             cluster_rtol: 1e-2,
             verify_count: true,
             expected_rigid: 6,
+            path: SolverPath::Direct,
+            iterative_tolerance: ITERATIVE_TOLERANCE,
         }
     }
 
@@ -150,6 +204,10 @@ pub struct Modes<'p> {
     /// The relative gap that defined the clusters.
     pub cluster_rtol: f64,
     pub inertia_check: Option<InertiaCheck>,
+    /// The iterative path's completeness probe (no factor, weaker than the inertia proof).
+    pub probe_check: Option<ProbeCheck>,
+    /// The path taken (never `Auto`).
+    pub path: SolverPath,
     /// Solver settings in force (for the output file).
     pub settings: Vec<(String, String)>,
     pub warnings: Vec<String>,
@@ -315,6 +373,24 @@ pub fn solve_modes_deflated<'p>(
         ModeRequest::UpTo { .. } => 0,
     };
 
+    // The path (module docs, "Two paths"): the iterative one needs the rigid motions (its
+    // deflation space and its multigrid's near-null space) and a request for the first N.
+    let can_iterate = matches!(cfg.request, ModeRequest::FirstN(_)) && !deflate.is_empty();
+    let path = match cfg.path {
+        SolverPath::Auto if dofs > ITERATIVE_ABOVE_DOFS && can_iterate => SolverPath::Iterative,
+        SolverPath::Auto => SolverPath::Direct,
+        SolverPath::Iterative if !can_iterate => {
+            return Err(EigenError::BadRequest(
+                "the iterative solver path computes the first N modes of a free body from its rigid motions: it needs --modes (not --fmax, whose spectrum slicing needs factors)".into(),
+            ))
+        }
+        p => p,
+    };
+    let precond = match path {
+        SolverPath::Iterative => Some(iterative::preconditioner(petsc, k, m, shift, deflate)?),
+        _ => None,
+    };
+
     let nev_cap = dofs.saturating_sub(deflate.len());
     let mut nev = (wanted + cfg.expected_rigid.saturating_sub(deflate.len()) + 4.max(wanted / 10))
         .min(nev_cap);
@@ -323,16 +399,25 @@ pub fn solve_modes_deflated<'p>(
     let mut solve_log = FactorLog::default();
     loop {
         attempt += 1;
-        let pairs =
-            solve_with_workspace(
+        let pairs = match &precond {
+            Some(p) => iterative::solve_preconditioned(
                 petsc,
-                &mut solve_log,
-                &mut warnings,
-                |petsc| match interval_upper {
+                k,
+                m,
+                p,
+                shift,
+                nev,
+                cfg.iterative_tolerance,
+                deflate,
+            )
+            .map_err(SolveFailure::into_error)?,
+            None => solve_with_workspace(petsc, &mut solve_log, &mut warnings, |petsc| {
+                match interval_upper {
                     Some(upper) => solve_interval(petsc, k, m, shift, upper, cfg),
                     None => solve_nearest(petsc, k, m, shift, nev, cfg, deflate),
-                },
-            )?;
+                }
+            })?,
+        };
         let RawPairs {
             values,
             vectors,
@@ -392,7 +477,48 @@ pub fn solve_modes_deflated<'p>(
             ModeRequest::UpTo { .. } => elastic.len(),
         };
 
-        let inertia_check = if cfg.verify_count && keep > 0 {
+        let probe_check = match &precond {
+            Some(p) if cfg.verify_count && keep > 0 => {
+                let check = iterative::probe(
+                    petsc,
+                    k,
+                    m,
+                    p,
+                    shift,
+                    cfg.iterative_tolerance,
+                    deflate,
+                    &elastic_vecs[..keep],
+                    elastic[keep - 1],
+                )
+                .map_err(SolveFailure::into_error)?;
+                match &check.verdict {
+                    ProbeVerdict::Missed => {
+                        let below = check.lowest_in_complement.unwrap_or(f64::NAN);
+                        if attempt < max_attempts {
+                            warnings.push(format!(
+                                "the completeness probe found an eigenvalue {below:.6e} below the last kept {:.6e}; solving again with more vectors",
+                                elastic[keep - 1]
+                            ));
+                            nev = (nev + 4.max(nev / 4)).min(nev_cap);
+                            continue;
+                        }
+                        return Err(EigenError::MissedModes {
+                            below: rigid.len() + keep + 1,
+                            found: rigid.len() + keep,
+                            threshold: elastic[keep - 1],
+                            attempts: attempt,
+                        });
+                    }
+                    ProbeVerdict::Inconclusive(why) => {
+                        warnings.push(format!("the mode count is not checked: {why}"))
+                    }
+                    ProbeVerdict::Consistent => {}
+                }
+                Some(check)
+            }
+            _ => None,
+        };
+        let inertia_check = if cfg.verify_count && keep > 0 && precond.is_none() {
             let threshold = match interval_upper {
                 Some(upper) => upper,
                 None if keep < elastic.len() => 0.5 * (elastic[keep - 1] + elastic[keep]),
@@ -451,12 +577,16 @@ pub fn solve_modes_deflated<'p>(
             v.scale(1.0 / norm)?;
         }
         let clusters = find_clusters(&elastic, cfg.cluster_rtol);
+        settings.push(("solver_path".into(), path.word().into()));
         settings.push(("rigid_threshold_rad2_s2".into(), format!("{rigid_limit:e}")));
         settings.push(("cluster_rtol".into(), format!("{:e}", cfg.cluster_rtol)));
         settings.push(("attempts".into(), attempt.to_string()));
         settings.push(("deflated_rigid_modes".into(), deflate.len().to_string()));
         settings.push(("factor_retries".into(), solve_log.retries().to_string()));
         settings.push(("factor_attempts".into(), solve_log.describe()));
+        if let Some(c) = &probe_check {
+            settings.push(("probe_verdict".into(), c.verdict.word().into()));
+        }
         if let Some(c) = &inertia_check {
             settings.push(("inertia_verdict".into(), c.verdict.word().into()));
             settings.push(("inertia_factor_attempts".into(), c.factor_log.describe()));
@@ -469,6 +599,8 @@ pub fn solve_modes_deflated<'p>(
             clusters,
             cluster_rtol: cfg.cluster_rtol,
             inertia_check,
+            probe_check,
+            path,
             settings,
             warnings,
             solve_seconds: start.elapsed().as_secs_f64(),
@@ -480,6 +612,19 @@ pub fn solve_modes_deflated<'p>(
 enum SolveFailure {
     Factor { status: MumpsStatus },
     Other(EigenError),
+}
+
+impl SolveFailure {
+    /// The error of a solve that made no factor (the iterative path).
+    fn into_error(self) -> EigenError {
+        match self {
+            SolveFailure::Other(e) => e,
+            SolveFailure::Factor { status } => EigenError::Petsc(PetscError::other(format!(
+                "unexpected factorisation failure on the iterative path (INFOG(1) = {})",
+                status.infog1
+            ))),
+        }
+    }
 }
 
 impl<T: Into<EigenError>> From<T> for SolveFailure {

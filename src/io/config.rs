@@ -37,7 +37,8 @@
 //! modes = 20                        # first N elastic modes …
 //! # fmax = 20000.0                  # … or every mode up to this frequency (Hz)
 //! tolerance = 1e-10
-//! verify_count = true               # prove the mode count by an inertia check
+//! verify_count = true               # prove the mode count (inertia, or the iterative probe)
+//! path = "auto"                     # "direct" (MUMPS), "iterative" (GD + GAMG) or "auto"
 //! cluster_rtol = 1e-2               # relative eigenvalue gap below which modes form a cluster
 //! petsc_options = ["-eps_ncv", "64"] # applied before the options after `--`
 //!
@@ -417,6 +418,8 @@ pub struct SolverConfig {
     pub verify_count: Option<bool>,
     pub cluster_rtol: Option<f64>,
     pub shift: Option<f64>,
+    /// "auto", "direct" or "iterative" (`eigen::SolverPath`).
+    pub path: Option<String>,
     #[serde(default)]
     pub petsc_options: Vec<String>,
 }

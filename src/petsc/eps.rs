@@ -10,6 +10,8 @@ pub enum EpsWhich {
     TargetMagnitude,
     /// Every eigenvalue in the interval set with [`Eps::set_interval`] (spectrum slicing).
     All,
+    /// The smallest (algebraic) eigenvalues, for preconditioned solvers such as LOBPCG.
+    SmallestReal,
 }
 
 pub struct Eps<'p> {
@@ -66,6 +68,7 @@ impl<'p> Eps<'p> {
         let w = match which {
             EpsWhich::TargetMagnitude => sys::EPSWhich_EPS_TARGET_MAGNITUDE,
             EpsWhich::All => sys::EPSWhich_EPS_ALL,
+            EpsWhich::SmallestReal => sys::EPSWhich_EPS_SMALLEST_REAL,
         };
         // SAFETY: plain setter.
         unsafe {
@@ -351,6 +354,41 @@ impl St<'_> {
                 sys::PCFactorSetMatSolverType(pc.raw, solver.as_ptr() as _),
                 "PCFactorSetMatSolverType",
             )
+        }
+    }
+
+    /// Sets the inner solve to an iterative one: KSP `ksp_type` with PC `pc_type`.
+    pub fn use_iterative_solver(&self, ksp_type: &[u8], pc_type: &[u8]) -> Result<()> {
+        let pc = self.pc()?;
+        // SAFETY: borrowed KSP/PC handles owned by the ST; NUL-terminated constants.
+        unsafe {
+            let mut ksp: sys::KSP = std::ptr::null_mut();
+            check(sys::STGetKSP(self.raw, &mut ksp), "STGetKSP")?;
+            check(sys::KSPSetType(ksp, ksp_type.as_ptr() as _), "KSPSetType")?;
+            check(sys::PCSetType(pc.raw, pc_type.as_ptr() as _), "PCSetType")
+        }
+    }
+
+    /// The matrix the ST's preconditioner is built from, instead of A − σB (which SLEPc would
+    /// form itself, without the near-null space a multigrid needs). SLEPc takes a reference.
+    pub fn set_preconditioner_mat<'p>(&self, p: &Mat<'p>) -> Result<()> {
+        // SAFETY: live matrix of the operators' layout; SLEPc references it.
+        unsafe {
+            check(
+                sys::STSetPreconditionerMat(self.raw, p.raw()),
+                "STSetPreconditionerMat",
+            )
+        }
+    }
+
+    /// Sets up the ST's linear solver now (for a multigrid: builds its hierarchy), instead of
+    /// at its first application.
+    pub fn set_up_solver(&self) -> Result<()> {
+        // SAFETY: borrowed KSP owned by the ST, whose operators EPSSetUp has set.
+        unsafe {
+            let mut ksp: sys::KSP = std::ptr::null_mut();
+            check(sys::STGetKSP(self.raw, &mut ksp), "STGetKSP")?;
+            check(sys::KSPSetUp(ksp), "KSPSetUp")
         }
     }
 

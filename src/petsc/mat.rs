@@ -235,6 +235,55 @@ impl<'p> Mat<'p> {
         unsafe { check(sys::MatAXPY(self.raw, a, x.raw, structure), "MatAXPY") }
     }
 
+    /// Attaches `basis` as the near-null space of this matrix, the space an algebraic multigrid
+    /// preconditioner (PETSc's GAMG) must reproduce on its coarse levels: for elasticity the six
+    /// rigid motions. MatNullSpaceCreate wants an orthonormal set (Euclidean inner product), so
+    /// the vectors are orthonormalised here (modified Gram–Schmidt, twice); the matrix keeps its
+    /// own reference.
+    pub fn set_near_null_space(&mut self, petsc: &'p Petsc, basis: &[Vector<'p>]) -> Result<()> {
+        let mut ortho: Vec<Vector<'p>> = Vec::with_capacity(basis.len());
+        for v in basis {
+            let mut w = v.duplicate()?;
+            w.copy_from(v)?;
+            for _ in 0..2 {
+                for q in &ortho {
+                    let c = q.dot(&w)?;
+                    w.axpy(-c, q)?;
+                }
+            }
+            let norm = w.norm2()?;
+            if !(norm > 0.0) {
+                return Err(super::PetscError::other(
+                    "set_near_null_space: the basis vectors are linearly dependent",
+                ));
+            }
+            w.scale(1.0 / norm)?;
+            ortho.push(w);
+        }
+        let mut raw: Vec<sys::Vec> = ortho.iter().map(|v| v.raw()).collect();
+        let mut space: sys::MatNullSpace = std::ptr::null_mut();
+        // SAFETY: the vectors are live and of this matrix's layout; the null space and the matrix
+        // take their own references, so ours are released when `ortho` drops.
+        unsafe {
+            check(
+                sys::MatNullSpaceCreate(
+                    petsc.comm(),
+                    sys::PetscBool_PETSC_FALSE,
+                    to_petsc_int(raw.len())?,
+                    raw.as_mut_ptr(),
+                    &mut space,
+                ),
+                "MatNullSpaceCreate",
+            )?;
+            let set = check(
+                sys::MatSetNearNullSpace(self.raw, space),
+                "MatSetNearNullSpace",
+            );
+            sys::MatNullSpaceDestroy(&mut space);
+            set
+        }
+    }
+
     /// `self ← a·self`.
     pub fn scale(&mut self, a: f64) -> Result<()> {
         // SAFETY: in-place scaling.

@@ -28,6 +28,12 @@ impl<'p> Vector<'p> {
         Ok(Vector::from_raw(raw))
     }
 
+    /// `self ← x` (same layout).
+    pub fn copy_from(&mut self, x: &Vector<'p>) -> Result<()> {
+        // SAFETY: both vectors are live and share a layout (PETSc checks the sizes).
+        unsafe { check(sys::VecCopy(x.raw, self.raw), "VecCopy") }
+    }
+
     pub fn global_size(&self) -> Result<usize> {
         let mut n = 0;
         // SAFETY: query only.

@@ -22,6 +22,9 @@ pub fn write_outputs(job: &Job, report: &Report<'_>, progress: &Progress) -> Res
     if let Some(c) = &modes.inertia_check {
         solver.push(("inertia_check".into(), inertia_line(c)));
     }
+    if let Some(c) = &modes.probe_check {
+        solver.push(("completeness_probe".into(), probe_line(c)));
+    }
     solver.push((
         "clusters".into(),
         modes
@@ -37,6 +40,10 @@ pub fn write_outputs(job: &Job, report: &Report<'_>, progress: &Progress) -> Res
         (
             "inertia_check".to_string(),
             modes.inertia_check.as_ref().map_or(0.0, |c| c.seconds),
+        ),
+        (
+            "completeness_probe".to_string(),
+            modes.probe_check.as_ref().map_or(0.0, |c| c.seconds),
         ),
         ("sensitivities".to_string(), t.sensitivity_seconds),
         ("material_sensitivities".to_string(), t.material_seconds),
@@ -122,6 +129,16 @@ pub fn write_timings_json(path: &Path, report: &Report<'_>) -> Result<(), Error>
         "assembly_s": stats.seconds + t.operator_seconds,
         "solve_s": modes.solve_seconds,
         "inertia_check_s": modes.inertia_check.as_ref().map_or(0.0, |c| c.seconds),
+        "solver_path": modes.path.word(),
+        "probe_s": modes.probe_check.as_ref().map_or(0.0, |c| c.seconds),
+        "probe": modes.probe_check.as_ref().map(|c| serde_json::json!({
+            "last_kept": c.last_kept,
+            "lowest_in_complement": c.lowest_in_complement,
+            "complement_of": c.complement_of,
+            "verdict": c.verdict.word(),
+        })),
+        "preconditioner_setup_s": modes.setting("preconditioner_setup_s").and_then(|v| v.parse::<f64>().ok()).unwrap_or(0.0),
+        "peak_rss_mb_after": report.timings.peak_rss_after.iter().map(|(k, v)| (k.clone(), serde_json::json!(v / 1048576.0))).collect::<serde_json::Map<_, _>>(),
         "material_sensitivities_s": t.material_seconds,
         "node_gradients_s": t.node_gradient_seconds,
         "total_s": t.total_seconds(),
@@ -330,6 +347,23 @@ fn sensitivity_datasets(
         });
     }
     out
+}
+
+/// The iterative path's completeness probe in one line (module docs of
+/// [`crate::eigen::iterative`]: a check, not a proof).
+pub fn probe_line(c: &eigen::ProbeCheck) -> String {
+    let lowest = c
+        .lowest_in_complement
+        .map_or("not found".to_string(), |l| format!("{l:.6e}"));
+    let verdict = match &c.verdict {
+        eigen::ProbeVerdict::Consistent => "consistent (a check, not a proof: no factor)",
+        eigen::ProbeVerdict::Missed => "MISSED MODES",
+        eigen::ProbeVerdict::Inconclusive(_) => "INCONCLUSIVE (see the warning)",
+    };
+    format!(
+        "lowest eigenvalue orthogonal to the {} modes returned {lowest} rad^2/s^2, last kept {:.6e} -> {verdict}",
+        c.complement_of, c.last_kept
+    )
 }
 
 /// The inertia proof in one line: both counts and the verdict (the summary's line and the HDF5

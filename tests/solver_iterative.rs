@@ -1,0 +1,209 @@
+//! The iterative eigen path (`modes --solver iterative`: generalised Davidson with algebraic
+//! multigrid, no factor; `diffsound::eigen::iterative`) against the direct path on the same
+//! mesh, on 1 and 2 ranks: the same eigenvalues (1e-8 relative), the same modes (the principal
+//! angles between each cluster's mode spaces), the completeness probe's verdict, and the
+//! requests it refuses.
+
+mod common;
+use common::*;
+use std::path::Path;
+use std::time::Duration;
+
+const MATERIAL: [&str; 6] = ["--youngs", "72e9", "--poisson", "0.19", "--density", "2700"];
+const N_MODES: usize = 16;
+
+fn modes(np: usize, mesh: &Path, out: &Path, json: &Path, extra: &[&str]) -> Run {
+    let n = N_MODES.to_string();
+    let mut args = vec![
+        "modes",
+        "--mesh",
+        s(mesh),
+        "--modes",
+        &n,
+        "--out",
+        s(out),
+        "--timings-json",
+        s(json),
+    ];
+    args.extend(MATERIAL);
+    args.extend(extra);
+    mpirun(np, &args, Duration::from_secs(600))
+}
+
+/// The largest sine of the principal angles between the spans of `a` and `b` (Euclidean inner
+/// product over the node displacements; both sets are orthonormalised first).
+fn largest_angle_sine(a: &[Vec<f64>], b: &[Vec<f64>]) -> f64 {
+    fn orthonormal(v: &[Vec<f64>]) -> Vec<Vec<f64>> {
+        let mut q: Vec<Vec<f64>> = Vec::new();
+        for x in v {
+            let mut w = x.clone();
+            for _ in 0..2 {
+                for u in &q {
+                    let c: f64 = u.iter().zip(&w).map(|(p, q)| p * q).sum();
+                    w.iter_mut().zip(u).for_each(|(wi, ui)| *wi -= c * ui);
+                }
+            }
+            let n = w.iter().map(|x| x * x).sum::<f64>().sqrt();
+            q.push(w.into_iter().map(|x| x / n).collect());
+        }
+        q
+    }
+    let (qa, qb) = (orthonormal(a), orthonormal(b));
+    // sin² of the largest angle = 1 − σ_min²(QaᵀQb); with equal dimensions the residual of
+    // projecting each of qa onto span(qb) bounds it: take the largest.
+    qa.iter()
+        .map(|x| {
+            let mut r = x.clone();
+            for u in &qb {
+                let c: f64 = u.iter().zip(&r).map(|(p, q)| p * q).sum();
+                r.iter_mut().zip(u).for_each(|(ri, ui)| *ri -= c * ui);
+            }
+            r.iter().map(|x| x * x).sum::<f64>().sqrt()
+        })
+        .fold(0.0, f64::max)
+}
+
+#[test]
+fn iterative_path_agrees_with_the_direct_path_on_one_and_two_ranks() {
+    let dir = scratch("solver_iterative");
+    let mesh = dir.join("sphere.msh");
+    gmsh_mesh(&fixture("analytic/sphere.geo"), 0.12, 2, &mesh);
+
+    let direct = modes(
+        2,
+        &mesh,
+        &dir.join("direct.h5"),
+        &dir.join("direct.json"),
+        &["--solver", "direct"],
+    );
+    assert!(direct.success(), "{}", direct.describe());
+    let mut iterative = Vec::new();
+    for np in [1, 2] {
+        let (out, json) = (
+            dir.join(format!("iterative_{np}.h5")),
+            dir.join(format!("iterative_{np}.json")),
+        );
+        let run = modes(np, &mesh, &out, &json, &["--solver", "iterative"]);
+        assert!(run.success(), "{}", run.describe());
+        assert!(
+            run.stdout.contains("completeness probe:") && run.stdout.contains("consistent"),
+            "the probe's line is missing or not consistent:\n{}",
+            run.stdout
+        );
+        let j = read_json(&json);
+        assert_eq!(j["solver_path"], "iterative");
+        assert_eq!(j["probe"]["verdict"], "consistent");
+        assert!(j["inertia"].is_null(), "the iterative path made a factor");
+        // The probe's lowest eigenvalue in the complement is the next mode, not below the last.
+        let last = j["probe"]["last_kept"].as_f64().unwrap();
+        let lowest = j["probe"]["lowest_in_complement"].as_f64().unwrap();
+        assert!(lowest >= last * (1.0 - 1e-7), "probe {lowest} below {last}");
+        iterative.push((out, j));
+    }
+    let d = read_json(&dir.join("direct.json"));
+    assert_eq!(d["solver_path"], "direct");
+    let ld = f64s(&d, "eigenvalues");
+    for (_, j) in &iterative {
+        let li = f64s(j, "eigenvalues");
+        assert!(li.len() >= N_MODES && ld.len() >= N_MODES);
+        let worst = ld
+            .iter()
+            .zip(&li)
+            .take(N_MODES)
+            .map(|(a, b)| (a - b).abs() / a)
+            .fold(0.0, f64::max);
+        println!(
+            "iterative on {} rank(s) vs direct: max relative eigenvalue difference {worst:.2e}",
+            j["n_ranks"]
+        );
+        assert!(
+            worst < 1e-8,
+            "iterative vs direct: {worst:e}\n{ld:?}\n{li:?}"
+        );
+    }
+    let (l1, l2) = (
+        f64s(&iterative[0].1, "eigenvalues"),
+        f64s(&iterative[1].1, "eigenvalues"),
+    );
+    let worst = l1
+        .iter()
+        .zip(&l2)
+        .map(|(a, b)| (a - b).abs() / a)
+        .fold(0.0, f64::max);
+    println!("iterative, 1 rank vs 2 ranks: {worst:.2e}");
+    assert!(worst < 1e-9, "1 vs 2 ranks: {worst:e}");
+
+    // The same modes: each cluster's span (grouped on the direct path's eigenvalues at the
+    // default 1e-2 relative gap) against the iterative one's.
+    let fd = diffsound::io::read_modes(&dir.join("direct.h5")).unwrap();
+    let fi = diffsound::io::read_modes(&iterative[1].0).unwrap();
+    let clusters = diffsound::eigen::find_clusters(&fd.eigenvalues[..N_MODES], 1e-2);
+    let mut start = 0;
+    let mut groups = Vec::new();
+    for c in clusters {
+        for i in start..c.start {
+            groups.push(i..i + 1);
+        }
+        start = c.end;
+        groups.push(c);
+    }
+    for i in start..N_MODES {
+        groups.push(i..i + 1);
+    }
+    for g in groups {
+        if g.end > N_MODES || g.end > fi.mode_shapes.len() {
+            continue;
+        }
+        let sine = largest_angle_sine(&fd.mode_shapes[g.clone()], &fi.mode_shapes[g.clone()]);
+        println!("modes {g:?}: largest principal angle sine {sine:.2e}");
+        assert!(
+            sine < 1e-4,
+            "modes {g:?} differ between the paths: sin θ = {sine:e}"
+        );
+    }
+}
+
+#[test]
+fn iterative_path_refuses_what_it_cannot_do() {
+    let dir = scratch("solver_iterative_refusals");
+    let mesh = dir.join("sphere.msh");
+    gmsh_mesh(&fixture("analytic/sphere.geo"), 0.2, 2, &mesh);
+    let out = dir.join("out.h5");
+    let mut args = vec![
+        "modes",
+        "--mesh",
+        s(&mesh),
+        "--fmax",
+        "5000",
+        "--solver",
+        "iterative",
+        "--out",
+        s(&out),
+    ];
+    args.extend(MATERIAL);
+    let run = mpirun(2, &args, Duration::from_secs(120));
+    assert!(!run.success());
+    assert!(
+        run.stderr.contains("--fmax") && run.stderr.contains("iterative"),
+        "{}",
+        run.describe()
+    );
+    assert!(!out.exists(), "a refused run left {out:?}");
+    let mut args = vec![
+        "modes",
+        "--mesh",
+        s(&mesh),
+        "--solver",
+        "lanczos",
+        "--out",
+        s(&out),
+    ];
+    args.extend(MATERIAL);
+    let run = mpirun(1, &args, Duration::from_secs(60));
+    assert!(!run.success());
+    assert!(
+        run.stderr.contains("lanczos") && run.stderr.contains("auto, direct or iterative"),
+        "{}",
+        run.describe()
+    );
+}
