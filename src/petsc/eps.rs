@@ -381,6 +381,19 @@ impl St<'_> {
         }
     }
 
+    /// The number of prolongator smoothing steps of the ST's GAMG preconditioner (0: plain
+    /// aggregation). Call after the PC type is set to GAMG.
+    pub fn set_gamg_smoothing_steps(&self, steps: usize) -> Result<()> {
+        let pc = self.pc()?;
+        // SAFETY: borrowed PC handle; a no-op on PCs other than GAMG.
+        unsafe {
+            check(
+                sys::PCGAMGSetNSmooths(pc.raw, to_petsc_int(steps)?),
+                "PCGAMGSetNSmooths",
+            )
+        }
+    }
+
     /// Sets up the ST's linear solver now (for a multigrid: builds its hierarchy), instead of
     /// at its first application.
     pub fn set_up_solver(&self) -> Result<()> {
