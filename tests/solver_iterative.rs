@@ -67,7 +67,7 @@ fn largest_angle_sine(a: &[Vec<f64>], b: &[Vec<f64>]) -> f64 {
 fn iterative_path_agrees_with_the_direct_path_on_one_and_two_ranks() {
     let dir = scratch("solver_iterative");
     let mesh = dir.join("sphere.msh");
-    gmsh_mesh(&fixture("analytic/sphere.geo"), 0.12, 2, &mesh);
+    gmsh_mesh(&fixture("analytic/sphere.geo"), 0.16, 2, &mesh);
 
     let direct = modes(
         2,
