@@ -378,6 +378,8 @@ pub fn assemble<'p>(petsc: &'p Petsc, mesh: &TetMesh) -> Result<Assembled<'p>, A
         mallocs: m1 + m2 + m3,
         seconds: start.elapsed().as_secs_f64(),
     };
+    drop(csr);
+    release_freed_heap();
     Ok(Assembled {
         mass_unit: mass,
         k_lambda,
@@ -425,5 +427,20 @@ pub fn assemble_operators<'p>(
         mallocs: m1 + m2,
         seconds: start.elapsed().as_secs_f64(),
     };
+    drop(csr);
+    release_freed_heap();
     Ok((k, m, DofLayout { partition, rank }, stats))
+}
+
+/// Hands the heap memory freed by assembly (the pattern lists, the element work arrays, the
+/// mesh's P2 lifting) back to the operating system. glibc keeps freed small blocks in its heap,
+/// and the millions of per-node lists of a large mesh leave gigabytes there that the solve would
+/// otherwise never see returned (measured at 3M DOF: 13.2 GB summed RSS after assembly, where the
+/// two matrices take 6.2 GB).
+fn release_freed_heap() {
+    #[cfg(all(target_os = "linux", target_env = "gnu"))]
+    // SAFETY: malloc_trim only returns free pages to the kernel; it touches no live allocation.
+    unsafe {
+        libc::malloc_trim(0);
+    }
 }

@@ -104,7 +104,7 @@ pub struct EigenConfig {
 pub enum SolverPath {
     /// Shift-invert Krylov–Schur on a MUMPS Cholesky factor, with the inertia proof.
     Direct,
-    /// LOBPCG with algebraic multigrid, no factor ([`iterative`]).
+    /// Generalised Davidson with algebraic multigrid, no factor ([`iterative`]).
     Iterative,
     /// Direct unless the mesh is above [`ITERATIVE_ABOVE_DOFS`] degrees of freedom.
     Auto,
@@ -182,6 +182,12 @@ pub enum EigenError {
         below: usize,
         found: usize,
         threshold: f64,
+        attempts: usize,
+    },
+    #[error("completeness probe failed: an eigenvalue {lowest:.6e} rad²/s² lies below the last kept mode {last_kept:.6e} outside every mode returned, even after {attempts} attempts (iterative path; try --solver direct on a mesh whose factor fits, or a larger -eps_ncv)")]
+    ProbeMissed {
+        lowest: f64,
+        last_kept: f64,
         attempts: usize,
     },
     #[error("invalid request: {0}")]
@@ -502,10 +508,9 @@ pub fn solve_modes_deflated<'p>(
                             nev = (nev + 4.max(nev / 4)).min(nev_cap);
                             continue;
                         }
-                        return Err(EigenError::MissedModes {
-                            below: rigid.len() + keep + 1,
-                            found: rigid.len() + keep,
-                            threshold: elastic[keep - 1],
+                        return Err(EigenError::ProbeMissed {
+                            lowest: below,
+                            last_kept: elastic[keep - 1],
                             attempts: attempt,
                         });
                     }
