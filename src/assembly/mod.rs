@@ -129,27 +129,6 @@ impl<'p> Assembled<'p> {
         m.set_symmetric()?;
         Ok((k, m))
     }
-
-    /// K and M built in place, releasing the split parts (for forward-only runs on big meshes).
-    pub fn into_operators(
-        self,
-        material: &Material,
-    ) -> Result<(Mat<'p>, Mat<'p>, DofLayout, AssemblyStats), PetscError> {
-        let Assembled {
-            mass_unit: mut m,
-            k_lambda: mut k,
-            k_mu,
-            layout,
-            stats,
-        } = self;
-        k.scale(material.lame_lambda())?;
-        k.axpy(material.lame_mu(), &k_mu, NonzeroPattern::Same)?;
-        drop(k_mu);
-        m.scale(material.density)?;
-        k.set_symmetric()?;
-        m.set_symmetric()?;
-        Ok((k, m, layout, stats))
-    }
 }
 
 /// Adds `values[c]` to diagonal entry (3n + c) of every node n of `nodes` (original numbering)
@@ -354,56 +333,84 @@ pub fn assemble_local_csr(
 /// Assembles M₁, K_λ and K_μ for `mesh` (P1 or P2, as given) over all ranks of `petsc`.
 pub fn assemble<'p>(petsc: &'p Petsc, mesh: &TetMesh) -> Result<Assembled<'p>, AssemblyError> {
     let start = std::time::Instant::now();
-    let n_dofs = 3 * mesh.n_nodes();
-    petsc::to_petsc_int(n_dofs).map_err(|_| AssemblyError::TooLarge(n_dofs))?;
-    let rank = petsc.rank();
-    let partition = partition_nodes(&mesh.nodes, petsc.size());
-    let mut csr = assemble_local_csr(mesh, &partition, rank)?;
+    let (layout, mut csr) = local_csr(petsc, mesh)?;
     // Each value array is released as soon as PETSc holds its copy: the peak is the pattern,
     // three value arrays and one PETSc matrix, not three of each.
-    let mass = Mat::from_csr(petsc, n_dofs, 3, &csr.row_ptr, &csr.cols, &csr.mass)?;
-    csr.mass = Vec::new();
-    let k_lambda = Mat::from_csr(petsc, n_dofs, 3, &csr.row_ptr, &csr.cols, &csr.k_lambda)?;
-    csr.k_lambda = Vec::new();
-    let k_mu = Mat::from_csr(petsc, n_dofs, 3, &csr.row_ptr, &csr.cols, &csr.k_mu)?;
-    csr.k_mu = Vec::new();
-    let (nonzeros, m1) = mass.global_info()?;
-    let (_, m2) = k_lambda.global_info()?;
-    let (_, m3) = k_mu.global_info()?;
-    let stats = AssemblyStats {
-        n_dofs,
-        local_elements: csr.elements_evaluated,
-        curved_elements: csr.curved_elements,
-        nonzeros,
-        mallocs: m1 + m2 + m3,
-        seconds: start.elapsed().as_secs_f64(),
-    };
+    let mass = matrix_from(petsc, &layout, &mut csr, |c| &mut c.mass)?;
+    let k_lambda = matrix_from(petsc, &layout, &mut csr, |c| &mut c.k_lambda)?;
+    let k_mu = matrix_from(petsc, &layout, &mut csr, |c| &mut c.k_mu)?;
+    let stats = finish(&layout, &csr, &[&mass, &k_lambda, &k_mu], start)?;
     drop(csr);
     release_freed_heap();
     Ok(Assembled {
         mass_unit: mass,
         k_lambda,
         k_mu,
-        layout: DofLayout { partition, rank },
+        layout,
         stats,
+    })
+}
+
+/// The layout of this rank's rows and their local CSR arrays (the shared start of
+/// [`assemble`] and [`assemble_operators`]).
+fn local_csr(petsc: &Petsc, mesh: &TetMesh) -> Result<(DofLayout, LocalCsr), AssemblyError> {
+    let n_dofs = 3 * mesh.n_nodes();
+    petsc::to_petsc_int(n_dofs).map_err(|_| AssemblyError::TooLarge(n_dofs))?;
+    let rank = petsc.rank();
+    let partition = partition_nodes(&mesh.nodes, petsc.size());
+    let csr = assemble_local_csr(mesh, &partition, rank)?;
+    Ok((DofLayout { partition, rank }, csr))
+}
+
+/// A PETSc matrix on `csr`'s pattern with the value array `pick` chooses, which is taken out of
+/// `csr` and freed once PETSc holds its copy.
+fn matrix_from<'p>(
+    petsc: &'p Petsc,
+    layout: &DofLayout,
+    csr: &mut LocalCsr,
+    pick: fn(&mut LocalCsr) -> &mut Vec<f64>,
+) -> Result<Mat<'p>, PetscError> {
+    let values = std::mem::take(pick(csr));
+    Mat::from_csr(petsc, layout.n_dofs(), 3, &csr.row_ptr, &csr.cols, &values)
+}
+
+/// The statistics of an assembly that made `mats` from `csr`, begun at `start`.
+fn finish(
+    layout: &DofLayout,
+    csr: &LocalCsr,
+    mats: &[&Mat<'_>],
+    start: std::time::Instant,
+) -> Result<AssemblyStats, PetscError> {
+    let mut nonzeros = 0.0;
+    let mut mallocs = 0.0;
+    for (i, m) in mats.iter().enumerate() {
+        let (nz, mal) = m.global_info()?;
+        if i == 0 {
+            nonzeros = nz;
+        }
+        mallocs += mal;
+    }
+    Ok(AssemblyStats {
+        n_dofs: layout.n_dofs(),
+        local_elements: csr.elements_evaluated,
+        curved_elements: csr.curved_elements,
+        nonzeros,
+        mallocs,
+        seconds: start.elapsed().as_secs_f64(),
     })
 }
 
 /// K = λK_λ + μK_μ and M = ρM₁ for `material` only, without the split parts (a forward run that
 /// asks for no sensitivities): K is combined in the local CSR arrays, so at no time do more than
 /// the pattern, two value arrays and one PETSc matrix coexist. Same values as
-/// [`Assembled::into_operators`] up to rounding.
+/// [`Assembled::operators`] up to rounding.
 pub fn assemble_operators<'p>(
     petsc: &'p Petsc,
     mesh: &TetMesh,
     material: &Material,
 ) -> Result<(Mat<'p>, Mat<'p>, DofLayout, AssemblyStats), AssemblyError> {
     let start = std::time::Instant::now();
-    let n_dofs = 3 * mesh.n_nodes();
-    petsc::to_petsc_int(n_dofs).map_err(|_| AssemblyError::TooLarge(n_dofs))?;
-    let rank = petsc.rank();
-    let partition = partition_nodes(&mesh.nodes, petsc.size());
-    let mut csr = assemble_local_csr(mesh, &partition, rank)?;
+    let (layout, mut csr) = local_csr(petsc, mesh)?;
     let (lambda, mu, rho) = (material.lame_lambda(), material.lame_mu(), material.density);
     let k_mu = std::mem::take(&mut csr.k_mu);
     for (k, kmu) in csr.k_lambda.iter_mut().zip(&k_mu) {
@@ -411,25 +418,14 @@ pub fn assemble_operators<'p>(
     }
     drop(k_mu);
     csr.mass.iter_mut().for_each(|v| *v *= rho);
-    let mut m = Mat::from_csr(petsc, n_dofs, 3, &csr.row_ptr, &csr.cols, &csr.mass)?;
-    csr.mass = Vec::new();
-    let mut k = Mat::from_csr(petsc, n_dofs, 3, &csr.row_ptr, &csr.cols, &csr.k_lambda)?;
-    csr.k_lambda = Vec::new();
+    let mut m = matrix_from(petsc, &layout, &mut csr, |c| &mut c.mass)?;
+    let mut k = matrix_from(petsc, &layout, &mut csr, |c| &mut c.k_lambda)?;
     k.set_symmetric()?;
     m.set_symmetric()?;
-    let (nonzeros, m1) = m.global_info()?;
-    let (_, m2) = k.global_info()?;
-    let stats = AssemblyStats {
-        n_dofs,
-        local_elements: csr.elements_evaluated,
-        curved_elements: csr.curved_elements,
-        nonzeros,
-        mallocs: m1 + m2,
-        seconds: start.elapsed().as_secs_f64(),
-    };
+    let stats = finish(&layout, &csr, &[&m, &k], start)?;
     drop(csr);
     release_freed_heap();
-    Ok((k, m, DofLayout { partition, rank }, stats))
+    Ok((k, m, layout, stats))
 }
 
 /// Hands the heap memory freed by assembly (the pattern lists, the element work arrays, the

@@ -85,7 +85,7 @@ pub(super) fn solve_preconditioned<'p>(
     shift: f64,
     nev: usize,
     tolerance: f64,
-    deflate: &[Vector<'p>],
+    deflate: &[&Vector<'p>],
 ) -> Result<RawPairs<'p>, SolveFailure> {
     let mut eps = Eps::new(petsc)?;
     eps.set_operators_ghep(k, m)?;
@@ -102,7 +102,7 @@ pub(super) fn solve_preconditioned<'p>(
     }
     eps.set_dimensions(nev, None, None)?;
     if !deflate.is_empty() {
-        eps.set_deflation_space(deflate)?;
+        eps.set_deflation_space(deflate.iter().copied())?;
     }
     eps.set_from_options()?;
     // Set up first, multigrid included, so that its time is told apart from the iterations'.
@@ -177,12 +177,8 @@ pub(super) fn probe<'p>(
     last_kept: f64,
 ) -> Result<ProbeCheck, SolveFailure> {
     let t0 = std::time::Instant::now();
-    let mut space: Vec<Vector<'p>> = Vec::with_capacity(rigid.len() + kept.len());
-    for v in rigid.iter().chain(kept) {
-        let mut w = v.duplicate()?;
-        w.copy_from(v)?;
-        space.push(w);
-    }
+    // The deflation space is handed over by reference: no copy of the returned vectors.
+    let space: Vec<&Vector<'p>> = rigid.iter().chain(kept).collect();
     // One eigenpair, to a looser tolerance: the probe needs its eigenvalue to ~10⁻⁶, which a
     // residual of 10⁻⁴ gives (quadratic error).
     let probe_tol = (tolerance * 1e4).min(1e-4);

@@ -111,6 +111,21 @@ pub enum SolverPath {
 }
 
 impl SolverPath {
+    /// The path a solve of `dofs` unknowns for `request` takes: `Auto` becomes the iterative
+    /// path above [`ITERATIVE_ABOVE_DOFS`] for a first-N request, else the direct one; the
+    /// other two stay (a request the iterative path cannot serve is refused by the solve).
+    pub fn resolve(self, dofs: usize, request: ModeRequest) -> SolverPath {
+        match self {
+            SolverPath::Auto
+                if dofs > ITERATIVE_ABOVE_DOFS && matches!(request, ModeRequest::FirstN(_)) =>
+            {
+                SolverPath::Iterative
+            }
+            SolverPath::Auto => SolverPath::Direct,
+            p => p,
+        }
+    }
+
     pub fn word(self) -> &'static str {
         match self {
             SolverPath::Direct => "direct",
@@ -381,11 +396,9 @@ pub fn solve_modes_deflated<'p>(
 
     // The path (module docs, "Two paths"): the iterative one needs the rigid motions (its
     // deflation space and its multigrid's near-null space) and a request for the first N.
-    let can_iterate = matches!(cfg.request, ModeRequest::FirstN(_)) && !deflate.is_empty();
-    let path = match cfg.path {
-        SolverPath::Auto if dofs > ITERATIVE_ABOVE_DOFS && can_iterate => SolverPath::Iterative,
-        SolverPath::Auto => SolverPath::Direct,
-        SolverPath::Iterative if !can_iterate => {
+    let can_iterate = !deflate.is_empty();
+    let path = match cfg.path.resolve(dofs, cfg.request) {
+        SolverPath::Iterative if !can_iterate || !matches!(cfg.request, ModeRequest::FirstN(_)) => {
             return Err(EigenError::BadRequest(
                 "the iterative solver path computes the first N modes of a free body from its rigid motions: it needs --modes (not --fmax, whose spectrum slicing needs factors)".into(),
             ))
@@ -414,7 +427,7 @@ pub fn solve_modes_deflated<'p>(
                 shift,
                 nev,
                 cfg.iterative_tolerance,
-                deflate,
+                &deflate.iter().collect::<Vec<_>>(),
             )
             .map_err(SolveFailure::into_error)?,
             None => solve_with_workspace(petsc, &mut solve_log, &mut warnings, |petsc| {

@@ -142,8 +142,14 @@ impl<'p> Eps<'p> {
     /// the `vectors` span, which must be invariant (known eigenvectors, such as a free body's
     /// rigid motions). SLEPc orthonormalises them itself and holds its own references until the
     /// next solve, so they need not outlive this call; they apply to one `solve` only.
-    pub fn set_deflation_space(&mut self, vectors: &[Vector<'p>]) -> Result<()> {
-        let mut raw: Vec<sys::Vec> = vectors.iter().map(|v| v.raw()).collect();
+    pub fn set_deflation_space<'v>(
+        &mut self,
+        vectors: impl IntoIterator<Item = &'v Vector<'p>>,
+    ) -> Result<()>
+    where
+        'p: 'v,
+    {
+        let mut raw: Vec<sys::Vec> = vectors.into_iter().map(|v| v.raw()).collect();
         // SAFETY: `raw` holds live Vec handles of the operators' layout; SLEPc references them.
         unsafe {
             check(

@@ -225,14 +225,14 @@ pub fn run<'p>(petsc: &'p Petsc, job: &Job, progress: &Progress) -> Result<Repor
     }
     // The rigid motions are what the iterative path deflates and gives its multigrid; the
     // direct path finds them as eigenpairs and proves the count with them.
-    let rigid = match (job.solver_path, job.request) {
-        (SolverPath::Direct, _) | (_, ModeRequest::UpTo { .. }) => Vec::new(),
-        _ if job.solver_path == SolverPath::Auto
-            && 3 * mesh.n_nodes() <= eigen::ITERATIVE_ABOVE_DOFS =>
-        {
-            Vec::new()
+    let rigid = match (
+        job.solver_path.resolve(layout.n_dofs(), job.request),
+        job.request,
+    ) {
+        (SolverPath::Iterative, ModeRequest::FirstN(_)) => {
+            eigen::rigid_body_vectors(&k, &layout, &mesh.nodes)?
         }
-        _ => eigen::rigid_body_vectors(&k, &layout, &mesh.nodes)?,
+        _ => Vec::new(),
     };
     let modes = eigen::solve_modes_deflated(petsc, &k, &m, &cfg, &rigid)?;
     drop(rigid);
