@@ -303,9 +303,9 @@ pub fn assemble_local_csr(
             let local_a = node_a - owned.start;
             let list = &neighbours[local_a];
             let row_len = 3 * list.len();
-            for b in 0..npt {
+            for (b, id) in new_ids.iter().enumerate().take(npt) {
                 let j = list
-                    .binary_search(&new_ids[b])
+                    .binary_search(id)
                     .expect("pattern contains every element neighbour");
                 for c in 0..3 {
                     let dst = node_base[local_a] + c * row_len + 3 * j;

@@ -39,6 +39,42 @@ use super::excitation::{modal_factor, ContactForce, Response};
 use super::synth::{BankGradient, ModalBank};
 use rustfft::num_complex::Complex64;
 
+/// Why a damping model, a damping curve or a modal chain was refused; each message names the
+/// offending value.
+#[derive(Debug, thiserror::Error, PartialEq)]
+pub enum ChainError {
+    #[error("a damping curve needs as many decay rates as knot frequencies, at least one ({frequencies} and {decay_rates})")]
+    CurveLengths {
+        frequencies: usize,
+        decay_rates: usize,
+    },
+    #[error("damping curve knot {knot}: frequency {frequency_hz} Hz and decay e^{log_decay} must be finite and positive")]
+    CurveKnot {
+        knot: usize,
+        frequency_hz: f64,
+        log_decay: f64,
+    },
+    #[error("damping curve knot {knot}: frequencies must increase ({previous_hz} then {frequency_hz} Hz)")]
+    CurveOrder {
+        knot: usize,
+        previous_hz: f64,
+        frequency_hz: f64,
+    },
+    #[error("Rayleigh α = {alpha}, β = {beta} must be finite and ≥ 0")]
+    Rayleigh { alpha: f64, beta: f64 },
+    #[error("{decay_rates} per-mode decay rates for {modes} modes")]
+    PerModeCount { decay_rates: usize, modes: usize },
+    #[error("decay rate of mode {mode} is {value} (must be finite and ≥ 0)")]
+    PerModeValue { mode: usize, value: f64 },
+    #[error("{eigenvalues} eigenvalues but {projections} projections")]
+    Lengths {
+        eigenvalues: usize,
+        projections: usize,
+    },
+    #[error(transparent)]
+    Force(#[from] super::excitation::ExcitationError),
+}
+
 /// How fast each mode decays.
 #[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 #[serde(tag = "kind", rename_all = "snake_case", deny_unknown_fields)]
@@ -60,13 +96,12 @@ pub struct DampingCurve {
 
 impl DampingCurve {
     /// A curve through (f_i, d_i); errors name the offending knot.
-    pub fn new(frequencies_hz: Vec<f64>, decay_rates: &[f64]) -> Result<DampingCurve, String> {
+    pub fn new(frequencies_hz: Vec<f64>, decay_rates: &[f64]) -> Result<DampingCurve, ChainError> {
         if frequencies_hz.is_empty() || frequencies_hz.len() != decay_rates.len() {
-            return Err(format!(
-                "a damping curve needs as many decay rates as knot frequencies, at least one ({} and {})",
-                frequencies_hz.len(),
-                decay_rates.len()
-            ));
+            return Err(ChainError::CurveLengths {
+                frequencies: frequencies_hz.len(),
+                decay_rates: decay_rates.len(),
+            });
         }
         let curve = DampingCurve {
             log_decay: decay_rates.iter().map(|d| d.ln()).collect(),
@@ -76,21 +111,27 @@ impl DampingCurve {
         Ok(curve)
     }
 
-    pub fn validate(&self) -> Result<(), String> {
+    pub fn validate(&self) -> Result<(), ChainError> {
         if self.frequencies_hz.is_empty() || self.frequencies_hz.len() != self.log_decay.len() {
-            return Err(
-                "a damping curve needs one ln-decay per knot frequency, at least one".into(),
-            );
+            return Err(ChainError::CurveLengths {
+                frequencies: self.frequencies_hz.len(),
+                decay_rates: self.log_decay.len(),
+            });
         }
         for (i, (&f, &t)) in self.frequencies_hz.iter().zip(&self.log_decay).enumerate() {
-            if !(f > 0.0 && f.is_finite()) || !t.is_finite() {
-                return Err(format!("damping curve knot {i}: frequency {f} Hz and decay e^{t} must be finite and positive"));
+            if !(f > 0.0 && f.is_finite() && t.is_finite()) {
+                return Err(ChainError::CurveKnot {
+                    knot: i,
+                    frequency_hz: f,
+                    log_decay: t,
+                });
             }
             if i > 0 && !(f > self.frequencies_hz[i - 1]) {
-                return Err(format!(
-                    "damping curve knot {i}: frequencies must increase ({} then {f} Hz)",
-                    self.frequencies_hz[i - 1]
-                ));
+                return Err(ChainError::CurveOrder {
+                    knot: i,
+                    previous_hz: self.frequencies_hz[i - 1],
+                    frequency_hz: f,
+                });
             }
         }
         Ok(())
@@ -124,31 +165,32 @@ impl DampingCurve {
 
 impl DampingModel {
     /// Checks the model against `n_modes` modes.
-    pub fn validate(&self, n_modes: usize) -> Result<(), String> {
+    pub fn validate(&self, n_modes: usize) -> Result<(), ChainError> {
         match self {
             DampingModel::Rayleigh { alpha, beta } => {
                 if !(alpha.is_finite() && beta.is_finite() && *alpha >= 0.0 && *beta >= 0.0) {
-                    return Err(format!(
-                        "Rayleigh α = {alpha}, β = {beta} must be finite and ≥ 0"
-                    ));
+                    return Err(ChainError::Rayleigh {
+                        alpha: *alpha,
+                        beta: *beta,
+                    });
                 }
                 Ok(())
             }
             DampingModel::PerMode { decay_rates } => {
                 if decay_rates.len() != n_modes {
-                    return Err(format!(
-                        "{} per-mode decay rates for {n_modes} modes",
-                        decay_rates.len()
-                    ));
+                    return Err(ChainError::PerModeCount {
+                        decay_rates: decay_rates.len(),
+                        modes: n_modes,
+                    });
                 }
                 match decay_rates
                     .iter()
                     .position(|d| !(d.is_finite() && *d >= 0.0))
                 {
-                    Some(i) => Err(format!(
-                        "decay rate of mode {i} is {} (must be finite and ≥ 0)",
-                        decay_rates[i]
-                    )),
+                    Some(i) => Err(ChainError::PerModeValue {
+                        mode: i,
+                        value: decay_rates[i],
+                    }),
                     None => Ok(()),
                 }
             }
@@ -239,16 +281,15 @@ impl ModalChain {
         projections: &[f64],
         damping: &DampingModel,
         strike: &Strike,
-    ) -> Result<(ModalBank, ModalChain), String> {
+    ) -> Result<(ModalBank, ModalChain), ChainError> {
         if eigenvalues.len() != projections.len() {
-            return Err(format!(
-                "{} eigenvalues but {} projections",
-                eigenvalues.len(),
-                projections.len()
-            ));
+            return Err(ChainError::Lengths {
+                eigenvalues: eigenvalues.len(),
+                projections: projections.len(),
+            });
         }
         damping.validate(eigenvalues.len())?;
-        strike.force.validate().map_err(|e| e.to_string())?;
+        strike.force.validate()?;
         let two_pi = 2.0 * std::f64::consts::PI;
         let mut bank = ModalBank::default();
         let mut links = Vec::with_capacity(eigenvalues.len());

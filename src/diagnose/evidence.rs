@@ -101,7 +101,7 @@ fn nearest(sorted: &[f64], x: f64) -> Option<usize> {
     for j in [i.wrapping_sub(1), i] {
         if j < sorted.len() {
             let d = (sorted[j] - x).abs();
-            if best.map_or(true, |b| d < b.1) {
+            if best.is_none_or(|b| d < b.1) {
                 best = Some((j, d));
             }
         }

@@ -1655,7 +1655,7 @@ fn robust_curve(
         .validate()
         .map_err(|reason| DampingError::InvalidData {
             what: "damping curve",
-            reason,
+            reason: reason.to_string(),
         })?;
     Ok((
         curve,

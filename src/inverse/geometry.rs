@@ -1665,7 +1665,7 @@ pub struct GeometryFit {
 }
 
 /// The continuous field for [`assess`] when the bodies are curved.
-fn pick<'a>(curved: bool, f: &'a dyn Fn([f64; 3]) -> f64) -> Option<&'a dyn Fn([f64; 3]) -> f64> {
+fn pick(curved: bool, f: &dyn Fn([f64; 3]) -> f64) -> Option<&dyn Fn([f64; 3]) -> f64> {
     curved.then_some(f)
 }
 

@@ -78,6 +78,23 @@ use crate::eigen::reduced::AttachmentProjections;
 
 #[cfg(test)]
 use super::material::capped_nearest;
+
+/// Why the loaded line match could not run.
+#[derive(Debug, thiserror::Error, PartialEq)]
+pub enum LoadedMatchError {
+    #[error("the loaded line match needs the target's mode frequencies")]
+    NoTargetModes,
+    #[error("the loaded line match needs at least one candidate region")]
+    NoRegion,
+    #[error("density {density}, volume {volume} and E {youngs} must be positive")]
+    Scales {
+        density: f64,
+        volume: f64,
+        youngs: f64,
+    },
+    #[error("the loaded line match found no candidate")]
+    NoCandidate,
+}
 use super::material::{line_distance, LinePattern, AUDIBLE_FRACTION};
 
 /// The unloaded Ritz modes at one ν, as the search needs them.
@@ -445,11 +462,11 @@ pub fn loaded_line_match(
     problem: &LoadedMatchProblem,
     modes_at: &dyn Fn(f64) -> ModesAtPoisson,
     settings: &LoadedMatchSettings,
-) -> Result<LoadedMatch, String> {
+) -> Result<LoadedMatch, LoadedMatchError> {
     loaded_line_candidates(problem, modes_at, settings, 1, &Alone)?
         .into_iter()
         .next()
-        .ok_or_else(|| "the loaded line match found no candidate".to_string())
+        .ok_or(LoadedMatchError::NoCandidate)
 }
 
 /// The search's `candidates` best answers at distinct sites, best first: the best coarse
@@ -463,7 +480,7 @@ pub fn loaded_line_candidates(
     settings: &LoadedMatchSettings,
     candidates: usize,
     share: &dyn Share,
-) -> Result<Vec<LoadedMatch>, String> {
+) -> Result<Vec<LoadedMatch>, LoadedMatchError> {
     let mut target: Vec<f64> = problem
         .target_ln_f
         .iter()
@@ -471,16 +488,17 @@ pub fn loaded_line_candidates(
         .filter(|x| x.is_finite())
         .collect();
     if target.is_empty() {
-        return Err("the loaded line match needs the target's mode frequencies".into());
+        return Err(LoadedMatchError::NoTargetModes);
     }
     if problem.regions.is_empty() || problem.coarse.is_empty() {
-        return Err("the loaded line match needs at least one candidate region".into());
+        return Err(LoadedMatchError::NoRegion);
     }
     if !(problem.density > 0.0 && problem.volume > 0.0 && problem.plain_youngs > 0.0) {
-        return Err(format!(
-            "density {}, volume {} and E {} must be positive",
-            problem.density, problem.volume, problem.plain_youngs
-        ));
+        return Err(LoadedMatchError::Scales {
+            density: problem.density,
+            volume: problem.volume,
+            youngs: problem.plain_youngs,
+        });
     }
     target.sort_by(f64::total_cmp);
     let two_pi_ln = (2.0 * std::f64::consts::PI).ln();
@@ -1398,22 +1416,28 @@ mod tests {
             enrichment: None,
             anchor_poisson: 0.25,
         };
-        assert!(loaded_line_match(
-            &problem,
-            &|_nu| modes.clone(),
-            &LoadedMatchSettings::default()
-        )
-        .is_err());
+        assert_eq!(
+            loaded_line_match(
+                &problem,
+                &|_nu| modes.clone(),
+                &LoadedMatchSettings::default()
+            )
+            .err(),
+            Some(LoadedMatchError::NoTargetModes)
+        );
         let problem = LoadedMatchProblem {
             target_ln_f: &[7.0],
             coarse: &[],
             ..problem
         };
-        assert!(loaded_line_match(
-            &problem,
-            &|_nu| modes.clone(),
-            &LoadedMatchSettings::default()
-        )
-        .is_err());
+        assert_eq!(
+            loaded_line_match(
+                &problem,
+                &|_nu| modes.clone(),
+                &LoadedMatchSettings::default()
+            )
+            .err(),
+            Some(LoadedMatchError::NoRegion)
+        );
     }
 }

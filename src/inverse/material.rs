@@ -39,13 +39,31 @@
 //! Ritz values; the fits build their basis from well-spread samples and check the answer
 //! against a full solve instead.
 
-use crate::audio::chain::{DampingModel, ModalChain, Strike};
+use crate::audio::chain::{ChainError, DampingModel, ModalChain, Strike};
 use crate::audio::loss::{
-    HybridSchedule, LossPhase, MultiScaleSpectralLoss, PeakTransportConfig, PeakTransportLoss,
-    SpectralLossConfig,
+    HybridSchedule, LossError, LossPhase, MultiScaleSpectralLoss, PeakTransportConfig,
+    PeakTransportLoss, SpectralLossConfig,
 };
 use crate::audio::synth::{render_backward, render_samples, BankGradient};
-use crate::eigen::reduced::{PoissonBasis, ReducedModes};
+use crate::eigen::reduced::{PoissonBasis, ReducedError, ReducedModes};
+
+/// Why the material fit (or one of its pieces: a render, the line-spectrum start) stopped.
+#[derive(Debug, thiserror::Error)]
+pub enum MaterialFitError {
+    #[error("the material fit needs one or more target channels of equal, non-zero length")]
+    Targets,
+    #[error("the line-spectrum start needs the target's mode frequencies")]
+    NoTargetModes,
+    /// The damping model or the strike refused by the modal chain.
+    #[error(transparent)]
+    Chain(#[from] ChainError),
+    /// A spectral or transport loss refused its target or a render.
+    #[error(transparent)]
+    Loss(#[from] LossError),
+    /// The caller's check of the reduced basis against a full solve.
+    #[error(transparent)]
+    Basis(#[from] ReducedError),
+}
 
 /// Settings of the material fit (module docs).
 #[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
@@ -234,7 +252,7 @@ pub fn render_channels(
     poisson: f64,
     log_gains: &[f64],
     offsets: Option<&[f64]>,
-) -> Result<Vec<Vec<f64>>, String> {
+) -> Result<Vec<Vec<f64>>, MaterialFitError> {
     let modes = basis.solve(poisson);
     let (eigenvalues, projections) = modal_inputs(basis, &modes, problem, youngs);
     let n = problem.targets[0].len();
@@ -269,7 +287,7 @@ fn scan_poisson(
     sigma: f64,
     log_gains: &[f64],
     settings: &MaterialFitSettings,
-) -> Result<f64, String> {
+) -> Result<f64, MaterialFitError> {
     let (lo, hi) = settings.poisson_bounds;
     let n = settings.poisson_scan.max(2);
     let mut best = (f64::INFINITY, lo);
@@ -280,7 +298,7 @@ fn scan_poisson(
         let rendered = render_channels(basis, problem, (sigma - m).exp(), nu, log_gains, None)?;
         let mut total = 0.0;
         for (loss, x) in spectral.iter().zip(&rendered) {
-            total += loss.value(x).map_err(|e| e.to_string())?;
+            total += loss.value(x)?;
         }
         if total < best.0 {
             best = (total, nu);
@@ -328,7 +346,9 @@ pub(crate) fn capped_nearest(from: &[f64], to: &[f64], shift: f64, cap: f64) -> 
 /// The line match's targets: ln of the target's mode frequencies (finite and positive ones),
 /// ascending, and the ceiling (ln Hz) above which simulated partials are not compared: 1.02 ×
 /// the highest target mode, or the band limit if lower.
-pub(crate) fn line_match_targets(problem: &MaterialProblem) -> Result<(Vec<f64>, f64), String> {
+pub(crate) fn line_match_targets(
+    problem: &MaterialProblem,
+) -> Result<(Vec<f64>, f64), MaterialFitError> {
     let mut target: Vec<f64> = problem
         .target_modes_hz
         .iter()
@@ -336,7 +356,7 @@ pub(crate) fn line_match_targets(problem: &MaterialProblem) -> Result<(Vec<f64>,
         .map(|f| f.ln())
         .collect();
     if target.is_empty() {
-        return Err("the line-spectrum start needs the target's mode frequencies".into());
+        return Err(MaterialFitError::NoTargetModes);
     }
     target.sort_by(f64::total_cmp);
     let mut ceiling = target[target.len() - 1] + 0.02_f64.ln_1p();
@@ -429,7 +449,7 @@ pub fn line_spectrum_start(
     problem: &MaterialProblem,
     start: (f64, f64),
     settings: &MaterialFitSettings,
-) -> Result<LineSpectrumStart, String> {
+) -> Result<LineSpectrumStart, MaterialFitError> {
     let (target, ceiling) = line_match_targets(problem)?;
     let (lo, hi) = settings.poisson_bounds;
     let nus: Vec<f64> = if settings.learn_poisson {
@@ -507,9 +527,9 @@ pub fn fit_material<'p>(
     problem: &MaterialProblem,
     start: (f64, f64),
     settings: &MaterialFitSettings,
-    mut check: impl FnMut(&mut PoissonBasis<'p>, f64) -> Result<f64, String>,
+    mut check: impl FnMut(&mut PoissonBasis<'p>, f64) -> Result<f64, ReducedError>,
     mut on_step: impl FnMut(&FitStep),
-) -> Result<MaterialFit, String> {
+) -> Result<MaterialFit, MaterialFitError> {
     let n_channels = problem.targets.len();
     if n_channels == 0
         || problem
@@ -517,28 +537,24 @@ pub fn fit_material<'p>(
             .iter()
             .any(|t| t.len() != problem.targets[0].len() || t.is_empty())
     {
-        return Err(
-            "the material fit needs one or more target channels of equal, non-zero length".into(),
-        );
+        return Err(MaterialFitError::Targets);
     }
     let transport: Vec<PeakTransportLoss> = problem
         .targets
         .iter()
         .map(|t| PeakTransportLoss::new(t, problem.sample_rate, settings.transport.clone()))
-        .collect::<Result<_, _>>()
-        .map_err(|e| e.to_string())?;
+        .collect::<Result<_, _>>()?;
     let mut losses = Losses::Transport(transport);
     let mut schedule = HybridSchedule::new(
         settings.schedule_patience,
         settings.schedule_min_improvement,
     );
-    let spectral_losses = || -> Result<Vec<MultiScaleSpectralLoss>, String> {
+    let spectral_losses = || -> Result<Vec<MultiScaleSpectralLoss>, LossError> {
         problem
             .targets
             .iter()
             .map(|t| MultiScaleSpectralLoss::new(t, settings.spectral.clone()))
-            .collect::<Result<_, _>>()
-            .map_err(|e| e.to_string())
+            .collect()
     };
 
     // Parameters: [σ, ν, γ_0 … γ_(C−1)] with σ = ln E + m(ν), m(ν) = mean_k ln θ_k(ν): the
@@ -656,8 +672,7 @@ pub fn fit_material<'p>(
             let (value, g_signal) = match &losses {
                 Losses::Transport(l) => l[c].value_and_gradient(&signal),
                 Losses::Spectral(l) => l[c].value_and_gradient(&signal),
-            }
-            .map_err(|e| e.to_string())?;
+            }?;
             total += value;
             let g_bank: BankGradient = render_backward(&bank, problem.sample_rate, &g_signal);
             let g = chain.backward(&g_bank);

@@ -1038,7 +1038,8 @@ fn search_level<T: Clone>(
     let mut x = start;
     // The evaluated points nearest the minimum on either side: (p, dL/dp) with the largest p
     // where dL/dp < 0 and the smallest where dL/dp > 0.
-    let (mut below, mut above): (Option<(f64, f64)>, Option<(f64, f64)>) = (None, None);
+    let mut below: Option<(f64, f64)> = None;
+    let mut above: Option<(f64, f64)> = None;
     for _ in 0..settings.max_refinements {
         if x.loss.gradient > 0.0 {
             b = b.min(x.p);

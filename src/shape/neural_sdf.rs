@@ -411,10 +411,10 @@ impl NeuralSdf {
             }
             let z = &trace.pre[j - 1];
             let mut below = vec![0.0; l.n_in];
-            for i in 0..l.n_out {
+            for (i, &d) in delta.iter().enumerate().take(l.n_out) {
                 let row = &self.parameters[l.weights + i * l.n_in..l.weights + (i + 1) * l.n_in];
                 for k in 0..l.n_in {
-                    below[k] += row[k] * delta[i];
+                    below[k] += row[k] * d;
                 }
             }
             for k in 0..l.n_in {

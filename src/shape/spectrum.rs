@@ -280,8 +280,11 @@ pub fn shape_spectrum(
 /// field: `len` per mode, mode after mode.
 struct Carry<'a> {
     len: usize,
-    map: &'a dyn Fn(&[Vec<f64>]) -> Result<Vec<f64>, ShapeError>,
+    map: &'a ModeMap<'a>,
 }
+
+/// Maps the modes' node fields to the carried field.
+type ModeMap<'a> = dyn Fn(&[Vec<f64>]) -> Result<Vec<f64>, ShapeError> + 'a;
 
 /// What every spectrum of a meshed body shares: assembles and solves `quadratic`, gives every
 /// rank rank 0's first `n_modes` eigenvalues and their clusters and, with `carry`, carries rank
@@ -564,6 +567,8 @@ fn difference_hessian(
     };
     let centre = at(&[]);
     let mut h = [[0.0; 3]; 3];
+    // Index loops: the symmetric 3×3 fill reads as the formula.
+    #[allow(clippy::needless_range_loop)]
     for d in 0..3 {
         // D_d at p ± δ e_d differs by (f(p + 2δ e_d) − 2 f(p) + f(p − 2δ e_d))/(2δ).
         h[d][d] = (at(&[(d, 2.0)]) - 2.0 * centre + at(&[(d, -2.0)])) / (4.0 * step * step);

@@ -21,8 +21,11 @@ use std::time::Instant;
 /// Progress of a long job: each message goes to a callback with the seconds since the job began.
 pub struct Progress {
     start: Instant,
-    sink: Option<Box<dyn Fn(f64, &str)>>,
+    sink: Option<Box<Sink>>,
 }
+
+/// Where progress messages go: (seconds since the start, message).
+type Sink = dyn Fn(f64, &str);
 
 impl Progress {
     /// Progress that goes nowhere (tests, library use).

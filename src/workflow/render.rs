@@ -7,7 +7,7 @@
 //! factor; it decays with the chosen damping (the file's Rayleigh α, β by default, or a
 //! damping curve d(f) from a TOML file with `frequencies_hz` and `decay_rates` arrays).
 
-use crate::audio::chain::{DampingCurve, DampingModel, ModalChain, Strike};
+use crate::audio::chain::{ChainError, DampingCurve, DampingModel, ModalChain, Strike};
 use crate::audio::excitation::{ContactForce, Response};
 use crate::audio::{self, AudioError, WavFormat};
 use crate::io::IoError;
@@ -76,11 +76,11 @@ pub enum Error {
     #[error("--direction must not be the zero vector")]
     ZeroDirection,
     /// The damping curve file could not be read or is no curve.
-    #[error("{0}")]
-    DampingCurve(String),
+    #[error(transparent)]
+    DampingCurve(#[from] CurveFileError),
     /// The modal chain refused the modes and their damping.
-    #[error("{0}")]
-    Chain(String),
+    #[error(transparent)]
+    Chain(#[from] ChainError),
     #[error("no mode rings below the Nyquist frequency {nyquist_hz} Hz at this strike point; nothing to render")]
     NothingAudible { nyquist_hz: f64 },
     #[error(transparent)]
@@ -110,12 +110,40 @@ struct CurveFile {
     decay_rates: Vec<f64>,
 }
 
+/// Why a damping-curve TOML file was refused; each names the file.
+#[derive(Debug, thiserror::Error)]
+pub enum CurveFileError {
+    #[error("{path}: {source}")]
+    Read {
+        path: String,
+        source: std::io::Error,
+    },
+    #[error("{path}: {source}")]
+    Parse {
+        path: String,
+        source: toml::de::Error,
+    },
+    #[error("{path}: {source}")]
+    Invalid { path: String, source: ChainError },
+}
+
 /// Reads a damping curve TOML file.
-pub fn read_damping_curve(path: &Path) -> Result<DampingCurve, String> {
-    let text = std::fs::read_to_string(path).map_err(|e| format!("{}: {e}", path.display()))?;
-    let file: CurveFile = toml::from_str(&text).map_err(|e| format!("{}: {e}", path.display()))?;
-    DampingCurve::new(file.frequencies_hz, &file.decay_rates)
-        .map_err(|e| format!("{}: {e}", path.display()))
+pub fn read_damping_curve(path: &Path) -> Result<DampingCurve, CurveFileError> {
+    let name = || path.display().to_string();
+    let text = std::fs::read_to_string(path).map_err(|source| CurveFileError::Read {
+        path: name(),
+        source,
+    })?;
+    let file: CurveFile = toml::from_str(&text).map_err(|source| CurveFileError::Parse {
+        path: name(),
+        source,
+    })?;
+    DampingCurve::new(file.frequencies_hz, &file.decay_rates).map_err(|source| {
+        CurveFileError::Invalid {
+            path: name(),
+            source,
+        }
+    })
 }
 
 /// Renders the strike (the WAV is written by [`write_wav`]).
@@ -184,9 +212,7 @@ pub fn run(job: &Job) -> Result<Report, Error> {
         })
         .collect();
     let damping = match &job.damping {
-        Damping::Curve(path) => {
-            DampingModel::Curve(read_damping_curve(path).map_err(Error::DampingCurve)?)
-        }
+        Damping::Curve(path) => DampingModel::Curve(read_damping_curve(path)?),
         Damping::Rayleigh { alpha, beta } => DampingModel::Rayleigh {
             alpha: alpha.unwrap_or(file.material.rayleigh_alpha),
             beta: beta.unwrap_or(file.material.rayleigh_beta),
@@ -196,8 +222,7 @@ pub fn run(job: &Job) -> Result<Report, Error> {
         force: job.force,
         response: job.response,
     };
-    let (bank, _) = ModalChain::new(&file.eigenvalues, &projections, &damping, &strike)
-        .map_err(Error::Chain)?;
+    let (bank, _) = ModalChain::new(&file.eigenvalues, &projections, &damping, &strike)?;
     let fs = f64::from(job.sample_rate);
     let audible = bank
         .frequencies_hz

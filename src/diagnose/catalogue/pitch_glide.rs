@@ -150,7 +150,9 @@ impl Effect for PitchGlide {
         let mut details = Vec::new();
         let mut proposals = Vec::new();
         let mut statistic = 0.0f64;
-        let variants: [(&str, Arc<dyn Term>, &dyn Fn(&(f64, f64, f64)) -> f64); 2] = [
+        /// A named glide law and the weight it gives a mode's (energy, …) triple.
+        type Variant<'v> = (&'v str, Arc<dyn Term>, &'v dyn Fn(&(f64, f64, f64)) -> f64);
+        let variants: [Variant; 2] = [
             ("glide vs relative energy", Arc::new(EnergyGlide), &|p| p.0),
             ("uniform relative glide", Arc::new(UniformGlide), &|_| 1.0),
         ];

@@ -287,8 +287,14 @@ fn axis_range(
     })
 }
 
+/// ((x_lo, x_hi), (y_lo, y_hi)) in data units.
+type Limits = ((f64, f64), (f64, f64));
+
+/// The plot area, the two axis maps and the ticks of x and y.
+type Frame = (PixelRect, AxisMap, AxisMap, Vec<Tick>, Vec<Tick>);
+
 /// The data limits of both axes, checked.
-fn data_limits(path: &Path, fig: &LineFigure) -> Result<((f64, f64), (f64, f64)), PlotError> {
+fn data_limits(path: &Path, fig: &LineFigure) -> Result<Limits, PlotError> {
     let bad = |reason: String| PlotError::InvalidInput {
         path: path.to_path_buf(),
         reason,
@@ -478,7 +484,7 @@ fn frame_layout(
     look: &Look,
     limits: ((f64, f64), (f64, f64)),
     reserve_right: i32,
-) -> Result<(PixelRect, AxisMap, AxisMap, Vec<Tick>, Vec<Tick>), PlotError> {
+) -> Result<Frame, PlotError> {
     let ((x_lo, x_hi), (y_lo, y_hi)) = limits;
     let (w, h) = (fig.width as i32, fig.height as i32);
     let text_line = look.text_h() + look.descent();

@@ -157,6 +157,9 @@ pub fn split_microphones(
     Ok((fit_channels, held_channels))
 }
 
+/// (E, ν) if known [Pa, 1], where the material comes from, and the density [kg/m³].
+pub type MaterialChoice = (Option<(f64, f64)>, MaterialSource, f64);
+
 /// E and ν (or none: the line-spectrum match finds them), where they come from, and the density:
 /// from a fit-material result at `material_path` (its density replaces `density`) or given as
 /// (E, ν), not both; checked for a valid material.
@@ -164,7 +167,7 @@ pub fn resolve_material(
     material_path: Option<PathBuf>,
     given: (Option<f64>, Option<f64>),
     mut density: f64,
-) -> Result<(Option<(f64, f64)>, MaterialSource, f64), String> {
+) -> Result<MaterialChoice, String> {
     let (material, material_source) = match (material_path, given) {
         (Some(p), (None, None)) => {
             let (e, nu, rho) = read_fit_material(&p).map_err(|e| e.to_string())?;

@@ -199,7 +199,7 @@ pub(super) fn loaded_match(
             .flat_map(|v| (0..sizes).map(move |s| v * sizes + s))
             .collect::<Vec<usize>>()
     };
-    let (target, ceiling) = line_match_targets(problem)?;
+    let (target, ceiling) = line_match_targets(problem).map_err(|e| e.to_string())?;
     let volume = mesh.volume();
     let weights = &problem.direction_weights;
     // Drive at the strike of column j of probe values (strike DOFs first), weighted as the
@@ -399,7 +399,8 @@ pub(super) fn loaded_match(
         &match_settings,
         LOADED_MATCH_CANDIDATES,
         &Ranks(petsc),
-    )?;
+    )
+    .map_err(|e| e.to_string())?;
     // Each candidate checked by a full solve with its mass: the answer is the best verified
     // one, and its distance is the verified one.
     let top_hz = target

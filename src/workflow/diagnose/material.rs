@@ -99,7 +99,8 @@ pub(super) fn material(input: &StageInput<'_, '_>) -> Result<MaterialStage, Stri
                 youngs_search_factor: 8.0,
                 ..Default::default()
             };
-            let start = line_spectrum_start(&basis, &problem, (7.2e10, 0.25), &settings)?;
+            let start = line_spectrum_start(&basis, &problem, (7.2e10, 0.25), &settings)
+                .map_err(|e| e.to_string())?;
             progress.say(format!(
                 "line-spectrum match: E = {:.4e} Pa, ν = {:.4} (distance {:.2e})",
                 start.youngs, start.poisson, start.distance

@@ -31,7 +31,9 @@ pub fn write_plots(r: &Report) -> Result<(), Error> {
                 })
                 .unzip()
         };
-    let quantities: [(&str, Box<dyn Fn(&catalogue::ZScores) -> Option<f64>>); 3] = [
+    /// A plotted quantity: its label and how it is read from a mode's z-scores.
+    type Quantity<'q> = (&'q str, Box<dyn Fn(&catalogue::ZScores) -> Option<f64>>);
+    let quantities: [Quantity; 3] = [
         (
             "ln f",
             Box::new(|z: &catalogue::ZScores| Some(z.ln_frequency)),

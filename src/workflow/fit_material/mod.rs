@@ -52,8 +52,8 @@ use crate::audio::stft::spectrogram_error;
 use crate::eigen::reduced::PoissonBasis;
 use crate::inverse::damping::DampingFitSettings;
 use crate::inverse::material::{
-    fit_material, render_channels, rms_matched_log_gains, MaterialFit, MaterialFitSettings,
-    MaterialProblem,
+    fit_material, render_channels, rms_matched_log_gains, MaterialFit, MaterialFitError,
+    MaterialFitSettings, MaterialProblem,
 };
 use crate::mesh::{self, MeshError, ReadOptions, TetMesh};
 use crate::petsc::Petsc;
@@ -119,6 +119,9 @@ pub enum Error {
     /// The material fit, its renders and the checks after it.
     #[error("{0}")]
     Fit(String),
+    /// The material fit or one of its renders refused its input.
+    #[error(transparent)]
+    Model(#[from] MaterialFitError),
     /// Writing the HDF5 result or the plots.
     #[error("{0}")]
     Output(String),
@@ -290,7 +293,6 @@ pub fn run(petsc: &Petsc, job: &Job, progress: &Progress) -> Result<Report, Erro
                 job.fit.residual_tolerance,
                 job.fit.min_sample_spacing,
             )
-            .map_err(|e| e.to_string())
         },
         |s| {
             if s.step % 20 == 0 {
@@ -300,8 +302,7 @@ pub fn run(petsc: &Petsc, job: &Job, progress: &Progress) -> Result<Report, Erro
                 ));
             }
         },
-    )
-    .map_err(Error::Fit)?;
+    )?;
     let fit_seconds = t3.elapsed().as_secs_f64();
     // Every rank ran the same fit; they must agree exactly, since the full-solve check below and
     // every later collective step assemble with this ν on each rank's own rows (a mismatch would
@@ -345,8 +346,7 @@ pub fn run(petsc: &Petsc, job: &Job, progress: &Progress) -> Result<Report, Erro
         job.start_poisson,
         &vec![0.0; targets.len()],
         None,
-    )
-    .map_err(Error::Fit)?;
+    )?;
     let start_gains = rms_matched_log_gains(&start_render, &targets);
     for (channel, gain) in start_render.iter_mut().zip(start_gains) {
         channel.iter_mut().for_each(|v| *v *= gain.exp());
@@ -358,8 +358,7 @@ pub fn run(petsc: &Petsc, job: &Job, progress: &Progress) -> Result<Report, Erro
         fit.poisson,
         &fit.log_gains,
         Some(&fit.log_amplitude_offsets),
-    )
-    .map_err(Error::Fit)?;
+    )?;
     let mean_error = |renders: &[Vec<f64>]| -> Result<f64, Error> {
         let mut total = 0.0;
         for (r, t) in renders.iter().zip(&targets) {
@@ -372,7 +371,7 @@ pub fn run(petsc: &Petsc, job: &Job, progress: &Progress) -> Result<Report, Erro
     // Recorded modes in the band against the fitted simulated modes.
     let eigenvalues = reduced.eigenvalues(fit.youngs, job.density);
     let (sim_hz, sim_decay) =
-        damped_partials(&eigenvalues, &problem.damping).map_err(Error::Fit)?;
+        damped_partials(&eigenvalues, &problem.damping).map_err(MaterialFitError::from)?;
     let recorded_hz: Vec<f64> = in_band
         .iter()
         .map(|&i| stage.damping.modes[i].frequency_hz)
@@ -387,7 +386,7 @@ pub fn run(petsc: &Petsc, job: &Job, progress: &Progress) -> Result<Report, Erro
                 &basis.solve(l.poisson).eigenvalues(l.youngs, job.density),
                 &problem.damping,
             )
-            .map_err(Error::Fit)?;
+            .map_err(MaterialFitError::from)?;
             let m = match_modes(&recorded_hz, &hz);
             Some(LineStartCheck {
                 mean_abs_error: m.iter().map(|m| m.relative_error.abs()).sum::<f64>()

@@ -5,7 +5,7 @@
 use super::Job;
 use crate::analysis::recording::{load_recording, GainPolicy, RecordingOptions};
 use crate::assembly;
-use crate::audio::chain::{DampingModel, ModalChain, Strike};
+use crate::audio::chain::{ChainError, DampingModel, ModalChain, Strike};
 use crate::audio::synth::{render_samples, ModalBank};
 use crate::inverse::damping::{fit_damping, DampingFit};
 use crate::inverse::material::{band_weight, MaterialFit};
@@ -186,9 +186,9 @@ pub fn probe_along(
     let mut dofs = Vec::new();
     let mut w = Vec::new();
     for (a, &node) in mesh.tet(point.tet).iter().enumerate() {
-        for c in 0..3 {
+        for (c, &along) in direction.iter().enumerate() {
             dofs.push(layout.global_dof(node, c) as PetscInt);
-            w.push(weights[a] * direction[c]);
+            w.push(weights[a] * along);
         }
     }
     (dofs, w)
@@ -247,7 +247,7 @@ pub fn match_modes(recorded_hz: &[f64], simulated_hz: &[f64]) -> Vec<Match> {
 pub(super) fn damped_partials(
     eigenvalues: &[f64],
     damping: &DampingModel,
-) -> Result<(Vec<f64>, Vec<f64>), String> {
+) -> Result<(Vec<f64>, Vec<f64>), ChainError> {
     let (bank, _) = ModalChain::new(
         eigenvalues,
         &vec![1.0; eigenvalues.len()],
