@@ -197,6 +197,11 @@ pub enum RadiationError {
         point: [f64; 3],
         centre: [f64; 3],
     },
+    #[error("a microphone {distance_m:.3} m from the radiation fit's centre lies inside its source sphere ({source_radius_m:.3} m); the transfer there is not defined")]
+    InsideSources {
+        distance_m: f64,
+        source_radius_m: f64,
+    },
     #[error("direction must be a non-zero finite vector, got {0:?}")]
     BadDirection([f64; 3]),
     #[error("radius must be positive and finite, got {0} m")]
@@ -1150,6 +1155,9 @@ impl MultipoleExpansion {
         Ok(vec![Complex64::new(p, 0.0); n_microphones])
     }
 }
+
+mod modes;
+pub use modes::{mode_transfers, Listeners, ModeTransfers};
 
 #[cfg(test)]
 mod tests;

@@ -144,7 +144,8 @@ pub fn resolve(args: &DiagnoseArgs) -> Result<Job, String> {
             args.strike.poisson.or(file.model.poisson_ratio),
         ),
         density,
-    )?;
+    )
+    .map_err(|e| e.to_string())?;
     let strike_vertex = args
         .strike_vertex
         .or(file.model.strike_vertex)

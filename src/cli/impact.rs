@@ -9,7 +9,8 @@ use crate::io::config::{load_toml, ImpactFileConfig};
 use crate::io::paths::with_suffix;
 use crate::workflow::locate_impact::job::{resolve_material, CaseMeta};
 use crate::workflow::locate_impact::{self, Report};
-pub use crate::workflow::locate_impact::{Job, MaterialSource, TransferChoice};
+pub use crate::workflow::locate_impact::{Job, TransferChoice};
+pub use crate::workflow::material::MaterialSource;
 use clap::Args;
 use mpi::environment::Universe;
 use std::path::{Path, PathBuf};
@@ -133,7 +134,8 @@ pub fn resolve(args: &ImpactArgs) -> Result<Job, String> {
                 .or(case.as_ref().map(|c| c.density_kg_m3))
                 .unwrap_or(2700.0)
         },
-    )?;
+    )
+    .map_err(|e| e.to_string())?;
     let microphones = file
         .microphone_positions
         .clone()

@@ -34,7 +34,7 @@
 //! ", " and `basis_samples` as Rust's debug text of a list; [`read_material`] reads both
 //! versions (the attributes it reads did not change).
 
-use super::results::{read_attribute, AttrValue, ResultsFile};
+use super::results::{read_attribute, read_dataset, AttrValue, ResultsFile};
 use super::IoError;
 use std::path::Path;
 
@@ -402,6 +402,14 @@ pub fn write_result(path: &Path, r: &FitMaterialResult) -> Result<(), IoError> {
         file.number("/timings", k, *v);
     }
     file.write(path)
+}
+
+/// Reads the damping curve's knots from a fit-material result: (frequencies [Hz], decay rates
+/// [1/s]).
+pub fn read_damping_curve(path: &Path) -> Result<(Vec<f64>, Vec<f64>), IoError> {
+    let (f, _) = read_dataset(path, "/damping/curve/frequencies_hz")?;
+    let (d, _) = read_dataset(path, "/damping/curve/decay_rates")?;
+    Ok((f, d))
 }
 
 /// Reads E [Pa], ν and ρ [kg/m³] from a fit-material result (format version 1 or 2).

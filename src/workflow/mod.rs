@@ -10,6 +10,7 @@ pub mod fit_geometry;
 pub mod fit_material;
 pub mod fit_shape;
 pub mod locate_impact;
+pub mod material;
 pub mod modes;
 pub mod render;
 pub mod spectrogram;

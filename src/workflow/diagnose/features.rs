@@ -5,7 +5,7 @@
 //! frequency residuals regressed on each surface vertex's |φ_k|² pattern.
 
 use super::Job;
-use crate::audio::radiation::{fit_multipoles, MultipoleSettings, SurfaceQuadrature};
+use crate::audio::radiation::{mode_transfers, Listeners};
 use crate::diagnose::catalogue::CatalogueReport;
 use crate::diagnose::evidence;
 use crate::eigen;
@@ -111,7 +111,6 @@ pub(super) fn features(
         None => None,
         Some(mics) => {
             let t = Instant::now();
-            let quadrature = SurfaceQuadrature::new(mesh).map_err(|e| format!("radiation: {e}"))?;
             let order: Vec<usize> = job
                 .fit_channels
                 .iter()
@@ -119,38 +118,13 @@ pub(super) fn features(
                 .copied()
                 .collect();
             let positions: Vec<[f64; 3]> = order.iter().map(|&c| mics[c]).collect();
-            let mut out = Vec::new();
-            for (shape, &lambda) in shapes.iter().zip(eigenvalues) {
-                let un = quadrature
-                    .normal_displacement(shape)
-                    .map_err(|e| format!("radiation: {e}"))?;
-                let fit = fit_multipoles(
-                    quadrature.samples(),
-                    &un,
-                    lambda.sqrt(),
-                    &MultipoleSettings::default(),
-                )
-                .map_err(|e| format!("radiation: {e}"))?;
-                let nearest = positions
+            let out: Vec<Vec<f64>> =
+                mode_transfers(mesh, eigenvalues, shapes, Listeners::At(&positions))
+                    .map_err(|e| format!("radiation: {e}"))?
+                    .values
                     .iter()
-                    .map(|x| {
-                        (0..3)
-                            .map(|d| (x[d] - fit.centre[d]).powi(2))
-                            .sum::<f64>()
-                            .sqrt()
-                    })
-                    .fold(f64::INFINITY, f64::min);
-                if nearest <= fit.source_radius {
-                    return Err(format!("a microphone {nearest:.3} m from the radiation fit's centre lies inside its source sphere ({:.3} m); the transfer there is not defined", fit.source_radius));
-                }
-                out.push(
-                    fit.transfer(&positions)
-                        .map_err(|e| e.to_string())?
-                        .iter()
-                        .map(|p| p.norm())
-                        .collect(),
-                );
-            }
+                    .map(|row| row.iter().map(|p| p.norm()).collect())
+                    .collect();
             progress.say(format!(
                 "acoustic transfer of {} modes to {} microphones in {:.1} s",
                 shapes.len(),

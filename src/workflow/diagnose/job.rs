@@ -6,49 +6,10 @@ use crate::analysis::extract::{ExtractOptions, GlideOptions};
 use crate::audio::health::ChannelHealth;
 use crate::diagnose::catalogue::CatalogueSettings;
 use crate::diagnose::evidence::{EnvelopeOptions, ObservedOptions};
-use crate::fem::Material;
-use crate::io::fit_material::read_material as read_fit_material;
-use serde::{Deserialize, Serialize};
+pub use crate::workflow::material::MaterialSource;
+use crate::workflow::material::{self, MaterialInputError};
+use serde::Deserialize;
 use std::path::{Path, PathBuf};
-
-/// Where E and ν come from.
-#[derive(Clone, Debug, Serialize)]
-#[serde(rename_all = "snake_case")]
-pub enum MaterialSource {
-    FitFile(PathBuf),
-    Given,
-    LineSpectrum,
-}
-
-impl MaterialSource {
-    /// The word stored in the HDF5 result (`/material` attr `source`).
-    pub fn kind(&self) -> &'static str {
-        match self {
-            MaterialSource::FitFile(_) => "fit_file",
-            MaterialSource::Given => "given",
-            MaterialSource::LineSpectrum => "line_spectrum",
-        }
-    }
-
-    /// The fit-material result, if that is the source.
-    pub fn path(&self) -> Option<&Path> {
-        match self {
-            MaterialSource::FitFile(p) => Some(p),
-            _ => None,
-        }
-    }
-}
-
-impl std::fmt::Display for MaterialSource {
-    /// Where E and ν come from, in words ("fitted in out/bowl_fit.h5").
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        match self {
-            MaterialSource::FitFile(p) => write!(f, "fitted in {}", p.display()),
-            MaterialSource::Given => f.write_str("given"),
-            MaterialSource::LineSpectrum => f.write_str("matched to the recorded line spectrum"),
-        }
-    }
-}
 
 /// Everything resolved and checked before PETSc starts.
 #[derive(Clone, Debug)]
@@ -162,38 +123,14 @@ pub type MaterialChoice = (Option<(f64, f64)>, MaterialSource, f64);
 
 /// E and ν (or none: the line-spectrum match finds them), where they come from, and the density:
 /// from a fit-material result at `material_path` (its density replaces `density`) or given as
-/// (E, ν), not both; checked for a valid material.
+/// (E, ν), not both; checked for a valid material ([`crate::workflow::material::resolve`]).
 pub fn resolve_material(
     material_path: Option<PathBuf>,
     given: (Option<f64>, Option<f64>),
-    mut density: f64,
-) -> Result<MaterialChoice, String> {
-    let (material, material_source) = match (material_path, given) {
-        (Some(p), (None, None)) => {
-            let (e, nu, rho) = read_fit_material(&p).map_err(|e| e.to_string())?;
-            density = rho;
-            (Some((e, nu)), MaterialSource::FitFile(p))
-        }
-        (Some(_), _) => return Err("give the material either as a fit-material result (--material) or as --youngs/--poisson, not both".into()),
-        (None, (Some(e), Some(nu))) => (Some((e, nu)), MaterialSource::Given),
-        (None, (None, None)) => (None, MaterialSource::LineSpectrum),
-        (None, _) => return Err("--youngs and --poisson go together".into()),
-    };
-    if !(density.is_finite() && density > 0.0) {
-        return Err(format!("the density must be positive, got {density}"));
-    }
-    if let Some((e, nu)) = material {
-        Material {
-            youngs_modulus: e,
-            poisson_ratio: nu,
-            density,
-            rayleigh_alpha: 0.0,
-            rayleigh_beta: 0.0,
-        }
-        .validate()
-        .map_err(|e| format!("material: {e}"))?;
-    }
-    Ok((material, material_source, density))
+    density: f64,
+) -> Result<MaterialChoice, MaterialInputError> {
+    let r = material::resolve(material_path, given, || density, true)?;
+    Ok((r.elastic, r.source, r.density))
 }
 
 /// Checks the recording window: the sample rate [Hz], the seconds kept after the onset and

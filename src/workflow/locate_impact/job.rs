@@ -3,8 +3,8 @@
 
 use crate::audio::chain::DampingCurve;
 use crate::fem::Material;
-use crate::io::fit_material::read_material as read_fit_material;
-use crate::io::results::read_dataset;
+use crate::io::fit_material;
+use crate::workflow::material::{self, MaterialInputError, MaterialSource};
 use serde::Deserialize;
 use std::path::{Path, PathBuf};
 
@@ -26,10 +26,9 @@ pub struct CaseStrike {
     pub vertex: usize,
 }
 
-/// The damping curve of a fit-material result, if it has one.
+/// The damping curve of a fit-material result, if it has a valid one.
 pub fn read_damping_curve(path: &Path) -> Option<DampingCurve> {
-    let (f, _) = read_dataset(path, "/damping/curve/frequencies_hz").ok()?;
-    let (d, _) = read_dataset(path, "/damping/curve/decay_rates").ok()?;
+    let (f, d) = fit_material::read_damping_curve(path).ok()?;
     DampingCurve::new(f, &d).ok()
 }
 
@@ -43,26 +42,16 @@ impl CaseMeta {
 
 /// The material, its source for the report, and the damping curve when a fit-material result
 /// gives one: from the result at `material_path`, or from `given` (E, ν) with `density()`;
-/// validated.
+/// validated ([`crate::workflow::material::resolve`]).
 pub fn resolve_material(
     material_path: Option<PathBuf>,
     given: (Option<f64>, Option<f64>),
     density: impl FnOnce() -> f64,
-) -> Result<(Material, super::MaterialSource, Option<DampingCurve>), String> {
-    let (material, material_source, damping_curve) = match (material_path, given) {
-        (Some(p), (None, None)) => {
-            let (e, nu, rho) = read_fit_material(&p).map_err(|e| e.to_string())?;
-            let curve = read_damping_curve(&p);
-            (Material { youngs_modulus: e, poisson_ratio: nu, density: rho, rayleigh_alpha: 0.0, rayleigh_beta: 0.0 }, super::MaterialSource::FitFile(p.clone()), curve)
-        }
-        (Some(_), _) => return Err("give the material either as a fit-material result (--material) or as --youngs/--poisson, not both".into()),
-        (None, (Some(e), Some(nu))) => {
-            let density = density();
-            (Material { youngs_modulus: e, poisson_ratio: nu, density, rayleigh_alpha: 0.0, rayleigh_beta: 0.0 }, super::MaterialSource::Given, None)
-        }
-        (None, (None, None)) => return Err("the material is needed: --material FIT.h5 (a fit-material result) or --youngs and --poisson".into()),
-        (None, _) => return Err("--youngs and --poisson go together".into()),
+) -> Result<(Material, MaterialSource, Option<DampingCurve>), MaterialInputError> {
+    let resolved = material::resolve(material_path, given, density, false)?;
+    let curve = resolved.source.path().and_then(read_damping_curve);
+    let Some(m) = resolved.material() else {
+        return Err(MaterialInputError::Missing);
     };
-    material.validate().map_err(|e| format!("material: {e}"))?;
-    Ok((material, material_source, damping_curve))
+    Ok((m, resolved.source, curve))
 }

@@ -129,42 +129,6 @@ impl std::str::FromStr for TransferChoice {
     }
 }
 
-/// Where E, ν and ρ come from.
-#[derive(Clone, Debug, PartialEq)]
-pub enum MaterialSource {
-    /// A fit-material result (`--material FIT.h5`).
-    FitFile(PathBuf),
-    /// `--youngs` and `--poisson`.
-    Given,
-}
-
-impl MaterialSource {
-    /// The word stored in the HDF5 result (`/material` attr `source`).
-    pub fn kind(&self) -> &'static str {
-        match self {
-            MaterialSource::FitFile(_) => "fit_file",
-            MaterialSource::Given => "given",
-        }
-    }
-
-    /// The fit-material result, if that is the source.
-    pub fn path(&self) -> Option<&std::path::Path> {
-        match self {
-            MaterialSource::FitFile(p) => Some(p),
-            MaterialSource::Given => None,
-        }
-    }
-}
-
-impl std::fmt::Display for MaterialSource {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        match self {
-            MaterialSource::FitFile(p) => write!(f, "fit-material result {}", p.display()),
-            MaterialSource::Given => f.write_str("given"),
-        }
-    }
-}
-
 /// Everything resolved and checked before PETSc starts.
 #[derive(Clone, Debug)]
 pub struct Job {
@@ -178,7 +142,7 @@ pub struct Job {
     pub window: f64,
     pub max_frequency_hz: f64,
     pub material: Material,
-    pub material_source: MaterialSource,
+    pub material_source: crate::workflow::material::MaterialSource,
     pub damping_curve: Option<DampingCurve>,
     /// Metres, one per recording, in the mesh's frame.
     pub microphones: Option<Vec<[f64; 3]>>,

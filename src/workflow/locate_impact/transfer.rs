@@ -2,7 +2,7 @@
 //! its surface motion ([`crate::audio::radiation`]), or |T| = 1 with `transfer = "none"`.
 
 use super::{Job, TransferChoice};
-use crate::audio::radiation::{fit_multipoles, MultipoleSettings, SurfaceQuadrature};
+use crate::audio::radiation::{mode_transfers, Listeners, ModeTransfers};
 use crate::mesh::TetMesh;
 use crate::workflow::Progress;
 use rustfft::num_complex::Complex64;
@@ -30,46 +30,18 @@ pub fn transfers(
         ));
     }
     let t = Instant::now();
-    let quadrature = SurfaceQuadrature::new(mesh).map_err(|e| format!("radiation: {e}"))?;
-    let mut out = Vec::with_capacity(shapes.len());
-    let mut worst_residual = 0.0f64;
-    for (shape, &lambda) in shapes.iter().zip(eigenvalues) {
-        let un = quadrature
-            .normal_displacement(shape)
-            .map_err(|e| format!("radiation: {e}"))?;
-        let fit = fit_multipoles(
-            quadrature.samples(),
-            &un,
-            lambda.sqrt(),
-            &MultipoleSettings::default(),
-        )
+    let listeners = match &job.microphones {
+        Some(mics) => Listeners::At(mics),
+        None => Listeners::Unknown {
+            count: n_mics,
+            distance_m: job.assumed_distance_m,
+        },
+    };
+    let ModeTransfers {
+        values: out,
+        worst_residual,
+    } = mode_transfers(mesh, eigenvalues, shapes, listeners)
         .map_err(|e| format!("radiation: {e}"))?;
-        worst_residual = worst_residual.max(fit.residual);
-        let row = match &job.microphones {
-            Some(mics) => {
-                let nearest = mics
-                    .iter()
-                    .map(|x| {
-                        (0..3)
-                            .map(|d| (x[d] - fit.centre[d]).powi(2))
-                            .sum::<f64>()
-                            .sqrt()
-                    })
-                    .fold(f64::INFINITY, f64::min);
-                if nearest <= fit.source_radius {
-                    return Err(format!("a microphone {nearest:.3} m from the radiation fit's centre lies inside its source sphere ({:.3} m); the transfer there is not defined", fit.source_radius));
-                }
-                fit.transfer(mics).map_err(|e| e.to_string())?
-            }
-            None => fit
-                .transfer_unknown_positions(
-                    n_mics,
-                    job.assumed_distance_m.max(1.01 * fit.source_radius),
-                )
-                .map_err(|e| e.to_string())?,
-        };
-        out.push(row);
-    }
     let note = match &job.microphones {
         Some(_) => format!("multipole transfer to the given microphone positions (largest boundary residual ε = {worst_residual:.2})"),
         None => format!("microphone positions unknown: direction-averaged multipole transfer at {} m (largest boundary residual ε = {worst_residual:.2}); right on average over directions, not for any one microphone", job.assumed_distance_m),
