@@ -90,6 +90,33 @@ pub fn short_list<T: std::fmt::Display>(items: &[T], max: usize) -> String {
     s
 }
 
+/// The mesh a job assembles on: read with the fold check ([`crate::mesh::read_for_fem`]; curved
+/// tets that fold over are refused with the file and Gmsh tags named, or straightened on
+/// request), its warnings printed on rank 0 (before any later error), then lifted to 10-node
+/// tets (`order` 2) or reduced to 4-node ones (`order` 1). Also returns the file's own order
+/// (nodes per tet).
+pub fn model_mesh(
+    petsc: &Petsc,
+    path: &std::path::Path,
+    options: &crate::mesh::ReadOptions,
+    straighten_invalid: bool,
+    order: u32,
+) -> Result<(crate::mesh::TetMesh, usize), crate::mesh::MeshError> {
+    let read = crate::mesh::read_for_fem(path, options, straighten_invalid)?;
+    if petsc.rank() == 0 {
+        for w in &read.warnings {
+            eprintln!("warning: {w}");
+        }
+    }
+    let input_order = read.mesh.nodes_per_tet();
+    let mesh = if order == 2 {
+        crate::mesh::lift_to_quadratic(&read.mesh)
+    } else {
+        crate::mesh::to_linear(&read.mesh)
+    };
+    Ok((mesh, input_order))
+}
+
 /// Broadcasts a value from rank 0 (a length, then the bytes of [`encode_for_broadcast`]).
 /// Every rank returns the same value or the same error: a value rank 0 cannot encode is an
 /// error on every rank, not a rank waiting forever for bytes that never come.

@@ -147,8 +147,9 @@ use crate::diagnose::evidence;
 use crate::eigen::{self, EigenConfig, ModeRequest};
 use crate::fem::Material;
 use crate::inverse::material::LineSpectrumStart;
-use crate::mesh::{self, MeshError, ReadOptions, TetMesh};
+use crate::mesh::{MeshError, ReadOptions, TetMesh};
 use crate::petsc::Petsc;
+use crate::workflow::model_mesh;
 use crate::workflow::{broadcast_from_root, Progress};
 use features::{features, localise};
 use loaded_match::loaded_model_verdict;
@@ -250,21 +251,16 @@ type PassOutcome = (
 pub fn run(petsc: &Petsc, job: &Job, progress: &Progress) -> Result<Option<Report>, Error> {
     let total = Instant::now();
     let rank = petsc.rank();
-    let read = mesh::read_for_fem(
+    let (mesh_model, _) = model_mesh(
+        petsc,
         &job.mesh,
         &ReadOptions {
             unit_scale: job.unit_scale,
             fix_inverted: false,
         },
         job.straighten_invalid,
+        2,
     )?;
-    if rank == 0 {
-        for w in &read.warnings {
-            eprintln!("warning: {w}");
-        }
-    }
-    let mesh_model: TetMesh = mesh::lift_to_quadratic(&read.mesh);
-    drop(read);
     if let Some(v) = job.strike_vertex {
         if v >= mesh_model.n_nodes() {
             return Err(Error::Input(format!(

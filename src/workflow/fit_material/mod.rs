@@ -55,8 +55,9 @@ use crate::inverse::material::{
     fit_material, render_channels, rms_matched_log_gains, MaterialFit, MaterialFitError,
     MaterialFitSettings, MaterialProblem,
 };
-use crate::mesh::{self, MeshError, ReadOptions, TetMesh};
+use crate::mesh::{MeshError, ReadOptions};
 use crate::petsc::Petsc;
+use crate::workflow::model_mesh;
 use crate::workflow::Progress;
 use stages::{
     agree_on_fit, band_limited_target, damped_partials, recorded_lines, stage_one, strike_probe,
@@ -190,25 +191,16 @@ pub fn run(petsc: &Petsc, job: &Job, progress: &Progress) -> Result<Report, Erro
     let fs = f64::from(job.sample_rate);
 
     // Check the mesh before the long stage 1.
-    let read = mesh::read_for_fem(
+    let (mesh_model, _) = model_mesh(
+        petsc,
         &job.mesh,
         &ReadOptions {
             unit_scale: job.unit_scale,
             fix_inverted: false,
         },
         job.straighten_invalid,
+        job.order,
     )?;
-    if rank == 0 {
-        for w in &read.warnings {
-            eprintln!("warning: {w}");
-        }
-    }
-    let mesh_model: TetMesh = if job.order == 2 {
-        mesh::lift_to_quadratic(&read.mesh)
-    } else {
-        mesh::to_linear(&read.mesh)
-    };
-    drop(read);
 
     let t1 = std::time::Instant::now();
     let stage = stage_one(petsc, job, progress).map_err(Error::StageOne)?;

@@ -99,8 +99,9 @@ use crate::inverse::impact::{
     self, AmplitudeFitOptions, ClusterAmplitudes, ForwardTable, ImpactMap, MapOptions,
     SurfaceGraph, Transfer,
 };
-use crate::mesh::{self, MeshError, ReadOptions, TetMesh};
+use crate::mesh::{MeshError, ReadOptions, TetMesh};
 use crate::petsc::Petsc;
+use crate::workflow::model_mesh;
 use crate::workflow::{broadcast_from_root, Progress};
 use serde::{Deserialize, Serialize};
 use std::path::PathBuf;
@@ -229,21 +230,16 @@ const CLUSTER_RTOL: f64 = 0.005;
 pub fn run(petsc: &Petsc, job: &Job, progress: &Progress) -> Result<Option<Report>, Error> {
     let total = Instant::now();
     let rank = petsc.rank();
-    let read = mesh::read_for_fem(
+    let (mesh_model, _) = model_mesh(
+        petsc,
         &job.mesh,
         &ReadOptions {
             unit_scale: job.unit_scale,
             fix_inverted: false,
         },
         job.straighten_invalid,
+        2,
     )?;
-    if rank == 0 {
-        for w in &read.warnings {
-            eprintln!("warning: {w}");
-        }
-    }
-    let mesh_model: TetMesh = mesh::lift_to_quadratic(&read.mesh);
-    drop(read);
     if let Some(v) = job.true_vertex {
         if v >= mesh_model.n_nodes() {
             return Err(Error::NoSuchVertex {

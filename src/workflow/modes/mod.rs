@@ -23,8 +23,9 @@ use crate::eigen::sensitivity::{self, ClusterTreatment, MaterialSensitivities, S
 use crate::eigen::{self, EigenConfig, EigenError, ModeRequest, SolverPath};
 use crate::fem::Material;
 use crate::io::IoError;
-use crate::mesh::{self, MeshError, ReadOptions, TetMesh};
+use crate::mesh::{MeshError, ReadOptions, TetMesh};
 use crate::petsc::{Petsc, PetscError};
+use crate::workflow::model_mesh;
 use crate::workflow::Progress;
 use std::path::PathBuf;
 use std::time::Instant;
@@ -136,27 +137,16 @@ pub fn run<'p>(petsc: &'p Petsc, job: &Job, progress: &Progress) -> Result<Repor
     progress.say(format!("reading {}", job.mesh.display()));
     // Curved 10-node tets that fold over are refused with the file and Gmsh tags named, or
     // straightened on request (`mesh::straighten`), before any assembly.
-    let read = mesh::read_for_fem(
+    let (mesh, input_order) = model_mesh(
+        petsc,
         &job.mesh,
         &ReadOptions {
             unit_scale: job.unit_scale,
             fix_inverted: job.fix_inverted,
         },
         job.straighten_invalid,
+        job.order,
     )?;
-    if rank == 0 {
-        for w in &read.warnings {
-            eprintln!("warning: {w}");
-        }
-    }
-    let input_order = read.mesh.nodes_per_tet();
-
-    let mesh: TetMesh = if job.order == 2 {
-        mesh::lift_to_quadratic(&read.mesh)
-    } else {
-        mesh::to_linear(&read.mesh)
-    };
-    drop(read);
     // Check the strike point now, not after a long solve.
     let strike_point = match &job.wav {
         Some(_) => Some(strike(&mesh, job.strike_vertex).map_err(Error::Strike)?),
