@@ -117,6 +117,56 @@ pub fn model_mesh(
     Ok((mesh, input_order))
 }
 
+/// Writes a shape fit's final body with its modes (the modes file of [`crate::io`], which
+/// ParaView opens through its XDMF sidecar) at `path`; `name` labels the material, `fit` is the
+/// fit's own result file (recorded as provenance).
+pub fn write_body_modes(
+    path: &std::path::Path,
+    body: &crate::shape::ShapeModes,
+    material: &crate::fem::Material,
+    name: String,
+    n_ranks: usize,
+    fit: &std::path::Path,
+) -> Result<(), crate::io::IoError> {
+    let frequencies: Vec<f64> = body
+        .eigenvalues
+        .iter()
+        .map(|&l| crate::eigen::frequency_hz(l))
+        .collect();
+    let file = crate::io::ModesFile {
+        nodes: &body.mesh.nodes,
+        connectivity: &body.mesh.connectivity,
+        nodes_per_tet: body.mesh.nodes_per_tet(),
+        material: crate::io::MaterialRecord {
+            name,
+            youngs_modulus: material.youngs_modulus,
+            poisson_ratio: material.poisson_ratio,
+            density: material.density,
+            rayleigh_alpha: material.rayleigh_alpha,
+            rayleigh_beta: material.rayleigh_beta,
+        },
+        eigenvalues: &body.eigenvalues,
+        frequencies_hz: &frequencies,
+        mode_shapes: &body.shapes,
+        residual_norms: &body.residuals,
+        rigid_eigenvalues: &body.rigid_eigenvalues,
+        solver: Vec::new(),
+        n_ranks,
+        element_order: 2,
+        timings: Vec::new(),
+        provenance: vec![
+            (
+                "command".into(),
+                std::env::args().collect::<Vec<_>>().join(" "),
+            ),
+            ("fit".into(), fit.display().to_string()),
+        ],
+        extra_datasets: Vec::new(),
+        node_fields: Vec::new(),
+    };
+    crate::io::write_modes(path, &file)
+}
+
 /// Broadcasts a value from rank 0 (a length, then the bytes of [`encode_for_broadcast`]).
 /// Every rank returns the same value or the same error: a value rank 0 cannot encode is an
 /// error on every rank, not a rank waiting forever for bytes that never come.

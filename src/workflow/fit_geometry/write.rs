@@ -6,7 +6,7 @@ use super::{Error, Job, Report};
 use crate::inverse::geometry::GeometryFit;
 use crate::io::plot::{surface_png, SurfaceFigure, SurfacePanel, View};
 use crate::io::results::ResultsFile;
-use crate::io::{write_modes, MaterialRecord, ModesFile};
+use crate::workflow::write_body_modes;
 use crate::shape::TriangleSurface;
 use std::path::Path;
 
@@ -279,37 +279,13 @@ fn write_results(job: &Job, report: &Report) -> Result<(), String> {
     }
     file.write(&job.out).map_err(|e| e.to_string())?;
 
-    let frequencies = hz(&body.eigenvalues);
-    let mesh_file = ModesFile {
-        nodes: &body.mesh.nodes,
-        connectivity: &body.mesh.connectivity,
-        nodes_per_tet: body.mesh.nodes_per_tet(),
-        material: MaterialRecord {
-            name: "refined geometry (MLP SDF)".into(),
-            youngs_modulus: job.material.youngs_modulus,
-            poisson_ratio: job.material.poisson_ratio,
-            density: job.material.density,
-            rayleigh_alpha: job.material.rayleigh_alpha,
-            rayleigh_beta: job.material.rayleigh_beta,
-        },
-        eigenvalues: &body.eigenvalues,
-        frequencies_hz: &frequencies,
-        mode_shapes: &body.shapes,
-        residual_norms: &body.residuals,
-        rigid_eigenvalues: &body.rigid_eigenvalues,
-        solver: Vec::new(),
+    write_body_modes(
+        &job.mesh_out,
+        body,
+        &job.material,
+        "refined geometry (MLP SDF)".into(),
         n_ranks,
-        element_order: 2,
-        timings: Vec::new(),
-        provenance: vec![
-            (
-                "command".into(),
-                std::env::args().collect::<Vec<_>>().join(" "),
-            ),
-            ("fit".into(), job.out.display().to_string()),
-        ],
-        extra_datasets: Vec::new(),
-        node_fields: Vec::new(),
-    };
-    write_modes(&job.mesh_out, &mesh_file).map_err(|e| e.to_string())
+        &job.out,
+    )
+    .map_err(|e| e.to_string())
 }
