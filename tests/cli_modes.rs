@@ -321,6 +321,12 @@ fn bad_input_fails_clearly_on_every_rank() {
 
     let bad_toml = dir.join("bad.toml");
     std::fs::write(&bad_toml, "mesh = \"x.msh\"\n[solver]\nmodez = 3\n").unwrap();
+    let bad_path_toml = dir.join("bad_path.toml");
+    std::fs::write(
+        &bad_path_toml,
+        format!("mesh = \"{}\"\n[solver]\npath = \"fastest\"\n", s(&cube)),
+    )
+    .unwrap();
     let broken_toml = dir.join("broken.toml");
     std::fs::write(&broken_toml, "mesh = [unclosed\n").unwrap();
 
@@ -328,6 +334,16 @@ fn bad_input_fails_clearly_on_every_rank() {
         "config_unknown_key",
         &["--config", s(&bad_toml)],
         &["bad.toml", "modez"],
+    );
+    expect_failure(
+        "config_solver_path",
+        &["--config", s(&bad_path_toml)],
+        &[
+            "bad_path.toml",
+            "[solver] path",
+            "\"fastest\"",
+            "auto, direct or iterative",
+        ],
     );
     expect_failure(
         "config_syntax",

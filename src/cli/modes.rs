@@ -8,7 +8,7 @@ use crate::petsc::Petsc;
 use crate::workflow::modes::{self as workflow, inertia_line, probe_line, Job, Report};
 use clap::Args;
 use mpi::environment::Universe;
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 
 #[derive(Args, Debug, Clone, Default)]
 // Negative numbers are values (so `--fmax -5` meets our own range check, not a parser hint).
@@ -145,7 +145,15 @@ pub fn resolve(args: &ModesArgs) -> Result<Job, String> {
     let tolerance = given_tolerance.unwrap_or(1e-10);
     let solver_path = match (args.solver, file.solver.path.as_deref()) {
         (Some(p), _) => p,
-        (None, Some(word)) => word.parse()?,
+        (None, Some(word)) => word.parse().map_err(|e| {
+            format!(
+                "{}: [solver] path: {e}",
+                args.config
+                    .as_deref()
+                    .unwrap_or(Path::new("config"))
+                    .display()
+            )
+        })?,
         (None, None) => SolverPath::Auto,
     };
     if !(tolerance > 0.0 && tolerance < 1.0) {

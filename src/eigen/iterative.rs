@@ -118,10 +118,10 @@ pub(super) fn solve_preconditioned<'p>(
         "preconditioner_setup_s".into(),
         format!("{setup_seconds:.3}"),
     ));
-    pairs.settings.push((
-        "peak_rss_bytes_after_setup".into(),
-        format!("{setup_rss:.0}"),
-    ));
+    pairs.preconditioner_setup = Some(super::PreconditionerSetup {
+        seconds: setup_seconds,
+        peak_rss_bytes: setup_rss,
+    });
     Ok(pairs)
 }
 

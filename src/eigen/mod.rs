@@ -229,6 +229,8 @@ pub struct Modes<'p> {
     pub probe_check: Option<ProbeCheck>,
     /// The path taken (never `Auto`).
     pub path: SolverPath,
+    /// The iterative path's preconditioner set-up (none on the direct path).
+    pub preconditioner_setup: Option<PreconditionerSetup>,
     /// Solver settings in force (for the output file).
     pub settings: Vec<(String, String)>,
     pub warnings: Vec<String>,
@@ -254,6 +256,16 @@ struct RawPairs<'p> {
     /// length unit and of ‖M‖ (the proof's measure, [`PROVEN_RESIDUAL`]).
     scaled_residuals: Vec<f64>,
     settings: Vec<(String, String)>,
+    /// The iterative path's multigrid set-up, measured apart from the iterations.
+    preconditioner_setup: Option<PreconditionerSetup>,
+}
+
+/// The iterative path's preconditioner set-up: its time and the memory peak right after it.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct PreconditionerSetup {
+    pub seconds: f64,
+    /// This rank's peak resident memory after the set-up [bytes].
+    pub peak_rss_bytes: f64,
 }
 
 /// Computes the modes requested in `cfg` for stiffness `k` and mass `m` (both symmetric).
@@ -443,6 +455,7 @@ pub fn solve_modes_deflated<'p>(
             residuals,
             scaled_residuals,
             mut settings,
+            preconditioner_setup,
         } = pairs;
         let mut order: Vec<usize> = (0..values.len()).collect();
         order.sort_by(|&a, &b| values[a].total_cmp(&values[b]));
@@ -619,6 +632,7 @@ pub fn solve_modes_deflated<'p>(
             inertia_check,
             probe_check,
             path,
+            preconditioner_setup,
             settings,
             warnings,
             solve_seconds: start.elapsed().as_secs_f64(),
@@ -1059,6 +1073,7 @@ fn collect<'p>(
         residuals,
         scaled_residuals,
         settings: describe(eps)?,
+        preconditioner_setup: None,
     })
 }
 

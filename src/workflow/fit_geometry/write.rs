@@ -6,8 +6,8 @@ use super::{Error, Job, Report};
 use crate::inverse::geometry::GeometryFit;
 use crate::io::plot::{surface_png, SurfaceFigure, SurfacePanel, View};
 use crate::io::results::ResultsFile;
-use crate::workflow::write_body_modes;
 use crate::shape::TriangleSurface;
+use crate::workflow::write_body_modes;
 use std::path::Path;
 
 /// Writes `job.out`, `job.mesh_out` (+ .xdmf) and `job.png` from the report (rank 0); `truth`

@@ -4,8 +4,8 @@
 use super::{Error, Job, Report, Task};
 use crate::inverse::shape::SearchPhase;
 use crate::io::results::ResultsFile;
-use crate::workflow::write_body_modes;
 use crate::shape::union_box;
+use crate::workflow::write_body_modes;
 
 /// Writes `job.out` and `job.mesh_out` (+ .xdmf) from the report (rank 0).
 pub fn write_outputs(job: &Job, report: &Report) -> Result<(), Error> {

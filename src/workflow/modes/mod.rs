@@ -289,9 +289,7 @@ pub fn run<'p>(petsc: &'p Petsc, job: &Job, progress: &Progress) -> Result<Repor
         .iter()
         .map(|&l| eigen::frequency_hz(l))
         .collect();
-    let rss_setup = modes
-        .setting("peak_rss_bytes_after_setup")
-        .and_then(|v| v.parse::<f64>().ok());
+    let rss_setup = modes.preconditioner_setup.map(|s| s.peak_rss_bytes);
     let local = [
         rss_assembly,
         rss_setup.unwrap_or(0.0),
