@@ -17,7 +17,7 @@
 //! | io         | [`io`]       | HDF5 results with an XDMF sidecar, written atomically; the TOML configuration files |
 //!
 //! [`petsc`] is the one thin unsafe boundary: raw bindgen bindings under safe RAII handles.
-//! [`numerics`] holds the small numerical tools the stages share (3-vectors, median, golden section).
+//! [`numerics`] holds the small numerical tools the stages share (3-vectors, median, golden section, Levenberg–Marquardt).
 //! [`cli`] is the `diffsound` command line (arguments merged with the configuration files, printing); [`random`] the seeded generator every stage shares.
 
 // Comparisons are written `!(x > 0.0)` on purpose throughout: a NaN fails every ordered

@@ -50,15 +50,18 @@
 //!
 //! with D = [d_1 … d_K] (N_d × K), r_c = P⊥ y_c, and S the K × K Hermitian Gauss–Newton matrix.
 //! Because the model is holomorphic the complex step equals the real Gauss–Newton step in
-//! (ρ, θ). Levenberg–Marquardt damps it: (S + λ diag S) δ = −g; a step that lowers F is taken
-//! and λ shrinks tenfold, otherwise λ grows tenfold. The step of pole k is |δ_k| √S_kk standard
-//! deviations (with these weights S is the Fisher information of ℓ, so 1/√S_kk is the pole's
-//! complex standard deviation with the others held fixed). The refinement has converged when
-//! every reported pole's step is below [`ExtractOptions::step_tolerance`] and every nuisance
-//! pole's below 100 times that (they matter only through their weak correlation with the
-//! modes), and stops unconverged after [`ExtractOptions::max_iterations`] steps; a mode whose
-//! own last step was below the tolerance still counts as converged. Cost: per evaluation of F
-//! the QR, O(N_d K²), and Qᴴ y_c, O(N_d K C); per step also Qᴴ D and (P⊥D)ᴴ(P⊥D), O(N_d K²).
+//! (ρ, θ). Levenberg–Marquardt ([`crate::numerics::lm`], on the complex ℓ) damps it:
+//! (S + λ diag S) δ = −g, Jacobi-scaled; a step that lowers F is taken and λ shrinks tenfold
+//! (not below 10⁻¹²), otherwise λ grows tenfold (the fit gives up above 10¹²). The step of pole
+//! k is |δ_k| √S_kk standard deviations (with these weights S is the Fisher information of ℓ, so
+//! 1/√S_kk is the pole's complex standard deviation with the others held fixed). The refinement
+//! has converged when every reported pole's step is below [`ExtractOptions::step_tolerance`]
+//! and every nuisance pole's below 100 times that (they matter only through their weak
+//! correlation with the modes), whether or not the step lowers F (steps that small that do not
+//! lower it mean the minimum to rounding), and stops unconverged after
+//! [`ExtractOptions::max_iterations`] steps; a mode whose own last step was below the tolerance
+//! still counts as converged. Cost: per evaluation of F the QR, O(N_d K²), and Qᴴ y_c,
+//! O(N_d K C); per step also Qᴴ D and (P⊥D)ᴴ(P⊥D), O(N_d K²).
 //!
 //! # Noise
 //!
@@ -189,6 +192,7 @@ use crate::analysis::estimate::{
 };
 use crate::analysis::mode::{MeasuredMode, ModeSd, RefinedFrom, Refinement};
 use crate::audio::synth::ModalBank;
+use crate::numerics::lm;
 
 pub mod glide;
 #[cfg(test)]
@@ -962,9 +966,9 @@ struct Refined {
     cost_end: f64,
 }
 
-/// Variable-projection Levenberg–Marquardt on the log-poles of one band (module docs); the first
-/// `reported` poles are the band's modes, the rest nuisance poles. `None` if the start itself
-/// cannot be evaluated.
+/// Variable-projection Levenberg–Marquardt on the log-poles of one band (module docs; the driver
+/// is [`crate::numerics::lm`], on the complex log-poles); the first `reported` poles are the
+/// band's modes, the rest nuisance poles. `None` if the start itself cannot be evaluated.
 fn refine_poles(
     y: &[Vec<C64>],
     weights: &[f64],
@@ -972,10 +976,8 @@ fn refine_poles(
     reported: usize,
     options: &ExtractOptions,
 ) -> Option<Refined> {
-    let mut log_w = start.to_vec();
-    let mut model = BandModel::new(y, &log_w)?;
-    let mut cost = model.cost(weights);
-    let cost_start = cost;
+    let model = BandModel::new(y, start)?;
+    let cost_start = model.cost(weights);
     let tolerance: Vec<f64> = (0..start.len())
         .map(|k| {
             let factor = if k < reported {
@@ -986,104 +988,83 @@ fn refine_poles(
             factor * options.step_tolerance
         })
         .collect();
-    let mut last_step_sigma = vec![f64::INFINITY; start.len()];
-    let mut lambda = LM_LAMBDA_START;
-    let mut iterations = 0;
-    let mut converged = false;
-    'outer: while iterations < options.max_iterations {
-        iterations += 1;
-        let (s, g, _) = model.gauss_newton(weights);
-        let diag: Vec<f64> = (0..s.nrows()).map(|k| s[(k, k)].re.max(0.0)).collect();
-        let top = diag.iter().cloned().fold(0.0, f64::max);
-        if !(top > 0.0 && top.is_finite()) {
-            // No pole has any amplitude: nothing to refine.
-            converged = true;
-            break;
-        }
-        loop {
-            let Some(step) = damped_step(&s, &g, &diag, lambda) else {
-                lambda *= 10.0;
-                if lambda > LM_LAMBDA_MAX {
-                    break 'outer;
-                }
-                continue;
-            };
-            // |δ_k| √S_kk: the step in units of the pole's standard deviation (others fixed).
-            let sizes: Vec<f64> = step
-                .iter()
-                .zip(&diag)
-                .map(|(dl, sk)| dl.norm() * sk.sqrt())
-                .collect();
-            let small = sizes.iter().zip(&tolerance).all(|(s, t)| s < t);
-            let trial: Vec<C64> = log_w
-                .iter()
-                .zip(step.iter())
-                .map(|(l, dl)| l + dl)
-                .collect();
-            let better = BandModel::new(y, &trial).filter(|m| m.cost(weights) < cost);
-            if let Some(m) = better {
-                cost = m.cost(weights);
-                model = m;
-                log_w = trial;
-                last_step_sigma = sizes;
-                lambda = (lambda / 10.0).max(LM_LAMBDA_MIN);
-                if small {
-                    converged = true;
-                    break 'outer;
-                }
-                break;
-            }
-            if small {
-                // Even steps below the tolerance do not lower F: at the minimum to rounding.
-                converged = true;
-                last_step_sigma = sizes;
-                break 'outer;
-            }
-            lambda *= 10.0;
-            if lambda > LM_LAMBDA_MAX {
-                break 'outer;
-            }
-        }
-    }
+    let settings = lm::Settings {
+        damping: lm::Damping {
+            start: LM_LAMBDA_START,
+            min: LM_LAMBDA_MIN,
+            max: LM_LAMBDA_MAX,
+            shrink: 10.0,
+            grow: 10.0,
+        },
+        max_iterations: options.max_iterations,
+        accept: lm::Accept::Decrease,
+        solve: lm::Solve::Scaled,
+        stopping: lm::Stopping {
+            step_sigma: Some(tolerance),
+            ..lm::Stopping::default()
+        },
+    };
+    let mut fit = PoleFit {
+        y,
+        weights,
+        log_w: start.to_vec(),
+        model,
+        trial: None,
+    };
+    let outcome = lm::minimise(&mut fit, cost_start, &settings);
     Some(Refined {
-        log_w,
-        iterations,
-        converged,
-        last_step_sigma,
+        log_w: fit.log_w,
+        iterations: outcome.iterations,
+        // No pole with any amplitude (nothing to move) counts as converged.
+        converged: matches!(
+            outcome.stop,
+            lm::Stop::Converged(_) | lm::Stop::NothingToMove
+        ),
+        last_step_sigma: outcome
+            .step_sigma
+            .unwrap_or_else(|| vec![f64::INFINITY; start.len()]),
         cost_start,
-        cost_end: cost,
+        cost_end: outcome.cost,
     })
 }
 
-/// Solves (S + λ diag S) δ = −g (Jacobi-scaled Cholesky), `None` if that is not positive
-/// definite.
-fn damped_step(
-    s: &DMatrix<C64>,
-    g: &DVector<C64>,
-    diag: &[f64],
-    lambda: f64,
-) -> Option<DVector<C64>> {
-    let k = s.nrows();
-    let top = diag.iter().cloned().fold(0.0, f64::max);
-    // Poles without amplitude have diag 0; a floor keeps the scaled system defined.
-    let scale: Vec<f64> = diag
-        .iter()
-        .map(|&v| 1.0 / v.max(1e-14 * top).sqrt())
-        .collect();
-    let m = DMatrix::from_fn(k, k, |i, j| {
-        let v = s[(i, j)] * scale[i] * scale[j];
-        if i == j {
-            C64::new(v.re * (1.0 + lambda), 0.0)
-        } else {
-            v
+/// [`refine_poles`]' problem: the band's data and weights, the current log-poles with their
+/// model, and the last trial.
+struct PoleFit<'a> {
+    y: &'a [Vec<C64>],
+    weights: &'a [f64],
+    log_w: Vec<C64>,
+    model: BandModel,
+    trial: Option<(Vec<C64>, BandModel)>,
+}
+
+impl lm::Problem for PoleFit<'_> {
+    type Scalar = C64;
+
+    fn normal_equations(&mut self) -> Option<lm::NormalEquations<C64>> {
+        let (h, g, _) = self.model.gauss_newton(self.weights);
+        Some(lm::NormalEquations { h, g })
+    }
+
+    fn trial(&mut self, step: &DVector<C64>) -> Option<f64> {
+        let trial: Vec<C64> = self
+            .log_w
+            .iter()
+            .zip(step.iter())
+            .map(|(l, dl)| l + dl)
+            .collect();
+        let model = BandModel::new(self.y, &trial)?;
+        let cost = model.cost(self.weights);
+        self.trial = Some((trial, model));
+        Some(cost)
+    }
+
+    fn accept(&mut self) {
+        if let Some((log_w, model)) = self.trial.take() {
+            self.log_w = log_w;
+            self.model = model;
         }
-    });
-    let rhs = DVector::from_fn(k, |i, _| -g[i] * scale[i]);
-    let x = Cholesky::new(m)?.solve(&rhs);
-    let step = DVector::from_fn(k, |i, _| x[i] * scale[i]);
-    step.iter()
-        .all(|v| v.re.is_finite() && v.im.is_finite())
-        .then_some(step)
+    }
 }
 
 /// σ̂_c², the full-rate white-noise variance of each channel from the band residual, corrected

@@ -195,6 +195,7 @@ use crate::audio::chain::DampingCurve;
 use crate::audio::loss::{LossError, MultiScaleSpectralLoss, SpectralLossConfig};
 use crate::audio::noise::{FilteredNoise, NoiseError};
 use crate::audio::synth::{render_backward, render_samples, ModalBank};
+use crate::numerics::lm;
 
 /// The generalised cross-validation choice of the curve's smoothness: s from 10⁻² to 10² in 8
 /// steps of half a decade, from a loose fit to a nearly pure power law (module docs: why not
@@ -1723,54 +1724,88 @@ pub fn fit_rayleigh(
 }
 
 /// Minimises Σ w (y − ln(e^u + e^v q))² over (u, v) from the given start; returns (e^u, e^v).
-fn levenberg_marquardt(y: &[f64], q: &[f64], w: &[f64], mut u: f64, mut v: f64) -> (f64, f64) {
-    let cost = |u: f64, v: f64| -> f64 {
-        (0..y.len())
-            .map(|i| w[i] * (y[i] - (u.exp() + v.exp() * q[i]).ln()).powi(2))
-            .sum::<f64>()
+/// Levenberg–Marquardt ([`crate::numerics::lm`]): μ from 10⁻³, ×0.3 after a step that does not
+/// raise the cost (not below 10⁻¹²), ×10 after one that does, given up at 10¹²; at most 200
+/// steps, stopping when a step moves u and v by at most 10⁻¹² or lowers the cost by at most
+/// 10⁻¹⁵ of its new value.
+fn levenberg_marquardt(y: &[f64], q: &[f64], w: &[f64], u: f64, v: f64) -> (f64, f64) {
+    let mut fit = RayleighLm {
+        y,
+        q,
+        w,
+        at: (u, v),
+        trial: (u, v),
     };
-    let mut current = cost(u, v);
-    let mut mu = 1e-3;
-    for _ in 0..200 {
-        // Gauss–Newton normal equations with r = y − m, ∂m/∂u = α/(α + b q), ∂m/∂v = b q/(α + b q).
-        let (a, b) = (u.exp(), v.exp());
-        let (mut h11, mut h12, mut h22, mut g1, mut g2) = (0.0, 0.0, 0.0, 0.0, 0.0);
-        for i in 0..y.len() {
-            let m = a + b * q[i];
-            let (j1, j2) = (a / m, b * q[i] / m);
-            let r = y[i] - m.ln();
-            h11 += w[i] * j1 * j1;
-            h12 += w[i] * j1 * j2;
-            h22 += w[i] * j2 * j2;
-            g1 += w[i] * j1 * r;
-            g2 += w[i] * j2 * r;
-        }
-        let mut improved = false;
-        while mu < 1e12 {
-            let (d11, d22) = (h11 * (1.0 + mu), h22 * (1.0 + mu));
-            let det = d11 * d22 - h12 * h12;
-            if !(det > 0.0) {
-                mu *= 10.0;
-                continue;
-            }
-            let du = (d22 * g1 - h12 * g2) / det;
-            let dv = (d11 * g2 - h12 * g1) / det;
-            let trial = cost(u + du, v + dv);
-            if trial.is_finite() && trial <= current {
-                let step = du.abs().max(dv.abs());
-                u += du;
-                v += dv;
-                let gain = current - trial;
-                current = trial;
-                mu = (mu * 0.3).max(1e-12);
-                improved = step > 1e-12 && gain > 1e-15 * current.max(1e-300);
-                break;
-            }
-            mu *= 10.0;
-        }
-        if !improved {
-            break;
-        }
+    let settings = lm::Settings {
+        damping: lm::Damping {
+            start: 1e-3,
+            min: 1e-12,
+            // Tried while μ < 10¹²: the largest f64 below it.
+            max: f64::from_bits(1e12f64.to_bits() - 1),
+            shrink: 1.0 / 0.3,
+            grow: 10.0,
+        },
+        max_iterations: 200,
+        accept: lm::Accept::NoIncrease,
+        solve: lm::Solve::Direct,
+        stopping: lm::Stopping {
+            max_step: Some(1e-12),
+            relative_decrease: Some((1e-15, lm::CostReference::After)),
+            ..lm::Stopping::default()
+        },
+    };
+    let cost = fit.cost(u, v);
+    lm::minimise(&mut fit, cost, &settings);
+    (fit.at.0.exp(), fit.at.1.exp())
+}
+
+/// [`levenberg_marquardt`]'s problem: the data, the current (u, v) and the last trial.
+struct RayleighLm<'a> {
+    y: &'a [f64],
+    q: &'a [f64],
+    w: &'a [f64],
+    at: (f64, f64),
+    trial: (f64, f64),
+}
+
+impl RayleighLm<'_> {
+    fn cost(&self, u: f64, v: f64) -> f64 {
+        (0..self.y.len())
+            .map(|i| self.w[i] * (self.y[i] - (u.exp() + v.exp() * self.q[i]).ln()).powi(2))
+            .sum::<f64>()
     }
-    (u.exp(), v.exp())
+}
+
+impl lm::Problem for RayleighLm<'_> {
+    type Scalar = f64;
+
+    fn normal_equations(&mut self) -> Option<lm::NormalEquations<f64>> {
+        // Residual r = ln(α + b q) − y, ∂r/∂u = α/(α + b q), ∂r/∂v = b q/(α + b q).
+        let (a, b) = (self.at.0.exp(), self.at.1.exp());
+        let (mut h11, mut h12, mut h22, mut g1, mut g2) = (0.0, 0.0, 0.0, 0.0, 0.0);
+        for i in 0..self.y.len() {
+            let m = a + b * self.q[i];
+            let (j1, j2) = (a / m, b * self.q[i] / m);
+            let r = m.ln() - self.y[i];
+            let w = self.w[i];
+            h11 += w * j1 * j1;
+            h12 += w * j1 * j2;
+            h22 += w * j2 * j2;
+            g1 += w * j1 * r;
+            g2 += w * j2 * r;
+        }
+        Some(lm::NormalEquations {
+            h: DMatrix::from_row_slice(2, 2, &[h11, h12, h12, h22]),
+            g: DVector::from_vec(vec![g1, g2]),
+        })
+    }
+
+    fn trial(&mut self, step: &DVector<f64>) -> Option<f64> {
+        self.trial = (self.at.0 + step[0], self.at.1 + step[1]);
+        Some(self.cost(self.trial.0, self.trial.1))
+    }
+
+    fn accept(&mut self) {
+        self.at = self.trial;
+    }
 }

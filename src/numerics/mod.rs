@@ -1,12 +1,10 @@
 //! Small numerical tools every stage shares, each written once: 3-vector arithmetic
-//! ([`sub`], [`dot`], [`cross`], [`norm`]), the [`median`], and the golden-section search on a
-//! bracket ([`golden_section`]).
-//!
-//! The Levenberg–Marquardt solvers are not here yet: the damping curve's two-parameter fit
-//! ([`crate::inverse::damping`]), the extraction's variable projection
-//! ([`crate::analysis::extract`] and its glide stage) and the catalogue's bounded fit
-//! ([`crate::diagnose::catalogue`]) differ in their bounds, damping updates and stopping rules,
-//! and have not been merged.
+//! ([`sub`], [`dot`], [`cross`], [`norm`]), the [`median`], the golden-section search on a
+//! bracket ([`golden_section`]), and Levenberg–Marquardt ([`lm`]: one driver for the damping
+//! curve's Rayleigh fit, the extraction's variable projection and its glide stage, and the
+//! catalogue's bounded fit, each with its own damping and stopping settings).
+
+pub mod lm;
 
 /// a − b.
 pub fn sub(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {

@@ -132,6 +132,7 @@ use rustfft::{Fft, FftPlanner};
 
 use super::{ExtractError, ModalExtraction};
 use crate::analysis::mode::{MeasuredMode, ModeSd, Refinement};
+use crate::numerics::lm::{self, symmetric_inverse};
 
 /// Singular values of B below this fraction of the largest are dropped.
 const SVD_CUTOFF: f64 = 1e-12;
@@ -487,62 +488,49 @@ impl BandProblem<'_> {
         Some(out)
     }
 
-    /// Levenberg–Marquardt from `start` with channel weights `weights`.
+    /// Levenberg–Marquardt from `start` with channel weights `weights` (module docs; the
+    /// driver is [`crate::numerics::lm`]).
     fn levenberg_marquardt(
         &self,
         start: &[Component],
         weights: &[f64],
         options: &GlideOptions,
     ) -> Option<(Vec<Component>, Evaluation)> {
-        let mut comps = start.to_vec();
-        let mut eval = self.evaluate(&comps, true)?;
-        let mut cost = eval.cost(weights);
-        let mut lambda = LM_LAMBDA_START;
-        for _ in 0..options.max_iterations {
-            let (h, grad) = gauss_newton(&eval, weights);
-            let p = h.nrows();
-            // Converged when the full Gauss–Newton step is below the tolerance in its own
-            // Mahalanobis norm, δᵀHδ = gᵀH⁻¹g: a per-parameter test in conditional standard
-            // deviations stops early along the narrow valley that f₀ and g share.
-            let decrement = symmetric_inverse(&h).map(|inv| grad.dot(&(&inv * &grad)));
-            if decrement.is_some_and(|v| v < options.step_tolerance * options.step_tolerance) {
-                break;
-            }
-            let x = Self::pack(&comps);
-            let mut improved = false;
-            let mut converged = false;
-            while lambda <= LM_LAMBDA_MAX {
-                let mut a = h.clone();
-                for i in 0..p {
-                    a[(i, i)] += lambda * h[(i, i)].max(f64::MIN_POSITIVE);
-                }
-                let Some(step) = a.cholesky().map(|ch| ch.solve(&(-&grad))) else {
-                    lambda *= 10.0;
-                    continue;
-                };
-                let trial_x: Vec<f64> = x.iter().zip(step.iter()).map(|(a, b)| a + b).collect();
-                let trial = self
-                    .unpack(&comps, &trial_x)
-                    .and_then(|c| self.evaluate(&c, false).map(|e| (c, e)));
-                if let Some((c, e)) = trial {
-                    let trial_cost = e.cost(weights);
-                    if trial_cost <= cost {
-                        converged = cost - trial_cost <= 1e-15 * cost;
-                        comps = c;
-                        cost = trial_cost;
-                        lambda = (lambda / 10.0).max(1e-12);
-                        improved = true;
-                        break;
-                    }
-                }
-                lambda *= 10.0;
-            }
-            eval = self.evaluate(&comps, true)?;
-            if !improved || converged {
-                break;
-            }
-        }
-        Some((comps, eval))
+        let eval = self.evaluate(start, true)?;
+        let cost = eval.cost(weights);
+        let mut fit = GlideLm {
+            band: self,
+            weights,
+            comps: start.to_vec(),
+            eval: Some(eval),
+            trial: vec![],
+        };
+        let settings = lm::Settings {
+            damping: lm::Damping {
+                start: LM_LAMBDA_START,
+                min: 1e-12,
+                max: LM_LAMBDA_MAX,
+                shrink: 10.0,
+                grow: 10.0,
+            },
+            max_iterations: options.max_iterations,
+            accept: lm::Accept::NoIncrease,
+            solve: lm::Solve::Direct,
+            stopping: lm::Stopping {
+                // The full Gauss–Newton step below the tolerance in its own Mahalanobis norm,
+                // δᵀHδ = gᵀH⁻¹g: a per-parameter test in conditional standard deviations stops
+                // early along the narrow valley that f₀ and g share.
+                newton_decrement: Some(options.step_tolerance),
+                relative_decrease: Some((1e-15, lm::CostReference::Before)),
+                ..lm::Stopping::default()
+            },
+        };
+        lm::minimise(&mut fit, cost, &settings);
+        let eval = match fit.eval {
+            Some(eval) => eval,
+            None => self.evaluate(&fit.comps, true)?,
+        };
+        Some((fit.comps, eval))
     }
 
     /// The fit of module docs: LM, noise from the residual, LM again; with its covariance.
@@ -716,17 +704,39 @@ fn gauss_newton(eval: &Evaluation, weights: &[f64]) -> (DMatrix<f64>, DVector<f6
     (h, g)
 }
 
-/// Inverse of a symmetric positive definite matrix after Jacobi scaling; `None` if singular.
-fn symmetric_inverse(h: &DMatrix<f64>) -> Option<DMatrix<f64>> {
-    let p = h.nrows();
-    let scale: Vec<f64> = (0..p)
-        .map(|i| 1.0 / h[(i, i)].max(f64::MIN_POSITIVE).sqrt())
-        .collect();
-    let scaled = DMatrix::from_fn(p, p, |i, j| h[(i, j)] * scale[i] * scale[j]);
-    let inv = scaled.cholesky()?.inverse();
-    Some(DMatrix::from_fn(p, p, |i, j| {
-        inv[(i, j)] * scale[i] * scale[j]
-    }))
+/// [`BandProblem::levenberg_marquardt`]'s problem: the current components with their
+/// evaluation (with derivatives; `None` until needed after a step) and the last trial.
+struct GlideLm<'a, 'b> {
+    band: &'a BandProblem<'b>,
+    weights: &'a [f64],
+    comps: Vec<Component>,
+    eval: Option<Evaluation>,
+    trial: Vec<Component>,
+}
+
+impl lm::Problem for GlideLm<'_, '_> {
+    type Scalar = f64;
+
+    fn normal_equations(&mut self) -> Option<lm::NormalEquations<f64>> {
+        if self.eval.is_none() {
+            self.eval = self.band.evaluate(&self.comps, true);
+        }
+        let (h, g) = gauss_newton(self.eval.as_ref()?, self.weights);
+        Some(lm::NormalEquations { h, g })
+    }
+
+    fn trial(&mut self, step: &DVector<f64>) -> Option<f64> {
+        let x = BandProblem::pack(&self.comps);
+        let trial_x: Vec<f64> = x.iter().zip(step.iter()).map(|(a, b)| a + b).collect();
+        self.trial = self.band.unpack(&self.comps, &trial_x)?;
+        // The trial's cost needs no derivatives; they are computed if the step is kept.
+        Some(self.band.evaluate(&self.trial, false)?.cost(self.weights))
+    }
+
+    fn accept(&mut self) {
+        self.comps = std::mem::take(&mut self.trial);
+        self.eval = None;
+    }
 }
 
 /// What [`fit_glides`] decided for one group (for logs and tests).

@@ -4,10 +4,12 @@
 //!
 //! # Levenberg–Marquardt
 //!
-//! Minimises C(x) = Σ_i r_i(x)² over the free components of x within [lower, upper]. Each
-//! iteration solves (JᵀJ + λ D) δ = −Jᵀr with D = diag(JᵀJ) (Marquardt's scaling: the step
-//! does not depend on the units of the parameters), projects x + δ onto the box and keeps it
-//! if C falls; λ shrinks by 3 after a success and grows by 4 after a failure. A parameter on
+//! Minimises C(x) = Σ_i r_i(x)² over the free components of x within [lower, upper], by the
+//! crate's driver ([`crate::numerics::lm`]). Each iteration solves (JᵀJ + λ D) δ = −Jᵀr with
+//! D = diag(JᵀJ) (Marquardt's scaling: the step does not depend on the units of the
+//! parameters), projects x + δ onto the box and keeps it if C falls; λ starts at 10⁻³, shrinks
+//! by 3 after a success (not below 10⁻¹²) and grows by 4 after a failure; the fit gives up
+//! when λ reaches 10¹⁶ and stops when a step lowers C by at most 10⁻¹² C. A parameter on
 //! a bound whose descent direction −∂C/∂x_j points out of the box is held for that iteration
 //! (otherwise the projection would eat the whole step and the iteration would stall). A
 //! parameter the residuals do not depend on (a zero Jacobian column) is held too.
@@ -27,6 +29,8 @@
 //! when the v_i span decades, which is why a plain Newton iteration from t = 0 is not used).
 
 use nalgebra::{DMatrix, DVector};
+
+use crate::numerics::lm;
 
 /// What [`minimise`] returns.
 #[derive(Clone, Debug)]
@@ -102,13 +106,13 @@ pub(super) fn minimise<F: FnMut(&[f64], &mut [f64])>(
     scale: &[f64],
     max_iterations: usize,
 ) -> Minimum {
-    let mut x: Vec<f64> = x0
+    let x: Vec<f64> = x0
         .iter()
         .zip(lower.iter().zip(upper))
         .map(|(&v, (&lo, &hi))| v.clamp(lo, hi))
         .collect();
     let mut r = vec![0.0; n_residuals];
-    let mut cost = evaluate(&mut residuals, &x, &mut r);
+    let cost = evaluate(&mut residuals, &x, &mut r);
     if !cost.is_finite() {
         return Minimum { x, cost };
     }
@@ -116,27 +120,88 @@ pub(super) fn minimise<F: FnMut(&[f64], &mut [f64])>(
     if columns.is_empty() || n_residuals == 0 {
         return Minimum { x, cost };
     }
-    let mut lambda = 1e-3;
-    let mut trial_r = vec![0.0; n_residuals];
-    for _ in 0..max_iterations {
+    let mut problem = BoxedResiduals {
+        residuals,
+        x,
+        r,
+        columns,
+        lower,
+        upper,
+        scale,
+        active: vec![],
+        trial_x: vec![],
+        trial_r: vec![0.0; n_residuals],
+    };
+    let outcome = lm::minimise(&mut problem, cost, &settings(max_iterations));
+    Minimum {
+        x: problem.x,
+        cost: outcome.cost,
+    }
+}
+
+/// The fit's damping and stopping (module docs): λ from 10⁻³, ÷3 after a success (not below
+/// 10⁻¹²), ×4 after a failure, given up at 10¹⁶; a step must lower C, and the fit stops when
+/// one lowers it by at most 10⁻¹² of the new C.
+fn settings(max_iterations: usize) -> lm::Settings {
+    lm::Settings {
+        damping: lm::Damping {
+            start: 1e-3,
+            min: 1e-12,
+            // Tried while λ < 10¹⁶: the largest f64 below it.
+            max: f64::from_bits(1e16f64.to_bits() - 1),
+            shrink: 3.0,
+            grow: 4.0,
+        },
+        max_iterations,
+        accept: lm::Accept::Decrease,
+        solve: lm::Solve::Direct,
+        stopping: lm::Stopping {
+            relative_decrease: Some((1e-12, lm::CostReference::After)),
+            ..lm::Stopping::default()
+        },
+    }
+}
+
+/// [`minimise`]'s problem: the current point and its residuals, and the free parameters that
+/// move in this iteration (`active`, indices into `columns`).
+struct BoxedResiduals<'a, F> {
+    residuals: F,
+    x: Vec<f64>,
+    r: Vec<f64>,
+    columns: Vec<usize>,
+    lower: &'a [f64],
+    upper: &'a [f64],
+    scale: &'a [f64],
+    active: Vec<usize>,
+    trial_x: Vec<f64>,
+    trial_r: Vec<f64>,
+}
+
+impl<F: FnMut(&[f64], &mut [f64])> lm::Problem for BoxedResiduals<'_, F> {
+    type Scalar = f64;
+
+    fn normal_equations(&mut self) -> Option<lm::NormalEquations<f64>> {
         let jac = jacobian(
-            &mut residuals,
-            &x,
-            &columns,
-            lower,
-            upper,
-            scale,
-            n_residuals,
+            &mut self.residuals,
+            &self.x,
+            &self.columns,
+            self.lower,
+            self.upper,
+            self.scale,
+            self.r.len(),
         );
-        let rv = DVector::from_column_slice(&r);
         let jtj = jac.transpose() * &jac;
-        let grad = jac.transpose() * rv;
-        let max_diag = (0..columns.len()).map(|c| jtj[(c, c)]).fold(0.0, f64::max);
+        let grad = jac.transpose() * DVector::from_column_slice(&self.r);
+        let max_diag = (0..self.columns.len())
+            .map(|c| jtj[(c, c)])
+            .fold(0.0, f64::max);
         if max_diag <= 0.0 {
-            break;
+            return None;
         }
         // Active set: drop parameters with no influence and those pushed against a bound.
-        let active: Vec<usize> = (0..columns.len())
+        let (x, lower, upper) = (&self.x, self.lower, self.upper);
+        let columns = &self.columns;
+        self.active = (0..columns.len())
             .filter(|&c| {
                 let j = columns[c];
                 let influential = jtj[(c, c)] > 1e-14 * max_diag;
@@ -145,49 +210,30 @@ pub(super) fn minimise<F: FnMut(&[f64], &mut [f64])>(
                 influential && !blocked_low && !blocked_high
             })
             .collect();
-        if active.is_empty() {
-            break;
-        }
-        let n = active.len();
-        let mut improved = false;
-        let mut decrease = 0.0;
-        while lambda < 1e16 {
-            let mut a = DMatrix::<f64>::zeros(n, n);
-            let mut b = DVector::<f64>::zeros(n);
-            for (p, &cp) in active.iter().enumerate() {
-                b[p] = -grad[cp];
-                for (q, &cq) in active.iter().enumerate() {
-                    a[(p, q)] = jtj[(cp, cq)];
-                }
-                a[(p, p)] += lambda * jtj[(cp, cp)];
-            }
-            let Some(chol) = a.cholesky() else {
-                lambda *= 4.0;
-                continue;
-            };
-            let delta = chol.solve(&b);
-            let mut trial = x.clone();
-            for (p, &cp) in active.iter().enumerate() {
-                let j = columns[cp];
-                trial[j] = (x[j] + delta[p]).clamp(lower[j], upper[j]);
-            }
-            let trial_cost = evaluate(&mut residuals, &trial, &mut trial_r);
-            if trial_cost < cost {
-                decrease = cost - trial_cost;
-                x = trial;
-                std::mem::swap(&mut r, &mut trial_r);
-                cost = trial_cost;
-                lambda = (lambda / 3.0).max(1e-12);
-                improved = true;
-                break;
-            }
-            lambda *= 4.0;
-        }
-        if !improved || decrease <= 1e-12 * cost.max(1e-300) {
-            break;
-        }
+        let a = &self.active;
+        (!a.is_empty()).then(|| lm::NormalEquations {
+            h: DMatrix::from_fn(a.len(), a.len(), |p, q| jtj[(a[p], a[q])]),
+            g: DVector::from_fn(a.len(), |p, _| grad[a[p]]),
+        })
     }
-    Minimum { x, cost }
+
+    fn trial(&mut self, step: &DVector<f64>) -> Option<f64> {
+        self.trial_x.clone_from(&self.x);
+        for (p, &c) in self.active.iter().enumerate() {
+            let j = self.columns[c];
+            self.trial_x[j] = (self.x[j] + step[p]).clamp(self.lower[j], self.upper[j]);
+        }
+        Some(evaluate(
+            &mut self.residuals,
+            &self.trial_x,
+            &mut self.trial_r,
+        ))
+    }
+
+    fn accept(&mut self) {
+        std::mem::swap(&mut self.x, &mut self.trial_x);
+        std::mem::swap(&mut self.r, &mut self.trial_r);
+    }
 }
 
 /// The t ≥ 0 minimising `h` over [0, t_hi]: a grid of t = 0 and 64 log-spaced values from
