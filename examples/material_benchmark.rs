@@ -360,7 +360,6 @@ fn main() {
                             settings.residual_tolerance,
                             settings.min_sample_spacing,
                         )
-                        .map_err(|e| e.to_string())
                     },
                     |s: &FitStep| {
                         if last_print.elapsed().as_secs_f64() > 10.0 {
@@ -377,7 +376,7 @@ fn main() {
                     Ok(f) => f,
                     Err(e) => {
                         eprintln!("  {} FAILED: {e}", variant.name());
-                        rows.push(json!({"mesh": name, "seed": seed, "object_seed": oseed, "variant": variant.name(), "error": e}));
+                        rows.push(json!({"mesh": name, "seed": seed, "object_seed": oseed, "variant": variant.name(), "error": e.to_string()}));
                         continue;
                     }
                 };

@@ -158,10 +158,10 @@ fn main() {
         &settings,
         |b, nu| {
             let modes = b.solve(nu);
-            let r = b.residuals(&asm, &modes).map_err(|e| e.to_string())?;
+            let r = b.residuals(&asm, &modes)?;
             let worst = r.iter().fold(0.0_f64, |m, v| m.max(*v));
             if worst > settings.residual_tolerance {
-                b.add_sample(&petsc, &asm, nu).map_err(|e| e.to_string())?;
+                b.add_sample(&petsc, &asm, nu)?;
             }
             Ok(worst)
         },
