@@ -4,7 +4,10 @@ per effect precision, recall and F1 over the seven effects, macro-F1, false alar
 clean and the uniform-shift controls, the held-out gain of every accepted effect, and the time
 per case. Reads DIR/labels/case_XXX.json and DIR/case_XXX/diagnosis.json.
 
-    python3 scripts/bench/gen2/score.py DIR
+    python3 scripts/bench/gen2/score.py DIR [--report NAME]
+
+--report NAME scores case_XXX/NAME.json instead of diagnosis.json (a replay written by
+examples/catalogue_replay).
 """
 import glob
 import json
@@ -15,12 +18,12 @@ EFFECTS = ["non_rayleigh_damping", "beating_pair", "support_contact", "contact_d
            "reverb_noise", "pitch_glide", "added_mass"]
 
 
-def main(d):
+def main(d, report="diagnosis"):
     rows = []
     for lab in sorted(glob.glob(os.path.join(d, "labels", "case_*.json"))):
         case = os.path.splitext(os.path.basename(lab))[0]
         truth = json.load(open(lab))
-        rep = os.path.join(d, case, "diagnosis.json")
+        rep = os.path.join(d, case, report + ".json")
         if not os.path.exists(rep):
             rows.append((case, truth, None, None, None))
             continue
@@ -83,4 +86,10 @@ def main(d):
 
 
 if __name__ == "__main__":
-    main(sys.argv[1])
+    args = sys.argv[1:]
+    report = "diagnosis"
+    if "--report" in args:
+        i = args.index("--report")
+        report = args[i + 1]
+        del args[i:i + 2]
+    main(args[0], report)

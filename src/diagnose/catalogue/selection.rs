@@ -161,14 +161,15 @@ fn held_out_change(
     held: &ModeTable,
     settings: &CatalogueSettings,
 ) -> Option<HeldOutChange> {
-    let b = held_out_chi2(before, held, &before.tau2)?;
-    let a = held_out_chi2(after, held, &before.tau2)?;
+    let k = settings.held_out_huber_k;
+    let b = held_out_chi2(before, held, &before.tau2, k)?;
+    let a = held_out_chi2(after, held, &before.tau2, k)?;
     let dispersion = if settings.held_out_dispersion {
         b.dispersion
     } else {
         1.0
     };
-    let change = HeldOutChange::with_dispersion(b.chi2, b.dof, a.chi2, a.dof, dispersion);
+    let change = HeldOutChange::with_huber(&b, &a, dispersion);
     Some(if term.held_out_can_test(held) {
         change
     } else {
@@ -538,7 +539,7 @@ pub fn diagnose_with(
             m,
             t,
             |t| {
-                held_out_chi2(&baseline, t, &baseline.tau2)
+                held_out_chi2(&baseline, t, &baseline.tau2, settings.held_out_huber_k)
                     .map_or(f64::INFINITY, |c| c.assignment_cost)
             },
         );
@@ -960,6 +961,65 @@ mod tests {
         outlier[3] = 1e4;
         assert!(robust_dispersion(&outlier) < 1.15);
         assert_eq!(robust_dispersion(&[]), 1.0);
+    }
+
+    /// The robust held-out gain: Huber's ρ is z² inside k and continuous with slope 2k beyond;
+    /// an effect that moves one gross outlier (z = 40 → 39.7) among unit rows "gains" about 24
+    /// on Σz² but 1.8 on ρ₃, below the minimum gain, while an effect that brings the outlier in
+    /// (40 → 1) keeps a gain far above it; rows all inside k give the Σz² gain exactly.
+    #[test]
+    fn held_out_gain_on_a_huber_loss_ignores_small_moves_of_outliers() {
+        use super::super::model::{huber_sum, HeldOutChi2};
+        assert_eq!(huber_sum(&[1.0, -2.0, 3.0], 3.0), 14.0);
+        assert_eq!(huber_sum(&[5.0], 3.0), 21.0);
+        assert_eq!(huber_sum(&[-5.0, f64::NAN], 3.0), 21.0);
+        assert_eq!(huber_sum(&[5.0], f64::INFINITY), 25.0);
+        let rows = |outlier: f64| -> Vec<f64> {
+            let mut z = vec![0.5, -1.0, 0.8, -0.3, 1.2, -0.7, 0.1, 0.9, -1.1, 0.4];
+            z.push(outlier);
+            z
+        };
+        let table = |z: &[f64]| HeldOutChi2 {
+            chi2: z.iter().map(|v| v * v).sum(),
+            dof: z.len() as f64 - 1.0,
+            dispersion: 1.0,
+            huber: huber_sum(z, 3.0),
+            assignment_cost: 0.0,
+        };
+        let settings = CatalogueSettings::default();
+        let before = table(&rows(40.0));
+        let nudged = HeldOutChange::with_huber(&before, &table(&rows(39.7)), 1.0);
+        let plain =
+            HeldOutChange::new(before.chi2, before.dof, table(&rows(39.7)).chi2, before.dof);
+        assert!(plain.gain > 20.0, "{}", plain.gain);
+        assert!((nudged.gain - 1.8).abs() < 1e-9, "{}", nudged.gain);
+        assert_eq!(nudged.before, plain.before);
+        assert_eq!(
+            acceptance(10.0, Some(nudged), &settings),
+            Some(Rejection::HeldOutDidNotImprove)
+        );
+        let fixed = HeldOutChange::with_huber(&before, &table(&rows(1.0)), 1.0);
+        assert!(fixed.gain > 200.0, "{}", fixed.gain);
+        assert_eq!(acceptance(10.0, Some(fixed), &settings), None);
+        let inside = |o: f64| {
+            let z = rows(o);
+            HeldOutChange::with_huber(&table(&z), &table(&rows(0.0)), 1.0)
+        };
+        let z = rows(2.5);
+        let exact = HeldOutChange::new(
+            z.iter().map(|v| v * v).sum(),
+            10.0,
+            rows(0.0).iter().map(|v| v * v).sum(),
+            10.0,
+        );
+        assert!((inside(2.5).gain - exact.gain).abs() < 1e-12);
+        for bad in [0.0, -1.0, f64::NAN] {
+            let s = CatalogueSettings {
+                held_out_huber_k: bad,
+                ..CatalogueSettings::default()
+            };
+            assert!(s.validate().is_err(), "{bad} accepted");
+        }
     }
 
     #[test]
