@@ -963,6 +963,19 @@ pub trait Effect: Send + Sync {
     fn signature(&self) -> &'static str;
     /// Screens the residuals of the current model on the fit table; proposes variants.
     fn detect(&self, table: &ModeTable, current: &Fit) -> Detection;
+    /// [`Effect::detect`] with the held-out recordings' poles at hand (every pole their
+    /// extraction found, matched or not), for an effect whose candidates the other microphones
+    /// can contradict before anything is fitted: a split pair must ring at the same two
+    /// frequencies in every recording of the strike ([`BeatingPair`]). The default ignores
+    /// them.
+    fn detect_with_held_out(
+        &self,
+        table: &ModeTable,
+        _held_poles: Option<&[ObservedMode]>,
+        current: &Fit,
+    ) -> Detection {
+        self.detect(table, current)
+    }
     /// Effects on data other than the modal table evaluate themselves once, independently of
     /// the modal model (Some), instead of being detected and refitted with it (None).
     fn evaluate_own(

@@ -92,10 +92,13 @@ fn evaluate(
     effect: &dyn Effect,
     table: &ModeTable,
     held: Option<&ModeTable>,
+    held_poles: Option<&[super::ObservedMode]>,
     current: &Fit,
     settings: &CatalogueSettings,
 ) -> Outcome {
-    let (statistic, detail, proposals) = match effect.detect(table, current) {
+    let (statistic, detail, proposals) = match effect
+        .detect_with_held_out(table, held_poles, current)
+    {
         Detection::NotEnoughData(why) => return Outcome::NotEnoughData(why),
         Detection::Nothing { statistic, detail } => return Outcome::Nothing { statistic, detail },
         Detection::Found {
@@ -560,7 +563,14 @@ pub fn diagnose_with(
     loop {
         let mut best: Option<(usize, f64)> = None;
         for &e in &remaining {
-            let outcome = evaluate(effects[e].as_ref(), &table, held_table, &current, settings);
+            let outcome = evaluate(
+                effects[e].as_ref(),
+                &table,
+                held_table,
+                evidence.held_out.as_deref(),
+                &current,
+                settings,
+            );
             if let Outcome::Fitted(c) = &outcome {
                 if c.rejection.is_none() && best.is_none_or(|b| c.delta_bic > b.1) {
                     best = Some((e, c.delta_bic));
