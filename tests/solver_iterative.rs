@@ -207,3 +207,61 @@ fn iterative_path_refuses_what_it_cannot_do() {
         run.describe()
     );
 }
+
+/// The p-multigrid preconditioner (`--preconditioner pmg`: two-level P2 → P1, GAMG on the P1
+/// level; `pmg-mumps`: the P1 level factored) finds the direct path's eigenvalues on 1 and 2
+/// ranks, and says which preconditioner ran.
+#[test]
+fn p_multigrid_preconditioner_agrees_with_the_direct_path() {
+    let dir = scratch("solver_iterative_pmg");
+    let mesh = dir.join("sphere.msh");
+    gmsh_mesh(&fixture("analytic/sphere.geo"), 0.16, 2, &mesh);
+    let direct_json = dir.join("direct.json");
+    let direct = modes(
+        2,
+        &mesh,
+        &dir.join("direct.h5"),
+        &direct_json,
+        &["--solver", "direct", "--no-verify"],
+    );
+    assert!(direct.success(), "{}", direct.describe());
+    let ld = f64s(&read_json(&direct_json), "eigenvalues");
+    for (np, pc) in [(2, "pmg"), (1, "pmg"), (2, "pmg-mumps")] {
+        let json = dir.join(format!("{pc}_{np}.json"));
+        let run = modes(
+            np,
+            &mesh,
+            &dir.join(format!("{pc}_{np}.h5")),
+            &json,
+            &["--solver", "iterative", "--preconditioner", pc],
+        );
+        assert!(run.success(), "{}", run.describe());
+        let j = read_json(&json);
+        assert_eq!(j["iterative_preconditioner"], pc);
+        assert_eq!(j["probe"]["verdict"], "consistent");
+        let li = f64s(&j, "eigenvalues");
+        assert!(li.len() >= N_MODES && ld.len() >= N_MODES);
+        let worst = ld
+            .iter()
+            .zip(&li)
+            .take(N_MODES)
+            .map(|(a, b)| (a - b).abs() / a)
+            .fold(0.0, f64::max);
+        println!("{pc} on {np} rank(s) vs direct: max relative eigenvalue difference {worst:.2e}");
+        assert!(worst < 1e-8, "{pc} vs direct: {worst:e}\n{ld:?}\n{li:?}");
+    }
+    // A bad word is refused by name.
+    let run = modes(
+        1,
+        &mesh,
+        &dir.join("bad.h5"),
+        &dir.join("bad.json"),
+        &["--solver", "iterative", "--preconditioner", "amg"],
+    );
+    assert!(!run.success());
+    assert!(
+        run.stderr.contains("amg") && run.stderr.contains("gamg, pmg or pmg-mumps"),
+        "{}",
+        run.describe()
+    );
+}

@@ -2,7 +2,7 @@
 //! ([`FileConfig`]), and the printed summary. The job itself is [`crate::workflow::modes`].
 
 use super::resolve::{check_output, inputs, MeshArgs, MeshChoice, RunArgs};
-use crate::eigen::{ModeRequest, SolverPath};
+use crate::eigen::{IterativePreconditioner, ModeRequest, SolverPath};
 use crate::io::config::{load_toml, ConfigError, FileConfig, MaterialConfig};
 use crate::petsc::Petsc;
 use crate::workflow::modes::{self as workflow, inertia_line, probe_line, Job, Report};
@@ -59,6 +59,11 @@ pub struct ModesArgs {
     /// with the inertia proof) or iterative (LOBPCG + algebraic multigrid, no factor)
     #[arg(long)]
     pub solver: Option<SolverPath>,
+    /// The iterative path's preconditioner: gamg (default: algebraic multigrid on the P2
+    /// operator), pmg (two-level P2 → P1 multigrid, GAMG on the P1 level) or pmg-mumps (the P1
+    /// level solved by a MUMPS factor)
+    #[arg(long)]
+    pub preconditioner: Option<IterativePreconditioner>,
     /// Skip the inertia check that proves no mode was missed.
     #[arg(long)]
     pub no_verify: bool,
@@ -156,6 +161,20 @@ pub fn resolve(args: &ModesArgs) -> Result<Job, String> {
         })?,
         (None, None) => SolverPath::Auto,
     };
+    let iterative_preconditioner =
+        match (args.preconditioner, file.solver.preconditioner.as_deref()) {
+            (Some(p), _) => p,
+            (None, Some(word)) => word.parse().map_err(|e| {
+                format!(
+                    "{}: [solver] preconditioner: {e}",
+                    args.config
+                        .as_deref()
+                        .unwrap_or(Path::new("config"))
+                        .display()
+                )
+            })?,
+            (None, None) => IterativePreconditioner::default(),
+        };
     if !(tolerance > 0.0 && tolerance < 1.0) {
         return Err(format!(
             "the solver tolerance must lie in (0, 1), got {tolerance}"
@@ -203,6 +222,7 @@ pub fn resolve(args: &ModesArgs) -> Result<Job, String> {
         tolerance,
         iterative_tolerance: given_tolerance,
         solver_path,
+        iterative_preconditioner,
         verify_count: !args.no_verify && file.solver.verify_count.unwrap_or(true),
         cluster_rtol: file.solver.cluster_rtol,
         shift: args.shift.or(file.solver.shift),

@@ -54,6 +54,7 @@
 
 pub mod analytic;
 pub mod iterative;
+pub mod pmg;
 pub mod reduced;
 pub mod sensitivity;
 
@@ -63,7 +64,8 @@ use crate::petsc::factor::{
     ScopedOption,
 };
 use crate::petsc::{self, Eps, EpsWhich, Mat, NonzeroPattern, Petsc, PetscError, Vector};
-pub use iterative::{ProbeCheck, ProbeVerdict, ITERATIVE_TOLERANCE};
+pub use iterative::{IterativePreconditioner, ProbeCheck, ProbeVerdict, ITERATIVE_TOLERANCE};
+pub use pmg::TwoLevel;
 
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub enum ModeRequest {
@@ -97,6 +99,8 @@ pub struct EigenConfig {
     pub path: SolverPath,
     /// Relative residual tolerance of the iterative path ([`iterative`], "Tolerance").
     pub iterative_tolerance: f64,
+    /// The iterative path's preconditioner ([`iterative`], "Preconditioners").
+    pub iterative_preconditioner: IterativePreconditioner,
 }
 
 /// How the eigenproblem is solved (module docs, "Two paths").
@@ -165,6 +169,7 @@ impl EigenConfig {
             expected_rigid: 6,
             path: SolverPath::Direct,
             iterative_tolerance: ITERATIVE_TOLERANCE,
+            iterative_preconditioner: IterativePreconditioner::Gamg,
         }
     }
 
@@ -299,34 +304,51 @@ pub fn rigid_body_vectors<'p>(
             "a node position is not finite".into(),
         ));
     }
-    let (lo, hi) = crate::mesh::bounding_box_of(nodes);
-    let diagonal = (0..3).map(|d| (hi[d] - lo[d]).powi(2)).sum::<f64>().sqrt();
-    if !(diagonal > 0.0) {
+    let frame = RigidFrame::of(nodes);
+    if !(frame.diagonal > 0.0) {
         return Err(EigenError::BadRequest("the nodes span no volume".into()));
     }
-    let centroid: [f64; 3] =
-        std::array::from_fn(|d| nodes.iter().map(|x| x[d]).sum::<f64>() / nodes.len() as f64);
     let owned = layout.owned_nodes();
     let mut out = Vec::with_capacity(6);
     for motion in 0..6 {
         let mut local = Vec::with_capacity(3 * owned.len());
         for new in owned.clone() {
-            let x = nodes[layout.partition.old_of_new[new]];
-            let r: [f64; 3] = std::array::from_fn(|d| (x[d] - centroid[d]) / diagonal);
-            let u = match motion {
-                0..=2 => std::array::from_fn(|d| if d == motion { 1.0 } else { 0.0 }),
-                // e_x × r, e_y × r, e_z × r.
-                3 => [0.0, -r[2], r[1]],
-                4 => [r[2], 0.0, -r[0]],
-                _ => [-r[1], r[0], 0.0],
-            };
-            local.extend_from_slice(&u);
+            local.extend_from_slice(&frame.motion(motion, nodes[layout.partition.old_of_new[new]]));
         }
         let mut v = like.create_vector()?;
         v.set_local_values(&local)?;
         out.push(v);
     }
     Ok(out)
+}
+
+/// The centroid c and bounding-box diagonal L of a node cloud, which fix the rigid motions of
+/// [`rigid_body_vectors`] (and of the p-multigrid's coarse space, [`pmg`]).
+pub(crate) struct RigidFrame {
+    centroid: [f64; 3],
+    diagonal: f64,
+}
+
+impl RigidFrame {
+    pub(crate) fn of(nodes: &[[f64; 3]]) -> Self {
+        let (lo, hi) = crate::mesh::bounding_box_of(nodes);
+        let diagonal = (0..3).map(|d| (hi[d] - lo[d]).powi(2)).sum::<f64>().sqrt();
+        let centroid: [f64; 3] =
+            std::array::from_fn(|d| nodes.iter().map(|x| x[d]).sum::<f64>() / nodes.len() as f64);
+        RigidFrame { centroid, diagonal }
+    }
+
+    /// Rigid motion `motion` (0–2: unit translations, 3–5: rotations e_i × (x − c)/L) at `x`.
+    pub(crate) fn motion(&self, motion: usize, x: [f64; 3]) -> [f64; 3] {
+        let r: [f64; 3] = std::array::from_fn(|d| (x[d] - self.centroid[d]) / self.diagonal);
+        match motion {
+            0..=2 => std::array::from_fn(|d| if d == motion { 1.0 } else { 0.0 }),
+            // e_x × r, e_y × r, e_z × r.
+            3 => [0.0, -r[2], r[1]],
+            4 => [r[2], 0.0, -r[0]],
+            _ => [-r[1], r[0], 0.0],
+        }
+    }
 }
 
 /// [`solve_modes`] in the complement of known rigid-body motions `deflate` (module docs; empty:
@@ -338,6 +360,20 @@ pub fn solve_modes_deflated<'p>(
     m: &Mat<'p>,
     cfg: &EigenConfig,
     deflate: &[Vector<'p>],
+) -> Result<Modes<'p>, EigenError> {
+    solve_modes_two_level(petsc, k, m, cfg, deflate, None)
+}
+
+/// [`solve_modes_deflated`] with the P1 → P2 interpolation of the mesh ([`pmg::two_level`]),
+/// which the iterative path's p-multigrid preconditioner needs
+/// ([`EigenConfig::iterative_preconditioner`]).
+pub fn solve_modes_two_level<'p>(
+    petsc: &'p Petsc,
+    k: &Mat<'p>,
+    m: &Mat<'p>,
+    cfg: &EigenConfig,
+    deflate: &[Vector<'p>],
+    two_level: Option<&TwoLevel<'p>>,
 ) -> Result<Modes<'p>, EigenError> {
     let start = std::time::Instant::now();
     let shift = cfg.effective_shift();
@@ -418,7 +454,15 @@ pub fn solve_modes_deflated<'p>(
         p => p,
     };
     let precond = match path {
-        SolverPath::Iterative => Some(iterative::preconditioner(petsc, k, m, shift, deflate)?),
+        SolverPath::Iterative => Some(iterative::preconditioner(
+            petsc,
+            k,
+            m,
+            shift,
+            deflate,
+            cfg.iterative_preconditioner,
+            two_level,
+        )?),
         _ => None,
     };
 

@@ -420,6 +420,9 @@ pub struct SolverConfig {
     pub shift: Option<f64>,
     /// "auto", "direct" or "iterative" (`eigen::SolverPath`).
     pub path: Option<String>,
+    /// The iterative path's preconditioner: "gamg", "pmg" or "pmg-mumps"
+    /// (`eigen::IterativePreconditioner`).
+    pub preconditioner: Option<String>,
     #[serde(default)]
     pub petsc_options: Vec<String>,
 }

@@ -85,12 +85,39 @@ impl<'p> Mat<'p> {
         values: &[f64],
     ) -> Result<Self> {
         let local_rows = row_ptr.len() - 1;
+        Self::from_csr_rectangular(
+            petsc,
+            (local_rows, global_rows),
+            (local_rows, global_rows),
+            block_size,
+            row_ptr,
+            cols,
+            values,
+        )
+    }
+
+    /// [`Mat::from_csr`] for a rectangular matrix: `rows` and `columns` are (this rank's part,
+    /// global size); the local columns are this rank's part of a vector the matrix multiplies
+    /// (an interpolation from a coarse space, say). Both dimensions share `block_size`.
+    pub fn from_csr_rectangular(
+        petsc: &'p Petsc,
+        rows: (usize, usize),
+        columns: (usize, usize),
+        block_size: usize,
+        row_ptr: &[PetscInt],
+        cols: &[PetscInt],
+        values: &[f64],
+    ) -> Result<Self> {
+        let local_rows = row_ptr.len() - 1;
+        assert_eq!(local_rows, rows.0);
         assert_eq!(cols.len(), values.len());
         assert_eq!(row_ptr[local_rows] as usize, cols.len());
         let mut raw: sys::Mat = std::ptr::null_mut();
-        let (n, big_n, bs) = (
-            to_petsc_int(local_rows)?,
-            to_petsc_int(global_rows)?,
+        let (m, big_m, n, big_n, bs) = (
+            to_petsc_int(rows.0)?,
+            to_petsc_int(rows.1)?,
+            to_petsc_int(columns.0)?,
+            to_petsc_int(columns.1)?,
             to_petsc_int(block_size)?,
         );
         // SAFETY: PETSc copies the three arrays; they outlive the calls.
@@ -100,7 +127,7 @@ impl<'p> Mat<'p> {
                 raw,
                 _runtime: PhantomData,
             };
-            check(sys::MatSetSizes(raw, n, n, big_n, big_n), "MatSetSizes")?;
+            check(sys::MatSetSizes(raw, m, n, big_m, big_n), "MatSetSizes")?;
             check(
                 sys::MatSetType(raw, sys::MATAIJ.as_ptr() as _),
                 "MatSetType",
@@ -138,6 +165,54 @@ impl<'p> Mat<'p> {
             mat.assemble()?;
             Ok(mat)
         }
+    }
+
+    /// The Galerkin product Πᵀ·self·Π (PETSc's MatPtAP), a new matrix on Π's column layout;
+    /// `fill` is PETSc's estimate of nnz(result)/(nnz(self) + nnz(Π)) (2 is its default).
+    pub fn ptap(&self, interpolation: &Mat<'p>, fill: f64) -> Result<Mat<'p>> {
+        let mut raw: sys::Mat = std::ptr::null_mut();
+        // SAFETY: both matrices are assembled and on one communicator; PETSc creates the result.
+        unsafe {
+            check(
+                sys::MatPtAP(
+                    self.raw,
+                    interpolation.raw,
+                    sys::MatReuse_MAT_INITIAL_MATRIX,
+                    fill,
+                    &mut raw,
+                ),
+                "MatPtAP",
+            )?
+        };
+        Ok(Mat {
+            raw,
+            _runtime: PhantomData,
+        })
+    }
+
+    /// `y ← selfᵀ·x`.
+    pub fn mult_transpose(&self, x: &Vector<'p>, y: &mut Vector<'p>) -> Result<()> {
+        // SAFETY: vectors come from `create_vectors`, so their layouts match.
+        unsafe {
+            check(
+                sys::MatMultTranspose(self.raw, x.raw(), y.raw()),
+                "MatMultTranspose",
+            )
+        }
+    }
+
+    /// A vector of the matrix's column layout (the input of `mult`) and one of its row layout.
+    pub fn create_vectors(&self) -> Result<(Vector<'p>, Vector<'p>)> {
+        let (mut right, mut left): (sys::Vec, sys::Vec) =
+            (std::ptr::null_mut(), std::ptr::null_mut());
+        // SAFETY: PETSc allocates compatible vectors.
+        unsafe {
+            check(
+                sys::MatCreateVecs(self.raw, &mut right, &mut left),
+                "MatCreateVecs",
+            )?
+        };
+        Ok((Vector::from_raw(right), Vector::from_raw(left)))
     }
 
     pub fn raw(&self) -> sys::Mat {

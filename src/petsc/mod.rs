@@ -15,6 +15,7 @@ mod eps;
 mod error;
 pub mod factor;
 mod mat;
+pub mod multigrid;
 mod runtime;
 pub mod sys;
 mod vector;

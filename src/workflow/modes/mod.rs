@@ -20,7 +20,9 @@ pub use write::{inertia_line, probe_line, write_outputs, write_timings_json};
 
 use crate::assembly::{self, AssemblyError, AssemblyStats};
 use crate::eigen::sensitivity::{self, ClusterTreatment, MaterialSensitivities, SensitivityError};
-use crate::eigen::{self, EigenConfig, EigenError, ModeRequest, SolverPath};
+use crate::eigen::{
+    self, EigenConfig, EigenError, IterativePreconditioner, ModeRequest, SolverPath,
+};
 use crate::fem::Material;
 use crate::io::IoError;
 use crate::mesh::{MeshError, ReadOptions, TetMesh};
@@ -46,6 +48,8 @@ pub struct Job {
     /// The iterative path's tolerance when the user gave one (else its own default).
     pub iterative_tolerance: Option<f64>,
     pub solver_path: SolverPath,
+    /// The iterative path's preconditioner.
+    pub iterative_preconditioner: IterativePreconditioner,
     pub verify_count: bool,
     pub cluster_rtol: Option<f64>,
     pub shift: Option<f64>,
@@ -213,6 +217,7 @@ pub fn run<'p>(petsc: &'p Petsc, job: &Job, progress: &Progress) -> Result<Repor
     if let Some(t) = job.iterative_tolerance {
         cfg.iterative_tolerance = t;
     }
+    cfg.iterative_preconditioner = job.iterative_preconditioner;
     // The rigid motions are what the iterative path deflates and gives its multigrid; the
     // direct path finds them as eigenpairs and proves the count with them.
     let rigid = match (
@@ -224,7 +229,15 @@ pub fn run<'p>(petsc: &'p Petsc, job: &Job, progress: &Progress) -> Result<Repor
         }
         _ => Vec::new(),
     };
-    let modes = eigen::solve_modes_deflated(petsc, &k, &m, &cfg, &rigid)?;
+    // The p-multigrid's P1 → P2 interpolation, only when the iterative path will use it.
+    let two_level = match job.iterative_preconditioner {
+        IterativePreconditioner::PMultigrid(_) if !rigid.is_empty() => {
+            Some(eigen::pmg::two_level(petsc, &mesh, &layout)?)
+        }
+        _ => None,
+    };
+    let modes = eigen::solve_modes_two_level(petsc, &k, &m, &cfg, &rigid, two_level.as_ref())?;
+    drop(two_level);
     drop(rigid);
     let rss_solve = petsc.peak_rss_bytes();
     if rank == 0 {

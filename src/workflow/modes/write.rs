@@ -138,6 +138,8 @@ pub fn write_timings_json(path: &Path, report: &Report<'_>) -> Result<(), Error>
             "verdict": c.verdict.word(),
         })),
         "preconditioner_setup_s": modes.preconditioner_setup.map_or(0.0, |s| s.seconds),
+        "iterative_preconditioner": modes.setting("iterative_preconditioner"),
+        "iterations": modes.setting("iterations").and_then(|v| v.parse::<usize>().ok()),
         "peak_rss_mb_after": report.timings.peak_rss_after.iter().map(|(k, v)| (k.clone(), serde_json::json!(v / 1048576.0))).collect::<serde_json::Map<_, _>>(),
         "material_sensitivities_s": t.material_seconds,
         "node_gradients_s": t.node_gradient_seconds,
