@@ -1,7 +1,8 @@
 //! Realistic mistakes, on 2 ranks, each ending at once with a message that names the cause
 //! and no output file (issue 41): outputs that cannot be written or would destroy an input,
 //! a band past a recording's Nyquist frequency, and dead, noise-only or late microphones.
-//! Every refusal here happens before any solve, so each takes seconds.
+//! Every refusal here happens before any solve, so each takes seconds. Recordings that are
+//! readable but hold too few modes are not an error: the diagnosis says so in its report.
 
 mod common;
 use common::*;
@@ -815,4 +816,100 @@ fn a_band_whose_top_is_only_noise_is_warned_about_naming_the_file() {
     );
     // The same track asked for a band that ends below its reach is not warned about.
     assert!(band_warnings(&health, 4_000.0).unwrap().is_empty());
+}
+
+/// Two microphones that hear only two modes (a soft strike on a quiet object): the diagnosis
+/// exits cleanly with a report that tests nothing and says why, and writes no HDF5 result, map
+/// or plot. (Generator 2, seed 17: two such cups ended with MPI_Abort and no report.)
+#[test]
+fn a_recording_with_too_few_modes_gets_a_report_that_tests_nothing() {
+    let dir = scratch("too_few_modes");
+    let rate = 48_000u32;
+    let (pre, n) = (9_600usize, 9_600 + 48_000);
+    let mut state = 11u64;
+    let mut noise = move || {
+        state = state
+            .wrapping_mul(6364136223846793005)
+            .wrapping_add(1442695040888963407);
+        1e-5 * (((state >> 11) as f64 / (1u64 << 53) as f64) - 0.5)
+    };
+    let mut paths = Vec::new();
+    for (mic, gains) in [[1.0, 0.6], [0.7, 0.9]].iter().enumerate() {
+        let x: Vec<f64> = (0..n)
+            .map(|i| {
+                let t = (i as f64 - pre as f64) / f64::from(rate);
+                let ring = if t < 0.0 {
+                    0.0
+                } else {
+                    gains[0]
+                        * 0.3
+                        * (-6.0 * t).exp()
+                        * (2.0 * std::f64::consts::PI * 1013.0 * t).sin()
+                        + gains[1]
+                            * 0.2
+                            * (-9.0 * t).exp()
+                            * (2.0 * std::f64::consts::PI * 2391.0 * t).sin()
+                };
+                ring + noise()
+            })
+            .collect();
+        let p = dir.join(format!("mic{mic}.wav"));
+        write_wav(&p, &x, rate);
+        paths.push(p);
+    }
+    let out = dir.join("diagnosis.h5");
+    let run = mpirun(
+        2,
+        &[
+            "diagnose",
+            "--mesh",
+            s(&bowl_mesh()),
+            "--recording",
+            s(&paths[0]),
+            "--recording",
+            s(&paths[1]),
+            "--density",
+            "2400",
+            "--out",
+            s(&out),
+        ],
+        LIMIT,
+    );
+    assert!(run.success(), "a report, not an error:\n{}", run.describe());
+    assert!(
+        run.stderr.contains("no diagnosis: only 2 modes"),
+        "{}",
+        run.describe()
+    );
+    let report = read_json(&dir.join("diagnosis.json"));
+    assert_eq!(report["diagnosed"], false);
+    assert!(report["refusal"]
+        .as_str()
+        .unwrap()
+        .contains("needs at least 4"));
+    assert_eq!(report["observed"]["fit"].as_array().unwrap().len(), 2);
+    assert!(report["catalogue"]["accepted"]
+        .as_array()
+        .unwrap()
+        .is_empty());
+    let untested: Vec<&str> = report["untested"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|u| u["name"].as_str().unwrap())
+        .collect();
+    for effect in [
+        "contact_duration",
+        "beating_pair",
+        "reverb_noise",
+        "added_mass",
+    ] {
+        assert!(
+            untested.contains(&effect),
+            "{effect} untested: {untested:?}"
+        );
+    }
+    assert!(!out.exists(), "no HDF5 result without a model");
+    assert!(!dir.join("diagnosis_map.h5").exists());
+    assert!(!dir.join("diagnosis_residuals.png").exists());
 }

@@ -14,7 +14,7 @@ use crate::io::config::{load_toml, DiagnoseFileConfig};
 use crate::io::paths::with_suffix;
 use crate::workflow::diagnose::{
     self as workflow, check_recording_window, resolve_material, split_microphones, unit_vector,
-    CaseMeta, Job, Report,
+    CaseMeta, Job, Outcome, Report,
 };
 use clap::Args;
 use mpi::environment::Universe;
@@ -233,9 +233,26 @@ pub fn run(universe: Universe, args: DiagnoseArgs) -> Result<(), String> {
         &job.petsc_options,
         job.verbose,
         |petsc, progress| match workflow::run(petsc, &job, progress)? {
-            Some(report) => {
+            Some(Outcome::Diagnosed(report)) => {
                 print_report(&report);
                 write_outputs(&report)
+            }
+            Some(Outcome::Refused(refusal)) => {
+                // Not an error: the recordings were read and say too little; the report
+                // says so (module docs of the workflow, "Too few modes").
+                eprintln!("warning: no diagnosis: {}", refusal.reason);
+                println!(
+                    "diagnose: nothing tested: {} ({} modes on the fit microphones, {} held out)",
+                    refusal.reason,
+                    refusal.measured.fit.len(),
+                    refusal.measured.held_out.len()
+                );
+                workflow::write_refusal_json(&refusal)?;
+                println!(
+                    "wrote {} (no HDF5 result, map or plots: there is no model to put in them)",
+                    refusal.job.json.display()
+                );
+                Ok(())
             }
             None => Ok(()),
         },

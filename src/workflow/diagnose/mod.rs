@@ -122,6 +122,18 @@
 //!   matched mode, baseline vs final model), `_timefreq.png` (spectrograms of the recording
 //!   and of recording − modal resynthesis, fit channel 0), `_envelopes.png` (residual energy
 //!   per band over time against the pre-roll floor).
+//!
+//! # Too few modes
+//!
+//! When the fit microphones hold fewer than [`MIN_MODES`] modes below `max_frequency_hz` (a
+//! soft strike, a quiet recording, a response that sinks the upper modes into the noise), no
+//! effect can be told from the baseline. The job then does not stop with an error: [`run`]
+//! returns [`Outcome::Refused`] and [`write_refusal_json`] writes `<out stem>.json` with
+//! `"diagnosed": false`, the `refusal` in words (the count, and the frequency above which the
+//! strike does not rise 12 dB over the noise before it, when the channel check measured it),
+//! the modes that were found under `observed`, `catalogue.accepted` empty and every effect
+//! under `catalogue.rejected` and `untested` as `not_enough_data`. No HDF5, map or plots are
+//! written (there is no model to put in them). A full report's JSON says `"diagnosed": true`.
 
 mod features;
 mod job;
@@ -139,7 +151,7 @@ pub use job::{
 pub use loaded_match::{EnrichmentStats, LoadedMass};
 pub use measure::Measured;
 pub use plots::write_plots;
-pub use write::{write_hdf5, write_json, write_map};
+pub use write::{write_hdf5, write_json, write_map, write_refusal_json};
 
 use crate::assembly;
 use crate::diagnose::catalogue::{self, CatalogueReport, CatalogueSettings, Evidence};
@@ -221,6 +233,81 @@ pub struct Report {
     pub timings: Vec<(&'static str, f64)>,
 }
 
+/// The fewest modes of the fit microphones the diagnosis works with: the catalogue's baseline
+/// profiles a frequency scale, a damping law and the microphone gains, and each effect adds
+/// parameters of its own, so with fewer modes no effect can be told from the baseline.
+pub const MIN_MODES: usize = 4;
+
+/// What a diagnosis ends with (rank 0).
+pub enum Outcome {
+    /// The catalogue ran: the whole report.
+    Diagnosed(Box<Report>),
+    /// The recordings hold fewer than [`MIN_MODES`] modes: nothing could be tested. The job
+    /// still writes `<out stem>.json` saying so (module docs, "Too few modes").
+    Refused(Refusal),
+}
+
+/// A diagnosis the recordings could not support: what they showed and why nothing was tested.
+#[derive(Clone, Debug)]
+pub struct Refusal {
+    /// The job as it ran (the microphones left after the channel-health check).
+    pub job: Job,
+    pub measured: Measured,
+    /// Why, in words: the count of modes, and where the strike sank into the noise.
+    pub reason: String,
+    /// Every effect of the catalogue, each untested for that reason.
+    pub untested: Vec<catalogue::RejectedEffect>,
+    /// Seconds: measure, total.
+    pub timings: Vec<(&'static str, f64)>,
+}
+
+impl Refusal {
+    fn new(job: Job, measured: Measured, total_seconds: f64) -> Refusal {
+        let mut reason = format!(
+            "only {} modes found on the fit microphones below {} Hz; the diagnosis needs at least {MIN_MODES}",
+            measured.fit.len(),
+            job.max_frequency_hz
+        );
+        // Where the strike sank into the noise, when the channel check measured it: the
+        // usual cause, and what the user can change (record closer, strike harder).
+        let reach = job
+            .channel_health
+            .iter()
+            .filter(|h| h.is_healthy())
+            .filter_map(|h| h.band_reach_hz)
+            .fold(None, |a: Option<f64>, r| Some(a.map_or(r, |a| a.max(r))));
+        if let Some(r) = reach.filter(|&r| r < job.max_frequency_hz) {
+            reason.push_str(&format!(
+                " (above {r:.0} Hz the strike does not rise 12 dB over the noise before it on any microphone)"
+            ));
+        }
+        let untested = catalogue::catalogue()
+            .iter()
+            .map(|e| catalogue::RejectedEffect {
+                name: e.name().to_string(),
+                signature: e.signature().to_string(),
+                reason: catalogue::Rejection::NotEnoughData,
+                detail: reason.clone(),
+                statistic: None,
+                variant: None,
+                n_params: None,
+                delta_bic: None,
+                held_out_before: None,
+                held_out_after: None,
+                held_out_gain: None,
+            })
+            .collect();
+        let timings = vec![("measure", measured.seconds), ("total", total_seconds)];
+        Refusal {
+            job,
+            measured,
+            reason,
+            untested,
+            timings,
+        }
+    }
+}
+
 /// What the stages after the recording share (collective ones run on every rank).
 #[derive(Clone, Copy)]
 struct StageInput<'a, 'p> {
@@ -248,7 +335,7 @@ type PassOutcome = (
 
 /// Runs the diagnosis (module docs, stages 0–5). Collective: every rank calls it; the report is
 /// on rank 0 (`None` elsewhere). Unhealthy microphones are left out with a warning on stderr.
-pub fn run(petsc: &Petsc, job: &Job, progress: &Progress) -> Result<Option<Report>, Error> {
+pub fn run(petsc: &Petsc, job: &Job, progress: &Progress) -> Result<Option<Outcome>, Error> {
     let total = Instant::now();
     let rank = petsc.rank();
     let (mesh_model, _) = model_mesh(
@@ -323,12 +410,11 @@ pub fn run(petsc: &Petsc, job: &Job, progress: &Progress) -> Result<Option<Repor
     let measured: Measured = broadcast_from_root(petsc, local)
         .map_err(Error::Broadcast)?
         .map_err(Error::Recording)?;
-    if measured.fit.len() < 4 {
-        return Err(Error::Recording(format!(
-            "only {} modes found in the recording below {} Hz; the diagnosis needs at least 4",
-            measured.fit.len(),
-            job.max_frequency_hz
-        )));
+    if measured.fit.len() < MIN_MODES {
+        // Nothing to test: a report that says so and why, not an aborted job (module docs,
+        // "Too few modes").
+        let refusal = Refusal::new(adjusted.clone(), measured, total.elapsed().as_secs_f64());
+        return Ok((rank == 0).then_some(Outcome::Refused(refusal)));
     }
     let top_observed = measured
         .fit
@@ -592,7 +678,7 @@ pub fn run(petsc: &Petsc, job: &Job, progress: &Progress) -> Result<Option<Repor
         ("catalogue", diagnose_seconds),
         ("total", total.elapsed().as_secs_f64()),
     ];
-    Ok(Some(Report {
+    Ok(Some(Outcome::Diagnosed(Box::new(Report {
         job: adjusted,
         n_ranks: petsc.size(),
         measured,
@@ -610,5 +696,5 @@ pub fn run(petsc: &Petsc, job: &Job, progress: &Progress) -> Result<Option<Repor
         rigid_eigenvalues,
         shapes,
         timings,
-    }))
+    }))))
 }

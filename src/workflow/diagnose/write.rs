@@ -1,7 +1,7 @@
 //! The diagnosis's files (module docs of [`crate::workflow::diagnose`], "Output"): the HDF5
 //! result, the JSON report, and the map of the localisation for ParaView.
 
-use super::{Error, Report};
+use super::{Error, Refusal, Report};
 use crate::diagnose::catalogue;
 use crate::io::results::ResultsFile;
 use crate::io::{write_modes, MaterialRecord, ModesFile, NodeField};
@@ -25,6 +25,7 @@ pub fn write_json(r: &Report) -> Result<(), Error> {
     let value = serde_json::json!({
         "format": "diffsound.diagnose",
         "format_version": 1,
+        "diagnosed": true,
         "command": std::env::args().collect::<Vec<_>>().join(" "),
         "version": env!("CARGO_PKG_VERSION"),
         "mesh": job.mesh.display().to_string(),
@@ -49,8 +50,38 @@ pub fn write_json(r: &Report) -> Result<(), Error> {
         "catalogue_input": {"evidence": catalogue_input.0, "settings": catalogue_input.1},
         "timings_s": timings.iter().map(|(k, v)| (k.to_string(), *v)).collect::<std::collections::BTreeMap<_, _>>(),
     });
-    let text = serde_json::to_string_pretty(&value).map_err(output)?;
-    crate::io::write_atomically(&job.json, |tmp| {
+    write_json_value(&job.json, &value)
+}
+
+/// Writes `<out stem>.json` for a diagnosis the recordings could not support (module docs of
+/// [`crate::workflow::diagnose`], "Too few modes"), atomically: the same keys a reader of a
+/// full report looks for first, with nothing accepted and every effect untested.
+pub fn write_refusal_json(r: &Refusal) -> Result<(), Error> {
+    let job = &r.job;
+    let value = serde_json::json!({
+        "format": "diffsound.diagnose",
+        "format_version": 1,
+        "diagnosed": false,
+        "refusal": r.reason,
+        "command": std::env::args().collect::<Vec<_>>().join(" "),
+        "version": env!("CARGO_PKG_VERSION"),
+        "mesh": job.mesh.display().to_string(),
+        "recordings": job.recordings.iter().map(|p| p.display().to_string()).collect::<Vec<_>>(),
+        "fit_microphones": job.fit_channels,
+        "held_out_microphones": job.held_channels,
+        "channel_health": job.channel_health,
+        "onset_s": r.measured.onset_s,
+        "observed": {"fit": r.measured.fit, "held_out": r.measured.held_out},
+        "catalogue": {"accepted": [], "rejected": r.untested},
+        "untested": r.untested.iter().map(|u| serde_json::json!({"name": u.name, "reason": u.reason, "detail": u.detail})).collect::<Vec<_>>(),
+        "timings_s": r.timings.iter().map(|(k, v)| (k.to_string(), *v)).collect::<std::collections::BTreeMap<_, _>>(),
+    });
+    write_json_value(&job.json, &value)
+}
+
+fn write_json_value(path: &std::path::Path, value: &serde_json::Value) -> Result<(), Error> {
+    let text = serde_json::to_string_pretty(value).map_err(output)?;
+    crate::io::write_atomically(path, |tmp| {
         std::fs::write(tmp, &text).map_err(|source| crate::io::IoError::Fs {
             path: tmp.to_path_buf(),
             context: "writing the JSON report".into(),
