@@ -44,12 +44,22 @@
 //!   [`super::Rejection::SignatureMissing`] whatever its ΔBIC. In the blind benchmark's saved
 //!   envelopes (`examples/reverb_replay.rs`) every true room had all 6 of 6 bands above 40, and
 //!   every false alarm 1 or 2 bands.
+//!
+//! # A room colours the levels
+//!
+//! An established room (this effect accepted on its own evidence) also puts a nuisance in the
+//! modal baseline: [`LevelColouration`], ln a_kc += κ (ln f_k − ln f_ref)², common to every
+//! microphone (parent docs, "A room colours the levels"). It is the room's, so its term
+//! carries this effect's name with the variant `level_colouration`, but it is never reported
+//! as found: the room is, on the envelopes.
+
+use std::sync::Arc;
 
 use super::lm;
 use super::report::{FittedParam, NoiseFloorReport};
 use super::{
-    CatalogueSettings, Effect, Evidence, HeldOutChange, OwnEvaluation, OwnOutcome,
-    ResidualEnvelopes,
+    CatalogueSettings, Effect, Evidence, HeldOutChange, ModeTable, OwnEvaluation, OwnOutcome,
+    ParamSpec, ResidualEnvelopes, Term,
 };
 
 /// ln(10⁶): energy decays by 60 dB in T60.
@@ -433,4 +443,68 @@ impl Effect for ReverbNoise {
             Some(env) => self.evaluate(env),
         })
     }
+}
+
+/// The colouration of the mode levels, a nuisance of the baseline (module docs, "A room
+/// colours the levels"): ln a_kc += κ (ln f_k − ln f_c)², common to every microphone, with the
+/// channels' gains and tilts absorbing the constant and the slope. Not an effect: it is never
+/// reported as found, and it enters the baseline only when the room is established on its own
+/// evidence (or always, with `level_colouration = "always"`).
+#[derive(Debug)]
+pub struct LevelColouration {
+    /// ln f_c [ln Hz]: the centre of the curvature (the model's reference frequency).
+    pub ln_f_centre: f64,
+}
+
+/// Bound on |κ|: 10 moves the level by a factor e^(10 · 1.25²) at 3.5× the centre frequency,
+/// far beyond any colouration; the bound only keeps the fit finite.
+const MAX_CURVATURE: f64 = 10.0;
+
+impl Term for LevelColouration {
+    fn effect(&self) -> &'static str {
+        "reverb_noise"
+    }
+    fn variant(&self) -> &'static str {
+        "level_colouration"
+    }
+    fn params(&self) -> Vec<ParamSpec> {
+        vec![ParamSpec::new(
+            "level colouration κ: curvature of ln a in ln f",
+            "1",
+            -MAX_CURVATURE,
+            MAX_CURVATURE,
+            0.1,
+        )]
+    }
+    fn amplitude(&self, table: &ModeTable, p: &[f64], ln_f: &[f64], ln_a: &mut [f64]) {
+        let c_n = table.channels;
+        for (k, &lf) in ln_f.iter().enumerate() {
+            let u = lf - self.ln_f_centre;
+            for a in &mut ln_a[k * c_n..(k + 1) * c_n] {
+                *a += p[0] * u * u;
+            }
+        }
+    }
+}
+
+/// Whether `evaluation`, the room's own evaluation, passes the acceptance rule (the room is
+/// established on the residual envelopes alone, before any modal effect is tried).
+pub(super) fn room_established(evaluation: &OwnEvaluation, settings: &CatalogueSettings) -> bool {
+    match &evaluation.outcome {
+        OwnOutcome::Fitted {
+            delta_bic,
+            held_out,
+            signature_missing,
+            ..
+        } => {
+            signature_missing.is_none()
+                && super::selection::acceptance(*delta_bic, Some(*held_out), settings).is_none()
+        }
+        _ => false,
+    }
+}
+
+/// The baseline nuisance term for the level colouration (module docs), fitted from κ = 0.
+pub(super) fn level_colouration(ln_f_centre: f64) -> (Arc<dyn Term>, Vec<f64>) {
+    (Arc::new(LevelColouration { ln_f_centre }), vec![0.0])
 }

@@ -8,8 +8,8 @@ use super::model::{
 };
 use super::report::*;
 use super::{
-    catalogue, CatalogueError, CatalogueSettings, Detection, Effect, Evidence, HeldOutChange,
-    OwnOutcome, Quantity, Term,
+    catalogue, CatalogueError, CatalogueSettings, ColourationWhen, Detection, Effect, Evidence,
+    HeldOutChange, OwnOutcome, Quantity, Term,
 };
 
 /// One effect's evaluation against the current model.
@@ -165,8 +165,9 @@ fn held_out_change(
     settings: &CatalogueSettings,
 ) -> Option<HeldOutChange> {
     let k = settings.held_out_huber_k;
-    let b = held_out_chi2(before, held, &before.tau2, k)?;
-    let a = held_out_chi2(after, held, &before.tau2, k)?;
+    let tail = settings.held_out_tail;
+    let b = held_out_chi2(before, held, &before.tau2, k, tail)?;
+    let a = held_out_chi2(after, held, &before.tau2, k, tail)?;
     let dispersion = if settings.held_out_dispersion {
         b.dispersion
     } else {
@@ -542,8 +543,14 @@ pub fn diagnose_with(
             m,
             t,
             |t| {
-                held_out_chi2(&baseline, t, &baseline.tau2, settings.held_out_huber_k)
-                    .map_or(f64::INFINITY, |c| c.assignment_cost)
+                held_out_chi2(
+                    &baseline,
+                    t,
+                    &baseline.tau2,
+                    settings.held_out_huber_k,
+                    settings.held_out_tail,
+                )
+                .map_or(f64::INFINITY, |c| c.assignment_cost)
             },
         );
         (t, m)
@@ -557,6 +564,31 @@ pub fn diagnose_with(
         .collect();
     let mut remaining: Vec<usize> = (0..effects.len()).filter(|&e| own[e].is_none()).collect();
     let mut last: Vec<Option<Outcome>> = (0..effects.len()).map(|_| None).collect();
+    // The level colouration (parent docs, "Baseline"): a nuisance of the baseline when the
+    // room is established on its own evidence, before any modal effect is tried.
+    let room = effects.iter().zip(&own).any(|(e, o)| {
+        e.name() == "reverb_noise"
+            && o.as_ref()
+                .is_some_and(|o| super::reverb_noise::room_established(o, settings))
+    });
+    let coloured = match settings.level_colouration {
+        ColourationWhen::Always => true,
+        ColourationWhen::Room => room,
+        ColourationWhen::Never => false,
+    };
+    let baseline = if coloured {
+        let (term, init) = super::reverb_noise::level_colouration(baseline.model.ln_f_ref);
+        let mut x0 = baseline.x.clone();
+        x0.extend(init);
+        fit(&table, baseline.model.with_term(term), x0)
+    } else {
+        baseline
+    };
+    if !baseline.minus_two_log_likelihood.is_finite() {
+        return Err(CatalogueError::BaselineFailed);
+    }
+    // Terms of the baseline before the accepted effects' own.
+    let base_terms = baseline.model.terms.len();
     let mut current = baseline.clone();
     // (effect index, candidate) in the order accepted.
     let mut accepted: Vec<(usize, Box<Candidate>)> = Vec::new();
@@ -595,7 +627,7 @@ pub fn diagnose_with(
     while accepted.len() >= 2 {
         let mut weakest: Option<(usize, LastIn)> = None;
         for i in 0..accepted.len() {
-            let last_in = last_in(&current, i, &table, held_table, settings);
+            let last_in = last_in(&current, base_terms + i, &table, held_table, settings);
             if last_in.rejection.is_some()
                 && weakest
                     .as_ref()
@@ -635,7 +667,7 @@ pub fn diagnose_with(
             held_out_before: c.held_out.map(|h| h.before),
             held_out_after: c.held_out.map(|h| h.after),
             held_out_gain: c.held_out.map(|h| h.gain),
-            params: term_params(&current, i),
+            params: term_params(&current, base_terms + i),
         });
     }
     let mut rejected = Vec::new();

@@ -143,6 +143,9 @@ struct Truth {
     /// plus a per-channel part uniform in ±`mic_tilt_spread` (each microphone's response).
     tilt: f64,
     mic_tilt_spread: f64,
+    /// A colouration of the levels common to every microphone (a room's, a microphone
+    /// type's): ln a += κ (ln(f / 3 kHz))² with κ = `colouration`.
+    colouration: f64,
 }
 
 impl Default for Truth {
@@ -165,6 +168,7 @@ impl Default for Truth {
             held_out: true,
             tilt: 0.0,
             mic_tilt_spread: 0.0,
+            colouration: 0.0,
         }
     }
 }
@@ -286,7 +290,10 @@ fn observe(
             let amplitudes: Vec<f64> = channels
                 .clone()
                 .map(|c| {
-                    let mut ln_a = gains[c] + m.ln_amp + tilts[c] * (f0 / 1000.0).ln();
+                    let mut ln_a = gains[c]
+                        + m.ln_amp
+                        + tilts[c] * (f0 / 1000.0).ln()
+                        + truth.colouration * (f0 / 3000.0).ln().powi(2);
                     match truth.radiation {
                         Some(Pattern::Lobes) => ln_a += obj.lobes[m.cluster][c].ln(),
                         Some(Pattern::Axis) => ln_a += obj.axis[m.cluster][c].ln(),
@@ -2237,4 +2244,66 @@ fn last_in_test_keeps_a_real_effect_and_drops_an_empty_one() {
         "a mass on clean data must not pay its way: ΔBIC {}",
         empty.delta_bic
     );
+}
+
+#[test]
+fn a_rooms_colouration_of_the_levels_is_a_nuisance_not_a_contact() {
+    // A room (T60 = 0.4 s) whose colouration bends the levels down at both ends (κ = −2, as
+    // the second generator's rooms measured −1.1 to −2.6): a tilt plus the half-sine's knee can
+    // mimic that on a few modes, and the held-out microphones see the same colouration. With
+    // the room established on the envelopes, the baseline carries the colouration, so the
+    // contact duration has nothing left to explain; without the nuisance it is claimed.
+    let truth = Truth {
+        reverb_t60: Some(0.4),
+        colouration: -2.0,
+        tilt: 1.0,
+        ..Truth::default()
+    };
+    let (ev, _) = evidence(&truth, 24);
+    let report = diagnose(&ev, &CatalogueSettings::default()).expect("valid");
+    expect_accepted(&report, "reverb_noise");
+    assert!(
+        report
+            .baseline
+            .effects
+            .iter()
+            .any(|e| e.contains("level_colouration")),
+        "{:?}",
+        report.baseline.effects
+    );
+    assert!(
+        !report.accepted.iter().any(|a| a.name == "contact_duration"),
+        "{:#?}",
+        report.accepted
+    );
+    let kappa = report
+        .baseline
+        .params
+        .iter()
+        .find(|p| p.name.starts_with("level colouration"))
+        .expect("fitted");
+    assert!(within_3_sigma(kappa, -2.0), "{kappa:?}");
+
+    let without = CatalogueSettings {
+        level_colouration: ColourationWhen::Never,
+        ..CatalogueSettings::default()
+    };
+    let report = diagnose(&ev, &without).expect("valid");
+    expect_accepted(&report, "contact_duration");
+}
+
+#[test]
+fn without_a_room_the_baseline_has_no_colouration_and_a_contact_is_found() {
+    let truth = Truth {
+        hertz: Some(1.6e-4),
+        ..Truth::default()
+    };
+    let (ev, _) = evidence(&truth, 24);
+    let report = diagnose(&ev, &CatalogueSettings::default()).expect("valid");
+    assert!(
+        report.baseline.effects.is_empty(),
+        "{:?}",
+        report.baseline.effects
+    );
+    expect_accepted(&report, "contact_duration");
 }
