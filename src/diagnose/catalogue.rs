@@ -58,9 +58,9 @@
 //! channel's gain and tilt (properties of that microphone).
 //!
 //! **A room colours the levels.** When the room is established on its own evidence (the
-//! reverberant excess in the residual envelopes, [`reverb_noise`], accepted before any modal
+//! reverberant excess in the residual envelopes, [`ReverbNoise`], accepted before any modal
 //! effect is tried), the baseline also carries a curvature of the levels common to every
-//! microphone, ln a_kc += κ (ln f_k − ln f_ref)² \[κ: 1\] ([`reverb_noise::LevelColouration`];
+//! microphone, ln a_kc += κ (ln f_k − ln f_ref)² \[κ: 1\] ([`LevelColouration`];
 //! listed among the baseline's terms as `reverb_noise (level_colouration)`). Why: a room's
 //! absorption and its reverberant field give the recorded levels a smooth spectral shape
 //! that every microphone shares, so the held-out microphones confirm it too; on a handful of
@@ -288,15 +288,15 @@ pub use beating_pair::{BeatingPair, PairSplits};
 pub use contact_duration::{half_sine_spectrum, ContactDuration, HalfSineContact};
 pub use matching::{match_modes, Matching, Unit};
 pub use model::{
-    fit, held_out_error, huber_sum, own_members, robust_sum, Fit, FloorVariances, HeldOutChi2,
-    HeldOutTail, ModeEntry, ModeKey, ModeResiduals, ModeTable, Model, Prediction, Quantity, Role,
-    Row, RowKind, SplitPair, DEFAULT_OWN_MEMBER_SPLIT_Z, LEVEL_FLOOR, N_FLOORS,
+    fit, held_out_error, huber_sum, own_members, Fit, FloorVariances, HeldOutChi2, ModeEntry,
+    ModeKey, ModeResiduals, ModeTable, Model, Prediction, Quantity, Role, Row, RowKind, SplitPair,
+    DEFAULT_OWN_MEMBER_SPLIT_Z, LEVEL_FLOOR, N_FLOORS,
 };
 pub use non_rayleigh_damping::{NonRayleighDamping, ThreeKnotDamping};
 pub use pitch_glide::{EnergyGlide, PitchGlide};
 pub use radiation::{FactorDirectivity, Radiation, TransferDirectivity};
 pub use report::*;
-pub use reverb_noise::ReverbNoise;
+pub use reverb_noise::{LevelColouration, ReverbNoise};
 pub use selection::{acceptance, diagnose, diagnose_with};
 pub use support_contact::{SupportContact, SupportTerm};
 
@@ -435,10 +435,8 @@ pub struct CatalogueSettings {
     /// The held-out gain is taken on Huber's loss with this k (σ units) instead of on Σz²
     /// (module docs, "Selection"); `inf` gives the plain Σz².
     pub held_out_huber_k: f64,
-    /// The robust loss's tail beyond `held_out_huber_k` (module docs, "Selection").
-    pub held_out_tail: HeldOutTail,
     /// When the baseline carries the level colouration, a curvature of ln a in ln f common
-    /// to every microphone ([`reverb_noise::LevelColouration`]; module docs, "Baseline").
+    /// to every microphone ([`LevelColouration`]; module docs, "A room colours the levels").
     pub level_colouration: ColourationWhen,
     /// A split pair whose observed split agrees with its simulated split within this many σ
     /// stands for its own simulated members (drive, weights, transfer each from its own
@@ -461,7 +459,6 @@ impl Default for CatalogueSettings {
             min_held_out_gain: DEFAULT_MIN_HELD_OUT_GAIN,
             held_out_dispersion: false,
             held_out_huber_k: DEFAULT_HELD_OUT_HUBER_K,
-            held_out_tail: HeldOutTail::Linear,
             level_colouration: ColourationWhen::Room,
             own_member_split_z: DEFAULT_OWN_MEMBER_SPLIT_Z,
         }

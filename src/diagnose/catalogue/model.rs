@@ -1398,7 +1398,7 @@ impl Term for Frozen {
 /// residuals whitened with the floors `tau2` (the yardstick: the same for the models
 /// compared). Returns √(Σ z² / (n − p_nuisance)) over the n held-out rows, or None without rows.
 pub fn held_out_error(fit: &Fit, held: &ModeTable, tau2: &FloorVariances) -> Option<f64> {
-    held_out_chi2(fit, held, tau2, f64::INFINITY, HeldOutTail::Linear).map(|h| h.rms())
+    held_out_chi2(fit, held, tau2, f64::INFINITY).map(|h| h.rms())
 }
 
 /// Σ z² of the held-out rows and its degrees of freedom (n − p_nuisance), as
@@ -1440,23 +1440,11 @@ pub fn robust_dispersion(z: &[f64]) -> f64 {
     (median / MEDIAN_CHI2_1).max(1.0)
 }
 
-/// How the held-out rows' whitened residuals are summed for the held-out gain (catalogue docs,
-/// "The gain is taken on a robust loss"): quadratic to |z| = k, and beyond it either Huber's
-/// linear tail or a logarithmic one.
-#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
-#[serde(rename_all = "snake_case")]
-pub enum HeldOutTail {
-    /// ρ(z) = 2k|z| − k²: a row beyond k moves the sum by 2k per unit of z.
-    Linear,
-    /// ρ(z) = k² + 2k² ln(|z|/k): a row beyond k moves it by 2k²/|z| per unit of z, so a row
-    /// far beyond (|z| of 20–100: nothing in the model fits it) carries almost no weight, while
-    /// bringing it back inside k still gains much.
-    Log,
-}
-
-/// Σ ρ(z) over the finite z: z² for |z| ≤ k and the `tail` beyond (both continuous with their
-/// first derivative at k). k = ∞ (or any k above every |z|) gives Σz².
-pub fn robust_sum(z: &[f64], k: f64, tail: HeldOutTail) -> f64 {
+/// Σ ρ_k(z) with Huber's ρ_k(z) = z² for |z| ≤ k and 2k|z| − k² beyond: quadratic where a row
+/// behaves like its error model, linear where it is an outlier, so that a row the model cannot
+/// fit at all (a room's pole matched to a mode, a wrong assignment) moves the sum by at most
+/// 2k per unit of z instead of 2|z|. k = ∞ (or any k above every |z|) gives Σz².
+pub fn huber_sum(z: &[f64], k: f64) -> f64 {
     z.iter()
         .filter(|v| v.is_finite())
         .map(|v| {
@@ -1464,21 +1452,10 @@ pub fn robust_sum(z: &[f64], k: f64, tail: HeldOutTail) -> f64 {
             if a <= k {
                 a * a
             } else {
-                match tail {
-                    HeldOutTail::Linear => 2.0 * k * a - k * k,
-                    HeldOutTail::Log => k * k * (1.0 + 2.0 * (a / k).ln()),
-                }
+                2.0 * k * a - k * k
             }
         })
         .sum()
-}
-
-/// Σ ρ_k(z) with Huber's ρ_k(z) = z² for |z| ≤ k and 2k|z| − k² beyond: quadratic where a row
-/// behaves like its error model, linear where it is an outlier, so that a row the model cannot
-/// fit at all (a room's pole matched to a mode, a wrong assignment) moves the sum by at most
-/// 2k per unit of z instead of 2|z|. k = ∞ (or any k above every |z|) gives Σz².
-pub fn huber_sum(z: &[f64], k: f64) -> f64 {
-    robust_sum(z, k, HeldOutTail::Linear)
 }
 
 impl HeldOutChi2 {
@@ -1494,7 +1471,6 @@ pub fn held_out_chi2(
     held: &ModeTable,
     tau2: &FloorVariances,
     huber_k: f64,
-    tail: HeldOutTail,
 ) -> Option<HeldOutChi2> {
     if held.rows.is_empty() {
         return None;
@@ -1562,7 +1538,7 @@ pub fn held_out_chi2(
         chi2: min.cost,
         dof,
         dispersion: robust_dispersion(&z),
-        huber: robust_sum(&z, huber_k, tail),
+        huber: huber_sum(&z, huber_k),
         // `scratch` holds the prediction at min.x, left by the residuals just evaluated there.
         assignment_cost: minus_two_log_likelihood_where(held, &scratch, tau2, not_a_split),
     })

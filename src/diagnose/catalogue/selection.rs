@@ -165,9 +165,8 @@ fn held_out_change(
     settings: &CatalogueSettings,
 ) -> Option<HeldOutChange> {
     let k = settings.held_out_huber_k;
-    let tail = settings.held_out_tail;
-    let b = held_out_chi2(before, held, &before.tau2, k, tail)?;
-    let a = held_out_chi2(after, held, &before.tau2, k, tail)?;
+    let b = held_out_chi2(before, held, &before.tau2, k)?;
+    let a = held_out_chi2(after, held, &before.tau2, k)?;
     let dispersion = if settings.held_out_dispersion {
         b.dispersion
     } else {
@@ -543,14 +542,8 @@ pub fn diagnose_with(
             m,
             t,
             |t| {
-                held_out_chi2(
-                    &baseline,
-                    t,
-                    &baseline.tau2,
-                    settings.held_out_huber_k,
-                    settings.held_out_tail,
-                )
-                .map_or(f64::INFINITY, |c| c.assignment_cost)
+                held_out_chi2(&baseline, t, &baseline.tau2, settings.held_out_huber_k)
+                    .map_or(f64::INFINITY, |c| c.assignment_cost)
             },
         );
         (t, m)
