@@ -8,8 +8,9 @@
 //! ```
 //!
 //! In the library: [`run`] takes a resolved [`Job`] (the command line's `resolve` builds it from
-//! flags, a TOML file and a benchmark case) and returns the [`Report`] on rank 0;
-//! [`write_json`], [`write_hdf5`], [`write_map`] and [`write_plots`] write its files.
+//! flags, a TOML file and a benchmark case) and returns the [`Outcome`] on rank 0: the
+//! [`Report`], whose files [`write_json`], [`write_hdf5`], [`write_map`] and [`write_plots`]
+//! write, or a [`Refusal`] when the recordings hold too few modes ("Too few modes" below).
 //!
 //! # Stages
 //!
