@@ -74,6 +74,14 @@
 //! microphone's own colouration remains untested. The real bowl's room gives κ = 0.7 ± 0.5
 //! and the same three effects (held-out error 6.03 → 5.43, −10.0 %).
 //!
+//! **The Poisson ratio is a nuisance.** The simulation's ν is itself an estimate, and its
+//! error moves each mode by its own sensitivity S_k = ∂ln f_k/∂ν (bending modes little,
+//! breathing and torsional ones more): a pattern over the modes that a freely placed mass or a
+//! support's stiffening can imitate on a handful of modes. When the simulated modes carry S_k
+//! (the `diagnose` job computes them from the shapes), the baseline profiles Δν,
+//! ln f_k += S_k Δν ([`PoissonShift`], bounded to ±[`MAX_POISSON_SHIFT`]; E/ρ is the scale s).
+//! Off with `poisson_nuisance = false`.
+//!
 //! Parameters ln s, α, b, ln g_0 … ln g_{C−1}, η_0 … η_{C−1}. Effects add terms on top (or, for the damping
 //! curve, instead of Rayleigh), applied in stages: frequencies, then decay rates at the
 //! predicted frequencies, then amplitudes, then glides.
@@ -270,6 +278,7 @@ mod matching;
 mod model;
 mod non_rayleigh_damping;
 mod pitch_glide;
+mod poisson_shift;
 mod radiation;
 pub mod report;
 mod reverb_noise;
@@ -294,6 +303,7 @@ pub use model::{
 };
 pub use non_rayleigh_damping::{NonRayleighDamping, ThreeKnotDamping};
 pub use pitch_glide::{EnergyGlide, PitchGlide};
+pub use poisson_shift::{PoissonShift, MAX_POISSON_SHIFT};
 pub use radiation::{FactorDirectivity, Radiation, TransferDirectivity};
 pub use report::*;
 pub use reverb_noise::{LevelColouration, ReverbNoise};
@@ -350,6 +360,10 @@ pub struct SimulatedMode {
     /// taken out again, [`AddedMass`] the mass). `None`: `frequency_hz`.
     #[serde(default)]
     pub match_frequency_hz: Option<f64>,
+    /// ∂ln f/∂ν \[1\] at the simulated material (E and ρ held), when the job computed it: the
+    /// baseline's Poisson nuisance ([`PoissonShift`]). A cluster's modes carry its mean.
+    #[serde(default)]
+    pub ln_f_per_poisson: Option<f64>,
 }
 
 impl SimulatedMode {
@@ -438,6 +452,9 @@ pub struct CatalogueSettings {
     /// When the baseline carries the level colouration, a curvature of ln a in ln f common
     /// to every microphone ([`LevelColouration`]; module docs, "A room colours the levels").
     pub level_colouration: ColourationWhen,
+    /// Profile the Poisson ratio's error Δν in the baseline when the simulated modes carry
+    /// their sensitivities ([`PoissonShift`]; module docs, "The Poisson ratio is a nuisance").
+    pub poisson_nuisance: bool,
     /// A split pair whose observed split agrees with its simulated split within this many σ
     /// stands for its own simulated members (drive, weights, transfer each from its own
     /// member, [`own_members`]); 0 pools every split pair over its cluster.
@@ -460,6 +477,7 @@ impl Default for CatalogueSettings {
             held_out_dispersion: false,
             held_out_huber_k: DEFAULT_HELD_OUT_HUBER_K,
             level_colouration: ColourationWhen::Room,
+            poisson_nuisance: true,
             own_member_split_z: DEFAULT_OWN_MEMBER_SPLIT_Z,
         }
     }
@@ -709,6 +727,11 @@ impl Evidence {
             if let Some(f) = m.match_frequency_hz {
                 if !(f > 0.0 && f.is_finite()) {
                     return bad("match_frequency_hz", f, "must be positive and finite");
+                }
+            }
+            if let Some(s) = m.ln_f_per_poisson {
+                if !s.is_finite() {
+                    return bad("ln_f_per_poisson", s, "must be finite");
                 }
             }
             if !(m.drive >= 0.0 && m.drive.is_finite()) {

@@ -519,6 +519,7 @@ pub fn simulated_modes(
             cluster: clusters[i],
             transfer: transfer.map(|t| t[i].clone()),
             match_frequency_hz: None,
+            ln_f_per_poisson: None,
         })
         .collect())
 }

@@ -68,6 +68,9 @@ pub struct ModeEntry {
     pub mass_weight: f64,
     /// |acoustic transfer| per channel of this table, when known.
     pub transfer: Option<Vec<f64>>,
+    /// ∂ln f/∂ν of the simulated modes it stands for (drive²-weighted like `ln_f_sim`), when
+    /// every one carries it ([`super::PoissonShift`]).
+    pub ln_f_per_poisson: Option<f64>,
 }
 
 /// Two observed modes of one cluster (indices into [`ModeTable::modes`]).
@@ -356,6 +359,15 @@ impl ModeTable {
             let ln_f_sim = drive_weighted(simulated, &unit.frequency_from, |m| m.frequency_hz.ln());
             let support_weight = drive_weighted(simulated, represents, |m| m.support_weight);
             let mass_weight = drive_weighted(simulated, represents, |m| m.mass_weight);
+            let ln_f_per_poisson = unit
+                .frequency_from
+                .iter()
+                .all(|&j| simulated[j].ln_f_per_poisson.is_some())
+                .then(|| {
+                    drive_weighted(simulated, &unit.frequency_from, |m| {
+                        m.ln_f_per_poisson.unwrap_or(0.0)
+                    })
+                });
             let transfer = if represents.iter().all(|&j| {
                 simulated[j]
                     .transfer
@@ -427,6 +439,7 @@ impl ModeTable {
                 support_weight,
                 mass_weight,
                 transfer,
+                ln_f_per_poisson,
             });
         }
         let max_energy = modes.iter().map(|m| m.energy).fold(0.0, f64::max);

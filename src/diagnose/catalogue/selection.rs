@@ -1,6 +1,8 @@
 //! Greedy forward selection over the catalogue and the report (parent module docs,
 //! "Selection").
 
+use std::sync::Arc;
+
 use super::matching::{match_modes, Matching};
 use super::model::{
     assignment_cost, baseline_start, fit, held_out_chi2, held_out_error, undamped_hz, Fit,
@@ -494,8 +496,15 @@ pub fn diagnose_with(
     let ln_f_ref = matching.ln_scale
         + table.modes.iter().map(|m| m.ln_f_sim).sum::<f64>() / table.modes.len() as f64;
     let ln_scale = matching.ln_scale;
+    // The Poisson ratio's error is a nuisance of every baseline whose modes carry their
+    // sensitivity (parent docs, "The Poisson ratio is a nuisance").
     let baseline_on = |t: &ModeTable| {
-        let base_model = Model::new(vec![], ln_f_ref, channels);
+        let nuisance: Vec<Arc<dyn Term>> = super::poisson_shift::poisson_shift(t)
+            .filter(|_| settings.poisson_nuisance)
+            .map(|(term, _)| term)
+            .into_iter()
+            .collect();
+        let base_model = Model::new(nuisance, ln_f_ref, channels);
         let x0 = baseline_start(t, &base_model, ln_scale);
         fit(t, base_model, x0)
     };

@@ -509,6 +509,21 @@ pub fn run(petsc: &Petsc, job: &Job, progress: &Progress) -> Result<Option<Outco
             eigen::spectrum_scale(material.lame_mu(), job.density, diagonal),
         );
         let modes = eigen::solve_modes(petsc, &k, &m, &cfg).map_err(solver)?;
+        // ∂ln f/∂ν per mode, for the catalogue's Poisson nuisance (collective): ½ (∂λ/∂ν)/λ
+        // with E and ρ held; a cluster's modes carry its mean.
+        let ln_f_per_poisson: Vec<f64> = eigen::sensitivity::material_sensitivities(
+            &assembled.k_lambda,
+            &assembled.k_mu,
+            &assembled.mass_unit,
+            &modes,
+            &material,
+        )
+        .map_err(solver)?
+        .d_poisson
+        .iter()
+        .zip(&modes.eigenvalues)
+        .map(|(d, l)| 0.5 * d / l)
+        .collect();
         let shapes = assembled
             .layout
             .gather_original_order(&modes.vectors)
@@ -572,6 +587,9 @@ pub fn run(petsc: &Petsc, job: &Job, progress: &Progress) -> Result<Option<Outco
                         sim.match_frequency_hz = Some(eigen::frequency_hz(lambda));
                     }
                 }
+                for (sim, &s) in simulated.iter_mut().zip(&ln_f_per_poisson) {
+                    sim.ln_f_per_poisson = Some(s);
+                }
                 let mut evidence = Evidence { fit: measured.fit.clone(), held_out: (!measured.held_out.is_empty()).then(|| measured.held_out.clone()), simulated, residual_envelopes: measured.envelopes.clone() };
                 let mut first_settings = job.catalogue.clone();
                 if carried.is_some() || loaded_site.is_some() {
@@ -604,8 +622,9 @@ pub fn run(petsc: &Petsc, job: &Job, progress: &Progress) -> Result<Option<Outco
                     };
                     let match_hz: Vec<Option<f64>> = evidence.simulated.iter().map(|m| m.match_frequency_hz).collect();
                     evidence.simulated = evidence::simulated_modes(&feats.frequencies_hz, &feats.drive, &support_energy, mass_energy.as_deref(), feats.transfer.as_deref(), &feats.clusters).map_err(|e| e.to_string())?;
-                    for (sim, hz) in evidence.simulated.iter_mut().zip(match_hz) {
+                    for ((sim, hz), &s) in evidence.simulated.iter_mut().zip(match_hz).zip(&ln_f_per_poisson) {
                         sim.match_frequency_hz = hz;
+                        sim.ln_f_per_poisson = Some(s);
                     }
                     catalogue::diagnose(&evidence, &final_settings).map_err(|e| format!("catalogue: {e}"))?
                 };
