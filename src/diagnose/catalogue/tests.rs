@@ -912,7 +912,8 @@ fn a_loaded_simulation_is_matched_by_its_loaded_frequencies() {
             field: "match_frequency_hz",
             ..
         })
-    ));    // So is a sensitivity to ν that is not a number.
+    ));
+    // So is a sensitivity to ν that is not a number.
     let (mut ev, _) = evidence(&Truth::default(), 1);
     ev.simulated[0].ln_f_per_poisson = Some(f64::NAN);
     assert!(matches!(
