@@ -566,8 +566,9 @@ pub fn diagnose_with(
         .collect();
     let mut remaining: Vec<usize> = (0..effects.len()).filter(|&e| own[e].is_none()).collect();
     let mut last: Vec<Option<Outcome>> = (0..effects.len()).map(|_| None).collect();
-    // The level colouration (parent docs, "A room colours the levels"): a nuisance of the baseline when the
-    // room is established on its own evidence, before any modal effect is tried.
+    // The level colouration (parent docs, "A room colours the levels"): a nuisance of the
+    // baseline when the room is established on its own evidence, before any modal effect is
+    // tried.
     let room = effects.iter().zip(&own).any(|(e, o)| {
         e.name() == "reverb_noise"
             && o.as_ref()
