@@ -245,7 +245,7 @@ pub enum Outcome {
     Diagnosed(Box<Report>),
     /// The recordings hold fewer than [`MIN_MODES`] modes: nothing could be tested. The job
     /// still writes `<out stem>.json` saying so (module docs, "Too few modes").
-    Refused(Refusal),
+    Refused(Box<Refusal>),
 }
 
 /// A diagnosis the recordings could not support: what they showed and why nothing was tested.
@@ -415,7 +415,7 @@ pub fn run(petsc: &Petsc, job: &Job, progress: &Progress) -> Result<Option<Outco
         // Nothing to test: a report that says so and why, not an aborted job (module docs,
         // "Too few modes").
         let refusal = Refusal::new(adjusted.clone(), measured, total.elapsed().as_secs_f64());
-        return Ok((rank == 0).then_some(Outcome::Refused(refusal)));
+        return Ok((rank == 0).then_some(Outcome::Refused(Box::new(refusal))));
     }
     let top_observed = measured
         .fit
