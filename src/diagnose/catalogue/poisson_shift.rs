@@ -55,9 +55,9 @@ impl Term for PoissonShift {
     }
 }
 
-/// The term and its start (Δν = 0) when every mode of `table` has its sensitivity; None
-/// otherwise (module docs).
-pub fn poisson_shift(table: &ModeTable) -> Option<(Arc<dyn Term>, Vec<f64>)> {
+/// The term when every mode of `table` has its sensitivity, None otherwise (module docs). The
+/// baseline's start puts Δν at 0.
+pub fn poisson_shift(table: &ModeTable) -> Option<Arc<dyn Term>> {
     (!table.modes.is_empty() && table.modes.iter().all(|m| m.ln_f_per_poisson.is_some()))
-        .then(|| (Arc::new(PoissonShift) as Arc<dyn Term>, vec![0.0]))
+        .then(|| Arc::new(PoissonShift) as Arc<dyn Term>)
 }

@@ -193,6 +193,25 @@ pub struct RejectedEffect {
     pub held_out_gain: Option<f64>,
 }
 
+impl RejectedEffect {
+    /// An effect these data could not test at all ([`Rejection::NotEnoughData`]), with why.
+    pub fn not_enough_data(name: &str, signature: &str, detail: String) -> RejectedEffect {
+        RejectedEffect {
+            name: name.into(),
+            signature: signature.into(),
+            reason: Rejection::NotEnoughData,
+            detail,
+            statistic: None,
+            variant: None,
+            n_params: None,
+            delta_bic: None,
+            held_out_before: None,
+            held_out_after: None,
+            held_out_gain: None,
+        }
+    }
+}
+
 impl CatalogueReport {
     /// The effects the recordings given could not test (too few microphones, modes or
     /// envelopes for the effect, or a held-out set it changes nothing in), with why: a

@@ -501,7 +501,6 @@ pub fn diagnose_with(
     let baseline_on = |t: &ModeTable| {
         let nuisance: Vec<Arc<dyn Term>> = super::poisson_shift::poisson_shift(t)
             .filter(|_| settings.poisson_nuisance)
-            .map(|(term, _)| term)
             .into_iter()
             .collect();
         let base_model = Model::new(nuisance, ln_f_ref, channels);

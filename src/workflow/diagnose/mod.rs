@@ -276,26 +276,17 @@ impl Refusal {
             .iter()
             .filter(|h| h.is_healthy())
             .filter_map(|h| h.band_reach_hz)
-            .fold(None, |a: Option<f64>, r| Some(a.map_or(r, |a| a.max(r))));
+            .max_by(f64::total_cmp);
         if let Some(r) = reach.filter(|&r| r < job.max_frequency_hz) {
             reason.push_str(&format!(
-                " (above {r:.0} Hz the strike does not rise 12 dB over the noise before it on any microphone)"
+                " (above {r:.0} Hz the strike does not rise {} dB over the noise before it on any microphone)",
+                crate::audio::health::REACH_OVER_FLOOR_DB
             ));
         }
         let untested = catalogue::catalogue()
             .iter()
-            .map(|e| catalogue::RejectedEffect {
-                name: e.name().to_string(),
-                signature: e.signature().to_string(),
-                reason: catalogue::Rejection::NotEnoughData,
-                detail: reason.clone(),
-                statistic: None,
-                variant: None,
-                n_params: None,
-                delta_bic: None,
-                held_out_before: None,
-                held_out_after: None,
-                held_out_gain: None,
+            .map(|e| {
+                catalogue::RejectedEffect::not_enough_data(e.name(), e.signature(), reason.clone())
             })
             .collect();
         let timings = vec![("measure", measured.seconds), ("total", total_seconds)];
@@ -620,11 +611,12 @@ pub fn run(petsc: &Petsc, job: &Job, progress: &Progress) -> Result<Option<Outco
                     } else {
                         feats.support_energy.clone()
                     };
-                    let match_hz: Vec<Option<f64>> = evidence.simulated.iter().map(|m| m.match_frequency_hz).collect();
+                    let previous = std::mem::take(&mut evidence.simulated);
                     evidence.simulated = evidence::simulated_modes(&feats.frequencies_hz, &feats.drive, &support_energy, mass_energy.as_deref(), feats.transfer.as_deref(), &feats.clusters).map_err(|e| e.to_string())?;
-                    for ((sim, hz), &s) in evidence.simulated.iter_mut().zip(match_hz).zip(&ln_f_per_poisson) {
-                        sim.match_frequency_hz = hz;
-                        sim.ln_f_per_poisson = Some(s);
+                    // What the features do not give, carried over from the first pass.
+                    for (sim, old) in evidence.simulated.iter_mut().zip(previous) {
+                        sim.match_frequency_hz = old.match_frequency_hz;
+                        sim.ln_f_per_poisson = old.ln_f_per_poisson;
                     }
                     catalogue::diagnose(&evidence, &final_settings).map_err(|e| format!("catalogue: {e}"))?
                 };

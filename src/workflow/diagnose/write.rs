@@ -14,18 +14,53 @@ pub(super) fn output(e: impl std::fmt::Display) -> Error {
 pub fn write_json(r: &Report) -> Result<(), Error> {
     let (job, measured, report, youngs, poisson) =
         (&r.job, &r.measured, &r.catalogue, r.youngs, r.poisson);
-    let (line_start, loaded, feats, localised, timings) = (
-        r.line_start,
-        r.loaded.as_ref(),
-        &r.features,
-        &r.localised,
-        &r.timings,
-    );
+    let (line_start, loaded, feats, localised) =
+        (r.line_start, r.loaded.as_ref(), &r.features, &r.localised);
     let catalogue_input = (&r.evidence, &r.final_settings);
-    let value = serde_json::json!({
+    let rest = serde_json::json!({
+        // The pitch-glide rows are the chirp fit's g per mode (relative offset at the onset),
+        // not an early-minus-late frequency difference: the scorer compares accordingly.
+        "glide_observable": "offset_at_onset",
+        "material": {"youngs_modulus": youngs, "poisson_ratio": poisson, "density": job.density, "source": job.material_source, "line_spectrum_start": line_start, "loaded_line_match": loaded},
+        "strike": feats.strike_note,
+        "localisation": {"best_vertex": localised.best.map(|b| b.0), "best_z": localised.best.map(|b| b.1), "offered_region": localised.region},
+        "catalogue": report,
+        // What the final catalogue pass saw, so that it can be replayed without the audio,
+        // the mesh or the solver (examples/catalogue_replay).
+        "catalogue_input": {"evidence": catalogue_input.0, "settings": catalogue_input.1},
+    });
+    let value = with_common_keys(job, measured, true, &report.untested(), &r.timings, rest);
+    write_json_value(&job.json, &value)
+}
+
+/// Writes `<out stem>.json` for a diagnosis the recordings could not support (module docs of
+/// [`crate::workflow::diagnose`], "Too few modes"), atomically: the same keys a reader of a
+/// full report looks for first, with nothing accepted and every effect untested.
+pub fn write_refusal_json(r: &Refusal) -> Result<(), Error> {
+    let rest = serde_json::json!({
+        "refusal": r.reason,
+        "catalogue": {"accepted": [], "rejected": r.untested},
+    });
+    let untested: Vec<&catalogue::RejectedEffect> = r.untested.iter().collect();
+    let value = with_common_keys(&r.job, &r.measured, false, &untested, &r.timings, rest);
+    write_json_value(&r.job.json, &value)
+}
+
+/// The keys of every `<out stem>.json`, a full report's or a refusal's, with `rest` (an object)
+/// added: format, command, inputs, microphones and their health, the onset, the modes
+/// observed, the effects the recordings could not test and why, and the seconds per stage.
+fn with_common_keys(
+    job: &super::Job,
+    measured: &super::Measured,
+    diagnosed: bool,
+    untested: &[&catalogue::RejectedEffect],
+    timings: &[(&'static str, f64)],
+    rest: serde_json::Value,
+) -> serde_json::Value {
+    let mut value = serde_json::json!({
         "format": "diffsound.diagnose",
         "format_version": 1,
-        "diagnosed": true,
+        "diagnosed": diagnosed,
         "command": std::env::args().collect::<Vec<_>>().join(" "),
         "version": env!("CARGO_PKG_VERSION"),
         "mesh": job.mesh.display().to_string(),
@@ -35,48 +70,15 @@ pub fn write_json(r: &Report) -> Result<(), Error> {
         // Every recording's health and verdict; the unhealthy ones were left out.
         "channel_health": job.channel_health,
         "onset_s": measured.onset_s,
-        // The pitch-glide rows are the chirp fit's g per mode (relative offset at the onset),
-        // not an early-minus-late frequency difference: the scorer compares accordingly.
-        "glide_observable": "offset_at_onset",
-        "material": {"youngs_modulus": youngs, "poisson_ratio": poisson, "density": job.density, "source": job.material_source, "line_spectrum_start": line_start, "loaded_line_match": loaded},
-        "strike": feats.strike_note,
         "observed": {"fit": measured.fit, "held_out": measured.held_out},
-        "localisation": {"best_vertex": localised.best.map(|b| b.0), "best_z": localised.best.map(|b| b.1), "offered_region": localised.region},
-        "catalogue": report,
         // The effects these recordings could not test, and why (a subset of the rejections).
-        "untested": report.untested().iter().map(|r| serde_json::json!({"name": r.name, "reason": r.reason, "detail": r.detail})).collect::<Vec<_>>(),
-        // What the final catalogue pass saw, so that it can be replayed without the audio,
-        // the mesh or the solver (examples/catalogue_replay).
-        "catalogue_input": {"evidence": catalogue_input.0, "settings": catalogue_input.1},
+        "untested": untested.iter().map(|r| serde_json::json!({"name": r.name, "reason": r.reason, "detail": r.detail})).collect::<Vec<_>>(),
         "timings_s": timings.iter().map(|(k, v)| (k.to_string(), *v)).collect::<std::collections::BTreeMap<_, _>>(),
     });
-    write_json_value(&job.json, &value)
-}
-
-/// Writes `<out stem>.json` for a diagnosis the recordings could not support (module docs of
-/// [`crate::workflow::diagnose`], "Too few modes"), atomically: the same keys a reader of a
-/// full report looks for first, with nothing accepted and every effect untested.
-pub fn write_refusal_json(r: &Refusal) -> Result<(), Error> {
-    let job = &r.job;
-    let value = serde_json::json!({
-        "format": "diffsound.diagnose",
-        "format_version": 1,
-        "diagnosed": false,
-        "refusal": r.reason,
-        "command": std::env::args().collect::<Vec<_>>().join(" "),
-        "version": env!("CARGO_PKG_VERSION"),
-        "mesh": job.mesh.display().to_string(),
-        "recordings": job.recordings.iter().map(|p| p.display().to_string()).collect::<Vec<_>>(),
-        "fit_microphones": job.fit_channels,
-        "held_out_microphones": job.held_channels,
-        "channel_health": job.channel_health,
-        "onset_s": r.measured.onset_s,
-        "observed": {"fit": r.measured.fit, "held_out": r.measured.held_out},
-        "catalogue": {"accepted": [], "rejected": r.untested},
-        "untested": r.untested.iter().map(|u| serde_json::json!({"name": u.name, "reason": u.reason, "detail": u.detail})).collect::<Vec<_>>(),
-        "timings_s": r.timings.iter().map(|(k, v)| (k.to_string(), *v)).collect::<std::collections::BTreeMap<_, _>>(),
-    });
-    write_json_value(&job.json, &value)
+    if let (Some(map), serde_json::Value::Object(rest)) = (value.as_object_mut(), rest) {
+        map.extend(rest);
+    }
+    value
 }
 
 fn write_json_value(path: &std::path::Path, value: &serde_json::Value) -> Result<(), Error> {
