@@ -27,8 +27,10 @@
 //! ([`own_members`]). Pooled, the blind benchmark's radiation case 017 (three such pairs)
 //! saw its microphone pattern correlate 0.26 with ln |transfer| instead of 0.9999.
 //! Observed frequencies are compared at their undamped value
-//! f₀ = √(f² + (d/2π)²). Unmatched modes on both sides are reported. Details in the
-//! `matching` module.
+//! f₀ = √(f² + (d/2π)²). A pole more than `faint_pole_db` (40 dB) below another within
+//! `max_pair_split` is never a partial of its own, only an extra pole of the partial beside it
+//! (a room's or the extraction's residue around a loud partial). Unmatched modes on both sides
+//! are reported. Details in the `matching` module.
 //!
 //! # Baseline model (what fit-material assumes)
 //!
@@ -295,7 +297,7 @@ use serde::{Deserialize, Serialize};
 pub use added_mass::{AddedMass, MassLoading};
 pub use beating_pair::{BeatingPair, PairSplits};
 pub use contact_duration::{half_sine_spectrum, ContactDuration, HalfSineContact};
-pub use matching::{match_modes, Matching, Unit};
+pub use matching::{faint_poles, match_modes, Matching, Unit, DEFAULT_FAINT_POLE_DB};
 pub use model::{
     fit, held_out_error, huber_sum, own_members, Fit, FloorVariances, HeldOutChi2, ModeEntry,
     ModeKey, ModeResiduals, ModeTable, Model, Prediction, Quantity, Role, Row, RowKind, SplitPair,
@@ -459,6 +461,10 @@ pub struct CatalogueSettings {
     /// stands for its own simulated members (drive, weights, transfer each from its own
     /// member, [`own_members`]); 0 pools every split pair over its cluster.
     pub own_member_split_z: f64,
+    /// An observed mode more than this many dB below another within `max_pair_split` is a
+    /// faint pole, never matched as a partial of its own (`matching` module docs, step 0);
+    /// `inf` turns the rule off.
+    pub faint_pole_db: f64,
 }
 
 impl Default for CatalogueSettings {
@@ -479,6 +485,7 @@ impl Default for CatalogueSettings {
             level_colouration: ColourationWhen::Room,
             poisson_nuisance: true,
             own_member_split_z: DEFAULT_OWN_MEMBER_SPLIT_Z,
+            faint_pole_db: DEFAULT_FAINT_POLE_DB,
         }
     }
 }
@@ -538,6 +545,13 @@ impl CatalogueSettings {
                 "own_member_split_z",
                 self.own_member_split_z,
                 "must be finite and ≥ 0",
+            );
+        }
+        if !(self.faint_pole_db > 0.0) {
+            return bad(
+                "faint_pole_db",
+                self.faint_pole_db,
+                "must be positive (inf: no faint poles)",
             );
         }
         if !(self.held_out_huber_k > 0.0) {

@@ -463,6 +463,15 @@ pub fn diagnose(
     diagnose_with(evidence, settings, &catalogue())
 }
 
+/// ln of each mode's largest amplitude over the channels (−∞ when it has none), the level the
+/// matching's faint-pole rule compares.
+fn ln_levels(modes: &[super::ObservedMode]) -> Vec<f64> {
+    modes
+        .iter()
+        .map(|m| m.amplitudes.iter().copied().fold(0.0, f64::max).ln())
+        .collect()
+}
+
 /// [`diagnose`] with a chosen list of effects.
 pub fn diagnose_with(
     evidence: &Evidence,
@@ -472,7 +481,13 @@ pub fn diagnose_with(
     settings.validate()?;
     evidence.validate()?;
     let fit_ln_f: Vec<f64> = evidence.fit.iter().map(|m| undamped_hz(m).ln()).collect();
-    let matching = match_modes(&fit_ln_f, &evidence.simulated, None, settings);
+    let matching = match_modes(
+        &fit_ln_f,
+        &ln_levels(&evidence.fit),
+        &evidence.simulated,
+        None,
+        settings,
+    );
     let table = ModeTable::build(
         &evidence.fit,
         &evidence.simulated,
@@ -527,6 +542,7 @@ pub fn diagnose_with(
         let ln_f: Vec<f64> = h.iter().map(|m| undamped_hz(m).ln()).collect();
         let m = match_modes(
             &ln_f,
+            &ln_levels(h),
             &evidence.simulated,
             Some(matching.ln_scale),
             settings,

@@ -625,7 +625,7 @@ fn matching_finds_the_scale_clusters_and_split_partners() {
         5000.0 * s,
     ];
     let ln: Vec<f64> = obs_hz.iter().map(|f: &f64| f.ln()).collect();
-    let m = match_modes(&ln, &simulated, None, &CatalogueSettings::default());
+    let m = match_modes(&ln, &[], &simulated, None, &CatalogueSettings::default());
     assert!(
         (m.ln_scale - s.ln()).abs() < 0.006,
         "scale {}",
@@ -644,7 +644,13 @@ fn matching_finds_the_scale_clusters_and_split_partners() {
     assert!((unit(3).drive_factor - 0.5f64.sqrt()).abs() < 1e-15);
     assert_eq!(unit(6).represents, vec![6]);
     // With a fixed scale the search is skipped.
-    let fixed = match_modes(&ln, &simulated, Some(0.0), &CatalogueSettings::default());
+    let fixed = match_modes(
+        &ln,
+        &[],
+        &simulated,
+        Some(0.0),
+        &CatalogueSettings::default(),
+    );
     assert_eq!(fixed.ln_scale, 0.0);
 }
 
@@ -687,7 +693,13 @@ fn extra_poles_of_a_partial_join_its_cluster_and_far_modes_stay_unmatched() {
         3100.0,
     ];
     let ln: Vec<f64> = obs_hz.iter().map(|f: &f64| f.ln()).collect();
-    let m = match_modes(&ln, &simulated, Some(0.0), &CatalogueSettings::default());
+    let m = match_modes(
+        &ln,
+        &[],
+        &simulated,
+        Some(0.0),
+        &CatalogueSettings::default(),
+    );
     assert_eq!(m.unmatched_observed, vec![9], "{m:#?}");
     // Which poles of a partial become its split pair is the matching's choice; the others are
     // its extra poles: two beside the partial near 1000 Hz, one beside 2600 Hz.
@@ -704,6 +716,65 @@ fn extra_poles_of_a_partial_join_its_cluster_and_far_modes_stay_unmatched() {
         .units
         .iter()
         .all(|u| !extra.iter().any(|e| e.0 == u.observed)));
+}
+
+#[test]
+fn faint_poles_beside_a_partial_are_not_its_split_pair() {
+    // A degenerate cluster simulated at 1000 Hz, recorded 1 % higher at 1010 Hz, with two poles
+    // 70 dB fainter at 999 and 1001 Hz (a room's response around the partial): by frequency
+    // alone the faint two are the closer "split pair"; they are extra poles of the partial.
+    let simulated = vec![sim(1000.0, 0), sim(1000.2, 0), sim(2000.0, 1)];
+    let obs_hz = [999.0, 1001.0, 1010.0, 2000.0];
+    let ln: Vec<f64> = obs_hz.iter().map(|f: &f64| f.ln()).collect();
+    let loud = 1.0f64.ln();
+    let faint = (10.0f64.powf(-70.0 / 20.0)).ln();
+    let levels = [faint, faint, loud, loud];
+    let settings = CatalogueSettings::default();
+    let m = match_modes(&ln, &levels, &simulated, Some(0.0), &settings);
+    assert_eq!(m.faint, vec![true, true, false, false]);
+    let unit = |i: usize| m.units.iter().find(|u| u.observed == i);
+    assert_eq!(
+        unit(2).map(|u| (u.role, u.cluster)),
+        Some((Role::Single, 0)),
+        "{m:#?}"
+    );
+    let mut extra: Vec<usize> = m.extra_poles.iter().map(|&(i, _, _)| i).collect();
+    extra.sort_unstable();
+    assert_eq!(extra, vec![0, 1], "{m:#?}");
+    // Nor may a faint pole be swapped in for the partial.
+    assert!(m.with_swap(&ln, &simulated, 2, 0, &settings).is_none());
+    // By frequency alone (no levels, or the rule off) they take the cluster as a pair.
+    for m in [
+        match_modes(&ln, &[], &simulated, Some(0.0), &settings),
+        match_modes(
+            &ln,
+            &levels,
+            &simulated,
+            Some(0.0),
+            &CatalogueSettings {
+                faint_pole_db: f64::INFINITY,
+                ..CatalogueSettings::default()
+            },
+        ),
+    ] {
+        assert_eq!(unit_role(&m, 0), Some(Role::SplitLower), "{m:#?}");
+        assert_eq!(unit_role(&m, 1), Some(Role::SplitUpper), "{m:#?}");
+    }
+    // 30 dB is not faint: a beating pair's members are of comparable level.
+    let quieter = [
+        loud - 30.0 / 20.0 * std::f64::consts::LN_10,
+        loud,
+        loud,
+        loud,
+    ];
+    assert!(faint_poles(&ln, &quieter, &settings).iter().all(|&f| !f));
+}
+
+fn unit_role(m: &Matching, observed: usize) -> Option<Role> {
+    m.units
+        .iter()
+        .find(|u| u.observed == observed)
+        .map(|u| u.role)
 }
 
 #[test]
@@ -765,7 +836,7 @@ fn a_pair_split_as_the_mesh_splits_it_stands_for_its_own_members() {
             .map(|&f| observed_at(f))
             .collect();
         let ln: Vec<f64> = observed.iter().map(|m| m.frequency_hz.ln()).collect();
-        let matching = match_modes(&ln, &simulated, Some(0.0), &settings);
+        let matching = match_modes(&ln, &[], &simulated, Some(0.0), &settings);
         ModeTable::build(&observed, &simulated, &matching, 0, z)
     };
     let pair = |t: &ModeTable| -> (ModeEntry, ModeEntry) {
@@ -834,7 +905,7 @@ fn a_pair_split_as_the_mesh_splits_it_stands_for_its_own_members() {
         .map(|&f| observed_at(f))
         .collect();
     let ln: Vec<f64> = observed.iter().map(|m| m.frequency_hz.ln()).collect();
-    let matching = match_modes(&ln, &simulated, Some(0.0), &settings);
+    let matching = match_modes(&ln, &[], &simulated, Some(0.0), &settings);
     let own = own_members(&observed, &simulated, &matching, 3.0);
     for (u, o) in matching.units.iter().zip(&own) {
         assert_eq!(o.is_some(), u.role != Role::Single, "{u:?}");
@@ -862,7 +933,7 @@ fn a_loaded_simulation_is_matched_by_its_loaded_frequencies() {
     let settings = CatalogueSettings::default();
     let observed: Vec<ObservedMode> = loaded_hz.iter().map(|&f| observed_at(f)).collect();
     let ln: Vec<f64> = observed.iter().map(|m| m.frequency_hz.ln()).collect();
-    let matching = match_modes(&ln, &simulated, Some(0.0), &settings);
+    let matching = match_modes(&ln, &[], &simulated, Some(0.0), &settings);
     let table = ModeTable::build(
         &observed,
         &simulated,
@@ -898,7 +969,7 @@ fn a_loaded_simulation_is_matched_by_its_loaded_frequencies() {
             m
         })
         .collect();
-    let plain = match_modes(&ln, &unloaded, Some(0.0), &settings);
+    let plain = match_modes(&ln, &[], &unloaded, Some(0.0), &settings);
     assert!(
         !plain.units.iter().any(|u| u.role == Role::SplitLower),
         "{plain:?}"
@@ -2215,11 +2286,17 @@ fn last_in_test_keeps_a_real_effect_and_drops_an_empty_one() {
     let with_mass = |truth: &Truth, seed: u64| {
         let (ev, _) = evidence(truth, seed);
         let ln: Vec<f64> = ev.fit.iter().map(|m| m.frequency_hz.ln()).collect();
-        let matching = match_modes(&ln, &ev.simulated, None, &settings);
+        let matching = match_modes(&ln, &[], &ev.simulated, None, &settings);
         let table = ModeTable::build(&ev.fit, &ev.simulated, &matching, 0, 3.0);
         let held_obs = ev.held_out.clone().expect("held-out data");
         let ln_h: Vec<f64> = held_obs.iter().map(|m| m.frequency_hz.ln()).collect();
-        let mh = match_modes(&ln_h, &ev.simulated, Some(matching.ln_scale), &settings);
+        let mh = match_modes(
+            &ln_h,
+            &[],
+            &ev.simulated,
+            Some(matching.ln_scale),
+            &settings,
+        );
         let held = ModeTable::build(&held_obs, &ev.simulated, &mh, table.channels, 3.0);
         let ln_f_ref = matching.ln_scale
             + table.modes.iter().map(|m| m.ln_f_sim).sum::<f64>() / table.modes.len() as f64;
