@@ -44,7 +44,7 @@
 //!   response to an impulse ([`crate::audio::excitation`]: |s² F̃ / ω_d| ≈ ω for an impulse),
 //!   one gain g_c per channel (the microphones' sensitivities, distances and the strike
 //!   strength) and one amplitude tilt η_c per channel \[1\], a power law f^η_c on top of the
-//!   acceleration law (bounded to ±[`model::TILT_BOUND`]).
+//!   acceleration law (bounded to ±`max_amplitude_tilt`, default 3: [`model::DEFAULT_TILT_BOUND`]).
 //!
 //! **Nuisances are not effects.** What a user cannot know and no physics in the catalogue
 //! explains sits in the baseline and is profiled like the gains: the response quantity
@@ -156,7 +156,7 @@
 //! | [`NonRayleighDamping`] | ln d residuals bend with ln f | 3 hat functions in ln f fitted to the ln d residuals, Δχ² > 1 | ln d piecewise linear in ln f through 3 knots, replacing α, β | d at 3 knots \[1/s\] (+1 net) |
 //! | [`BeatingPair`] | a degenerate cluster seen as two modes split beyond σ (and 5 % of the simulated split), the two decaying alike, centred on their cluster | \|split − predicted split\| > 3σ, decay rates within 10 % (or 3σ), leave-one-out \|z\| of the pair mean ≤ 4, split wider than the pair's own measured glide | pair at centre ∓ δ/2 in ln f | δ_c per split cluster \[1\] |
 //! | [`SupportContact`] | modes moving at the support decay faster (and shift) | regressions of d and ln f residuals on the support weight w, and of split pairs' decay-split residuals on w_u − w_l (weights varying by ≥ 5 % of the largest) | Δd = γw, Δ ln f = κw | γ ≥ 0 \[1/s\] (, κ \[1\]) |
-//! | [`ContactDuration`] | high modes weaker than their drive says | grid over T of the half-sine low-pass on the per-mode level residuals | ln a += ln \|cos(ωT/2)/(1 − (ωT/π)²)\| | T \[s\] |
+//! | [`ContactDuration`] | high modes weaker than their drive says | grid over T of the half-sine low-pass on the per-mode level residuals | ln a += ln \|cos(ωT/2)/(1 − (ωT/π)²)\|, or past the first null its side lobes' envelope | T \[s\] |
 //! | [`ReverbNoise`] | residual energy decaying after the strike above the measured floor, in most bands | early vs late mean ln E per band, z > 2; after the fit, a significant excess in ≥ half the bands (else rejected: signature missing) | ln E = ln(N_b + ρ_b N_b e^(−13.8t/T60)) vs ln N_b | T60 \[s\], ρ_b \[1\] per band |
 //! | [`Radiation`] | the mode mix changes between microphones | top singular value of the double-centred ln a residuals vs the noise edge; correlation with ln transfer | ln a += η ln T_kc, or += u_k v_c (Σv = 0) | η \[1\]; or u_k, v_c \[1\] (K + C − 2) |
 //! | [`AddedMass`] | frequencies low where the mass sits / toward low modes | regression of ln f residuals on −½w or −½f_1/f; differential shift ≥ 5·10⁻⁴ | Δ ln f = −½ ln(1 + μw) or −½ ln(1 + μ_f f_1/f) | μ ≥ 0 \[1\] |
@@ -296,7 +296,9 @@ use serde::{Deserialize, Serialize};
 
 pub use added_mass::{AddedMass, MassLoading};
 pub use beating_pair::{BeatingPair, PairSplits};
-pub use contact_duration::{half_sine_spectrum, ContactDuration, HalfSineContact};
+pub use contact_duration::{
+    half_sine_envelope, half_sine_spectrum, ContactDuration, EnvelopeContact, HalfSineContact,
+};
 pub use matching::{faint_poles, match_modes, Matching, Unit, DEFAULT_FAINT_POLE_DB};
 pub use model::{
     fit, held_out_error, huber_sum, own_members, Fit, FloorVariances, HeldOutChi2, ModeEntry,
@@ -465,6 +467,9 @@ pub struct CatalogueSettings {
     /// faint pole, never matched as a partial of its own (`matching` module docs, step 0);
     /// `inf` turns the rule off.
     pub faint_pole_db: f64,
+    /// Bound on each microphone's amplitude tilt |η_c|, the power of f beyond the acceleration
+    /// law that the baseline absorbs as a nuisance ([`model::DEFAULT_TILT_BOUND`]).
+    pub max_amplitude_tilt: f64,
 }
 
 impl Default for CatalogueSettings {
@@ -486,6 +491,7 @@ impl Default for CatalogueSettings {
             poisson_nuisance: true,
             own_member_split_z: DEFAULT_OWN_MEMBER_SPLIT_Z,
             faint_pole_db: DEFAULT_FAINT_POLE_DB,
+            max_amplitude_tilt: model::DEFAULT_TILT_BOUND,
         }
     }
 }
@@ -544,6 +550,13 @@ impl CatalogueSettings {
             return bad(
                 "own_member_split_z",
                 self.own_member_split_z,
+                "must be finite and ≥ 0",
+            );
+        }
+        if !(self.max_amplitude_tilt >= 0.0 && self.max_amplitude_tilt.is_finite()) {
+            return bad(
+                "max_amplitude_tilt",
+                self.max_amplitude_tilt,
                 "must be finite and ≥ 0",
             );
         }

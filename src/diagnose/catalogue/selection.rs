@@ -6,7 +6,7 @@ use std::sync::Arc;
 use super::matching::{match_modes, Matching};
 use super::model::{
     assignment_cost, baseline_start, fit, held_out_chi2, held_out_error, undamped_hz, Fit,
-    FloorVariances, ModeTable, Model, BASE_PARAMS, CHANNEL_PARAMS, LEVEL_FLOOR,
+    FloorVariances, ModeTable, Model, BASE_PARAMS, CHANNEL_PARAMS, LEVEL_FLOOR, ROOM_TILT_BOUND,
 };
 use super::report::*;
 use super::{
@@ -211,7 +211,7 @@ pub(super) fn last_in(
 ) -> LastIn {
     let mut terms = full.model.terms.clone();
     let term = terms.remove(i);
-    let model = Model::new(terms, full.model.ln_f_ref, full.model.channels);
+    let model = full.model.with_terms(terms, full.model.channels);
     let off = full.model.term_offset(i);
     let n = term.params().len();
     let mut x0 = full.x.clone();
@@ -518,7 +518,8 @@ pub fn diagnose_with(
             .filter(|_| settings.poisson_nuisance)
             .into_iter()
             .collect();
-        let base_model = Model::new(nuisance, ln_f_ref, channels);
+        let base_model =
+            Model::new(nuisance, ln_f_ref, channels).with_tilt_bound(settings.max_amplitude_tilt);
         let x0 = baseline_start(t, &base_model, ln_scale);
         fit(t, base_model, x0)
     };
@@ -594,11 +595,21 @@ pub fn diagnose_with(
         ColourationWhen::Room => room,
         ColourationWhen::Never => false,
     };
-    let baseline = if coloured {
-        let (term, init) = super::reverb_noise::level_colouration(baseline.model.ln_f_ref);
+    // A room also tilts the levels by a slope nobody knows (its absorption, the air's, rise
+    // with frequency): the tilts' physical bound no longer holds (model::ROOM_TILT_BOUND).
+    let widen = room && baseline.model.tilt_bound < ROOM_TILT_BOUND;
+    let baseline = if coloured || widen {
+        let mut model = baseline.model.clone();
         let mut x0 = baseline.x.clone();
-        x0.extend(init);
-        fit(&table, baseline.model.with_term(term), x0)
+        if coloured {
+            let (term, init) = super::reverb_noise::level_colouration(baseline.model.ln_f_ref);
+            model = model.with_term(term);
+            x0.extend(init);
+        }
+        if widen {
+            model = model.with_tilt_bound(ROOM_TILT_BOUND);
+        }
+        fit(&table, model, x0)
     } else {
         baseline
     };
