@@ -297,7 +297,7 @@ use serde::{Deserialize, Serialize};
 pub use added_mass::{AddedMass, MassLoading};
 pub use beating_pair::{BeatingPair, PairSplits};
 pub use contact_duration::{
-    half_sine_envelope, half_sine_spectrum, ContactDuration, EnvelopeContact, HalfSineContact,
+    half_sine_envelope, half_sine_spectrum, ContactDuration, ContactShape, HalfSineContact,
 };
 pub use matching::{faint_poles, match_modes, Matching, Unit, DEFAULT_FAINT_POLE_DB};
 pub use model::{

@@ -55,8 +55,29 @@ pub fn half_sine_spectrum(x: f64) -> f64 {
 /// Smallest magnitude the log model uses: a mode at a spectral zero is 300 dB down, not −∞.
 const FLOOR: f64 = 1e-15;
 
+/// The contact's shape in the model: the half-sine's own spectrum, or past its first null the
+/// side lobes' envelope (module docs).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum ContactShape {
+    HalfSine,
+    Envelope,
+}
+
+impl ContactShape {
+    /// |F(x)|/|F(0)| at x = ωT.
+    pub fn level(self, x: f64) -> f64 {
+        match self {
+            ContactShape::HalfSine => half_sine_spectrum(x),
+            ContactShape::Envelope => half_sine_envelope(x),
+        }
+    }
+}
+
+/// ln a += ln level(ωT) on every channel, T ∈ [min, max] s.
 #[derive(Debug)]
 pub struct HalfSineContact {
+    pub shape: ContactShape,
+    pub min_duration_s: f64,
     pub max_duration_s: f64,
 }
 
@@ -65,52 +86,10 @@ impl Term for HalfSineContact {
         "contact_duration"
     }
     fn variant(&self) -> &'static str {
-        "half_sine"
-    }
-    fn params(&self) -> Vec<ParamSpec> {
-        vec![ParamSpec::new(
-            "contact duration T",
-            "s",
-            0.0,
-            self.max_duration_s,
-            1e-4,
-        )]
-    }
-    fn amplitude(&self, table: &ModeTable, p: &[f64], ln_f: &[f64], ln_a: &mut [f64]) {
-        let c_n = table.channels;
-        for (k, &lf) in ln_f.iter().enumerate() {
-            let x = 2.0 * std::f64::consts::PI * lf.exp() * p[0];
-            let g = half_sine_spectrum(x).max(FLOOR).ln();
-            for a in &mut ln_a[k * c_n..(k + 1) * c_n] {
-                *a += g;
-            }
+        match self.shape {
+            ContactShape::HalfSine => "half_sine",
+            ContactShape::Envelope => "half_sine_envelope",
         }
-    }
-}
-
-/// E(u) of the module docs, "Beyond the first null".
-pub fn half_sine_envelope(x: f64) -> f64 {
-    let u = x / std::f64::consts::PI;
-    if u <= 2.0 {
-        half_sine_spectrum(x)
-    } else {
-        1.0 / (u * u - 1.0)
-    }
-}
-
-/// The side-lobe envelope of a contact past its first null (module docs).
-#[derive(Debug)]
-pub struct EnvelopeContact {
-    pub min_duration_s: f64,
-    pub max_duration_s: f64,
-}
-
-impl Term for EnvelopeContact {
-    fn effect(&self) -> &'static str {
-        "contact_duration"
-    }
-    fn variant(&self) -> &'static str {
-        "half_sine_envelope"
     }
     fn params(&self) -> Vec<ParamSpec> {
         vec![ParamSpec::new(
@@ -125,11 +104,21 @@ impl Term for EnvelopeContact {
         let c_n = table.channels;
         for (k, &lf) in ln_f.iter().enumerate() {
             let x = 2.0 * std::f64::consts::PI * lf.exp() * p[0];
-            let g = half_sine_envelope(x).max(FLOOR).ln();
+            let g = self.shape.level(x).max(FLOOR).ln();
             for a in &mut ln_a[k * c_n..(k + 1) * c_n] {
                 *a += g;
             }
         }
+    }
+}
+
+/// E(u) of the module docs, "Beyond the first null".
+pub fn half_sine_envelope(x: f64) -> f64 {
+    let u = x / std::f64::consts::PI;
+    if u <= 2.0 {
+        half_sine_spectrum(x)
+    } else {
+        1.0 / (u * u - 1.0)
     }
 }
 
@@ -193,6 +182,8 @@ impl Effect for ContactDuration {
         if best.0 > 1.0 {
             proposals.push(Proposal {
                 term: Arc::new(HalfSineContact {
+                    shape: ContactShape::HalfSine,
+                    min_duration_s: 0.0,
                     max_duration_s: t_max,
                 }),
                 init: vec![best.1],
@@ -219,7 +210,8 @@ impl Effect for ContactDuration {
             statistic = statistic.max(env.0);
             if env.0 > 1.0 {
                 proposals.push(Proposal {
-                    term: Arc::new(EnvelopeContact {
+                    term: Arc::new(HalfSineContact {
+                        shape: ContactShape::Envelope,
                         min_duration_s: t_max,
                         max_duration_s: t_env_max,
                     }),

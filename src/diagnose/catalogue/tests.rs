@@ -1083,6 +1083,42 @@ fn bad_input_is_an_error_not_a_panic() {
         );
         assert!(err.to_string().contains("must be finite and ≥ 0"), "{err}");
     }
+    for (bad, name) in [
+        (
+            CatalogueSettings {
+                max_amplitude_tilt: f64::NAN,
+                ..CatalogueSettings::default()
+            },
+            "max_amplitude_tilt",
+        ),
+        (
+            CatalogueSettings {
+                max_amplitude_tilt: -1.0,
+                ..CatalogueSettings::default()
+            },
+            "max_amplitude_tilt",
+        ),
+        (
+            CatalogueSettings {
+                faint_pole_db: 0.0,
+                ..CatalogueSettings::default()
+            },
+            "faint_pole_db",
+        ),
+        (
+            CatalogueSettings {
+                faint_pole_db: f64::NAN,
+                ..CatalogueSettings::default()
+            },
+            "faint_pole_db",
+        ),
+    ] {
+        let err = diagnose(&ev, &bad).unwrap_err();
+        assert!(
+            matches!(err, CatalogueError::InvalidSetting { name: n, .. } if n == name),
+            "{name}: {err:?}"
+        );
+    }
 }
 
 // ---------------------------------------------------------------------------------------
