@@ -468,7 +468,8 @@ pub struct CatalogueSettings {
     /// `inf` turns the rule off.
     pub faint_pole_db: f64,
     /// Bound on each microphone's amplitude tilt |η_c|, the power of f beyond the acceleration
-    /// law that the baseline absorbs as a nuisance ([`model::DEFAULT_TILT_BOUND`]).
+    /// law that the baseline absorbs as a nuisance ([`model::DEFAULT_TILT_BOUND`]). Once a
+    /// room is established the bound is at least [`model::ROOM_TILT_BOUND`] (6).
     pub max_amplitude_tilt: f64,
 }
 

@@ -32,7 +32,8 @@
 //! Detector: per mode, the level residual (weighted mean over channels, variance
 //! 1/W + τ_A², parent docs "Likelihood"); for 40 values of T
 //! log-spaced over [T_max/1000, T_max] the drop in Σ z² from adding ln |F(ω_k T)| plus the
-//! best constant (the gains absorb constants); the best drop is the statistic (> 1 goes on).
+//! best constant (the gains absorb constants), and the same with E over [T_max, 3π/ω_min];
+//! each variant whose best drop exceeds 1 goes on, the larger drop is the statistic.
 
 use std::sync::Arc;
 
@@ -165,59 +166,51 @@ impl Effect for ContactDuration {
                 .sum()
         };
         let base = chi2(&|_| 0.0);
-        let mut best = (0.0, t_max);
-        for i in 0..40 {
-            let t = t_max * 1e-3f64.powf(1.0 - i as f64 / 39.0);
-            let drop = base - chi2(&|w| half_sine_spectrum(w * t).max(FLOOR).ln());
-            if drop > best.0 {
-                best = (drop, t);
+        // The best drop in Σz² over 40 durations log-spaced over [t_lo, t_hi].
+        let scan = |shape: ContactShape, t_lo: f64, t_hi: f64| -> (f64, f64) {
+            let mut best = (0.0, t_hi);
+            for i in 0..40 {
+                let t = t_lo * (t_hi / t_lo).powf(i as f64 / 39.0);
+                let drop = base - chi2(&|w| shape.level(w * t).max(FLOOR).ln());
+                if drop > best.0 {
+                    best = (drop, t);
+                }
             }
-        }
+            best
+        };
+        let mut proposals = Vec::new();
+        let mut propose = |shape: ContactShape, (drop, t): (f64, f64), t_lo: f64, t_hi: f64| {
+            if drop > 1.0 {
+                proposals.push(Proposal {
+                    term: Arc::new(HalfSineContact {
+                        shape,
+                        min_duration_s: t_lo,
+                        max_duration_s: t_hi,
+                    }),
+                    init: vec![t],
+                });
+            }
+        };
+        let main = scan(ContactShape::HalfSine, t_max / 1000.0, t_max);
+        propose(ContactShape::HalfSine, main, 0.0, t_max);
         let mut detail = format!(
             "half-sine low-pass on the amplitude residuals lowers Σz² by {:.1} at T = {:.3} ms",
-            best.0,
-            1e3 * best.1
+            main.0,
+            1e3 * main.1
         );
-        let mut proposals = Vec::new();
-        if best.0 > 1.0 {
-            proposals.push(Proposal {
-                term: Arc::new(HalfSineContact {
-                    shape: ContactShape::HalfSine,
-                    min_duration_s: 0.0,
-                    max_duration_s: t_max,
-                }),
-                init: vec![best.1],
-            });
-        }
+        let mut statistic = main.0;
         // Past the first null: the side lobes' envelope (module docs).
         let omega_min = points.iter().map(|p| p.0).fold(f64::INFINITY, f64::min);
         let t_env_max = 3.0 * std::f64::consts::PI / omega_min;
-        let mut statistic = best.0;
         if t_env_max > t_max {
-            let mut env = (0.0, t_max);
-            for i in 0..40 {
-                let t = t_max * (t_env_max / t_max).powf(i as f64 / 39.0);
-                let drop = base - chi2(&|w| half_sine_envelope(w * t).max(FLOOR).ln());
-                if drop > env.0 {
-                    env = (drop, t);
-                }
-            }
+            let env = scan(ContactShape::Envelope, t_max, t_env_max);
+            propose(ContactShape::Envelope, env, t_max, t_env_max);
             detail.push_str(&format!(
                 "; its side-lobe envelope by {:.1} at T = {:.3} ms",
                 env.0,
                 1e3 * env.1
             ));
             statistic = statistic.max(env.0);
-            if env.0 > 1.0 {
-                proposals.push(Proposal {
-                    term: Arc::new(HalfSineContact {
-                        shape: ContactShape::Envelope,
-                        min_duration_s: t_max,
-                        max_duration_s: t_env_max,
-                    }),
-                    init: vec![env.1],
-                });
-            }
         }
         if proposals.is_empty() {
             return Detection::Nothing { statistic, detail };

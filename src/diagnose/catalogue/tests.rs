@@ -573,6 +573,35 @@ fn half_sine_spectrum_matches_the_excitation_module() {
 }
 
 #[test]
+fn the_side_lobe_envelope_meets_the_half_sine_and_bounds_its_lobes() {
+    // Equal up to u = ωT/π = 2 and continuous there; beyond, above every side lobe and
+    // touching their peaks at even u; falling as u⁻².
+    for i in 0..=200 {
+        let u = 0.01 * i as f64;
+        let x = PI * u;
+        assert_eq!(half_sine_envelope(x), half_sine_spectrum(x), "u = {u}");
+    }
+    assert!((half_sine_envelope(PI * (2.0 + 1e-9)) - 1.0 / 3.0).abs() < 1e-8);
+    for i in 1..=2000 {
+        let u = 2.0 + 0.005 * i as f64;
+        let x = PI * u;
+        assert!(
+            half_sine_envelope(x) >= half_sine_spectrum(x) - 1e-12,
+            "u = {u}"
+        );
+    }
+    for u in [4.0, 6.0, 8.0, 10.0] {
+        let x = PI * u;
+        assert!(
+            (half_sine_envelope(x) / half_sine_spectrum(x) - 1.0).abs() < 1e-9,
+            "u = {u}"
+        );
+    }
+    let ratio = half_sine_envelope(PI * 200.0) / half_sine_envelope(PI * 100.0);
+    assert!((ratio - 0.25).abs() < 1e-3, "{ratio}");
+}
+
+#[test]
 fn weighted_regression_is_exact_on_a_line() {
     let pts: Vec<(f64, f64, f64)> = (0..10)
         .map(|i| (i as f64, 3.0 - 0.5 * i as f64, 1.0 + i as f64))
