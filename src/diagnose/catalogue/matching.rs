@@ -3,6 +3,20 @@
 //! Frequencies are compared as x = ln f: observed modes at their undamped frequency
 //! f₀ = √(f² + (d/2π)²) (the simulation is undamped), simulated ones times a global scale s.
 //!
+//! 0. **Faint poles.** An observed mode whose largest amplitude over the channels is more than
+//!    `faint_pole_db` (default [`DEFAULT_FAINT_POLE_DB`] = 40 dB) below that of another
+//!    observed mode within the largest pair split takes no part in steps 1–3 and may not be
+//!    swapped in (step 6); step 5 makes it an extra pole of the partial it sits beside.
+//!    Why: a pole a hundredth of its neighbour's amplitude within 1.5 % is not a partial of its
+//!    own that the simulation could predict. It is what the extraction makes of the loud
+//!    partial's imperfect model (a glide, a decay that is not one exponential) or of a room:
+//!    a reverberant field convolves each partial with a response whose peaks and notches are
+//!    a few hertz apart, and ESPRIT reports them as faint poles around it. Matched by
+//!    frequency alone, two such poles 70 and 72 dB below a partial 1.4 % from its simulated
+//!    cluster took the cluster as a "split pair" (generator 2, seed 19, case 020, a tube in a
+//!    room: split 8 Hz at z = 15, which no held-out microphone heard), and the partial itself
+//!    was left as an extra pole. A beating pair's two modes are of comparable amplitude (the
+//!    beat is what makes it audible), far within 40 dB.
 //! 1. **Scale.** Every pairing (i, j) proposes ln s = x_i − x_j^sim within [ln s_min, ln s_max].
 //!    Each proposal is scored by the truncated quadratic Σ_i min(e_i², tol²), e_i the distance
 //!    from x_i − ln s to its nearest simulated mode: a matched mode costs its squared error,
@@ -29,20 +43,6 @@
 //!    "unmatched"), but without rows of its own, so it adds no evidence and takes none from the
 //!    unit it sits beside. Modes further away stay unmatched, with the nearest simulated mode
 //!    named in the report.
-//! 0. **Faint poles.** An observed mode whose largest amplitude over the channels is more than
-//!    `faint_pole_db` (default [`DEFAULT_FAINT_POLE_DB`] = 40 dB) below that of another
-//!    observed mode within the largest pair split takes no part in steps 1–3 and may not be
-//!    swapped in (step 6); step 5 makes it an extra pole of the partial it sits beside.
-//!    Why: a pole a hundredth of its neighbour's amplitude within 1.5 % is not a partial of its
-//!    own that the simulation could predict. It is what the extraction makes of the loud
-//!    partial's imperfect model (a glide, a decay that is not one exponential) or of a room:
-//!    a reverberant field convolves each partial with a response whose peaks and notches are
-//!    a few hertz apart, and ESPRIT reports them as faint poles around it. Matched by
-//!    frequency alone, two such poles 70 and 72 dB below a partial 1.4 % from its simulated
-//!    cluster took the cluster as a "split pair" (generator 2, seed 19, case 020, a tube in a
-//!    room: split 8 Hz at z = 15, which no held-out microphone heard), and the partial itself
-//!    was left as an extra pole. A beating pair's two modes are of comparable amplitude (the
-//!    beat is what makes it audible), far within 40 dB.
 //! 6. **Which poles are the partial** ([`Matching::with_swap`], used by the selection): steps
 //!    2–5 decide by frequency alone, and inside a degenerate cluster the simulated split is
 //!    mesh noise, so the closest pole is not necessarily the partial's. The bowl's partial
