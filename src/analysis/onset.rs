@@ -62,6 +62,16 @@
 //! outliers (a knock on one stand), and the shared onset is the earliest
 //! onset among the others, so every microphone's strike starts after it.
 //!
+//! A channel whose loudest frame does not clear T (a far or quiet
+//! microphone: its strike rises, say, 15 dB over its hiss) is looked at
+//! once more with the threshold lowered to T_g = [`GUIDED_THRESHOLD_DB`]
+//! (10 dB), and the onset found is kept only when it lies within D of the
+//! shared onset. By chance a frame of L ≥ 64 samples of Gaussian noise
+//! exceeds ten times its mean energy with a probability under 10⁻²⁰, so a
+//! frame that does, at the others' strike time, is the strike. Such a
+//! guided onset never moves the shared one. A channel of noise alone, or
+//! one whose rise is elsewhere (another take), is still passed over.
+//!
 //! # Measured
 //!
 //! * Synthetic strikes (three decaying partials, peak ≈ 0.5, starting from
@@ -81,6 +91,10 @@
 //! channels by one common factor, so relative microphone levels are kept,
 //! and return that factor g (linear; g = 10^(G_dB/20)). The RMS is pooled
 //! over all samples of all channels.
+
+/// T_g: the threshold a channel is looked at with again, at the shared onset,
+/// when its loudest frame does not clear T (module docs) [dB].
+pub const GUIDED_THRESHOLD_DB: f64 = 10.0;
 
 /// Settings of [`detect_onset`] and [`detect_shared_onset`]; see the module
 /// docs for how each is used.
@@ -427,6 +441,18 @@ pub fn detect_shared_onset<C: AsRef<[f64]>>(
         .copied()
         .find(|&s| s >= earliest_trusted)
         .unwrap_or(median);
+    // Quiet channels: once more at T_g, kept only at the shared onset (module docs).
+    let guided = OnsetOptions {
+        threshold_db: opts.threshold_db.min(GUIDED_THRESHOLD_DB),
+        ..opts.clone()
+    };
+    for (slot, x) in per_channel.iter_mut().zip(channels) {
+        if slot.is_none() {
+            *slot = detect_onset(x.as_ref(), sample_rate, &guided)
+                .ok()
+                .filter(|o| o.sample.abs_diff(sample) <= spread);
+        }
+    }
     Ok(SharedOnset {
         sample,
         time_s: sample as f64 / f64::from(sample_rate),
@@ -760,6 +786,38 @@ mod tests {
         assert!(shared.sample.abs_diff(20_000) <= 2, "{shared:?}");
         assert!(shared.per_channel[1].is_none());
         assert_eq!(shared.outliers, vec![2]);
+    }
+
+    #[test]
+    fn a_quiet_channel_is_found_at_the_shared_onset_and_noise_is_not() {
+        let rate = f64::from(RATE);
+        let mut rng = SplitMix64(31);
+        let loud = synthetic_strike(32, 20_000, 40_000, rate, 1e-4);
+        // The same strike 50 dB down under the same hiss: its loudest frame is about 17 dB
+        // over the floor, short of T = 20 dB.
+        let quiet: Vec<f64> = synthetic_strike(33, 20_010, 40_000, rate, 0.0)
+            .iter()
+            .map(|v| 0.003 * v + 1e-4 * rng.normal())
+            .collect();
+        let alone = detect_onset(&quiet, RATE, &OnsetOptions::default());
+        assert!(
+            matches!(alone, Err(OnsetError::NoOnset { .. })),
+            "the test needs a channel under T: {alone:?}"
+        );
+        let noise: Vec<f64> = (0..40_000).map(|_| 1e-4 * rng.normal()).collect();
+        // Another take: the same quiet strike half a second later.
+        let late: Vec<f64> = synthetic_strike(34, 30_000, 40_000, rate, 0.0)
+            .iter()
+            .map(|v| 0.003 * v + 1e-4 * rng.normal())
+            .collect();
+        let shared =
+            detect_shared_onset(&[loud, quiet, noise, late], RATE, &OnsetOptions::default())
+                .unwrap();
+        assert!(shared.sample.abs_diff(20_000) <= 2, "{shared:?}");
+        let q = shared.per_channel[1].as_ref().expect("the quiet channel");
+        assert!(q.sample.abs_diff(20_010) <= 96, "{q:?}");
+        assert!(shared.per_channel[2].is_none(), "{shared:?}");
+        assert!(shared.per_channel[3].is_none(), "{shared:?}");
     }
 
     #[test]

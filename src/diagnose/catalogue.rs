@@ -160,7 +160,7 @@
 //! | [`ReverbNoise`] | residual energy decaying after the strike above the measured floor, in most bands | early vs late mean ln E per band, z > 2; after the fit, a significant excess in ≥ half the bands (else rejected: signature missing) | ln E = ln(N_b + ρ_b N_b e^(−13.8t/T60)) vs ln N_b | T60 \[s\], ρ_b \[1\] per band |
 //! | [`Radiation`] | the mode mix changes between microphones | top singular value of the double-centred ln a residuals vs the noise edge; correlation with ln transfer | ln a += η ln T_kc, or += u_k v_c (Σv = 0) | η \[1\]; or u_k, v_c \[1\] (K + C − 2) |
 //! | [`AddedMass`] | frequencies low where the mass sits / toward low modes | regression of ln f residuals on −½w or −½f_1/f; differential shift ≥ 5·10⁻⁴ | Δ ln f = −½ ln(1 + μw) or −½ ln(1 + μ_f f_1/f) | μ ≥ 0 \[1\] |
-//! | [`PitchGlide`] | early part of a decay higher in pitch (most in loud modes) | regression of the per-mode glide (the chirp fit's offset at the onset g_k, else (f_e − f_l)/f) on the relative energy Q², or its mean, \|z\| > 2 and \|g\| ≥ 10⁻⁴ | g_k = g Q², or = g | g \[1\] |
+//! | [`PitchGlide`] | early part of a decay higher in pitch (most in loud modes) | regression of the per-mode glide (the chirp fit's offset at the onset g_k, else (f_e − f_l)/f) on the model's relative energy Q² (drive²) × (f/f_ref)^p over a grid of p, or its mean, \|z\| > 2 and largest \|y_k\| ≥ 10⁻⁴ | g_k = g Q² (f_k/f_ref)^p, or = g | g \[1\], p \[1\] |
 //!
 //! Each effect is an [`Effect`] (name, signature, detector) that proposes one or more
 //! [`Term`]s (model variants with their parameters and starting values); the physics, units

@@ -56,8 +56,11 @@ pub struct ModeEntry {
     /// The mode's glide observable and its σ: the chirp fit's relative offset at the onset g
     /// ([`ObservedMode::glide`]), else (f_early − f_late)/f when both halves were extracted.
     pub glide: Option<(f64, f64)>,
-    /// Relative modal energy Q² ∈ [0, 1] from the observed amplitudes: mean over channels of
-    /// a² divided by ω², over its maximum in the table (pitch-glide covariate).
+    /// Relative modal energy Q² ∈ [0, 1] of the model (pitch-glide covariate): the unit's
+    /// drive² over the largest drive² among all simulated modes. A unit impulse gives mode k
+    /// the displacement q = drive/ω, so its energy ½ω²q² = ½drive²; the same scale in every
+    /// table, and free of what the microphones add (radiation, response quantity, tilt),
+    /// which an energy read from the observed amplitudes carried into the glide law.
     pub energy: f64,
     /// ln of the (drive²-weighted) simulated frequency, Hz.
     pub ln_f_sim: f64,
@@ -343,6 +346,10 @@ impl ModeTable {
     ) -> ModeTable {
         let channels = observed.first().map_or(0, |m| m.amplitudes.len());
         let own = own_members(observed, simulated, matching, own_member_split_z);
+        let max_drive2 = simulated
+            .iter()
+            .map(|m| m.drive * m.drive)
+            .fold(0.0, f64::max);
         let mut modes = Vec::with_capacity(matching.units.len());
         for (unit, own) in matching.units.iter().zip(&own) {
             let obs = &observed[unit.observed];
@@ -408,17 +415,6 @@ impl ModeTable {
                 }
                 _ => None,
             };
-            let present: Vec<f64> = obs
-                .amplitudes
-                .iter()
-                .copied()
-                .filter(|&a| a > 0.0)
-                .collect();
-            let mean_square = if present.is_empty() {
-                0.0
-            } else {
-                present.iter().map(|a| a * a).sum::<f64>() / present.len() as f64
-            };
             modes.push(ModeEntry {
                 observed: unit.observed,
                 key: ModeKey {
@@ -433,7 +429,11 @@ impl ModeTable {
                 ln_d,
                 ln_a,
                 glide,
-                energy: mean_square / (2.0 * PI * f0).powi(2),
+                energy: if max_drive2 > 0.0 {
+                    drive * drive / max_drive2
+                } else {
+                    0.0
+                },
                 ln_f_sim,
                 drive,
                 support_weight,
@@ -441,12 +441,6 @@ impl ModeTable {
                 transfer,
                 ln_f_per_poisson,
             });
-        }
-        let max_energy = modes.iter().map(|m| m.energy).fold(0.0, f64::max);
-        if max_energy > 0.0 {
-            for m in &mut modes {
-                m.energy /= max_energy;
-            }
         }
         let mut pairs = Vec::new();
         for (l, m) in modes.iter().enumerate() {

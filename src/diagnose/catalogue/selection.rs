@@ -113,6 +113,13 @@ fn evaluate(
     for proposal in proposals {
         let model = current.model.with_term(proposal.term.clone());
         let mut x0 = current.x.clone();
+        absorb_level_and_slope(
+            proposal.term.as_ref(),
+            &proposal.init,
+            current,
+            table,
+            &mut x0,
+        );
         x0.extend(proposal.init);
         let candidate = fit(table, model, x0);
         let searched = search_charge(proposal.term.as_ref(), settings);
@@ -154,6 +161,57 @@ fn evaluate(
         fit: Some(candidate),
         step: 0,
     }))
+}
+
+/// A start for a candidate's fit: the part of `term`'s amplitude change at `init` that the
+/// channels' gains and tilts can take (the least-squares line in ln f − ln f_ref of its mean
+/// over the channels, over `table`'s modes with a drive) is taken off the current gains and
+/// tilts in `x0`, so that the fit starts with the term's shape alone on top of them. A term
+/// whose amplitudes fall as a power of f (a contact's side lobes) otherwise starts on top of
+/// tilts that had already taken that slope, and the fit shrinks the term to its bound instead
+/// of moving the tilts back: generator 2's seed 29 case 012 stopped at the bound with ΔBIC
+/// −2.7 where the optimum has ΔBIC 12.9.
+fn absorb_level_and_slope(
+    term: &dyn Term,
+    init: &[f64],
+    current: &Fit,
+    table: &ModeTable,
+    x0: &mut [f64],
+) {
+    let c_n = table.channels;
+    if c_n == 0 || table.modes.len() < 2 {
+        return;
+    }
+    let ln_f = current.model.prediction(table, &current.x).ln_f;
+    let mut change = vec![0.0; table.modes.len() * c_n];
+    term.amplitude(table, init, &ln_f, &mut change);
+    // Per mode, the mean change over the channels (a level term changes them alike).
+    let points: Vec<(f64, f64)> = (0..table.modes.len())
+        .filter(|&k| table.modes[k].drive > 0.0)
+        .map(|k| {
+            let mean = change[k * c_n..(k + 1) * c_n].iter().sum::<f64>() / c_n as f64;
+            (ln_f[k] - current.model.ln_f_ref, mean)
+        })
+        .collect();
+    if points.len() < 2 || points.iter().all(|p| p.1 == 0.0) {
+        return;
+    }
+    let n = points.len() as f64;
+    let (mx, my) = points
+        .iter()
+        .fold((0.0, 0.0), |(a, b), p| (a + p.0 / n, b + p.1 / n));
+    let sxx: f64 = points.iter().map(|p| (p.0 - mx).powi(2)).sum();
+    if sxx <= 0.0 {
+        return;
+    }
+    let slope = points.iter().map(|p| (p.0 - mx) * (p.1 - my)).sum::<f64>() / sxx;
+    let level = my - slope * mx;
+    let bound = current.model.tilt_bound;
+    for c in 0..c_n {
+        x0[BASE_PARAMS + c] -= level;
+        let t = current.model.tilt_index(c);
+        x0[t] = (x0[t] - slope).clamp(-bound, bound);
+    }
 }
 
 /// The held-out change from `before` to `after` (`before` with `term` added), with `before`'s

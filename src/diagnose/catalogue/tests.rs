@@ -1702,9 +1702,11 @@ fn hertzian_contact_is_found_by_the_half_sine_model() {
 fn a_soft_contact_beyond_its_first_null_is_not_taken_by_the_tilt() {
     // A 0.5 ms Hertzian contact (first null near 3 kHz, inside the 450 Hz–7 kHz band) on a
     // velocity response (tilt −1): past the null the levels fall about as f⁻² more, which
-    // tilts of −3 beyond the acceleration law would take whole. The tilt's physical bound
-    // (±3) leaves the knee to the contact's side-lobe envelope; with the tilts let go to ±6
-    // (as in a room) the contact is not found.
+    // tilts of −3 beyond the acceleration law would take whole. The contact is named by its
+    // knee, which no tilt takes: the screen profiles a slope with each duration, and the fit
+    // starts with the envelope's own slope taken off the tilts, so it is found whether the
+    // tilts are held to their physical bound (±3) or let go to ±6 (as in a room). Before
+    // either (stop 51) it was found in 3 of 6 bounded and 0 of 6 loose.
     let truth = Truth {
         hertz: Some(5e-4),
         tilt: -1.0,
@@ -1727,11 +1729,10 @@ fn a_soft_contact_beyond_its_first_null_is_not_taken_by_the_tilt() {
             accepted(&loose, "contact_duration").is_some(),
         ));
     }
-    // Measured: bounded 3 of 6, loose 0 of 6 (a power 1 of f beyond the tilt is little
-    // evidence on 20 modes with a ±40 % level scatter of their own).
+    // Measured: bounded 6 of 6, loose 6 of 6.
     let bounded = found.iter().filter(|f| f.0).count();
     let loose = found.iter().filter(|f| f.1).count();
-    assert!(bounded >= 3 && bounded > loose, "{found:?}");
+    assert!(bounded >= 5 && loose >= 5, "{found:?}");
 }
 
 #[test]
@@ -1874,7 +1875,15 @@ fn pitch_glide_is_found_and_its_coefficient_recovered() {
     };
     let report = run(&truth, 30);
     let a = expect_accepted(&report, "pitch_glide");
-    assert!(within_3_sigma(param(a, "relative glide g"), 1e-3), "{a:?}");
+    assert_eq!(a.variant, "energy_power_law", "{a:?}");
+    // The truth's energies carry each mode's level error (±40 %), which the model's energy
+    // (drive² alone) cannot know: g refers to a mode of the largest drive rather than to the
+    // most energetic true mode, so it is compared to 25 %, not to its σ (measured: 0.88·10⁻³).
+    let g = param(a, "relative glide g").value;
+    assert!((g / 1e-3 - 1.0).abs() < 0.25, "{a:?}");
+    // The truth's law is the energy itself: no power of f on top.
+    let p = param(a, "exponent p");
+    assert!(within_3_sigma(p, 0.0) && p.value.abs() < 0.2, "{a:?}");
     assert_eq!(report.accepted.len(), 1, "{:#?}", report.accepted);
 }
 
@@ -2236,15 +2245,16 @@ fn missing_observations_are_skipped_not_fatal() {
             .expect("rejected");
         assert_eq!(r.reason, Rejection::NotEnoughData, "{r:?}");
     }
-    // The energy-weighted glide needs amplitudes; the uniform one does not, and finds nothing.
+    // Neither glide law needs the amplitudes (the energy is the model's, from the drive):
+    // both are screened, and find nothing.
     let r = report
         .rejected
         .iter()
         .find(|r| r.name == "pitch_glide")
         .expect("rejected");
+    assert_eq!(r.reason, Rejection::DetectorFoundNothing, "{r:?}");
     assert!(
-        r.detail
-            .contains("relative energy: no mode with an amplitude"),
+        r.detail.contains("relative energy") && r.detail.contains("uniform"),
         "{r:?}"
     );
 }
@@ -2335,7 +2345,7 @@ fn detection_power_at_realistic_strengths() {
         ),
         (
             "pitch_glide",
-            "energy_squared",
+            "energy_power_law",
             Truth {
                 glide: Some(1e-3),
                 ..Truth::default()
