@@ -389,6 +389,17 @@ pub struct ResidualEnvelopes {
     pub energy: Vec<Vec<f64>>,
     /// Noise floor per band from the pre-roll, same unit.
     pub noise_floor_estimate: Vec<f64>,
+    /// How many frames one analysis window spans (frame / hop): overlapping frames share
+    /// samples, so n frames carry about n / this independent values (1 for disjoint frames).
+    /// Absent in older saved evidence, which used the default 1024 / 384.
+    #[serde(default = "default_frames_per_window")]
+    pub frames_per_window: f64,
+}
+
+/// [`ResidualEnvelopes::frames_per_window`] of the default envelope options (1024 / 384).
+fn default_frames_per_window() -> f64 {
+    let o = crate::diagnose::evidence::EnvelopeOptions::default();
+    o.frame as f64 / o.hop as f64
 }
 
 /// Everything the catalogue looks at.
@@ -830,6 +841,12 @@ impl Evidence {
                 .find(|v| !(**v > 0.0 && v.is_finite()))
             {
                 return fail(format!("noise floor {v}; must be positive and finite"));
+            }
+            if !(env.frames_per_window >= 1.0 && env.frames_per_window.is_finite()) {
+                return fail(format!(
+                    "frames per window {}; must be finite and at least 1",
+                    env.frames_per_window
+                ));
             }
         }
         Ok(())

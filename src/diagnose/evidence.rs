@@ -308,6 +308,7 @@ pub fn residual_envelopes(
         band_edges_hz: edges,
         energy,
         noise_floor_estimate,
+        frames_per_window: options.frame as f64 / options.hop as f64,
     })
 }
 

@@ -353,6 +353,8 @@ fn envelopes(truth: &Truth, rng: &mut Rng) -> ResidualEnvelopes {
         band_edges_hz: edges,
         energy,
         noise_floor_estimate: floor,
+        // Independent χ² frames.
+        frames_per_window: 1.0,
     }
 }
 
@@ -1752,6 +1754,44 @@ fn room_reverberation_is_found_in_the_residual_envelopes() {
     // estimates within its 10 % scatter.
     assert!(noise.excess_db.iter().all(|e| e.abs() < 1.5), "{noise:?}");
     assert_eq!(report.accepted.len(), 1, "{:#?}", report.accepted);
+}
+
+#[test]
+fn a_bands_frames_count_by_the_independent_values_they_hold() {
+    // The room of the test above, its envelopes declared as frames that overlap ever more:
+    // the same energies then hold fewer independent values, and at 10⁴ frames per window no
+    // band's own likelihood ratio is significant, so the room is no longer named.
+    let truth = Truth {
+        reverb_t60: Some(0.4),
+        ..Truth::default()
+    };
+    let (mut ev, _) = evidence(&truth, 25);
+    ev.residual_envelopes
+        .as_mut()
+        .expect("envelopes")
+        .frames_per_window = 2.0;
+    let report = diagnose(&ev, &CatalogueSettings::default()).expect("valid");
+    expect_accepted(&report, "reverb_noise");
+    ev.residual_envelopes
+        .as_mut()
+        .expect("envelopes")
+        .frames_per_window = 1e4;
+    let report = diagnose(&ev, &CatalogueSettings::default()).expect("valid");
+    let r = report
+        .rejected
+        .iter()
+        .find(|r| r.name == "reverb_noise")
+        .expect("reverb rejected");
+    assert_eq!(r.reason, Rejection::SignatureMissing, "{r:?}");
+    // Fewer than one frame per window is not an STFT.
+    ev.residual_envelopes
+        .as_mut()
+        .expect("envelopes")
+        .frames_per_window = 0.5;
+    assert!(matches!(
+        diagnose(&ev, &CatalogueSettings::default()),
+        Err(CatalogueError::InvalidEnvelopes(_))
+    ));
 }
 
 #[test]
