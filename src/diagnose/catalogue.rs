@@ -1127,20 +1127,26 @@ pub(crate) fn weighted_regression_through_origin(
     (sxx > 0.0).then(|| (sxy / sxx, sxy / sxx.sqrt()))
 }
 
-/// Weighted least-squares line through points (x, y, w) with an intercept: the slope and its
-/// z = slope / σ_slope (σ from the weights alone). (0, 0) when x does not vary.
-pub(crate) fn weighted_regression(points: &[(f64, f64, f64)]) -> (f64, f64) {
+/// Weighted least-squares line y = a + b x through points (x, y, w): (a, b, Σ w (x − x̄)²);
+/// `None` when the weights sum to nothing or x does not vary.
+pub(crate) fn weighted_line(points: &[(f64, f64, f64)]) -> Option<(f64, f64, f64)> {
     let sw: f64 = points.iter().map(|p| p.2).sum();
     if !(sw > 0.0) {
-        return (0.0, 0.0);
+        return None;
     }
     let mx = points.iter().map(|p| p.2 * p.0).sum::<f64>() / sw;
     let my = points.iter().map(|p| p.2 * p.1).sum::<f64>() / sw;
     let sxx: f64 = points.iter().map(|p| p.2 * (p.0 - mx).powi(2)).sum();
     if !(sxx > 0.0) {
-        return (0.0, 0.0);
+        return None;
     }
     let sxy: f64 = points.iter().map(|p| p.2 * (p.0 - mx) * (p.1 - my)).sum();
     let slope = sxy / sxx;
-    (slope, slope * sxx.sqrt())
+    Some((my - slope * mx, slope, sxx))
+}
+
+/// Weighted least-squares line through points (x, y, w) with an intercept: the slope and its
+/// z = slope / σ_slope (σ from the weights alone). (0, 0) when x does not vary.
+pub(crate) fn weighted_regression(points: &[(f64, f64, f64)]) -> (f64, f64) {
+    weighted_line(points).map_or((0.0, 0.0), |(_, slope, sxx)| (slope, slope * sxx.sqrt()))
 }

@@ -42,7 +42,7 @@
 
 use std::sync::Arc;
 
-use super::{Detection, Effect, Fit, ModeTable, ParamSpec, Proposal, Term};
+use super::{weighted_line, Detection, Effect, Fit, ModeTable, ParamSpec, Proposal, Term};
 
 pub struct ContactDuration;
 
@@ -166,25 +166,20 @@ impl Effect for ContactDuration {
         // squares): the gains absorb constants and the amplitude tilt absorbs slopes, so only
         // the shape that neither can take counts (the knee, the nulls).
         let chi2 = |shift: &dyn Fn(f64) -> f64| -> f64 {
-            let (mut s0, mut s1, mut s2, mut sy, mut sxy) = (0.0, 0.0, 0.0, 0.0, 0.0);
-            for p in &points {
-                let (x, y) = (p.0.ln(), p.1 - shift(p.0));
-                s0 += p.2;
-                s1 += p.2 * x;
-                s2 += p.2 * x * x;
-                sy += p.2 * y;
-                sxy += p.2 * x * y;
-            }
-            let det = s0 * s2 - s1 * s1;
-            let (c, t) = if det > 1e-12 * s0 * s2 {
-                ((s2 * sy - s1 * sxy) / det, (s0 * sxy - s1 * sy) / det)
-            } else {
-                (sy / s0, 0.0)
-            };
-            points
+            let line: Vec<(f64, f64, f64)> = points
                 .iter()
-                .map(|p| p.2 * (p.1 - shift(p.0) - c - t * p.0.ln()).powi(2))
-                .sum()
+                .map(|p| (p.0.ln(), p.1 - shift(p.0), p.2))
+                .collect();
+            let (c, t) = match weighted_line(&line) {
+                Some((c, t, _)) => (c, t),
+                // One frequency: the constant alone, the weighted mean.
+                None => (
+                    line.iter().map(|p| p.2 * p.1).sum::<f64>()
+                        / line.iter().map(|p| p.2).sum::<f64>(),
+                    0.0,
+                ),
+            };
+            line.iter().map(|p| p.2 * (p.1 - c - t * p.0).powi(2)).sum()
         };
         let base = chi2(&|_| 0.0);
         // The best drop in Σz² over 40 durations log-spaced over [t_lo, t_hi].

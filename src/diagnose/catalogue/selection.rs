@@ -186,26 +186,20 @@ fn absorb_level_and_slope(
     let mut change = vec![0.0; table.modes.len() * c_n];
     term.amplitude(table, init, &ln_f, &mut change);
     // Per mode, the mean change over the channels (a level term changes them alike).
-    let points: Vec<(f64, f64)> = (0..table.modes.len())
+    let points: Vec<(f64, f64, f64)> = (0..table.modes.len())
         .filter(|&k| table.modes[k].drive > 0.0)
         .map(|k| {
             let mean = change[k * c_n..(k + 1) * c_n].iter().sum::<f64>() / c_n as f64;
-            (ln_f[k] - current.model.ln_f_ref, mean)
+            (ln_f[k] - current.model.ln_f_ref, mean, 1.0)
         })
         .collect();
-    if points.len() < 2 || points.iter().all(|p| p.1 == 0.0) {
+    if points.iter().all(|p| p.1 == 0.0) {
         return;
     }
-    let n = points.len() as f64;
-    let (mx, my) = points
-        .iter()
-        .fold((0.0, 0.0), |(a, b), p| (a + p.0 / n, b + p.1 / n));
-    let sxx: f64 = points.iter().map(|p| (p.0 - mx).powi(2)).sum();
-    if sxx <= 0.0 {
+    // The level at ln f_ref (x = 0) and the slope.
+    let Some((level, slope, _)) = super::weighted_line(&points) else {
         return;
-    }
-    let slope = points.iter().map(|p| (p.0 - mx) * (p.1 - my)).sum::<f64>() / sxx;
-    let level = my - slope * mx;
+    };
     let bound = current.model.tilt_bound;
     for c in 0..c_n {
         x0[BASE_PARAMS + c] -= level;
