@@ -25,7 +25,15 @@
 //! splits the pair as the mesh does, so it is the mesh's asymmetry that fixes the two mode
 //! shapes, and drive, support and mass weights and transfer are each member's own
 //! ([`own_members`]). Pooled, the blind benchmark's radiation case 017 (three such pairs)
-//! saw its microphone pattern correlate 0.26 with ln |transfer| instead of 0.9999.
+//! saw its microphone pattern correlate 0.26 with ln |transfer| instead of 0.9999. A pooled
+//! pair keeps the pooled drive and transfer. When the beating-pair screen judges it the
+//! object's split under the baseline (a simulated cluster of two or more modes, like decays,
+//! centred on its cluster, not a glide, replicated in the held-out recordings), each of its
+//! modes then takes the support and mass weights of the member it is predicted at: those
+//! weights are the region's principal values in frequency order
+//! (`evidence::cluster_region_energies`), so a mass or a support predicts the split it makes
+//! instead of leaving it to a free beating pair. Pairs the screen sets aside keep the pooled
+//! weights, so a mass cannot be credited with a split that a room or a glide made.
 //! Observed frequencies are compared at their undamped value
 //! f₀ = √(f² + (d/2π)²). A pole more than `faint_pole_db` (40 dB) below another within
 //! `max_pair_split` is never a partial of its own, only an extra pole of the partial beside it

@@ -69,6 +69,10 @@ pub struct ModeEntry {
     pub drive: f64,
     pub support_weight: f64,
     pub mass_weight: f64,
+    /// For a mode of a pooled split pair: the (support, mass) weights of the simulated member
+    /// it is predicted at, which [`ModeTable::resolve_split_weights`] puts in place of the
+    /// pooled ones once the pair is judged the object's split.
+    pub member_weights: Option<(f64, f64)>,
     /// |acoustic transfer| per channel of this table, when known.
     pub transfer: Option<Vec<f64>>,
     /// ∂ln f/∂ν of the simulated modes it stands for (drive²-weighted like `ln_f_sim`), when
@@ -236,6 +240,32 @@ pub struct ModeTable {
     pub amplitude_groups: Vec<(usize, Vec<usize>)>,
 }
 
+impl ModeTable {
+    /// Gives the modes of the pooled split pairs of `clusters` the support and mass weights of
+    /// the member each is predicted at ([`ModeEntry::member_weights`]).
+    ///
+    /// Why: a mass or a support in a small region splits a degenerate cluster along the
+    /// region's principal directions, and the simulated members carry those weights in
+    /// frequency order (`evidence::cluster_region_energies`: the largest mass weight on the
+    /// lowest member, the largest support weight on the highest). With them a mass or a
+    /// support predicts the split it makes; pooled, both modes had one mean weight and only a
+    /// free split could follow it (generator 2's seed 31: a mass on a tube, case 004, claimed
+    /// as a beating pair beside the mass). The drive and the transfer stay pooled: the
+    /// strike's and the microphones' view of the pair does not follow the region's axes. Only
+    /// the pairs judged the object's split are resolved
+    /// ([`super::beating_pair::object_split_clusters`]).
+    pub fn resolve_split_weights(&mut self, clusters: &[usize]) {
+        for m in &mut self.modes {
+            if let Some((support, mass)) = m.member_weights {
+                if clusters.contains(&m.key.cluster) {
+                    m.support_weight = support;
+                    m.mass_weight = mass;
+                }
+            }
+        }
+    }
+}
+
 /// Drive²-weighted mean of `value` over `modes` (plain mean if every drive is zero).
 fn drive_weighted(
     simulated: &[SimulatedMode],
@@ -366,6 +396,13 @@ impl ModeTable {
             let ln_f_sim = drive_weighted(simulated, &unit.frequency_from, |m| m.frequency_hz.ln());
             let support_weight = drive_weighted(simulated, represents, |m| m.support_weight);
             let mass_weight = drive_weighted(simulated, represents, |m| m.mass_weight);
+            let member_weights = match (own, unit.role) {
+                (None, Role::SplitLower | Role::SplitUpper) => Some((
+                    drive_weighted(simulated, &unit.frequency_from, |m| m.support_weight),
+                    drive_weighted(simulated, &unit.frequency_from, |m| m.mass_weight),
+                )),
+                _ => None,
+            };
             let ln_f_per_poisson = unit
                 .frequency_from
                 .iter()
@@ -438,6 +475,7 @@ impl ModeTable {
                 drive,
                 support_weight,
                 mass_weight,
+                member_weights,
                 transfer,
                 ln_f_per_poisson,
             });

@@ -576,7 +576,7 @@ pub fn diagnose_with(
         fit(t, base_model, x0)
     };
     // Which poles are each partial's (matching step 6): the baseline's likelihood decides.
-    let (matching, table) = choose_partial_poles(
+    let (matching, mut table) = choose_partial_poles(
         PoleChoice {
             observed: &evidence.fit,
             simulated: &evidence.simulated,
@@ -591,7 +591,7 @@ pub fn diagnose_with(
     if !baseline.minus_two_log_likelihood.is_finite() {
         return Err(CatalogueError::BaselineFailed);
     }
-    let held = evidence.held_out.as_ref().map(|h| {
+    let mut held = evidence.held_out.as_ref().map(|h| {
         let ln_f: Vec<f64> = h.iter().map(|m| undamped_hz(m).ln()).collect();
         let m = match_modes(
             &ln_f,
@@ -625,7 +625,6 @@ pub fn diagnose_with(
         );
         (t, m)
     });
-    let held_table = held.as_ref().map(|(t, _)| t).filter(|t| !t.rows.is_empty());
 
     // Greedy forward selection over the modal effects.
     let own: Vec<_> = effects
@@ -668,6 +667,16 @@ pub fn diagnose_with(
     if !baseline.minus_two_log_likelihood.is_finite() {
         return Err(CatalogueError::BaselineFailed);
     }
+    // The pooled pairs that a mass or a support may be credited with splitting: those the
+    // beating-pair screen takes for the object's split under the baseline
+    // (ModeTable::resolve_split_weights).
+    let object_splits =
+        super::beating_pair::object_split_clusters(&table, evidence.held_out.as_deref(), &baseline);
+    table.resolve_split_weights(&object_splits);
+    if let Some((t, _)) = held.as_mut() {
+        t.resolve_split_weights(&object_splits);
+    }
+    let held_table = held.as_ref().map(|(t, _)| t).filter(|t| !t.rows.is_empty());
     // Terms of the baseline before the accepted effects' own.
     let base_terms = baseline.model.terms.len();
     let mut current = baseline.clone();
