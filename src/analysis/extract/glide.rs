@@ -98,6 +98,18 @@
 //! tail, noise), not a measured glide; on the real bowl the unguarded stage marked 42 of 80
 //! poles as gliding, several at the bound.
 //!
+//! # Groups
+//!
+//! Poles chain into a group when each is within [`GlideOptions::group_rtol`] of the next. A
+//! wide glide breaks further apart: e^(i c e^(−2dt)) = Σₙ (ic)ⁿ/n! e^(−2ndt) (c = π f₀ g / d), so
+//! the extraction approximates it by a ladder of poles decaying at (2n + 1) d, spread over a
+//! good part of the onset offset g f₀ (a cup's loudest mode at 891 Hz gliding 1.05 %: poles at
+//! 890.6, 891.8 and 895.7 Hz decaying at 6.5, 17.6 and 38.4 1/s, the last 0.43 % from its
+//! neighbour). So two neighbouring chained groups are one group when together they span at
+//! most [`GlideOptions::ladder_rtol`] and the group without the slowest pole decays at least
+//! twice as fast as it (every rung above the fundamental decays at least 3 d); distinct modes
+//! that merge this way keep their constant poles by the criterion below.
+//!
 //! Groups of more than [`GlideOptions::max_group`] poles are left alone. Groups are processed
 //! loudest first; once one is decided for glides, they replace the extraction's poles in the
 //! residual that later groups see.
@@ -159,6 +171,9 @@ pub struct GlideOptions {
     /// Neighbouring poles closer than this fraction of their frequency form one group
     /// (default 0.004, the widest glide the benchmark injects is 0.5 %).
     pub group_rtol: f64,
+    /// Neighbouring groups whose poles span at most this fraction of their frequency are one
+    /// group when they form a ladder (module docs, "Groups"; default 0.015).
+    pub ladder_rtol: f64,
     /// Largest group of poles tried (default 6: a near-degenerate pair of gliding modes can come
     /// out of the extraction as five poles).
     pub max_group: usize,
@@ -183,6 +198,7 @@ impl Default for GlideOptions {
         GlideOptions {
             min_snr_db: 20.0,
             group_rtol: 0.004,
+            ladder_rtol: 0.015,
             max_group: 6,
             max_band_hz: 80.0,
             max_iterations: 30,
@@ -763,6 +779,43 @@ pub struct GlideStage {
     pub decisions: Vec<GlideDecision>,
 }
 
+/// Decay rate ratio between a ladder's rungs and its slowest pole (module docs, "Groups"): the
+/// rungs of a glide decay at (2n + 1) d, at least 3 d; 2 leaves room for the extraction's
+/// error.
+const LADDER_DECAY_RATIO: f64 = 2.0;
+
+/// Whether the neighbouring groups `lower` and `upper` (by frequency) of `modes` are one glide's
+/// ladder (module docs, "Groups"): together within `ladder_rtol` of their frequency, and every
+/// pole of the group without the slowest pole decaying at least [`LADDER_DECAY_RATIO`] times
+/// faster than it.
+fn forms_ladder(
+    modes: &[MeasuredMode],
+    lower: &[usize],
+    upper: &[usize],
+    ladder_rtol: f64,
+) -> bool {
+    let all = || lower.iter().chain(upper).map(|&i| &modes[i]);
+    let f_lo = all().map(|m| m.frequency_hz).fold(f64::INFINITY, f64::min);
+    let f_hi = all()
+        .map(|m| m.frequency_hz)
+        .fold(f64::NEG_INFINITY, f64::max);
+    if !(f_hi - f_lo <= ladder_rtol * f_hi) {
+        return false;
+    }
+    let slowest = |g: &[usize]| {
+        g.iter()
+            .map(|&i| modes[i].decay_rate)
+            .fold(f64::INFINITY, f64::min)
+    };
+    let (d_lower, d_upper) = (slowest(lower), slowest(upper));
+    let (anchor, rungs) = if d_lower <= d_upper {
+        (d_lower, d_upper)
+    } else {
+        (d_upper, d_lower)
+    };
+    anchor > 0.0 && rungs >= LADDER_DECAY_RATIO * anchor
+}
+
 /// Runs the chirp-aware stage on `extraction` of `channels` (the same channels, from the
 /// onset, that it was extracted from).
 pub fn fit_glides(
@@ -798,16 +851,23 @@ pub fn fit_glides(
     let modes = &extraction.modes;
     let mut order: Vec<usize> = (0..modes.len()).collect();
     order.sort_by(|&a, &b| modes[a].frequency_hz.total_cmp(&modes[b].frequency_hz));
-    let mut groups: Vec<Vec<usize>> = Vec::new();
+    let mut chained: Vec<Vec<usize>> = Vec::new();
     for &i in &order {
-        match groups.last_mut() {
+        match chained.last_mut() {
             Some(g)
                 if modes[i].frequency_hz - modes[*g.last().expect("non-empty")].frequency_hz
                     <= options.group_rtol * modes[i].frequency_hz =>
             {
                 g.push(i)
             }
-            _ => groups.push(vec![i]),
+            _ => chained.push(vec![i]),
+        }
+    }
+    let mut groups: Vec<Vec<usize>> = Vec::new();
+    for g in chained {
+        match groups.last_mut() {
+            Some(last) if forms_ladder(modes, last, &g, options.ladder_rtol) => last.extend(g),
+            _ => groups.push(g),
         }
     }
     let mut out_modes: Vec<MeasuredMode> = Vec::with_capacity(modes.len());
@@ -1121,6 +1181,13 @@ fn check_options(options: &GlideOptions) -> Result<(), ExtractError> {
         return invalid(
             "glide.group_rtol",
             options.group_rtol,
+            "must be in [0, 0.1)",
+        );
+    }
+    if !(options.ladder_rtol >= 0.0 && options.ladder_rtol < 0.1) {
+        return invalid(
+            "glide.ladder_rtol",
+            options.ladder_rtol,
             "must be in [0, 0.1)",
         );
     }

@@ -408,3 +408,63 @@ fn a_broken_glide_component_is_refused() {
         &options
     ));
 }
+
+/// A wide glide (near 1 % at the onset, as a thin cup's loudest mode can glide) that the
+/// extraction broke into a ladder of poles, each higher and faster-decaying than the last,
+/// is one gliding mode again.
+#[test]
+fn a_wide_glide_broken_into_a_ladder_is_merged() {
+    for (seed, f0, d, g, ladder) in [
+        (
+            31,
+            980.7,
+            7.8,
+            8.4e-3,
+            [(980.72, 7.83), (981.66, 23.2), (985.27, 39.7)],
+        ),
+        (
+            33,
+            890.6,
+            6.5,
+            1.05e-2,
+            [(890.62, 6.47), (891.80, 17.6), (895.66, 38.4)],
+        ),
+    ] {
+        let mut rng = SplitMix64(seed);
+        let truth = Truth::random(f0, d, g, 3, &mut rng);
+        let x = render(&[truth], 0.01, &mut rng);
+        let poles: Vec<(f64, f64, f64)> = ladder.iter().map(|&(f, d)| (f, d, 0.4)).collect();
+        let ex = stand_in(&poles, 3, 0.02);
+        let stage = fit_glides(&x, &ex, &GlideOptions::default()).unwrap();
+        assert_eq!(stage.extraction.modes.len(), 1, "{:?}", stage.decisions);
+        let m = &stage.extraction.modes[0];
+        let gl = m.glide.as_ref().unwrap();
+        assert!(gl.selected && gl.merged_poles == 3, "{gl:?}");
+        assert!(((gl.glide - g) / gl.glide_sd).abs() < 4.0, "{m:?}");
+    }
+}
+
+/// Two distinct constant modes 0.8 % apart, the upper decaying four times faster, look like a
+/// ladder to the grouping and are fitted together, but the criterion keeps them two poles.
+#[test]
+fn distinct_modes_that_look_like_a_ladder_stay_constant() {
+    let mut rng = SplitMix64(8);
+    for _ in 0..3 {
+        let a = Truth::random(2000.0, 5.0, 0.0, 3, &mut rng);
+        let b = Truth::random(2016.0, 20.0, 0.0, 3, &mut rng);
+        let x = render(&[a, b], 0.01, &mut rng);
+        let ex = stand_in(&[(2000.02, 5.1, 0.6), (2015.97, 19.8, 0.6)], 3, 0.02);
+        let stage = fit_glides(&x, &ex, &GlideOptions::default()).unwrap();
+        assert_eq!(stage.decisions.len(), 1, "one group: {:?}", stage.decisions);
+        assert_eq!(stage.extraction.modes.len(), 2, "{:?}", stage.decisions);
+        assert!(
+            stage
+                .extraction
+                .modes
+                .iter()
+                .all(|m| m.glide.as_ref().is_some_and(|g| !g.selected)),
+            "{:?}",
+            stage.decisions
+        );
+    }
+}
