@@ -1584,42 +1584,11 @@ fn support_pair_evidence(gamma: f64, seed: u64) -> Evidence {
             });
         }
     }
-    let observe = |channels: std::ops::Range<usize>, rng: &mut Rng| -> Vec<ObservedMode> {
-        truth
-            .iter()
-            .map(|&(j, d, ln_amp)| {
-                let f0 = simulated[j].frequency_hz * 1.01;
-                let fd = (f0 * f0 - (d / (2.0 * PI)).powi(2)).sqrt();
-                let sf = sigma_f(fd);
-                let amplitudes: Vec<f64> = channels
-                    .clone()
-                    .map(|c| (gains[c] + ln_amp + SIGMA_LN_A * normal(rng)).exp())
-                    .collect();
-                ObservedMode {
-                    frequency_hz: fd + sf * normal(rng),
-                    sigma_frequency_hz: sf,
-                    decay_rate: d * (0.003 * normal(rng)).exp(),
-                    sigma_decay_rate: 0.003 * d,
-                    sigma_amplitudes: amplitudes.iter().map(|a| SIGMA_LN_A * a).collect(),
-                    amplitudes,
-                    early_frequency_hz: None,
-                    late_frequency_hz: None,
-                    glide: None,
-                }
-            })
-            .collect()
-    };
-    let fit = observe(0..FIT_CHANNELS, &mut rng);
-    let held_out = Some(observe(
-        FIT_CHANNELS..FIT_CHANNELS + HELD_CHANNELS,
-        &mut rng,
-    ));
-    Evidence {
-        fit,
-        held_out,
-        simulated,
-        residual_envelopes: None,
-    }
+    let truth: Vec<(f64, f64, f64)> = truth
+        .iter()
+        .map(|&(j, d, ln_amp)| (simulated[j].frequency_hz * 1.01, d, ln_amp))
+        .collect();
+    observed_evidence(&truth, &gains, 0.003, simulated, &mut rng)
 }
 
 #[test]
@@ -2670,11 +2639,28 @@ fn local_split_evidence(
             });
         }
     }
+    let truth: Vec<(f64, f64, f64)> = truth
+        .iter()
+        .map(|&(ln_f0, d, ln_amp)| (ln_f0.exp(), d, ln_amp))
+        .collect();
+    observed_evidence(&truth, &gains, SIGMA_LN_D, simulated, &mut rng)
+}
+
+/// The fit and held-out recordings' modes of `truth` (undamped frequency f₀ \[Hz\], decay rate
+/// d \[1/s\], ln amplitude without the channel gain) seen through the channel `gains` (ln),
+/// with the synthetic world's frequency and amplitude noise and a relative decay noise
+/// `sigma_ln_d`.
+fn observed_evidence(
+    truth: &[(f64, f64, f64)],
+    gains: &[f64],
+    sigma_ln_d: f64,
+    simulated: Vec<SimulatedMode>,
+    rng: &mut Rng,
+) -> Evidence {
     let observe = |channels: std::ops::Range<usize>, rng: &mut Rng| -> Vec<ObservedMode> {
         truth
             .iter()
-            .map(|&(ln_f0, d, ln_amp)| {
-                let f0 = ln_f0.exp();
+            .map(|&(f0, d, ln_amp)| {
                 let fd = (f0 * f0 - (d / (2.0 * PI)).powi(2)).sqrt();
                 let sf = sigma_f(fd);
                 let amplitudes: Vec<f64> = channels
@@ -2684,8 +2670,8 @@ fn local_split_evidence(
                 ObservedMode {
                     frequency_hz: fd + sf * normal(rng),
                     sigma_frequency_hz: sf,
-                    decay_rate: d * (SIGMA_LN_D * normal(rng)).exp(),
-                    sigma_decay_rate: SIGMA_LN_D * d,
+                    decay_rate: d * (sigma_ln_d * normal(rng)).exp(),
+                    sigma_decay_rate: sigma_ln_d * d,
                     sigma_amplitudes: amplitudes.iter().map(|a| SIGMA_LN_A * a).collect(),
                     amplitudes,
                     early_frequency_hz: None,
@@ -2695,11 +2681,8 @@ fn local_split_evidence(
             })
             .collect()
     };
-    let fit = observe(0..FIT_CHANNELS, &mut rng);
-    let held_out = Some(observe(
-        FIT_CHANNELS..FIT_CHANNELS + HELD_CHANNELS,
-        &mut rng,
-    ));
+    let fit = observe(0..FIT_CHANNELS, rng);
+    let held_out = Some(observe(FIT_CHANNELS..FIT_CHANNELS + HELD_CHANNELS, rng));
     Evidence {
         fit,
         held_out,
