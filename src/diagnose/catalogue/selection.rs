@@ -56,6 +56,9 @@ pub fn acceptance(
         Some(h) if (h.after - h.before).abs() <= 1e-9 * h.before.abs().max(1e-300) => {
             Some(Rejection::HeldOutCannotTest)
         }
+        // The robust gain can be positive while the reported RMS rises (parent docs): the
+        // error the report shows must fall too.
+        Some(h) if !(h.after < h.before) => Some(Rejection::HeldOutDidNotImprove),
         Some(h) if h.gain > settings.min_held_out_gain => None,
         Some(_) => Some(Rejection::HeldOutDidNotImprove),
     }
@@ -1013,6 +1016,19 @@ mod tests {
                     before: 1.0,
                     after: 1.01,
                     gain: -0.5
+                }),
+                &settings
+            ),
+            Some(Rejection::HeldOutDidNotImprove)
+        );
+        // A robust gain with a rising RMS is not an improvement either.
+        assert_eq!(
+            acceptance(
+                10.0,
+                Some(HeldOutChange {
+                    before: 2.426,
+                    after: 2.437,
+                    gain: 2.7
                 }),
                 &settings
             ),
