@@ -240,32 +240,6 @@ pub struct ModeTable {
     pub amplitude_groups: Vec<(usize, Vec<usize>)>,
 }
 
-impl ModeTable {
-    /// Gives the modes of the pooled split pairs of `clusters` the support and mass weights of
-    /// the member each is predicted at ([`ModeEntry::member_weights`]).
-    ///
-    /// Why: a mass or a support in a small region splits a degenerate cluster along the
-    /// region's principal directions, and the simulated members carry those weights in
-    /// frequency order (`evidence::cluster_region_energies`: the largest mass weight on the
-    /// lowest member, the largest support weight on the highest). With them a mass or a
-    /// support predicts the split it makes; pooled, both modes had one mean weight and only a
-    /// free split could follow it (generator 2's seed 31: a mass on a tube, case 004, claimed
-    /// as a beating pair beside the mass). The drive and the transfer stay pooled: the
-    /// strike's and the microphones' view of the pair does not follow the region's axes. Only
-    /// the pairs judged the object's split are resolved
-    /// ([`super::beating_pair::object_split_clusters`]).
-    pub fn resolve_split_weights(&mut self, clusters: &[usize]) {
-        for m in &mut self.modes {
-            if let Some((support, mass)) = m.member_weights {
-                if clusters.contains(&m.key.cluster) {
-                    m.support_weight = support;
-                    m.mass_weight = mass;
-                }
-            }
-        }
-    }
-}
-
 /// Drive²-weighted mean of `value` over `modes` (plain mean if every drive is zero).
 fn drive_weighted(
     simulated: &[SimulatedMode],
@@ -359,6 +333,30 @@ pub fn own_members(
 }
 
 impl ModeTable {
+    /// Gives the modes of the pooled split pairs of `clusters` the support and mass weights of
+    /// the member each is predicted at ([`ModeEntry::member_weights`]).
+    ///
+    /// Why: a mass or a support in a small region splits a degenerate cluster along the
+    /// region's principal directions, and the simulated members carry those weights in
+    /// frequency order (`evidence::cluster_region_energies`: the largest mass weight on the
+    /// lowest member, the largest support weight on the highest). With them a mass or a
+    /// support predicts the split it makes; pooled, both modes had one mean weight and only a
+    /// free split could follow it (generator 2's seed 31: a mass on a tube, case 004, claimed
+    /// as a beating pair beside the mass). The drive and the transfer stay pooled: the
+    /// strike's and the microphones' view of the pair does not follow the region's axes. Only
+    /// the pairs judged the object's split are resolved
+    /// ([`super::beating_pair::object_split_clusters`]).
+    pub fn resolve_split_weights(&mut self, clusters: &[usize]) {
+        for m in &mut self.modes {
+            if let Some((support, mass)) = m.member_weights {
+                if clusters.contains(&m.key.cluster) {
+                    m.support_weight = support;
+                    m.mass_weight = mass;
+                }
+            }
+        }
+    }
+
     /// The table of `observed` (validated by the caller) under `matching`. `transfer_offset` is
     /// where this set's channels start in [`SimulatedMode::transfer`] (0 for the fit set, the
     /// fit's channel count for held-out data); a transfer too short for that leaves it unknown.

@@ -2698,9 +2698,10 @@ fn diagnose_default(evidence: &Evidence) -> CatalogueReport {
 /// A mass or a support splits a degenerate pair by moving the member that moves where it
 /// sits: with each pooled pair's modes given their own member's resolved weights, the mass or
 /// the support explains the splits it made and no beating pair is named beside it (generator
-/// 2's seed 31: a mass on a tube, case 004, and a support on one, case 008, each claimed as a
-/// beating pair). An asymmetry's split, which no weight follows, is still a beating pair and
-/// neither a mass nor a support.
+/// 2's seed 31: a mass on a tube, case 004, claimed as a beating pair beside the mass; its
+/// support case 008 still is, since that support hardly damps and a support must). An
+/// asymmetry's split, which no weight follows, is still a beating pair and neither a mass nor
+/// a support.
 #[test]
 fn a_pair_split_by_a_mass_or_a_support_is_not_a_beating_pair() {
     for seed in [1, 2, 3] {

@@ -343,6 +343,14 @@ fn bad_input_is_an_error_not_a_panic() {
             ..Default::default()
         },
         GlideOptions {
+            ladder_rtol: f64::NAN,
+            ..Default::default()
+        },
+        GlideOptions {
+            ladder_rtol: 0.5,
+            ..Default::default()
+        },
+        GlideOptions {
             min_glide_z: -1.0,
             ..Default::default()
         },
