@@ -29,10 +29,19 @@
 //!
 //! [`simulated_modes`] gives each mode of the solve its features: the drive |φ_k(x_s)·n|
 //! [kg^(−½)] at the strike, the support weight w_k = S_k / max_j S_j with S_k = Σ_{i ∈ support}
-//! |φ_k(x_i)|² (the mode's squared motion at the support nodes; mass-normalised, so relative to
-//! its modal mass of 1), the mass weight the same over a candidate added-mass region (or 0:
-//! none), a near-degenerate cluster id (neighbours within `cluster_rtol` in frequency, chained),
-//! and optionally |acoustic transfer| per microphone.
+//! (φ_k(x_i)·n)² (the mode's squared motion at the support nodes along the support direction
+//! n; mass-normalised, so relative to its modal mass of 1), the mass weight the same over a
+//! candidate added-mass region with the whole motion |φ_k(x_i)|² (or 0: none), a
+//! near-degenerate cluster id (neighbours within `cluster_rtol` in frequency, chained), and
+//! optionally |acoustic transfer| per microphone.
+//!
+//! Why the support counts only the motion along n ([`Motion`]): a resting object is held by
+//! the contact's normal force; a pad's or a table's resistance to sliding is a fraction of its
+//! resistance to pressing (a rubber pad's shear modulus is a third of its Young's modulus, and
+//! its shape makes it stiffer still in compression), while a lumped mass resists motion in
+//! every direction alike. Counted in full, the two members of a tube's degenerate bending
+//! pair (one moving the underside up and down, the other sideways) carry the same support
+//! weight, so a support could not predict the split it makes.
 //!
 //! # Where on the object
 //!
@@ -402,6 +411,37 @@ pub fn symmetric_cluster_ids(
     })
 }
 
+/// Which part of the motion at a region a perturbation there feels (module docs).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Motion {
+    /// All of it, |φ(x_i)|²: a lumped mass.
+    Full,
+    /// Only along a direction n (any length; normalised here), (φ(x_i)·n̂)²: a support's
+    /// contact, which reacts along its normal.
+    Along([f64; 3]),
+}
+
+impl Motion {
+    /// The components' weights: φ(x_i)ᵀ P φ(x_j) with P = I (full) or n̂n̂ᵀ.
+    fn projector(self) -> [[f64; 3]; 3] {
+        match self {
+            Motion::Full => [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]],
+            Motion::Along(n) => {
+                let norm2: f64 = n.iter().map(|c| c * c).sum();
+                let inv = if norm2 > 0.0 { 1.0 / norm2 } else { 0.0 };
+                std::array::from_fn(|r| std::array::from_fn(|c| n[r] * n[c] * inv))
+            }
+        }
+    }
+}
+
+/// φ_a(x_i)ᵀ P φ_b(x_i) of two mode shapes (node-major x, y, z) at node i.
+fn node_product(a: &[f64], b: &[f64], i: usize, p: &[[f64; 3]; 3]) -> f64 {
+    (0..3)
+        .map(|r| a[3 * i + r] * (0..3).map(|c| p[r][c] * b[3 * i + c]).sum::<f64>())
+        .sum()
+}
+
 /// |φ(x_i)|² of a mode shape (node-major x, y, z) at node i.
 fn node_energy(shape: &[f64], i: usize) -> f64 {
     shape[3 * i..3 * i + 3].iter().map(|v| v * v).sum()
@@ -419,16 +459,21 @@ pub fn region_energy(shape: &[f64], nodes: &[usize]) -> f64 {
 /// (a, b members), and first-order degenerate perturbation theory splits the cluster along A's
 /// eigenvectors with shifts ∝ its eigenvalues. So each member gets one eigenvalue of A: the
 /// largest to the lowest-frequency member when the perturbation lowers frequencies (a mass,
-/// `lowers_frequency`), to the highest otherwise (a spring). Outside clusters this is
-/// [`region_energy`]. `clusters` as from [`cluster_ids`].
+/// `lowers_frequency`), to the highest otherwise (a spring). `motion` says which part of the
+/// motion the perturbation feels (A_ab = Σ φ_a(x_i)ᵀ P φ_b(x_i), [`Motion`]). Outside clusters
+/// this is the region's energy A_kk. `clusters` as from [`cluster_ids`].
 pub fn cluster_region_energies(
     shapes: &[Vec<f64>],
     frequencies_hz: &[f64],
     clusters: &[usize],
     region: &[usize],
+    motion: Motion,
     lowers_frequency: bool,
 ) -> Vec<f64> {
-    let mut out: Vec<f64> = shapes.iter().map(|s| region_energy(s, region)).collect();
+    let p = motion.projector();
+    let energy =
+        |a: &[f64], b: &[f64]| -> f64 { region.iter().map(|&i| node_product(a, b, i, &p)).sum() };
+    let mut out: Vec<f64> = shapes.iter().map(|s| energy(s, s)).collect();
     let mut members: std::collections::BTreeMap<usize, Vec<usize>> =
         std::collections::BTreeMap::new();
     for (k, &c) in clusters.iter().enumerate().take(shapes.len()) {
@@ -437,16 +482,7 @@ pub fn cluster_region_energies(
     for (_, mut ks) in members.into_iter().filter(|(_, ks)| ks.len() > 1) {
         ks.sort_by(|&a, &b| frequencies_hz[a].total_cmp(&frequencies_hz[b]));
         let m = ks.len();
-        let a = nalgebra::DMatrix::from_fn(m, m, |p, q| {
-            region
-                .iter()
-                .map(|&i| {
-                    (0..3)
-                        .map(|c| shapes[ks[p]][3 * i + c] * shapes[ks[q]][3 * i + c])
-                        .sum::<f64>()
-                })
-                .sum::<f64>()
-        });
+        let a = nalgebra::DMatrix::from_fn(m, m, |r, c| energy(&shapes[ks[r]], &shapes[ks[c]]));
         let mut values: Vec<f64> = a
             .symmetric_eigen()
             .eigenvalues
@@ -649,6 +685,7 @@ mod tests {
             &freqs,
             &ids,
             &region,
+            Motion::Full,
             true,
         );
         assert_eq!(plain, vec![1.0, 0.0, 0.5]);
@@ -658,7 +695,14 @@ mod tests {
             let r2: Vec<f64> = a.iter().zip(&b).map(|(x, y)| -si * x + co * y).collect();
             // The naive energies depend on the angle; the cluster ones do not.
             assert!((region_energy(&r1, &region) - co * co).abs() < 1e-12);
-            let e = cluster_region_energies(&[r1, r2, c.clone()], &freqs, &ids, &region, true);
+            let e = cluster_region_energies(
+                &[r1, r2, c.clone()],
+                &freqs,
+                &ids,
+                &region,
+                Motion::Full,
+                true,
+            );
             assert!(
                 (e[0] - 1.0).abs() < 1e-12 && e[1].abs() < 1e-12 && (e[2] - 0.5).abs() < 1e-12,
                 "{e:?}"
@@ -668,10 +712,48 @@ mod tests {
                 &freqs,
                 &ids,
                 &region,
+                Motion::Full,
                 false,
             );
             assert_eq!(spring, vec![0.0, 1.0, 0.5]);
         }
+    }
+
+    /// A support feels the motion along its direction only: a degenerate pair, one member
+    /// moving the region along z, the other along y, is told apart by a support pressing along
+    /// z (the upper member stiffened), while counted in full both carry the same weight.
+    #[test]
+    fn a_support_weighs_the_motion_along_its_direction() {
+        let s = std::f64::consts::FRAC_1_SQRT_2;
+        // Two nodes, both in the region; the pair given in a rotated basis.
+        let vertical = [0.0, 0.0, 1.0, 0.0, 0.0, 1.0];
+        let sideways = [0.0, 1.0, 0.0, 0.0, 1.0, 0.0];
+        let r1: Vec<f64> = vertical
+            .iter()
+            .zip(&sideways)
+            .map(|(a, b)| s * (a + b))
+            .collect();
+        let r2: Vec<f64> = vertical
+            .iter()
+            .zip(&sideways)
+            .map(|(a, b)| s * (a - b))
+            .collect();
+        let lone = vec![0.3, 0.4, 0.0, 0.0, 0.0, 0.0];
+        let shapes = [r1, r2, lone];
+        let freqs = [500.0, 500.2, 900.0];
+        let ids = cluster_ids(&freqs, 0.005);
+        let region = [0usize, 1];
+        let full = cluster_region_energies(&shapes, &freqs, &ids, &region, Motion::Full, false);
+        assert!(
+            (full[0] - 2.0).abs() < 1e-12 && (full[1] - 2.0).abs() < 1e-12,
+            "{full:?}"
+        );
+        assert!((full[2] - 0.25).abs() < 1e-12);
+        let down = Motion::Along([0.0, 0.0, -3.0]);
+        let along = cluster_region_energies(&shapes, &freqs, &ids, &region, down, false);
+        assert!(along[0].abs() < 1e-12, "{along:?}");
+        assert!((along[1] - 2.0).abs() < 1e-12, "{along:?}");
+        assert!(along[2].abs() < 1e-12, "{along:?}");
     }
 
     /// A rotated copy of a mode has its profile; a different mode close in frequency does not

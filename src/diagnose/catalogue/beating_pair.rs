@@ -233,8 +233,12 @@ fn not_the_objects(
     // A lone simulated mode seen as two observed ones is not a split degenerate pair: nothing
     // in the model is near-degenerate there, so a second pole is something else (a
     // reverberant tail or a gliding mode fitted by two poles); it stays in the likelihood and
-    // is reported unexplained if the data insist.
-    if l.simulated.len() < 2 {
+    // is reported unexplained if the data insist. (A pair that stands for its own members
+    // carries one member each: two simulated modes between them.)
+    let mut members: Vec<usize> = l.simulated.iter().chain(&u.simulated).copied().collect();
+    members.sort_unstable();
+    members.dedup();
+    if members.len() < 2 {
         return Some(NotTheObjects::LoneMode);
     }
     if let (Some((dl, sl)), Some((du, su))) = (l.ln_d, u.ln_d) {

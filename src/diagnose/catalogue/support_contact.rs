@@ -2,21 +2,34 @@
 //!
 //! A support (a table, a hand, a cushion) touches the object over a small region. Modes that
 //! move there lose energy into it and are stiffened (or, for a soft heavy support, loaded);
-//! modes with a node there are untouched. With w_k ∈ [0, 1] the fraction of mode k's energy at
-//! the candidate support region ([`super::SimulatedMode::support_weight`]), first-order
-//! perturbation theory gives shifts proportional to w_k:
+//! modes with a node there are untouched. With w_k ∈ [0, 1] mode k's squared motion along the
+//! support's direction at the candidate support region, Σ (φ_k·n)², over the largest mode's
+//! ([`super::SimulatedMode::support_weight`]; a contact reacts along its normal, so the two
+//! members of a tube's bending pair, one pressing into the support and one sliding over it,
+//! differ), first-order perturbation theory gives shifts proportional to w_k:
 //!
 //! Δd_k = γ · w_k  \[1/s\],  γ ≥ 0 (a passive support only removes energy),
-//! Δ ln f_k = κ · w_k  (κ > 0 stiffening, κ < 0 mass loading).
+//! Δ ln f_k = κ · w_k  (κ < 0 mass loading, κ > 0 a stiffening whose law is unknown),
+//! Δ ln f_k = κ_s · w_k · (f_ref / f_k)²  (κ_s ≥ 0, a spring).
 //!
-//! Two variants: damping only (γ) and damping with the frequency shift (γ, κ); the criterion
-//! picks. Detector: weighted regressions of the current decay residuals d_obs − d_pred on w
+//! The spring's law is the perturbation of the eigenvalue: a spring of stiffness k_s at the
+//! region adds k_s |φ_k|² to λ_k = ω_k² (φ mass-normalised), so Δ ln f_k = k_s |φ_k|² / (2 λ_k):
+//! proportional to the weight and falling as 1/f². A heavy support's mass m_s instead takes
+//! −m_s λ_k |φ_k|² from λ_k, Δ ln f_k = −m_s |φ_k|² / 2, which is the law κ · w_k with κ < 0.
+//! A support that shifts only the lowest modes, by far more than the upper ones (a spring
+//! that splits a bending pair by 2.5 % at 2.4 kHz and by 0.36 % at 5.9 kHz), fits neither
+//! κ · w_k nor a free split per pair as well as it fits the spring. f_ref is the model's
+//! reference frequency ([`super::Model::ln_f_ref`], fixed when the term is proposed), so κ_s
+//! is the shift of a mode of weight 1 there.
+//!
+//! Three variants: damping only (γ), damping with the proportional shift (γ, κ) and damping
+//! with the spring (γ, κ_s); the criterion picks. Detector: weighted regressions of the current decay residuals d_obs − d_pred on w
 //! (slope γ̂, its z), of the decay-split residuals of split pairs on w_u − w_l through the
 //! origin (slope γ̂_pair, its z: the two modes of a pair share any damping law's misfit, so a
 //! support that damps one more than the other stands out to the extraction's precision), and
-//! of the ln f residuals on w (slope κ̂, its z); the candidate goes on if γ̂ > 0 with z > 1,
-//! γ̂_pair > 0 with z > 1.5, or |z_κ| > 1.5 (the weights must vary by 5 % of the largest matched
-//! one).
+//! of the ln f residuals on w (slope κ̂, its z) and on w (f_ref/f)² (slope κ̂_s, its z); the
+//! candidate goes on if γ̂ > 0 with z > 1, γ̂_pair > 0 with z > 1.5, |z_κ| > 1.5 or z_κs > 1.5
+//! (the weights must vary by 5 % of the largest matched one).
 //!
 //! Signature, after the fit: the support must damp, γ > 2σ_γ. A passive contact always takes
 //! energy from the modes that move at it; a frequency shift alone is not a support's signature,
@@ -39,9 +52,39 @@ use super::{
 
 pub struct SupportContact;
 
+/// How the support shifts the frequencies (module docs).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum FrequencyLaw {
+    /// Damping only.
+    None,
+    /// Δ ln f = κ w.
+    Proportional,
+    /// Δ ln f = κ_s w (f_ref/f)², κ_s ≥ 0.
+    Spring,
+}
+
 #[derive(Debug)]
 pub struct SupportTerm {
-    pub with_frequency: bool,
+    pub law: FrequencyLaw,
+    /// ln f_ref (Hz) of the spring law.
+    pub ln_f_ref: f64,
+}
+
+impl SupportTerm {
+    /// The frequency covariate of mode `m` under the term's law: w, or w (f_ref/f)².
+    fn shift_weight(&self, m: &super::ModeEntry) -> f64 {
+        spring_weight(self.law, self.ln_f_ref, m)
+    }
+}
+
+/// w for [`FrequencyLaw::Proportional`], w (f_ref/f_sim)² for [`FrequencyLaw::Spring`], 0
+/// without a shift.
+fn spring_weight(law: FrequencyLaw, ln_f_ref: f64, m: &super::ModeEntry) -> f64 {
+    match law {
+        FrequencyLaw::None => 0.0,
+        FrequencyLaw::Proportional => m.support_weight,
+        FrequencyLaw::Spring => m.support_weight * (2.0 * (ln_f_ref - m.ln_f_sim)).exp(),
+    }
 }
 
 impl Term for SupportTerm {
@@ -49,29 +92,37 @@ impl Term for SupportTerm {
         "support_contact"
     }
     fn variant(&self) -> &'static str {
-        if self.with_frequency {
-            "damping_and_frequency"
-        } else {
-            "damping_only"
+        match self.law {
+            FrequencyLaw::None => "damping_only",
+            FrequencyLaw::Proportional => "damping_and_frequency",
+            FrequencyLaw::Spring => "damping_and_spring",
         }
     }
     fn params(&self) -> Vec<ParamSpec> {
         let mut p = vec![ParamSpec::new("support damping γ", "1/s", 0.0, 1e4, 1.0)];
-        if self.with_frequency {
-            p.push(ParamSpec::new(
+        match self.law {
+            FrequencyLaw::None => {}
+            FrequencyLaw::Proportional => p.push(ParamSpec::new(
                 "support frequency shift κ",
                 "1",
                 -0.5,
                 0.5,
                 1e-2,
-            ));
+            )),
+            FrequencyLaw::Spring => p.push(ParamSpec::new(
+                "support spring shift κ_s at f_ref",
+                "1",
+                0.0,
+                0.5,
+                1e-2,
+            )),
         }
         p
     }
     fn frequency(&self, table: &ModeTable, p: &[f64], ln_f: &mut [f64]) {
-        if self.with_frequency {
+        if self.law != FrequencyLaw::None {
             for (f, m) in ln_f.iter_mut().zip(&table.modes) {
-                *f += p[1] * m.support_weight;
+                *f += p[1] * self.shift_weight(m);
             }
         }
     }
@@ -82,11 +133,11 @@ impl Term for SupportTerm {
     }
     fn signature_missing(&self, table: &ModeTable, p: &[f64], sigma: &[f64]) -> Option<String> {
         let damps = p[0] > 2.0 * sigma[0];
-        let (lo, hi) = weight_range(table.modes.iter().map(|m| m.support_weight));
-        let shift = if self.with_frequency {
-            p[1].abs() * (hi - lo)
-        } else {
+        let shift = if self.law == FrequencyLaw::None {
             0.0
+        } else {
+            let (lo, hi) = weight_range(table.modes.iter().map(|m| self.shift_weight(m)));
+            p[1].abs() * (hi - lo)
         };
         (!damps).then(|| format!("the support does not damp (γ = {:.3} ± {:.3} 1/s; differential frequency shift {shift:.1e}, which alone is not a support)", p[0], sigma[0]))
     }
@@ -135,8 +186,16 @@ impl Effect for SupportContact {
             .zip(&res.ln_f)
             .map(|(m, &(r, v))| (m.support_weight, r, 1.0 / v))
             .collect();
+        let ln_f_ref = current.model.ln_f_ref;
+        let spring: Vec<(f64, f64, f64)> = table
+            .modes
+            .iter()
+            .zip(&res.ln_f)
+            .map(|(m, &(r, v))| (spring_weight(FrequencyLaw::Spring, ln_f_ref, m), r, 1.0 / v))
+            .collect();
         let (gamma, z_gamma) = weighted_regression(&damping);
         let (kappa, z_kappa) = weighted_regression(&frequency);
+        let (kappa_s, z_spring) = weighted_regression(&spring);
         // Within split pairs: the decay split's residual in 1/s, d̄ (r_u − r_l) at the pair's
         // mean decay d̄, against w_u − w_l, through the origin (a damping law gives the two
         // modes of a pair the same residual, so no intercept is left).
@@ -156,11 +215,11 @@ impl Effect for SupportContact {
         let (gamma_pair, z_pair) =
             weighted_regression_through_origin(within.iter().copied()).unwrap_or((0.0, 0.0));
         let detail = format!(
-            "decay residual vs support weight: slope {gamma:.3} 1/s (z = {z_gamma:.1}); within split pairs: slope {gamma_pair:.3} 1/s (z = {z_pair:.1}); ln f: slope {kappa:.2e} (z = {z_kappa:.1})"
+            "decay residual vs support weight: slope {gamma:.3} 1/s (z = {z_gamma:.1}); within split pairs: slope {gamma_pair:.3} 1/s (z = {z_pair:.1}); ln f: slope {kappa:.2e} (z = {z_kappa:.1}); ln f on w (f_ref/f)²: slope {kappa_s:.2e} (z = {z_spring:.1})"
         );
-        let statistic = z_gamma.max(z_pair).max(z_kappa.abs());
+        let statistic = z_gamma.max(z_pair).max(z_kappa.abs()).max(z_spring);
         let damps = (gamma > 0.0 && z_gamma > 1.0) || (gamma_pair > 0.0 && z_pair > 1.5);
-        if !damps && z_kappa.abs() <= 1.5 {
+        if !damps && z_kappa.abs() <= 1.5 && z_spring <= 1.5 {
             return Detection::Nothing { statistic, detail };
         }
         let g0 = if z_pair > z_gamma { gamma_pair } else { gamma }.max(0.0);
@@ -170,15 +229,24 @@ impl Effect for SupportContact {
             proposals: vec![
                 Proposal {
                     term: Arc::new(SupportTerm {
-                        with_frequency: false,
+                        law: FrequencyLaw::None,
+                        ln_f_ref,
                     }),
                     init: vec![g0],
                 },
                 Proposal {
                     term: Arc::new(SupportTerm {
-                        with_frequency: true,
+                        law: FrequencyLaw::Proportional,
+                        ln_f_ref,
                     }),
                     init: vec![g0, kappa.clamp(-0.5, 0.5)],
+                },
+                Proposal {
+                    term: Arc::new(SupportTerm {
+                        law: FrequencyLaw::Spring,
+                        ln_f_ref,
+                    }),
+                    init: vec![g0, kappa_s.clamp(0.0, 0.5)],
                 },
             ],
         }

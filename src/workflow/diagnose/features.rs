@@ -1,13 +1,14 @@
 //! Stage 5's inputs from the simulation, on rank 0: per simulated mode its drive at the strike
 //! (|φ·n|, or the RMS over the surface vertices one can hit when the strike is unknown), its
-//! motion at the support, its near-degenerate cluster, |φ_k|² at each surface vertex, and with
-//! the microphones known its |acoustic transfer| to each; then the object map, the baseline's
-//! frequency residuals regressed on each surface vertex's |φ_k|² pattern.
+//! motion along the support direction at the support, its near-degenerate cluster, |φ_k|² at
+//! each surface vertex (and the motion along the support direction at those a support can
+//! touch), and with the microphones known its |acoustic transfer| to each; then the object
+//! map, the baseline's frequency residuals regressed on each surface vertex's |φ_k|² pattern.
 
 use super::Job;
 use crate::audio::radiation::{mode_transfers, Listeners};
 use crate::diagnose::catalogue::CatalogueReport;
-use crate::diagnose::evidence;
+use crate::diagnose::evidence::{self, Motion};
 use crate::eigen;
 use crate::mesh::locate::{nearest_surface_vertices, strike_candidates, support_nodes};
 use crate::mesh::TetMesh;
@@ -26,6 +27,10 @@ pub struct Features {
     /// Surface vertices and |φ_k|² there: [vertex][mode].
     pub surface: Vec<usize>,
     pub surface_energy: Vec<Vec<f64>>,
+    /// Surface vertices a support can touch (outward normal within 60° of the support
+    /// direction) and the squared motion along that direction there: [vertex][mode].
+    pub support_candidates: Vec<usize>,
+    pub support_candidate_energy: Vec<Vec<f64>>,
     /// How the strike was taken (printed and in the JSON).
     pub strike_note: String,
 }
@@ -100,12 +105,42 @@ pub(super) fn features(
         CLUSTER_RTOL,
         CLUSTER_PROFILE_DISTANCE,
     );
-    let support_energy =
-        evidence::cluster_region_energies(shapes, &frequencies_hz, &clusters, &support, false);
+    // A support feels the motion along its direction, a mass all of it (evidence module docs).
+    let pressing = Motion::Along(job.support_direction);
+    let support_energy = evidence::cluster_region_energies(
+        shapes,
+        &frequencies_hz,
+        &clusters,
+        &support,
+        pressing,
+        false,
+    );
     let surface = mesh.surface_vertices();
+    let region_energies = |v: usize, motion: Motion, lowers: bool| {
+        evidence::cluster_region_energies(shapes, &frequencies_hz, &clusters, &[v], motion, lowers)
+    };
     let surface_energy = surface
         .iter()
-        .map(|&v| evidence::cluster_region_energies(shapes, &frequencies_hz, &clusters, &[v], true))
+        .map(|&v| region_energies(v, Motion::Full, true))
+        .collect();
+    let norm = job
+        .support_direction
+        .iter()
+        .map(|c| c * c)
+        .sum::<f64>()
+        .sqrt();
+    let support_candidates: Vec<usize> = surface
+        .iter()
+        .copied()
+        .filter(|v| {
+            normals.get(v).is_some_and(|n| {
+                (0..3).map(|c| n[c] * job.support_direction[c]).sum::<f64>() > SUPPORT_FACING * norm
+            })
+        })
+        .collect();
+    let support_candidate_energy = support_candidates
+        .iter()
+        .map(|&v| region_energies(v, pressing, false))
         .collect();
     let transfer = match &job.microphones {
         None => None,
@@ -142,6 +177,8 @@ pub(super) fn features(
         transfer,
         surface,
         surface_energy,
+        support_candidates,
+        support_candidate_energy,
         strike_note,
     })
 }
@@ -184,12 +221,7 @@ const SUPPORT_REGION_Z: f64 = MASS_REGION_Z;
 /// direction (n·down > ½), the complement of the strike candidates' rule.
 const SUPPORT_FACING: f64 = 0.5;
 
-pub(super) fn localise(
-    report: &CatalogueReport,
-    feats: &Features,
-    mesh: &TetMesh,
-    down: [f64; 3],
-) -> Localised {
+pub(super) fn localise(report: &CatalogueReport, feats: &Features, mesh: &TetMesh) -> Localised {
     let residuals: Vec<(Vec<usize>, f64)> = report
         .residuals
         .iter()
@@ -209,7 +241,7 @@ pub(super) fn localise(
         }
         _ => Vec::new(),
     };
-    let (support_best, support_region) = localise_support(report, feats, mesh, down);
+    let (support_best, support_region) = localise_support(report, feats, mesh);
     Localised {
         map,
         best,
@@ -226,7 +258,6 @@ fn localise_support(
     report: &CatalogueReport,
     feats: &Features,
     mesh: &TetMesh,
-    down: [f64; 3],
 ) -> (Option<(usize, f64)>, Vec<usize>) {
     let residuals: Vec<(Vec<usize>, f64)> = report
         .residuals
@@ -236,27 +267,13 @@ fn localise_support(
             z.is_finite().then(|| (r.simulated.clone(), z))
         })
         .collect();
-    let norm = down.iter().map(|c| c * c).sum::<f64>().sqrt();
-    let normals: std::collections::HashMap<usize, [f64; 3]> =
-        mesh.vertex_normals().into_iter().collect();
-    let facing: Vec<usize> = (0..feats.surface.len())
-        .filter(|&i| {
-            normals.get(&feats.surface[i]).is_some_and(|n| {
-                (0..3).map(|c| n[c] * down[c]).sum::<f64>() > SUPPORT_FACING * norm
-            })
-        })
-        .collect();
-    let energy: Vec<Vec<f64>> = facing
-        .iter()
-        .map(|&i| feats.surface_energy[i].clone())
-        .collect();
-    let map = evidence::localise_decay_residuals(&energy, &residuals);
+    let map = evidence::localise_decay_residuals(&feats.support_candidate_energy, &residuals);
     let best = map
         .iter()
-        .zip(&facing)
+        .zip(&feats.support_candidates)
         .filter(|(m, _)| m.1.is_finite())
         .max_by(|a, b| a.0 .1.total_cmp(&b.0 .1))
-        .map(|(m, &i)| (feats.surface[i], m.1));
+        .map(|(m, &v)| (v, m.1));
     // The default band's own z on the same residuals: the localised region replaces it only
     // when it explains the decays better.
     let band =

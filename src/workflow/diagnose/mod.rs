@@ -69,8 +69,8 @@
 //! 4. **Simulated modes**: every P2 mode up to 1.15 × the highest recorded frequency in use
 //!    (SLEPc), the shapes gathered on rank 0, and per mode its drive at the strike
 //!    (|φ·n|; with the strike unknown, the RMS of |φ·n| over the surface vertices one can hit),
-//!    its motion at the support (the surface vertices within 1 % of the height of the lowest
-//!    point along `support_direction`), its near-degenerate cluster (0.5 %), and, with the
+//!    its motion along `support_direction` at the support (the surface vertices within 1 % of
+//!    the height of the lowest point along it), its near-degenerate cluster (0.5 %), and, with the
 //!    microphone positions known, |acoustic transfer| to each microphone
 //!    ([`crate::audio::radiation`]).
 //! 5. **Catalogue** ([`crate::diagnose::catalogue::diagnose`], rank 0): matching, baseline,
@@ -80,8 +80,10 @@
 //!    z exceeds 2, the catalogue runs again with that region as the candidate added-mass site,
 //!    charged 2 parameters for having been chosen from the data (not when the simulation
 //!    carries the loaded match's mass: its site is the candidate). Likewise the support: the
-//!    baseline's decay residuals regressed on the |φ_k|² pattern of each surface vertex that
-//!    faces the support ([`crate::diagnose::evidence::localise_decay_residuals`]); when the
+//!    baseline's decay residuals regressed on the pattern of each surface vertex that faces
+//!    the support, its motion along the support direction (φ_k·n)² (a contact reacts along its
+//!    normal; [`crate::diagnose::evidence::Motion`],
+//!    [`crate::diagnose::evidence::localise_decay_residuals`]); when the
 //!    first pass did not accept a support at the lowest band and the best vertex's z exceeds 2
 //!    and the band's own z, its region replaces the band, charged 2 parameters. Why: the band
 //!    is where a bowl stands, but a plate or a tube lies on a strip or a pad anywhere on its
@@ -569,7 +571,7 @@ pub fn run(petsc: &Petsc, job: &Job, progress: &Progress) -> Result<Option<Outco
                 let feats = features(job, &mesh_model, &eigenvalues, &shapes, progress)?;
                 let mass_weights: Option<Vec<f64>> = match (&unloading, &loaded_site) {
                     (Some(q), _) => Some(q.iter().map(|q| q / (1.0 - q)).collect()),
-                    (None, Some(region)) => Some(evidence::cluster_region_energies(&shapes, &feats.frequencies_hz, &feats.clusters, region, true)),
+                    (None, Some(region)) => Some(evidence::cluster_region_energies(&shapes, &feats.frequencies_hz, &feats.clusters, region, evidence::Motion::Full, true)),
                     (None, None) => None,
                 };
                 let mut simulated = evidence::simulated_modes(&feats.frequencies_hz, &feats.drive, &feats.support_energy, mass_weights.as_deref(), feats.transfer.as_deref(), &feats.clusters).map_err(|e| e.to_string())?;
@@ -588,7 +590,7 @@ pub fn run(petsc: &Petsc, job: &Job, progress: &Progress) -> Result<Option<Outco
                     first_settings.mass_region_search_params = 2;
                 }
                 let first = catalogue::diagnose(&evidence, &first_settings).map_err(|e| format!("catalogue: {e}"))?;
-                let localised = localise(&first, &feats, &mesh_model, job.support_direction);
+                let localised = localise(&first, &feats, &mesh_model);
                 let mut final_settings = first_settings.clone();
                 let mass_localised = !localised.region.is_empty() && carried.is_none() && loaded_site.is_none();
                 // The support region found from the data replaces the lowest band only when the
@@ -600,14 +602,14 @@ pub fn run(petsc: &Petsc, job: &Job, progress: &Progress) -> Result<Option<Outco
                     let mass_energy = if mass_localised {
                         final_settings.mass_region_search_params = 2;
                         progress.say(format!("frequency residuals point at surface vertex {} (z = {:.1}); catalogue again with it as the candidate added-mass region", localised.best.map_or(0, |b| b.0), localised.best.map_or(0.0, |b| b.1)));
-                        Some(evidence::cluster_region_energies(&shapes, &feats.frequencies_hz, &feats.clusters, &localised.region, true))
+                        Some(evidence::cluster_region_energies(&shapes, &feats.frequencies_hz, &feats.clusters, &localised.region, evidence::Motion::Full, true))
                     } else {
                         mass_weights.clone()
                     };
                     let support_energy = if support_localised {
                         final_settings.support_region_search_params = 2;
                         progress.say(format!("decay residuals point at surface vertex {} facing the support (z = {:.1}); catalogue again with it as the candidate support region", localised.support_best.map_or(0, |b| b.0), localised.support_best.map_or(0.0, |b| b.1)));
-                        evidence::cluster_region_energies(&shapes, &feats.frequencies_hz, &feats.clusters, &localised.support_region, false)
+                        evidence::cluster_region_energies(&shapes, &feats.frequencies_hz, &feats.clusters, &localised.support_region, evidence::Motion::Along(job.support_direction), false)
                     } else {
                         feats.support_energy.clone()
                     };
