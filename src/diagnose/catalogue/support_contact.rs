@@ -23,13 +23,13 @@
 //! is the shift of a mode of weight 1 there.
 //!
 //! Three variants: damping only (γ), damping with the proportional shift (γ, κ) and damping
-//! with the spring (γ, κ_s); the criterion picks. Detector: weighted regressions of the current decay residuals d_obs − d_pred on w
-//! (slope γ̂, its z), of the decay-split residuals of split pairs on w_u − w_l through the
-//! origin (slope γ̂_pair, its z: the two modes of a pair share any damping law's misfit, so a
-//! support that damps one more than the other stands out to the extraction's precision), and
-//! of the ln f residuals on w (slope κ̂, its z) and on w (f_ref/f)² (slope κ̂_s, its z); the
-//! candidate goes on if γ̂ > 0 with z > 1, γ̂_pair > 0 with z > 1.5, |z_κ| > 1.5 or z_κs > 1.5
-//! (the weights must vary by 5 % of the largest matched one).
+//! with the spring (γ, κ_s); the criterion picks. Detector: weighted regressions of the current
+//! decay residuals d_obs − d_pred on w (slope γ̂, its z), of the decay-split residuals of split
+//! pairs on w_u − w_l through the origin (slope γ̂_pair, its z: the two modes of a pair share
+//! any damping law's misfit, so a support that damps one more than the other stands out to the
+//! extraction's precision), and of the ln f residuals on w (slope κ̂, its z) and on w (f_ref/f)²
+//! (slope κ̂_s, its z); the candidate goes on if γ̂ > 0 with z > 1, γ̂_pair > 0 with z > 1.5,
+//! |z_κ| > 1.5 or z_κs > 1.5 (the weights must vary by 5 % of the largest matched one).
 //!
 //! Signature, after the fit: the support must damp, γ > 2σ_γ. A passive contact always takes
 //! energy from the modes that move at it; a frequency shift alone is not a support's signature,
@@ -73,13 +73,13 @@ pub struct SupportTerm {
 impl SupportTerm {
     /// The frequency covariate of mode `m` under the term's law: w, or w (f_ref/f)².
     fn shift_weight(&self, m: &super::ModeEntry) -> f64 {
-        spring_weight(self.law, self.ln_f_ref, m)
+        frequency_covariate(self.law, self.ln_f_ref, m)
     }
 }
 
 /// w for [`FrequencyLaw::Proportional`], w (f_ref/f_sim)² for [`FrequencyLaw::Spring`], 0
 /// without a shift.
-fn spring_weight(law: FrequencyLaw, ln_f_ref: f64, m: &super::ModeEntry) -> f64 {
+fn frequency_covariate(law: FrequencyLaw, ln_f_ref: f64, m: &super::ModeEntry) -> f64 {
     match law {
         FrequencyLaw::None => 0.0,
         FrequencyLaw::Proportional => m.support_weight,
@@ -180,22 +180,20 @@ impl Effect for SupportContact {
                 damping.len()
             ));
         }
-        let frequency: Vec<(f64, f64, f64)> = table
-            .modes
-            .iter()
-            .zip(&res.ln_f)
-            .map(|(m, &(r, v))| (m.support_weight, r, 1.0 / v))
-            .collect();
+        // The ln f residuals against each frequency law's covariate.
         let ln_f_ref = current.model.ln_f_ref;
-        let spring: Vec<(f64, f64, f64)> = table
-            .modes
-            .iter()
-            .zip(&res.ln_f)
-            .map(|(m, &(r, v))| (spring_weight(FrequencyLaw::Spring, ln_f_ref, m), r, 1.0 / v))
-            .collect();
+        let ln_f_regression = |law: FrequencyLaw| {
+            let rows: Vec<(f64, f64, f64)> = table
+                .modes
+                .iter()
+                .zip(&res.ln_f)
+                .map(|(m, &(r, v))| (frequency_covariate(law, ln_f_ref, m), r, 1.0 / v))
+                .collect();
+            weighted_regression(&rows)
+        };
         let (gamma, z_gamma) = weighted_regression(&damping);
-        let (kappa, z_kappa) = weighted_regression(&frequency);
-        let (kappa_s, z_spring) = weighted_regression(&spring);
+        let (kappa, z_kappa) = ln_f_regression(FrequencyLaw::Proportional);
+        let (kappa_s, z_spring) = ln_f_regression(FrequencyLaw::Spring);
         // Within split pairs: the decay split's residual in 1/s, d̄ (r_u − r_l) at the pair's
         // mean decay d̄, against w_u − w_l, through the origin (a damping law gives the two
         // modes of a pair the same residual, so no intercept is left).
