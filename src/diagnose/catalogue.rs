@@ -207,8 +207,8 @@
 //! less, both on reverberant cases: an added mass with a Σz² gain of 0.1, which this rule
 //! rejects, and a contact duration with a gain of 2.6, which it still accepts (the threshold
 //! was not raised to fit this benchmark); the true effects' gains were 4.0 or more. With
-//! `held_out_dispersion` (off by default) the gain is divided by the robust over-dispersion
-//! ĉ = max(1, median z² / 0.4549) of the held-out rows before the effect
+//! `held_out_dispersion` (on by default; why, below the calibration of the threshold) the gain
+//! is divided by the robust over-dispersion ĉ = max(1, median z² / 0.4549) of the held-out rows before the effect
 //! ([`HeldOutChange::with_dispersion`]), the quasi-likelihood correction for held-out data
 //! that the model misfits throughout (then every z² is inflated and so is any gain). Replayed
 //! on the blind benchmark's saved evidence (seed 101, `examples/catalogue_replay`) it changed
@@ -259,10 +259,23 @@
 //! early/late frequencies, residual envelopes of 6 bands × 120 frames); an effect's
 //! false-alarm rate at threshold c is the fraction of draws with ΔBIC > c. Measured at c = 0:
 //! pitch glide 2.1 %, contact duration 1.7 %, added mass 0.8 %, the others ≤ 0.4 %; at c = 1
-//! all ≤ 2 % (the smallest integer that does it); at c = 2, the default
-//! [`DEFAULT_DELTA_BIC_THRESHOLD`], at most 0.8 % (2 of 240) per effect, and with the held-out
-//! condition 2 acceptances in all 240 draws. The unit of margin over the calibrated 1 is for
-//! real residuals, which are not exactly Gaussian. With a model-error scatter of 0.4 % in
+//! all ≤ 2 % (the smallest integer that does it); at c = 2 at most 0.8 % (2 of 240) per
+//! effect, and with the held-out condition 2 acceptances in all 240 draws. The margin over the
+//! calibrated 1 is for real residuals, which are not exactly Gaussian, and for a model that is
+//! never exactly the object's: the default [`DEFAULT_DELTA_BIC_THRESHOLD`] is 3. Why 3 and not
+//! 2: on generator 2's seeds 31, 37 and 41 (calibration sets) every accepted effect with
+//! 2 < ΔBIC < 3 was false (4 of 4: a three-knot damping beside a mass at 2.04, contact durations
+//! beside a glide and a room at 2.07 and 2.43, a radiation pattern at 2.50), three of them
+//! second beside a true effect, where the first effect's model error, not noise, is what the
+//! second fits; the smallest true effects were at 3.24 and 3.64. Replayed on their saved
+//! evidence, 3 raised macro-F1 from 0.864 / 0.884 / 0.707 to 0.884 / 0.905 / 0.745 and changed
+//! nothing on the real bowl; 2 ln 7 ≈ 3.9 (prior odds for one of seven effects) cost the two
+//! smallest true effects and was not taken. Judged blind on a later seed, not on these.
+//!
+//! The held-out gain is divided by the held-out rows' over-dispersion by default
+//! (`held_out_dispersion`): on the same sets it removed one false damping law on a
+//! reverberant cup (seed 37 case 014, whose held-out rows the room inflates throughout) and
+//! changed no other verdict. With a model-error scatter of 0.4 % in
 //! frequency, 10 % in decay and 15 % in level per mode (test
 //! `false_alarms_with_model_error_scatter_at_most_five_percent`, 100 draws) at most 1 % per
 //! effect was accepted. At the strengths of the effect tests with that scatter, every effect
@@ -510,7 +523,7 @@ impl Default for CatalogueSettings {
             mass_region_search_params: 0,
             support_region_search_params: 0,
             min_held_out_gain: DEFAULT_MIN_HELD_OUT_GAIN,
-            held_out_dispersion: false,
+            held_out_dispersion: true,
             held_out_huber_k: DEFAULT_HELD_OUT_HUBER_K,
             level_colouration: ColourationWhen::Room,
             poisson_nuisance: true,
@@ -522,7 +535,7 @@ impl Default for CatalogueSettings {
 }
 
 /// The calibrated threshold (module docs, "Selection").
-pub const DEFAULT_DELTA_BIC_THRESHOLD: f64 = 2.0;
+pub const DEFAULT_DELTA_BIC_THRESHOLD: f64 = 3.0;
 
 /// Default held-out Σz² gain an accepted effect must exceed (module docs, "Selection").
 pub const DEFAULT_MIN_HELD_OUT_GAIN: f64 = 2.0;

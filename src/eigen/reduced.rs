@@ -634,6 +634,7 @@ impl<'p> PoissonBasis<'p> {
         })?;
         // Block b's normalised columns (dense, for the products) per block.
         let mut solved: Vec<Dense<'p>> = Vec::with_capacity(blocks);
+        let mut mass_products: Vec<Vec<f64>> = Vec::with_capacity(blocks);
         for block in 0..blocks {
             let mut x = Dense::zeros(petsc, n_local, n_global, n_rhs)?;
             solver.solver.solve_many(&rhs, &mut x)?;
@@ -686,8 +687,11 @@ impl<'p> PoissonBasis<'p> {
                 }
             };
             x.with_local(scale)?;
+            // M x of the normalised columns: the mass projection's product, and the next
+            // block's right-hand sides.
+            mx.with_local(scale)?;
+            mass_products.push(mx.local_values()?);
             if block + 1 < blocks {
-                mx.with_local(scale)?;
                 rhs = mx;
             }
             solved.push(x);
@@ -718,51 +722,55 @@ impl<'p> PoissonBasis<'p> {
         let basis = DMatrix::from_fn(n_local, nb, |r, i| solver.local_basis[i][r]);
         let basis_t = basis.transpose();
         let self_len: usize = (0..groups.len()).map(|g| members(g).len().pow(2)).sum();
-        let project = |mat: &Mat<'p>| -> Result<Projected, ReducedError> {
-            // Local sums, then one reduction: the basis rows of every column, then each group's
-            // own Gram block.
-            let products: Vec<Vec<f64>> = solved
-                .iter()
-                .map(|x| Dense::product(mat, x).and_then(|mut w| w.local_values()))
-                .collect::<Result<_, _>>()?;
-            let mut local = Vec::with_capacity(nb * n_rhs * blocks + self_len);
-            for w in &products {
-                let w = DMatrix::from_column_slice(n_local, n_rhs, w);
-                local.extend_from_slice((&basis_t * w).as_slice());
-            }
-            for g in 0..groups.len() {
-                let m = members(g);
-                for &(bj, j) in m {
-                    let wj = &products[bj][j * n_local..(j + 1) * n_local];
-                    for &(bi, i) in m {
-                        local.push(dot(column(bi, i), wj));
+        let project =
+            |mat: &Mat<'p>, known: Option<Vec<Vec<f64>>>| -> Result<Projected, ReducedError> {
+                // Local sums, then one reduction: the basis rows of every column, then each group's
+                // own Gram block.
+                let products: Vec<Vec<f64>> = match known {
+                    Some(products) => products,
+                    None => solved
+                        .iter()
+                        .map(|x| Dense::product(mat, x).and_then(|mut w| w.local_values()))
+                        .collect::<Result<_, _>>()?,
+                };
+                let mut local = Vec::with_capacity(nb * n_rhs * blocks + self_len);
+                for w in &products {
+                    let w = DMatrix::from_column_slice(n_local, n_rhs, w);
+                    local.extend_from_slice((&basis_t * w).as_slice());
+                }
+                for g in 0..groups.len() {
+                    let m = members(g);
+                    for &(bj, j) in m {
+                        let wj = &products[bj][j * n_local..(j + 1) * n_local];
+                        for &(bi, i) in m {
+                            local.push(dot(column(bi, i), wj));
+                        }
                     }
                 }
-            }
-            let global = sum(&local);
-            let mut cross = Vec::with_capacity(groups.len());
-            let mut own = Vec::with_capacity(groups.len());
-            let mut at = nb * n_rhs * blocks;
-            for g in 0..groups.len() {
-                let m = members(g);
-                let c = DMatrix::from_fn(nb, m.len(), |i, k| {
-                    let (b, j) = m[k];
-                    global[b * nb * n_rhs + j * nb + i]
-                });
-                cross.push(self.whitening.transpose() * c);
-                let o = DMatrix::from_column_slice(
-                    m.len(),
-                    m.len(),
-                    &global[at..at + m.len() * m.len()],
-                );
-                at += m.len() * m.len();
-                own.push((&o + o.transpose()) * 0.5);
-            }
-            Ok((cross, own))
-        };
-        let (cross_lambda, self_lambda) = project(&assembled.k_lambda)?;
-        let (cross_mu, self_mu) = project(&assembled.k_mu)?;
-        let (cross_mass, self_mass) = project(&assembled.mass_unit)?;
+                let global = sum(&local);
+                let mut cross = Vec::with_capacity(groups.len());
+                let mut own = Vec::with_capacity(groups.len());
+                let mut at = nb * n_rhs * blocks;
+                for g in 0..groups.len() {
+                    let m = members(g);
+                    let c = DMatrix::from_fn(nb, m.len(), |i, k| {
+                        let (b, j) = m[k];
+                        global[b * nb * n_rhs + j * nb + i]
+                    });
+                    cross.push(self.whitening.transpose() * c);
+                    let o = DMatrix::from_column_slice(
+                        m.len(),
+                        m.len(),
+                        &global[at..at + m.len() * m.len()],
+                    );
+                    at += m.len() * m.len();
+                    own.push((&o + o.transpose()) * 0.5);
+                }
+                Ok((cross, own))
+            };
+        let (cross_lambda, self_lambda) = project(&assembled.k_lambda, None)?;
+        let (cross_mu, self_mu) = project(&assembled.k_mu, None)?;
+        let (cross_mass, self_mass) = project(&assembled.mass_unit, Some(mass_products))?;
         // Probe values: each rank fills the probe DOFs it owns, then one reduction.
         let n_probe = self.probe_dofs.len();
         let mut local = vec![0.0; n_probe * n_rhs * blocks];
