@@ -722,55 +722,54 @@ impl<'p> PoissonBasis<'p> {
         let basis = DMatrix::from_fn(n_local, nb, |r, i| solver.local_basis[i][r]);
         let basis_t = basis.transpose();
         let self_len: usize = (0..groups.len()).map(|g| members(g).len().pow(2)).sum();
-        let project =
-            |mat: &Mat<'p>, known: Option<Vec<Vec<f64>>>| -> Result<Projected, ReducedError> {
-                // Local sums, then one reduction: the basis rows of every column, then each group's
-                // own Gram block.
-                let products: Vec<Vec<f64>> = match known {
-                    Some(products) => products,
-                    None => solved
-                        .iter()
-                        .map(|x| Dense::product(mat, x).and_then(|mut w| w.local_values()))
-                        .collect::<Result<_, _>>()?,
-                };
-                let mut local = Vec::with_capacity(nb * n_rhs * blocks + self_len);
-                for w in &products {
-                    let w = DMatrix::from_column_slice(n_local, n_rhs, w);
-                    local.extend_from_slice((&basis_t * w).as_slice());
-                }
-                for g in 0..groups.len() {
-                    let m = members(g);
-                    for &(bj, j) in m {
-                        let wj = &products[bj][j * n_local..(j + 1) * n_local];
-                        for &(bi, i) in m {
-                            local.push(dot(column(bi, i), wj));
-                        }
+        // K_• x of every column (the mass's are the M x already formed above).
+        let products_of = |mat: &Mat<'p>| -> Result<Vec<Vec<f64>>, ReducedError> {
+            Ok(solved
+                .iter()
+                .map(|x| Dense::product(mat, x).and_then(|mut w| w.local_values()))
+                .collect::<Result<_, _>>()?)
+        };
+        let project = |products: &[Vec<f64>]| -> Result<Projected, ReducedError> {
+            // Local sums, then one reduction: the basis rows of every column, then each group's
+            // own Gram block.
+            let mut local = Vec::with_capacity(nb * n_rhs * blocks + self_len);
+            for w in products {
+                let w = DMatrix::from_column_slice(n_local, n_rhs, w);
+                local.extend_from_slice((&basis_t * w).as_slice());
+            }
+            for g in 0..groups.len() {
+                let m = members(g);
+                for &(bj, j) in m {
+                    let wj = &products[bj][j * n_local..(j + 1) * n_local];
+                    for &(bi, i) in m {
+                        local.push(dot(column(bi, i), wj));
                     }
                 }
-                let global = sum(&local);
-                let mut cross = Vec::with_capacity(groups.len());
-                let mut own = Vec::with_capacity(groups.len());
-                let mut at = nb * n_rhs * blocks;
-                for g in 0..groups.len() {
-                    let m = members(g);
-                    let c = DMatrix::from_fn(nb, m.len(), |i, k| {
-                        let (b, j) = m[k];
-                        global[b * nb * n_rhs + j * nb + i]
-                    });
-                    cross.push(self.whitening.transpose() * c);
-                    let o = DMatrix::from_column_slice(
-                        m.len(),
-                        m.len(),
-                        &global[at..at + m.len() * m.len()],
-                    );
-                    at += m.len() * m.len();
-                    own.push((&o + o.transpose()) * 0.5);
-                }
-                Ok((cross, own))
-            };
-        let (cross_lambda, self_lambda) = project(&assembled.k_lambda, None)?;
-        let (cross_mu, self_mu) = project(&assembled.k_mu, None)?;
-        let (cross_mass, self_mass) = project(&assembled.mass_unit, Some(mass_products))?;
+            }
+            let global = sum(&local);
+            let mut cross = Vec::with_capacity(groups.len());
+            let mut own = Vec::with_capacity(groups.len());
+            let mut at = nb * n_rhs * blocks;
+            for g in 0..groups.len() {
+                let m = members(g);
+                let c = DMatrix::from_fn(nb, m.len(), |i, k| {
+                    let (b, j) = m[k];
+                    global[b * nb * n_rhs + j * nb + i]
+                });
+                cross.push(self.whitening.transpose() * c);
+                let o = DMatrix::from_column_slice(
+                    m.len(),
+                    m.len(),
+                    &global[at..at + m.len() * m.len()],
+                );
+                at += m.len() * m.len();
+                own.push((&o + o.transpose()) * 0.5);
+            }
+            Ok((cross, own))
+        };
+        let (cross_lambda, self_lambda) = project(&products_of(&assembled.k_lambda)?)?;
+        let (cross_mu, self_mu) = project(&products_of(&assembled.k_mu)?)?;
+        let (cross_mass, self_mass) = project(&mass_products)?;
         // Probe values: each rank fills the probe DOFs it owns, then one reduction.
         let n_probe = self.probe_dofs.len();
         let mut local = vec![0.0; n_probe * n_rhs * blocks];

@@ -174,6 +174,21 @@ struct RegionProblem {
 }
 
 impl RegionProblem {
+    /// A problem with no values (M not positive definite): `solve` returns none.
+    fn empty(floor: f64, keep: usize) -> Self {
+        RegionProblem {
+            theta: DVector::zeros(0),
+            strike: DVector::zeros(0),
+            q: DMatrix::zeros(0, 0),
+            b: DMatrix::zeros(0, 0),
+            t: DMatrix::zeros(0, 0),
+            d: Vec::new(),
+            q_strike: DVector::zeros(0),
+            floor,
+            keep,
+        }
+    }
+
     /// The basis [Φ(ν), A, R]: the modes, the region's attachment vectors if given, and the
     /// rigid-body motions (K R = 0; R M₁-orthogonal to Φ and A, M₁-orthonormal). `None` if
     /// the pieces do not fit together.
@@ -243,31 +258,21 @@ impl RegionProblem {
         // elastic loaded value (a mass of 16 % lowers none by more than a few times): values
         // under 10⁻⁶ of the largest diagonal entry of K are dropped.
         let floor = 1e-6 * stiffness.diagonal().iter().fold(0.0_f64, |m, v| m.max(*v));
-        let empty = RegionProblem {
-            theta: DVector::zeros(0),
-            strike: DVector::zeros(0),
-            q: DMatrix::zeros(0, 0),
-            b: DMatrix::zeros(0, 0),
-            t: DMatrix::zeros(0, 0),
-            d: Vec::new(),
-            q_strike: DVector::zeros(0),
-            floor,
-            keep: n,
-        };
+        let empty = || RegionProblem::empty(floor, n);
         // M = LLᵀ; L⁻¹ K L⁻ᵀ = U Θ₀ Uᵀ, V = L⁻ᵀU.
         let Some(chol) = mass.cholesky() else {
-            return Some(empty);
+            return Some(empty());
         };
         let l = chol.l();
         let Some(left) = l.solve_lower_triangular(&stiffness) else {
-            return Some(empty);
+            return Some(empty());
         };
         let Some(reduced) = l.solve_lower_triangular(&left.transpose()) else {
-            return Some(empty);
+            return Some(empty());
         };
         let eig = SymmetricEigen::new((&reduced + reduced.transpose()) * 0.5);
         let Some(v) = l.transpose().solve_upper_triangular(&eig.eigenvectors) else {
-            return Some(empty);
+            return Some(empty());
         };
         let theta = eig.eigenvalues;
         let strike = v.transpose() * DVector::from_vec(strike);
