@@ -321,7 +321,9 @@ use serde::{Deserialize, Serialize};
 pub use added_mass::{AddedMass, MassLoading};
 pub use beating_pair::{BeatingPair, PairSplits};
 pub use contact_duration::{
-    half_sine_envelope, half_sine_spectrum, ContactDuration, ContactShape, HalfSineContact,
+    half_sine_envelope, half_sine_spectrum, sine_power_duration, sine_power_spectrum,
+    ContactDuration, ContactShape, HalfSineContact, SinePowerContact, FIRST_NULL_PARAM,
+    SINE_POWER_NULL_DEPTH,
 };
 pub use matching::{faint_poles, match_modes, Matching, Unit, DEFAULT_FAINT_POLE_DB};
 pub use model::{

@@ -154,7 +154,7 @@ use rustfft::num_complex::Complex64;
 use serde::{Deserialize, Serialize};
 
 use crate::audio::synth::{render_samples, ModalBank};
-use crate::diagnose::catalogue::{AcceptedEffect, FittedParam};
+use crate::diagnose::catalogue::{AcceptedEffect, FittedParam, FIRST_NULL_PARAM};
 use crate::mesh::TetMesh;
 // The mesh helpers the generator shares with the diagnosis live with the mesh; re-exported
 // here for the benchmark's examples.
@@ -1911,7 +1911,15 @@ pub fn compare_parameters(
                 );
             }
             let expected = equivalent_half_sine_duration(&freqs, &att)?;
-            let t = detected_param(accepted, "contact duration")?.value;
+            // The sin^p variant reports its first null f₀; the half-sine with that null
+            // (fT = 3/2) is the duration compared.
+            let t = match detected_param(accepted, "contact duration") {
+                Ok(q) => q.value,
+                Err(e) => match detected_param(accepted, FIRST_NULL_PARAM) {
+                    Ok(q) => 1.5 / q.value,
+                    Err(_) => return Err(e),
+                },
+            };
             let v = ComparedValue::new(
                 "contact duration T (half-sine fitted to the case's Hertz attenuations)",
                 "s",
