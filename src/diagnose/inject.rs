@@ -154,7 +154,9 @@ use rustfft::num_complex::Complex64;
 use serde::{Deserialize, Serialize};
 
 use crate::audio::synth::{render_samples, ModalBank};
-use crate::diagnose::catalogue::{AcceptedEffect, FittedParam, FIRST_NULL_PARAM};
+use crate::diagnose::catalogue::{
+    sine_power_duration, AcceptedEffect, FittedParam, FIRST_NULL_PARAM,
+};
 use crate::mesh::TetMesh;
 // The mesh helpers the generator shares with the diagnosis live with the mesh; re-exported
 // here for the benchmark's examples.
@@ -1911,12 +1913,12 @@ pub fn compare_parameters(
                 );
             }
             let expected = equivalent_half_sine_duration(&freqs, &att)?;
-            // The sin^p variant reports its first null f₀; the half-sine with that null
-            // (fT = 3/2) is the duration compared.
+            // The sin^p variant reports its first null f₀; the half-sine (p = 1) with that
+            // null is the duration compared.
             let t = match detected_param(accepted, "contact duration") {
                 Ok(q) => q.value,
                 Err(e) => match detected_param(accepted, FIRST_NULL_PARAM) {
-                    Ok(q) => 1.5 / q.value,
+                    Ok(q) => sine_power_duration(q.value, 1.0),
                     Err(_) => return Err(e),
                 },
             };

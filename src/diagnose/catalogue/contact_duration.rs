@@ -97,6 +97,29 @@ pub fn sine_power_spectrum(x: f64, p: f64) -> f64 {
 /// Smallest magnitude the log model uses: a mode at a spectral zero is 300 dB down, not −∞.
 const FLOOR: f64 = 1e-15;
 
+/// ln a_kc += ln_level(ω_k) on every channel c of each mode k (ω_k = 2π e^{ln f_k}): a contact
+/// force's spectrum scales every microphone's view of a mode alike.
+fn add_on_every_channel(
+    table: &ModeTable,
+    ln_f: &[f64],
+    ln_a: &mut [f64],
+    ln_level: impl Fn(f64) -> f64,
+) {
+    let c_n = table.channels;
+    for (k, &lf) in ln_f.iter().enumerate() {
+        let g = ln_level(2.0 * std::f64::consts::PI * lf.exp());
+        for a in &mut ln_a[k * c_n..(k + 1) * c_n] {
+            *a += g;
+        }
+    }
+}
+
+/// ln max(E_p(x), N) of the sin^p pulse at x = ωT ([`sine_power_spectrum`], N =
+/// [`SINE_POWER_NULL_DEPTH`]): the model's level, shared by the term and its screen.
+fn sine_power_ln_level(x: f64, p: f64) -> f64 {
+    sine_power_spectrum(x, p).max(SINE_POWER_NULL_DEPTH).ln()
+}
+
 /// The contact's shape in the model: the half-sine's own spectrum, or past its first null the
 /// side lobes' envelope (module docs).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -143,14 +166,9 @@ impl Term for HalfSineContact {
         )]
     }
     fn amplitude(&self, table: &ModeTable, p: &[f64], ln_f: &[f64], ln_a: &mut [f64]) {
-        let c_n = table.channels;
-        for (k, &lf) in ln_f.iter().enumerate() {
-            let x = 2.0 * std::f64::consts::PI * lf.exp() * p[0];
-            let g = self.shape.level(x).max(FLOOR).ln();
-            for a in &mut ln_a[k * c_n..(k + 1) * c_n] {
-                *a += g;
-            }
-        }
+        add_on_every_channel(table, ln_f, ln_a, |w| {
+            self.shape.level(w * p[0]).max(FLOOR).ln()
+        });
     }
 }
 
@@ -196,15 +214,8 @@ impl Term for SinePowerContact {
         ]
     }
     fn amplitude(&self, table: &ModeTable, p: &[f64], ln_f: &[f64], ln_a: &mut [f64]) {
-        let c_n = table.channels;
         let t = sine_power_duration(p[0], p[1]);
-        for (k, &lf) in ln_f.iter().enumerate() {
-            let x = 2.0 * std::f64::consts::PI * lf.exp() * t;
-            let g = sine_power_spectrum(x, p[1]).max(SINE_POWER_NULL_DEPTH).ln();
-            for a in &mut ln_a[k * c_n..(k + 1) * c_n] {
-                *a += g;
-            }
-        }
+        add_on_every_channel(table, ln_f, ln_a, |w| sine_power_ln_level(w * t, p[1]));
     }
 }
 
@@ -272,18 +283,21 @@ impl Effect for ContactDuration {
             line.iter().map(|p| p.2 * (p.1 - c - t * p.0).powi(2)).sum()
         };
         let base = chi2(&|_| 0.0);
-        // The best drop in Σz² over 40 durations log-spaced over [t_lo, t_hi].
-        let scan = |shape: ContactShape, t_lo: f64, t_hi: f64| -> (f64, f64) {
-            let mut best = (0.0, t_hi);
+        // The best drop in Σz² over 40 values x log-spaced over [lo, hi] of a model's one
+        // scanned parameter, ln_level(x, ω) its ln level at ω: (drop, x).
+        let scan = |lo: f64, hi: f64, ln_level: &dyn Fn(f64, f64) -> f64| -> (f64, f64) {
+            let mut best = (0.0, hi);
             for i in 0..40 {
-                let t = t_lo * (t_hi / t_lo).powf(i as f64 / 39.0);
-                let drop = base - chi2(&|w| shape.level(w * t).max(FLOOR).ln());
+                let x = lo * (hi / lo).powf(i as f64 / 39.0);
+                let drop = base - chi2(&|w| ln_level(x, w));
                 if drop > best.0 {
-                    best = (drop, t);
+                    best = (drop, x);
                 }
             }
             best
         };
+        let half_sine =
+            |shape: ContactShape| move |t: f64, w: f64| shape.level(w * t).max(FLOOR).ln();
         let mut proposals = Vec::new();
         let mut propose = |shape: ContactShape, (drop, t): (f64, f64), t_lo: f64, t_hi: f64| {
             if drop > 1.0 {
@@ -297,7 +311,7 @@ impl Effect for ContactDuration {
                 });
             }
         };
-        let main = scan(ContactShape::HalfSine, t_max / 1000.0, t_max);
+        let main = scan(t_max / 1000.0, t_max, &half_sine(ContactShape::HalfSine));
         propose(ContactShape::HalfSine, main, 0.0, t_max);
         let mut detail = format!(
             "half-sine low-pass on the amplitude residuals lowers Σz² by {:.1} at T = {:.3} ms",
@@ -309,7 +323,7 @@ impl Effect for ContactDuration {
         let omega_min = points.iter().map(|p| p.0).fold(f64::INFINITY, f64::min);
         let t_env_max = 3.0 * std::f64::consts::PI / omega_min;
         if t_env_max > t_max {
-            let env = scan(ContactShape::Envelope, t_max, t_env_max);
+            let env = scan(t_max, t_env_max, &half_sine(ContactShape::Envelope));
             propose(ContactShape::Envelope, env, t_max, t_env_max);
             detail.push_str(&format!(
                 "; its side-lobe envelope by {:.1} at T = {:.3} ms",
@@ -324,18 +338,11 @@ impl Effect for ContactDuration {
         if f_hi > 1.2 * f_lo {
             let mut best = (0.0, f_hi, 1.0);
             for &power in &[1.0, 1.5, 2.0, 2.5, 3.0] {
-                for i in 0..40 {
-                    let f0 = f_lo * (f_hi / f_lo).powf(i as f64 / 39.0);
-                    let t = sine_power_duration(f0, power);
-                    let drop = base
-                        - chi2(&|w| {
-                            sine_power_spectrum(w * t, power)
-                                .max(SINE_POWER_NULL_DEPTH)
-                                .ln()
-                        });
-                    if drop > best.0 {
-                        best = (drop, f0, power);
-                    }
+                let (drop, f0) = scan(f_lo, f_hi, &|f0, w| {
+                    sine_power_ln_level(w * sine_power_duration(f0, power), power)
+                });
+                if drop > best.0 {
+                    best = (drop, f0, power);
                 }
             }
             if best.0 > 1.0 {
