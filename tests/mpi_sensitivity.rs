@@ -45,6 +45,12 @@
 //! window's side lobes, the loss is rough on the 1e-7 scale, and differences scatter by ~5 %
 //! (they only converge below steps of 1e-8, where the solver noise takes over). A last check
 //! demands that every rank computed bit for bit the same values, gradients and differences.
+//!
+//! Ranks: the brick's checks, the hollow ellipsoid's shape chain on its plain grid, the morph
+//! chain and the loaded Ritz model run on 1 and on 2 ranks. The bowl's checks, the ellipsoid's
+//! refined grid and the neural-field chains run on 2 ranks only: they take nine tenths of the
+//! 1-rank run's time (157 s of it measured), and the distributed run is the one that can fail
+//! where the serial one passes (the 1-rank path is the 2-rank one without the ghost exchange).
 
 use diffsound::assembly;
 use diffsound::audio::chain::{self, DampingGradient, DampingModel, ModalChain, Strike};
@@ -1383,19 +1389,29 @@ fn child() {
         failures: 0,
     };
     check_collective_failures(&petsc, &mut c);
+    // The bowl and the longer chains run on 2 ranks only (module docs, "Ranks").
+    let distributed = petsc.size() > 1;
     // A small brick with unequal sides, so that its low modes are well separated.
     let brick = mesh::lift_to_quadratic(&mesh::box_mesh([5, 4, 3], [0.10, 0.07, 0.04]));
     check_mesh(&petsc, &mut c, "brick", &brick, 12);
     check_audio_loss(&petsc, &mut c, "brick", &brick, 12);
-    check_mesh(&petsc, &mut c, "bowl", &load("examples/bowl/bowl.msh"), 10);
+    if distributed {
+        check_mesh(&petsc, &mut c, "bowl", &load("examples/bowl/bowl.msh"), 10);
+    }
     check_rigid_deflation(&petsc, &mut c, "brick", &brick, 12);
-    check_rigid_deflation(&petsc, &mut c, "bowl", &load("examples/bowl/bowl.msh"), 16);
+    if distributed {
+        check_rigid_deflation(&petsc, &mut c, "bowl", &load("examples/bowl/bowl.msh"), 16);
+    }
     check_shape_chain(&petsc, &mut c);
     check_curved_shell_chain(&petsc, &mut c, 0);
-    check_curved_shell_chain(&petsc, &mut c, 1);
+    if distributed {
+        check_curved_shell_chain(&petsc, &mut c, 1);
+    }
     check_morph_chain(&petsc, &mut c);
-    check_neural_chain(&petsc, &mut c, false);
-    check_neural_chain(&petsc, &mut c, true);
+    if distributed {
+        check_neural_chain(&petsc, &mut c, false);
+        check_neural_chain(&petsc, &mut c, true);
+    }
     check_loaded_ritz(&petsc, &mut c);
     let _ = c.failures;
 }

@@ -109,9 +109,9 @@ fn solve(name: &str, mesh: &Path, extra: &[&str], np: usize, request: &[&str]) -
     }
 }
 
-/// `--modes 40` and `--fmax` on 1 and 2 ranks; the ranks agree and the slice finds exactly the
-/// modes below its limit.
-fn zoo_case(name: &str, mesh: &Path, extra: &[&str]) {
+/// `--modes 40` on 1 and 2 ranks and `--fmax` on `slice_ranks`; the ranks agree and the slice
+/// finds exactly the modes below its limit.
+fn zoo_case(name: &str, mesh: &Path, extra: &[&str], slice_ranks: &[usize]) {
     let first: Vec<Solved> = [1, 2]
         .iter()
         .map(|&np| solve(name, mesh, extra, np, &["--modes", "40"]))
@@ -138,7 +138,7 @@ fn zoo_case(name: &str, mesh: &Path, extra: &[&str]) {
         .unwrap();
     let fmax = (f[k] * f[k + 1]).sqrt();
     let fmax_arg = format!("{fmax}");
-    for np in [1, 2] {
+    for &np in slice_ranks {
         let sliced = solve(name, mesh, extra, np, &["--fmax", &fmax_arg]);
         assert_eq!(
             sliced.frequencies.len(),
@@ -160,19 +160,19 @@ fn zoo_case(name: &str, mesh: &Path, extra: &[&str]) {
 #[test]
 fn thin_plate() {
     let mesh = zoo_mesh("thin_plate");
-    zoo_case("thin_plate", &mesh, &["--material", "aluminium"]);
+    zoo_case("thin_plate", &mesh, &["--material", "aluminium"], &[1, 2]);
 }
 
 #[test]
 fn slender_rod() {
     let mesh = zoo_mesh("slender_rod");
-    zoo_case("slender_rod", &mesh, &["--material", "steel"]);
+    zoo_case("slender_rod", &mesh, &["--material", "steel"], &[1, 2]);
 }
 
 #[test]
 fn thin_curved_shell() {
     let mesh = zoo_mesh("thin_shell");
-    zoo_case("thin_shell", &mesh, &["--material", "glass"]);
+    zoo_case("thin_shell", &mesh, &["--material", "glass"], &[1, 2]);
 }
 
 #[test]
@@ -182,13 +182,14 @@ fn bracket_in_millimetres() {
         "bracket_mm",
         &mesh,
         &["--material", "aluminium", "--units", "mm"],
+        &[1, 2],
     );
 }
 
 #[test]
 fn high_aspect_and_sliver_tets() {
     let mesh = zoo_mesh("slivers");
-    zoo_case("slivers", &mesh, &["--material", "aluminium"]);
+    zoo_case("slivers", &mesh, &["--material", "aluminium"], &[1, 2]);
 }
 
 #[test]
@@ -196,7 +197,9 @@ fn bowl() {
     let dir = scratch("zoo_bowl");
     let mesh = dir.join("bowl.msh");
     std::fs::copy(bowl_mesh(), &mesh).expect("copy the bowl");
-    zoo_case("bowl", &mesh, &["--material", "ceramic"]);
+    // The bowl's slice on 2 ranks only: at 53k DOF it is the zoo's longest case, and its 1-rank
+    // slice adds nothing the other meshes' 1-rank slices do not check.
+    zoo_case("bowl", &mesh, &["--material", "ceramic"], &[2]);
 }
 
 /// A workspace run short in the inertia factor (INFOG(1) = −9) used to give a silently wrong, too
