@@ -1,11 +1,14 @@
 //! Small numerical tools every stage shares, each written once: 3-vector arithmetic
 //! ([`sub`], [`dot`], [`cross`], [`norm`]), the [`median`], the golden-section search on a
 //! bracket ([`golden_section`]), ln Γ on the whole real line ([`ln_gamma`],
-//! [`ln_abs_recip_gamma`]), and Levenberg–Marquardt ([`lm`]: one driver for the damping
+//! [`ln_abs_recip_gamma`]), Levenberg–Marquardt ([`lm`]: one driver for the damping
 //! curve's Rayleigh fit, the extraction's variable projection and its glide stage, and the
-//! catalogue's bounded fit, each with its own damping and stopping settings).
+//! catalogue's bounded fit, each with its own damping and stopping settings), and the
+//! eigenvalues of a symmetric matrix with one vector's weight on each eigenvector
+//! ([`spectral_weights`]).
 
 pub mod lm;
+pub mod spectral_weights;
 
 /// a − b.
 pub fn sub(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
