@@ -339,7 +339,8 @@ impl RegionProblem {
         let qe = DVector::from_fn(r, |j, _| e[j] * self.q_strike[j]);
         let drive_vector = &self.strike + &self.q * qe;
         // Only each eigenvector's drive is needed, not the eigenvector: the eigenvalues with
-        // the drive's weight on each (ascending), a third of a full decomposition's cost.
+        // the drive's weight on each (ascending), 1.4-2 times faster than a full decomposition
+        // at this size (60 × 60: 0.31-0.33 ms against 0.43-0.69 ms, one core, back to back).
         let Ok(pairs) = eigen_with_weights(&c, &drive_vector) else {
             return Vec::new();
         };

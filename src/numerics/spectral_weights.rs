@@ -4,8 +4,9 @@
 //! (λ_k, (w · v_k)²) are what a modal problem needs when only one drive (or one observation)
 //! matters: the loaded line match ([`crate::inverse::loaded_match`]) asks for the loaded
 //! frequencies and the strike's drive of each, tens of thousands of times on 60 × 60 matrices.
-//! Forming every eigenvector costs about three times the reduction to tridiagonal form; the
-//! weights need one vector carried through the same transformations instead.
+//! Forming every eigenvector costs more than the reduction to tridiagonal form itself; the
+//! weights need one vector carried through the same transformations instead (on 60 × 60,
+//! 0.31-0.33 ms against nalgebra's 0.43-0.69 ms for the full decomposition, one core).
 //!
 //! **Method.** Householder reflections H_j = I − 2 u_j u_jᵀ reduce C to tridiagonal T = Qᵀ C Q
 //! (Q = H_1 ⋯ H_{n−2}); the same reflections give w′ = Qᵀ w, applied in order. The implicit QL
