@@ -13,8 +13,9 @@
 //! iteration with Wilkinson's shift then diagonalises T by plane rotations, T → Gᵀ T G; the
 //! eigenvectors Y of T are the product of the rotations, and since w · v_k = w′ · y_k, the vector
 //! Yᵀ w′ is updated by each rotation's two entries (O(1) per rotation rather than O(n)). Cost:
-//! (4/3) n³ for the reduction and O(n²) for the iteration. Eigenvalues come out ascending, each
-//! with its weight; their sum is |w|² (Parseval), kept to rounding.
+//! about 2n³ flops for the reduction (both triangles updated) and O(n²) for the iteration.
+//! Eigenvalues come out ascending, each with its weight; their sum is |w|² (Parseval), kept to
+//! rounding.
 //!
 //! Where eigenvalues coincide the eigenvectors within the eigenspace are arbitrary, and so is the
 //! split of the weight among them; only its sum over the eigenspace is defined (any
