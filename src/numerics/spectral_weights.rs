@@ -211,19 +211,15 @@ fn ql_implicit(d: &mut [f64], e: &mut [f64], u: &mut [f64]) -> Result<(), Spectr
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::random::SplitMix64;
     use nalgebra::SymmetricEigen;
 
     /// A reproducible symmetric matrix with eigenvalues `values` (a random orthogonal basis
     /// from the QR of a pseudo-random matrix), and a pseudo-random vector.
     fn with_spectrum(values: &[f64], seed: u64) -> (DMatrix<f64>, DVector<f64>) {
         let n = values.len();
-        let mut state = seed;
-        let mut next = || {
-            state = state
-                .wrapping_mul(6364136223846793005)
-                .wrapping_add(1442695040888963407);
-            ((state >> 11) as f64 / (1u64 << 53) as f64) - 0.5
-        };
+        let mut rng = SplitMix64::new(seed);
+        let mut next = || rng.uniform(-0.5, 0.5);
         let raw = DMatrix::from_fn(n, n, |_, _| next());
         let q = raw.qr().q();
         let c = &q * DMatrix::from_diagonal(&DVector::from_column_slice(values)) * q.transpose();
