@@ -302,6 +302,106 @@ pub fn object_split_clusters(
         .collect()
 }
 
+/// The clusters whose split pair is the object's (the screen's tests) and off the current
+/// model's split by more than 3σ: the splits a free term may take, whether the free splits of
+/// an asymmetry ([`PairSplits`]) or a mass's lowered members
+/// ([`super::added_mass::LoweredMembers`]).
+pub(super) struct SplitCandidates {
+    pub clusters: Vec<usize>,
+    /// Centre frequency (Hz) of each cluster's observed pair.
+    pub centre_hz: Vec<f64>,
+    /// Each cluster's observed split ln f_u − ln f_l (≥ 0): the free terms' start.
+    pub init: Vec<f64>,
+    /// Largest |z| of a split.
+    pub worst: f64,
+    /// One line per candidate.
+    pub listed: Vec<String>,
+}
+
+/// Whether a term of `current` already frees the splits ([`PairSplits`] or
+/// [`super::added_mass::LoweredMembers`]): then no other may take them.
+pub(super) fn splits_already_free(current: &Fit) -> bool {
+    current
+        .model
+        .terms
+        .iter()
+        .any(|t| t.effect() == "beating_pair" || t.variant() == LOWERED_MEMBERS_VARIANT)
+}
+
+/// The variant name of a mass's lowered members ([`super::added_mass::LoweredMembers`]).
+pub(super) const LOWERED_MEMBERS_VARIANT: &str = "lowered_members";
+
+/// The split screen (module docs): the candidates, or why there is none (`Err(Detection)`,
+/// as the beating pair reports it).
+pub(super) fn split_candidates(
+    table: &ModeTable,
+    held_poles: Option<&[ObservedMode]>,
+    current: &Fit,
+) -> Result<SplitCandidates, Detection> {
+    if splits_already_free(current) {
+        return Err(Detection::NotEnoughData("splits already free".into()));
+    }
+    if table.pairs.is_empty() {
+        return Err(Detection::NotEnoughData(
+            "no cluster matched two observed modes".into(),
+        ));
+    }
+    let p = &current.prediction;
+    let mut found = SplitCandidates {
+        clusters: Vec::new(),
+        centre_hz: Vec::new(),
+        init: Vec::new(),
+        worst: 0.0,
+        listed: Vec::new(),
+    };
+    let mut single = 0;
+    let mut unlike = 0;
+    let mut unidentified = 0;
+    let mut in_glide = 0;
+    let mut not_replicated = 0;
+    let z_loo = current.row_z_leave_one_out(table);
+    let decay_residuals = current.mode_residuals(table).ln_d;
+    for pair in &table.pairs {
+        let (l, u) = (&table.modes[pair.lower], &table.modes[pair.upper]);
+        match not_the_objects(table, pair, held_poles, &z_loo, &decay_residuals) {
+            Some(NotTheObjects::LoneMode) => single += 1,
+            Some(NotTheObjects::UnlikeDecay) => unlike += 1,
+            Some(NotTheObjects::FarFromCluster) => unidentified += 1,
+            Some(NotTheObjects::InsideGlide) => in_glide += 1,
+            Some(NotTheObjects::NotReplicated) => not_replicated += 1,
+            None => {
+                let observed = u.ln_f - l.ln_f;
+                let predicted = p.ln_f[pair.upper] - p.ln_f[pair.lower];
+                let z = (observed - predicted) / split_sigma(l, u);
+                found.worst = found.worst.max(z.abs());
+                if z.abs() > 3.0 {
+                    found.clusters.push(pair.cluster);
+                    found
+                        .centre_hz
+                        .push(0.5 * (l.frequency_hz + u.frequency_hz));
+                    found.init.push(observed.max(0.0));
+                    found.listed.push(format!(
+                        "cluster {} split {:.2} Hz (z = {z:.1})",
+                        pair.cluster,
+                        u.frequency_hz - l.frequency_hz
+                    ));
+                }
+            }
+        }
+    }
+    if found.clusters.is_empty() {
+        return Err(Detection::Nothing {
+            statistic: found.worst,
+            detail: format!(
+                "{} split pair(s) ({single} of a lone simulated mode, {unlike} with unlike decay rates and the slower below the damping law, {unidentified} centred far from their cluster, {in_glide} inside their glide's sweep and {not_replicated} not at the same frequencies in the held-out recordings, not candidates), largest |z| of the split {:.1} ≤ 3",
+                table.pairs.len(),
+                found.worst
+            ),
+        });
+    }
+    Ok(found)
+}
+
 impl BeatingPair {
     fn screen(
         &self,
@@ -309,75 +409,19 @@ impl BeatingPair {
         held_poles: Option<&[ObservedMode]>,
         current: &Fit,
     ) -> Detection {
-        if current
-            .model
-            .terms
-            .iter()
-            .any(|t| t.effect() == "beating_pair")
-        {
-            return Detection::NotEnoughData("splits already free".into());
-        }
-        if table.pairs.is_empty() {
-            return Detection::NotEnoughData("no cluster matched two observed modes".into());
-        }
-        let p = &current.prediction;
-        let mut clusters = Vec::new();
-        let mut centre_hz = Vec::new();
-        let mut init = Vec::new();
-        let mut worst = 0.0f64;
-        let mut listed = Vec::new();
-        let mut single = 0;
-        let mut unlike = 0;
-        let mut unidentified = 0;
-        let mut in_glide = 0;
-        let mut not_replicated = 0;
-        let z_loo = current.row_z_leave_one_out(table);
-        let decay_residuals = current.mode_residuals(table).ln_d;
-        for pair in &table.pairs {
-            let (l, u) = (&table.modes[pair.lower], &table.modes[pair.upper]);
-            match not_the_objects(table, pair, held_poles, &z_loo, &decay_residuals) {
-                Some(NotTheObjects::LoneMode) => single += 1,
-                Some(NotTheObjects::UnlikeDecay) => unlike += 1,
-                Some(NotTheObjects::FarFromCluster) => unidentified += 1,
-                Some(NotTheObjects::InsideGlide) => in_glide += 1,
-                Some(NotTheObjects::NotReplicated) => not_replicated += 1,
-                None => {
-                    let observed = u.ln_f - l.ln_f;
-                    let predicted = p.ln_f[pair.upper] - p.ln_f[pair.lower];
-                    let z = (observed - predicted) / split_sigma(l, u);
-                    worst = worst.max(z.abs());
-                    if z.abs() > 3.0 {
-                        clusters.push(pair.cluster);
-                        centre_hz.push(0.5 * (l.frequency_hz + u.frequency_hz));
-                        init.push(observed.max(0.0));
-                        listed.push(format!(
-                            "cluster {} split {:.2} Hz (z = {z:.1})",
-                            pair.cluster,
-                            u.frequency_hz - l.frequency_hz
-                        ));
-                    }
-                }
-            }
-        }
-        if clusters.is_empty() {
-            return Detection::Nothing {
-                statistic: worst,
-                detail: format!(
-                    "{} split pair(s) ({single} of a lone simulated mode, {unlike} with unlike decay rates and the slower below the damping law, {unidentified} centred far from their cluster, {in_glide} inside their glide's sweep and {not_replicated} not at the same frequencies in the held-out recordings, not candidates), largest |z| of the split {worst:.1} ≤ 3",
-                    table.pairs.len()
-                ),
-            };
-        }
-        Detection::Found {
-            statistic: worst,
-            detail: listed.join("; "),
-            proposals: vec![Proposal {
-                term: Arc::new(PairSplits {
-                    clusters,
-                    centre_hz,
-                }),
-                init,
-            }],
+        match split_candidates(table, held_poles, current) {
+            Err(why) => why,
+            Ok(found) => Detection::Found {
+                statistic: found.worst,
+                detail: found.listed.join("; "),
+                proposals: vec![Proposal {
+                    term: Arc::new(PairSplits {
+                        clusters: found.clusters,
+                        centre_hz: found.centre_hz,
+                    }),
+                    init: found.init,
+                }],
+            },
         }
     }
 }

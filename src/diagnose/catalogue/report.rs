@@ -151,6 +151,9 @@ pub enum Rejection {
     /// it no longer paid its way (its last-in ΔBIC or held-out gain failed the rule): the
     /// others explain what it had explained (parent docs, "Selection").
     RedundantGivenOthers,
+    /// Acceptable, but it reads the same rows as another acceptable effect of the same round
+    /// and did not beat that one's ΔBIC by the threshold (parent docs, "Selection").
+    NotBetterThanRival,
 }
 
 impl Rejection {
@@ -170,6 +173,9 @@ impl Rejection {
             Rejection::FitFailed => "the fit failed",
             Rejection::SignatureMissing => "its physical signature is missing",
             Rejection::RedundantGivenOthers => "redundant once the later effects were in the model",
+            Rejection::NotBetterThanRival => {
+                "another effect reads the same rows about as well, and it did not beat that one by the threshold"
+            }
         }
     }
 }

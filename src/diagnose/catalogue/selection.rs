@@ -527,6 +527,32 @@ fn ln_levels(modes: &[super::ObservedMode]) -> Vec<f64> {
         .collect()
 }
 
+/// When the round's best candidate (effect `e`) is a term that contests another effect's
+/// reading of the same rows ([`super::Term::contests`]) and that effect's candidate in the
+/// same round is acceptable: that effect and its ΔBIC.
+fn contested(
+    effects: &[Box<dyn Effect>],
+    last: &[Option<Outcome>],
+    e: usize,
+) -> Option<(usize, f64)> {
+    let Some(Outcome::Fitted(c)) = last[e].as_ref() else {
+        return None;
+    };
+    let fit = c.fit.as_ref()?;
+    let rival_name = fit.model.terms.last()?.contests()?;
+    effects
+        .iter()
+        .enumerate()
+        .find_map(|(r, effect)| match last[r].as_ref() {
+            Some(Outcome::Fitted(rc))
+                if r != e && effect.name() == rival_name && rc.rejection.is_none() =>
+            {
+                Some((r, rc.delta_bic))
+            }
+            _ => None,
+        })
+}
+
 /// [`diagnose`] with a chosen list of effects.
 pub fn diagnose_with(
     evidence: &Evidence,
@@ -703,7 +729,26 @@ pub fn diagnose_with(
             }
             last[e] = Some(outcome);
         }
-        let Some((e, _)) = best else { break };
+        let Some((mut e, _)) = best else { break };
+        // Two readings of the same rows (parent docs, "Selection"): a term that contests
+        // another effect's reading enters in its place only if it beats it by the threshold.
+        if let Some((rival, rival_bic)) = contested(effects, &last, e) {
+            if let Some(Outcome::Fitted(c)) = last[e].as_mut() {
+                if c.delta_bic - rival_bic <= settings.delta_bic_threshold {
+                    c.rejection = Some(Rejection::NotBetterThanRival);
+                    c.detail = format!(
+                        "{}; ΔBIC {:.1} against {:.1} for {}, the same rows read as {} (it must beat that by {})",
+                        c.detail,
+                        c.delta_bic,
+                        rival_bic,
+                        effects[rival].name(),
+                        effects[rival].name(),
+                        settings.delta_bic_threshold
+                    );
+                    e = rival;
+                }
+            }
+        }
         let Some(Outcome::Fitted(mut c)) = last[e].take() else {
             unreachable!("best is a fitted outcome")
         };
