@@ -337,7 +337,7 @@ use std::sync::Arc;
 use serde::{Deserialize, Serialize};
 
 pub use added_mass::{AddedMass, MassLoading};
-pub use beating_pair::{BeatingPair, PairSplits};
+pub use beating_pair::{BeatingPair, PairSplits, SplitClusters};
 pub use contact_duration::{
     half_sine_envelope, half_sine_spectrum, sine_power_duration, sine_power_spectrum,
     ContactDuration, ContactShape, HalfSineContact, SinePowerContact, FIRST_NULL_PARAM,

@@ -46,7 +46,7 @@
 
 use std::sync::Arc;
 
-use super::beating_pair::{split_candidates, LOWERED_MEMBERS_VARIANT};
+use super::beating_pair::{split_candidates, SplitClusters};
 use super::{
     weighted_regression, weights_vary, Detection, Effect, Fit, ModeTable, ObservedMode, ParamSpec,
     Proposal, Term,
@@ -102,14 +102,15 @@ impl Term for MassLoading {
     }
 }
 
+/// The variant name of a mass's lowered members ([`LoweredMembers`]).
+pub(super) const LOWERED_MEMBERS_VARIANT: &str = "lowered_members";
+
 /// A mass at an unknown site, from the pairs it splits (module docs, `lowered_members`): the
 /// lower member of each listed cluster's pair sits δ_c below the upper one, which stays where
 /// the model puts it.
 #[derive(Debug)]
 pub struct LoweredMembers {
-    pub clusters: Vec<usize>,
-    /// Centre frequency (Hz) of each cluster in the fit data, for the parameter names.
-    pub centre_hz: Vec<f64>,
+    pub splits: SplitClusters,
 }
 
 impl Term for LoweredMembers {
@@ -120,30 +121,18 @@ impl Term for LoweredMembers {
         LOWERED_MEMBERS_VARIANT
     }
     fn params(&self) -> Vec<ParamSpec> {
-        self.clusters
-            .iter()
-            .zip(&self.centre_hz)
-            .map(|(c, f)| {
-                ParamSpec::new(
-                    format!("lower member's drop δ/f below the upper of cluster {c} ({f:.1} Hz)"),
-                    "1",
-                    0.0,
-                    0.2,
-                    1e-3,
-                )
-            })
-            .collect()
+        self.splits.params(|c, f| {
+            format!("lower member's drop δ/f below the upper of cluster {c} ({f:.1} Hz)")
+        })
     }
     /// As the free splits: only a held-out table that resolves one of these clusters into a
     /// pair can test it.
     fn held_out_can_test(&self, held: &ModeTable) -> bool {
-        held.pairs
-            .iter()
-            .any(|p| self.clusters.contains(&p.cluster))
+        self.splits.held_out_can_test(held)
     }
     fn frequency(&self, table: &ModeTable, p: &[f64], ln_f: &mut [f64]) {
         for pair in &table.pairs {
-            if let Some(i) = self.clusters.iter().position(|&c| c == pair.cluster) {
+            if let Some(i) = self.splits.index(pair.cluster) {
                 ln_f[pair.lower] = ln_f[pair.upper] - p[i];
             }
         }
@@ -238,8 +227,7 @@ impl AddedMass {
                 statistic = statistic.max(found.worst);
                 proposals.push(Proposal {
                     term: Arc::new(LoweredMembers {
-                        clusters: found.clusters,
-                        centre_hz: found.centre_hz,
+                        splits: found.splits,
                     }),
                     init: found.init,
                 });

@@ -77,6 +77,7 @@
 
 use std::sync::Arc;
 
+use super::added_mass::LOWERED_MEMBERS_VARIANT;
 use super::model::{split_sigma, undamped_hz};
 use super::{
     Detection, Effect, Fit, ModeEntry, ModeTable, ObservedMode, ParamSpec, Proposal, RowKind, Term,
@@ -97,12 +98,41 @@ pub const MAX_SLOW_FACTOR: f64 = 2.0;
 /// unexplained.
 pub const MAX_PAIR_MEAN_Z: f64 = 4.0;
 
-/// Free splits of the listed clusters.
+/// The split clusters a per-cluster term frees, one parameter each: the free splits
+/// ([`PairSplits`]) and a mass's lowered members ([`super::added_mass::LoweredMembers`]).
 #[derive(Debug)]
-pub struct PairSplits {
+pub struct SplitClusters {
     pub clusters: Vec<usize>,
     /// Centre frequency (Hz) of each cluster in the fit data, for the parameter names.
     pub centre_hz: Vec<f64>,
+}
+
+impl SplitClusters {
+    /// One parameter per cluster, δ ∈ [0, 0.2] \[1\], named by `name(cluster, centre_hz)`.
+    pub fn params(&self, name: impl Fn(usize, f64) -> String) -> Vec<ParamSpec> {
+        self.clusters
+            .iter()
+            .zip(&self.centre_hz)
+            .map(|(&c, &f)| ParamSpec::new(name(c, f), "1", 0.0, 0.2, 1e-3))
+            .collect()
+    }
+    /// Only a held-out table that resolves one of these clusters into a pair can test a split
+    /// (with two microphones, one member is often too weak in the held-out one).
+    pub fn held_out_can_test(&self, held: &ModeTable) -> bool {
+        held.pairs
+            .iter()
+            .any(|p| self.clusters.contains(&p.cluster))
+    }
+    /// The parameter index of `cluster`, if it is one of these.
+    pub fn index(&self, cluster: usize) -> Option<usize> {
+        self.clusters.iter().position(|&c| c == cluster)
+    }
+}
+
+/// Free splits of the listed clusters.
+#[derive(Debug)]
+pub struct PairSplits {
+    pub splits: SplitClusters,
 }
 
 impl Term for PairSplits {
@@ -113,30 +143,15 @@ impl Term for PairSplits {
         "split_per_cluster"
     }
     fn params(&self) -> Vec<ParamSpec> {
-        self.clusters
-            .iter()
-            .zip(&self.centre_hz)
-            .map(|(c, f)| {
-                ParamSpec::new(
-                    format!("relative split δf/f of cluster {c} ({f:.1} Hz)"),
-                    "1",
-                    0.0,
-                    0.2,
-                    1e-3,
-                )
-            })
-            .collect()
+        self.splits
+            .params(|c, f| format!("relative split δf/f of cluster {c} ({f:.1} Hz)"))
     }
-    /// Only a held-out table that resolves one of these clusters into a pair can test a split
-    /// (with two microphones, one member is often too weak in the held-out one).
     fn held_out_can_test(&self, held: &ModeTable) -> bool {
-        held.pairs
-            .iter()
-            .any(|p| self.clusters.contains(&p.cluster))
+        self.splits.held_out_can_test(held)
     }
     fn frequency(&self, table: &ModeTable, p: &[f64], ln_f: &mut [f64]) {
         for pair in &table.pairs {
-            if let Some(i) = self.clusters.iter().position(|&c| c == pair.cluster) {
+            if let Some(i) = self.splits.index(pair.cluster) {
                 let centre = 0.5 * (ln_f[pair.lower] + ln_f[pair.upper]);
                 ln_f[pair.lower] = centre - 0.5 * p[i];
                 ln_f[pair.upper] = centre + 0.5 * p[i];
@@ -307,9 +322,8 @@ pub fn object_split_clusters(
 /// an asymmetry ([`PairSplits`]) or a mass's lowered members
 /// ([`super::added_mass::LoweredMembers`]).
 pub(super) struct SplitCandidates {
-    pub clusters: Vec<usize>,
-    /// Centre frequency (Hz) of each cluster's observed pair.
-    pub centre_hz: Vec<f64>,
+    /// The clusters, each with its observed pair's centre frequency.
+    pub splits: SplitClusters,
     /// Each cluster's observed split ln f_u − ln f_l (≥ 0): the free terms' start.
     pub init: Vec<f64>,
     /// Largest |z| of a split.
@@ -328,9 +342,6 @@ pub(super) fn splits_already_free(current: &Fit) -> bool {
         .any(|t| t.effect() == "beating_pair" || t.variant() == LOWERED_MEMBERS_VARIANT)
 }
 
-/// The variant name of a mass's lowered members ([`super::added_mass::LoweredMembers`]).
-pub(super) const LOWERED_MEMBERS_VARIANT: &str = "lowered_members";
-
 /// The split screen (module docs): the candidates, or why there is none (`Err(Detection)`,
 /// as the beating pair reports it).
 pub(super) fn split_candidates(
@@ -348,8 +359,10 @@ pub(super) fn split_candidates(
     }
     let p = &current.prediction;
     let mut found = SplitCandidates {
-        clusters: Vec::new(),
-        centre_hz: Vec::new(),
+        splits: SplitClusters {
+            clusters: Vec::new(),
+            centre_hz: Vec::new(),
+        },
         init: Vec::new(),
         worst: 0.0,
         listed: Vec::new(),
@@ -375,8 +388,9 @@ pub(super) fn split_candidates(
                 let z = (observed - predicted) / split_sigma(l, u);
                 found.worst = found.worst.max(z.abs());
                 if z.abs() > 3.0 {
-                    found.clusters.push(pair.cluster);
+                    found.splits.clusters.push(pair.cluster);
                     found
+                        .splits
                         .centre_hz
                         .push(0.5 * (l.frequency_hz + u.frequency_hz));
                     found.init.push(observed.max(0.0));
@@ -389,7 +403,7 @@ pub(super) fn split_candidates(
             }
         }
     }
-    if found.clusters.is_empty() {
+    if found.splits.clusters.is_empty() {
         return Err(Detection::Nothing {
             statistic: found.worst,
             detail: format!(
@@ -416,8 +430,7 @@ impl BeatingPair {
                 detail: found.listed.join("; "),
                 proposals: vec![Proposal {
                     term: Arc::new(PairSplits {
-                        clusters: found.clusters,
-                        centre_hz: found.centre_hz,
+                        splits: found.splits,
                     }),
                     init: found.init,
                 }],
