@@ -34,6 +34,7 @@ fn main() {
             held_out: None,
             simulated: Vec::new(),
             residual_envelopes: Some(c.env),
+            split_sites: None,
         };
         let eval = ReverbNoise
             .evaluate_own(&evidence, &settings)

@@ -241,6 +241,10 @@ pub struct ModeTable {
     pub other_rows: Vec<usize>,
     /// Per mode with amplitudes: (mode, its amplitude rows).
     pub amplitude_groups: Vec<(usize, Vec<usize>)>,
+    /// Where a point mass could sit and how it would split each pair (the evidence's
+    /// [`super::Evidence::split_sites`], for the `lowered_members` screen of
+    /// [`super::AddedMass`]); `None` until the caller gives them.
+    pub split_sites: Option<std::sync::Arc<super::SplitSites>>,
 }
 
 /// Drive²-weighted mean of `value` over `modes` (plain mean if every drive is zero).
@@ -622,6 +626,7 @@ impl ModeTable {
             rows,
             other_rows,
             amplitude_groups,
+            split_sites: None,
         }
     }
 

@@ -569,13 +569,14 @@ pub fn diagnose_with(
         None,
         settings,
     );
-    let table = ModeTable::build(
+    let mut table = ModeTable::build(
         &evidence.fit,
         &evidence.simulated,
         &matching,
         0,
         settings.own_member_split_z,
     );
+    table.split_sites = evidence.split_sites.clone().map(Arc::new);
     let channels = table.channels;
     const MIN_MATCHED: usize = 3;
     if table.modes.len() < MIN_MATCHED

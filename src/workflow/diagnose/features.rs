@@ -7,7 +7,7 @@
 
 use super::Job;
 use crate::audio::radiation::{mode_transfers, Listeners};
-use crate::diagnose::catalogue::CatalogueReport;
+use crate::diagnose::catalogue::{CatalogueReport, SitePair, SplitSites};
 use crate::diagnose::evidence::{self, Motion};
 use crate::eigen;
 use crate::mesh::locate::{nearest_surface_vertices, strike_candidates, support_nodes};
@@ -31,6 +31,9 @@ pub struct Features {
     /// direction) and the squared motion along that direction there: [vertex][mode].
     pub support_candidates: Vec<usize>,
     pub support_candidate_energy: Vec<Vec<f64>>,
+    /// Per two-member cluster, how a unit point mass at each surface vertex splits it
+    /// ([`SplitSites`]).
+    pub split_sites: SplitSites,
     /// How the strike was taken (printed and in the JSON).
     pub strike_note: String,
 }
@@ -119,10 +122,11 @@ pub(super) fn features(
     let region_energies = |v: usize, motion: Motion, lowers: bool| {
         evidence::cluster_region_energies(shapes, &frequencies_hz, &clusters, &[v], motion, lowers)
     };
-    let surface_energy = surface
+    let surface_energy: Vec<Vec<f64>> = surface
         .iter()
         .map(|&v| region_energies(v, Motion::Full, true))
         .collect();
+    let split_sites = split_sites(&surface, &surface_energy, &frequencies_hz, &clusters);
     let norm = job
         .support_direction
         .iter()
@@ -179,8 +183,44 @@ pub(super) fn features(
         surface_energy,
         support_candidates,
         support_candidate_energy,
+        split_sites,
         strike_note,
     })
+}
+
+/// The surface vertices as candidate sites of a point mass ([`SplitSites`]): for each
+/// two-member cluster, e₁ − e₂ at each vertex, read off the vertex energies that
+/// [`evidence::cluster_region_energies`] turned to the vertex's principal directions (the
+/// larger eigenvalue on the lower member, since a mass lowers).
+fn split_sites(
+    surface: &[usize],
+    surface_energy: &[Vec<f64>],
+    frequencies_hz: &[f64],
+    clusters: &[usize],
+) -> SplitSites {
+    let mut members: std::collections::BTreeMap<usize, Vec<usize>> =
+        std::collections::BTreeMap::new();
+    for (k, &c) in clusters.iter().enumerate() {
+        members.entry(c).or_default().push(k);
+    }
+    let pairs = members
+        .into_iter()
+        .filter(|(_, ks)| ks.len() == 2)
+        .map(|(cluster, mut ks)| {
+            ks.sort_by(|&a, &b| frequencies_hz[a].total_cmp(&frequencies_hz[b]));
+            SitePair {
+                cluster,
+                split_per_kg: surface_energy
+                    .iter()
+                    .map(|e| (e[ks[0]] - e[ks[1]]).max(0.0))
+                    .collect(),
+            }
+        })
+        .collect();
+    SplitSites {
+        vertices: surface.to_vec(),
+        pairs,
+    }
 }
 
 /// The localisation and, when it points somewhere, the second catalogue run.

@@ -583,7 +583,7 @@ pub fn run(petsc: &Petsc, job: &Job, progress: &Progress) -> Result<Option<Outco
                 for (sim, &s) in simulated.iter_mut().zip(&ln_f_per_poisson) {
                     sim.ln_f_per_poisson = Some(s);
                 }
-                let mut evidence = Evidence { fit: measured.fit.clone(), held_out: (!measured.held_out.is_empty()).then(|| measured.held_out.clone()), simulated, residual_envelopes: measured.envelopes.clone() };
+                let mut evidence = Evidence { fit: measured.fit.clone(), held_out: (!measured.held_out.is_empty()).then(|| measured.held_out.clone()), simulated, residual_envelopes: measured.envelopes.clone(), split_sites: Some(feats.split_sites.clone()) };
                 let mut first_settings = job.catalogue.clone();
                 if carried.is_some() || loaded_site.is_some() {
                     // The site was chosen from the same data: a 2-D location.
