@@ -136,7 +136,7 @@ impl Share for Ranks<'_> {
 }
 
 /// `n` farthest-point samples of `points`, from the first.
-fn farthest_points(points: &[[f64; 3]], n: usize) -> Vec<usize> {
+pub(super) fn farthest_points(points: &[[f64; 3]], n: usize) -> Vec<usize> {
     let d2 = |a: [f64; 3], b: [f64; 3]| (0..3).map(|d| (a[d] - b[d]).powi(2)).sum::<f64>();
     let mut chosen = vec![0];
     let mut nearest: Vec<f64> = points.iter().map(|x| d2(*x, points[0])).collect();
