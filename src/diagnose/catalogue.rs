@@ -461,7 +461,8 @@ pub struct Evidence {
     pub residual_envelopes: Option<ResidualEnvelopes>,
     /// Candidate sites of a point mass and how much a unit mass at each splits each pair of
     /// the model (the `lowered_members` variant of [`AddedMass`] is offered only when the
-    /// pairs' drops fit one of them); `None`: not known, and that variant is not offered.
+    /// pairs' drops fit one of them, where three or more split clusters can test it); `None`:
+    /// not known, and that variant is not offered.
     #[serde(default)]
     pub split_sites: Option<SplitSites>,
 }

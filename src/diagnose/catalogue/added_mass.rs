@@ -401,6 +401,14 @@ fn one_site(table: &ModeTable, clusters: &[usize], observed: &[f64]) -> Result<S
     // a discretisation error comparable to the mass's split does not add to it (seed 47 case
     // 013: a cup pair split 5.5·10⁻⁴ by the mesh, 7.3·10⁻⁴ observed, 7.1·10⁻⁴ predicted by
     // the best site alone).
+    if let Some(c) = clusters
+        .iter()
+        .find(|&&c| !sites.pairs.iter().any(|p| p.cluster == c))
+    {
+        return Err(format!(
+            "cluster {c} has no candidate-site row (not a two-member cluster of the model), so one site cannot be tested"
+        ));
+    }
     let drops: Vec<(usize, f64)> = clusters
         .iter()
         .copied()
