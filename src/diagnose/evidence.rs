@@ -474,12 +474,11 @@ pub fn cluster_region_energies(
     let energy =
         |a: &[f64], b: &[f64]| -> f64 { region.iter().map(|&i| node_product(a, b, i, &p)).sum() };
     let mut out: Vec<f64> = shapes.iter().map(|s| energy(s, s)).collect();
-    let mut members: std::collections::BTreeMap<usize, Vec<usize>> =
-        std::collections::BTreeMap::new();
-    for (k, &c) in clusters.iter().enumerate().take(shapes.len()) {
-        members.entry(c).or_default().push(k);
-    }
-    for (_, mut ks) in members.into_iter().filter(|(_, ks)| ks.len() > 1) {
+    let listed = &clusters[..clusters.len().min(shapes.len())];
+    for mut ks in crate::inverse::impact::cluster_members(listed)
+        .into_iter()
+        .filter(|ks| ks.len() > 1)
+    {
         ks.sort_by(|&a, &b| frequencies_hz[a].total_cmp(&frequencies_hz[b]));
         let m = ks.len();
         let a = nalgebra::DMatrix::from_fn(m, m, |r, c| energy(&shapes[ks[r]], &shapes[ks[c]]));

@@ -193,21 +193,22 @@ impl SplitSites {
     }
 
     /// The site whose first-order splits ½ m x_c(v) fit `drops` (cluster, δ_c ln f) best in
-    /// least squares over m > 0; `None` when a cluster has no row or no site fits a positive
-    /// mass.
-    pub fn fit(&self, drops: &[(usize, f64)]) -> Option<SiteFit> {
+    /// least squares over m > 0; `Ok(None)` when no site fits a positive mass, `Err(cluster)`
+    /// for a cluster with no row.
+    pub fn fit(&self, drops: &[(usize, f64)]) -> Result<Option<SiteFit>, usize> {
         let rows: Vec<&[f64]> = drops
             .iter()
-            .map(|(c, _)| {
+            .map(|&(c, _)| {
                 self.pairs
                     .iter()
-                    .find(|p| p.cluster == *c)
+                    .find(|p| p.cluster == c)
                     .map(|p| p.split_per_kg.as_slice())
+                    .ok_or(c)
             })
-            .collect::<Option<_>>()?;
+            .collect::<Result<_, _>>()?;
         let norm2: f64 = drops.iter().map(|d| d.1 * d.1).sum();
         if !(norm2 > 0.0) {
-            return None;
+            return Ok(None);
         }
         let mut best: Option<SiteFit> = None;
         for (i, &vertex) in self.vertices.iter().enumerate() {
@@ -228,7 +229,7 @@ impl SplitSites {
                 });
             }
         }
-        best
+        Ok(best)
     }
 }
 
@@ -383,9 +384,9 @@ impl AddedMass {
 }
 
 /// The second signature of the `lowered_members` reading (module docs, *One site*): the
-/// observed splits of the split clusters must fit one candidate site of [`SplitSites`] to [`MAX_SITE_MISFIT`] when there are at
-/// least [`MIN_SITE_CLUSTERS`] of them (fewer cannot fail the test). Ok: what the report says
-/// of the site; Err: why the reading is not offered.
+/// observed splits of the split clusters must fit one candidate site of [`SplitSites`] to
+/// [`MAX_SITE_MISFIT`] when there are at least [`MIN_SITE_CLUSTERS`] of them (fewer cannot
+/// fail the test). Ok: what the report says of the site; Err: why the reading is not offered.
 fn one_site(table: &ModeTable, clusters: &[usize], observed: &[f64]) -> Result<String, String> {
     let Some(sites) = table.split_sites.as_deref() else {
         return Err("no candidate sites to test a point mass on".to_string());
@@ -401,30 +402,25 @@ fn one_site(table: &ModeTable, clusters: &[usize], observed: &[f64]) -> Result<S
     // a discretisation error comparable to the mass's split does not add to it (seed 47 case
     // 013: a cup pair split 5.5·10⁻⁴ by the mesh, 7.3·10⁻⁴ observed, 7.1·10⁻⁴ predicted by
     // the best site alone).
-    if let Some(c) = clusters
-        .iter()
-        .find(|&&c| !sites.pairs.iter().any(|p| p.cluster == c))
-    {
-        return Err(format!(
-            "cluster {c} has no candidate-site row (not a two-member cluster of the model), so one site cannot be tested"
-        ));
-    }
     let drops: Vec<(usize, f64)> = clusters
         .iter()
         .copied()
         .zip(observed.iter().copied())
         .collect();
     match sites.fit(&drops) {
-        Some(fit) if fit.misfit <= MAX_SITE_MISFIT => Ok(format!(
+        Ok(Some(fit)) if fit.misfit <= MAX_SITE_MISFIT => Ok(format!(
             "the drops fit one site, vertex {} (misfit {:.3}, a point mass of about {:.3e} kg)",
             fit.vertex, fit.misfit, fit.mass_kg
         )),
-        Some(fit) => Err(format!(
+        Ok(Some(fit)) => Err(format!(
             "the drops of {} clusters fit no single site (best vertex {}, misfit {:.3} > {MAX_SITE_MISFIT}): not one point mass",
             drops.len(),
             fit.vertex,
             fit.misfit
         )),
-        None => Err("no candidate site gives these clusters a positive mass".to_string()),
+        Ok(None) => Err("no candidate site gives these clusters a positive mass".to_string()),
+        Err(c) => Err(format!(
+            "cluster {c} has no candidate-site row (not a two-member cluster of the model), so one site cannot be tested"
+        )),
     }
 }

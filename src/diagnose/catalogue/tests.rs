@@ -2969,15 +2969,17 @@ fn split_sites_find_the_site_whose_pattern_the_drops_follow() {
     };
     // ½ m x with m = 0.004 kg at vertex 8.
     let drops = [(0, 0.0004), (3, 0.002), (5, 0.0006)];
-    let fit = sites.fit(&drops).expect("a fit");
+    let fit = sites.fit(&drops).expect("rows").expect("a fit");
     assert_eq!(fit.vertex, 8);
     assert!((fit.mass_kg - 0.004).abs() < 1e-12, "{fit:?}");
     assert!(fit.misfit < 1e-9, "{fit:?}");
     let fit = sites
         .fit(&[(0, 0.001), (3, 0.0), (5, 0.001)])
+        .expect("rows")
         .expect("a fit");
     assert!(fit.misfit > 0.3, "{fit:?}");
-    assert!(sites.fit(&[(0, 0.001), (4, 0.001)]).is_none());
+    // A cluster without a row is named.
+    assert_eq!(sites.fit(&[(0, 0.001), (4, 0.001)]), Err(4));
     // Rows of the wrong length are refused by the evidence check.
     let mut bad = sites.clone();
     bad.pairs[1].split_per_kg.pop();

@@ -10,6 +10,7 @@ use crate::audio::radiation::{mode_transfers, Listeners};
 use crate::diagnose::catalogue::{CatalogueReport, SitePair, SplitSites};
 use crate::diagnose::evidence::{self, Motion};
 use crate::eigen;
+use crate::inverse::impact::cluster_members;
 use crate::mesh::locate::{nearest_surface_vertices, strike_candidates, support_nodes};
 use crate::mesh::TetMesh;
 use crate::workflow::Progress;
@@ -222,15 +223,11 @@ fn split_sites(
     } else {
         (0..surface.len()).collect()
     };
-    let mut members: std::collections::BTreeMap<usize, Vec<usize>> =
-        std::collections::BTreeMap::new();
-    for (k, &c) in clusters.iter().enumerate() {
-        members.entry(c).or_default().push(k);
-    }
-    let pairs = members
+    let pairs = cluster_members(clusters)
         .into_iter()
-        .filter(|(_, ks)| ks.len() == 2)
-        .map(|(cluster, mut ks)| {
+        .filter(|ks| ks.len() == 2)
+        .map(|mut ks| {
+            let cluster = clusters[ks[0]];
             ks.sort_by(|&a, &b| frequencies_hz[a].total_cmp(&frequencies_hz[b]));
             SitePair {
                 cluster,
