@@ -33,6 +33,11 @@ Effects (each case has zero or one; names as the tool reports them):
 * added_mass -- 1.5-6 % of the body's mass lumped on the 3-6 surface vertices nearest a
   random surface vertex, Ritz in the free modes.
 
+A support or an added mass must be observable: it must move some in-band mode's frequency by
+0.1 % or add 1 1/s to its decay rate, or the object and the effect are drawn again (the label
+records the draws, the largest relative shift and the largest added decay rate). A support on
+the cup's foot ring rarely is (its wine-glass modes hardly move the foot).
+
 Controls: clean cases, and "uniform shift" cases where the tool is told E 4-8 % off.
 
 Writes DIR/case_XXX/{mic*.wav, run.sh} (run.sh: the diagnose command a user would type) and
@@ -175,6 +180,38 @@ def write_wav(path, x):
 
 
 def make_case(idx, rng, effect, control, work, out, np_ranks):
+    for attempt in range(1, MAX_DRAWS + 1):
+        drawn = draw_object(rng, effect, control, np_ranks, work)
+        if effect not in ("support_contact", "added_mass") or observable(*drawn[-2:]):
+            break
+    else:
+        sys.exit(f"case {idx}: no observable {effect} in {MAX_DRAWS} draws")
+    (name, msh, rho, nu, youngs, lam, shapes, nodes, verts, normals, truth, support_decay, _,
+     (shift, _), in_band) = drawn
+    truth["params"].update(draws=attempt, largest_shift=float(np.abs(shift[in_band]).max(initial=0.0)),
+                           largest_added_decay=float(support_decay[in_band].max(initial=0.0)))
+    z = nodes[:, 2]
+    height = z.max() - z.min()
+    return finish_case(idx, rng, effect, control, out, name, msh, rho, nu, youngs, lam, shapes,
+                       nodes, verts, normals, truth, support_decay, z, height)
+
+
+# A concealed FEM effect must have a consequence in the recording: it must move some in-band
+# mode's frequency by at least MIN_SHIFT (relative) or add at least MIN_ADDED_DECAY [1/s] to its
+# decay rate (the baseline rates are 2-90 1/s); otherwise the object and the effect are drawn
+# again. Without the floor, a support on the cup's foot ring (whose wine-glass modes barely move
+# the foot) added at most 0.003 1/s and shifted no frequency by 1e-4: a label with nothing to find.
+MIN_SHIFT = 1e-3
+MIN_ADDED_DECAY = 1.0
+MAX_DRAWS = 50
+
+
+def observable(shift_and_decay, in_band):
+    shift, added = shift_and_decay
+    return bool(np.any(in_band & ((np.abs(shift) >= MIN_SHIFT) | (added >= MIN_ADDED_DECAY))))
+
+
+def draw_object(rng, effect, control, np_ranks, work):
     name = str(rng.choice(list(OBJECTS)))
     if effect == "beating_pair":
         name = str(rng.choice(["tube", "cup"]))
@@ -190,6 +227,7 @@ def make_case(idx, rng, effect, control, work, out, np_ranks):
              "control": control, "params": {}}
 
     # FEM effects, Ritz in the free modes.
+    lam_free = lam.copy()
     z = nodes[:, 2]
     height = z.max() - z.min()
     if effect == "support_contact":
@@ -214,7 +252,17 @@ def make_case(idx, rng, effect, control, work, out, np_ranks):
         frac = float(rng.uniform(0.015, 0.06))
         lam, shapes = ritz(lam, shapes, [], None, region, frac * mass / k)
         truth["params"].update(mass_fraction=frac, region=[int(v) for v in region])
+    # Modes stay in order under these small perturbations (Ritz in the free modes), so mode k
+    # of the perturbed set is compared with free mode k.
+    f_now = np.sqrt(np.maximum(lam, 0.0)) / (2 * np.pi)
+    in_band = (f_now > 60.0) & (f_now < FMAX)
+    shift = np.sqrt(np.maximum(lam, 0.0) / np.maximum(lam_free, 1e-300)) - 1.0
+    return (name, msh, rho, nu, youngs, lam, shapes, nodes, verts, normals, truth, support_decay,
+            lam_free, (shift, support_decay), in_band)
 
+
+def finish_case(idx, rng, effect, control, out, name, msh, rho, nu, youngs, lam, shapes, nodes,
+                verts, normals, truth, support_decay, z, height):
     freqs = np.sqrt(np.maximum(lam, 0.0)) / (2 * np.pi)
     if effect == "beating_pair":
         split = float(rng.uniform(0.003, 0.012))

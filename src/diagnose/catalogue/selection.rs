@@ -766,7 +766,20 @@ pub fn diagnose_with(
     while accepted.len() >= 2 {
         let mut weakest: Option<(usize, LastIn)> = None;
         for i in 0..accepted.len() {
-            let last_in = last_in(&current, base_terms + i, &table, held_table, settings);
+            let mut last_in = last_in(&current, base_terms + i, &table, held_table, settings);
+            // A free split must still be one the other accepted effects do not make
+            // (beating_pair module docs, "An asymmetry already modelled").
+            if last_in.rejection.is_none()
+                && effects[accepted[i].0].name() == "beating_pair"
+                && super::beating_pair::split_candidates(
+                    &table,
+                    evidence.held_out.as_deref(),
+                    &last_in.without,
+                )
+                .is_err()
+            {
+                last_in.rejection = Some(Rejection::SignatureMissing);
+            }
             if last_in.rejection.is_some()
                 && weakest
                     .as_ref()
@@ -781,14 +794,25 @@ pub fn diagnose_with(
         let held = last_in.held_out.map_or(String::new(), |h| {
             format!(", held-out Σz² gain {:.3}", h.gain)
         });
-        let detail = format!(
-            "{}; entered at step {} (ΔBIC {:.2}), but given {} its last-in ΔBIC is {:.2}{held}",
-            c.detail,
-            c.step,
-            c.delta_bic,
-            others.join(" and "),
-            last_in.delta_bic,
-        );
+        let detail = if last_in.rejection == Some(Rejection::SignatureMissing) {
+            format!(
+                "{}; entered at step {} (ΔBIC {:.2}), but given {} every split it frees is one those effects make (at least {} of it) or within 3σ of their prediction{held}",
+                c.detail,
+                c.step,
+                c.delta_bic,
+                others.join(" and "),
+                super::beating_pair::MODELLED_SPLIT_FRACTION,
+            )
+        } else {
+            format!(
+                "{}; entered at step {} (ΔBIC {:.2}), but given {} its last-in ΔBIC is {:.2}{held}",
+                c.detail,
+                c.step,
+                c.delta_bic,
+                others.join(" and "),
+                last_in.delta_bic,
+            )
+        };
         current = last_in.without;
         redundant.push((e, c, detail));
     }
