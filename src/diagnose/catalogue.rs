@@ -252,8 +252,8 @@
 //! threshold of its own. A beating pair must also keep its signature once the others are in:
 //! if every split it frees is one the other accepted effects make (at least half of it) or
 //! lies within 3σ of their prediction, it leaves as redundant whatever its last-in ΔBIC
-//! (`beating_pair` module docs, "An asymmetry already modelled"): a mass's or a support's model split is
-//! only as precise as its site, and free splits always take the rest.
+//! (`beating_pair` module docs, "An asymmetry already modelled"): a mass's or a support's
+//! model split is only as precise as its site, and free splits always take the rest.
 //!
 //! *Two readings of the same splits.* A split pair is an asymmetry's (the free splits of
 //! [`BeatingPair`], about the pair's centre) or a mass's at a site no candidate region knows

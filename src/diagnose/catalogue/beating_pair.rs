@@ -82,10 +82,12 @@
 //! candidate's reference as before). The backward pass ([`super::selection`]) applies the same
 //! screen to an accepted beating pair given the effects accepted after it: a free split that
 //! entered first and that a mass then makes leaves. Calibration (generator 2's spent seeds
-//! 41–59, the concealed masses and supports on the tube): the mass's or support's own model
-//! split the tube's pairs, the free split took the rest of the misfit (seed 47 case 017, a
-//! carried mass: pairs of 6.05 and 11.82 Hz off the mass's prediction by −6.9σ and 4.0σ) and
-//! was reported as a beating pair in four of six such cases; with the screen, in one.
+//! 41–59): on six of the concealed masses and supports (five on the tube, one on the cup) a
+//! beating pair was named beside or instead of the effect, the free split taking the rest of
+//! the misfit the effect's own model split left (seed 47 case 017, a carried mass: pairs of
+//! 6.05 and 11.82 Hz off the mass's prediction by −6.9σ and 4.0σ). With the screen, two are
+//! left: seed 41 case 013, one pair of which the mass makes under half, and seed 59 case 010,
+//! whose mass the loaded match did not carry.
 //!
 //! Model: per affected cluster c, the pair sits at its predicted centre ∓ δ_c/2 in ln f;
 //! parameters δ_c ≥ 0 (relative split δf/f), one per cluster whose split is off by more than
