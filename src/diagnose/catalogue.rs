@@ -250,8 +250,9 @@
 //! that the first did (generator 2's blind set named an added mass beside every split pair it
 //! found, 3 of 3). Stepwise selection in both directions is the textbook remedy; it adds no
 //! threshold of its own. A beating pair must also keep its signature once the others are in:
-//! if every split it frees is one the other accepted effects make (at least half of it) or
-//! lies within 3σ of their prediction, it leaves as redundant whatever its last-in ΔBIC
+//! if every split it frees is one the other accepted effects make as the joint fit has them
+//! (at least half of it) or lies within 3σ of their prediction, it leaves as redundant
+//! whatever its last-in ΔBIC
 //! (`beating_pair` module docs, "An asymmetry already modelled"): a mass's or a support's
 //! model split is only as precise as its site, and free splits always take the rest.
 //!

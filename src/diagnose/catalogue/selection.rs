@@ -284,6 +284,20 @@ pub(super) fn last_in(
     }
 }
 
+/// The joint fit `full` with term `i` taken out and nothing refitted: every other parameter
+/// as the joint fit has it, the prediction recomputed, the floors those of `without` (the
+/// refit without the term, whose model this is).
+fn others_as_fitted(full: &Fit, i: usize, without: &Fit, table: &ModeTable) -> Fit {
+    let off = full.model.term_offset(i);
+    let n = full.model.terms[i].params().len();
+    let mut x = full.x.clone();
+    x.drain(off..off + n);
+    let mut frozen = without.clone();
+    frozen.prediction = frozen.model.prediction(table, &x);
+    frozen.x = x;
+    frozen
+}
+
 fn floors(tau2: &FloorVariances) -> Floors {
     Floors {
         ln_frequency: tau2[0].sqrt(),
@@ -768,13 +782,15 @@ pub fn diagnose_with(
         for i in 0..accepted.len() {
             let mut last_in = last_in(&current, base_terms + i, &table, held_table, settings);
             // A free split must still be one the other accepted effects do not make
-            // (beating_pair module docs, "An asymmetry already modelled").
+            // (beating_pair module docs, "An asymmetry already modelled"), as they stand in the
+            // joint fit: refitted without the free splits, a mass or a support would stretch
+            // to take them whatever made them.
             if last_in.rejection.is_none()
                 && effects[accepted[i].0].name() == "beating_pair"
                 && super::beating_pair::split_candidates(
                     &table,
                     evidence.held_out.as_deref(),
-                    &last_in.without,
+                    &others_as_fitted(&current, base_terms + i, &last_in.without, &table),
                 )
                 .is_err()
             {
