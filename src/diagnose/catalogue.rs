@@ -1145,6 +1145,19 @@ pub trait Effect: Send + Sync {
     ) -> Detection {
         self.detect(table, current)
     }
+    /// The backward pass's test beside the last-in ΔBIC (module docs, "Selection"):
+    /// whether an accepted effect's signature is gone once the other accepted effects are in,
+    /// as the joint fit has them (`others`: the joint fit with this effect's term taken out,
+    /// nothing refitted). Some(why) to drop it; the default keeps it (its last-in ΔBIC and
+    /// held-out gain decide).
+    fn signature_lost_given_others(
+        &self,
+        _table: &ModeTable,
+        _held_poles: Option<&[ObservedMode]>,
+        _others: &Fit,
+    ) -> Option<String> {
+        None
+    }
     /// Effects on data other than the modal table evaluate themselves once, independently of
     /// the modal model (Some), instead of being detected and refitted with it (None).
     fn evaluate_own(

@@ -201,6 +201,16 @@ impl Effect for BeatingPair {
     ) -> Detection {
         self.screen(table, held_poles, current)
     }
+    fn signature_lost_given_others(
+        &self,
+        table: &ModeTable,
+        held_poles: Option<&[ObservedMode]>,
+        others: &Fit,
+    ) -> Option<String> {
+        split_candidates(table, held_poles, others).err().map(|_| {
+            format!("every split it frees is one those effects make (at least {MODELLED_SPLIT_FRACTION} of it) or within 3σ of their prediction")
+        })
+    }
 }
 
 /// Largest |z| of a split member's frequency between the fit and the held-out extraction

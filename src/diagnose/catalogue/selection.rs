@@ -267,11 +267,7 @@ pub(super) fn last_in(
     let mut terms = full.model.terms.clone();
     let term = terms.remove(i);
     let model = full.model.with_terms(terms, full.model.channels);
-    let off = full.model.term_offset(i);
-    let n = term.params().len();
-    let mut x0 = full.x.clone();
-    x0.drain(off..off + n);
-    let without = fit(table, model, x0);
+    let without = fit(table, model, params_without(full, i));
     let searched = search_charge(term.as_ref(), settings);
     let delta_bic = without.bic() - full.bic() - searched * (table.n_residuals() as f64).ln();
     let held_out = held.and_then(|h| held_out_change(term.as_ref(), &without, full, h, settings));
@@ -284,14 +280,20 @@ pub(super) fn last_in(
     }
 }
 
-/// The joint fit `full` with term `i` taken out and nothing refitted: every other parameter
-/// as the joint fit has it, the prediction recomputed, the floors those of `without` (the
-/// refit without the term, whose model this is).
-fn others_as_fitted(full: &Fit, i: usize, without: &Fit, table: &ModeTable) -> Fit {
+/// The parameters of `full` without those of term `i`.
+fn params_without(full: &Fit, i: usize) -> Vec<f64> {
     let off = full.model.term_offset(i);
     let n = full.model.terms[i].params().len();
     let mut x = full.x.clone();
     x.drain(off..off + n);
+    x
+}
+
+/// The joint fit `full` with term `i` taken out and nothing refitted: every other parameter
+/// as the joint fit has it, the prediction recomputed, the floors those of `without` (the
+/// refit without the term, whose model this is).
+fn others_as_fitted(full: &Fit, i: usize, without: &Fit, table: &ModeTable) -> Fit {
+    let x = params_without(full, i);
     let mut frozen = without.clone();
     frozen.prediction = frozen.model.prediction(table, &x);
     frozen.x = x;
@@ -778,22 +780,23 @@ pub fn diagnose_with(
     // tried again.
     let mut redundant: Vec<(usize, Box<Candidate>, String)> = Vec::new();
     while accepted.len() >= 2 {
-        let mut weakest: Option<(usize, LastIn)> = None;
+        // (index, its last-in, why its signature is gone given the others).
+        let mut weakest: Option<(usize, LastIn, Option<String>)> = None;
         for i in 0..accepted.len() {
             let mut last_in = last_in(&current, base_terms + i, &table, held_table, settings);
-            // A free split must still be one the other accepted effects do not make
-            // (beating_pair module docs, "An asymmetry already modelled"), as they stand in the
-            // joint fit: refitted without the free splits, a mass or a support would stretch
-            // to take them whatever made them.
-            if last_in.rejection.is_none()
-                && effects[accepted[i].0].name() == "beating_pair"
-                && super::beating_pair::split_candidates(
+            // The others as the joint fit has them, not refitted: refitted without this
+            // effect, they would stretch to take its signature whatever made it (the beating
+            // pair's module docs, "An asymmetry already modelled").
+            let lost = if last_in.rejection.is_none() {
+                effects[accepted[i].0].signature_lost_given_others(
                     &table,
                     evidence.held_out.as_deref(),
                     &others_as_fitted(&current, base_terms + i, &last_in.without, &table),
                 )
-                .is_err()
-            {
+            } else {
+                None
+            };
+            if lost.is_some() {
                 last_in.rejection = Some(Rejection::SignatureMissing);
             }
             if last_in.rejection.is_some()
@@ -801,34 +804,25 @@ pub fn diagnose_with(
                     .as_ref()
                     .is_none_or(|w| last_in.delta_bic < w.1.delta_bic)
             {
-                weakest = Some((i, last_in));
+                weakest = Some((i, last_in, lost));
             }
         }
-        let Some((i, last_in)) = weakest else { break };
+        let Some((i, last_in, lost)) = weakest else {
+            break;
+        };
         let (e, c) = accepted.remove(i);
         let others: Vec<&str> = accepted.iter().map(|(o, _)| effects[*o].name()).collect();
         let held = last_in.held_out.map_or(String::new(), |h| {
             format!(", held-out Σz² gain {:.3}", h.gain)
         });
-        let detail = if last_in.rejection == Some(Rejection::SignatureMissing) {
-            format!(
-                "{}; entered at step {} (ΔBIC {:.2}), but given {} every split it frees is one those effects make (at least {} of it) or within 3σ of their prediction{held}",
-                c.detail,
-                c.step,
-                c.delta_bic,
-                others.join(" and "),
-                super::beating_pair::MODELLED_SPLIT_FRACTION,
-            )
-        } else {
-            format!(
-                "{}; entered at step {} (ΔBIC {:.2}), but given {} its last-in ΔBIC is {:.2}{held}",
-                c.detail,
-                c.step,
-                c.delta_bic,
-                others.join(" and "),
-                last_in.delta_bic,
-            )
-        };
+        let why = lost.unwrap_or_else(|| format!("its last-in ΔBIC is {:.2}", last_in.delta_bic));
+        let detail = format!(
+            "{}; entered at step {} (ΔBIC {:.2}), but given {} {why}{held}",
+            c.detail,
+            c.step,
+            c.delta_bic,
+            others.join(" and "),
+        );
         current = last_in.without;
         redundant.push((e, c, detail));
     }
