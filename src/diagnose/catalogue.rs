@@ -258,7 +258,9 @@
 //!
 //! *Two readings of the same splits.* A split pair is an asymmetry's (the free splits of
 //! [`BeatingPair`], about the pair's centre) or a mass's at a site no candidate region knows
-//! (the `lowered_members` variant of [`AddedMass`]: the lower member drops, the upper stays).
+//! (the `lowered_members` variant of [`AddedMass`]: the lower member drops, the upper stays),
+//! or a support's that stiffens the member pressing into it by a law the model lacks (the
+//! `raised_members` variant of [`SupportContact`]: the upper member rises and decays faster).
 //! Both take one parameter per split cluster and differ only in where the pair's centre goes,
 //! so on a pair-mean row buried in the ln f floor their ΔBICs differ by noise (generator 2's
 //! spent seeds: 0.0–0.4 on three tubes with a floor of 2.7–3.8·10⁻³). A term that contests

@@ -102,6 +102,7 @@ use std::sync::Arc;
 
 use super::added_mass::LOWERED_MEMBERS_VARIANT;
 use super::model::{split_sigma, undamped_hz};
+use super::support_contact::RAISED_MEMBERS_VARIANT;
 use super::{
     Detection, Effect, Fit, ModeEntry, ModeTable, ObservedMode, ParamSpec, Proposal, RowKind, Term,
 };
@@ -379,11 +380,11 @@ pub(super) struct SplitCandidates {
 /// Whether a term of `current` already frees the splits ([`PairSplits`] or
 /// [`super::added_mass::LoweredMembers`]): then no other may take them.
 pub(super) fn splits_already_free(current: &Fit) -> bool {
-    current
-        .model
-        .terms
-        .iter()
-        .any(|t| t.effect() == "beating_pair" || t.variant() == LOWERED_MEMBERS_VARIANT)
+    current.model.terms.iter().any(|t| {
+        t.effect() == "beating_pair"
+            || t.variant() == LOWERED_MEMBERS_VARIANT
+            || t.variant() == RAISED_MEMBERS_VARIANT
+    })
 }
 
 /// The split screen (module docs): the candidates, or why there is none (`Err(Detection)`,

@@ -616,8 +616,12 @@ pub fn diagnose_with(
             .filter(|_| settings.poisson_nuisance)
             .into_iter()
             .collect();
-        let base_model =
-            Model::new(nuisance, ln_f_ref, channels).with_tilt_bound(settings.max_amplitude_tilt);
+        let base_model = Model::new(nuisance, ln_f_ref, channels)
+            .with_tilt_bound(settings.max_amplitude_tilt)
+            .with_scale_bounds(
+                ln_scale - settings.match_tolerance,
+                ln_scale + settings.match_tolerance,
+            );
         let x0 = baseline_start(t, &base_model, ln_scale);
         fit(t, base_model, x0)
     };
