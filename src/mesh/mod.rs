@@ -163,55 +163,6 @@ impl TetMesh {
         (0..self.n_tets()).map(|e| self.corner_volume(e)).sum()
     }
 
-    /// The body's axis of symmetry, if its second moments single one out: `(centroid, unit
-    /// axis)`, the centroid \[m\] and the principal axis of the volume's second moment
-    /// C = ∫ (x − c)(x − c)ᵀ dV \[m⁵\] whose eigenvalue stands apart from the other two while
-    /// those two agree within [`SYMMETRY_MOMENT_RTOL`] (a body of revolution, or one with a
-    /// three- or four-fold axis, has them equal). None for an empty mesh, when no two agree
-    /// (a rectangular plate: no axis of symmetry to find) or when all three do (a sphere or a
-    /// cube: none is singled out).
-    ///
-    /// Each straight tet (corners v₀…v₃, volume V) contributes exactly
-    /// ∫ x xᵀ dV = V/20 (Σᵢ vᵢ vᵢᵀ + s sᵀ), s = Σᵢ vᵢ; curved edges are ignored.
-    pub fn symmetry_axis(&self) -> Option<([f64; 3], [f64; 3])> {
-        use nalgebra::{Matrix3, SymmetricEigen, Vector3};
-        let (mut volume, mut first, mut second) = (0.0, Vector3::zeros(), Matrix3::zeros());
-        for e in 0..self.n_tets() {
-            let v = self.corner_volume(e).abs();
-            let corners = self.corner_coords(e).map(Vector3::from);
-            let sum: Vector3<f64> = corners.iter().sum();
-            volume += v;
-            first += sum * (v / 4.0);
-            second += (corners
-                .iter()
-                .map(|c| c * c.transpose())
-                .sum::<Matrix3<f64>>()
-                + sum * sum.transpose())
-                * (v / 20.0);
-        }
-        if !(volume > 0.0) {
-            return None;
-        }
-        let c = first / volume;
-        let moments = second - c * c.transpose() * volume;
-        let eig = SymmetricEigen::new(moments);
-        let mut order = [0, 1, 2];
-        order.sort_by(|&a, &b| eig.eigenvalues[a].total_cmp(&eig.eigenvalues[b]));
-        let [lo, mid, hi] = order.map(|k| eig.eigenvalues[k]);
-        let agree = |a: f64, b: f64| b - a <= SYMMETRY_MOMENT_RTOL * b.abs();
-        let k = if agree(lo, hi) {
-            return None;
-        } else if agree(lo, mid) {
-            order[2]
-        } else if agree(mid, hi) {
-            order[0]
-        } else {
-            return None;
-        };
-        let a = eig.eigenvectors.column(k);
-        Some(([c[0], c[1], c[2]], [a[0], a[1], a[2]]))
-    }
-
     /// Axis-aligned bounding box `(min, max)` of all nodes; `([0;3], [0;3])`
     /// for a mesh without nodes.
     pub fn bounding_box(&self) -> ([f64; 3], [f64; 3]) {
@@ -552,12 +503,6 @@ pub(crate) fn bounding_box_of(points: &[[f64; 3]]) -> ([f64; 3], [f64; 3]) {
     }
     (lo, hi)
 }
-
-/// How closely two principal second moments must agree for the third's axis to be the body's
-/// axis of symmetry ([`TetMesh::symmetry_axis`]): 5 %, loose enough for a scanned or coarsely
-/// meshed body of revolution, tight enough that an A5 plate (moments in the ratio 1 : 2.0 about
-/// its edges) has none.
-pub const SYMMETRY_MOMENT_RTOL: f64 = 0.05;
 
 /// Union-find with path halving and union by size.
 pub(crate) struct DisjointSets {

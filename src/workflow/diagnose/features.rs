@@ -91,27 +91,17 @@ pub(super) fn features(
         .iter()
         .map(|&l| eigen::frequency_hz(l))
         .collect();
-    // Degenerate pairs are rotated copies about the body's own axis of symmetry, which need not
-    // be the support's direction: generator 2's tube lies along x on a support below it, and
-    // profiled about the vertical its bending pairs at 7.7–8.4 kHz (split 0.1 % by the mesh)
-    // were four unrelated modes each, matched to the recording by frequency alone, so a
-    // support strip's pressing member took the sliding member's weights.
-    let (centre, axis) = mesh.symmetry_axis().unwrap_or_else(|| {
-        let (lo, hi) = mesh.bounding_box();
-        let n = job.support_direction;
-        let norm = n.iter().map(|c| c * c).sum::<f64>().sqrt().max(1e-300);
-        (
-            [
-                0.5 * (lo[0] + hi[0]),
-                0.5 * (lo[1] + hi[1]),
-                0.5 * (lo[2] + hi[2]),
-            ],
-            n.map(|c| c / norm),
-        )
-    });
+    let (lo, hi) = mesh.bounding_box();
+    let centre = [
+        0.5 * (lo[0] + hi[0]),
+        0.5 * (lo[1] + hi[1]),
+        0.5 * (lo[2] + hi[2]),
+    ];
     let profiles: Vec<Vec<f64>> = shapes
         .iter()
-        .map(|s| evidence::axial_profile(s, &mesh.nodes, centre, axis, PROFILE_BINS))
+        .map(|s| {
+            evidence::axial_profile(s, &mesh.nodes, centre, job.support_direction, PROFILE_BINS)
+        })
         .collect();
     let clusters = evidence::symmetric_cluster_ids(
         &frequencies_hz,
@@ -306,9 +296,7 @@ pub struct Localised {
 }
 
 /// Near-degenerate clusters: neighbouring simulated frequencies within 0.5 % whose motion has
-/// the same axial profile about the body's axis of symmetry through its centroid
-/// ([`TetMesh::symmetry_axis`]; about the support direction through the bounding-box centre when
-/// no axis stands apart).
+/// the same axial profile about the support axis through the bounding-box centre.
 const CLUSTER_RTOL: f64 = 0.005;
 
 /// Axial profiles ([`evidence::axial_profile`]) of the members of a symmetry-degenerate
