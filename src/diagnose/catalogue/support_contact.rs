@@ -49,6 +49,13 @@
 //! pairs were clustered about its own axis; the other supports accepted in the calibration runs
 //! (generator 2's spent seeds 41–65) had γ at 3.5σ to 54σ.
 //!
+//! **More than one mode.** A support damps every mode that moves at it, so its signature
+//! must rest on at least [`MIN_SUPPORT_MODES`] matched modes whose weight is at least
+//! [`SUPPORT_MODE_SHARE`] of the largest; with one, γ is a free decay rate for that mode, the
+//! damping law's own misfit there. Generator 2's seed 71 case 016 (a uniform-shift control on
+//! a cup, 6 matched modes, the support weight on the lowest alone) named a spring support whose
+//! 0.26 ± 0.02 1/s (11σ) was 9 % of that one mode's decay rate.
+//!
 //! **Raised members** (variant `raised_members`). A support under a tube presses on one member
 //! of each degenerate pair (the one moving along its normal) and slides under the other, so
 //! it raises and damps the first and barely touches the second. Its stiffening of that member
@@ -172,6 +179,14 @@ impl Term for SupportTerm {
     }
 }
 
+/// Share of the largest support weight above which a matched mode counts as moving at the
+/// support (module docs, *More than one mode*).
+pub const SUPPORT_MODE_SHARE: f64 = 0.1;
+
+/// Fewest matched modes with a decay rate that must move at the support (module docs, *More
+/// than one mode*).
+pub const MIN_SUPPORT_MODES: usize = 2;
+
 /// How many standard deviations the fitted support damping γ must clear (module docs,
 /// "Signature").
 pub const MIN_DAMPING_Z: f64 = 3.0;
@@ -283,6 +298,17 @@ impl SupportContact {
             return Detection::NotEnoughData(format!(
                 "{} modes with a decay rate; at least 4 needed",
                 damping.len()
+            ));
+        }
+        // A support damps every mode that moves at it (module docs, *More than one mode*).
+        let w_max = damping.iter().map(|p| p.0).fold(0.0, f64::max);
+        let moving = damping
+            .iter()
+            .filter(|p| p.0 >= SUPPORT_MODE_SHARE * w_max)
+            .count();
+        if moving < MIN_SUPPORT_MODES {
+            return Detection::NotEnoughData(format!(
+                "{moving} matched mode(s) with a decay rate move at the support (weight ≥ {SUPPORT_MODE_SHARE} of the largest); at least {MIN_SUPPORT_MODES} needed, or the damping is one mode's own misfit of the law"
             ));
         }
         // The ln f residuals against each frequency law's covariate.

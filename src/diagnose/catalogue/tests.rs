@@ -1761,6 +1761,45 @@ fn a_support_that_raises_and_damps_the_pressing_members_is_a_support_not_a_beati
     }
 }
 
+/// One mode alone moving at the support (the others' weights 0), its decay rate 0.4 1/s
+/// (15 %) above the damping law: a free decay for one mode, the law's own misfit there, not a
+/// support (generator 2's seed 71 case 016, a uniform-shift cup whose lowest mode alone moved
+/// at the foot ring).
+#[test]
+fn one_mode_alone_at_the_support_is_not_a_support() {
+    let evidence = |seed: u64| {
+        let mut ev = support_pair_evidence(0.0, seed);
+        for m in ev.simulated.iter_mut() {
+            m.support_weight = 0.0;
+        }
+        ev.simulated[2].support_weight = 1.0;
+        let f = ev.simulated[2].frequency_hz * 1.01;
+        for m in ev.fit.iter_mut().chain(ev.held_out.iter_mut().flatten()) {
+            if (m.frequency_hz / f - 1.0).abs() < 1e-3 {
+                m.decay_rate += 0.4;
+            }
+        }
+        ev
+    };
+    for seed in [1, 2, 3] {
+        let report = diagnose(&evidence(seed), &CatalogueSettings::default()).expect("valid");
+        assert!(
+            accepted(&report, "support_contact").is_none(),
+            "seed {seed}: {:#?}",
+            report.accepted
+        );
+        let rejected = report
+            .rejected
+            .iter()
+            .find(|r| r.name == "support_contact")
+            .expect("tried");
+        assert!(
+            rejected.detail.contains("move at the support"),
+            "seed {seed}: {rejected:?}"
+        );
+    }
+}
+
 /// The half-sine duration whose spectrum best matches a Hertzian pulse of duration `t_h` on
 /// the modes' frequencies (up to a constant, which the gains absorb): the pseudo-true value
 /// the misspecified fit converges to.
