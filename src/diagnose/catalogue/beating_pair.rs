@@ -377,8 +377,9 @@ pub(super) struct SplitCandidates {
     pub listed: Vec<String>,
 }
 
-/// Whether a term of `current` already frees the splits ([`PairSplits`] or
-/// [`super::added_mass::LoweredMembers`]): then no other may take them.
+/// Whether a term of `current` already frees the splits ([`PairSplits`],
+/// [`super::added_mass::LoweredMembers`] or [`super::support_contact::RaisedMembers`]): then
+/// no other may take them.
 pub(super) fn splits_already_free(current: &Fit) -> bool {
     current.model.terms.iter().any(|t| {
         t.effect() == "beating_pair"

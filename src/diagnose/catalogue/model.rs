@@ -759,8 +759,9 @@ impl Model {
     /// module docs, step 1), so a fit whose scale leaves that band no longer describes the
     /// pairs it was given: every mode would be predicted by a term moving it back. An added
     /// mass of μ = 1.29 with the scale at 1.22 (the matching's 1.0009) and Δν at its bound
-    /// fitted a tube's support strip that way (generator 2's seed 65 case 011, once its
-    /// lowest pair, split 2.8 % by the strip, took both members).
+    /// fitted a tube's support strip that way (generator 2's seed 65 case 011, replayed with
+    /// the largest pair split widened to 4 % so that its lowest pair, split 2.8 % by the
+    /// strip, took both members).
     pub fn with_scale_bounds(self, lo: f64, hi: f64) -> Model {
         Model {
             ln_scale_bounds: (lo, hi),
