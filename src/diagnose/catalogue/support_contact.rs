@@ -160,9 +160,7 @@ impl Term for SupportTerm {
         }
     }
     fn damping(&self, table: &ModeTable, p: &[f64], _ln_f: &[f64], decay: &mut [f64]) {
-        for (d, m) in decay.iter_mut().zip(&table.modes) {
-            *d += p[0] * m.support_weight;
-        }
+        add_support_damping(table, p[0], decay);
     }
     fn signature_missing(&self, table: &ModeTable, p: &[f64], sigma: &[f64]) -> Option<String> {
         let shift = if self.law == FrequencyLaw::None {
@@ -190,6 +188,13 @@ pub const MIN_SUPPORT_MODES: usize = 2;
 /// How many standard deviations the fitted support damping γ must clear (module docs,
 /// "Signature").
 pub const MIN_DAMPING_Z: f64 = 3.0;
+
+/// Δd_k = γ w_k \[1/s\] on every matched mode (module docs).
+fn add_support_damping(table: &ModeTable, gamma: f64, decay: &mut [f64]) {
+    for (d, m) in decay.iter_mut().zip(&table.modes) {
+        *d += gamma * m.support_weight;
+    }
+}
 
 /// The support's signature (module docs): it damps, γ > [`MIN_DAMPING_Z`] σ_γ; otherwise why not.
 fn does_not_damp(gamma: f64, sigma: f64, shift: &str) -> Option<String> {
@@ -231,9 +236,7 @@ impl Term for RaisedMembers {
         }
     }
     fn damping(&self, table: &ModeTable, p: &[f64], _ln_f: &[f64], decay: &mut [f64]) {
-        for (d, m) in decay.iter_mut().zip(&table.modes) {
-            *d += p[0] * m.support_weight;
-        }
+        add_support_damping(table, p[0], decay);
     }
     fn signature_missing(&self, _table: &ModeTable, p: &[f64], sigma: &[f64]) -> Option<String> {
         does_not_damp(p[0], sigma[0], "the raised members alone")
