@@ -132,7 +132,7 @@ impl Term for SupportTerm {
         }
     }
     fn params(&self) -> Vec<ParamSpec> {
-        let mut p = vec![ParamSpec::new("support damping γ", "1/s", 0.0, 1e4, 1.0)];
+        let mut p = vec![damping_spec()];
         match self.law {
             FrequencyLaw::None => {}
             FrequencyLaw::Proportional => p.push(ParamSpec::new(
@@ -189,6 +189,11 @@ pub const MIN_SUPPORT_MODES: usize = 2;
 /// "Signature").
 pub const MIN_DAMPING_Z: f64 = 3.0;
 
+/// The support damping γ \[1/s\] that every variant carries first.
+fn damping_spec() -> ParamSpec {
+    ParamSpec::new("support damping γ", "1/s", 0.0, 1e4, 1.0)
+}
+
 /// Δd_k = γ w_k \[1/s\] on every matched mode (module docs).
 fn add_support_damping(table: &ModeTable, gamma: f64, decay: &mut [f64]) {
     for (d, m) in decay.iter_mut().zip(&table.modes) {
@@ -222,7 +227,7 @@ impl Term for RaisedMembers {
         RAISED_MEMBERS_VARIANT
     }
     fn params(&self) -> Vec<ParamSpec> {
-        let mut p = vec![ParamSpec::new("support damping γ", "1/s", 0.0, 1e4, 1.0)];
+        let mut p = vec![damping_spec()];
         p.extend(self.splits.params(|c, f| {
             format!("upper member's rise δ/f above the lower of cluster {c} ({f:.1} Hz)")
         }));
@@ -304,7 +309,7 @@ impl SupportContact {
             ));
         }
         // A support damps every mode that moves at it (module docs, *More than one mode*).
-        let w_max = damping.iter().map(|p| p.0).fold(0.0, f64::max);
+        let (_, w_max) = weight_range(damping.iter().map(|p| p.0));
         let moving = damping
             .iter()
             .filter(|p| p.0 >= SUPPORT_MODE_SHARE * w_max)
