@@ -20,14 +20,25 @@ Usage (any python3; the dolfinx side runs under Debian's /usr/bin/python3):
 
     python3 scripts/bench_forward.py [--sizes bowl,300k,1m] [--modes 20]
         [--programs dolfinx,diffsound] [--np 2] [--lowmem auto|on|off]
+        [--path direct|iterative] [--preconditioner auto|gamg|pmg|pmg-mumps]
+
+With --path iterative neither side forms a factor: dolfinx runs SLEPc's
+generalised Davidson preconditioned by GAMG with the rigid motions as
+near-null space and deflation space (scripts/bench/dolfinx_modes.py
+--path iterative), diffsound its `--solver iterative` with the chosen
+preconditioner (default auto: the P2 -> P1 p-multigrid); both to a relative
+residual of 1e-8, without diffsound's completeness probe. The report goes to
+CACHE/forward_iterative.json.
 
 Sizes (meshes are generated once with gmsh and cached under out/bench/):
     bowl   the shared bowl, shared/data/bowl/bowl.msh      (  53,574 P2 DOF)
     300k   the bowl refined once with `gmsh -refine`       ( 355,365 P2 DOF)
     1m     scripts/bench/thick_bowl.geo at clmax 1.3 mm    (~1,085,000 P2 DOF)
     100k   scripts/bench/thick_bowl.geo at clmax 3.0 mm    (~  112,000 P2 DOF)
+    sphere165k, sphere1m, sphere3m   tests/data/analytic/sphere.geo at clmax
+           40, 21.5 and 14.6 mm (~165k, ~1.0M, ~3.1M P2 DOF; straight-sided)
 
-Needs: gmsh, openmpi-bin, python3-dolfinx (apt), and for the diffsound
+Needs: gmsh, openmpi-bin, python3-dolfinx and python3-gmsh (apt), and for the diffsound
 side a release build (`cargo build --release`); a missing program is
 reported and skipped.
 """
@@ -60,6 +71,14 @@ SIZES = {
              "desc": "bowl refined once (gmsh -refine)", "timeout": 1200},
     "1m": {"recipe": "geo", "geo": "thick_bowl.geo", "clmax": 0.0013,
            "file": "thick_bowl_h1.3mm.msh", "desc": "thick_bowl.geo, clmax 1.3 mm", "timeout": 2400},
+    # Free solid spheres of radius 0.5 m (tests/data/analytic/sphere.geo), straight-sided tet4
+    # meshes lifted to P2 by both programs; for the iterative path (--path iterative).
+    "sphere165k": {"recipe": "geo", "geo": "../../tests/data/analytic/sphere.geo", "clmax": 0.04,
+                   "file": "sphere_h40mm.msh", "desc": "sphere.geo, clmax 40 mm", "timeout": 3600},
+    "sphere1m": {"recipe": "geo", "geo": "../../tests/data/analytic/sphere.geo", "clmax": 0.0215,
+                 "file": "sphere_h21.5mm.msh", "desc": "sphere.geo, clmax 21.5 mm", "timeout": 7200},
+    "sphere3m": {"recipe": "geo", "geo": "../../tests/data/analytic/sphere.geo", "clmax": 0.0146,
+                 "file": "sphere_h14.6mm.msh", "desc": "sphere.geo, clmax 14.6 mm", "timeout": 10800},
 }
 
 # Above this many DOF the factorisation runs out of core by default.
@@ -162,7 +181,7 @@ def mpirun_prefix(np_, env_names):
 def run_program(prog, size, mesh, sigma, opts, args, runs_dir, timeout, ooc_dir):
     """Runs one program on one mesh; returns its timings JSON (plus wall_s)
     or a dict with an "error"."""
-    tag = f"{size}_{prog}"
+    tag = f"{size}_{prog}" + ("_iterative" if args.path == "iterative" else "")
     result_json = runs_dir / f"{tag}.json"
     log_file = runs_dir / f"{tag}.log"
     if result_json.exists():
@@ -171,10 +190,12 @@ def run_program(prog, size, mesh, sigma, opts, args, runs_dir, timeout, ooc_dir)
     env_names = ["OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MUMPS_OOC_TMPDIR"]
     material = ["--youngs", repr(YOUNGS), "--poisson", repr(POISSON), "--density", repr(DENSITY)]
     h5 = None
+    iterative = args.path == "iterative"
     if prog == "dolfinx":
+        path = ["--path", "iterative", f"--shift={sigma:.17g}"] if iterative else []
         cmd = mpirun_prefix(args.np, env_names) + [
             SYS_PYTHON, str(BENCH_DIR / "dolfinx_modes.py"), "--mesh", str(mesh), *material,
-            "--modes", str(args.modes), "--out", str(result_json), "--", *opts]
+            "--modes", str(args.modes), *path, "--out", str(result_json), "--", *opts]
     else:
         binary = Path(args.diffsound)
         if not binary.is_file():
@@ -183,9 +204,13 @@ def run_program(prog, size, mesh, sigma, opts, args, runs_dir, timeout, ooc_dir)
         # --no-verify: skip diffsound's extra inertia (mode-count) check, which
         # the dolfinx side does not do; --diffsound-verify puts it back.
         verify = [] if args.diffsound_verify else ["--no-verify"]
+        # The iterative path keeps its own tolerance (1e-8 on the relative residual, as the
+        # dolfinx side's); --no-verify there skips the completeness probe.
+        solver = (["--solver", "iterative", "--preconditioner", args.preconditioner] if iterative
+                  else ["--solver", "direct", "--tol", "1e-10"])
         cmd = mpirun_prefix(args.np, env_names) + [
             str(binary), "modes", "--mesh", str(mesh), "--units", "m", "--order", "2", *material,
-            "--modes", str(args.modes), "--tol", "1e-10", "--shift", f"{sigma:.17g}", *verify,
+            "--modes", str(args.modes), *solver, "--shift", f"{sigma:.17g}", *verify,
             "--out", str(h5), "--timings-json", str(result_json), "--", *opts]
     load = os.getloadavg()[0]
     t0 = time.perf_counter()
@@ -279,6 +304,11 @@ def main():
     p.add_argument("--out", default=None, help="report path (default CACHE/forward.json)")
     p.add_argument("--timeout-scale", type=float, default=1.0, help="multiplies the per-size time limits")
     p.add_argument("--keep-h5", action="store_true", help="keep diffsound's HDF5 outputs")
+    p.add_argument("--path", choices=["direct", "iterative"], default="direct",
+                   help="direct: shift-invert + MUMPS on both sides (the options above); iterative: "
+                        "no factor, GD + GAMG on the dolfinx side, GD + --preconditioner on ours")
+    p.add_argument("--preconditioner", default="auto",
+                   help="diffsound's iterative preconditioner (auto, gamg, pmg, pmg-mumps)")
     p.add_argument("--diffsound-verify", action="store_true",
                    help="let diffsound run its inertia check (extra factorisation; off for a like-for-like run)")
     args = p.parse_args()
@@ -300,7 +330,8 @@ def main():
     ooc_dir = cache / "mumps_ooc"
     for d in (cache, runs_dir, ooc_dir):
         d.mkdir(parents=True, exist_ok=True)
-    out_path = Path(args.out) if args.out else cache / "forward.json"
+    default_out = "forward_iterative.json" if args.path == "iterative" else "forward.json"
+    out_path = Path(args.out) if args.out else cache / default_out
 
     report = {
         "generated": datetime.datetime.now().isoformat(timespec="seconds"),
@@ -315,9 +346,11 @@ def main():
         mesh = ensure_mesh(size, args, cache)
         info = mesh_info(mesh, cache)
         sigma = target_shift(info["diagonal"])
-        lowmem = args.lowmem == "on" or (args.lowmem == "auto" and info["p2_dofs"] > LOWMEM_NDOF)
-        opts = petsc_options(args.modes, sigma, lowmem)
+        lowmem = args.path == "direct" and (
+            args.lowmem == "on" or (args.lowmem == "auto" and info["p2_dofs"] > LOWMEM_NDOF))
+        opts = [] if args.path == "iterative" else petsc_options(args.modes, sigma, lowmem)
         entry = {"mesh": str(mesh), "desc": SIZES[size]["desc"], "mesh_info": info, "sigma": sigma,
+                 "path": args.path, "preconditioner": args.preconditioner if args.path == "iterative" else None,
                  "lowmem": lowmem, "petsc_options": opts, "results": {}}
         report["sizes"][size] = entry
         timeout = SIZES[size]["timeout"] * args.timeout_scale
@@ -329,8 +362,9 @@ def main():
             if "error" in res:
                 log(f"[{size}] {prog}: {res['error']}" + (f" (log: {res['log']})" if "log" in res else ""))
             else:
+                its = res.get("its", res.get("iterations"))
                 log(f"[{size}] {prog}: assembly {res['assembly_s']:.2f} s, solve {res['solve_s']:.2f} s, "
-                    f"peak {res['peak_rss_mb']:.0f} MB")
+                    f"peak {res['peak_rss_mb']:.0f} MB" + (f", {its} iterations" if its is not None else ""))
             # write as we go, so a long run leaves partial results behind
             out_path.write_text(json.dumps(report, indent=1))
         a, b = entry["results"].get("diffsound", {}), entry["results"].get("dolfinx", {})

@@ -7,7 +7,7 @@
 //! | mesh       | [`mesh`]     | reads Gmsh tet meshes, validates, lifts P1 to P2, straightens, locates, writes, generates |
 //! | fem        | [`fem`]      | pure, serial element kernels: mass, Lamé-split stiffness, materials |
 //! | assembly   | [`assembly`] | node partition, exact preallocation, distributed PETSc matrices |
-//! | eigen      | [`eigen`]    | SLEPc shift-invert Krylov–Schur on MUMPS (direct) or generalised Davidson with algebraic multigrid (iterative, no factor), rigid-mode removal, spectrum slicing |
+//! | eigen      | [`eigen`]    | SLEPc shift-invert Krylov–Schur on MUMPS (direct) or generalised Davidson with a P2 → P1 or algebraic multigrid (iterative, no factor), rigid-mode removal, spectrum slicing |
 //! | shape      | [`shape`]    | differentiable shapes: surfaces, signed distances, marching tetrahedra, the spectrum of the body inside a field and its gradient |
 //! | audio      | [`audio`]    | damped-sinusoid synthesis and WAV I/O |
 //! | analysis   | [`analysis`] | recording analysis: onset, trim and gain, modal estimates and extraction with uncertainties, glides |

@@ -92,6 +92,8 @@ fn iterative_path_agrees_with_the_direct_path_on_one_and_two_ranks() {
         );
         let j = read_json(&json);
         assert_eq!(j["solver_path"], "iterative");
+        // The default preconditioner on a P2 mesh is the p-multigrid.
+        assert_eq!(j["iterative_preconditioner"], "pmg");
         assert_eq!(j["probe"]["verdict"], "consistent");
         assert!(j["inertia"].is_null(), "the iterative path made a factor");
         // The probe's lowest eigenvalue in the complement is the next mode, not below the last.
@@ -198,11 +200,12 @@ fn iterative_path_refuses_what_it_cannot_do() {
     );
 }
 
-/// The p-multigrid preconditioner (`--preconditioner pmg`: two-level P2 → P1, GAMG on the P1
-/// level; `pmg-mumps`: the P1 level factored) finds the direct path's eigenvalues on 1 and 2
-/// ranks, and says which preconditioner ran.
+/// The preconditioners other than the default (`--preconditioner gamg`: algebraic multigrid on
+/// the P2 operator; `pmg-mumps`: the p-multigrid with its P1 level factored) find the direct
+/// path's eigenvalues on 1 and 2 ranks, and say which preconditioner ran; on a P1 mesh the
+/// default is GAMG and the p-multigrid is refused by name.
 #[test]
-fn p_multigrid_preconditioner_agrees_with_the_direct_path() {
+fn other_preconditioners_agree_with_the_direct_path() {
     let dir = scratch("solver_iterative_pmg");
     let mesh = dir.join("sphere.msh");
     gmsh_mesh(&fixture("analytic/sphere.geo"), 0.16, 2, &mesh);
@@ -216,7 +219,7 @@ fn p_multigrid_preconditioner_agrees_with_the_direct_path() {
     );
     assert!(direct.success(), "{}", direct.describe());
     let ld = f64s(&read_json(&direct_json), "eigenvalues");
-    for (np, pc) in [(2, "pmg"), (1, "pmg"), (2, "pmg-mumps")] {
+    for (np, pc) in [(2, "gamg"), (1, "gamg"), (2, "pmg-mumps")] {
         let json = dir.join(format!("{pc}_{np}.json"));
         let run = modes(
             np,
@@ -234,6 +237,52 @@ fn p_multigrid_preconditioner_agrees_with_the_direct_path() {
         println!("{pc} on {np} rank(s) vs direct: max relative eigenvalue difference {worst:.2e}");
         assert!(worst < 1e-8, "{pc} vs direct: {worst:e}\n{ld:?}\n{li:?}");
     }
+    // A P1 mesh has no coarser P1 space: `auto` takes GAMG there and finds the direct path's
+    // P1 eigenvalues; asking for the p-multigrid is refused with the reason.
+    let p1_direct = dir.join("p1_direct.json");
+    let run = modes(
+        2,
+        &mesh,
+        &dir.join("p1_direct.h5"),
+        &p1_direct,
+        &["--order", "1", "--solver", "direct", "--no-verify"],
+    );
+    assert!(run.success(), "{}", run.describe());
+    let p1_json = dir.join("p1_auto.json");
+    let run = modes(
+        2,
+        &mesh,
+        &dir.join("p1_auto.h5"),
+        &p1_json,
+        &["--order", "1", "--solver", "iterative"],
+    );
+    assert!(run.success(), "{}", run.describe());
+    let j = read_json(&p1_json);
+    assert_eq!(j["iterative_preconditioner"], "gamg");
+    let worst = worst_relative(
+        &f64s(&read_json(&p1_direct), "eigenvalues"),
+        &f64s(&j, "eigenvalues"),
+        N_MODES,
+    );
+    println!("P1 mesh, auto (gamg) vs direct: max relative eigenvalue difference {worst:.2e}");
+    assert!(worst < 1e-8, "P1 gamg vs direct: {worst:e}");
+    let run = modes(
+        1,
+        &mesh,
+        &dir.join("p1_pmg.h5"),
+        &dir.join("p1_pmg.json"),
+        &[
+            "--order",
+            "1",
+            "--solver",
+            "iterative",
+            "--preconditioner",
+            "pmg",
+        ],
+    );
+    assert!(!run.success());
+    assert!(run.stderr.contains("P2"), "{}", run.describe());
+
     // A bad word is refused by name.
     let run = modes(
         1,

@@ -56,12 +56,12 @@ pub struct ModesArgs {
     #[arg(long, allow_hyphen_values = true)]
     pub shift: Option<f64>,
     /// Solver path: auto (default: direct, iterative above 600k DOF), direct (MUMPS shift-invert
-    /// with the inertia proof) or iterative (LOBPCG + algebraic multigrid, no factor)
+    /// with the inertia proof) or iterative (generalised Davidson + multigrid, no factor)
     #[arg(long)]
     pub solver: Option<SolverPath>,
-    /// The iterative path's preconditioner: gamg (default: algebraic multigrid on the P2
-    /// operator), pmg (two-level P2 → P1 multigrid, GAMG on the P1 level) or pmg-mumps (the P1
-    /// level solved by a MUMPS factor)
+    /// The iterative path's preconditioner: auto (default: pmg on a P2 mesh, gamg on a P1 one),
+    /// gamg (algebraic multigrid on the operator), pmg (two-level P2 → P1 multigrid, the P1 level
+    /// solved by CG with GAMG to 10⁻²) or pmg-mumps (the P1 level solved by a MUMPS factor)
     #[arg(long)]
     pub preconditioner: Option<IterativePreconditioner>,
     /// Skip the inertia check that proves no mode was missed.

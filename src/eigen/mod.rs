@@ -169,7 +169,7 @@ impl EigenConfig {
             expected_rigid: 6,
             path: SolverPath::Direct,
             iterative_tolerance: ITERATIVE_TOLERANCE,
-            iterative_preconditioner: IterativePreconditioner::Gamg,
+            iterative_preconditioner: IterativePreconditioner::Auto,
         }
     }
 
@@ -361,7 +361,7 @@ pub fn solve_modes_deflated<'p>(
     cfg: &EigenConfig,
     deflate: &[Vector<'p>],
 ) -> Result<Modes<'p>, EigenError> {
-    solve_modes_two_level(petsc, k, m, cfg, deflate, None)
+    solve_modes_two_level(petsc, k, m, cfg, deflate, None, &|_| {})
 }
 
 /// [`solve_modes_deflated`] with the P1 → P2 interpolation of the mesh ([`pmg::two_level`]),
@@ -374,6 +374,7 @@ pub fn solve_modes_two_level<'p>(
     cfg: &EigenConfig,
     deflate: &[Vector<'p>],
     two_level: Option<&TwoLevel<'p>>,
+    progress: &dyn Fn(&str),
 ) -> Result<Modes<'p>, EigenError> {
     let start = std::time::Instant::now();
     let shift = cfg.effective_shift();
@@ -484,6 +485,10 @@ pub fn solve_modes_two_level<'p>(
                 nev,
                 cfg.iterative_tolerance,
                 &deflate.iter().collect::<Vec<_>>(),
+                &iterative::Report {
+                    what: "modes",
+                    say: progress,
+                },
             )
             .map_err(SolveFailure::into_error)?,
             None => solve_with_workspace(petsc, &mut solve_log, &mut warnings, |petsc| {
@@ -565,6 +570,7 @@ pub fn solve_modes_two_level<'p>(
                     deflate,
                     &elastic_vecs[..keep],
                     elastic[keep - 1],
+                    progress,
                 )
                 .map_err(SolveFailure::into_error)?;
                 match &check.verdict {

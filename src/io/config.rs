@@ -420,7 +420,7 @@ pub struct SolverConfig {
     pub shift: Option<f64>,
     /// "auto", "direct" or "iterative" (`eigen::SolverPath`).
     pub path: Option<String>,
-    /// The iterative path's preconditioner: "gamg", "pmg" or "pmg-mumps"
+    /// The iterative path's preconditioner: "auto", "gamg", "pmg" or "pmg-mumps"
     /// (`eigen::IterativePreconditioner`).
     pub preconditioner: Option<String>,
     #[serde(default)]

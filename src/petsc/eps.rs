@@ -185,6 +185,63 @@ impl<'p> Eps<'p> {
         unsafe { check(sys::EPSSolve(self.raw), "EPSSolve") }
     }
 
+    /// [`Eps::solve`], calling `report(iterations, converged)` at most once every `every` from
+    /// SLEPc's monitor hook (on every rank; the caller decides who prints). The hook is removed
+    /// before this returns, user monitors (`-eps_monitor`) included.
+    pub fn solve_reporting(
+        &mut self,
+        every: std::time::Duration,
+        report: &mut dyn FnMut(usize, usize),
+    ) -> Result<()> {
+        struct Hook<'r> {
+            report: &'r mut dyn FnMut(usize, usize),
+            every: std::time::Duration,
+            last: std::time::Instant,
+        }
+        unsafe extern "C" fn monitor(
+            _eps: sys::EPS,
+            its: sys::PetscInt,
+            nconv: sys::PetscInt,
+            _eigr: *mut sys::PetscScalar,
+            _eigi: *mut sys::PetscScalar,
+            _errest: *mut sys::PetscReal,
+            _nest: sys::PetscInt,
+            ctx: *mut std::os::raw::c_void,
+        ) -> sys::PetscErrorCode {
+            // SAFETY: ctx is the `Hook` below, alive for the whole EPSSolve that calls this.
+            let hook = unsafe { &mut *(ctx as *mut Hook<'_>) };
+            if hook.last.elapsed() >= hook.every {
+                hook.last = std::time::Instant::now();
+                // A panic must not unwind into C; a failed report is only a lost progress line.
+                let report = &mut hook.report;
+                let _ = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
+                    report(its.max(0) as usize, nconv.max(0) as usize)
+                }));
+            }
+            0
+        }
+        let mut hook = Hook {
+            report,
+            every,
+            last: std::time::Instant::now(),
+        };
+        // SAFETY: the context outlives the solve; the monitor is cancelled before `hook` drops.
+        unsafe {
+            check(
+                sys::EPSMonitorSet(
+                    self.raw,
+                    Some(monitor),
+                    &mut hook as *mut Hook<'_> as *mut std::os::raw::c_void,
+                    None,
+                ),
+                "EPSMonitorSet",
+            )?;
+            let solved = check(sys::EPSSolve(self.raw), "EPSSolve");
+            let cancelled = check(sys::EPSMonitorCancel(self.raw), "EPSMonitorCancel");
+            solved.and(cancelled)
+        }
+    }
+
     pub fn converged(&self) -> Result<usize> {
         let mut n = 0;
         // SAFETY: query only.
