@@ -176,8 +176,9 @@ def main():
     t_assemble = wall() - t0
 
     n_modes = ARGS.modes
+    times = (t_mesh, t_compile, t_space, t_assemble)
     if ARGS.path == "iterative":
-        return solve_iterative(V, K, M, ndof, mesh, t_start, t_mesh, t_compile, t_space, t_assemble)
+        return solve_iterative(V, K, M, ndof, mesh, t_start, times)
     nev = n_modes + 6
     t0 = wall()
     eps_solver = SLEPc.EPS().create(COMM)
@@ -200,60 +201,72 @@ def main():
     t_solve = wall() - t0
     t_total = wall() - t_start
 
+    nconv, vals, errs = sorted_pairs(eps_solver)
+    want = min(nev, nconv)
+    rigid = vals[:6].tolist()
+    elastic = vals[6:want].tolist()
+    finish(eps_solver, mesh, ndof, times, t_solve, t_total, nev, int(nconv), rigid, elastic,
+           # relative residuals of the elastic pairs (the rigid ones have
+           # eigenvalues ~0, so their relative error is meaningless)
+           float(errs[6:want].max()) if want > 6 else None,
+           {"mumps": mumps_info(pc)})
+
+
+def sorted_pairs(eps_solver):
+    """The converged count, eigenvalues ascending and their relative errors."""
     nconv = eps_solver.getConverged()
     vals = np.array([eps_solver.getEigenvalue(i).real for i in range(nconv)])
     errs = np.array([eps_solver.computeError(i) for i in range(nconv)])
     order = np.argsort(vals)
-    vals, errs = vals[order], errs[order]
-    want = min(nev, nconv)
-    rigid = vals[:6].tolist()
-    elastic = vals[6:want].tolist()
-    info = mumps_info(pc)
+    return nconv, vals[order], errs[order]
 
+
+def finish(eps_solver, mesh, ndof, times, t_solve, t_total, nev, nconv, rigid, elastic, max_err, extra):
+    """Gathers the peak memory and writes the JSON report (rank 0), atomically."""
+    t_mesh, t_compile, t_space, t_assemble = times
     peak_kb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss  # KiB on Linux
     per_rank = COMM.gather(peak_kb / 1024.0, root=0)
     peak_sum = COMM.allreduce(peak_kb, op=MPI.SUM) / 1024.0
-
-    if RANK == 0:
-        out = {
-            "program": "dolfinx",
-            "dolfinx_version": dolfinx.__version__,
-            "mesh": os.path.abspath(ARGS.mesh),
-            "ndof": int(ndof),
-            "n_vertices": int(mesh.topology.index_map(0).size_global),
-            "n_cells": int(mesh.topology.index_map(3).size_global),
-            "n_ranks": COMM.size,
-            "mesh_s": t_mesh,
-            "compile_s": t_compile,
-            "space_s": t_space,
-            "assemble_s": t_assemble,
-            # comparable to diffsound's assembly: dof numbering + matrices
-            "assembly_s": t_space + t_assemble,
-            "solve_s": t_solve,
-            "total_s": t_total,
-            "peak_rss_mb": peak_sum,
-            "peak_rss_mb_per_rank": per_rank,
-            "nconv": int(nconv),
-            "nev": nev,
-            "its": int(eps_solver.getIterationNumber()),
-            # relative residuals of the elastic pairs (the rigid ones have
-            # eigenvalues ~0, so their relative error is meaningless)
-            "max_rel_error": float(errs[6:want].max()) if want > 6 else None,
-            "rigid_eigenvalues": rigid,
-            "eigenvalues": elastic,
-            "frequencies_hz": [float(np.sqrt(max(x, 0.0)) / (2 * np.pi)) for x in elastic],
-            "mumps": info,
-            "petsc_options": PETSC_ARGS,
-        }
-        tmp = ARGS.out + ".tmp"
-        with open(tmp, "w") as f:
-            json.dump(out, f, indent=1)
-        os.replace(tmp, ARGS.out)
-        print(
-            f"[dolfinx] ndof={ndof} assembly={t_space + t_assemble:.2f}s (compile {t_compile:.2f}s) "
-            f"solve={t_solve:.2f}s peak={peak_sum:.0f}MB nconv={nconv}",
-            flush=True,
-        )
+    if RANK != 0:
+        return
+    out = {
+        "program": "dolfinx",
+        "dolfinx_version": dolfinx.__version__,
+        "path": ARGS.path,
+        "mesh": os.path.abspath(ARGS.mesh),
+        "ndof": int(ndof),
+        "n_vertices": int(mesh.topology.index_map(0).size_global),
+        "n_cells": int(mesh.topology.index_map(3).size_global),
+        "n_ranks": COMM.size,
+        "mesh_s": t_mesh,
+        "compile_s": t_compile,
+        "space_s": t_space,
+        "assemble_s": t_assemble,
+        # comparable to diffsound's assembly: dof numbering + matrices
+        "assembly_s": t_space + t_assemble,
+        "solve_s": t_solve,
+        "total_s": t_total,
+        "peak_rss_mb": peak_sum,
+        "peak_rss_mb_per_rank": per_rank,
+        "nconv": nconv,
+        "nev": nev,
+        "its": int(eps_solver.getIterationNumber()),
+        "max_rel_error": max_err,
+        "rigid_eigenvalues": rigid,
+        "eigenvalues": elastic,
+        "frequencies_hz": [float(np.sqrt(max(x, 0.0)) / (2 * np.pi)) for x in elastic],
+        "petsc_options": PETSC_ARGS,
+        **extra,
+    }
+    tmp = ARGS.out + ".tmp"
+    with open(tmp, "w") as f:
+        json.dump(out, f, indent=1)
+    os.replace(tmp, ARGS.out)
+    print(
+        f"[dolfinx] {ARGS.path} ndof={ndof} assembly={t_space + t_assemble:.2f}s (compile {t_compile:.2f}s) "
+        f"solve={t_solve:.2f}s its={out['its']} peak={peak_sum:.0f}MB nconv={nconv}",
+        flush=True,
+    )
 
 
 def rigid_motions(V, K):
@@ -287,7 +300,7 @@ def rigid_motions(V, K):
     return basis
 
 
-def solve_iterative(V, K, M, ndof, mesh, t_start, t_mesh, t_compile, t_space, t_assemble):
+def solve_iterative(V, K, M, ndof, mesh, t_start, times):
     if ARGS.shift is None:
         raise SystemExit("--path iterative needs --shift")
     sigma = ARGS.shift
@@ -319,51 +332,10 @@ def solve_iterative(V, K, M, ndof, mesh, t_start, t_mesh, t_compile, t_space, t_
     eps_solver.solve()
     t_solve = wall() - t0
     t_total = wall() - t_start
-    nconv = eps_solver.getConverged()
-    vals = np.array([eps_solver.getEigenvalue(i).real for i in range(nconv)])
-    errs = np.array([eps_solver.computeError(i) for i in range(nconv)])
-    order = np.argsort(vals)
-    vals, errs = vals[order][:n_modes], errs[order][:n_modes]
-    peak_kb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
-    per_rank = COMM.gather(peak_kb / 1024.0, root=0)
-    peak_sum = COMM.allreduce(peak_kb, op=MPI.SUM) / 1024.0
-    if RANK == 0:
-        out = {
-            "program": "dolfinx",
-            "dolfinx_version": dolfinx.__version__,
-            "path": "iterative",
-            "mesh": os.path.abspath(ARGS.mesh),
-            "ndof": int(ndof),
-            "n_vertices": int(mesh.topology.index_map(0).size_global),
-            "n_cells": int(mesh.topology.index_map(3).size_global),
-            "n_ranks": COMM.size,
-            "mesh_s": t_mesh,
-            "compile_s": t_compile,
-            "space_s": t_space,
-            "assemble_s": t_assemble,
-            "assembly_s": t_space + t_assemble,
-            "solve_s": t_solve,
-            "total_s": t_total,
-            "peak_rss_mb": peak_sum,
-            "peak_rss_mb_per_rank": per_rank,
-            "nconv": int(nconv),
-            "nev": n_modes,
-            "its": int(eps_solver.getIterationNumber()),
-            "max_rel_error": float(errs.max()) if len(errs) else None,
-            "rigid_eigenvalues": [],
-            "eigenvalues": vals.tolist(),
-            "frequencies_hz": [float(np.sqrt(max(x, 0.0)) / (2 * np.pi)) for x in vals],
-            "petsc_options": PETSC_ARGS,
-        }
-        tmp = ARGS.out + ".tmp"
-        with open(tmp, "w") as f:
-            json.dump(out, f, indent=1)
-        os.replace(tmp, ARGS.out)
-        print(
-            f"[dolfinx] iterative ndof={ndof} assembly={t_space + t_assemble:.2f}s "
-            f"solve={t_solve:.2f}s its={eps_solver.getIterationNumber()} peak={peak_sum:.0f}MB nconv={nconv}",
-            flush=True,
-        )
+    nconv, vals, errs = sorted_pairs(eps_solver)
+    vals, errs = vals[:n_modes], errs[:n_modes]
+    finish(eps_solver, mesh, ndof, times, t_solve, t_total, n_modes, int(nconv), [],
+           vals.tolist(), float(errs.max()) if len(errs) else None, {})
 
 
 if __name__ == "__main__":
