@@ -8,8 +8,9 @@
 //!
 //! **What.** SLEPc's generalised Davidson (GD) for the smallest eigenvalues of K φ = λ M φ in
 //! the M-orthogonal complement of the six rigid motions (handed over as the deflation space,
-//! [`super::rigid_body_vectors`]), each new search direction preconditioned by one V-cycle of
-//! PETSc's smoothed-aggregation algebraic multigrid (GAMG) on
+//! [`super::rigid_body_vectors`]), each new search direction preconditioned by one multigrid
+//! cycle: on a P2 mesh by default the P2 → P1 p-multigrid ("Preconditioners" below), otherwise
+//! one V-cycle of PETSc's smoothed-aggregation algebraic multigrid (GAMG) on
 //!
 //! ```text
 //!   P = K − σ M      (σ < 0, the same default shift as the direct path: P is positive definite)
