@@ -430,6 +430,15 @@ fn accepted<'a>(report: &'a CatalogueReport, name: &str) -> Option<&'a AcceptedE
     report.accepted.iter().find(|a| a.name == name)
 }
 
+/// The rejected effect `name`, or a panic with what was accepted instead.
+fn rejected<'a>(report: &'a CatalogueReport, name: &str) -> &'a RejectedEffect {
+    report
+        .rejected
+        .iter()
+        .find(|r| r.name == name)
+        .unwrap_or_else(|| panic!("{name} not rejected: {:#?}", report.accepted))
+}
+
 fn param<'a>(effect: &'a AcceptedEffect, prefix: &str) -> &'a FittedParam {
     effect
         .params
@@ -1565,11 +1574,7 @@ fn a_support_that_does_not_damp_is_not_named() {
             "κ = {kappa}: {:#?}",
             report.accepted
         );
-        let r = report
-            .rejected
-            .iter()
-            .find(|r| r.name == "support_contact")
-            .expect("rejected");
+        let r = rejected(&report, "support_contact");
         assert_eq!(r.reason, Rejection::SignatureMissing, "κ = {kappa}: {r:?}");
     }
     // (3) A lossless spring: a shift that falls as 1/f², as a support's spring makes, and no
@@ -1788,14 +1793,10 @@ fn one_mode_alone_at_the_support_is_not_a_support() {
             "seed {seed}: {:#?}",
             report.accepted
         );
-        let rejected = report
-            .rejected
-            .iter()
-            .find(|r| r.name == "support_contact")
-            .expect("tried");
+        let r = rejected(&report, "support_contact");
         assert!(
-            rejected.detail.contains("move at the support"),
-            "seed {seed}: {rejected:?}"
+            r.detail.contains("move at the support"),
+            "seed {seed}: {r:?}"
         );
     }
 }
@@ -1961,11 +1962,7 @@ fn a_bands_frames_count_by_the_independent_values_they_hold() {
         .expect("envelopes")
         .frames_per_window = 1e4;
     let report = diagnose(&ev, &CatalogueSettings::default()).expect("valid");
-    let r = report
-        .rejected
-        .iter()
-        .find(|r| r.name == "reverb_noise")
-        .expect("reverb rejected");
+    let r = rejected(&report, "reverb_noise");
     assert_eq!(r.reason, Rejection::SignatureMissing, "{r:?}");
     // Fewer than one frame per window is not an STFT.
     ev.residual_envelopes
@@ -1990,11 +1987,7 @@ fn an_excess_in_one_band_is_a_local_misfit_not_a_room() {
         *e *= 1.0 + 30.0 * (-13.815510557964274 * t / 0.4).exp();
     }
     let report = diagnose(&ev, &CatalogueSettings::default()).expect("valid");
-    let r = report
-        .rejected
-        .iter()
-        .find(|r| r.name == "reverb_noise")
-        .expect("reverb rejected");
+    let r = rejected(&report, "reverb_noise");
     assert_eq!(r.reason, Rejection::SignatureMissing, "{r:?}");
     assert!(
         r.delta_bic.expect("fitted") > 2.0,
@@ -2124,11 +2117,7 @@ fn a_glide_below_the_physical_minimum_is_not_named() {
     };
     // 5·10⁻⁵ at 10 σ per mode: significant, but below MIN_GLIDE.
     let report = with_glide(0.5 * pitch_glide::MIN_GLIDE);
-    let r = report
-        .rejected
-        .iter()
-        .find(|r| r.name == "pitch_glide")
-        .expect("rejected");
+    let r = rejected(&report, "pitch_glide");
     assert_eq!(r.reason, Rejection::DetectorFoundNothing, "{r:?}");
     let report = with_glide(5.0 * pitch_glide::MIN_GLIDE);
     let a = expect_accepted(&report, "pitch_glide");
@@ -2239,11 +2228,7 @@ fn without_held_out_data_effects_are_not_confirmed() {
     };
     let (ev, _) = evidence(&truth, 34);
     let report = diagnose(&ev, &CatalogueSettings::default()).expect("valid");
-    let r = report
-        .rejected
-        .iter()
-        .find(|r| r.name == "added_mass")
-        .expect("rejected");
+    let r = rejected(&report, "added_mass");
     assert_eq!(r.reason, Rejection::NoHeldOutData);
     assert!(r.delta_bic.expect("fitted") > DEFAULT_DELTA_BIC_THRESHOLD);
     let relaxed = CatalogueSettings {
@@ -2462,20 +2447,12 @@ fn missing_observations_are_skipped_not_fatal() {
     let report = diagnose(&ev, &CatalogueSettings::default()).expect("valid");
     expect_accepted(&report, "added_mass");
     for name in ["radiation", "contact_duration"] {
-        let r = report
-            .rejected
-            .iter()
-            .find(|r| r.name == name)
-            .expect("rejected");
+        let r = rejected(&report, name);
         assert_eq!(r.reason, Rejection::NotEnoughData, "{r:?}");
     }
     // Neither glide law needs the amplitudes (the energy is the model's, from the drive):
     // both are screened, and find nothing.
-    let r = report
-        .rejected
-        .iter()
-        .find(|r| r.name == "pitch_glide")
-        .expect("rejected");
+    let r = rejected(&report, "pitch_glide");
     assert_eq!(r.reason, Rejection::DetectorFoundNothing, "{r:?}");
     assert!(
         r.detail.contains("relative energy") && r.detail.contains("uniform"),
