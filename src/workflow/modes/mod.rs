@@ -231,16 +231,15 @@ pub fn run<'p>(petsc: &'p Petsc, job: &Job, progress: &Progress) -> Result<Repor
     };
     // The p-multigrid's P1 → P2 interpolation, only when the iterative path will use it: asked
     // for, or chosen by `auto` on a P2 mesh (a P1 mesh has no coarser P1 space; GAMG instead).
-    let two_level = match job.iterative_preconditioner {
-        IterativePreconditioner::PMultigrid(_) if !rigid.is_empty() => {
-            Some(eigen::pmg::two_level(petsc, &mesh, &layout)?)
-        }
-        IterativePreconditioner::Auto
-            if !rigid.is_empty() && mesh.order == crate::mesh::ElementOrder::Quadratic =>
-        {
-            Some(eigen::pmg::two_level(petsc, &mesh, &layout)?)
-        }
-        _ => None,
+    let wants_coarse_space = match job.iterative_preconditioner {
+        IterativePreconditioner::PMultigrid(_) => true,
+        IterativePreconditioner::Auto => mesh.order == crate::mesh::ElementOrder::Quadratic,
+        IterativePreconditioner::Gamg => false,
+    };
+    let two_level = if wants_coarse_space && !rigid.is_empty() {
+        Some(eigen::pmg::two_level(petsc, &mesh, &layout)?)
+    } else {
+        None
     };
     let modes =
         eigen::solve_modes_two_level(petsc, &k, &m, &cfg, &rigid, two_level.as_ref(), &|line| {
