@@ -327,6 +327,15 @@ fn bad_input_fails_clearly_on_every_rank() {
         format!("mesh = \"{}\"\n[solver]\npath = \"fastest\"\n", s(&cube)),
     )
     .unwrap();
+    let bad_preconditioner_toml = dir.join("bad_preconditioner.toml");
+    std::fs::write(
+        &bad_preconditioner_toml,
+        format!(
+            "mesh = \"{}\"\n[solver]\npath = \"iterative\"\npreconditioner = \"amg\"\n",
+            s(&cube)
+        ),
+    )
+    .unwrap();
     let broken_toml = dir.join("broken.toml");
     std::fs::write(&broken_toml, "mesh = [unclosed\n").unwrap();
 
@@ -343,6 +352,16 @@ fn bad_input_fails_clearly_on_every_rank() {
             "[solver] path",
             "\"fastest\"",
             "auto, direct or iterative",
+        ],
+    );
+    expect_failure(
+        "config_preconditioner",
+        &["--config", s(&bad_preconditioner_toml)],
+        &[
+            "bad_preconditioner.toml",
+            "[solver] preconditioner",
+            "\"amg\"",
+            "auto, gamg, pmg or pmg-mumps",
         ],
     );
     expect_failure(
