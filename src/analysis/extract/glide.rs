@@ -74,15 +74,16 @@
 //! with every g at the best K' = 1 fit's ĝ (the glide at the onset can exceed a pair's
 //! spacing many times over, and from g = 0 a component is caught by the wrong pole), the
 //! lower BIC kept. Then *forward addition*: from the best hypothesis with fewer than K
-//! components, one more gliding component is started at each pole, at g = 0 and at the fit's
-//! glide ĝ; the [`FORWARD_STARTS`] starts of lowest cost as started are fitted, and the best
-//! fit enters if it lowers the BIC, until a step lowers none or K components are reached. A
-//! near-degenerate pair of gliding modes lies inside one ladder of poles, so started at the
-//! two loudest poles its second component is caught by a rung (generator 2's seed 73: a tube's
-//! pair at 2307.17 and 2306.58 Hz gliding 9.4·10⁻³ and 2.9·10⁻³, found from the two fit
-//! microphones, came out of the one held-out microphone as four near-constant poles of
-//! g ≤ 3.7·10⁻³ decaying at 10–102 1/s; a cup's mode gliding 7.9·10⁻³ came out beside
-//! a component of g = −6.5·10⁻³, and the catalogue read the pair as a support). Each hypothesis h with P_h nonlinear
+//! components, one more gliding component is started at each pole (at g = 0 and at the fit's
+//! glide ĝ) or one DFT bin beside each fitted component (a near-degenerate partner); the
+//! [`FORWARD_STARTS`] starts of lowest cost as started are fitted, and the best fit enters if
+//! it lowers the BIC, until a step lowers none or K components are reached. A near-degenerate
+//! pair of gliding modes lies inside one ladder of poles, so started at the two loudest poles
+//! its second component is caught by a rung (generator 2's seed 73: a tube's pair at 2307.17
+//! and 2306.58 Hz gliding 9.4·10⁻³ and 2.9·10⁻³, found from the two fit microphones, came out
+//! of the one held-out microphone as four near-constant poles of g ≤ 3.7·10⁻³ decaying at
+//! 10–102 1/s; a cup's mode gliding 7.9·10⁻³ came out beside a component of g = −6.5·10⁻³, and
+//! the catalogue read the pair as a support). Each hypothesis h with P_h nonlinear
 //! and L_h C linear parameters scores the Bayesian information criterion of its profile
 //! likelihood (unknown noise per channel):
 //!
@@ -1064,10 +1065,11 @@ pub fn fit_glides(
             }
         }
         // Forward addition from the best fit so far with fewer than K components (module docs,
-        // "Criterion", *warm starts*): a near-degenerate gliding pair sits inside one ladder,
-        // and started at the two loudest poles its second component is caught by a rung; from
-        // the fitted components plus one more started at each pole (at g = 0 and at ĝ) it is
-        // not. Every fit enters the comparison below; a step that lowers no BIC ends it.
+        // "Criterion", *forward addition*): a near-degenerate gliding pair sits inside one
+        // ladder, and started at the two loudest poles its second component is caught by a
+        // rung; from the fitted components plus one more it is not. Every step's fit enters the
+        // comparison below, keyed `usize::MAX` (not one of `hypotheses`: the per-pole lookup
+        // keys on the last of those); a step that lowers no BIC ends it.
         if members.len() > 1 {
             let mut current = fits
                 .iter()
@@ -1221,7 +1223,8 @@ pub fn fit_glides(
 }
 
 /// Starts fitted per step of the forward addition (`fit_glides`): the best by their cost as
-/// started, of one new component at each pole at g = 0 and at the glide ĝ of the fit so far.
+/// started, of one new component at each pole (at g = 0 and at the glide ĝ of the fit so far)
+/// or one DFT bin either side of each fitted component.
 const FORWARD_STARTS: usize = 2;
 
 /// Decay rates of a gliding component further than this factor from the group's poles' range
