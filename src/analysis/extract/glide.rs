@@ -564,13 +564,9 @@ impl BandProblem<'_> {
     /// Σ_c w_c ‖P⊥ y_c‖² at `comps` as they are (no fit), w_c = 2/σ_c²: the cost a start is
     /// ranked by. None where the model cannot be evaluated.
     fn start_cost(&self, comps: &[Component], noise_var: &[f64]) -> Option<f64> {
-        let eval = self.evaluate(comps, false)?;
         Some(
-            eval.rss
-                .iter()
-                .zip(noise_var)
-                .map(|(r, &v)| if v > 0.0 { 2.0 * r / v } else { 0.0 })
-                .sum(),
+            self.evaluate(comps, false)?
+                .cost(&channel_weights(noise_var)),
         )
     }
 
@@ -581,10 +577,7 @@ impl BandProblem<'_> {
         noise_var: &[f64],
         options: &GlideOptions,
     ) -> Option<BandFitResult> {
-        let weights: Vec<f64> = noise_var
-            .iter()
-            .map(|&v| if v > 0.0 { 2.0 / v } else { 0.0 })
-            .collect();
+        let weights = channel_weights(noise_var);
         let (comps, eval) = self.levenberg_marquardt(start, &weights, options)?;
         let n_b = self.rows() as f64;
         let channels = self.data.len() as f64;
@@ -623,6 +616,14 @@ impl BandProblem<'_> {
             bic,
         })
     }
+}
+
+/// w_c = 2/σ_c² per channel (0 where σ_c² is not positive): the weights of the band's cost.
+fn channel_weights(noise_var: &[f64]) -> Vec<f64> {
+    noise_var
+        .iter()
+        .map(|&v| if v > 0.0 { 2.0 / v } else { 0.0 })
+        .collect()
 }
 
 /// A fitted hypothesis.
