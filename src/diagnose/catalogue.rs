@@ -345,7 +345,9 @@ use std::sync::Arc;
 
 use serde::{Deserialize, Serialize};
 
-pub use added_mass::{AddedMass, MassLoading, SiteFit, SitePair, SplitSites};
+pub use added_mass::{
+    AddedMass, MassLoading, SiteFit, SitePair, SplitSites, MIN_DIFFERENTIAL_SHIFT,
+};
 pub use beating_pair::{BeatingPair, PairSplits, SplitClusters};
 pub use contact_duration::{
     half_sine_envelope, half_sine_spectrum, sine_power_duration, sine_power_spectrum,

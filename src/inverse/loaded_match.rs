@@ -61,6 +61,14 @@
 //! anchored elsewhere is less accurate, not comparable. The rounds stop when ν stays within one
 //! anchor step.
 //!
+//! **Splits against shifts.** A mass splits degenerate pairs, but so does any asymmetry of
+//! the object, and the line distance forgives a split by half its width: a model that only
+//! splits its pairs where the recording's are split cuts the distance too. What a mass does
+//! that no splitting does is move the pairs' centres and the lone modes by its own pattern.
+//! [`split_free_fit`] measures that part: both sides' split pairs (neighbours within the
+//! catalogue's pair tolerance, 1.5 %) merged into one line each, then the same scale search.
+//! The `diagnose` job compares the loaded and the plain model on it.
+//!
 //! **Sharing the work.** The coarse pass and every fine pass are grids over ν whose points are
 //! independent, so the processes of a job ([`Share`]) each take every `parts`-th ν step and the
 //! results are gathered and combined so that every process ends with the answer one process
@@ -836,6 +844,77 @@ pub fn scale_fit(
         }
     }
     (best.0, density * (2.0 * (best.1 + two_pi_ln)).exp())
+}
+
+/// Merges the split pairs of `lines` (ln f, weight), sorted by ln f in place: two neighbours
+/// at most `tolerance` apart (relative, ln(1 + tolerance) in ln f) become one line at their
+/// mean ln f with the larger weight, the closer neighbour taken first where three are near
+/// (module docs, "Splits against shifts"). A line is merged at most once: a pair has two
+/// members.
+pub fn merge_split_pairs(lines: &mut Vec<(f64, f64)>, tolerance: f64) {
+    lines.retain(|l| l.0.is_finite());
+    lines.sort_by(|a, b| a.0.total_cmp(&b.0));
+    let gap = tolerance.max(0.0).ln_1p();
+    let mut out = Vec::with_capacity(lines.len());
+    let mut i = 0;
+    while i < lines.len() {
+        let near_next = i + 1 < lines.len() && lines[i + 1].0 - lines[i].0 <= gap;
+        // The next line pairs with the one after it instead when that one is closer.
+        let next_prefers_after =
+            i + 2 < lines.len() && lines[i + 2].0 - lines[i + 1].0 < lines[i + 1].0 - lines[i].0;
+        if near_next && !next_prefers_after {
+            out.push((
+                0.5 * (lines[i].0 + lines[i + 1].0),
+                lines[i].1.max(lines[i + 1].1),
+            ));
+            i += 2;
+        } else {
+            out.push(lines[i]);
+            i += 1;
+        }
+    }
+    *lines = out;
+}
+
+/// The line match of `loaded` (θ'_k for E/ρ = 1 with their drives, as [`scale_fit`] takes
+/// them) with the split pairs of both sides merged ([`merge_split_pairs`] within `tolerance`):
+/// what a model leaves of the distance once every split is forgiven, so that cutting it is
+/// more than explaining splits (module docs, "Splits against shifts"). Same scale search as
+/// [`scale_fit`]; returns (distance, E).
+#[allow(clippy::too_many_arguments)]
+pub fn split_free_fit(
+    target_ln_f: &[f64],
+    ceiling_ln_f: f64,
+    loaded: &[(f64, f64)],
+    density: f64,
+    youngs_centre: f64,
+    window: f64,
+    settings: &LoadedMatchSettings,
+    tolerance: f64,
+) -> (f64, f64) {
+    let mut target: Vec<(f64, f64)> = target_ln_f.iter().map(|&x| (x, 1.0)).collect();
+    merge_split_pairs(&mut target, tolerance);
+    let target: Vec<f64> = target.into_iter().map(|l| l.0).collect();
+    // θ = f² (2π)² ρ/E, so ln f is ½ ln θ up to the scale: merge on ½ ln θ, then back.
+    let mut lines: Vec<(f64, f64)> = loaded
+        .iter()
+        .filter(|p| p.0 > 0.0)
+        .map(|&(theta, w)| (0.5 * theta.ln(), w))
+        .collect();
+    merge_split_pairs(&mut lines, tolerance);
+    let merged: Vec<(f64, f64)> = lines
+        .into_iter()
+        .map(|(half_ln, w)| ((2.0 * half_ln).exp(), w))
+        .collect();
+    scale_fit(
+        &target,
+        ceiling_ln_f,
+        &merged,
+        density,
+        youngs_centre,
+        window,
+        settings,
+    )
 }
 
 #[cfg(test)]

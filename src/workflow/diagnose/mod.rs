@@ -58,7 +58,10 @@
 //!    lowered). The loaded model's report stands only if its catalogue accepts the mass and it
 //!    matches recorded modes the plain model leaves unmatched, or the plain match could absorb
 //!    the mass only by moving ν by 0.03 or more (`LOADED_MATCH_DECISIVE_POISSON_SHIFT`: the
-//!    mass reshapes the whole spectrum, which no splitting of pairs does); otherwise the plain model's
+//!    mass reshapes the whole spectrum, which no splitting of pairs does), or, with every split
+//!    pair of the recording and of each model merged, the mass still cuts the line distance to
+//!    half or less by at least 10⁻³ (`SplitFree`, `LOADED_MATCH_MIN_SPLIT_FREE_GAIN`: it moves
+//!    the lines' centres, which no asymmetry does); otherwise the plain model's
 //!    report stands, with or without the mass as its own catalogue decided, and
 //!    `loaded_line_match.rejected` says why. Why: a mass of a few per cent splits every
 //!    degenerate pair of a symmetric object and pulls the plain match's ν far off, so nothing
@@ -662,11 +665,18 @@ pub fn run(petsc: &Petsc, job: &Job, progress: &Progress) -> Result<Option<Outco
             let (with, without) = (unmatched(&first_report.0), unmatched(&plain_report.0));
             // The plain pass ran at the plain match's ν (`line_start`), or at the given one.
             let poisson_shift = loaded.as_ref().map_or(0.0, |l| l.matched.poisson - plain.2);
-            let verdict = loaded_model_verdict(accepted, with, without, poisson_shift);
+            let split_free = loaded.as_ref().map(|l| l.split_free);
+            let verdict = loaded_model_verdict(accepted, with, without, poisson_shift, split_free);
             let keep = verdict.is_ok();
             let why = verdict.err().unwrap_or_default();
             if keep {
-                progress.say(format!("the carried mass stands: accepted by the catalogue, {with} recorded modes unmatched with it against {without} without, ν moved {poisson_shift:+.3} by it"));
+                let split_free = split_free.map_or(String::new(), |d| {
+                    format!(
+                        ", split-free line distance {:.2e} with it against {:.2e} without",
+                        d.loaded, d.plain
+                    )
+                });
+                progress.say(format!("the carried mass stands: accepted by the catalogue, {with} recorded modes unmatched with it against {without} without, ν moved {poisson_shift:+.3} by it{split_free}"));
                 first
             } else {
                 progress.say(format!(
