@@ -22,6 +22,9 @@ use std::sync::Arc;
 
 use super::{ModeTable, ParamSpec, Term};
 
+/// The term's effect name ([`Term::effect`]), by which other screens find it in a model.
+pub const POISSON_EFFECT: &str = "poisson_ratio";
+
 /// Largest |Δν| the nuisance may take [1].
 pub const MAX_POISSON_SHIFT: f64 = 0.1;
 
@@ -32,7 +35,7 @@ pub struct PoissonShift;
 
 impl Term for PoissonShift {
     fn effect(&self) -> &'static str {
-        "poisson_ratio"
+        POISSON_EFFECT
     }
     fn variant(&self) -> &'static str {
         "baseline_nuisance"

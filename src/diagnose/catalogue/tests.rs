@@ -3146,3 +3146,17 @@ fn split_sites_find_the_site_whose_pattern_the_drops_follow() {
         Err(CatalogueError::InvalidSplitSites(_))
     ));
 }
+
+/// The `lowered_members` reading with its site untested stands on the pair centres, which
+/// need more rows than the frequency nuisances that fit any centres (module docs of
+/// `added_mass.rs`, *Centres need a scale*): two centres and no lone mode against the scale
+/// and Δν place nothing (generator 2's seed 71 case 015); one lone mode more does.
+#[test]
+fn pair_centres_need_more_rows_than_the_frequency_nuisances() {
+    use crate::diagnose::catalogue::added_mass::pair_centres_placeable;
+    assert!(!pair_centres_placeable(2, 0, 2));
+    assert!(pair_centres_placeable(2, 1, 2));
+    assert!(pair_centres_placeable(2, 0, 1));
+    assert!(!pair_centres_placeable(1, 0, 1));
+    assert!(pair_centres_placeable(1, 1, 1));
+}
