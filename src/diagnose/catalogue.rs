@@ -360,7 +360,7 @@ pub use model::{
     ModeKey, ModeResiduals, ModeTable, Model, Prediction, Quantity, Role, Row, RowKind, SplitPair,
     DEFAULT_OWN_MEMBER_SPLIT_Z, LEVEL_FLOOR, N_FLOORS,
 };
-pub use non_rayleigh_damping::{NonRayleighDamping, ThreeKnotDamping};
+pub use non_rayleigh_damping::{NonRayleighDamping, PowerLawDamping, ThreeKnotDamping};
 pub use pitch_glide::{EnergyGlide, PitchGlide};
 pub use poisson_shift::{PoissonShift, MAX_POISSON_SHIFT};
 pub use radiation::{FactorDirectivity, Radiation, TransferDirectivity};
