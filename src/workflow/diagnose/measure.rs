@@ -41,8 +41,7 @@ fn pick(channels: &[Vec<f64>], which: &[usize]) -> Vec<Vec<f64>> {
 pub(super) type ChannelChoice = (Vec<ChannelHealth>, Vec<usize>, Vec<usize>);
 
 /// The recording's channel health ([`crate::audio::health`]) and the fit and held-out
-/// microphones that remain: unhealthy ones dropped; an emptied held-out set takes a healthy fit
-/// microphone when at least two remain (and an emptied fit set a held-out one). Rank 0.
+/// microphones that remain ([`keep_channels`]). Rank 0.
 pub(super) fn healthy_channels(job: &Job) -> Result<ChannelChoice, String> {
     let options = RecordingOptions {
         target_rate: Some(job.sample_rate),
@@ -59,25 +58,40 @@ pub(super) fn healthy_channels(job: &Job) -> Result<ChannelChoice, String> {
     // for short reaches are printed with the other channel warnings.
     crate::audio::health::band_warnings(&health, job.max_frequency_hz)
         .map_err(|e| e.to_string())?;
-    let ok = |c: &usize| healthy.contains(c);
-    let mut fit: Vec<usize> = job.fit_channels.iter().copied().filter(ok).collect();
-    let mut held: Vec<usize> = job.held_channels.iter().copied().filter(ok).collect();
-    if fit.is_empty() && held.len() >= 2 {
-        fit.push(held.remove(0));
-    }
-    if held.is_empty() && !job.held_channels.is_empty() && fit.len() >= 2 {
-        held.push(fit.pop().expect("two or more"));
-    }
-    if fit.is_empty() {
-        // A lone healthy held-out channel cannot be fitted and checked at once.
+    let Some((fit, held)) = keep_channels(&job.fit_channels, &job.held_channels, &healthy) else {
         let verdicts = health
             .iter()
             .map(|h| format!("{}: {}", h.name, h.verdict.word()))
             .collect::<Vec<_>>()
             .join("; ");
         return Err(crate::audio::health::NoHealthyChannel { verdicts }.to_string());
-    }
+    };
     Ok((health, fit, held))
+}
+
+/// The fit and held-out microphones that remain of `fit` and `held` once only the `healthy`
+/// ones are kept: an emptied fit set takes a held-out one (the first), even the last one, and
+/// an emptied held-out set takes a fit microphone when at least two remain. With one healthy
+/// channel left the diagnosis runs on it alone, without held-out data (the catalogue then
+/// confirms no effect, and says so: `no_held_out_data`), rather than stopping: generator 2's
+/// seed 89 case 000 (two microphones, the fit one at 17 dB SNR, noise only) stopped with "no
+/// microphone carries the strike" beside a healthy one. None when no healthy channel is left.
+pub(super) fn keep_channels(
+    fit: &[usize],
+    held: &[usize],
+    healthy: &[usize],
+) -> Option<(Vec<usize>, Vec<usize>)> {
+    let ok = |c: &usize| healthy.contains(c);
+    let mut fit: Vec<usize> = fit.iter().copied().filter(ok).collect();
+    let had_held = !held.is_empty();
+    let mut held: Vec<usize> = held.iter().copied().filter(ok).collect();
+    if fit.is_empty() && !held.is_empty() {
+        fit.push(held.remove(0));
+    }
+    if held.is_empty() && had_held && fit.len() >= 2 {
+        held.push(fit.pop().expect("two or more"));
+    }
+    (!fit.is_empty()).then_some((fit, held))
 }
 
 /// The recording loaded, gain-set and cut at its shared onset (every rank that extracts
@@ -275,4 +289,35 @@ fn measure_fit(job: &Job, progress: &Progress) -> Result<(Cut, Measured), String
         seconds: t.elapsed().as_secs_f64(),
     };
     Ok((cut, measured))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::keep_channels;
+
+    #[test]
+    fn unhealthy_microphones_leave_and_a_lone_healthy_one_is_fitted_alone() {
+        // All healthy: as given.
+        assert_eq!(
+            keep_channels(&[0, 2], &[1, 3], &[0, 1, 2, 3]),
+            Some((vec![0, 2], vec![1, 3]))
+        );
+        // A dead fit microphone among several: a held-out one takes its place.
+        assert_eq!(
+            keep_channels(&[0], &[1, 2], &[1, 2]),
+            Some((vec![1], vec![2]))
+        );
+        // Dead held-out microphones: a fit one is held out when two remain.
+        assert_eq!(
+            keep_channels(&[0, 2], &[1], &[0, 2]),
+            Some((vec![0], vec![2]))
+        );
+        // Two microphones, the fit one noise only: the other is fitted alone, nothing held
+        // out (seed 89 case 000).
+        assert_eq!(keep_channels(&[0], &[1], &[1]), Some((vec![1], vec![])));
+        // One microphone given, healthy: fitted alone.
+        assert_eq!(keep_channels(&[0], &[], &[0]), Some((vec![0], vec![])));
+        // None healthy.
+        assert_eq!(keep_channels(&[0], &[1], &[]), None);
+    }
 }
