@@ -108,7 +108,16 @@ pub fn mpirun(np: usize, args: &[&str], limit: Duration) -> Run {
 }
 
 pub fn run_with_limit(mut cmd: Command, limit: Duration) -> Run {
-    cmd.env("OMPI_ALLOW_RUN_AS_ROOT", "1")
+    // Each run's own OpenMPI session directory: runs started and finished side by side by the
+    // test harness otherwise share /tmp/ompi.<host>.<uid>, and one run's clean-up can remove it
+    // while another creates its own below it (Open MPI 4.1.4: "orte_session_dir failed",
+    // "File exists"; seen once in cli_fit_geometry's bad-input test).
+    static RUNS: std::sync::atomic::AtomicUsize = std::sync::atomic::AtomicUsize::new(0);
+    let n = RUNS.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+    let session = std::env::temp_dir().join(format!("ds-ompi-{}-{n}", std::process::id()));
+    std::fs::create_dir_all(&session).expect("create the run's MPI session directory");
+    cmd.env("OMPI_MCA_orte_tmpdir_base", &session)
+        .env("OMPI_ALLOW_RUN_AS_ROOT", "1")
         .env("OMPI_ALLOW_RUN_AS_ROOT_CONFIRM", "1")
         .env("OPENBLAS_NUM_THREADS", "1")
         .env("OMPI_MCA_btl", "self,vader")
@@ -146,6 +155,7 @@ pub fn run_with_limit(mut cmd: Command, limit: Duration) -> Run {
         }
         std::thread::sleep(Duration::from_millis(50));
     };
+    let _ = std::fs::remove_dir_all(&session);
     Run {
         status,
         stdout: t_out.join().unwrap_or_default(),

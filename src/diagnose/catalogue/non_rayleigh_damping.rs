@@ -302,19 +302,9 @@ impl Effect for NonRayleighDamping {
         if drop <= 1.0 {
             return found_or_nothing(statistic, detail, proposals);
         }
-        // Start from the curve through the observed ln d (same weights).
-        let observed: Vec<(f64, f64, f64)> = with_decay
-            .iter()
-            .map(|&k| {
-                let (ln_d, _) = table.modes[k].ln_d.expect("filtered");
-                (
-                    table.modes[k].ln_f,
-                    ln_d,
-                    1.0 / res.ln_d[k].expect("filtered").1,
-                )
-            })
-            .collect();
-        if let Some((coef, _)) = fit_hats(&knots, &observed) {
+        // Start from the curve through the observed ln d (the power law's points, same
+        // weights).
+        if let Some((coef, _)) = fit_hats(&knots, &law_points) {
             proposals.push(Proposal {
                 term: Arc::new(ThreeKnotDamping { knots }),
                 init: coef.iter().map(|c| c.exp().clamp(1e-6, 1e6)).collect(),
