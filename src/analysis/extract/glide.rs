@@ -1077,14 +1077,14 @@ pub fn fit_glides(
                 .filter(|(_, f)| f.comps.len() < members.len())
                 .min_by(|a, b| a.1.bic.total_cmp(&b.1.bic))
                 .map(|(_, f)| (f.comps.clone(), f.bic));
+            // A new component at each pole, or beside a fitted one (a near-degenerate partner),
+            // one bin of the band's data away on either side.
+            let bin_hz = spectra.sample_rate / spectra.n as f64;
             while let Some((comps, bic)) = current.take() {
                 if comps.len() >= members.len() {
                     break;
                 }
                 let g_hat = comps[0].g;
-                // A new component at each pole, or beside a fitted one (a near-degenerate
-                // partner), one bin of the band's data away on either side.
-                let bin_hz = spectra.sample_rate / spectra.n as f64;
                 let at_poles = members
                     .iter()
                     .flat_map(|m| [0.0, g_hat].map(|g| Component { g, ..gliding(m) }));

@@ -32,13 +32,15 @@
 
 use std::sync::Arc;
 
-use super::{Detection, Effect, Fit, ModeTable, ParamSpec, Proposal, Term};
+use super::{weighted_line, Detection, Effect, Fit, ModeTable, ParamSpec, Proposal, Term};
 
 pub struct NonRayleighDamping;
 
 /// Fewest modes with a decay rate for the power law: two more than its two parameters, the
 /// count Rayleigh's α and β leave to test it on.
 pub const MIN_POWER_LAW_MODES: usize = 4;
+/// Fewest modes with a decay rate for the three-knot curve.
+pub const MIN_THREE_KNOT_MODES: usize = 6;
 
 /// Hat functions of three knots at ln f values `knots` evaluated at x (linear extrapolation
 /// beyond the ends: the outer hats continue as straight lines).
@@ -165,31 +167,6 @@ impl Term for PowerLawDamping {
     }
 }
 
-/// Weighted least-squares line y = a + b (x − x_ref) through `points` (x, y, w): Some((a, b,
-/// Σ w (y − line)²)), None when the x do not vary.
-fn fit_line(points: &[(f64, f64, f64)], x_ref: f64) -> Option<(f64, f64, f64)> {
-    let (mut sw, mut sx, mut sy, mut sxx, mut sxy) = (0.0, 0.0, 0.0, 0.0, 0.0);
-    for &(x, y, w) in points {
-        let u = x - x_ref;
-        sw += w;
-        sx += w * u;
-        sy += w * y;
-        sxx += w * u * u;
-        sxy += w * u * y;
-    }
-    let det = sw * sxx - sx * sx;
-    if !(det > 1e-12 * sw * sxx.max(1e-300)) {
-        return None;
-    }
-    let b = (sw * sxy - sx * sy) / det;
-    let a = (sy - b * sx) / sw;
-    let rest = points
-        .iter()
-        .map(|&(x, y, w)| w * (y - a - b * (x - x_ref)).powi(2))
-        .sum();
-    Some((a, b, rest))
-}
-
 /// The screen's answer from what it has: the proposals if any, else nothing seen.
 fn found_or_nothing(statistic: f64, detail: String, proposals: Vec<Proposal>) -> Detection {
     if proposals.is_empty() {
@@ -236,16 +213,18 @@ impl Effect for NonRayleighDamping {
             return Detection::NotEnoughData("the decay rates span less than an octave".into());
         }
         let knots = [lo, 0.5 * (lo + hi), hi];
-        // The power law through the observed ln d, with the residuals' weights, against the
-        // current fit's Σ z² over the same modes.
-        let ln_f_ref = knots[1];
-        let current_sum: f64 = with_decay
+        // The current fit's ln d residuals (ln f, r, 1/v), and their Σ z².
+        let residual_points: Vec<(f64, f64, f64)> = with_decay
             .iter()
             .map(|&k| {
                 let (r, v) = res.ln_d[k].expect("filtered");
-                r * r / v
+                (table.modes[k].ln_f, r, 1.0 / v)
             })
-            .sum();
+            .collect();
+        let current_sum: f64 = residual_points.iter().map(|p| p.2 * p.1 * p.1).sum();
+        // The power law through the observed ln d, with the residuals' weights, against that
+        // Σ z² over the same modes; ln f measured from the reference.
+        let ln_f_ref = knots[1];
         let law_points: Vec<(f64, f64, f64)> = with_decay
             .iter()
             .map(|&k| {
@@ -260,7 +239,15 @@ impl Effect for NonRayleighDamping {
         let mut proposals = Vec::new();
         let mut details = Vec::new();
         let mut statistic = f64::NEG_INFINITY;
-        if let Some((a, b, rest)) = fit_line(&law_points, ln_f_ref) {
+        let centred: Vec<(f64, f64, f64)> = law_points
+            .iter()
+            .map(|&(x, y, w)| (x - ln_f_ref, y, w))
+            .collect();
+        if let Some((a, b, _)) = weighted_line(&centred) {
+            let rest: f64 = centred
+                .iter()
+                .map(|&(u, y, w)| w * (y - a - b * u).powi(2))
+                .sum();
             let drop = current_sum - rest;
             details.push(format!(
                 "power law d ∝ f^{b:.2} through the observed ln d lowers Σz² by {drop:.1} (2 dof, as Rayleigh's)"
@@ -276,20 +263,13 @@ impl Effect for NonRayleighDamping {
                 });
             }
         }
-        if with_decay.len() < 6 {
+        if with_decay.len() < MIN_THREE_KNOT_MODES {
             details.push(format!(
-                "{} modes with a decay rate; the 3-knot curve needs at least 6",
+                "{} modes with a decay rate; the 3-knot curve needs at least {MIN_THREE_KNOT_MODES}",
                 with_decay.len()
             ));
             return found_or_nothing(statistic, details.join("; "), proposals);
         }
-        let residual_points: Vec<(f64, f64, f64)> = with_decay
-            .iter()
-            .map(|&k| {
-                let (r, v) = res.ln_d[k].expect("filtered");
-                (table.modes[k].ln_f, r, 1.0 / v)
-            })
-            .collect();
         let Some((_, drop)) = fit_hats(&knots, &residual_points) else {
             return Detection::NotEnoughData("the decay rates do not determine three knots".into());
         };
