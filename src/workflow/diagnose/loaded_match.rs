@@ -452,7 +452,22 @@ pub(super) fn loaded_match(
     // (distance, E, candidate, its full-solve spectrum (θ', drive²)) per candidate.
     type Verified = (f64, f64, LoadedMatch, Vec<(f64, f64)>);
     let mut verified: Vec<Verified> = Vec::with_capacity(candidates.len());
+    // Searches from different starts can end on the same candidate: its full solve (seconds)
+    // is made once.
+    let same = |a: &LoadedMatch, b: &LoadedMatch| {
+        let close = |x: f64, y: f64| (x - y).abs() <= 1e-9 * x.abs().max(y.abs());
+        a.region == b.region
+            && close(a.poisson, b.poisson)
+            && close(a.mass_kg, b.mass_kg)
+            && close(a.youngs, b.youngs)
+    };
+    let mut distinct: Vec<LoadedMatch> = Vec::with_capacity(candidates.len());
     for cand in candidates {
+        if !distinct.iter().any(|c| same(c, &cand)) {
+            distinct.push(cand);
+        }
+    }
+    for cand in distinct {
         let material = Material {
             youngs_modulus: cand.youngs,
             poisson_ratio: cand.poisson,

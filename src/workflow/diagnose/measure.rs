@@ -151,12 +151,13 @@ fn extract_set(
     let t = Instant::now();
     let ex = extract_modes(channels, fs, &job.extract)
         .map_err(|e| format!("mode extraction ({what}): {e}"))?;
+    let extraction_s = t.elapsed().as_secs_f64();
     let stage =
         fit_glides(channels, &ex, &job.glide).map_err(|e| format!("glide stage ({what}): {e}"))?;
     let selected: Vec<_> = stage.decisions.iter().filter(|d| d.selected).collect();
     let merged: usize = selected.iter().map(|d| d.poles_hz.len()).sum();
     let gliding: usize = selected.iter().map(|d| d.f0_hz.len()).sum();
-    say(format!("extraction ({what}): {} modes, {} after the glide stage ({} groups tried, {} gliding modes from {} poles) in {:.1} s", ex.modes.len(), stage.extraction.modes.len(), stage.decisions.len(), gliding, merged, t.elapsed().as_secs_f64()));
+    say(format!("extraction ({what}): {} modes, {} after the glide stage ({} groups tried, {} gliding modes from {} poles) in {:.1} s (poles {:.1} s, glide stage {:.1} s)", ex.modes.len(), stage.extraction.modes.len(), stage.decisions.len(), gliding, merged, t.elapsed().as_secs_f64(), extraction_s, t.elapsed().as_secs_f64() - extraction_s));
     for d in &selected {
         let round = |v: &[f64]| {
             v.iter()
