@@ -51,11 +51,26 @@
 //!    1678.7 Hz because the mesh's members sit at 1678.8 and 1682.3 Hz. An extra pole may
 //!    therefore take a unit's place; the selection keeps the exchange when the baseline's
 //!    likelihood prefers it (parent docs, "Selection").
+//! 7. **Which shape is whose** ([`Matching::with_shape_exchange`], used by the selection).
+//!    Two modes of different families within a fraction of a percent of each other (an
+//!    avoided crossing) mix: each is a combination of the two shapes whose proportions turn
+//!    with their detuning, and a ν or a mesh a little off turns them. Their frequencies keep
+//!    their order, but which of them the strike drives, and so its level and energy, can be
+//!    the other one's. Generator 2's seed 83 case 009 (a tube): recorded modes at 7770.0 and
+//!    7778.2 Hz, the second 2.1 times as loud on every microphone and gliding by
+//!    6.3·10⁻³, matched to the mesh's 7770.6 Hz (relative drive² 1.0) and 7779.3 Hz (0.034):
+//!    the glide's energy covariate was the wrong way round. Two single units within
+//!    [`NEAR_CROSSING_RTOL`] may therefore exchange the shapes they carry; as in step 6, the
+//!    selection keeps an exchange when the baseline's likelihood prefers it.
 
 use crate::numerics::median;
 use std::collections::BTreeMap;
 
 use super::{CatalogueSettings, Role, SimulatedMode};
+
+/// Two simulated modes of different clusters within this of each other in ln f may carry
+/// each other's shapes (module docs, step 7): the width of a near-degenerate cluster.
+pub const NEAR_CROSSING_RTOL: f64 = 0.005;
 
 /// Default of [`CatalogueSettings::faint_pole_db`] (module docs, step 0).
 pub const DEFAULT_FAINT_POLE_DB: f64 = 40.0;
@@ -193,6 +208,36 @@ impl Matching {
             }
         }
         m.units.sort_by_key(|u| u.observed);
+        Some(m)
+    }
+
+    /// This matching with the single units of observed modes `a` and `b` exchanging the
+    /// simulated shapes they carry (drive, weights, transfer: [`Unit::represents`]) while
+    /// each keeps its frequency (step 7 of the module docs). None unless both are
+    /// [`Role::Single`] units of different clusters predicted within [`NEAR_CROSSING_RTOL`]
+    /// of each other.
+    pub fn with_shape_exchange(
+        &self,
+        simulated: &[SimulatedMode],
+        a: usize,
+        b: usize,
+    ) -> Option<Matching> {
+        let ua = self.units.iter().position(|u| u.observed == a)?;
+        let ub = self.units.iter().position(|u| u.observed == b)?;
+        let (x, y) = (&self.units[ua], &self.units[ub]);
+        if x.role != Role::Single || y.role != Role::Single || x.cluster == y.cluster {
+            return None;
+        }
+        let ln_f = |u: &Unit| u.frequency_from.first().map(|&j| simulated[j].match_ln_f());
+        if (ln_f(x)? - ln_f(y)?).abs() > NEAR_CROSSING_RTOL {
+            return None;
+        }
+        let mut m = self.clone();
+        let (represents, factor) = (x.represents.clone(), x.drive_factor);
+        m.units[ua].represents = y.represents.clone();
+        m.units[ua].drive_factor = y.drive_factor;
+        m.units[ub].represents = represents;
+        m.units[ub].drive_factor = factor;
         Some(m)
     }
 }

@@ -479,8 +479,8 @@ struct PoleChoice<'a> {
     settings: &'a CatalogueSettings,
 }
 
-/// Matching step 6 (matching module docs): exchanges a unit's pole for an extra pole of its
-/// cluster while `cost` (−2 ln L of the rebuilt table under the baseline, its split rows
+/// Matching steps 6 and 7 (matching module docs): exchanges a unit's pole for an extra pole
+/// of its cluster, or the shapes two single units carry, while `cost` (−2 ln L of the rebuilt table under the baseline, its split rows
 /// left out: [`assignment_cost`]) falls by more than
 /// the ΔBIC threshold, the best exchange first. Only exchanges that keep the number of rows
 /// are compared, so that the likelihoods are of the same data size.
@@ -498,6 +498,31 @@ fn choose_partial_poles(
             for unit in matching.units.iter().filter(|u| u.cluster == cluster) {
                 let Some(m) =
                     matching.with_swap(&ln_f, side.simulated, unit.observed, extra, side.settings)
+                else {
+                    continue;
+                };
+                let t = ModeTable::build(
+                    side.observed,
+                    side.simulated,
+                    &m,
+                    side.channels,
+                    side.settings.own_member_split_z,
+                );
+                if t.rows.len() != table.rows.len() {
+                    continue;
+                }
+                let c = cost(&t);
+                if c < current - side.settings.delta_bic_threshold
+                    && best.as_ref().is_none_or(|b| c < b.0)
+                {
+                    best = Some((c, m, t));
+                }
+            }
+        }
+        // Step 7: two single units exchange the shapes they carry.
+        for (k, a) in matching.units.iter().enumerate() {
+            for b in &matching.units[k + 1..] {
+                let Some(m) = matching.with_shape_exchange(side.simulated, a.observed, b.observed)
                 else {
                     continue;
                 };

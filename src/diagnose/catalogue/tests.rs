@@ -3189,3 +3189,76 @@ fn pair_centres_need_more_rows_than_the_frequency_nuisances() {
     assert!(!pair_centres_placeable(1, 0, 1));
     assert!(pair_centres_placeable(1, 1, 1));
 }
+
+/// Matching step 7: two modes 0.1 % apart whose shapes the mesh has the other way round (an
+/// avoided crossing). The recording's loud, gliding mode is the lower one; the mesh gives the
+/// lower one a drive of 0.05 and the upper one the loud mode's drive. Matched by frequency,
+/// the glide's energy covariate is swapped; the exchange of shapes puts it right, the glide is
+/// found, and with the mesh's shapes the right way round nothing is exchanged.
+#[test]
+fn near_crossing_modes_exchange_the_shapes_they_carry() {
+    let build = |crossed: bool| {
+        let truth = Truth {
+            glide: Some(2e-3),
+            ..Truth::default()
+        };
+        let (mut ev, _) = evidence(&truth, 30);
+        // The loudest single-member cluster and its recorded mode in each set.
+        let sizes = |c: usize| ev.simulated.iter().filter(|m| m.cluster == c).count();
+        let k = (0..ev.simulated.len())
+            .filter(|&j| sizes(ev.simulated[j].cluster) == 1)
+            .max_by(|&a, &b| ev.simulated[a].drive.total_cmp(&ev.simulated[b].drive))
+            .unwrap();
+        let loud = ev.simulated[k].clone();
+        let quiet_drive = 0.05;
+        let mut partner = loud.clone();
+        partner.frequency_hz *= 1.001;
+        partner.drive = quiet_drive;
+        partner.cluster = ev.simulated.iter().map(|m| m.cluster).max().unwrap() + 1;
+        if crossed {
+            // The mesh's lower mode carries the quiet shape, its upper one the loud shape.
+            std::mem::swap(&mut ev.simulated[k].drive, &mut partner.drive);
+        }
+        ev.simulated.push(partner);
+        let mut loud_observed = 0;
+        for (n, set) in std::iter::once(&mut ev.fit)
+            .chain(ev.held_out.iter_mut())
+            .enumerate()
+        {
+            let i = (0..set.len())
+                .min_by(|&a, &b| {
+                    let d = |m: &ObservedMode| (m.frequency_hz / loud.frequency_hz).ln().abs();
+                    d(&set[a]).total_cmp(&d(&set[b]))
+                })
+                .unwrap();
+            let mut quiet = set[i].clone();
+            quiet.frequency_hz *= 1.001;
+            let ratio = quiet_drive / loud.drive;
+            quiet.amplitudes.iter_mut().for_each(|a| *a *= ratio);
+            quiet.sigma_amplitudes.iter_mut().for_each(|s| *s *= ratio);
+            quiet.glide = quiet.glide.map(|(_, s)| (0.0, s / ratio));
+            set.push(quiet);
+            if n == 0 {
+                loud_observed = i;
+            }
+        }
+        (ev, k, loud_observed)
+    };
+    for crossed in [true, false] {
+        let (ev, k, i) = build(crossed);
+        let report = diagnose(&ev, &CatalogueSettings::default()).expect("valid");
+        let pair = report
+            .matching
+            .pairs
+            .iter()
+            .find(|p| p.observed == i)
+            .expect("the loud mode is matched");
+        let loud_shape = if crossed { ev.simulated.len() - 1 } else { k };
+        assert_eq!(
+            pair.simulated,
+            vec![loud_shape],
+            "crossed {crossed}: {pair:?}"
+        );
+        expect_accepted(&report, "pitch_glide");
+    }
+}
