@@ -292,6 +292,43 @@ fn diagnose_writes_a_consistent_report_and_agrees_across_ranks() {
         serde_json::json!([3]),
         "the dead microphone must not be held out"
     );
+
+    // A dead fit microphone beside one healthy microphone: the healthy one is fitted alone,
+    // with no held-out data, and the job ends normally (it used to stop with "no microphone
+    // carries the strike").
+    let alone = case.join("dead_fit_mic.h5");
+    let run = mpirun(
+        2,
+        &[
+            "diagnose",
+            "--mesh",
+            mesh_path.to_str().unwrap(),
+            "--recording",
+            silent.to_str().unwrap(),
+            "--recording",
+            m0.to_str().unwrap(),
+            "--density",
+            "2700",
+            "--out",
+            alone.to_str().unwrap(),
+        ],
+        Duration::from_secs(600),
+    );
+    assert!(run.success(), "{}", run.describe());
+    assert!(
+        run.stderr.contains("silent1 is dead"),
+        "the dead file must be named:\n{}",
+        run.stderr
+    );
+    let report = read_json(&case.join("dead_fit_mic.json"));
+    assert_eq!(report["channel_health"][0]["verdict"], "dead");
+    assert_eq!(report["fit_microphones"], serde_json::json!([1]));
+    assert_eq!(report["held_out_microphones"], serde_json::json!([]));
+    assert!(
+        accepted(&report).is_empty(),
+        "nothing can be confirmed without held-out data: {:?}",
+        accepted(&report)
+    );
 }
 
 #[test]
