@@ -271,7 +271,14 @@ impl Effect for NonRayleighDamping {
             return found_or_nothing(statistic, details.join("; "), proposals);
         }
         let Some((_, drop)) = fit_hats(&knots, &residual_points) else {
-            return Detection::NotEnoughData("the decay rates do not determine three knots".into());
+            // A power law's proposal stands without the three-knot curve.
+            if proposals.is_empty() {
+                return Detection::NotEnoughData(
+                    "the decay rates do not determine three knots".into(),
+                );
+            }
+            details.push("the decay rates do not determine three knots".into());
+            return found_or_nothing(statistic, details.join("; "), proposals);
         };
         details.insert(
             0,
