@@ -89,9 +89,12 @@ fn main() {
         .map(|(a, b)| (a - b).abs() / b)
         .fold(0.0, f64::max);
     println!("reduced vs full at true nu: max rel {rel:e}");
-    let estimate =
-        diffsound::analysis::estimate::estimate_modes(&[target.clone()], fs, &Default::default())
-            .unwrap();
+    let estimate = diffsound::analysis::estimate::estimate_modes(
+        std::slice::from_ref(&target),
+        fs,
+        &Default::default(),
+    )
+    .unwrap();
     let target_modes_hz: Vec<f64> = estimate.modes.iter().map(|m| m.frequency_hz).collect();
     println!("estimated {} target modes", target_modes_hz.len());
     let targets = vec![target];
@@ -148,8 +151,10 @@ fn main() {
         }
         return;
     }
-    let mut settings = MaterialFitSettings::default();
-    settings.max_steps = 300;
+    let settings = MaterialFitSettings {
+        max_steps: 300,
+        ..Default::default()
+    };
     let t2 = std::time::Instant::now();
     let fit = fit_material(
         &mut basis,

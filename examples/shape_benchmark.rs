@@ -145,6 +145,13 @@ fn shifted_grid(lo: [f64; 3], hi: [f64; 3], cells: usize, rng: &mut SplitMix64) 
     BackgroundGrid::new(origin, h, base.cells()).expect("grid")
 }
 
+/// One shape's summary row: name, fit errors, finest-level-alone errors, line errors, fit
+/// seconds.
+type SummaryRow = (String, Vec<f64>, Vec<f64>, Vec<f64>, Vec<f64>);
+
+/// The shape family on a (target, optional second) sampled field.
+type FamilyAt = Box<dyn Fn(&SampledField, Option<&SampledField>) -> ShapeFamily>;
+
 fn main() {
     let args = parse_args();
     let universe = mpi::initialize().expect("MPI");
@@ -212,15 +219,10 @@ fn main() {
     }
     let mut rng = SplitMix64::new(args.seed);
     let mut records = Vec::new();
-    let mut summary: Vec<(String, Vec<f64>, Vec<f64>, Vec<f64>, Vec<f64>)> = Vec::new();
+    let mut summary: Vec<SummaryRow> = Vec::new();
     for input in &args.inputs {
         // One shape (thickness) or a pair A:B (morph) on common grids.
-        let (name, family_at, lo, hi): (
-            String,
-            Box<dyn Fn(&SampledField, Option<&SampledField>) -> ShapeFamily>,
-            [f64; 3],
-            [f64; 3],
-        );
+        let (name, family_at, lo, hi): (String, FamilyAt, [f64; 3], [f64; 3]);
         let sampled: Vec<(SampledField, Option<SampledField>)>;
         let sdfs: Vec<Arc<SignedDistance>>;
         if morph {

@@ -410,6 +410,8 @@ fn main() {
             // Per mode: where ln(λ_k/λ*_k) crosses 0 (linear interpolation between scan points).
             if root {
                 let mut crossings = Vec::new();
+                // Index loop: mode k indexes every scan row and the target together.
+                #[allow(clippy::needless_range_loop)]
                 for k in 0..modes {
                     let mut found = None;
                     for w in rows.windows(2) {

@@ -30,6 +30,9 @@ fn list<T: std::str::FromStr>(s: &str) -> Vec<T> {
         .collect()
 }
 
+/// (cells, t, level) → per alignment ln f.
+type Table = Vec<((usize, usize, usize), Vec<Vec<f64>>)>;
+
 fn main() {
     let mut cells: Vec<usize> = vec![28, 36];
     let mut levels: Vec<usize> = vec![0, 1];
@@ -78,7 +81,7 @@ fn main() {
         );
     }
     // (cells, t, level) → per alignment ln f.
-    let mut table: Vec<((usize, usize, usize), Vec<Vec<f64>>)> = Vec::new();
+    let mut table: Table = Vec::new();
     for &n in &cells {
         for (a, &shift) in shift_list.iter().enumerate() {
             let grid = shifted_covering(lo, hi, n, shift).expect("grid");

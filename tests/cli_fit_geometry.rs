@@ -69,7 +69,7 @@ fn a_tiny_box_is_prefitted_refined_and_written() {
             number_attribute(&out, &g, "iou"),
         );
         assert!(
-            c.is_finite() && c >= 0.0 && c < 0.01,
+            c.is_finite() && (0.0..0.01).contains(&c),
             "{group}: Chamfer {c} m"
         );
         assert!(h >= c && h < 0.03, "{group}: Hausdorff {h} m");

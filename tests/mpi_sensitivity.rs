@@ -84,6 +84,9 @@ const AUDIO_TOL: f64 = 1e-3;
 /// bar is about twice that; the comparison with the modes alone is the sharper half of the check.
 const LOADED_RITZ_TOL: f64 = 3e-2;
 
+/// An audio loss: its value and its gradient with respect to the samples.
+type LossFn<'a> = dyn Fn(&[f64]) -> (f64, Vec<f64>) + 'a;
+
 fn repo() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR"))
 }
@@ -464,11 +467,11 @@ fn check_mesh(petsc: &Petsc, c: &mut Checker, label: &str, m: &TetMesh, n: usize
                 v[a] = -(x[b] - lo[b]);
                 v[b] = x[a] - lo[a];
             }
-            for i in 0..n {
-                let scale = gnorm(&g[i]) * (m.n_nodes() as f64).sqrt() * l;
+            for gi in &g[..n] {
+                let scale = gnorm(gi) * (m.n_nodes() as f64).sqrt() * l;
                 worst = worst
-                    .max(dot(&g[i], &tr).abs() * l / scale)
-                    .max(dot(&g[i], &rot).abs() / scale);
+                    .max(dot(gi, &tr).abs() * l / scale)
+                    .max(dot(gi, &rot).abs() / scale);
             }
         }
         c.check(
@@ -556,7 +559,7 @@ fn check_audio_loss(petsc: &Petsc, c: &mut Checker, label: &str, m: &TetMesh, n:
     let spectral = MultiScaleSpectralLoss::new(&target, spectral_config).expect("spectral loss");
     let transport =
         TransportLoss::new(&target, fs, TransportLossConfig::default()).expect("transport loss");
-    let losses: [(&str, &dyn Fn(&[f64]) -> (f64, Vec<f64>)); 2] = [
+    let losses: [(&str, &LossFn); 2] = [
         ("spectral", &|x| {
             spectral.value_and_gradient(x).expect("spectral loss")
         }),
@@ -751,6 +754,8 @@ fn check_shape_chain(petsc: &Petsc, c: &mut Checker) {
     // Members of a near-degenerate cluster carry the cluster-mean derivative: compare it with
     // the difference of the cluster mean.
     let mut worst: f64 = 0.0;
+    // Index loop: k indexes the gradients and the eigenvalues and is looked up in the clusters.
+    #[allow(clippy::needless_range_loop)]
     for k in 0..n {
         let group = base
             .clusters
@@ -830,6 +835,8 @@ fn check_curved_shell_chain(petsc: &Petsc, c: &mut Checker, wall_levels: usize) 
         && snap_m == base.report.snapped_vertices;
     let mut worst: f64 = 0.0;
     let mut rows = Vec::new();
+    // Index loop: k indexes the derivatives and the eigenvalues and is looked up in the clusters.
+    #[allow(clippy::needless_range_loop)]
     for k in 0..n {
         let group = base
             .clusters
@@ -913,6 +920,8 @@ fn check_morph_chain(petsc: &Petsc, c: &mut Checker) {
         && snap_p == base.report.snapped_vertices
         && snap_m == base.report.snapped_vertices;
     let mut worst: f64 = 0.0;
+    // Index loop: k indexes the gradients and the eigenvalues and is looked up in the clusters.
+    #[allow(clippy::needless_range_loop)]
     for k in 0..n {
         let group = base
             .clusters
@@ -1089,6 +1098,8 @@ fn check_neural_chain(petsc: &Petsc, c: &mut Checker, curved: bool) {
             && tets_m == base.tets
             && snap_p == base.report.snapped_vertices
             && snap_m == base.report.snapped_vertices;
+        // Index loop: k indexes the gradients and the eigenvalues and is looked up in the clusters.
+        #[allow(clippy::needless_range_loop)]
         for k in 0..modes {
             let group = base
                 .clusters

@@ -896,7 +896,7 @@ mod tests {
             .iter()
             .map(|v| v + 1e-5 * rng.normal())
             .collect();
-        let full = extract_modes(&[x.clone()], fs, &ExtractOptions::default()).unwrap();
+        let full = extract_modes(std::slice::from_ref(&x), fs, &ExtractOptions::default()).unwrap();
         let early = extract_modes(&[x[..n / 2].to_vec()], fs, &ExtractOptions::default()).unwrap();
         let late = extract_modes(&[x[n / 2..].to_vec()], fs, &ExtractOptions::default()).unwrap();
         let obs = observed_modes(

@@ -296,6 +296,26 @@ impl Drop for Petsc {
     }
 }
 
+/// MUMPS calls BLAS, and OpenBLAS starts one thread per core at library load: under MPI every
+/// rank would then fight the others for the same cores. OpenBLAS reads `OPENBLAS_NUM_THREADS`
+/// only when it is loaded, so if the user has not chosen a value we set 1 and re-execute
+/// ourselves once (before MPI starts, so mpirun is unaffected).
+pub fn pin_blas_threads() {
+    const VAR: &str = "OPENBLAS_NUM_THREADS";
+    if std::env::var_os(VAR).is_some() {
+        return;
+    }
+    std::env::set_var(VAR, "1");
+    if let Ok(exe) = std::env::current_exe() {
+        use std::os::unix::process::CommandExt;
+        let err = std::process::Command::new(exe)
+            .args(std::env::args_os().skip(1))
+            .exec();
+        // exec only returns on failure; carry on with the threads OpenBLAS already started.
+        eprintln!("warning: could not re-execute with {VAR}=1 ({err}); BLAS threads may compete with MPI ranks");
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::stray_tokens;
@@ -320,25 +340,5 @@ mod tests {
             Vec::<String>::new(),
             "a negative number is a value"
         );
-    }
-}
-
-/// MUMPS calls BLAS, and OpenBLAS starts one thread per core at library load: under MPI every
-/// rank would then fight the others for the same cores. OpenBLAS reads `OPENBLAS_NUM_THREADS`
-/// only when it is loaded, so if the user has not chosen a value we set 1 and re-execute
-/// ourselves once (before MPI starts, so mpirun is unaffected).
-pub fn pin_blas_threads() {
-    const VAR: &str = "OPENBLAS_NUM_THREADS";
-    if std::env::var_os(VAR).is_some() {
-        return;
-    }
-    std::env::set_var(VAR, "1");
-    if let Ok(exe) = std::env::current_exe() {
-        use std::os::unix::process::CommandExt;
-        let err = std::process::Command::new(exe)
-            .args(std::env::args_os().skip(1))
-            .exec();
-        // exec only returns on failure; carry on with the threads OpenBLAS already started.
-        eprintln!("warning: could not re-execute with {VAR}=1 ({err}); BLAS threads may compete with MPI ranks");
     }
 }

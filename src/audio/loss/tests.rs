@@ -32,17 +32,18 @@ fn bank(seed: u64, n: usize) -> ModalBank {
 const FS: f64 = 8000.0;
 const LEN: usize = 3000;
 
+/// A loss on a signal: its value and its gradient with respect to the samples.
+type LossFn<'a> = dyn Fn(&[f64]) -> (f64, Vec<f64>) + 'a;
+
+/// Mutable access to one parameter field of a bank.
+type BankField = fn(&mut ModalBank) -> &mut Vec<f64>;
+
 /// Central differences of a loss through the synthesiser, parameter by parameter.
-fn check_bank_gradient(
-    name: &str,
-    loss: &dyn Fn(&[f64]) -> (f64, Vec<f64>),
-    b: &ModalBank,
-    tol: f64,
-) {
+fn check_bank_gradient(name: &str, loss: &LossFn, b: &ModalBank, tol: f64) {
     let (_, g_signal) = loss(&render_samples(b, FS, LEN));
     let g = render_backward(b, FS, &g_signal);
     let value = |b: &ModalBank| loss(&render_samples(b, FS, LEN)).0;
-    let fields: [(&str, fn(&mut ModalBank) -> &mut Vec<f64>, &Vec<f64>, f64); 4] = [
+    let fields: [(&str, BankField, &Vec<f64>, f64); 4] = [
         (
             "frequency",
             |b| &mut b.frequencies_hz,
@@ -55,6 +56,8 @@ fn check_bank_gradient(
     ];
     for (field, get, exact, h) in fields {
         let scale = exact.iter().fold(0.0_f64, |m, v| m.max(v.abs()));
+        // Index loop: k indexes the perturbed copies' field and the exact gradient together.
+        #[allow(clippy::needless_range_loop)]
         for k in 0..b.len() {
             let (mut p, mut m) = (b.clone(), b.clone());
             get(&mut p)[k] += h;
@@ -134,7 +137,7 @@ fn loss_gradients_with_respect_to_the_signal_match_finite_differences() {
         },
     )
     .unwrap();
-    let losses: [(&str, Box<dyn Fn(&[f64]) -> (f64, Vec<f64>)>); 2] = [
+    let losses: [(&str, Box<LossFn>); 2] = [
         (
             "spectral",
             Box::new(|x| spectral.value_and_gradient(x).unwrap()),
@@ -232,12 +235,7 @@ fn transport_loss_measures_the_frequency_gap_in_hz() {
 }
 
 /// Adam on one frequency, the way the fits move parameters.
-fn descend(
-    loss: &dyn Fn(&[f64]) -> (f64, Vec<f64>),
-    start_hz: f64,
-    steps: usize,
-    rate_hz: f64,
-) -> f64 {
+fn descend(loss: &LossFn, start_hz: f64, steps: usize, rate_hz: f64) -> f64 {
     let (mut f, mut m, mut v) = (start_hz, 0.0, 0.0);
     let (b1, b2) = (0.9, 0.999);
     for t in 1..=steps {

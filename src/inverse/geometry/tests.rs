@@ -280,7 +280,9 @@ fn serial(
     Ok(net.vjp_rows(points, rows)?)
 }
 
-fn least_squares_case() -> (
+/// The least-squares test case: network, grid points, per-mode rows, eigenvalues, target,
+/// voxels, eikonal points and settings.
+type LeastSquaresCase = (
     NeuralSdf,
     Vec<[f64; 3]>,
     Vec<Vec<f64>>,
@@ -289,7 +291,9 @@ fn least_squares_case() -> (
     Voxels,
     Vec<[f64; 3]>,
     RefineSettings,
-) {
+);
+
+fn least_squares_case() -> LeastSquaresCase {
     let r = 0.03;
     let (_, sdf) = ball(r);
     let voxels = Voxels::of_sdf(&sdf, [-r; 3], [r; 3], 4).unwrap();
@@ -547,10 +551,10 @@ fn free_scale_rows_are_the_plain_rows_less_their_weighted_mean_and_sum_to_the_lo
         .collect();
     for (i, g) in groups.iter().enumerate() {
         let root = (g.len() as f64).sqrt();
-        for j in 0..n_theta {
-            let want = root * (plain.rows[i][j] / root - mean[j]);
+        for (j, &mean_j) in mean.iter().enumerate() {
+            let want = root * (plain.rows[i][j] / root - mean_j);
             assert!(
-                (free.rows[i][j] - want).abs() <= 1e-12 * (want.abs() + mean[j].abs()).max(1e-300),
+                (free.rows[i][j] - want).abs() <= 1e-12 * (want.abs() + mean_j.abs()).max(1e-300),
                 "group {i}, θ_{j}: {} vs {want}",
                 free.rows[i][j]
             );

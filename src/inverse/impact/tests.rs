@@ -113,6 +113,8 @@ fn amplitude_sds_are_calibrated() {
             .map(|c| c.iter().map(|v| v + sigma * rng.normal()).collect())
             .collect();
         let fit = fit_amplitudes(&x, fs, 0.0, &poles, &AmplitudeFitOptions::default()).unwrap();
+        // Index loops: (c, k) index the fit's fields and the true amplitudes together.
+        #[allow(clippy::needless_range_loop)]
         for c in 0..2 {
             noise.push(fit.noise_rms[c] / sigma);
             for k in 0..3 {
@@ -432,6 +434,8 @@ fn forward_amplitudes_match_the_renderer_through_the_transfer() {
         .map(|k| pole(bank.frequencies_hz[k], bank.decay_rates[k]))
         .collect();
     let fit = fit_amplitudes(&channels, fs, 0.0, &poles, &AmplitudeFitOptions::default()).unwrap();
+    // Index loops: (m, k) index the table, the bank, the transfers and the fit together.
+    #[allow(clippy::needless_range_loop)]
     for m in 0..mics {
         for k in 0..k_modes {
             let want = impulse * table.mode_amplitude(v, k, m);
@@ -510,6 +514,8 @@ fn degenerate_pair_rotation_leaves_table_and_map_unchanged() {
         .unzip();
     shapes[0] = a;
     shapes[1] = b;
+    // Index loop: microphone m is read and written in two rows of `directional` at once.
+    #[allow(clippy::needless_range_loop)]
     for m in 0..3 {
         let (x, y) = rotate_pair(directional[0][m], directional[1][m], theta);
         directional[0][m] = x;

@@ -739,8 +739,8 @@ fn refinement_at_the_inner_wall_halves_the_tets_there_and_brings_the_cavity_clos
     assert!(refined.n_tets() > grid.n_tets());
     assert_eq!(values.len(), refined.n_vertices());
     assert_eq!(&values[..solid.len()], &solid[..]);
-    for v in solid.len()..refined.n_vertices() {
-        assert_eq!(values[v], sdf.signed_distance(refined.vertex_position(v)));
+    for (v, &value) in values.iter().enumerate().skip(solid.len()) {
+        assert_eq!(value, sdf.signed_distance(refined.vertex_position(v)));
     }
     let h = grid.spacing()[0];
     let coarse_volume = h * h * h / 6.0;

@@ -1119,8 +1119,7 @@ mod examples {
             "energy (full scale²)",
         );
         fig.y_scale = AxisScale::Log;
-        for b in 0..6 {
-            let c = PALETTE[b];
+        for (b, &c) in PALETTE.iter().enumerate().take(6) {
             fig.series.push(
                 Series::line(
                     format!("{}–{} Hz", 500 * (b + 1), 500 * (b + 2)),

@@ -43,7 +43,7 @@ fn distance_matches_brute_force_and_the_bounded_search() {
         );
         // The facets lie between radius 0.698 and 0.7.
         let r = norm(*q);
-        if r < 0.69 || r > 0.7 {
+        if !(0.69..=0.7).contains(&r) {
             assert_eq!(*s > 0.0, r < 0.69, "sign at {q:?} (|q| = {r})");
         }
     }

@@ -244,41 +244,6 @@ fn split_sites(
     }
 }
 
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    /// Each two-member cluster gets e₁ − e₂ per site (lower member's energy minus the upper's,
-    /// whatever order the modes come in); lone modes and triples get no row; above the cap the
-    /// sites are thinned to spread-out vertices, rows and vertices kept together.
-    #[test]
-    fn split_sites_pair_rows_and_thinning() {
-        // Modes: a pair {0, 1} listed upper first, a lone mode 2.
-        let frequencies_hz = [101.0, 100.0, 300.0];
-        let clusters = [0, 0, 1];
-        let surface = [10, 11, 12, 13, 14];
-        let positions: Vec<[f64; 3]> = (0..5).map(|i| [i as f64, 0.0, 0.0]).collect();
-        // At site i the lower member (mode 1) has 1 + i, the upper (mode 0) 0.5.
-        let energy: Vec<Vec<f64>> = (0..5).map(|i| vec![0.5, 1.0 + i as f64, 2.0]).collect();
-        let all = split_sites(
-            &surface,
-            &positions,
-            &energy,
-            &frequencies_hz,
-            &clusters,
-            10,
-        );
-        assert_eq!(all.vertices, surface.to_vec());
-        assert_eq!(all.pairs.len(), 1);
-        assert_eq!(all.pairs[0].cluster, 0);
-        assert_eq!(all.pairs[0].split_per_kg, vec![0.5, 1.5, 2.5, 3.5, 4.5]);
-        let thin = split_sites(&surface, &positions, &energy, &frequencies_hz, &clusters, 3);
-        // The first vertex, then the farthest (the other end), then the middle.
-        assert_eq!(thin.vertices, vec![10, 14, 12]);
-        assert_eq!(thin.pairs[0].split_per_kg, vec![0.5, 4.5, 2.5]);
-    }
-}
-
 /// The localisation and, when it points somewhere, the second catalogue run.
 pub struct Localised {
     /// (μ, z) of the regression at each of [`Features::surface`].
@@ -383,4 +348,39 @@ fn localise_support(
         _ => Vec::new(),
     };
     (best, region)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Each two-member cluster gets e₁ − e₂ per site (lower member's energy minus the upper's,
+    /// whatever order the modes come in); lone modes and triples get no row; above the cap the
+    /// sites are thinned to spread-out vertices, rows and vertices kept together.
+    #[test]
+    fn split_sites_pair_rows_and_thinning() {
+        // Modes: a pair {0, 1} listed upper first, a lone mode 2.
+        let frequencies_hz = [101.0, 100.0, 300.0];
+        let clusters = [0, 0, 1];
+        let surface = [10, 11, 12, 13, 14];
+        let positions: Vec<[f64; 3]> = (0..5).map(|i| [i as f64, 0.0, 0.0]).collect();
+        // At site i the lower member (mode 1) has 1 + i, the upper (mode 0) 0.5.
+        let energy: Vec<Vec<f64>> = (0..5).map(|i| vec![0.5, 1.0 + i as f64, 2.0]).collect();
+        let all = split_sites(
+            &surface,
+            &positions,
+            &energy,
+            &frequencies_hz,
+            &clusters,
+            10,
+        );
+        assert_eq!(all.vertices, surface.to_vec());
+        assert_eq!(all.pairs.len(), 1);
+        assert_eq!(all.pairs[0].cluster, 0);
+        assert_eq!(all.pairs[0].split_per_kg, vec![0.5, 1.5, 2.5, 3.5, 4.5]);
+        let thin = split_sites(&surface, &positions, &energy, &frequencies_hz, &clusters, 3);
+        // The first vertex, then the farthest (the other end), then the middle.
+        assert_eq!(thin.vertices, vec![10, 14, 12]);
+        assert_eq!(thin.pairs[0].split_per_kg, vec![0.5, 4.5, 2.5]);
+    }
 }

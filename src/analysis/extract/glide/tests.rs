@@ -150,7 +150,7 @@ fn kaufman_jacobian_matches_finite_differences_on_exact_data() {
     // equals the exact derivative of r(ϑ) = P⊥(ϑ) y.
     let mut rng = SplitMix64(3);
     let truth = Truth::random(2000.0, 9.0, 3e-3, 2, &mut rng);
-    let x = render(&[truth.clone()], 0.0, &mut rng);
+    let x = render(std::slice::from_ref(&truth), 0.0, &mut rng);
     let spectra = Spectra {
         fft: FftPlanner::new().plan_fft_forward(N),
         n: N,
@@ -205,6 +205,8 @@ fn kaufman_jacobian_matches_finite_differences_on_exact_data() {
         let rm = problem
             .evaluate(&problem.unpack(&[comp], &minus).unwrap(), false)
             .unwrap();
+        // Index loop: channel c indexes three parallel collections (rp, rm, jac).
+        #[allow(clippy::needless_range_loop)]
         for c in 0..2 {
             let fd = (&rp.residuals[c] - &rm.residuals[c]) / (2.0 * h);
             let err = (&fd - jac[c].column(j)).norm();
@@ -524,6 +526,8 @@ fn a_gliding_pair_inside_one_ladder_is_found_from_one_channel() {
 fn reference_transforms(spectra: &Spectra, comp: &Component) -> Vec<Vec<C64>> {
     let n = spectra.n;
     let mut out = vec![vec![C64::new(0.0, 0.0); n]; 1 + comp.n_params()];
+    // Index loop: sample i fills the same position of every row of `out`.
+    #[allow(clippy::needless_range_loop)]
     for i in 0..n {
         let t = i as f64 / spectra.sample_rate;
         let (phi, phi_d) = phi_integral(comp.d, t);

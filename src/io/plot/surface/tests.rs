@@ -32,8 +32,11 @@ fn quad_x(x: f64, y: (f64, f64), z: (f64, f64)) -> (Vec<[f64; 3]>, Vec<[usize; 3
     (v, vec![[0, 1, 2], [0, 2, 3]])
 }
 
+/// A surface: its vertices and triangles.
+type Mesh = (Vec<[f64; 3]>, Vec<[usize; 3]>);
+
 /// Merges surfaces into one vertex and triangle list.
-fn merge(parts: &[(Vec<[f64; 3]>, Vec<[usize; 3]>)]) -> (Vec<[f64; 3]>, Vec<[usize; 3]>) {
+fn merge(parts: &[Mesh]) -> Mesh {
     let (mut v, mut f) = (Vec::new(), Vec::new());
     for (pv, pf) in parts {
         let off = v.len();
