@@ -479,11 +479,20 @@ struct PoleChoice<'a> {
     settings: &'a CatalogueSettings,
 }
 
+/// Rows of a table that [`assignment_cost`] counts.
+fn counted_rows(table: &ModeTable) -> usize {
+    table
+        .rows
+        .iter()
+        .filter(|r| super::model::counted_in_assignment(r))
+        .count()
+}
+
 /// Matching steps 6 and 7 (matching module docs): exchanges a unit's pole for an extra pole
-/// of its cluster, or the shapes two single units carry, while `cost` (−2 ln L of the rebuilt table under the baseline, its split rows
-/// left out: [`assignment_cost`]) falls by more than
-/// the ΔBIC threshold, the best exchange first. Only exchanges that keep the number of rows
-/// are compared, so that the likelihoods are of the same data size.
+/// of its cluster, or the shapes two single units carry, while `cost` (−2 ln L of the rebuilt
+/// table under the baseline, its split and glide rows left out: [`assignment_cost`]) falls by
+/// more than the ΔBIC threshold, the best exchange first. Only exchanges that keep the number
+/// of rows it counts are compared, so that the likelihoods are of the same data size.
 fn choose_partial_poles(
     side: PoleChoice,
     mut matching: Matching,
@@ -508,7 +517,7 @@ fn choose_partial_poles(
                     side.channels,
                     side.settings.own_member_split_z,
                 );
-                if t.rows.len() != table.rows.len() {
+                if counted_rows(&t) != counted_rows(&table) {
                     continue;
                 }
                 let c = cost(&t);
@@ -533,7 +542,7 @@ fn choose_partial_poles(
                     side.channels,
                     side.settings.own_member_split_z,
                 );
-                if t.rows.len() != table.rows.len() {
+                if counted_rows(&t) != counted_rows(&table) {
                     continue;
                 }
                 let c = cost(&t);
