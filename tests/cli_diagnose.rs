@@ -252,36 +252,25 @@ fn diagnose_writes_a_consistent_report_and_agrees_across_ranks() {
         w.write_sample(0.0f32).unwrap();
     }
     w.finalize().unwrap();
-    let dead = case.join("dead_mic.h5");
+    // A diagnosis of `recordings` whose dead file must be named on stderr, and its report.
+    let with_silent = |recordings: &[&Path], name: &str| {
+        let out = case.join(format!("{name}.h5"));
+        let mut args = vec!["diagnose", "--mesh", mesh_path.to_str().unwrap()];
+        for r in recordings {
+            args.extend(["--recording", r.to_str().unwrap()]);
+        }
+        args.extend(["--density", "2700", "--out", out.to_str().unwrap()]);
+        let run = mpirun(2, &args, Duration::from_secs(600));
+        assert!(run.success(), "{}", run.describe());
+        assert!(
+            run.stderr.contains("silent1 is dead"),
+            "the dead file must be named:\n{}",
+            run.stderr
+        );
+        read_json(&case.join(format!("{name}.json")))
+    };
     let (m2, m3) = (case.join("mic2.wav"), case.join("mic3.wav"));
-    let run = mpirun(
-        2,
-        &[
-            "diagnose",
-            "--mesh",
-            mesh_path.to_str().unwrap(),
-            "--recording",
-            m0.to_str().unwrap(),
-            "--recording",
-            silent.to_str().unwrap(),
-            "--recording",
-            m2.to_str().unwrap(),
-            "--recording",
-            m3.to_str().unwrap(),
-            "--density",
-            "2700",
-            "--out",
-            dead.to_str().unwrap(),
-        ],
-        Duration::from_secs(600),
-    );
-    assert!(run.success(), "{}", run.describe());
-    assert!(
-        run.stderr.contains("silent1 is dead"),
-        "the dead file must be named:\n{}",
-        run.stderr
-    );
-    let report = read_json(&case.join("dead_mic.json"));
+    let report = with_silent(&[&m0, &silent, &m2, &m3], "dead_mic");
     assert_eq!(
         report["channel_health"][1]["verdict"], "dead",
         "{}",
@@ -296,31 +285,7 @@ fn diagnose_writes_a_consistent_report_and_agrees_across_ranks() {
     // A dead fit microphone beside one healthy microphone: the healthy one is fitted alone,
     // with no held-out data, and the job ends normally (it used to stop with "no microphone
     // carries the strike").
-    let alone = case.join("dead_fit_mic.h5");
-    let run = mpirun(
-        2,
-        &[
-            "diagnose",
-            "--mesh",
-            mesh_path.to_str().unwrap(),
-            "--recording",
-            silent.to_str().unwrap(),
-            "--recording",
-            m0.to_str().unwrap(),
-            "--density",
-            "2700",
-            "--out",
-            alone.to_str().unwrap(),
-        ],
-        Duration::from_secs(600),
-    );
-    assert!(run.success(), "{}", run.describe());
-    assert!(
-        run.stderr.contains("silent1 is dead"),
-        "the dead file must be named:\n{}",
-        run.stderr
-    );
-    let report = read_json(&case.join("dead_fit_mic.json"));
+    let report = with_silent(&[&silent, &m0], "dead_fit_mic");
     assert_eq!(report["channel_health"][0]["verdict"], "dead");
     assert_eq!(report["fit_microphones"], serde_json::json!([1]));
     assert_eq!(report["held_out_microphones"], serde_json::json!([]));

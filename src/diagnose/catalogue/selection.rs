@@ -502,55 +502,51 @@ fn choose_partial_poles(
     let ln_f: Vec<f64> = side.observed.iter().map(|m| undamped_hz(m).ln()).collect();
     let mut current = cost(&table);
     for _ in 0..matching.units.len() {
-        let mut best: Option<(f64, Matching, ModeTable)> = None;
-        for &(extra, _, cluster) in &matching.extra_poles {
-            for unit in matching.units.iter().filter(|u| u.cluster == cluster) {
-                let Some(m) =
-                    matching.with_swap(&ln_f, side.simulated, unit.observed, extra, side.settings)
-                else {
-                    continue;
-                };
-                let t = ModeTable::build(
-                    side.observed,
-                    side.simulated,
-                    &m,
-                    side.channels,
-                    side.settings.own_member_split_z,
-                );
-                if counted_rows(&t) != counted_rows(&table) {
-                    continue;
-                }
-                let c = cost(&t);
-                if c < current - side.settings.delta_bic_threshold
-                    && best.as_ref().is_none_or(|b| c < b.0)
-                {
-                    best = Some((c, m, t));
-                }
-            }
-        }
+        // Step 6: an extra pole in a unit's place.
+        let swaps = matching
+            .extra_poles
+            .iter()
+            .flat_map(|&(extra, _, cluster)| {
+                let matching = &matching;
+                let ln_f = &ln_f;
+                matching
+                    .units
+                    .iter()
+                    .filter(move |u| u.cluster == cluster)
+                    .filter_map(move |unit| {
+                        matching.with_swap(
+                            ln_f,
+                            side.simulated,
+                            unit.observed,
+                            extra,
+                            side.settings,
+                        )
+                    })
+            });
         // Step 7: two single units exchange the shapes they carry.
-        for (k, a) in matching.units.iter().enumerate() {
-            for b in &matching.units[k + 1..] {
-                let Some(m) = matching.with_shape_exchange(side.simulated, a.observed, b.observed)
-                else {
-                    continue;
-                };
-                let t = ModeTable::build(
-                    side.observed,
-                    side.simulated,
-                    &m,
-                    side.channels,
-                    side.settings.own_member_split_z,
-                );
-                if counted_rows(&t) != counted_rows(&table) {
-                    continue;
-                }
-                let c = cost(&t);
-                if c < current - side.settings.delta_bic_threshold
-                    && best.as_ref().is_none_or(|b| c < b.0)
-                {
-                    best = Some((c, m, t));
-                }
+        let exchanges = matching.units.iter().enumerate().flat_map(|(k, a)| {
+            let matching = &matching;
+            matching.units[k + 1..].iter().filter_map(move |b| {
+                matching.with_shape_exchange(side.simulated, a.observed, b.observed)
+            })
+        });
+        let mut best: Option<(f64, Matching, ModeTable)> = None;
+        for m in swaps.chain(exchanges) {
+            let t = ModeTable::build(
+                side.observed,
+                side.simulated,
+                &m,
+                side.channels,
+                side.settings.own_member_split_z,
+            );
+            if counted_rows(&t) != counted_rows(&table) {
+                continue;
+            }
+            let c = cost(&t);
+            if c < current - side.settings.delta_bic_threshold
+                && best.as_ref().is_none_or(|b| c < b.0)
+            {
+                best = Some((c, m, t));
             }
         }
         let Some((c, m, t)) = best else { break };
