@@ -530,6 +530,7 @@ fn choose_partial_poles(
                 matching.with_shape_exchange(side.simulated, a.observed, b.observed)
             })
         });
+        let counted = counted_rows(&table);
         let mut best: Option<(f64, Matching, ModeTable)> = None;
         for m in swaps.chain(exchanges) {
             let t = ModeTable::build(
@@ -539,7 +540,7 @@ fn choose_partial_poles(
                 side.channels,
                 side.settings.own_member_split_z,
             );
-            if counted_rows(&t) != counted_rows(&table) {
+            if counted_rows(&t) != counted {
                 continue;
             }
             let c = cost(&t);
