@@ -245,6 +245,20 @@ pub struct ModeTable {
     /// [`super::Evidence::split_sites`], for the `lowered_members` screen of
     /// [`super::AddedMass`]); `None` until the caller gives them.
     pub split_sites: Option<std::sync::Arc<super::SplitSites>>,
+    /// Every pole the extraction found in this set, matched or not, indexed as the observed
+    /// list ([`ModeEntry::observed`]): what the split screen looks at around a pair
+    /// (`beating_pair` module docs, "Two poles, not a comb").
+    pub poles: Vec<Pole>,
+}
+
+/// One extracted pole as the split screen sees it: ln of its undamped frequency and the height
+/// of its spectral line per channel, a/d \[s\] (a damped sinusoid a e^(−dt) cos ωt has a
+/// Lorentzian line of height a/2d at ω; 0 where the channel did not see it or the pole does not
+/// decay).
+#[derive(Clone, Debug, PartialEq)]
+pub struct Pole {
+    pub ln_f: f64,
+    pub peaks: Vec<f64>,
 }
 
 /// Drive²-weighted mean of `value` over `modes` (plain mean if every drive is zero).
@@ -627,6 +641,23 @@ impl ModeTable {
             other_rows,
             amplitude_groups,
             split_sites: None,
+            poles: observed
+                .iter()
+                .map(|o| Pole {
+                    ln_f: undamped_hz(o).ln(),
+                    peaks: o
+                        .amplitudes
+                        .iter()
+                        .map(|&a| {
+                            if a > 0.0 && o.decay_rate > 0.0 {
+                                a / o.decay_rate
+                            } else {
+                                0.0
+                            }
+                        })
+                        .collect(),
+                })
+                .collect(),
         }
     }
 

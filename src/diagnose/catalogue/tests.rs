@@ -1544,6 +1544,43 @@ fn a_split_inside_its_glide_sweep_is_not_a_beating_pair() {
     );
 }
 
+/// A split pair with a third pole of its partial within one split of it is one choice among a
+/// comb (a room's fine structure), not two modes beating: a pole half a split above cluster
+/// 3's upper member at half the weaker member's level leaves only cluster 8 split. The same
+/// pole at 5 % of that level (under `COMB_LEVEL`), or two splits away, leaves both.
+#[test]
+fn a_pair_among_more_poles_of_its_partial_is_not_a_beating_pair() {
+    let (ev, lower, upper) = two_split_pairs();
+    let with_pole = |offset_splits: f64, level: f64| {
+        let mut ev = ev.clone();
+        let (l, u) = (&ev.fit[lower], &ev.fit[upper]);
+        let mut third = u.clone();
+        third.frequency_hz = u.frequency_hz + offset_splits * (u.frequency_hz - l.frequency_hz);
+        for (a, (al, au)) in third
+            .amplitudes
+            .iter_mut()
+            .zip(l.amplitudes.iter().zip(&u.amplitudes))
+        {
+            *a = level * al.min(*au);
+        }
+        for (s, a) in third.sigma_amplitudes.iter_mut().zip(&third.amplitudes) {
+            *s = 0.01 * a;
+        }
+        third.glide = None;
+        ev.fit.push(third);
+        diagnose(&ev, &CatalogueSettings::default()).expect("valid")
+    };
+    assert_only_cluster_8_split(&with_pole(0.5, 0.5));
+    for (offset, level) in [(0.5, 0.05), (2.0, 0.5)] {
+        let report = with_pole(offset, level);
+        let a = expect_accepted(&report, "beating_pair");
+        assert!(
+            within_3_sigma(param(a, "relative split δf/f of cluster 3 "), 0.004),
+            "pole {offset} splits above at {level}: {a:?}"
+        );
+    }
+}
+
 #[test]
 fn support_contact_damping_and_stiffening_are_recovered() {
     let truth = Truth {
