@@ -294,6 +294,85 @@ fn diagnose_writes_a_consistent_report_and_agrees_across_ranks() {
         "nothing can be confirmed without held-out data: {:?}",
         accepted(&report)
     );
+
+    // A healthy fit microphone that hears only the two lowest partials (mic1 with everything
+    // above the second partial cut out) beside a full one: with the default roles the fit set
+    // holds too few modes, so the roles are exchanged and the diagnosis runs (it used to end
+    // "only 2 modes found on the fit microphones").
+    let two_mics = read_json(&case.join("two_mics.json"));
+    let mut partials: Vec<f64> = two_mics["observed"]["fit"]
+        .as_array()
+        .expect("observed fit modes")
+        .iter()
+        .map(|m| m["frequency_hz"].as_f64().unwrap())
+        .collect();
+    partials.sort_by(f64::total_cmp);
+    assert!(partials.len() >= 6, "{partials:?}");
+    let cut_hz = 0.5 * (partials[1] + partials[2]);
+    let dull = case.join("dull1.wav");
+    let mut reader = hound::WavReader::open(&m1).unwrap();
+    let rate = reader.spec().sample_rate;
+    let samples: Vec<f64> = match reader.spec().sample_format {
+        hound::SampleFormat::Float => reader.samples::<f32>().map(|x| x.unwrap() as f64).collect(),
+        hound::SampleFormat::Int => reader.samples::<i32>().map(|x| x.unwrap() as f64).collect(),
+    };
+    let n = samples.len();
+    let mut spectrum: Vec<rustfft::num_complex::Complex<f64>> = samples
+        .iter()
+        .map(|&x| rustfft::num_complex::Complex::new(x, 0.0))
+        .collect();
+    let mut planner = rustfft::FftPlanner::new();
+    planner.plan_fft_forward(n).process(&mut spectrum);
+    for (k, c) in spectrum.iter_mut().enumerate() {
+        let hz = k.min(n - k) as f64 * f64::from(rate) / n as f64;
+        if hz > cut_hz {
+            *c = rustfft::num_complex::Complex::new(0.0, 0.0);
+        }
+    }
+    planner.plan_fft_inverse(n).process(&mut spectrum);
+    let peak = spectrum.iter().map(|c| c.re.abs()).fold(0.0, f64::max);
+    let mut w = hound::WavWriter::create(
+        &dull,
+        hound::WavSpec {
+            channels: 1,
+            sample_rate: rate,
+            bits_per_sample: 32,
+            sample_format: hound::SampleFormat::Float,
+        },
+    )
+    .unwrap();
+    for c in &spectrum {
+        w.write_sample((0.5 * c.re / peak) as f32).unwrap();
+    }
+    w.finalize().unwrap();
+    let out = case.join("dull_fit_mic.h5");
+    let run = mpirun(
+        2,
+        &[
+            "diagnose",
+            "--mesh",
+            mesh_path.to_str().unwrap(),
+            "--recording",
+            dull.to_str().unwrap(),
+            "--recording",
+            m0.to_str().unwrap(),
+            "--density",
+            "2700",
+            "--out",
+            out.to_str().unwrap(),
+        ],
+        Duration::from_secs(600),
+    );
+    assert!(run.success(), "{}", run.describe());
+    assert!(
+        run.stderr.contains("roles are exchanged") || run.stdout.contains("roles are exchanged"),
+        "{}",
+        run.describe()
+    );
+    let report = read_json(&case.join("dull_fit_mic.json"));
+    assert_eq!(report["diagnosed"], true, "{report}");
+    assert_eq!(report["fit_microphones"], serde_json::json!([1]));
+    assert_eq!(report["held_out_microphones"], serde_json::json!([0]));
 }
 
 #[test]

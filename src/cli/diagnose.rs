@@ -30,7 +30,8 @@ pub struct DiagnoseArgs {
     pub input: MeshArgs,
     #[command(flatten)]
     pub strike: StrikeArgs,
-    /// Held-out microphones, 0-based, comma separated (default: every second one).
+    /// Held-out microphones, 0-based, comma separated (default: every second one; with the
+    /// default, the two sets exchange roles when the fit one holds too few modes).
     #[arg(long, value_delimiter = ',')]
     pub held_out: Vec<usize>,
     /// Strike this surface node (0-based).
@@ -102,6 +103,7 @@ pub fn resolve(args: &DiagnoseArgs) -> Result<Job, String> {
     }
     require_files(&recordings, "recording")?;
     let n_mics = recordings.len();
+    let held_chosen_by_default = args.held_out.is_empty() && file.held_out_microphones.is_none();
     let held_channels: Vec<usize> = if !args.held_out.is_empty() {
         args.held_out.clone()
     } else {
@@ -198,6 +200,7 @@ pub fn resolve(args: &DiagnoseArgs) -> Result<Job, String> {
         straighten_invalid: args.input.straighten_invalid
             || file.straighten_invalid.unwrap_or(false),
         recordings,
+        held_chosen_by_default,
         fit_channels,
         held_channels,
         channel_health: Vec::new(),

@@ -21,6 +21,10 @@ pub struct Job {
     pub recordings: Vec<PathBuf>,
     pub fit_channels: Vec<usize>,
     pub held_channels: Vec<usize>,
+    /// The held-out microphones are the default choice (every second one), not the user's:
+    /// the diagnosis may then exchange the roles when the fit microphones hold too few modes
+    /// (module docs of [`super`], "Too few modes").
+    pub held_chosen_by_default: bool,
     /// Each recording's health, measured at the start of the job (empty before).
     pub channel_health: Vec<ChannelHealth>,
     pub sample_rate: u32,

@@ -133,7 +133,13 @@
 //!
 //! When the fit microphones hold fewer than [`MIN_MODES`] modes below `max_frequency_hz` (a
 //! soft strike, a quiet recording, a response that sinks the upper modes into the noise), no
-//! effect can be told from the baseline. The job then does not stop with an error: [`run`]
+//! effect can be told from the baseline. If the held-out microphones are the default choice
+//! (the user named none) and hold at least [`MIN_MODES`], the two sets exchange their roles
+//! and stages 1–2 run again, with a note: which microphone fits and which confirms is the
+//! tool's convention, and one microphone near the nodes of most modes should not stop a
+//! diagnosis the other can carry (generator 2's spent seed 71 case 019, a cup's displacement
+//! with two microphones: 3 modes on the fit one, 6 on the other). Otherwise, the job does
+//! not stop with an error either: [`run`]
 //! returns [`Outcome::Refused`] and [`write_refusal_json`] writes `<out stem>.json` with
 //! `"diagnosed": false`, the `refusal` in words (the count, and the frequency above which the
 //! strike does not rise 12 dB over the noise before it, when the channel check measured it),
@@ -330,6 +336,34 @@ type PassOutcome = (
     f64,
 );
 
+/// Stages 1–2, collective: rank 0 measures the recording and shares it, so that every rank
+/// stops together on an error; with two ranks or more, rank 1 extracts the held-out
+/// microphones meanwhile.
+fn measure_collective(petsc: &Petsc, job: &Job, progress: &Progress) -> Result<Measured, Error> {
+    let rank = petsc.rank();
+    let held_on_rank_1 = petsc.size() > 1 && !job.held_channels.is_empty();
+    let receive_held = || -> measure::HeldExtraction {
+        crate::workflow::broadcast_from(petsc, 1, None::<measure::HeldExtraction>)?
+    };
+    let local = if rank == 0 {
+        Some(measure(
+            job,
+            progress,
+            held_on_rank_1.then_some(&receive_held as &dyn Fn() -> measure::HeldExtraction),
+        ))
+    } else {
+        if held_on_rank_1 {
+            let mine = (rank == 1).then(|| measure::extract_held(job));
+            // Every rank takes part in the broadcast; only rank 0 uses it.
+            let _ = crate::workflow::broadcast_from(petsc, 1, mine);
+        }
+        None
+    };
+    broadcast_from_root(petsc, local)
+        .map_err(Error::Broadcast)?
+        .map_err(Error::Recording)
+}
+
 /// Runs the diagnosis (module docs, stages 0–5). Collective: every rank calls it; the report is
 /// on rank 0 (`None` elsewhere). Unhealthy microphones are left out with a warning on stderr.
 pub fn run(petsc: &Petsc, job: &Job, progress: &Progress) -> Result<Option<Outcome>, Error> {
@@ -376,37 +410,36 @@ pub fn run(petsc: &Petsc, job: &Job, progress: &Progress) -> Result<Option<Outco
             crate::workflow::note(format!("microphones used: fit {fit_channels:?}, held out {held_channels:?} (asked: fit {:?}, held out {:?})", job.fit_channels, job.held_channels));
         }
     }
-    let adjusted = Job {
+    let mut adjusted = Job {
         fit_channels,
         held_channels,
         channel_health: health,
         ..job.clone()
     };
-    let job = &adjusted;
 
     // 1–2: the recording (rank 0), shared so that every rank stops together on an error.
-    // With two ranks or more, rank 1 extracts the held-out microphones meanwhile.
-    let held_on_rank_1 = petsc.size() > 1 && !job.held_channels.is_empty();
-    let receive_held = || -> measure::HeldExtraction {
-        crate::workflow::broadcast_from(petsc, 1, None::<measure::HeldExtraction>)?
-    };
-    let local = if rank == 0 {
-        Some(measure(
-            job,
-            progress,
-            held_on_rank_1.then_some(&receive_held as &dyn Fn() -> measure::HeldExtraction),
-        ))
-    } else {
-        if held_on_rank_1 {
-            let mine = (rank == 1).then(|| measure::extract_held(job));
-            // Every rank takes part in the broadcast; only rank 0 uses it.
-            let _ = crate::workflow::broadcast_from(petsc, 1, mine);
+    let mut measured = measure_collective(petsc, &adjusted, progress)?;
+    // The default roles (the user chose no held-out microphone) exchanged when the fit
+    // microphones hold too few modes and the held-out ones enough (module docs, "Too few
+    // modes").
+    if measured.fit.len() < MIN_MODES
+        && measured.held_out.len() >= MIN_MODES
+        && job.held_chosen_by_default
+    {
+        if rank == 0 {
+            crate::workflow::note(format!(
+                "the fit microphones {:?} hold {} modes below {} Hz and the held-out ones {:?} hold {}: their roles are exchanged",
+                adjusted.fit_channels,
+                measured.fit.len(),
+                job.max_frequency_hz,
+                adjusted.held_channels,
+                measured.held_out.len()
+            ));
         }
-        None
-    };
-    let measured: Measured = broadcast_from_root(petsc, local)
-        .map_err(Error::Broadcast)?
-        .map_err(Error::Recording)?;
+        std::mem::swap(&mut adjusted.fit_channels, &mut adjusted.held_channels);
+        measured = measure_collective(petsc, &adjusted, progress)?;
+    }
+    let job = &adjusted;
     if measured.fit.len() < MIN_MODES {
         // Nothing to test: a report that says so and why, not an aborted job (module docs,
         // "Too few modes").
