@@ -156,13 +156,33 @@
 //! and τ_s grows with that scatter instead of turning it into effects. Standard deviations
 //! of the parameters come from (JᵀJ)⁻¹ of the whitened residuals at the optimum (floors
 //! fixed).
+//!
+//! **An unresolved cluster's decay.** A pole that stands for two simulated modes or more (a
+//! degenerate pair the extraction did not resolve) is the sum of modes split by less than
+//! the recording resolves: they beat slowly, the fitted decay rate takes up part of the beat's
+//! envelope, and that part depends on the microphone, since each hears its own mix of the
+//! members. Its decay rate measures the object's damping only as far as the microphones agree
+//! on it. So, with held-out recordings, the ln d row of such a pole is widened to
+//! σ² + Δ², Δ its ln d less the mean ln d of the held-out extraction's poles of the same
+//! cluster, and those held-out rows alike (`ModeTable::widen_unreplicated_decays`), and the
+//! baseline is fitted on the widened rows. Where the microphones agree nothing changes. This
+//! uses the held-out poles as the split screen does ([`BeatingPair`], "Seen by every
+//! microphone"): to weigh a measurement that must be the same at every microphone, never to
+//! fit an effect, and every effect's held-out test sees the same rows. Why: generator 2's
+//! tubes, whose lowest bending pair comes out as one pole, decaying at 7.8 1/s on the fit
+//! microphone and 10.2 1/s on the held-out one (Rayleigh's 8.8; ln d floor 0.004 from the
+//! other modes), were named a non-Rayleigh damping on a clean control (seed 101 case 014);
+//! another, 6.7 against 8.9 1/s, hid a true power law (seed 101 case 008). Calibrated on the
+//! saved evidence of the spent seeds 71–101 (168 cases, `examples/catalogue_replay`): those
+//! two verdicts and a damping law claimed beside a beating pair (seed 89 case 023) changed,
+//! no other; the real bowl's report is unchanged.
 
 //! # The catalogue
 //!
 //! | effect | signature | detector (screen) | model | parameters |
 //! |---|---|---|---|---|
 //! | [`NonRayleighDamping`] | ln d residuals bend with ln f | 3 hat functions in ln f fitted to the ln d residuals, Δχ² > 1 | ln d piecewise linear in ln f through 3 knots, replacing α, β | d at 3 knots \[1/s\] (+1 net) |
-//! | [`BeatingPair`] | a degenerate cluster seen as two modes split beyond σ (and 5 % of the simulated split), the two decaying alike, centred on their cluster | \|split − predicted split\| > 3σ, decay rates within 10 % (or 3σ), leave-one-out \|z\| of the pair mean ≤ 4, split wider than the pair's own measured glide | pair at centre ∓ δ/2 in ln f | δ_c per split cluster \[1\] |
+//! | [`BeatingPair`] | a degenerate cluster seen as two modes split beyond σ (and 5 % of the simulated split), the two decaying alike, centred on their cluster | \|split − predicted split\| > 3σ, decay rates within 10 % (or 3σ), leave-one-out \|z\| of the pair mean ≤ 4, split wider than the pair's own measured glide, no third line of the partial within one split (a comb) | pair at centre ∓ δ/2 in ln f | δ_c per split cluster \[1\] |
 //! | [`SupportContact`] | modes moving at the support decay faster (and shift); after the fit γ > 3σ | regressions of d and ln f residuals on the support weight w (the motion along the support direction) and of ln f on w (f_ref/f)², and of split pairs' decay-split residuals on w_u − w_l (weights varying by ≥ 5 % of the largest); with the latter at z > 1.5, the beating pair's split screen | Δd = γw, Δ ln f = κw or κ_s w (f_ref/f)² (a spring), or the upper member of each split pair δ_c above the lower, which stays (`raised_members`) | γ ≥ 0 \[1/s\] (, κ or κ_s ≥ 0 \[1\], or δ_c per split cluster \[1\]) |
 //! | [`ContactDuration`] | high modes weaker than their drive says | grid over T of the half-sine low-pass on the per-mode level residuals | ln a += ln \|cos(ωT/2)/(1 − (ωT/π)²)\|, or past the first null its side lobes' envelope | T \[s\] |
 //! | [`ReverbNoise`] | residual energy decaying after the strike above the measured floor, in most bands | early vs late mean ln E per band, z > 2; after the fit, a significant excess in ≥ half the bands (else rejected: signature missing) | ln E = ln(N_b + ρ_b N_b e^(−13.8t/T60)) vs ln N_b | T60 \[s\], ρ_b \[1\] per band |

@@ -661,6 +661,51 @@ impl ModeTable {
         }
     }
 
+    /// Widens the decay rows of the poles that stand for an unresolved cluster by how far the
+    /// `held`-out extraction disagrees with them (parent docs, "An unresolved cluster's
+    /// decay"): for each single unit of this table standing for two simulated modes or more,
+    /// with Δ = its ln d less the mean ln d of the held-out table's poles of the same cluster,
+    /// its ln d row and those held-out poles' decay rows (ln d, or a pair's mean ln d) get
+    /// σ² + Δ². Returns the number of rows of this table widened.
+    pub fn widen_unreplicated_decays(&mut self, held: &mut ModeTable) -> usize {
+        let widen = |row: &mut Row, delta: f64| {
+            row.sigma = (row.sigma * row.sigma + delta * delta).sqrt();
+        };
+        let mut widened = 0;
+        for k in 0..self.modes.len() {
+            let m = &self.modes[k];
+            let Some((ln_d, _)) = m.ln_d else { continue };
+            if m.role != Role::Single || m.simulated.len() < 2 {
+                continue;
+            }
+            let cluster = m.key.cluster;
+            let held_d: Vec<(usize, f64)> = held
+                .modes
+                .iter()
+                .enumerate()
+                .filter(|(_, h)| h.key.cluster == cluster)
+                .filter_map(|(j, h)| h.ln_d.map(|(d, _)| (j, d)))
+                .collect();
+            if held_d.is_empty() {
+                continue;
+            }
+            let delta = ln_d - held_d.iter().map(|(_, d)| d).sum::<f64>() / held_d.len() as f64;
+            for row in self.rows.iter_mut().filter(|r| r.kind == RowKind::LnD(k)) {
+                widen(row, delta);
+                widened += 1;
+            }
+            let of_cluster = |kind: RowKind| match kind {
+                RowKind::LnD(i) => held_d.iter().any(|&(j, _)| j == i),
+                RowKind::PairMeanLnD(l, u) => held_d.iter().any(|&(j, _)| j == l || j == u),
+                _ => false,
+            };
+            for row in held.rows.iter_mut().filter(|r| of_cluster(r.kind)) {
+                widen(row, delta);
+            }
+        }
+        widened
+    }
+
     /// Length of the whitened residual vector: one per row plus one level per mode with
     /// amplitudes.
     pub fn n_residuals(&self) -> usize {

@@ -706,6 +706,17 @@ pub fn diagnose_with(
         );
         (t, m)
     });
+    // An unresolved cluster's decay counts as far as the microphones agree on it (parent
+    // docs, "An unresolved cluster's decay"); the baseline is refitted on the widened rows.
+    let mut baseline = baseline;
+    if let Some((held_table, _)) = held.as_mut() {
+        if table.widen_unreplicated_decays(held_table) > 0 {
+            baseline = baseline_on(&table);
+            if !baseline.minus_two_log_likelihood.is_finite() {
+                return Err(CatalogueError::BaselineFailed);
+            }
+        }
+    }
 
     // Greedy forward selection over the modal effects.
     let own: Vec<_> = effects

@@ -2655,6 +2655,85 @@ fn detection_power_at_realistic_strengths() {
     );
 }
 
+/// An unresolved cluster's decay (parent docs): the ln d row of a pole that stands for a
+/// degenerate pair is widened by how far the held-out extraction's poles of that cluster
+/// disagree with it, in both tables, σ² + Δ²; a lone simulated mode's row and rows the
+/// microphones agree on stay as they were.
+#[test]
+fn an_unresolved_pairs_decay_counts_as_far_as_the_microphones_agree() {
+    let settings = CatalogueSettings::default();
+    let (ev, _) = evidence(&Truth::default(), 22);
+    let tables = |ev: &Evidence| {
+        let ln: Vec<f64> = ev.fit.iter().map(|m| m.frequency_hz.ln()).collect();
+        let matching = match_modes(&ln, &[], &ev.simulated, None, &settings);
+        let table = ModeTable::build(&ev.fit, &ev.simulated, &matching, 0, 3.0);
+        let held_obs = ev.held_out.clone().expect("held-out data");
+        let ln_h: Vec<f64> = held_obs.iter().map(|m| m.frequency_hz.ln()).collect();
+        let mh = match_modes(
+            &ln_h,
+            &[],
+            &ev.simulated,
+            Some(matching.ln_scale),
+            &settings,
+        );
+        let held = ModeTable::build(&held_obs, &ev.simulated, &mh, table.channels, 3.0);
+        (table, held)
+    };
+    let decay_sigma = |t: &ModeTable, k: usize| {
+        t.rows
+            .iter()
+            .find(|r| r.kind == RowKind::LnD(k))
+            .map(|r| r.sigma)
+            .expect("a decay row")
+    };
+    let (table, held) = tables(&ev);
+    let pooled = table
+        .modes
+        .iter()
+        .position(|m| m.role == Role::Single && m.simulated.len() >= 2)
+        .expect("an unresolved degenerate pair");
+    let lone = table
+        .modes
+        .iter()
+        .position(|m| m.role == Role::Single && m.simulated.len() == 1)
+        .expect("a lone mode");
+    let cluster = table.modes[pooled].key.cluster;
+    let held_k = held
+        .modes
+        .iter()
+        .position(|m| m.key.cluster == cluster)
+        .expect("the pair in the held-out table");
+
+    // Agreeing microphones (the synthetic truth): every row within 2 % of its σ as built
+    // (the extraction noise of the two sets differs by a few σ at most).
+    let (mut agree, mut agree_held) = (table.clone(), held.clone());
+    agree.widen_unreplicated_decays(&mut agree_held);
+    for k in [pooled, lone] {
+        let (before, after) = (decay_sigma(&table, k), decay_sigma(&agree, k));
+        let delta = (after * after - before * before).max(0.0).sqrt();
+        assert!(delta < 0.05, "mode {k}: σ {before} → {after}");
+    }
+
+    // The fit microphones hear the pair decay 30 % faster than the held-out ones.
+    let mut off = ev.clone();
+    let pole = table.modes[pooled].observed;
+    off.fit[pole].decay_rate *= 1.3;
+    off.fit[pole].sigma_decay_rate *= 1.3;
+    let (mut t, mut h) = tables(&off);
+    let expected_delta = t.modes[pooled].ln_d.unwrap().0 - h.modes[held_k].ln_d.unwrap().0;
+    assert!(expected_delta > 0.2, "{expected_delta}");
+    let (s_fit, s_held, s_lone) = (
+        decay_sigma(&t, pooled),
+        decay_sigma(&h, held_k),
+        decay_sigma(&t, lone),
+    );
+    assert!(t.widen_unreplicated_decays(&mut h) >= 1);
+    let widened = |s: f64| (s * s + expected_delta * expected_delta).sqrt();
+    assert!((decay_sigma(&t, pooled) - widened(s_fit)).abs() < 1e-12);
+    assert!((decay_sigma(&h, held_k) - widened(s_held)).abs() < 1e-12);
+    assert_eq!(decay_sigma(&t, lone), s_lone);
+}
+
 /// The backward pass's last-in test (selection module): an effect that carries its data
 /// passes it, one that carries nothing fails it, and the model without it is the model
 /// before it.
