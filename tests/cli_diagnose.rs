@@ -203,23 +203,27 @@ fn diagnose_writes_a_consistent_report_and_agrees_across_ranks() {
     let case = bench.join("case_000");
     let two = case.join("two_mics.h5");
     let (m0, m1) = (case.join("mic0.wav"), case.join("mic1.wav"));
-    let run = mpirun(
-        2,
-        &[
-            "diagnose",
-            "--mesh",
-            mesh_path.to_str().unwrap(),
-            "--recording",
-            m0.to_str().unwrap(),
-            "--recording",
-            m1.to_str().unwrap(),
-            "--density",
-            "2700",
-            "--out",
-            two.to_str().unwrap(),
-        ],
-        Duration::from_secs(600),
-    );
+    // A diagnosis of two recordings with the default roles (the first fitted).
+    let diagnose_two = |fit: &Path, held: &Path, out: &Path| {
+        mpirun(
+            2,
+            &[
+                "diagnose",
+                "--mesh",
+                mesh_path.to_str().unwrap(),
+                "--recording",
+                fit.to_str().unwrap(),
+                "--recording",
+                held.to_str().unwrap(),
+                "--density",
+                "2700",
+                "--out",
+                out.to_str().unwrap(),
+            ],
+            Duration::from_secs(600),
+        )
+    };
+    let run = diagnose_two(&m0, &m1, &two);
     assert!(run.success(), "{}", run.describe());
     assert!(
         run.stdout
@@ -345,24 +349,7 @@ fn diagnose_writes_a_consistent_report_and_agrees_across_ranks() {
         w.write_sample((0.5 * c.re / peak) as f32).unwrap();
     }
     w.finalize().unwrap();
-    let out = case.join("dull_fit_mic.h5");
-    let run = mpirun(
-        2,
-        &[
-            "diagnose",
-            "--mesh",
-            mesh_path.to_str().unwrap(),
-            "--recording",
-            dull.to_str().unwrap(),
-            "--recording",
-            m0.to_str().unwrap(),
-            "--density",
-            "2700",
-            "--out",
-            out.to_str().unwrap(),
-        ],
-        Duration::from_secs(600),
-    );
+    let run = diagnose_two(&dull, &m0, &case.join("dull_fit_mic.h5"));
     assert!(run.success(), "{}", run.describe());
     assert!(
         run.stderr.contains("roles are exchanged") || run.stdout.contains("roles are exchanged"),

@@ -2655,6 +2655,19 @@ fn detection_power_at_realistic_strengths() {
     );
 }
 
+/// The fit and held-out tables of `ev` as matched without the pole choice (the held-out set
+/// at the fit's frequency scale), and the fit's ln scale.
+fn fit_and_held_tables(ev: &Evidence, settings: &CatalogueSettings) -> (ModeTable, ModeTable, f64) {
+    let ln: Vec<f64> = ev.fit.iter().map(|m| m.frequency_hz.ln()).collect();
+    let matching = match_modes(&ln, &[], &ev.simulated, None, settings);
+    let table = ModeTable::build(&ev.fit, &ev.simulated, &matching, 0, 3.0);
+    let held_obs = ev.held_out.clone().expect("held-out data");
+    let ln_h: Vec<f64> = held_obs.iter().map(|m| m.frequency_hz.ln()).collect();
+    let mh = match_modes(&ln_h, &[], &ev.simulated, Some(matching.ln_scale), settings);
+    let held = ModeTable::build(&held_obs, &ev.simulated, &mh, table.channels, 3.0);
+    (table, held, matching.ln_scale)
+}
+
 /// An unresolved cluster's decay (parent docs): the ln d row of a pole that stands for a
 /// degenerate pair is widened by how far the held-out extraction's poles of that cluster
 /// disagree with it, in both tables, σ² + Δ²; a lone simulated mode's row and rows the
@@ -2664,19 +2677,7 @@ fn an_unresolved_pairs_decay_counts_as_far_as_the_microphones_agree() {
     let settings = CatalogueSettings::default();
     let (ev, _) = evidence(&Truth::default(), 22);
     let tables = |ev: &Evidence| {
-        let ln: Vec<f64> = ev.fit.iter().map(|m| m.frequency_hz.ln()).collect();
-        let matching = match_modes(&ln, &[], &ev.simulated, None, &settings);
-        let table = ModeTable::build(&ev.fit, &ev.simulated, &matching, 0, 3.0);
-        let held_obs = ev.held_out.clone().expect("held-out data");
-        let ln_h: Vec<f64> = held_obs.iter().map(|m| m.frequency_hz.ln()).collect();
-        let mh = match_modes(
-            &ln_h,
-            &[],
-            &ev.simulated,
-            Some(matching.ln_scale),
-            &settings,
-        );
-        let held = ModeTable::build(&held_obs, &ev.simulated, &mh, table.channels, 3.0);
+        let (table, held, _) = fit_and_held_tables(ev, &settings);
         (table, held)
     };
     let decay_sigma = |t: &ModeTable, k: usize| {
@@ -2742,23 +2743,11 @@ fn last_in_test_keeps_a_real_effect_and_drops_an_empty_one() {
     let settings = CatalogueSettings::default();
     let with_mass = |truth: &Truth, seed: u64| {
         let (ev, _) = evidence(truth, seed);
-        let ln: Vec<f64> = ev.fit.iter().map(|m| m.frequency_hz.ln()).collect();
-        let matching = match_modes(&ln, &[], &ev.simulated, None, &settings);
-        let table = ModeTable::build(&ev.fit, &ev.simulated, &matching, 0, 3.0);
-        let held_obs = ev.held_out.clone().expect("held-out data");
-        let ln_h: Vec<f64> = held_obs.iter().map(|m| m.frequency_hz.ln()).collect();
-        let mh = match_modes(
-            &ln_h,
-            &[],
-            &ev.simulated,
-            Some(matching.ln_scale),
-            &settings,
-        );
-        let held = ModeTable::build(&held_obs, &ev.simulated, &mh, table.channels, 3.0);
-        let ln_f_ref = matching.ln_scale
+        let (table, held, ln_scale) = fit_and_held_tables(&ev, &settings);
+        let ln_f_ref = ln_scale
             + table.modes.iter().map(|m| m.ln_f_sim).sum::<f64>() / table.modes.len() as f64;
         let base_model = Model::new(vec![], ln_f_ref, table.channels);
-        let x0 = model::baseline_start(&table, &base_model, matching.ln_scale);
+        let x0 = model::baseline_start(&table, &base_model, ln_scale);
         let baseline = fit(&table, base_model, x0);
         let term: Arc<dyn Term> = Arc::new(MassLoading { fluid_ln_f1: None });
         let mut x = baseline.x.clone();
