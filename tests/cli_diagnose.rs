@@ -314,14 +314,9 @@ fn diagnose_writes_a_consistent_report_and_agrees_across_ranks() {
     assert!(partials.len() >= 6, "{partials:?}");
     let cut_hz = 0.5 * (partials[1] + partials[2]);
     let dull = case.join("dull1.wav");
-    let mut reader = hound::WavReader::open(&m1).unwrap();
-    let rate = reader.spec().sample_rate;
-    let samples: Vec<f64> = match reader.spec().sample_format {
-        hound::SampleFormat::Float => reader.samples::<f32>().map(|x| x.unwrap() as f64).collect(),
-        hound::SampleFormat::Int => reader.samples::<i32>().map(|x| x.unwrap() as f64).collect(),
-    };
-    let n = samples.len();
-    let mut spectrum: Vec<rustfft::num_complex::Complex<f64>> = samples
+    let (channels, rate) = diffsound::audio::read_wav(&m1).unwrap();
+    let n = channels[0].len();
+    let mut spectrum: Vec<rustfft::num_complex::Complex<f64>> = channels[0]
         .iter()
         .map(|&x| rustfft::num_complex::Complex::new(x, 0.0))
         .collect();
@@ -334,21 +329,15 @@ fn diagnose_writes_a_consistent_report_and_agrees_across_ranks() {
         }
     }
     planner.plan_fft_inverse(n).process(&mut spectrum);
-    let peak = spectrum.iter().map(|c| c.re.abs()).fold(0.0, f64::max);
-    let mut w = hound::WavWriter::create(
+    let low_passed: Vec<f64> = spectrum.iter().map(|c| c.re).collect();
+    diffsound::audio::write_wav(
         &dull,
-        hound::WavSpec {
-            channels: 1,
-            sample_rate: rate,
-            bits_per_sample: 32,
-            sample_format: hound::SampleFormat::Float,
-        },
+        &low_passed,
+        rate,
+        diffsound::audio::WavFormat::Float32,
+        Some(0.5),
     )
     .unwrap();
-    for c in &spectrum {
-        w.write_sample((0.5 * c.re / peak) as f32).unwrap();
-    }
-    w.finalize().unwrap();
     let run = diagnose_two(&dull, &m0, &case.join("dull_fit_mic.h5"));
     assert!(run.success(), "{}", run.describe());
     assert!(

@@ -149,8 +149,9 @@
 //!   arithmetic differs by 10⁻¹³, and near-singular groups follow it into other local optima:
 //!   on the real bowl a six-pole group at 19.5 kHz moved its f₀ by up to 6 Hz, and a
 //!   three-pole group at 11.15 kHz gained a covariance it had lacked. Near-degenerate gliding
-//!   pairs come out with g within 10⁻⁶ of the injected one; the weak partner of a pair, or a component the K' = K hypothesis adds for
-//!   unmodelled residual, can come out with a poorly determined f₀ and g (large σ).
+//!   pairs come out with g within 10⁻⁶ of the injected one; the weak partner of a pair, or a
+//!   component the K' = K hypothesis adds for unmodelled residual, can come out with a poorly
+//!   determined f₀ and g (large σ).
 
 use std::f64::consts::PI;
 use std::sync::Arc;

@@ -668,10 +668,15 @@ pub fn diagnose_with(
         table,
         |t| assignment_cost(&baseline_on(t), t),
     );
-    let baseline = baseline_on(&table);
-    if !baseline.minus_two_log_likelihood.is_finite() {
-        return Err(CatalogueError::BaselineFailed);
-    }
+    let checked_baseline = |t: &ModeTable| {
+        let b = baseline_on(t);
+        if b.minus_two_log_likelihood.is_finite() {
+            Ok(b)
+        } else {
+            Err(CatalogueError::BaselineFailed)
+        }
+    };
+    let mut baseline = checked_baseline(&table)?;
     let mut held = evidence.held_out.as_ref().map(|h| {
         let ln_f: Vec<f64> = h.iter().map(|m| undamped_hz(m).ln()).collect();
         let m = match_modes(
@@ -708,13 +713,9 @@ pub fn diagnose_with(
     });
     // An unresolved cluster's decay counts as far as the microphones agree on it (parent
     // docs, "An unresolved cluster's decay"); the baseline is refitted on the widened rows.
-    let mut baseline = baseline;
     if let Some((held_table, _)) = held.as_mut() {
         if table.widen_unreplicated_decays(held_table) > 0 {
-            baseline = baseline_on(&table);
-            if !baseline.minus_two_log_likelihood.is_finite() {
-                return Err(CatalogueError::BaselineFailed);
-            }
+            baseline = checked_baseline(&table)?;
         }
     }
 
