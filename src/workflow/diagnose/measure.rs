@@ -5,7 +5,7 @@
 //! extraction is the diagnosis's largest serial cost, and rank 1 would otherwise wait).
 
 use super::Job;
-use crate::analysis::extract::{extract_modes, fit_glides, ModalExtraction};
+use crate::analysis::extract::{extract_modes, fit_glides, GlideOptions, ModalExtraction};
 use crate::analysis::recording::{load_recording, GainPolicy, RecordingOptions};
 use crate::audio::health::ChannelHealth;
 use crate::diagnose::catalogue::{ObservedMode, ResidualEnvelopes};
@@ -152,8 +152,13 @@ fn extract_set(
     let ex = extract_modes(channels, fs, &job.extract)
         .map_err(|e| format!("mode extraction ({what}): {e}"))?;
     let extraction_s = t.elapsed().as_secs_f64();
+    // Groups above the highest frequency diagnosed are left alone: their modes are discarded.
+    let glide = GlideOptions {
+        max_frequency_hz: job.glide.max_frequency_hz.or(Some(job.max_frequency_hz)),
+        ..job.glide.clone()
+    };
     let stage =
-        fit_glides(channels, &ex, &job.glide).map_err(|e| format!("glide stage ({what}): {e}"))?;
+        fit_glides(channels, &ex, &glide).map_err(|e| format!("glide stage ({what}): {e}"))?;
     let selected: Vec<_> = stage.decisions.iter().filter(|d| d.selected).collect();
     let merged: usize = selected.iter().map(|d| d.poles_hz.len()).sum();
     let gliding: usize = selected.iter().map(|d| d.f0_hz.len()).sum();

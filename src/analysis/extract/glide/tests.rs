@@ -151,11 +151,7 @@ fn kaufman_jacobian_matches_finite_differences_on_exact_data() {
     let mut rng = SplitMix64(3);
     let truth = Truth::random(2000.0, 9.0, 3e-3, 2, &mut rng);
     let x = render(std::slice::from_ref(&truth), 0.0, &mut rng);
-    let spectra = Spectra {
-        fft: FftPlanner::new().plan_fft_forward(N),
-        n: N,
-        sample_rate: FS,
-    };
+    let spectra = Spectra::new(FftPlanner::new().plan_fft_forward(N), N, FS);
     let df = FS / N as f64;
     let bins: Vec<usize> = ((1950.0 / df) as usize..=(2040.0 / df) as usize).collect();
     let data = x
@@ -281,6 +277,36 @@ fn a_glide_split_into_two_poles_is_merged() {
     );
 }
 
+/// The glide above, above the highest frequency asked for: its group is left alone (two
+/// constant poles, no decision), while a group with a pole at or below it is still tried.
+#[test]
+fn groups_above_the_highest_frequency_are_left_alone() {
+    let mut rng = SplitMix64(5);
+    let (f0, d, g) = (3000.0, 12.0, 4e-3);
+    let truth = Truth::random(f0, d, g, 3, &mut rng);
+    let x = render(&[truth], 0.01, &mut rng);
+    let poles = [
+        (f0 * (1.0 + 0.1 * g), 9.0, 0.5),
+        (f0 * (1.0 + 0.7 * g), 25.0, 0.3),
+    ];
+    let ex = stand_in(&poles, 3, 0.02);
+    let below = GlideOptions {
+        max_frequency_hz: Some(2990.0),
+        ..Default::default()
+    };
+    let stage = fit_glides(&x, &ex, &below).unwrap();
+    assert!(stage.decisions.is_empty(), "{:?}", stage.decisions);
+    assert_eq!(stage.extraction.modes, ex.modes);
+    // The lower pole at the limit: the group is tried and merged as without a limit.
+    let at = GlideOptions {
+        max_frequency_hz: Some(poles[0].0),
+        ..Default::default()
+    };
+    let stage = fit_glides(&x, &ex, &at).unwrap();
+    assert_eq!(stage.extraction.modes.len(), 1, "{:?}", stage.decisions);
+    assert!(stage.decisions[0].selected, "{:?}", stage.decisions);
+}
+
 /// A real beating pair (two constant modes 1.6 Hz apart, their beats differing between
 /// channels) stays two poles, over several noise draws.
 #[test]
@@ -358,6 +384,14 @@ fn bad_input_is_an_error_not_a_panic() {
         },
         GlideOptions {
             min_glide_z: f64::NAN,
+            ..Default::default()
+        },
+        GlideOptions {
+            max_frequency_hz: Some(0.0),
+            ..Default::default()
+        },
+        GlideOptions {
+            max_frequency_hz: Some(f64::NAN),
             ..Default::default()
         },
     ] {
@@ -552,11 +586,7 @@ fn fast_transforms_match_the_sampled_definition() {
     // = 0.05), and the recurrences of gliding components, up to the largest glide allowed
     // (g = 0.05 near Nyquist: the rotation's Taylor branch and its exact fallback).
     let n = 9_600;
-    let spectra = Spectra {
-        fft: FftPlanner::new().plan_fft_forward(n),
-        n,
-        sample_rate: FS,
-    };
+    let spectra = Spectra::new(FftPlanner::new().plan_fft_forward(n), n, FS);
     let cases = [
         (2000.3, 9.0, 0.0, false),
         (2000.3, 9.0, 0.0, true),
