@@ -222,8 +222,9 @@ fn held_out_change(
     settings: &CatalogueSettings,
 ) -> Option<HeldOutChange> {
     let k = settings.held_out_huber_k;
-    let b = held_out_chi2(before, held, &before.tau2, k)?;
-    let a = held_out_chi2(after, held, &before.tau2, k)?;
+    let yardstick = held_out_yardstick(&before.tau2, &after.tau2);
+    let b = held_out_chi2(before, held, &yardstick, k)?;
+    let a = held_out_chi2(after, held, &yardstick, k)?;
     let dispersion = if settings.held_out_dispersion {
         b.dispersion
     } else {
@@ -235,6 +236,21 @@ fn held_out_change(
     } else {
         change.untestable()
     })
+}
+
+/// The floors that whiten both models' held-out rows in [`held_out_change`]: `before`'s, but
+/// the glide floor the smaller of the two (parent docs, "Selection"). The glide floor is
+/// profiled about the model's own prediction, y = 0 without a glide term, so before a glide
+/// enters it has swallowed the very glide under test, and every held-out glide row is judged
+/// on that inflated scale, where the Student-t rows grow only logarithmically. Unlike the
+/// amplitude floor it stands for no nuisance (nothing a user cannot know makes a glide), so the
+/// smaller scale is the fair one for both models. Every other effect leaves it where it was.
+fn held_out_yardstick(before: &FloorVariances, after: &FloorVariances) -> FloorVariances {
+    let mut yardstick = *before;
+    if let Some(q) = Quantity::Glide.floor_index() {
+        yardstick[q] = before[q].min(after[q]);
+    }
+    yardstick
 }
 
 /// Parameters charged to a term whose candidate region the caller chose from these data
@@ -1117,6 +1133,24 @@ pub fn diagnose_with(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The held-out yardstick is the model before's floors, but the smaller glide floor of the
+    /// two: a glide term shrinks it, and nothing else moves it.
+    #[test]
+    fn the_held_out_yardstick_takes_the_smaller_glide_floor_only() {
+        let q = Quantity::Glide
+            .floor_index()
+            .expect("glide rows have a floor");
+        let before: FloorVariances = [1e-6, 0.04, 0.3, 0.0, 4e-6, 0.01];
+        let mut after = [2e-6, 0.01, 0.1, 0.0, 1e-8, 0.001];
+        let yardstick = held_out_yardstick(&before, &after);
+        for (i, (y, b)) in yardstick.iter().zip(&before).enumerate() {
+            assert_eq!(*y, if i == q { 1e-8 } else { *b }, "floor {i}");
+        }
+        // A larger glide floor after (a term that misfits the glides) does not loosen it.
+        after[q] = 1e-5;
+        assert_eq!(held_out_yardstick(&before, &after), before);
+    }
 
     /// A held-out fall counts only when Σz² drops by more than `min_held_out_gain`.
     #[test]
