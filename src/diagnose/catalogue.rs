@@ -214,7 +214,7 @@
 //! the parameters fitted on `fit` only (the held-out set's per-channel gains, and the held-out
 //! channels' v of the radiation factor model, are refitted on it: they are properties of
 //! those microphones, p_h of them), whitened as in the likelihood with the current model's
-//! floors as the yardstick for both models. "Falls" means that the held-out Σz² drops by more
+//! floors as the yardstick for both models (but the glide floor, below). "Falls" means that the held-out Σz² drops by more
 //! than `min_held_out_gain` (Σz² with the effect taken at the degrees of freedom without it,
 //! [`HeldOutChange`], so that held-out nuisance parameters do not count as a gain) (default [`DEFAULT_MIN_HELD_OUT_GAIN`] = 2: a held-out likelihood
 //! ratio above e), not merely that it drops. Why: under the null an effect of k parameters

@@ -351,7 +351,8 @@ struct Spectra {
     n: usize,
     sample_rate: f64,
     /// The sampled path's rows and the FFT's scratch, kept between evaluations: a group's fits
-    /// take hundreds, and zeroed fresh buffers of N samples each were a tenth of their cost.
+    /// take hundreds, and fresh zeroed buffers of N samples for each were a few per cent of
+    /// the stage's time.
     work: RefCell<(Vec<Vec<C64>>, Vec<C64>)>,
 }
 
@@ -493,10 +494,12 @@ impl Spectra {
         out
     }
 
-    /// The transforms of any component by sampling it and taking FFTs. The samples come from
-    /// recurrences (amplitude e^(−d/f_s) per step, e^(−2dt) − 1 by its expm1 step, the phase
-    /// rotated by 2πf/f_s plus the glide's increment 2πfg (Φₙ₊₁ − Φₙ) = κ e^(−2dtₙ)), each
-    /// restarted exactly every [`RECURRENCE_BLOCK`] samples.
+    /// Samples s(t) of any component into `out[0]` and, with `derivatives`, ∂s/∂f, ∂s/∂d and
+    /// (if g is free) ∂s/∂g into the next rows, N samples each, for [`Spectra::transforms`]
+    /// to transform. The samples come from recurrences (amplitude e^(−d/f_s) per step,
+    /// e^(−2dt) − 1 by its expm1 step, the phase rotated by 2πf/f_s plus the glide's increment
+    /// 2πfg (Φₙ₊₁ − Φₙ) = κ e^(−2dtₙ)), each restarted exactly every [`RECURRENCE_BLOCK`]
+    /// samples.
     fn sample(&self, comp: &Component, derivatives: bool, out: &mut Vec<Vec<C64>>) {
         let count = if derivatives { 1 + comp.n_params() } else { 1 };
         // Every sample of every row is written below.
