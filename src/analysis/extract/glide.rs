@@ -1126,9 +1126,11 @@ pub fn fit_glides(
             .iter()
             .max_by(|a, b| a.snr().total_cmp(&b.snr()))
             .expect("non-empty");
-        let above = options
-            .max_frequency_hz
-            .is_some_and(|f_max| members.iter().all(|m| !(m.frequency_hz <= f_max)));
+        let f_lo = members
+            .iter()
+            .map(|m| m.frequency_hz)
+            .fold(f64::INFINITY, f64::min);
+        let above = options.max_frequency_hz.is_some_and(|f_max| f_lo > f_max);
         let skip = members.len() > options.max_group
             || above
             || loudest.snr() < options.min_snr_db
@@ -1142,10 +1144,6 @@ pub fn fit_glides(
             out_modes.extend(members.into_iter().cloned());
             continue;
         }
-        let f_lo = members
-            .iter()
-            .map(|m| m.frequency_hz)
-            .fold(f64::INFINITY, f64::min);
         let f_hi = members.iter().map(|m| m.frequency_hz).fold(0.0, f64::max);
         let d_max = members.iter().map(|m| m.decay_rate).fold(0.0, f64::max);
         let d_min = members
