@@ -363,7 +363,30 @@ fn diagnose_rejects_bad_input_clearly() {
     let config = dir.join("bad_loaded.toml");
     std::fs::write(&config, "[model]\nloaded_mass_match = \"yes\"\n").unwrap();
     let config = config.to_str().unwrap();
-    let cases: [(&[&str], &str); 7] = [
+    // `[glide] max_frequency_hz` must be positive: refused with its name when the glide stage
+    // starts, on the rank that measures and the one that extracts the held-out microphone.
+    let glide_config = dir.join("bad_glide.toml");
+    std::fs::write(&glide_config, "[glide]\nmax_frequency_hz = -5.0\n").unwrap();
+    let glide_config = glide_config.to_str().unwrap();
+    let cases: [(&[&str], &str); 8] = [
+        (
+            &[
+                "diagnose",
+                "--config",
+                glide_config,
+                "--mesh",
+                mesh,
+                "--recording",
+                wav,
+                "--recording",
+                wav,
+                "--density",
+                "2700",
+                "--out",
+                out,
+            ],
+            "glide.max_frequency_hz",
+        ),
         (
             &[
                 "diagnose",
