@@ -276,6 +276,9 @@ impl Term for LoweredMembers {
     fn held_out_can_test(&self, held: &ModeTable) -> bool {
         self.splits.held_out_can_test(held)
     }
+    fn sets_splits(&self) -> bool {
+        true
+    }
     fn frequency(&self, table: &ModeTable, p: &[f64], ln_f: &mut [f64]) {
         for pair in &table.pairs {
             if let Some(i) = self.splits.index(pair.cluster) {

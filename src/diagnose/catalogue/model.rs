@@ -929,8 +929,13 @@ impl Model {
         for (k, m) in table.modes.iter().enumerate() {
             out.ln_f[k] = ln_s + m.ln_f_sim;
         }
-        for (i, t) in self.terms.iter().enumerate() {
-            t.frequency(table, self.term_params(i, x), &mut out.ln_f);
+        // The terms that set splits act last (parent docs, "Selection", *Splits are set last*).
+        for last in [false, true] {
+            for (i, t) in self.terms.iter().enumerate() {
+                if t.sets_splits() == last {
+                    t.frequency(table, self.term_params(i, x), &mut out.ln_f);
+                }
+            }
         }
         for k in 0..table.modes.len() {
             out.decay[k] = 0.5 * (alpha + b * (2.0 * (out.ln_f[k] - self.ln_f_ref)).exp());
@@ -1599,6 +1604,9 @@ impl Term for Frozen {
     }
     fn frequency(&self, table: &ModeTable, _: &[f64], ln_f: &mut [f64]) {
         self.inner.frequency(table, &self.p, ln_f)
+    }
+    fn sets_splits(&self) -> bool {
+        self.inner.sets_splits()
     }
     fn damping(&self, table: &ModeTable, _: &[f64], ln_f: &[f64], decay: &mut [f64]) {
         self.inner.damping(table, &self.p, ln_f, decay)

@@ -233,6 +233,9 @@ impl Term for RaisedMembers {
         }));
         p
     }
+    fn sets_splits(&self) -> bool {
+        true
+    }
     fn frequency(&self, table: &ModeTable, p: &[f64], ln_f: &mut [f64]) {
         for pair in &table.pairs {
             if let Some(i) = self.splits.index(pair.cluster) {
