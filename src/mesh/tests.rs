@@ -185,6 +185,37 @@ fn cube_fixture_geometry() {
     }
 }
 
+/// The second moment of volume is exact on straight tets: a box of sides a, b, c has its
+/// centroid at the middle and C = diag(a², b², c²)/12, whatever the tets and however the box
+/// sits; a hole in it is taken out.
+#[test]
+fn volume_moments_of_a_box_are_exact() {
+    let size = [0.3, 0.2, 0.05];
+    let mut m = box_mesh([3, 2, 2], size);
+    let shift = [1.0, -2.0, 0.5];
+    for x in &mut m.nodes {
+        *x = [x[0] + shift[0], x[1] + shift[1], x[2] + shift[2]];
+    }
+    let (c, moments) = m.volume_moments().expect("a volume");
+    for r in 0..3 {
+        assert!((c[r] - (shift[r] + 0.5 * size[r])).abs() < 1e-12, "{c:?}");
+        for col in 0..3 {
+            let want = if r == col {
+                size[r] * size[r] / 12.0
+            } else {
+                0.0
+            };
+            assert!((moments[r][col] - want).abs() < 1e-12, "{moments:?}");
+        }
+    }
+    let empty = TetMesh {
+        nodes: vec![],
+        connectivity: vec![],
+        order: ElementOrder::Linear,
+    };
+    assert!(empty.volume_moments().is_none());
+}
+
 /// Pins down the 10-node order: on a straight-sided mesh written by gmsh,
 /// node 4+k must be the midpoint of the corner pair TET10_EDGES[k].
 #[test]

@@ -91,17 +91,21 @@ pub(super) fn features(
         .iter()
         .map(|&l| eigen::frequency_hz(l))
         .collect();
-    let (lo, hi) = mesh.bounding_box();
-    let centre = [
-        0.5 * (lo[0] + hi[0]),
-        0.5 * (lo[1] + hi[1]),
-        0.5 * (lo[2] + hi[2]),
-    ];
+    // The profiles are taken about the body's own axis through its centroid
+    // ([`evidence::symmetry_axis`]); a mesh of no volume is refused before the solve.
+    let (centre, axis) = match mesh.volume_moments() {
+        Some((centre, moments)) => (centre, evidence::symmetry_axis(moments)),
+        None => {
+            let (lo, hi) = mesh.bounding_box();
+            (
+                std::array::from_fn(|r| 0.5 * (lo[r] + hi[r])),
+                job.support_direction,
+            )
+        }
+    };
     let profiles: Vec<Vec<f64>> = shapes
         .iter()
-        .map(|s| {
-            evidence::axial_profile(s, &mesh.nodes, centre, job.support_direction, PROFILE_BINS)
-        })
+        .map(|s| evidence::axial_profile(s, &mesh.nodes, centre, axis, PROFILE_BINS))
         .collect();
     let clusters = evidence::symmetric_cluster_ids(
         &frequencies_hz,
@@ -261,7 +265,8 @@ pub struct Localised {
 }
 
 /// Near-degenerate clusters: neighbouring simulated frequencies within 0.5 % whose motion has
-/// the same axial profile about the support axis through the bounding-box centre.
+/// the same axial profile about the body's symmetry axis through its centroid
+/// ([`evidence::symmetry_axis`]).
 const CLUSTER_RTOL: f64 = 0.005;
 
 /// Axial profiles ([`evidence::axial_profile`]) of the members of a symmetry-degenerate
