@@ -45,7 +45,8 @@ pub(super) const LOADED_MATCH_DECISIVE_POISSON_SHIFT: f64 = 0.03;
 pub(super) const LOADED_MATCH_MIN_SPLIT_FREE_GAIN: f64 = 2.0 * MIN_DIFFERENTIAL_SHIFT;
 
 /// Whether the loaded model's report stands against the plain model's (`run`, stages 4 and
-/// 5): the catalogue accepted the carried mass (`accepted`), and one of
+/// 5): the catalogue accepted the carried mass (`accepted`; Err: the loaded pass's reason for
+/// rejecting it, which the report then gives), and one of
 /// * it leaves fewer recorded modes unmatched (`with` against `without`);
 /// * the plain line match could only absorb the mass by moving ν by `poisson_shift`, at least
 ///   [`LOADED_MATCH_DECISIVE_POISSON_SHIFT`] (the mass then reshapes the whole spectrum,
@@ -64,14 +65,14 @@ pub(super) const LOADED_MATCH_MIN_SPLIT_FREE_GAIN: f64 = 2.0 * MIN_DIFFERENTIAL_
 /// being adopted for cutting the line distance, which any explanation of the splits does.
 /// Err: why not, for the report.
 pub(super) fn loaded_model_verdict(
-    accepted: bool,
+    accepted: Result<(), String>,
     with: usize,
     without: usize,
     poisson_shift: f64,
     split_free: Option<SplitFree>,
 ) -> Result<(), String> {
-    if !accepted {
-        return Err("the catalogue rejected the carried mass".to_string());
+    if let Err(why) = accepted {
+        return Err(format!("the catalogue rejected the carried mass ({why})"));
     }
     if with < without || poisson_shift.abs() >= LOADED_MATCH_DECISIVE_POISSON_SHIFT {
         return Ok(());
@@ -621,17 +622,21 @@ mod tests {
     /// rejects never does.
     #[test]
     fn a_loaded_model_stands_on_an_unmatched_mode_or_a_decisive_poisson_shift() {
-        assert_eq!(loaded_model_verdict(true, 0, 5, 0.0, None), Ok(()));
-        assert_eq!(loaded_model_verdict(true, 0, 0, -0.095, None), Ok(()));
-        let pairs = loaded_model_verdict(true, 0, 0, 0.008, None).unwrap_err();
+        assert_eq!(loaded_model_verdict(Ok(()), 0, 5, 0.0, None), Ok(()));
+        assert_eq!(loaded_model_verdict(Ok(()), 0, 0, -0.095, None), Ok(()));
+        let pairs = loaded_model_verdict(Ok(()), 0, 0, 0.008, None).unwrap_err();
         assert!(
             pairs.contains("plain model") && pairs.contains("0.008"),
             "{pairs}"
         );
-        assert!(loaded_model_verdict(false, 0, 5, 0.1, None)
-            .unwrap_err()
-            .contains("rejected"));
-        assert!(loaded_model_verdict(true, 1, 1, f64::NAN, None).is_err());
+        let rejected =
+            loaded_model_verdict(Err("ΔBIC below the threshold".into()), 0, 5, 0.1, None)
+                .unwrap_err();
+        assert!(
+            rejected.contains("rejected") && rejected.contains("ΔBIC below the threshold"),
+            "{rejected}"
+        );
+        assert!(loaded_model_verdict(Ok(()), 1, 1, f64::NAN, None).is_err());
     }
 
     /// A carried mass that cuts the split-free distance (the lines' centres) to half or less,
@@ -642,20 +647,20 @@ mod tests {
         let d = |loaded: f64, plain: f64| Some(SplitFree { plain, loaded });
         // Seed 79 case 018 in kind: lines 1 % off without the mass, 0.1 % with it.
         assert_eq!(
-            loaded_model_verdict(true, 0, 0, 0.023, d(1.5e-3, 1.2e-2)),
+            loaded_model_verdict(Ok(()), 0, 0, 0.023, d(1.5e-3, 1.2e-2)),
             Ok(())
         );
         // Splits only: the split-free distance does not move.
-        let splits = loaded_model_verdict(true, 0, 0, 0.001, d(4.5e-3, 4.6e-3)).unwrap_err();
+        let splits = loaded_model_verdict(Ok(()), 0, 0, 0.001, d(4.5e-3, 4.6e-3)).unwrap_err();
         assert!(
             splits.contains("split-free") && splits.contains("4.50e-3"),
             "{splits}"
         );
         // Halved, but from a plain distance already within the gain.
-        assert!(loaded_model_verdict(true, 0, 0, 0.001, d(2e-4, 8e-4)).is_err());
+        assert!(loaded_model_verdict(Ok(()), 0, 0, 0.001, d(2e-4, 8e-4)).is_err());
         // Not halved.
-        assert!(loaded_model_verdict(true, 0, 0, 0.001, d(6e-3, 1e-2)).is_err());
+        assert!(loaded_model_verdict(Ok(()), 0, 0, 0.001, d(6e-3, 1e-2)).is_err());
         // The catalogue still decides first.
-        assert!(loaded_model_verdict(false, 0, 0, 0.0, d(1e-4, 1e-2)).is_err());
+        assert!(loaded_model_verdict(Err("no".into()), 0, 0, 0.0, d(1e-4, 1e-2)).is_err());
     }
 }

@@ -690,11 +690,30 @@ pub fn run(petsc: &Petsc, job: &Job, progress: &Progress) -> Result<Option<Outco
                 first.0.as_ref().map_err(|e| Error::Diagnosis(e.clone()))?,
                 plain.0.as_ref().map_err(|e| Error::Diagnosis(e.clone()))?,
             );
-            let accepted = first_report
+            // Err: why the loaded pass's catalogue rejected the carried mass, in its words.
+            let accepted = if first_report
                 .0
                 .accepted
                 .iter()
-                .any(|a| a.name == "added_mass");
+                .any(|a| a.name == "added_mass")
+            {
+                Ok(())
+            } else {
+                Err(first_report
+                    .0
+                    .rejected
+                    .iter()
+                    .find(|r| r.name == "added_mass")
+                    .map_or("not proposed".to_string(), |r| {
+                        let delta_bic = r
+                            .delta_bic
+                            .map_or(String::new(), |d| format!(", ΔBIC {d:.1}"));
+                        let gain = r
+                            .held_out_gain
+                            .map_or(String::new(), |g| format!(", held-out Σz² gain {g:.1}"));
+                        format!("{}{delta_bic}{gain}", r.reason)
+                    }))
+            };
             let (with, without) = (unmatched(&first_report.0), unmatched(&plain_report.0));
             // The plain pass ran at the plain match's ν (`line_start`), or at the given one.
             let poisson_shift = loaded.as_ref().map_or(0.0, |l| l.matched.poisson - plain.2);
