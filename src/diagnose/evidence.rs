@@ -355,10 +355,10 @@ pub fn cluster_ids(frequencies_hz: &[f64], rtol: f64) -> Vec<usize> {
 /// square's symmetry about an axis) has two equal eigenvalues, and the axis is the eigenvector of
 /// the third. Of the three eigenvectors, the one whose two companions' eigenvalues lie closest,
 /// relative to their sum; a unit vector. A cup or a bowl standing on its base, a plate lying on
-/// a table and a tube lying on its side all get their own axis, which the support's direction
-/// is only for the first three: generator 2's tube (0.28 m along x, lying on a table) had its
-/// pairs 0.1 % apart in the mesh left as lone modes, whose axial profiles about the vertical
-/// differ.
+/// a table and a tube lying on its side all get their own axis; the support's direction, the
+/// axis used before, is that axis only for the first three. About the vertical, generator 2's
+/// tube (0.28 m along x, lying on a table) had its pairs, 0.1 % apart in the mesh, left as lone
+/// modes: their axial profiles about the vertical differ.
 pub fn symmetry_axis(moments: [[f64; 3]; 3]) -> [f64; 3] {
     let m = nalgebra::Matrix3::from_fn(|r, c| 0.5 * (moments[r][c] + moments[c][r]));
     let eig = nalgebra::SymmetricEigen::new(m);

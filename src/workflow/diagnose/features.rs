@@ -92,7 +92,8 @@ pub(super) fn features(
         .map(|&l| eigen::frequency_hz(l))
         .collect();
     // The profiles are taken about the body's own axis through its centroid
-    // ([`evidence::symmetry_axis`]); a mesh of no volume is refused before the solve.
+    // ([`evidence::symmetry_axis`]). A mesh of no volume, which reading it refuses, would fall
+    // back to the support direction through the bounding box's centre.
     let (centre, axis) = match mesh.volume_moments() {
         Some((centre, moments)) => (centre, evidence::symmetry_axis(moments)),
         None => {
