@@ -119,7 +119,7 @@ pub(super) fn material(input: &StageInput<'_, '_>) -> Result<MaterialStage, Stri
                 )?;
                 let used = found.matched.distance < LOADED_MATCH_RATIO * start.distance;
                 progress.say(format!(
-                    "loaded line match: E = {:.4e} Pa, ν = {:.4}, {:.2} g ({:.2} % of the body) at surface vertex {} (distance {:.2e} against {:.2e} without; {}) in {:.1} s ({} regions enriched in {:.1} s, {} failed, {} factorisations in {:.1} s)",
+                    "loaded line match: E = {:.4e} Pa, ν = {:.4}, {:.2} g ({:.2} % of the body) at surface vertex {} (distance {:.2e} against {:.2e} without; {}) in {:.1} s ({} regions enriched in {:.1} s, {} failed, {} factorisations in {:.1} s; {} of {} distinct candidates checked by a full solve)",
                     found.matched.youngs,
                     found.matched.poisson,
                     1e3 * found.matched.mass_kg,
@@ -133,7 +133,9 @@ pub(super) fn material(input: &StageInput<'_, '_>) -> Result<MaterialStage, Stri
                     found.enrichment.seconds,
                     found.enrichment.failures,
                     found.enrichment.factorisations,
-                    found.enrichment.factor_seconds
+                    found.enrichment.factor_seconds,
+                    found.candidates_checked,
+                    found.candidates_checked + found.candidates_unchecked
                 ));
                 loaded = Some(LoadedMass { used, ..found });
             }

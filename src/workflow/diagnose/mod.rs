@@ -42,8 +42,9 @@
 //!    coarse pass and each candidate's first fine pass, then again at the ν the candidate
 //!    reached, for up to three re-anchored fine passes over ν ± 0.03 at its 8 nearest sites
 //!    (the plain ν can be far off: 0.354 for a true 0.188 on set2 case 012; module docs of
-//!    [`crate::inverse::loaded_match`], "Re-anchoring"). Each of the 4 candidates is checked
-//!    by a full solve with its mass, and the best checked one is the answer. If it at most
+//!    [`crate::inverse::loaded_match`], "Re-anchoring"). Of its 4 candidates, the best by its Ritz
+//!    distance and every other within 0.6 of the plain distance (one that could be carried)
+//!    is checked by a full solve with its mass, and the best checked one is the answer. If it at most
 //!    halves the plain distance, the simulation of stage 4 carries that mass: its modes are
 //!    matched to the
 //!    recording by their loaded frequencies (`SimulatedMode::match_frequency_hz`), while the
