@@ -65,6 +65,9 @@ fn refused(args: &[&str], needles: &[&str], out: &Path, seconds: f64) {
     }
     assert!(!out.exists(), "no output may be written: {}", out.display());
     assert!(took < seconds, "the refusal took {took:.1} s");
+    // Bad input is met by every rank together: the job ends with the message, not with
+    // MPI_Abort's screen.
+    assert!(!run.stderr.contains("MPI_ABORT"), "{}", run.describe());
     println!(
         "refused in {took:.1} s: {}",
         run.stderr

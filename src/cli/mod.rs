@@ -10,8 +10,12 @@
 //! ```
 //! Everything after `--` goes to PETSc/SLEPc and overrides our defaults.
 //!
-//! A failure on any rank ends the whole MPI job with a message and a non-zero exit (MPI_Abort),
-//! so a job never hangs waiting for a rank that gave up; a panic does the same. A rank that is
+//! An error that every rank meets together (bad input found in a collective stage, whose
+//! results and errors the ranks share) ends the job with its message printed once and exit
+//! code 1, PETSc and MPI finalised on every rank. A failure on one rank alone ends the whole
+//! MPI job with a message and a non-zero exit (MPI_Abort, after waiting 3 s for the others to
+//! fail with it), so a job never hangs waiting for a rank that gave up; a panic does the same
+//! at once. A rank that is
 //! stopped (SIGSTOP) ends the job after `--rank-timeout` seconds ([`crate::petsc::watchdog`]).
 
 pub mod diagnose;
@@ -107,11 +111,76 @@ pub(crate) fn with_petsc<E: ToString>(
     let petsc = crate::petsc::Petsc::initialize(universe, "diffsound", petsc_options)
         .map_err(|e| e.to_string())?;
     let (rank, size) = (petsc.rank(), petsc.size());
+    // The failure agreement's own communicator: its barrier can only ever meet the other
+    // ranks' failure barrier, never a collective of the work (a nonblocking barrier must not
+    // meet a blocking one).
+    let agreement = {
+        use mpi::topology::Communicator;
+        petsc.world().duplicate()
+    };
     let progress = stderr_progress(rank, verbose);
     match work(&petsc, &progress) {
         Ok(()) => Ok(()),
-        Err(e) => fail(rank, size, &e.to_string()),
+        Err(e) => {
+            let message = e.to_string();
+            if failed_together(&agreement, &message) {
+                // Every rank is here with its error: PETSc and MPI end together, and the
+                // job leaves with exit code 1 and the message alone, without MPI_Abort's
+                // screen of complaints.
+                drop(progress);
+                drop(agreement);
+                drop(petsc);
+                std::process::exit(1);
+            }
+            fail(rank, size, &message)
+        }
     }
+}
+
+/// Seconds a rank that failed waits for the others to fail with it ([`failed_together`]).
+/// An input error found inside a collective stage reaches every rank within milliseconds
+/// (the stages share their results and errors by broadcast); a rank still working elsewhere
+/// only delays the abort by this much.
+const AGREEMENT_SECONDS: f64 = 3.0;
+
+/// Whether every rank of `comm` failed (each calls this with its own error `message`): a
+/// nonblocking barrier on the agreement communicator, polled for [`AGREEMENT_SECONDS`]. If it
+/// completes, rank 0 prints its message once, and each other rank's message that differs from
+/// it, and every rank returns true. Otherwise nothing is printed, the barrier is left pending
+/// (the caller ends the job with MPI_Abort) and false is returned.
+fn failed_together(comm: &mpi::topology::SimpleCommunicator, message: &str) -> bool {
+    use mpi::collective::CommunicatorCollectives;
+    use mpi::point_to_point::{Destination, Source};
+    use mpi::topology::Communicator;
+    let mut pending = comm.immediate_barrier();
+    let started = std::time::Instant::now();
+    loop {
+        match pending.test() {
+            Ok(_) => break,
+            Err(still) => pending = still,
+        }
+        if started.elapsed().as_secs_f64() > AGREEMENT_SECONDS {
+            // The request stays pending: MPI_Abort follows, and a dropped pending request
+            // would panic first.
+            std::mem::forget(pending);
+            return false;
+        }
+        std::thread::sleep(std::time::Duration::from_millis(2));
+    }
+    let (rank, size) = (comm.rank(), comm.size());
+    if rank == 0 {
+        eprintln!("error: {message}");
+        for r in 1..size {
+            let (theirs, _) = comm.process_at_rank(r).receive_vec::<u8>();
+            let theirs = String::from_utf8_lossy(&theirs);
+            if theirs != message {
+                eprintln!("error (rank {r}): {theirs}");
+            }
+        }
+    } else {
+        comm.process_at_rank(0).send(message.as_bytes());
+    }
+    true
 }
 
 /// Width (characters) progress lines are wrapped at, the `[   1.23 s] ` prefix included.

@@ -490,11 +490,16 @@ pub(super) fn loaded_match(
     // ([`LOADED_MATCH_CHECK_RATIO`]).
     distinct.sort_by(|a, b| a.distance.total_cmp(&b.distance));
     let checkable = LOADED_MATCH_CHECK_RATIO * start.distance;
-    let (to_check, unchecked): (Vec<(usize, LoadedMatch)>, Vec<(usize, LoadedMatch)>) = distinct
-        .into_iter()
-        .enumerate()
-        .partition(|(i, c)| *i == 0 || c.distance <= checkable);
-    for (_, cand) in &unchecked {
+    let mut to_check: Vec<LoadedMatch> = Vec::with_capacity(distinct.len());
+    let mut unchecked: Vec<LoadedMatch> = Vec::new();
+    for (i, cand) in distinct.into_iter().enumerate() {
+        if i == 0 || cand.distance <= checkable {
+            to_check.push(cand);
+        } else {
+            unchecked.push(cand);
+        }
+    }
+    for cand in &unchecked {
         progress.say(format!(
             "  loaded candidate: ν = {:.4} (attachments at ν = {:.3}), {:.2} % of the body at surface vertex {}: Ritz distance {:.2e} > {LOADED_MATCH_CHECK_RATIO} of the plain {:.2e}, not checked by a full solve",
             cand.poisson,
@@ -507,7 +512,7 @@ pub(super) fn loaded_match(
     }
     let candidates_unchecked = unchecked.len();
     let candidates_checked = to_check.len();
-    for (_, cand) in to_check {
+    for cand in to_check {
         let material = Material {
             youngs_modulus: cand.youngs,
             poisson_ratio: cand.poisson,
