@@ -101,7 +101,8 @@
 //! Every observation is a row: ln f_k (σ = σ_f / f), ln d_k (σ_d / d, modes with d > 0),
 //! ln a_kc (σ_a / a, channels with a > 0, modes with drive > 0), the glide
 //! y_k = (f_early − f_late)/f_k (σ = √(σ_e² + σ_l²)/f), and for a split pair its mean ln f
-//! (σ = ½√(σ_l² + σ_u²)) and its split ln f_u − ln f_l (σ = √(σ_l² + σ_u²)) instead of the
+//! (σ = ½√(σ_l² + σ_u²)) and its split ln f_u − ln f_l (σ = √(σ_l² + σ_u²), with the split's
+//! model floors [`model::SPLIT_MODEL_FLOOR`] and [`model::CARRIED_MASS_SPLIT_FLOOR`]) instead of the
 //! two ln f, and likewise its mean ln d and its decay split ln d_u − ln d_l instead of the two
 //! ln d. Each row is Gaussian in its (log) quantity, r_i = observed − predicted, with
 //! variance σ_i² + τ_q² for q ∈ {ln f, ln d, glide, decay split}:

@@ -8,9 +8,11 @@
 //!
 //! Signature: a simulated degenerate cluster (two or more modes within the cluster tolerance)
 //! matched to two observed modes whose split ln f_u − ln f_l differs from the simulated split
-//! by more than 3σ, σ = √(σ_l² + σ_u² + (κ·split_sim)²) (in ln f; κ =
+//! by more than 3σ, σ = √(σ_l² + σ_u² + (κ·split_sim)² + (½δ)²) (in ln f; κ =
 //! [`super::model::SPLIT_MODEL_FLOOR`]: the simulated split is only known to 5 %; the model
-//! error common to both members of a pair cancels in their difference). A lone simulated mode
+//! error common to both members of a pair cancels in their difference; δ the shift of the
+//! pair's centre by a mass the simulation carries, whose footprint the split depends on:
+//! [`super::model::CARRIED_MASS_SPLIT_FLOOR`]). A lone simulated mode
 //! matched to two observed ones is not a candidate: the model has no near-degeneracy there.
 //!
 //! The two members of one split degenerate mode share the material's damping, but not

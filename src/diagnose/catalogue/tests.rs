@@ -6,6 +6,7 @@
 
 use std::f64::consts::PI;
 
+use super::model::{split_sigma, CARRIED_MASS_SPLIT_FLOOR, SPLIT_MODEL_FLOOR};
 use super::*;
 use crate::testing::Rng;
 
@@ -966,13 +967,11 @@ fn a_pair_split_as_the_mesh_splits_it_stands_for_its_own_members() {
     }
 }
 
-#[test]
-fn a_loaded_simulation_is_matched_by_its_loaded_frequencies() {
-    // A degenerate pair at 1000 Hz (baseline, the mass taken out) whose loaded members lie at
-    // 970 and 1000 Hz: the observed pair splits by 3 %, twice `max_pair_split`. Matched by the
-    // loaded frequencies, each observed mode finds its own member and stands for it (its mass
-    // weight), so an added mass reproduces the split; the baseline frequency stays the
-    // unloaded one.
+/// A simulation carrying a mass: a degenerate pair at 1000 Hz (baseline, the mass taken out)
+/// whose loaded members lie at 970 and 1000 Hz, between lone modes at 500 and 2000 Hz; the
+/// observed modes at the loaded frequencies. Returns the simulated and observed modes, and the
+/// table's split pair (lower, upper).
+fn loaded_pair() -> (Vec<SimulatedMode>, Vec<ObservedMode>, ModeEntry, ModeEntry) {
     let mut simulated = vec![
         sim(500.0, 0),
         sim(1000.0, 1),
@@ -1004,6 +1003,18 @@ fn a_loaded_simulation_is_matched_by_its_loaded_frequencies() {
             .clone()
     };
     let (lower, upper) = (find(Role::SplitLower), find(Role::SplitUpper));
+    (simulated, observed, lower, upper)
+}
+
+#[test]
+fn a_loaded_simulation_is_matched_by_its_loaded_frequencies() {
+    // The observed pair splits by 3 %, twice `max_pair_split`. Matched by the loaded
+    // frequencies, each observed mode finds its own member and stands for it (its mass
+    // weight), so an added mass reproduces the split; the baseline frequency stays the
+    // unloaded one.
+    let settings = CatalogueSettings::default();
+    let (simulated, observed, lower, upper) = loaded_pair();
+    let ln: Vec<f64> = observed.iter().map(|m| m.frequency_hz.ln()).collect();
     assert_eq!(
         (lower.simulated.clone(), upper.simulated.clone()),
         (vec![1], vec![2])
@@ -1027,6 +1038,10 @@ fn a_loaded_simulation_is_matched_by_its_loaded_frequencies() {
     assert!(
         !plain.units.iter().any(|u| u.role == Role::SplitLower),
         "{plain:?}"
+    );
+    assert!(
+        (lower.ln_f_carried - 970f64.ln()).abs() < 1e-12,
+        "the loaded frequency is kept beside it: {lower:?}"
     );
     // A bad match frequency is an input error.
     let (mut ev, _) = evidence(&Truth::default(), 1);
@@ -1303,6 +1318,36 @@ fn beating_pairs_are_found_and_their_splits_recovered() {
         "{:#?}",
         report.unexplained
     );
+}
+
+/// A carried mass's footprint is what the loaded line match knows least, so a split row of a
+/// pair the mass moves is trusted only to [`CARRIED_MASS_SPLIT_FLOOR`] of the mass's shift of
+/// the pair's centre (`model.rs`); a pair it leaves in place keeps the σ of its measurements
+/// and the mesh's split.
+#[test]
+fn a_carried_mass_loosens_the_split_rows_of_the_pairs_it_moves() {
+    let (_, _, lower, upper) = loaded_pair();
+    let measured = lower.sigma_ln_f.powi(2) + upper.sigma_ln_f.powi(2);
+    let mesh = (SPLIT_MODEL_FLOOR * (upper.ln_f_sim - lower.ln_f_sim)).powi(2);
+    // Loaded centre ½(ln 970 + ln 1000) against the unloaded ln 1000.
+    let shift = 0.5 * (1000.0f64 / 970.0).ln();
+    let sigma = split_sigma(&lower, &upper);
+    let expected = (measured + mesh + (CARRIED_MASS_SPLIT_FLOOR * shift).powi(2)).sqrt();
+    assert!(
+        (sigma - expected).abs() <= 1e-12 * expected,
+        "{sigma} against {expected}"
+    );
+    assert!(sigma > 0.4 * shift, "{sigma} against a shift of {shift}");
+    // The same pair without a carried mass.
+    let (mut l0, mut u0) = (lower.clone(), upper.clone());
+    l0.ln_f_carried = l0.ln_f_sim;
+    u0.ln_f_carried = u0.ln_f_sim;
+    let plain = split_sigma(&l0, &u0);
+    assert!(
+        (plain - (measured + mesh).sqrt()).abs() <= 1e-12 * plain,
+        "{plain}"
+    );
+    assert!(plain < 0.1 * sigma, "{plain} against {sigma}");
 }
 
 /// Evidence with clusters 3 and 8 split by 0.4 % and 0.2 %, and the observed (lower, upper)
