@@ -521,14 +521,21 @@ pub(super) fn loaded_match(
             unchecked.push(cand);
         }
     }
-    for cand in &unchecked {
-        progress.say(format!(
-            "  loaded candidate: ν = {:.4} (attachments at ν = {:.3}), {:.2} % of the body at surface vertex {}: Ritz distance {:.2e} > {LOADED_MATCH_CHECK_RATIO} of the plain {:.2e}, not checked by a full solve",
+    // A candidate as the progress lines name it, up to its Ritz distance.
+    let describe = |cand: &LoadedMatch| {
+        format!(
+            "ν = {:.4} (attachments at ν = {:.3}), {:.2} % of the body at surface vertex {}: Ritz distance {:.2e}",
             cand.poisson,
             cand.anchor_poisson,
             100.0 * cand.mass_kg / (density * volume),
             surface[regions[cand.region][0]],
             cand.distance,
+        )
+    };
+    for cand in &unchecked {
+        progress.say(format!(
+            "  loaded candidate: {} > {LOADED_MATCH_CHECK_RATIO} of the plain {:.2e}, not checked by a full solve",
+            describe(cand),
             start.distance,
         ));
     }
@@ -578,12 +585,8 @@ pub(super) fn loaded_match(
             &match_settings,
         );
         progress.say(format!(
-            "  loaded candidate: ν = {:.4} (attachments at ν = {:.3}), {:.2} % of the body at surface vertex {}: Ritz distance {:.2e}, full solve {:.2e} (E = {:.4e} Pa)",
-            cand.poisson,
-            cand.anchor_poisson,
-            100.0 * cand.mass_kg / (density * volume),
-            surface[regions[cand.region][0]],
-            cand.distance,
+            "  loaded candidate: {}, full solve {:.2e} (E = {:.4e} Pa)",
+            describe(&cand),
             distance,
             youngs
         ));
