@@ -82,23 +82,19 @@ pub(super) fn loaded_model_verdict(
     if let Err(why) = accepted {
         return Err(format!("the catalogue rejected the carried mass ({why})"));
     }
-    let centres_gain = split_free.map(|d| d.plain - d.loaded);
-    let reshapes = poisson_shift.abs() >= LOADED_MATCH_DECISIVE_POISSON_SHIFT
-        && centres_gain.is_none_or(|g| g >= LOADED_MATCH_MIN_SPLIT_FREE_GAIN);
-    if with < without || reshapes {
-        return Ok(());
-    }
-    let moves_centres = split_free.is_some_and(|d| {
-        d.loaded <= LOADED_MATCH_RATIO * d.plain
-            && d.plain - d.loaded >= LOADED_MATCH_MIN_SPLIT_FREE_GAIN
-    });
-    if moves_centres {
+    let decisive_shift = poisson_shift.abs() >= LOADED_MATCH_DECISIVE_POISSON_SHIFT;
+    // The lines' centres placed better, by the gain, once every split is forgiven.
+    let centres_gain = |d: &SplitFree| d.plain - d.loaded >= LOADED_MATCH_MIN_SPLIT_FREE_GAIN;
+    let reshapes = decisive_shift && split_free.is_none_or(|d| centres_gain(&d));
+    let moves_centres =
+        split_free.is_some_and(|d| d.loaded <= LOADED_MATCH_RATIO * d.plain && centres_gain(&d));
+    if with < without || reshapes || moves_centres {
         return Ok(());
     }
     let split_free = split_free.map_or("not measured".to_string(), |d| {
         format!("{:.2e} with it against {:.2e} without", d.loaded, d.plain)
     });
-    let shift = if poisson_shift.abs() >= LOADED_MATCH_DECISIVE_POISSON_SHIFT {
+    let shift = if decisive_shift {
         format!(
             "moves ν by {:.3} without placing the lines' centres better",
             poisson_shift.abs()
