@@ -49,7 +49,9 @@
 //! 1/W + τ_A², parent docs "Likelihood"); for 40 values of T
 //! log-spaced over [T_max/1000, T_max] the drop in Σ z² from adding ln |F(ω_k T)| plus the
 //! best constant and the best slope in ln ω (the gains absorb constants and the amplitude
-//! tilt slopes, and the fit refits both with T), the same with E over [T_max, 3π/ω_min], and
+//! tilt slopes, and the fit refits both with T) that keeps every channel's tilt within its
+//! bound (a fall steeper than the bound is the contact's, not a nuisance's), the same with E
+//! over [T_max, 3π/ω_min], and
 //! with the sin^p spectrum over 40 nulls f₀ log-spaced over [f_min, f_max] times p ∈ {1, 1.5,
 //! 2, 2.5, 3} (when f_max > 1.2 f_min); each variant whose best drop exceeds 1 goes on, the
 //! largest drop is the statistic. Without
@@ -229,6 +231,30 @@ pub fn half_sine_envelope(x: f64) -> f64 {
     }
 }
 
+/// The range [lo, hi] of a common slope t in ln ω that the channels' amplitude tilts can still
+/// take: η_c + t within the model's tilt bound for every channel c (module docs, "Detector").
+/// A fall steeper than the bound lets is not a nuisance (model::DEFAULT_TILT_BOUND), so the
+/// screen must not take it with a free slope: generator 2's tubes and cups recorded as a
+/// displacement (tilt −2) with a contact past its knee (another f⁻²) fitted their tilts at
+/// the bound −3, and the screen's free slope took the rest and found nothing.
+fn tilt_room(current: &Fit) -> (f64, f64) {
+    let bound = current.model.tilt_bound;
+    let tilts: Vec<f64> = (0..current.model.channels)
+        .map(|c| current.x[current.model.tilt_index(c)])
+        .collect();
+    if tilts.is_empty() {
+        return (f64::NEG_INFINITY, f64::INFINITY);
+    }
+    let lo = -bound - tilts.iter().copied().fold(f64::INFINITY, f64::min);
+    let hi = bound - tilts.iter().copied().fold(f64::NEG_INFINITY, f64::max);
+    // Tilts spread wider than the bound allows (not from a bounded fit): no common room.
+    if lo > hi {
+        (0.0, 0.0)
+    } else {
+        (lo, hi)
+    }
+}
+
 impl Effect for ContactDuration {
     fn name(&self) -> &'static str {
         "contact_duration"
@@ -263,23 +289,26 @@ impl Effect for ContactDuration {
         }
         let omega_max = points.iter().map(|p| p.0).fold(0.0, f64::max);
         let t_max = 2.9 * std::f64::consts::PI / omega_max;
+        let slopes = tilt_room(current);
         // Σ w (r − s(ω) − c − t ln ω)² at the best constant c and slope t (weighted least
-        // squares): the gains absorb constants and the amplitude tilt absorbs slopes, so only
-        // the shape that neither can take counts (the knee, the nulls).
+        // squares, t within what the tilts can still take): the gains absorb constants and the
+        // amplitude tilt absorbs slopes, so only the shape that neither can take counts (the
+        // knee, the nulls, and a fall steeper than the tilts' bound).
         let chi2 = |shift: &dyn Fn(f64) -> f64| -> f64 {
             let line: Vec<(f64, f64, f64)> = points
                 .iter()
                 .map(|p| (p.0.ln(), p.1 - shift(p.0), p.2))
                 .collect();
-            let (c, t) = match weighted_line(&line) {
-                Some((c, t, _)) => (c, t),
-                // One frequency: the constant alone, the weighted mean.
-                None => (
-                    line.iter().map(|p| p.2 * p.1).sum::<f64>()
-                        / line.iter().map(|p| p.2).sum::<f64>(),
-                    0.0,
-                ),
+            let mean = |t: f64| {
+                line.iter().map(|p| p.2 * (p.1 - t * p.0)).sum::<f64>()
+                    / line.iter().map(|p| p.2).sum::<f64>()
             };
+            let t = match weighted_line(&line) {
+                Some((_, t, _)) => t.clamp(slopes.0, slopes.1),
+                // One frequency: the constant alone, the weighted mean.
+                None => 0.0,
+            };
+            let c = mean(t);
             line.iter().map(|p| p.2 * (p.1 - c - t * p.0).powi(2)).sum()
         };
         let base = chi2(&|_| 0.0);
