@@ -389,6 +389,16 @@ impl Effect for ContactDuration {
             ));
             statistic = statistic.max(best.0);
         }
+        // What these modes cannot show (the report says so rather than "not found" alone):
+        // past its knee (u ≥ 2 at the lowest mode, T ≥ 1/f_min) a contact falls about as f⁻²
+        // (the envelope's 1/(u² − 1)), which a response recorded two derivatives lower makes
+        // too.
+        detail.push_str(&format!(
+            "; a contact longer than {:.3} ms would put every matched mode past its knee, \
+             where it falls about as f⁻² and only its nulls or a fall steeper than the tilts' \
+             bound set it apart from the response tilt",
+            1e3 / f_lo
+        ));
         if proposals.is_empty() {
             return Detection::Nothing { statistic, detail };
         }
