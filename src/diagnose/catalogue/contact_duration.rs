@@ -341,14 +341,9 @@ impl Effect for ContactDuration {
         let base = chi2(&|_| 0.0);
         // What the levels can test (module docs, "Testable shapes"): the distinct frequencies
         // they sit at, and the level parameters that shape them besides the contact's own.
-        let groups = level_groups(points.iter().map(|p| p.0.ln()));
-        let pinned = weighted_line(
-            &points
-                .iter()
-                .map(|p| (p.0.ln(), p.1, p.2))
-                .collect::<Vec<_>>(),
-        )
-        .is_some_and(|(_, t, _)| t < slopes.0 || t > slopes.1);
+        let levels: Vec<(f64, f64, f64)> = points.iter().map(|p| (p.0.ln(), p.1, p.2)).collect();
+        let groups = level_groups(levels.iter().map(|p| p.0));
+        let pinned = weighted_line(&levels).is_some_and(|(_, t, _)| t < slopes.0 || t > slopes.1);
         let level_params = if pinned { 1 } else { 2 };
         let testable = |shape_params: usize| groups > level_params + shape_params;
         let mut untestable: Vec<String> = Vec::new();
