@@ -51,6 +51,18 @@ impl Look {
     pub fn title_style(&self) -> TextStyle {
         TextStyle::new(self.title_size(), INK).bold()
     }
+    /// The title style for `title` on an image `width` pixels wide: the usual size, or smaller
+    /// so that the whole title fits between the margins (a diagnosis names every accepted
+    /// effect in its title, and a cut title hides which).
+    pub fn title_style_within(&self, title: &str, width: i32) -> TextStyle {
+        let room = (width - 2 * self.margin()).max(1) as f32;
+        let wide = text_size(title, &self.title_style()).0 as f32;
+        if wide <= room {
+            self.title_style()
+        } else {
+            TextStyle::new(self.title_size() * room / wide, INK).bold()
+        }
+    }
     /// Cap height of label text in pixels.
     pub fn text_h(&self) -> i32 {
         text_size("H", &self.style()).1 as i32

@@ -1144,3 +1144,30 @@ mod examples {
         line_plot(&dir.join("envelopes.svg"), &fig).unwrap();
     }
 }
+
+#[test]
+fn a_title_wider_than_the_image_is_shrunk_to_fit_between_the_margins() {
+    let dir = TempDir::new("plot-title");
+    let title = "standardised residuals per mode: baseline vs final (contact_duration, \
+                 non_rayleigh_damping, reverb_noise, beating_pair, added_mass, pitch_glide)";
+    let mut fig = LineFigure::new(title, "x", "y");
+    fig.series
+        .push(Series::line("a", vec![1.0, 2.0], vec![1.0, 2.0]));
+    let look = super::axes::Look::new(fig.scale);
+    // At the usual size this title is wider than the image.
+    assert!(text_size(title, &look.title_style()).0 as i32 > fig.width as i32);
+    let path = dir.path("t.png");
+    line_plot_png(&path, &fig).unwrap();
+    let (w, _, data) = decode(&path);
+    // The title band: from the top margin down one title line.
+    let (top, bottom) = (look.margin(), look.margin() + look.title_h() + look.descent());
+    let inked = |x: i32| (top..bottom).any(|y| px(&data, w, x, y) != BACKGROUND);
+    let columns: Vec<i32> = (0..w as i32).filter(|&x| inked(x)).collect();
+    let (first, last) = (columns[0], *columns.last().unwrap());
+    // Ink spans most of the width and stays inside the margins (not cut at either edge).
+    assert!(first >= look.margin() - 1 && last <= w as i32 - look.margin(), "{first} {last}");
+    assert!(last - first > (w as i32) / 2, "{first} {last}");
+    // A title that fits keeps the usual size.
+    let short = look.title_style_within("t", fig.width as i32);
+    assert_eq!(short.size, look.title_style().size);
+}
