@@ -58,6 +58,7 @@ import numpy as np
 HERE = os.path.dirname(os.path.abspath(__file__))
 ROOT = os.path.abspath(os.path.join(HERE, "..", "..", ".."))
 BIN = os.path.join(ROOT, "target/release/diffsound")  # set by --bin
+ONLY_OBJECT = None  # set by --object (focused calibration sets only)
 SR = 44100
 FMAX = 9000.0
 DURATION = 1.5
@@ -212,6 +213,8 @@ def draw_object(rng, effect, control, np_ranks, work):
     name = str(rng.choice(list(OBJECTS)))
     if effect == "beating_pair":
         name = str(rng.choice(["tube", "cup"]))
+    if ONLY_OBJECT is not None:
+        name = ONLY_OBJECT
     geo, rho, (e_lo, e_hi), nus, _ = OBJECTS[name]
     nu = float(rng.choice(nus))
     youngs = float(rng.uniform(e_lo, e_hi))
@@ -400,9 +403,15 @@ def main():
     ap.add_argument("--np", type=int, default=2)
     ap.add_argument("--bin", default=os.path.join(ROOT, "target/release/diffsound"),
                     help="the diffsound binary (a frozen build for a blind run)")
+    ap.add_argument("--effect", choices=EFFECTS + ["clean"],
+                    help="a focused calibration set: every case has this effect (or none); "
+                         "blind runs leave it unset")
+    ap.add_argument("--object", choices=list(OBJECTS),
+                    help="a focused calibration set: every case on this object")
     a = ap.parse_args()
-    global BIN
+    global BIN, ONLY_OBJECT
     BIN = os.path.abspath(a.bin)
+    ONLY_OBJECT = a.object
     os.makedirs(os.path.join(a.out, "labels"), exist_ok=True)
     work = os.path.join(a.out, "objects")
     os.makedirs(work, exist_ok=True)
@@ -414,6 +423,8 @@ def main():
             plan.append((None, "uniform_shift" if (i // 3) % 2 else "clean"))
         else:
             plan.append((EFFECTS[(i - i // 3 - 1) % len(EFFECTS)], None))
+    if a.effect is not None:
+        plan = [(None, "clean") if a.effect == "clean" else (a.effect, None)] * a.cases
     order = rng.permutation(a.cases)
     for idx, j in enumerate(order):
         effect, control = plan[j]

@@ -5,13 +5,16 @@
 # labels and score (score.py).
 #
 #   bash scripts/bench/gen2/run.sh [--cases 24] [--seed 7] [--np 2] [--out out/gen2] [--bin PATH]
+#                                  [--effect NAME|clean] [--object plate|tube|cup]
 #
 # --bin runs a given (frozen) diffsound binary instead of building target/release/diffsound, so a
-# blind run is not disturbed by development in the same tree.
+# blind run is not disturbed by development in the same tree. --effect and --object make a
+# focused calibration set (every case with that effect, or clean, on that object); a blind run
+# leaves them unset.
 set -euo pipefail
 cd "$(dirname "$0")/../../.."
 source scripts/mpi-env.sh
-cases=24; seed=7; np=2; out=out/gen2; bin=""
+cases=24; seed=7; np=2; out=out/gen2; bin=""; focus=()
 while [ $# -gt 0 ]; do
   case "$1" in
     --cases) cases="$2"; shift 2 ;;
@@ -19,6 +22,7 @@ while [ $# -gt 0 ]; do
     --np) np="$2"; shift 2 ;;
     --out) out="$2"; shift 2 ;;
     --bin) bin="$2"; shift 2 ;;
+    --effect|--object) focus+=("$1" "$2"); shift 2 ;;
     *) echo "unknown option $1" >&2; exit 2 ;;
   esac
 done
@@ -30,7 +34,7 @@ if [ -z "$bin" ]; then
   bin=target/release/diffsound
 fi
 mkdir -p "$out"
-[ -d "$out/labels" ] && [ "$(ls "$out"/labels | wc -l)" -ge "$cases" ] || "$PY" scripts/bench/gen2/generate.py --out "$out" --cases "$cases" --seed "$seed" --np "$np" --bin "$bin"
+[ -d "$out/labels" ] && [ "$(ls "$out"/labels | wc -l)" -ge "$cases" ] || "$PY" scripts/bench/gen2/generate.py --out "$out" --cases "$cases" --seed "$seed" --np "$np" --bin "$bin" "${focus[@]}"
 for dir in "$out"/case_*; do
   [ -f "$dir/diagnosis.json" ] && continue
   mapfile -t args < <("$PY" -c "import json,sys; print('\n'.join(json.load(open(sys.argv[1]))))" "$dir/args.json")
