@@ -184,6 +184,9 @@ impl Term for HalfSineContact {
             self.shape.level(w * p[0]).max(FLOOR).ln()
         });
     }
+    fn shapes_levels(&self) -> bool {
+        true
+    }
 }
 
 /// The sin^p pulse with its nulls inside the band (module docs, "Nulls inside the band"):
@@ -230,6 +233,9 @@ impl Term for SinePowerContact {
     fn amplitude(&self, table: &ModeTable, p: &[f64], ln_f: &[f64], ln_a: &mut [f64]) {
         let t = sine_power_duration(p[0], p[1]);
         add_on_every_channel(table, ln_f, ln_a, |w| sine_power_ln_level(w * t, p[1]));
+    }
+    fn shapes_levels(&self) -> bool {
+        true
     }
 }
 

@@ -222,7 +222,7 @@ fn held_out_change(
     settings: &CatalogueSettings,
 ) -> Option<HeldOutChange> {
     let k = settings.held_out_huber_k;
-    let yardstick = held_out_yardstick(&before.tau2, &after.tau2);
+    let yardstick = held_out_yardstick(&before.tau2, &after.tau2, term.shapes_levels());
     let b = held_out_chi2(before, held, &yardstick, k)?;
     let a = held_out_chi2(after, held, &yardstick, k)?;
     let dispersion = if settings.held_out_dispersion {
@@ -239,16 +239,29 @@ fn held_out_change(
 }
 
 /// The floors that whiten both models' held-out rows in [`held_out_change`]: `before`'s, but
-/// the glide floor the smaller of the two (parent docs, "Selection"). The glide floor is
+/// the glide floor the smaller of the two, and for a term that shapes the levels
+/// (`shapes_levels`, [`Term::shapes_levels`]) the amplitude floors too (parent docs,
+/// "Selection"). The glide floor is
 /// profiled about the model's own prediction, y = 0 without a glide term, so before a glide
 /// enters it has swallowed the very glide under test, and every held-out glide row is judged
 /// on that inflated scale, where the Student-t rows grow only logarithmically. Unlike the
 /// amplitude floor it stands for no nuisance (nothing a user cannot know makes a glide), so the
 /// smaller scale is the fair one for both models. Every other effect leaves it where it was.
-fn held_out_yardstick(before: &FloorVariances, after: &FloorVariances) -> FloorVariances {
+fn held_out_yardstick(
+    before: &FloorVariances,
+    after: &FloorVariances,
+    shapes_levels: bool,
+) -> FloorVariances {
     let mut yardstick = *before;
+    let mut smaller = |q: usize| yardstick[q] = before[q].min(after[q]);
     if let Some(q) = Quantity::Glide.floor_index() {
-        yardstick[q] = before[q].min(after[q]);
+        smaller(q);
+    }
+    if shapes_levels {
+        if let Some(q) = Quantity::LnAmplitude.floor_index() {
+            smaller(q);
+        }
+        smaller(LEVEL_FLOOR);
     }
     yardstick
 }
@@ -1143,13 +1156,35 @@ mod tests {
             .expect("glide rows have a floor");
         let before: FloorVariances = [1e-6, 0.04, 0.3, 0.0, 4e-6, 0.01];
         let mut after = [2e-6, 0.01, 0.1, 0.0, 1e-8, 0.001];
-        let yardstick = held_out_yardstick(&before, &after);
+        let yardstick = held_out_yardstick(&before, &after, false);
         for (i, (y, b)) in yardstick.iter().zip(&before).enumerate() {
             assert_eq!(*y, if i == q { 1e-8 } else { *b }, "floor {i}");
         }
         // A larger glide floor after (a term that misfits the glides) does not loosen it.
         after[q] = 1e-5;
-        assert_eq!(held_out_yardstick(&before, &after), before);
+        assert_eq!(held_out_yardstick(&before, &after, false), before);
+    }
+
+    /// A term that shapes the levels (a contact) is judged on the smaller amplitude floors as
+    /// well (the per-row one and the per-mode level one); the other floors stay the model
+    /// before's, and a larger amplitude floor after does not loosen the yardstick.
+    #[test]
+    fn a_level_shape_is_judged_on_the_smaller_amplitude_floors() {
+        let a = Quantity::LnAmplitude
+            .floor_index()
+            .expect("amplitude rows have a floor");
+        let g = Quantity::Glide
+            .floor_index()
+            .expect("glide rows have a floor");
+        let before: FloorVariances = [1e-6, 0.04, 0.21, 0.05, 4e-6, 0.01];
+        let after = [2e-6, 0.01, 0.08, 0.02, 1e-8, 0.001];
+        let yardstick = held_out_yardstick(&before, &after, true);
+        for (i, (y, b)) in yardstick.iter().zip(&before).enumerate() {
+            let smaller = i == a || i == LEVEL_FLOOR || i == g;
+            assert_eq!(*y, if smaller { after[i] } else { *b }, "floor {i}");
+        }
+        let looser = [2e-6, 0.01, 0.3, 0.09, 4e-6, 0.001];
+        assert_eq!(held_out_yardstick(&before, &looser, true), before);
     }
 
     /// A held-out fall counts only when Σz² drops by more than `min_held_out_gain`.

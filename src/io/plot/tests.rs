@@ -1160,12 +1160,18 @@ fn a_title_wider_than_the_image_is_shrunk_to_fit_between_the_margins() {
     line_plot_png(&path, &fig).unwrap();
     let (w, _, data) = decode(&path);
     // The title band: from the top margin down one title line.
-    let (top, bottom) = (look.margin(), look.margin() + look.title_h() + look.descent());
+    let (top, bottom) = (
+        look.margin(),
+        look.margin() + look.title_h() + look.descent(),
+    );
     let inked = |x: i32| (top..bottom).any(|y| px(&data, w, x, y) != BACKGROUND);
     let columns: Vec<i32> = (0..w as i32).filter(|&x| inked(x)).collect();
     let (first, last) = (columns[0], *columns.last().unwrap());
     // Ink spans most of the width and stays inside the margins (not cut at either edge).
-    assert!(first >= look.margin() - 1 && last <= w as i32 - look.margin(), "{first} {last}");
+    assert!(
+        first >= look.margin() - 1 && last <= w as i32 - look.margin(),
+        "{first} {last}"
+    );
     assert!(last - first > (w as i32) / 2, "{first} {last}");
     // A title that fits keeps the usual size.
     let short = look.title_style_within("t", fig.width as i32);
