@@ -3618,7 +3618,7 @@ fn one_microphone(modes: &mut [ObservedMode], sigma: f64, rng: &mut Rng) {
 }
 
 /// The fewest microphones a user can give: one fit and one held out, each mode's level off by
-/// its own ±30 % at each, and every other mode only (about 16 modes, as a small plate gives).
+/// its own ±30 % at each, and every other mode only (few modes, as a small plate gives).
 /// A hard mallet's knee (a 0.16 ms Hertzian pulse) is fitted on the one microphone, where it
 /// and the per-mode scatter share the amplitude floor, so the floor before the contact has
 /// swallowed part of the shape; the held-out microphone is judged on the smaller floor
