@@ -758,7 +758,7 @@ fn draw<D: Draw>(c: &mut D, fig: &LineFigure, l: &LineLayout) {
     }
     if !fig.title.is_empty() {
         // Centred on the plot area, or on the image if it is too wide for that.
-        let style = look.title_style_within(&fig.title, fig.width as i32);
+        let style = look.title_style_within(&fig.title, w);
         let tw = text_size(&fig.title, &style).0 as i32;
         let mid = (plot.x0 + plot.x1) / 2;
         let x = if mid - tw / 2 >= look.margin() && mid + tw / 2 <= w - look.margin() {

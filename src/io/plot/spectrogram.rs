@@ -416,7 +416,9 @@ pub(crate) fn render_spectrogram(
             width / 2,
             look.margin(),
             &fig.title,
-            &look.title_style().align(HAlign::Center, VAlign::Top),
+            &look
+                .title_style_within(&fig.title, width)
+                .align(HAlign::Center, VAlign::Top),
         );
     }
     Ok((c, layout))

@@ -1177,3 +1177,28 @@ fn a_title_wider_than_the_image_is_shrunk_to_fit_between_the_margins() {
     let short = look.title_style_within("t", fig.width as i32);
     assert_eq!(short.size, look.title_style().size);
 }
+
+#[test]
+fn a_spectrograms_title_wider_than_the_image_is_shrunk_to_fit_between_the_margins() {
+    let dir = TempDir::new("plot-spec-title");
+    let db = vec![0.0; 12];
+    let title = "where the modes do not explain the recording, and what every microphone \
+                 heard beside it, channel by channel, band by band";
+    let fig = SpectrogramFigure::new(title, vec![tiny_panel(&db, 4, 3)]);
+    let look = super::axes::Look::new(fig.scale);
+    let path = dir.path("s.png");
+    spectrogram_png(&path, &fig).unwrap();
+    let (w, _, data) = decode(&path);
+    assert!(text_size(title, &look.title_style()).0 > w);
+    let (top, bottom) = (
+        look.margin(),
+        look.margin() + look.title_h() + look.descent(),
+    );
+    let inked = |x: i32| (top..bottom).any(|y| px(&data, w, x, y) != BACKGROUND);
+    let columns: Vec<i32> = (0..w as i32).filter(|&x| inked(x)).collect();
+    let (first, last) = (columns[0], *columns.last().unwrap());
+    assert!(
+        first >= look.margin() - 1 && last <= w as i32 - look.margin(),
+        "{first} {last}"
+    );
+}
