@@ -1145,6 +1145,19 @@ mod examples {
     }
 }
 
+/// The first and last columns with ink in the title band of the PNG at `path` (from the top
+/// margin down one title line), and the image width.
+fn title_ink(path: &Path, look: &super::axes::Look) -> (i32, i32, i32) {
+    let (w, _, data) = decode(path);
+    let (top, bottom) = (
+        look.margin(),
+        look.margin() + look.title_h() + look.descent(),
+    );
+    let inked = |x: i32| (top..bottom).any(|y| px(&data, w, x, y) != BACKGROUND);
+    let columns: Vec<i32> = (0..w as i32).filter(|&x| inked(x)).collect();
+    (columns[0], *columns.last().unwrap(), w as i32)
+}
+
 #[test]
 fn a_title_wider_than_the_image_is_shrunk_to_fit_between_the_margins() {
     let dir = TempDir::new("plot-title");
@@ -1158,21 +1171,13 @@ fn a_title_wider_than_the_image_is_shrunk_to_fit_between_the_margins() {
     assert!(text_size(title, &look.title_style()).0 as i32 > fig.width as i32);
     let path = dir.path("t.png");
     line_plot_png(&path, &fig).unwrap();
-    let (w, _, data) = decode(&path);
-    // The title band: from the top margin down one title line.
-    let (top, bottom) = (
-        look.margin(),
-        look.margin() + look.title_h() + look.descent(),
-    );
-    let inked = |x: i32| (top..bottom).any(|y| px(&data, w, x, y) != BACKGROUND);
-    let columns: Vec<i32> = (0..w as i32).filter(|&x| inked(x)).collect();
-    let (first, last) = (columns[0], *columns.last().unwrap());
+    let (first, last, w) = title_ink(&path, &look);
     // Ink spans most of the width and stays inside the margins (not cut at either edge).
     assert!(
-        first >= look.margin() - 1 && last <= w as i32 - look.margin(),
+        first >= look.margin() - 1 && last <= w - look.margin(),
         "{first} {last}"
     );
-    assert!(last - first > (w as i32) / 2, "{first} {last}");
+    assert!(last - first > w / 2, "{first} {last}");
     // A title that fits keeps the usual size.
     let short = look.title_style_within("t", fig.width as i32);
     assert_eq!(short.size, look.title_style().size);
@@ -1188,17 +1193,10 @@ fn a_spectrograms_title_wider_than_the_image_is_shrunk_to_fit_between_the_margin
     let look = super::axes::Look::new(fig.scale);
     let path = dir.path("s.png");
     spectrogram_png(&path, &fig).unwrap();
-    let (w, _, data) = decode(&path);
-    assert!(text_size(title, &look.title_style()).0 > w);
-    let (top, bottom) = (
-        look.margin(),
-        look.margin() + look.title_h() + look.descent(),
-    );
-    let inked = |x: i32| (top..bottom).any(|y| px(&data, w, x, y) != BACKGROUND);
-    let columns: Vec<i32> = (0..w as i32).filter(|&x| inked(x)).collect();
-    let (first, last) = (columns[0], *columns.last().unwrap());
+    let (first, last, w) = title_ink(&path, &look);
+    assert!(text_size(title, &look.title_style()).0 as i32 > w);
     assert!(
-        first >= look.margin() - 1 && last <= w as i32 - look.margin(),
+        first >= look.margin() - 1 && last <= w - look.margin(),
         "{first} {last}"
     );
 }
