@@ -320,6 +320,14 @@ fn print_report(r: &Report) {
             p.observed_hz, p.beside_hz, p.cluster
         );
     }
+    if let Some(r) = &report.matching.room_held {
+        println!(
+            "  room: {} fit and {} held-out modes decay at least as fast as the room ({:.1} 1/s, ln(10³)/T60); only their frequencies count",
+            r.frequencies_hz.len(),
+            r.held_out_modes,
+            r.room_decay_rate
+        );
+    }
     let ho = |v: Option<f64>| v.map_or("n/a".to_string(), |v| format!("{v:.3}"));
     let gain = |g: Option<f64>| g.map_or(String::new(), |g| format!(" (Σz² gain {g:.1})"));
     println!(

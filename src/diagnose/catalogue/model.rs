@@ -267,6 +267,112 @@ pub struct Pole {
     pub peaks: Vec<f64>,
 }
 
+/// The rows of a table's modes and split pairs, the indices of those that are not amplitudes,
+/// and the amplitude rows grouped per mode ([`ModeTable`]'s `rows`, `other_rows`,
+/// `amplitude_groups`).
+#[allow(clippy::type_complexity)]
+fn rows_of(
+    modes: &[ModeEntry],
+    pairs: &[SplitPair],
+) -> (Vec<Row>, Vec<usize>, Vec<(usize, Vec<usize>)>) {
+    let mut rows = Vec::new();
+    let in_pair = |k: usize| pairs.iter().any(|p| p.lower == k || p.upper == k);
+    for (k, m) in modes.iter().enumerate() {
+        if !in_pair(k) {
+            rows.push(Row {
+                kind: RowKind::LnF(k),
+                value: m.ln_f,
+                sigma: m.sigma_ln_f,
+            });
+        }
+    }
+    for p in pairs {
+        let (l, u) = (&modes[p.lower], &modes[p.upper]);
+        let var = l.sigma_ln_f.powi(2) + u.sigma_ln_f.powi(2);
+        rows.push(Row {
+            kind: RowKind::PairMean(p.lower, p.upper),
+            value: 0.5 * (l.ln_f + u.ln_f),
+            sigma: 0.5 * var.sqrt(),
+        });
+        rows.push(Row {
+            kind: RowKind::Split(p.lower, p.upper),
+            value: u.ln_f - l.ln_f,
+            sigma: split_sigma(l, u),
+        });
+    }
+    // Decay rates of a split pair as their mean (with the profiled floor: a damping law's
+    // misfit is common to two modes this close) and their split (with a small fixed floor
+    // only), as for frequencies: a split that a smooth damping law cannot give, such as
+    // a support damping one mode of the pair more than the other, is then measured to the
+    // extraction's own precision instead of drowning in the law's floor.
+    let decay_pair = |k: usize| {
+        pairs.iter().find(|p| {
+            (p.lower == k || p.upper == k)
+                && modes[p.lower].ln_d.is_some()
+                && modes[p.upper].ln_d.is_some()
+        })
+    };
+    for (k, m) in modes.iter().enumerate() {
+        if let Some((v, s)) = m.ln_d {
+            if decay_pair(k).is_none() {
+                rows.push(Row {
+                    kind: RowKind::LnD(k),
+                    value: v,
+                    sigma: s,
+                });
+            }
+        }
+    }
+    for p in pairs {
+        let (Some((dl, sl)), Some((du, su))) = (modes[p.lower].ln_d, modes[p.upper].ln_d) else {
+            continue;
+        };
+        rows.push(Row {
+            kind: RowKind::PairMeanLnD(p.lower, p.upper),
+            value: 0.5 * (dl + du),
+            sigma: 0.5 * (sl * sl + su * su).sqrt(),
+        });
+        rows.push(Row {
+            kind: RowKind::DecaySplit(p.lower, p.upper),
+            value: du - dl,
+            sigma: (sl * sl + su * su).sqrt(),
+        });
+    }
+    for (k, m) in modes.iter().enumerate() {
+        for (c, a) in m.ln_a.iter().enumerate() {
+            if let Some((v, s)) = *a {
+                rows.push(Row {
+                    kind: RowKind::LnA(k, c),
+                    value: v,
+                    sigma: s,
+                });
+            }
+        }
+    }
+    for (k, m) in modes.iter().enumerate() {
+        if let Some((v, s)) = m.glide {
+            rows.push(Row {
+                kind: RowKind::Glide(k),
+                value: v,
+                sigma: s,
+            });
+        }
+    }
+    let other_rows = (0..rows.len())
+        .filter(|&i| rows[i].kind.quantity() != Quantity::LnAmplitude)
+        .collect();
+    let mut amplitude_groups: Vec<(usize, Vec<usize>)> = Vec::new();
+    for (i, row) in rows.iter().enumerate() {
+        if let RowKind::LnA(k, _) = row.kind {
+            match amplitude_groups.last_mut() {
+                Some((last, list)) if *last == k => list.push(i),
+                _ => amplitude_groups.push((k, vec![i])),
+            }
+        }
+    }
+    (rows, other_rows, amplitude_groups)
+}
+
 /// Drive²-weighted mean of `value` over `modes` (plain mean if every drive is zero).
 fn drive_weighted(
     simulated: &[SimulatedMode],
@@ -552,102 +658,7 @@ impl ModeTable {
                 }
             }
         }
-        let mut rows = Vec::new();
-        let in_pair = |k: usize| pairs.iter().any(|p| p.lower == k || p.upper == k);
-        for (k, m) in modes.iter().enumerate() {
-            if !in_pair(k) {
-                rows.push(Row {
-                    kind: RowKind::LnF(k),
-                    value: m.ln_f,
-                    sigma: m.sigma_ln_f,
-                });
-            }
-        }
-        for p in &pairs {
-            let (l, u) = (&modes[p.lower], &modes[p.upper]);
-            let var = l.sigma_ln_f.powi(2) + u.sigma_ln_f.powi(2);
-            rows.push(Row {
-                kind: RowKind::PairMean(p.lower, p.upper),
-                value: 0.5 * (l.ln_f + u.ln_f),
-                sigma: 0.5 * var.sqrt(),
-            });
-            rows.push(Row {
-                kind: RowKind::Split(p.lower, p.upper),
-                value: u.ln_f - l.ln_f,
-                sigma: split_sigma(l, u),
-            });
-        }
-        // Decay rates of a split pair as their mean (with the profiled floor: a damping law's
-        // misfit is common to two modes this close) and their split (with a small fixed floor
-        // only), as for frequencies: a split that a smooth damping law cannot give, such as
-        // a support damping one mode of the pair more than the other, is then measured to the
-        // extraction's own precision instead of drowning in the law's floor.
-        let decay_pair = |k: usize| {
-            pairs.iter().find(|p| {
-                (p.lower == k || p.upper == k)
-                    && modes[p.lower].ln_d.is_some()
-                    && modes[p.upper].ln_d.is_some()
-            })
-        };
-        for (k, m) in modes.iter().enumerate() {
-            if let Some((v, s)) = m.ln_d {
-                if decay_pair(k).is_none() {
-                    rows.push(Row {
-                        kind: RowKind::LnD(k),
-                        value: v,
-                        sigma: s,
-                    });
-                }
-            }
-        }
-        for p in &pairs {
-            let (Some((dl, sl)), Some((du, su))) = (modes[p.lower].ln_d, modes[p.upper].ln_d)
-            else {
-                continue;
-            };
-            rows.push(Row {
-                kind: RowKind::PairMeanLnD(p.lower, p.upper),
-                value: 0.5 * (dl + du),
-                sigma: 0.5 * (sl * sl + su * su).sqrt(),
-            });
-            rows.push(Row {
-                kind: RowKind::DecaySplit(p.lower, p.upper),
-                value: du - dl,
-                sigma: (sl * sl + su * su).sqrt(),
-            });
-        }
-        for (k, m) in modes.iter().enumerate() {
-            for (c, a) in m.ln_a.iter().enumerate() {
-                if let Some((v, s)) = *a {
-                    rows.push(Row {
-                        kind: RowKind::LnA(k, c),
-                        value: v,
-                        sigma: s,
-                    });
-                }
-            }
-        }
-        for (k, m) in modes.iter().enumerate() {
-            if let Some((v, s)) = m.glide {
-                rows.push(Row {
-                    kind: RowKind::Glide(k),
-                    value: v,
-                    sigma: s,
-                });
-            }
-        }
-        let other_rows = (0..rows.len())
-            .filter(|&i| rows[i].kind.quantity() != Quantity::LnAmplitude)
-            .collect();
-        let mut amplitude_groups: Vec<(usize, Vec<usize>)> = Vec::new();
-        for (i, row) in rows.iter().enumerate() {
-            if let RowKind::LnA(k, _) = row.kind {
-                match amplitude_groups.last_mut() {
-                    Some((last, list)) if *last == k => list.push(i),
-                    _ => amplitude_groups.push((k, vec![i])),
-                }
-            }
-        }
+        let (rows, other_rows, amplitude_groups) = rows_of(&modes, &pairs);
         ModeTable {
             modes,
             channels,
@@ -674,6 +685,30 @@ impl ModeTable {
                 })
                 .collect(),
         }
+    }
+
+    /// Sets aside the decay and level rows of every mode whose observed decay rate is at least
+    /// `room_decay_rate` \[1/s\] (parent docs, "A room holds up the fast modes"): the pole
+    /// extracted at its frequency is the room's reverberant tail as much as the mode's. Its
+    /// frequency rows stay. Returns the indices of the modes set aside.
+    pub fn set_aside_room_held(&mut self, room_decay_rate: f64) -> Vec<usize> {
+        let held: Vec<usize> = (0..self.modes.len())
+            .filter(|&k| {
+                self.modes[k]
+                    .ln_d
+                    .is_some_and(|(ln_d, _)| ln_d >= room_decay_rate.ln())
+            })
+            .collect();
+        if held.is_empty() {
+            return held;
+        }
+        for &k in &held {
+            let m = &mut self.modes[k];
+            m.ln_d = None;
+            m.ln_a.iter_mut().for_each(|a| *a = None);
+        }
+        (self.rows, self.other_rows, self.amplitude_groups) = rows_of(&self.modes, &self.pairs);
+        held
     }
 
     /// Widens the decay rows of the poles that stand for an unresolved cluster by how far the

@@ -101,6 +101,22 @@ pub struct MatchingReport {
     /// Held-out modes matched (with the fit's scale), and those left over.
     pub held_out_matched: Option<usize>,
     pub held_out_unmatched: Option<Vec<usize>>,
+    /// The modes whose decay and level rows were set aside as the room's (parent docs, "A room
+    /// holds up the fast modes"); None without an established room.
+    #[serde(default)]
+    pub room_held: Option<RoomHeld>,
+}
+
+/// Matched modes that decay at least as fast as an established room: their poles are the
+/// room's tail as much as theirs, so only their frequencies count.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct RoomHeld {
+    /// The room's amplitude decay rate ln(10³)/T60, 1/s.
+    pub room_decay_rate: f64,
+    /// Observed frequencies of the fit table's modes set aside, Hz.
+    pub frequencies_hz: Vec<f64>,
+    /// How many of the held-out table's modes were set aside.
+    pub held_out_modes: usize,
 }
 
 /// An effect the selection accepted.

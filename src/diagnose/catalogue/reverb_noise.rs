@@ -513,6 +513,30 @@ pub(super) fn room_established(evaluation: &OwnEvaluation, settings: &CatalogueS
     }
 }
 
+/// ln(10³): a mode's amplitude falls by 60 dB in T60 when it decays at ln(10³)/T60 1/s.
+const SIXTY_DB_AMPLITUDE: f64 = 6.907755278982137;
+
+/// The slowest amplitude decay rate the room's fit allows, ln(10³)/(T60 + 2σ_T60) \[1/s\],
+/// when the room is established on its own evidence ([`room_established`]); None otherwise.
+/// The upper end of T60's interval: a mode that decays within the estimate's own uncertainty
+/// of the room's rate cannot be told from the room's tail (parent docs, "A room holds up the
+/// fast modes").
+pub(super) fn room_decay_rate(
+    evaluation: &OwnEvaluation,
+    settings: &CatalogueSettings,
+) -> Option<f64> {
+    if !room_established(evaluation, settings) {
+        return None;
+    }
+    match &evaluation.outcome {
+        OwnOutcome::Fitted { params, .. } => params
+            .first()
+            .map(|t60| SIXTY_DB_AMPLITUDE / (t60.value + 2.0 * t60.sigma.unwrap_or(0.0)))
+            .filter(|d| d.is_finite() && *d > 0.0),
+        _ => None,
+    }
+}
+
 /// The baseline nuisance term for the level colouration (module docs), fitted from κ = 0.
 pub(super) fn level_colouration(ln_f_centre: f64) -> (Arc<dyn Term>, Vec<f64>) {
     (Arc::new(LevelColouration { ln_f_centre }), vec![0.0])

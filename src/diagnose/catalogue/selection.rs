@@ -416,6 +416,7 @@ fn matching_report(
     m: &Matching,
     table: &ModeTable,
     held: Option<&Matching>,
+    room_held: Option<RoomHeld>,
 ) -> MatchingReport {
     let scale = m.ln_scale.exp();
     MatchingReport {
@@ -447,6 +448,7 @@ fn matching_report(
             .collect(),
         held_out_matched: held.map(|h| h.units.len()),
         held_out_unmatched: held.map(|h| h.unmatched_observed.clone()),
+        room_held,
     }
 }
 
@@ -740,6 +742,40 @@ pub fn diagnose_with(
         );
         (t, m)
     });
+    // The effects evaluated on their own data (the room, on the residual envelopes): first,
+    // because an established room decides which modal rows are the object's.
+    let own: Vec<_> = effects
+        .iter()
+        .map(|e| e.evaluate_own(evidence, settings))
+        .collect();
+    let room_decay = effects.iter().zip(&own).find_map(|(e, o)| {
+        (e.name() == "reverb_noise")
+            .then(|| {
+                o.as_ref()
+                    .and_then(|o| super::reverb_noise::room_decay_rate(o, settings))
+            })
+            .flatten()
+    });
+    // A room holds up the modes that decay faster than it (parent docs): their decay and
+    // level rows are the room's.
+    let mut room_held: Option<RoomHeld> = None;
+    if let Some(d_room) = room_decay.filter(|_| settings.room_held_rows) {
+        let fit_modes = table.set_aside_room_held(d_room);
+        let held_modes = held
+            .as_mut()
+            .map_or_else(Vec::new, |(t, _)| t.set_aside_room_held(d_room));
+        if !fit_modes.is_empty() {
+            baseline = checked_baseline(&table)?;
+        }
+        room_held = Some(RoomHeld {
+            room_decay_rate: d_room,
+            frequencies_hz: fit_modes
+                .iter()
+                .map(|&k| table.modes[k].frequency_hz)
+                .collect(),
+            held_out_modes: held_modes.len(),
+        });
+    }
     // An unresolved cluster's decay counts as far as the microphones agree on it (parent
     // docs, "An unresolved cluster's decay"); the baseline is refitted on the widened rows.
     if let Some((held_table, _)) = held.as_mut() {
@@ -749,10 +785,6 @@ pub fn diagnose_with(
     }
 
     // Greedy forward selection over the modal effects.
-    let own: Vec<_> = effects
-        .iter()
-        .map(|e| e.evaluate_own(evidence, settings))
-        .collect();
     let mut remaining: Vec<usize> = (0..effects.len()).filter(|&e| own[e].is_none()).collect();
     let mut last: Vec<Option<Outcome>> = (0..effects.len()).map(|_| None).collect();
     // The level colouration (parent docs, "A room colours the levels"): a nuisance of the
@@ -1132,7 +1164,13 @@ pub fn diagnose_with(
 
     Ok(CatalogueReport {
         delta_bic_threshold: settings.delta_bic_threshold,
-        matching: matching_report(evidence, &matching, &table, held.as_ref().map(|(_, m)| m)),
+        matching: matching_report(
+            evidence,
+            &matching,
+            &table,
+            held.as_ref().map(|(_, m)| m),
+            room_held,
+        ),
         baseline: summary(&baseline, held_table, &baseline.tau2),
         final_model: summary(&current, held_table, &baseline.tau2),
         accepted: report_accepted,

@@ -2206,6 +2206,144 @@ fn a_smooth_misfit_band_does_not_capture_the_rooms_decay() {
     );
 }
 
+/// What a room does to the modes that decay faster than it (parent docs, "A room holds up the
+/// fast modes"): the pole read at such a mode's frequency is the room's tail as much as the
+/// mode's, decaying at d_room (d_k/d_room)^¼ rather than d_k, and its level is lowered by
+/// d_room/d_k. The observed decay rates and levels of `modes` are changed so.
+fn held_up_by_the_room(modes: &mut [ObservedMode], t60: f64) {
+    let d_room = 6.907755278982137 / t60;
+    for m in modes {
+        let ratio = m.decay_rate / d_room;
+        if ratio > 1.0 {
+            m.decay_rate = d_room * ratio.powf(0.25);
+            m.sigma_decay_rate = SIGMA_LN_D * m.decay_rate;
+            for (a, s) in m.amplitudes.iter_mut().zip(&mut m.sigma_amplitudes) {
+                *a /= ratio;
+                *s /= ratio;
+            }
+        }
+    }
+}
+
+#[test]
+fn modes_held_by_the_room_keep_their_frequency_rows_and_lose_their_decay_and_level_rows() {
+    // Two split pairs (clusters 3 and 8), so that a pair with one member held falls back to
+    // the other member's own ln d row.
+    let truth = Truth {
+        splits: vec![(3, 0.004), (8, 0.004)],
+        ..Truth::default()
+    };
+    let (ev, _) = evidence(&truth, 7);
+    let (mut table, _, _) = fit_and_held_tables(&ev, &CatalogueSettings::default());
+    let before = table.clone();
+    let decay = |m: &model::ModeEntry| m.ln_d.map(|(v, _)| v.exp());
+    // Between two observed decay rates: some modes above, some below.
+    let mut rates: Vec<f64> = table.modes.iter().filter_map(decay).collect();
+    rates.sort_by(f64::total_cmp);
+    let d_room = 0.5 * (rates[rates.len() / 2] + rates[rates.len() / 2 + 1]);
+    let held = table.set_aside_room_held(d_room);
+    let expected: Vec<usize> = (0..before.modes.len())
+        .filter(|&k| decay(&before.modes[k]).is_some_and(|d| d >= d_room))
+        .collect();
+    assert_eq!(held, expected);
+    assert!(!held.is_empty() && held.len() < before.modes.len());
+    let count =
+        |t: &ModeTable, q: Quantity| t.rows.iter().filter(|r| r.kind.quantity() == q).count();
+    for q in [Quantity::LnFrequency, Quantity::Split, Quantity::Glide] {
+        assert_eq!(count(&table, q), count(&before, q), "{q:?}");
+    }
+    let touches = |kind: model::RowKind, k: usize| {
+        let (a, b) = kind.modes();
+        a == k || b == Some(k)
+    };
+    for &k in &held {
+        assert!(table.modes[k].ln_d.is_none());
+        assert!(table.modes[k].ln_a.iter().all(Option::is_none));
+        for r in &table.rows {
+            let q = r.kind.quantity();
+            if touches(r.kind, k) {
+                assert!(
+                    !matches!(
+                        q,
+                        Quantity::LnDecay | Quantity::DecaySplit | Quantity::LnAmplitude
+                    ),
+                    "row {:?} of held mode {k} stays",
+                    r.kind
+                );
+            }
+        }
+        assert!(table.amplitude_groups.iter().all(|(m, _)| *m != k));
+    }
+    // Every mode not held keeps a decay row: its own, or its pair's mean.
+    for k in (0..table.modes.len()).filter(|k| !held.contains(k)) {
+        if table.modes[k].ln_d.is_some() {
+            assert!(
+                table
+                    .rows
+                    .iter()
+                    .any(|r| touches(r.kind, k) && r.kind.quantity() == Quantity::LnDecay),
+                "mode {k} lost its decay row"
+            );
+        }
+    }
+    // The other rows are indexed afresh.
+    assert_eq!(
+        table.other_rows.len()
+            + table
+                .amplitude_groups
+                .iter()
+                .map(|g| g.1.len())
+                .sum::<usize>(),
+        table.rows.len()
+    );
+}
+
+#[test]
+fn a_room_holds_up_the_fast_modes_and_no_damping_law_or_contact_is_made_of_it() {
+    // A clean object under Rayleigh damping (2 + 1.5·10⁻⁸ ω² 1/s: 7 to 31 1/s over 3 to 7
+    // kHz) in a room of T60 = 0.4 s (17.3 1/s): the modes above about 5 kHz decay faster than
+    // the room, so their poles decay near the room's rate and their levels fall with their
+    // own decay rate, which a flatter damping law and a contact's low-pass both imitate.
+    let truth = Truth {
+        reverb_t60: Some(0.4),
+        ..Truth::default()
+    };
+    let off = CatalogueSettings {
+        room_held_rows: false,
+        ..CatalogueSettings::default()
+    };
+    let (mut claimed_with, mut claimed_without) = (0, 0);
+    for seed in 0..6 {
+        let (mut ev, _) = evidence(&truth, 2000 + seed);
+        held_up_by_the_room(&mut ev.fit, 0.4);
+        held_up_by_the_room(ev.held_out.as_mut().expect("held out"), 0.4);
+        let modal = |r: &CatalogueReport| r.accepted.iter().any(|a| a.name != "reverb_noise");
+        let with = diagnose(&ev, &CatalogueSettings::default()).expect("valid");
+        expect_accepted(&with, "reverb_noise");
+        let held = with
+            .matching
+            .room_held
+            .as_ref()
+            .expect("the room is established");
+        assert!((12.0..20.0).contains(&held.room_decay_rate), "{held:?}");
+        assert!(!held.frequencies_hz.is_empty(), "{held:?}");
+        claimed_with += usize::from(modal(&with));
+        let without = diagnose(&ev, &off).expect("valid");
+        assert!(without.matching.room_held.is_none());
+        claimed_without += usize::from(modal(&without));
+        eprintln!(
+            "seed {seed}: with {:?}, without {:?}",
+            with.accepted.iter().map(|a| &a.name).collect::<Vec<_>>(),
+            without.accepted.iter().map(|a| &a.name).collect::<Vec<_>>()
+        );
+    }
+    assert_eq!(claimed_with, 0, "a modal effect claimed in a room");
+    assert!(
+        claimed_without >= 3,
+        "the room's hold was claimed in {claimed_without} of 6 without the rule"
+    );
+}
+
 #[test]
 fn radiation_with_known_transfer_recovers_unit_exponent() {
     let truth = Truth {
