@@ -322,7 +322,7 @@ fn print_report(r: &Report) {
     }
     if let Some(r) = &report.matching.room_held {
         println!(
-            "  room: {} fit and {} held-out modes decay at least as fast as the room ({:.1} 1/s, ln(10³)/T60); only their frequencies count",
+            "  room: {} fit and {} held-out modes decay at least as fast as the room ({:.1} 1/s, ln(10³)/(T60 + 2σ)); only their frequencies count",
             r.frequencies_hz.len(),
             r.held_out_modes,
             r.room_decay_rate

@@ -111,7 +111,8 @@ pub struct MatchingReport {
 /// room's tail as much as theirs, so only their frequencies count.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct RoomHeld {
-    /// The room's amplitude decay rate ln(10³)/T60, 1/s.
+    /// The slowest amplitude decay rate the room's fit allows, ln(10³)/(T60 + 2σ_T60), 1/s:
+    /// modes at least this fast are held.
     pub room_decay_rate: f64,
     /// Observed frequencies of the fit table's modes set aside, Hz.
     pub frequencies_hz: Vec<f64>,

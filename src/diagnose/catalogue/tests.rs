@@ -2225,6 +2225,31 @@ fn held_up_by_the_room(modes: &mut [ObservedMode], t60: f64) {
     }
 }
 
+/// A room slower than every mode (T60 = 3 s, 2.3 1/s) holds all of them: only frequencies
+/// are left, and the diagnosis still runs (the gains and tilts then rest on no rows).
+#[test]
+fn a_room_that_holds_every_mode_leaves_a_diagnosis_of_the_frequencies() {
+    let truth = Truth {
+        reverb_t60: Some(3.0),
+        ..Truth::default()
+    };
+    let (mut ev, _) = evidence(&truth, 11);
+    held_up_by_the_room(&mut ev.fit, 3.0);
+    held_up_by_the_room(ev.held_out.as_mut().expect("held out"), 3.0);
+    let report = diagnose(&ev, &CatalogueSettings::default()).expect("a report, not an error");
+    let held = report
+        .matching
+        .room_held
+        .as_ref()
+        .expect("the room is established");
+    assert_eq!(held.frequencies_hz.len(), report.matching.pairs.len());
+    assert!(
+        report.accepted.iter().all(|a| a.name == "reverb_noise"),
+        "{:?}",
+        report.accepted
+    );
+}
+
 #[test]
 fn modes_held_by_the_room_keep_their_frequency_rows_and_lose_their_decay_and_level_rows() {
     // Two split pairs (clusters 3 and 8), so that a pair with one member held falls back to
