@@ -513,8 +513,9 @@ pub(super) fn room_established(evaluation: &OwnEvaluation, settings: &CatalogueS
     }
 }
 
-/// ln(10³): a mode's amplitude falls by 60 dB in T60 when it decays at ln(10³)/T60 1/s.
-const SIXTY_DB_AMPLITUDE: f64 = 6.907755278982137;
+/// ln(10³), half of [`SIXTY_DB`]: a mode's amplitude falls by 60 dB in T60 when it decays at
+/// ln(10³)/T60 1/s.
+const SIXTY_DB_AMPLITUDE: f64 = 0.5 * SIXTY_DB;
 
 /// The slowest amplitude decay rate the room's fit allows, ln(10³)/(T60 + 2σ_T60) \[1/s\],
 /// when the room is established on its own evidence ([`room_established`]); None otherwise.

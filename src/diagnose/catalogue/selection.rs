@@ -748,14 +748,14 @@ pub fn diagnose_with(
         .iter()
         .map(|e| e.evaluate_own(evidence, settings))
         .collect();
-    let room_decay = effects.iter().zip(&own).find_map(|(e, o)| {
-        (e.name() == "reverb_noise")
-            .then(|| {
-                o.as_ref()
-                    .and_then(|o| super::reverb_noise::room_decay_rate(o, settings))
-            })
-            .flatten()
-    });
+    // The room's own evaluation, read both here and for the level colouration below.
+    let room_evaluation = effects
+        .iter()
+        .zip(&own)
+        .find(|(e, _)| e.name() == "reverb_noise")
+        .and_then(|(_, o)| o.as_ref());
+    let room_decay =
+        room_evaluation.and_then(|o| super::reverb_noise::room_decay_rate(o, settings));
     // A room holds up the modes that decay faster than it (parent docs): their decay and
     // level rows are the room's.
     let mut room_held: Option<RoomHeld> = None;
@@ -790,11 +790,7 @@ pub fn diagnose_with(
     // The level colouration (parent docs, "A room colours the levels"): a nuisance of the
     // baseline when the room is established on its own evidence, before any modal effect is
     // tried.
-    let room = effects.iter().zip(&own).any(|(e, o)| {
-        e.name() == "reverb_noise"
-            && o.as_ref()
-                .is_some_and(|o| super::reverb_noise::room_established(o, settings))
-    });
+    let room = room_evaluation.is_some_and(|o| super::reverb_noise::room_established(o, settings));
     let coloured = match settings.level_colouration {
         ColourationWhen::Always => true,
         ColourationWhen::Room => room,
