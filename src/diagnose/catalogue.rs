@@ -303,6 +303,27 @@
 //! recordings and 5005 of plates in rooms; seed 149's two plates in rooms): two more
 //! contacts found (5001/006, 5003/005), no other verdict changed.
 //!
+//! **A decay law is judged on the smaller decay floor.** A term that reshapes the decay law
+//! across frequency ([`Term::shapes_decays`]: the damping laws that Rayleigh's misses) is
+//! judged with the smaller of the two models' decay floors, by the same argument: before the
+//! law enters, the decay floor is profiled about Rayleigh's misfit of it, so it has swallowed
+//! the shape under test, and the held-out decays are judged on that inflated scale. It bites
+//! with few modes and one fit microphone, where each extraction biases a decay its own way
+//! (an unresolved pair beats differently at each microphone): generator 2's seed 167 case 008,
+//! a cup with d ∝ f^0.41 on two microphones, four groups of modes, fitted at ΔBIC 21.1 with
+//! the decay floor at 0.110 (ln d variance) under Rayleigh, gained 1.6 on the held-out
+//! microphone and was rejected; its pair at 2474 Hz decayed at 3.1 and 3.2 1/s on the fit
+//! microphone and 2.96 and 2.80 on the held-out one. The synthetic catalogue in that setting
+//! (every third mode, ±30 % levels and ±10 % decays per microphone) confirms 37 of 48 true
+//! laws against 31 of 48 on the floor before, and names Rayleigh's law in 1 of 48 draws
+//! either way (test `a_damping_law_heard_by_one_fit_microphone_is_confirmed_by_the_other`).
+//! Replayed on the saved evidence of 191 cases (generator 2's calibration seeds 5001, 5003,
+//! 5004, 5005 and 149 and its spent seeds 157–179; set 1's seed 101; the real bowl): two
+//! more damping laws found (167/008 and 173/014, each with one fit microphone) and one named
+//! falsely (5003/011, a plate in a room whose T60 the envelopes put at 0.80 s against 0.43 s,
+//! so that the room holds up 38 of its 46 fit modes and the law stands on the other 8); no
+//! other verdict changed, the bowl's and set 1's included.
+//!
 //! **The gain is taken on a robust loss.** The held-out gain compares Σ ρ_k(z) rather than Σz²,
 //! with Huber's ρ_k (quadratic to |z| = k, linear beyond; k = `held_out_huber_k`, default
 //! [`DEFAULT_HELD_OUT_HUBER_K`] = 3), while the reported held-out errors stay the RMS of z. Why:
@@ -1105,6 +1126,13 @@ pub trait Term: std::fmt::Debug + Send + Sync {
     /// smaller amplitude floors*). False (the default): the current model's, which for the
     /// radiation factor model is the very nuisance it claims to explain.
     fn shapes_levels(&self) -> bool {
+        false
+    }
+    /// True for a smooth law of the decay rates across frequency (a damping law other than
+    /// Rayleigh's): its held-out change is then judged with the smaller of the two models'
+    /// decay floors (module docs, "Selection", *A decay law is judged on the smaller decay
+    /// floor*). False (the default): the current model's.
+    fn shapes_decays(&self) -> bool {
         false
     }
     /// After the fit: why the fitted parameters `p` ± `sigma` lack the signature the effect's

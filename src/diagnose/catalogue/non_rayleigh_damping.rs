@@ -94,6 +94,9 @@ impl Term for ThreeKnotDamping {
     fn variant(&self) -> &'static str {
         "three_knot_log_log"
     }
+    fn shapes_decays(&self) -> bool {
+        true
+    }
     fn params(&self) -> Vec<ParamSpec> {
         self.knots
             .iter()
@@ -137,6 +140,9 @@ impl Term for PowerLawDamping {
     }
     fn variant(&self) -> &'static str {
         "power_law"
+    }
+    fn shapes_decays(&self) -> bool {
+        true
     }
     fn params(&self) -> Vec<ParamSpec> {
         vec![

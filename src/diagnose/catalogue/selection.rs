@@ -222,7 +222,12 @@ fn held_out_change(
     settings: &CatalogueSettings,
 ) -> Option<HeldOutChange> {
     let k = settings.held_out_huber_k;
-    let yardstick = held_out_yardstick(&before.tau2, &after.tau2, term.shapes_levels());
+    let yardstick = held_out_yardstick(
+        &before.tau2,
+        &after.tau2,
+        term.shapes_levels(),
+        term.shapes_decays(),
+    );
     let b = held_out_chi2(before, held, &yardstick, k)?;
     let a = held_out_chi2(after, held, &yardstick, k)?;
     let dispersion = if settings.held_out_dispersion {
@@ -239,9 +244,10 @@ fn held_out_change(
 }
 
 /// The floors that whiten both models' held-out rows in [`held_out_change`]: `before`'s, but
-/// the glide floor the smaller of the two, and for a term that shapes the levels
-/// (`shapes_levels`, [`Term::shapes_levels`]) the amplitude floors too (parent docs,
-/// "Selection"). The glide floor is
+/// the glide floor the smaller of the two, for a term that shapes the levels
+/// (`shapes_levels`, [`Term::shapes_levels`]) the amplitude floors too, and for a term that
+/// shapes the decay law (`shapes_decays`, [`Term::shapes_decays`]) the decay floor too (parent
+/// docs, "Selection"). The glide floor is
 /// profiled about the model's own prediction, y = 0 without a glide term, so before a glide
 /// enters it has swallowed the very glide under test, and every held-out glide row is judged
 /// on that inflated scale, where the Student-t rows grow only logarithmically. Unlike the
@@ -251,6 +257,7 @@ fn held_out_yardstick(
     before: &FloorVariances,
     after: &FloorVariances,
     shapes_levels: bool,
+    shapes_decays: bool,
 ) -> FloorVariances {
     let mut yardstick = *before;
     let mut smaller = |q: usize| yardstick[q] = before[q].min(after[q]);
@@ -262,6 +269,11 @@ fn held_out_yardstick(
             smaller(q);
         }
         smaller(LEVEL_FLOOR);
+    }
+    if shapes_decays {
+        if let Some(q) = Quantity::LnDecay.floor_index() {
+            smaller(q);
+        }
     }
     yardstick
 }
@@ -1190,13 +1202,13 @@ mod tests {
             .expect("glide rows have a floor");
         let before: FloorVariances = [1e-6, 0.04, 0.3, 0.0, 4e-6, 0.01];
         let mut after = [2e-6, 0.01, 0.1, 0.0, 1e-8, 0.001];
-        let yardstick = held_out_yardstick(&before, &after, false);
+        let yardstick = held_out_yardstick(&before, &after, false, false);
         for (i, (y, b)) in yardstick.iter().zip(&before).enumerate() {
             assert_eq!(*y, if i == q { 1e-8 } else { *b }, "floor {i}");
         }
         // A larger glide floor after (a term that misfits the glides) does not loosen it.
         after[q] = 1e-5;
-        assert_eq!(held_out_yardstick(&before, &after, false), before);
+        assert_eq!(held_out_yardstick(&before, &after, false, false), before);
     }
 
     /// A term that shapes the levels (a contact) is judged on the smaller amplitude floors as
@@ -1212,13 +1224,35 @@ mod tests {
             .expect("glide rows have a floor");
         let before: FloorVariances = [1e-6, 0.04, 0.21, 0.05, 4e-6, 0.01];
         let after = [2e-6, 0.01, 0.08, 0.02, 1e-8, 0.001];
-        let yardstick = held_out_yardstick(&before, &after, true);
+        let yardstick = held_out_yardstick(&before, &after, true, false);
         for (i, (y, b)) in yardstick.iter().zip(&before).enumerate() {
             let smaller = i == a || i == LEVEL_FLOOR || i == g;
             assert_eq!(*y, if smaller { after[i] } else { *b }, "floor {i}");
         }
         let looser = [2e-6, 0.01, 0.3, 0.09, 4e-6, 0.001];
-        assert_eq!(held_out_yardstick(&before, &looser, true), before);
+        assert_eq!(held_out_yardstick(&before, &looser, true, false), before);
+    }
+
+    /// A term that shapes the decay law (a damping law) is judged on the smaller decay floor as
+    /// well; the amplitude floors stay the model before's, and a larger decay floor after does
+    /// not loosen the yardstick.
+    #[test]
+    fn a_decay_law_is_judged_on_the_smaller_decay_floor() {
+        let d = Quantity::LnDecay
+            .floor_index()
+            .expect("decay rows have a floor");
+        let g = Quantity::Glide
+            .floor_index()
+            .expect("glide rows have a floor");
+        let before: FloorVariances = [1e-6, 0.11, 0.21, 0.05, 4e-6, 0.01];
+        let after = [2e-6, 0.02, 0.08, 0.02, 1e-8, 0.001];
+        let yardstick = held_out_yardstick(&before, &after, false, true);
+        for (i, (y, b)) in yardstick.iter().zip(&before).enumerate() {
+            let smaller = i == d || i == g;
+            assert_eq!(*y, if smaller { after[i] } else { *b }, "floor {i}");
+        }
+        let looser = [2e-6, 0.2, 0.08, 0.02, 4e-6, 0.001];
+        assert_eq!(held_out_yardstick(&before, &looser, false, true), before);
     }
 
     /// A held-out fall counts only when Σz² drops by more than `min_held_out_gain`.

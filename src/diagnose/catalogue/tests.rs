@@ -3823,3 +3823,54 @@ fn a_contact_heard_by_one_fit_microphone_is_confirmed_by_the_other() {
     assert!(contact >= 4, "named in {contact} of 12");
     assert_eq!(clean, 0, "named in {clean} of 12 draws without a contact");
 }
+
+/// A damping law heard by one fit microphone and checked on the other: every third mode, each
+/// level off by its own ±30 % at each microphone, and each decay rate by its own ±10 % beyond
+/// its stated error (an unresolved pair beats differently at each microphone, so each
+/// extraction biases its decay its own way: generator 2's seed 167 case 008, a cup's pair at
+/// 2474 Hz measured at 3.1 and 3.2 1/s on the fit microphone and 2.96 and 2.80 on the held-out
+/// one). Before the law enters, the decay floor is profiled about Rayleigh's misfit of it, and
+/// the held-out decays are judged on that inflated scale; judged on the smaller floor (parent
+/// docs, "Selection", *A decay law is judged on the smaller decay floor*), more true laws are
+/// confirmed, and a Rayleigh object in the same setting is not named more often.
+#[test]
+fn a_damping_law_heard_by_one_fit_microphone_is_confirmed_by_the_other() {
+    let draws = |truth: &Truth| -> usize {
+        (90..138)
+            .filter(|&seed| {
+                let (mut ev, _) = evidence(truth, seed);
+                let mut rng = Rng(seed.wrapping_mul(7919) | 1);
+                let sparse = |modes: &mut Vec<ObservedMode>, rng: &mut Rng| {
+                    let mut i = 0;
+                    modes.retain(|_| {
+                        i += 1;
+                        i % 3 == 0
+                    });
+                    one_microphone(modes, 0.3, rng);
+                    for m in modes.iter_mut() {
+                        m.decay_rate *= (0.1 * normal(rng)).exp();
+                    }
+                };
+                sparse(&mut ev.fit, &mut rng);
+                if let Some(held) = ev.held_out.as_mut() {
+                    sparse(held, &mut rng);
+                }
+                let report = diagnose(&ev, &CatalogueSettings::default()).expect("valid");
+                accepted(&report, "non_rayleigh_damping").is_some()
+            })
+            .count()
+    };
+    let law = draws(&Truth {
+        power_law: Some((3.0, 0.4)),
+        ..Truth::default()
+    });
+    let rayleigh = draws(&Truth::default());
+    println!("named in {law} of 48 draws with d ∝ f^0.4, {rayleigh} of 48 with Rayleigh's law");
+    // Measured: 37 of 48 (31 judged on the decay floor before the law); 1 of 48 with
+    // Rayleigh's law either way.
+    assert!(law >= 35, "named in {law} of 48");
+    assert!(
+        rayleigh <= 2,
+        "named in {rayleigh} of 48 draws with Rayleigh's law"
+    );
+}
