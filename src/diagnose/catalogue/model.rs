@@ -712,11 +712,14 @@ impl ModeTable {
     }
 
     /// Widens the decay rows of the poles that stand for an unresolved cluster by how far the
-    /// `held`-out extraction disagrees with them (parent docs, "An unresolved cluster's
-    /// decay"): for each single unit of this table standing for two simulated modes or more,
-    /// with Δ = its ln d less the mean ln d of the held-out table's poles of the same cluster,
-    /// its ln d row and those held-out poles' decay rows (ln d, or a pair's mean ln d) get
-    /// σ² + Δ². Returns the number of rows of this table widened.
+    /// other extraction disagrees with them (parent docs, "An unresolved cluster's decay"):
+    /// for each single unit of this table standing for two simulated modes or more, with
+    /// Δ = its ln d less the mean ln d of the held-out table's poles of the same cluster, its
+    /// ln d row and those held-out poles' decay rows (ln d, or a pair's mean ln d) get σ² + Δ²;
+    /// and for each single unit of the `held`-out table standing for two simulated modes or
+    /// more whose cluster this table holds only as one-member poles, its ln d row gets σ² + Δ²
+    /// with Δ its ln d less their mean. Returns the number of rows of this table widened (the
+    /// second kind widens none).
     pub fn widen_unreplicated_decays(&mut self, held: &mut ModeTable) -> usize {
         let widen = |row: &mut Row, delta: f64| {
             row.sigma = (row.sigma * row.sigma + delta * delta).sqrt();
@@ -750,6 +753,31 @@ impl ModeTable {
                 _ => false,
             };
             for row in held.rows.iter_mut().filter(|r| of_cluster(r.kind)) {
+                widen(row, delta);
+            }
+        }
+        // The mirror: a held-out pole standing for a cluster whose poles in this table are
+        // each one member's (resolved, or one member heard): the held-out pole's decay counts
+        // as far as it agrees with theirs. Their own rows stay: each measures one mode.
+        for j in 0..held.modes.len() {
+            let h = &held.modes[j];
+            let Some((ln_d, _)) = h.ln_d else { continue };
+            if h.role != Role::Single || h.simulated.len() < 2 {
+                continue;
+            }
+            let cluster = h.key.cluster;
+            let own: Vec<f64> = self
+                .modes
+                .iter()
+                .filter(|m| m.key.cluster == cluster)
+                .filter(|m| !(m.role == Role::Single && m.simulated.len() >= 2))
+                .filter_map(|m| m.ln_d.map(|(d, _)| d))
+                .collect();
+            if own.is_empty() {
+                continue;
+            }
+            let delta = ln_d - own.iter().sum::<f64>() / own.len() as f64;
+            for row in held.rows.iter_mut().filter(|r| r.kind == RowKind::LnD(j)) {
                 widen(row, delta);
             }
         }
