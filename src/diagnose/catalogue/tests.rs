@@ -3868,6 +3868,15 @@ fn one_microphone(modes: &mut [ObservedMode], sigma: f64, rng: &mut Rng) {
     }
 }
 
+/// Keeps every `n`-th mode (the `n`-th, the `2n`-th, ...): few modes, as a small object gives.
+fn every_nth(modes: &mut Vec<ObservedMode>, n: usize) {
+    let mut i = 0;
+    modes.retain(|_| {
+        i += 1;
+        i % n == 0
+    });
+}
+
 /// The fewest microphones a user can give: one fit and one held out, each mode's level off by
 /// its own ±30 % at each, and every other mode only (few modes, as a small plate gives).
 /// A hard mallet's knee (a 0.16 ms Hertzian pulse) is fitted on the one microphone, where it
@@ -3882,17 +3891,10 @@ fn a_contact_heard_by_one_fit_microphone_is_confirmed_by_the_other() {
             .filter(|&seed| {
                 let (mut ev, _) = evidence(truth, seed);
                 let mut rng = Rng(seed.wrapping_mul(7919) | 1);
-                let every_other = |modes: &mut Vec<ObservedMode>| {
-                    let mut i = 0;
-                    modes.retain(|_| {
-                        i += 1;
-                        i % 2 == 0
-                    });
-                };
-                every_other(&mut ev.fit);
+                every_nth(&mut ev.fit, 2);
                 one_microphone(&mut ev.fit, 0.3, &mut rng);
                 if let Some(held) = ev.held_out.as_mut() {
-                    every_other(held);
+                    every_nth(held, 2);
                     one_microphone(held, 0.3, &mut rng);
                 }
                 let report = diagnose(&ev, &CatalogueSettings::default()).expect("valid");
@@ -3929,11 +3931,7 @@ fn a_damping_law_heard_by_one_fit_microphone_is_confirmed_by_the_other() {
                 let (mut ev, _) = evidence(truth, seed);
                 let mut rng = Rng(seed.wrapping_mul(7919) | 1);
                 let sparse = |modes: &mut Vec<ObservedMode>, rng: &mut Rng| {
-                    let mut i = 0;
-                    modes.retain(|_| {
-                        i += 1;
-                        i % 3 == 0
-                    });
+                    every_nth(modes, 3);
                     one_microphone(modes, 0.3, rng);
                     for m in modes.iter_mut() {
                         m.decay_rate *= (0.1 * normal(rng)).exp();
