@@ -3070,6 +3070,15 @@ fn fit_and_held_tables(ev: &Evidence, settings: &CatalogueSettings) -> (ModeTabl
     (table, held, matching.ln_scale)
 }
 
+/// σ of mode `k`'s ln d row in `t`.
+fn decay_sigma(t: &ModeTable, k: usize) -> f64 {
+    t.rows
+        .iter()
+        .find(|r| r.kind == RowKind::LnD(k))
+        .map(|r| r.sigma)
+        .expect("a decay row")
+}
+
 /// An unresolved cluster's decay (parent docs): the ln d row of a pole that stands for a
 /// degenerate pair is widened by how far the held-out extraction's poles of that cluster
 /// disagree with it, in both tables, σ² + Δ²; a lone simulated mode's row and rows the
@@ -3081,13 +3090,6 @@ fn an_unresolved_pairs_decay_counts_as_far_as_the_microphones_agree() {
     let tables = |ev: &Evidence| {
         let (table, held, _) = fit_and_held_tables(ev, &settings);
         (table, held)
-    };
-    let decay_sigma = |t: &ModeTable, k: usize| {
-        t.rows
-            .iter()
-            .find(|r| r.kind == RowKind::LnD(k))
-            .map(|r| r.sigma)
-            .expect("a decay row")
     };
     let (table, held) = tables(&ev);
     let pooled = table
@@ -3152,13 +3154,6 @@ fn a_held_out_pole_for_a_resolved_pair_counts_as_far_as_it_agrees_with_the_membe
         ..Truth::default()
     };
     let (ev, _) = evidence(&truth, 22);
-    let decay_sigma = |t: &ModeTable, k: usize| {
-        t.rows
-            .iter()
-            .find(|r| r.kind == RowKind::LnD(k))
-            .map(|r| r.sigma)
-            .expect("a decay row")
-    };
     // The held-out extraction keeps the pair's lower pole only, as one pole for both.
     let one_pole = |scale: f64| {
         let mut ev = ev.clone();
