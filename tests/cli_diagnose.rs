@@ -102,6 +102,22 @@ fn diagnose_writes_a_consistent_report_and_agrees_across_ranks() {
         }
         let report = read_json(&bench.join(case).join("diagnosis.json"));
         assert_eq!(report["format"], "diffsound.diagnose");
+        if case == "case_000" {
+            // ν is searched only where the reduced basis interpolates (0.1–0.4), and this clean
+            // case's lines put it inside, so no warning.
+            let material = &report["material"];
+            let start = &material["line_spectrum_start"];
+            let range: Vec<f64> = start["poisson_range"]
+                .as_array()
+                .expect("the searched ν range")
+                .iter()
+                .map(|v| v.as_f64().unwrap())
+                .collect();
+            assert_eq!(range, [0.1, 0.4], "{case}: searched ν range");
+            let nu = start["poisson"].as_f64().unwrap();
+            assert!(nu > 0.1 && nu < 0.4, "{case}: ν {nu}");
+            assert_eq!(material["line_spectrum_poisson_at_edge"], false, "{case}");
+        }
         check_hdf5_types(
             &out,
             if case == "case_000" {

@@ -298,6 +298,12 @@ fn print_report(r: &Report) {
         "diagnose: E = {youngs:.5e} Pa, ν = {poisson:.4}, ρ = {} kg/m³ ({}); strike {}",
         job.density, job.material_source, feats.strike_note
     );
+    if let Some(s) = r.line_start.filter(|s| s.poisson_at_edge()) {
+        println!(
+            "  warning: the line-spectrum match put ν at {:.4}, an end of the range it searched ([{}, {}]): the recorded lines do not fix the material, and every verdict below rests on it; give the material (--material with a fit-material result, or the configuration)",
+            s.poisson, s.poisson_range.0, s.poisson_range.1
+        );
+    }
     println!(
         "  recording: {} modes on {} fit microphones, {} on {} held-out, below {} Hz",
         measured.fit.len(),

@@ -316,7 +316,25 @@ pub struct LineSpectrumStart {
     pub distance: f64,
     /// Grid points tried.
     pub evaluations: usize,
+    /// The ν range searched (`poisson_bounds`, or the held ν twice).
+    #[serde(default)]
+    pub poisson_range: (f64, f64),
 }
+
+impl LineSpectrumStart {
+    /// Whether ν ended on an end of a searched range (one that had a width): the recorded
+    /// lines then pulled ν as far as it was let go, and the match is not an answer but a bound
+    /// (`workflow::diagnose::material`, *Within the basis*).
+    pub fn poisson_at_edge(&self) -> bool {
+        let (lo, hi) = self.poisson_range;
+        hi - lo > POISSON_EDGE
+            && (self.poisson - lo < POISSON_EDGE || hi - self.poisson < POISSON_EDGE)
+    }
+}
+
+/// How near an end of the searched range ν must be to count as on it: twice the refinement
+/// step of [`line_spectrum_start`] (0.00025) and well under its coarse step (0.0025).
+const POISSON_EDGE: f64 = 5e-4;
 
 /// Mean over `from` of min(cap, distance in ln f to the nearest of `to` shifted by `shift`);
 /// both sorted ascending.
@@ -516,6 +534,11 @@ pub fn line_spectrum_start(
         poisson: best.2,
         distance: best.0,
         evaluations,
+        poisson_range: if settings.learn_poisson {
+            (lo, hi)
+        } else {
+            (best.2, best.2)
+        },
     })
 }
 
@@ -836,6 +859,24 @@ mod tests {
             .min_by(|a, b| d(*a).total_cmp(&d(*b)))
             .unwrap();
         assert!(best.abs() < 1e-3, "best shift {best}");
+    }
+
+    #[test]
+    fn a_poisson_ratio_on_an_end_of_its_searched_range_is_flagged() {
+        let at = |poisson: f64, poisson_range: (f64, f64)| LineSpectrumStart {
+            youngs: 7e10,
+            poisson,
+            distance: 1e-3,
+            evaluations: 1,
+            poisson_range,
+        };
+        assert!(at(0.1, (0.1, 0.4)).poisson_at_edge());
+        assert!(at(0.4, (0.1, 0.4)).poisson_at_edge());
+        assert!(at(0.3998, (0.1, 0.4)).poisson_at_edge());
+        assert!(!at(0.101, (0.1, 0.4)).poisson_at_edge());
+        assert!(!at(0.25, (0.1, 0.4)).poisson_at_edge());
+        // A held ν was not searched: nothing to flag.
+        assert!(!at(0.3, (0.3, 0.3)).poisson_at_edge());
     }
 
     #[test]

@@ -21,7 +21,7 @@ pub fn write_json(r: &Report) -> Result<(), Error> {
         // The pitch-glide rows are the chirp fit's g per mode (relative offset at the onset),
         // not an early-minus-late frequency difference: the scorer compares accordingly.
         "glide_observable": "offset_at_onset",
-        "material": {"youngs_modulus": youngs, "poisson_ratio": poisson, "density": job.density, "source": job.material_source, "line_spectrum_start": line_start, "loaded_line_match": loaded},
+        "material": {"youngs_modulus": youngs, "poisson_ratio": poisson, "density": job.density, "source": job.material_source, "line_spectrum_start": line_start, "line_spectrum_poisson_at_edge": line_start.is_some_and(|s| s.poisson_at_edge()), "loaded_line_match": loaded},
         "strike": feats.strike_note,
         "localisation": {"best_vertex": localised.best.map(|b| b.0), "best_z": localised.best.map(|b| b.1), "offered_region": localised.region},
         "catalogue": report,
