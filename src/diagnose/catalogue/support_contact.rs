@@ -31,7 +31,7 @@
 //! (slope κ̂_s, its z); the candidate goes on if γ̂ > 0 with z > 1, γ̂_pair > 0 with z > 1.5,
 //! |z_κ| > 1.5 or z_κs > 1.5 (the weights must vary by 5 % of the largest matched one).
 //!
-//! Signature, after the fit: the support must damp, γ > [`MIN_DAMPING_Z`] σ_γ (3). A passive contact always takes
+//! Signature, after the fit: the support must damp, γ > [`MIN_DAMPING_Z`] σ_γ (2). A passive contact always takes
 //! energy from the modes that move at it; a frequency shift alone is not a support's signature,
 //! because any small frequency misfit correlated with the support weights looks the same. Two
 //! versions of this rule failed. The first accepted any frequency-only "support": on a clean
@@ -41,13 +41,28 @@
 //! support with γ = 0 ± 0.05 1/s twice: next to a beating pair whose sector of denser, stiffer
 //! material also moves the pair means (case 015, κ = 9.7·10⁻⁴), and next to an added mass
 //! (case 028). Requiring the damping removed both false alarms and lost no support on sets 1
-//! to 3. The damping must also be firmer than 2σ: a bounded one-parameter term pays for
+//! to 3. For a time the damping also had to be firmer than 3σ (*Back to 2σ* says why no
+//! longer): a bounded one-parameter term pays for
 //! itself under the criterion only at z² ≳ ln n + the ΔBIC threshold (≈ 8 for a hundred rows),
 //! z ≈ 2.8, and a damping below that is the frequency law's passenger. Generator 2's seed 65
 //! case 002 (a tube in a room, no support) named a spring support at ΔBIC 62.1 whose damping
 //! was 43 ± 19 1/s (2.3σ) on decay rates the room had blurred (ln d floor 0.37), once the tube's
 //! pairs were clustered about its own axis; the other supports accepted in the calibration runs
 //! (generator 2's spent seeds 41–65) had γ at 3.5σ to 54σ.
+//!
+//! *Back to 2σ.* That argument weighed the damping alone, and the damping does not stand
+//! alone: the term must also pay for itself (ΔBIC ≥ 3) and lower the held-out error (gain ≥ 2),
+//! and the decay rates a room blurs are now held out of every decay test (parent docs, **A room
+//! holds up the fast modes**). Regenerated and rerun, seed 65's case 002 no longer reaches the support's
+//! test: the room holds all of its decays. Meanwhile 3σ rejected three true supports that had
+//! passed both other gates: generator 2's seed 157 case 006 (a plate on a strip, γ = 2.98 ±
+//! 1.30 1/s, ΔBIC 21.2, held-out gain 20.5), seed 191 case 018 (a tube on a rail, 5.34 ± 2.48,
+//! ΔBIC 11.8, gain 7.4) and set 1's seed 101 case 014 (the bowl on its foot, 26.1 ± 11.6, ΔBIC
+//! 3.3, gain 2.6). Every false support candidate that passed both gates in the 215 saved cases
+//! had γ within 1σ of zero (four of them: an added mass, a room, two glides). Replayed at 2σ,
+//! the three supports were found and no other verdict changed, the real bowl's included. A
+//! one-sided 2σ test on a bounded damping leaves 2.3 % of noise through, and the other two
+//! gates stand behind it.
 //!
 //! **More than one mode.** A support damps every mode that moves at it, so its signature
 //! must rest on at least [`MIN_SUPPORT_MODES`] matched modes whose weight is at least
@@ -187,7 +202,7 @@ pub const MIN_SUPPORT_MODES: usize = 2;
 
 /// How many standard deviations the fitted support damping γ must clear (module docs,
 /// "Signature").
-pub const MIN_DAMPING_Z: f64 = 3.0;
+pub const MIN_DAMPING_Z: f64 = 2.0;
 
 /// The support damping γ \[1/s\] that every variant carries first.
 fn damping_spec() -> ParamSpec {
