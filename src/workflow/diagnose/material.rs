@@ -13,9 +13,10 @@
 //! cup in a room matched at ν 0.49 with E 8.4 times the truth (seed 191 case 022), an
 //! edge-struck plate at ν 0.097 with E 5.4 times (case 023), a tube at ν 0.0005 for 0.23 (seed
 //! 163 case 009), and a plate whose plain match was right (ν 0.340) given a 6.2 % mass it did
-//! not carry at ν 0.444 (seed 173 case 023). No match of set 1 or of the real bowl ended
-//! outside the range. An object of a material outside it (cork, rubber) needs its material
-//! given, as `fit-material` or the configuration gives it.
+//! not carry at ν 0.444 (seed 173 case 023). No match of set 1 ended outside the range (the
+//! real bowl's main job gives its material from `fit-material`). An object of a material
+//! outside it (cork, rubber) needs its material given, as `fit-material` or the
+//! configuration gives it.
 //!
 //! *Enough modes.* The basis must hold every mode below the highest recorded line at the true
 //! E, or the match cannot put the lines on them: a model that runs out of partials below a
