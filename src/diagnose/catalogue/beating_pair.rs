@@ -129,7 +129,7 @@
 use std::sync::Arc;
 
 use super::added_mass::LOWERED_MEMBERS_VARIANT;
-use super::model::{split_sigma, undamped_hz};
+use super::model::{glide_sweep, split_sigma, undamped_hz};
 use super::support_contact::RAISED_MEMBERS_VARIANT;
 use super::{
     Detection, Effect, Fit, ModeEntry, ModeTable, ObservedMode, ParamSpec, Proposal, RowKind, Term,
@@ -391,13 +391,7 @@ fn not_the_objects(
         return Some(NotTheObjects::FarFromCluster);
     }
     let observed = u.ln_f - l.ln_f;
-    let sweep = [l.glide, u.glide]
-        .into_iter()
-        .flatten()
-        .filter(|&(g, sg)| g.abs() > 3.0 * sg)
-        .map(|(g, _)| g.abs())
-        .fold(0.0, f64::max);
-    if observed.abs() < sweep {
+    if observed.abs() < glide_sweep(l, u) {
         return Some(NotTheObjects::InsideGlide);
     }
     if in_a_comb(table, pair) {

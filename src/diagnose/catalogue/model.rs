@@ -56,6 +56,10 @@ pub struct ModeEntry {
     /// The mode's glide observable and its σ: the chirp fit's relative offset at the onset g
     /// ([`ObservedMode::glide`]), else (f_early − f_late)/f when both halves were extracted.
     pub glide: Option<(f64, f64)>,
+    /// Whether `glide` is the weaker pole of a pair split by less than the pair's glide
+    /// sweep ([`shadow_glide_fragments`]): the likelihood then has no glide row for
+    /// it ([`ModeEntry::glide_row`]).
+    pub glide_shadowed: bool,
     /// Relative modal energy Q² ∈ [0, 1] of the model (pitch-glide covariate): the unit's
     /// drive² over the largest drive² among all simulated modes. A unit impulse gives mode k
     /// the displacement q = drive/ω, so its energy ½ω²q² = ½drive²; the same scale in every
@@ -86,6 +90,27 @@ pub struct ModeEntry {
     /// ∂ln f/∂ν of the simulated modes it stands for (drive²-weighted like `ln_f_sim`), when
     /// every one carries it ([`super::PoissonShift`]).
     pub ln_f_per_poisson: Option<f64>,
+}
+
+impl ModeEntry {
+    /// The glide the likelihood holds for this mode: [`ModeEntry::glide`], unless it is the
+    /// shadowed fragment of a pair inside its glide.
+    pub fn glide_row(&self) -> Option<(f64, f64)> {
+        self.glide.filter(|_| !self.glide_shadowed)
+    }
+}
+
+/// The frequency range [relative, ln f] a pair's partial sweeps as it glides: the largest |g|
+/// of its two poles' glides that are measured (|g| > 3σ_g), 0 without one. A pair split by
+/// less is inside its glide: two fixed poles are then only the extraction's way of following
+/// one moving frequency ([`super::beating_pair`], [`shadow_glide_fragments`]).
+pub fn glide_sweep(l: &ModeEntry, u: &ModeEntry) -> f64 {
+    [l.glide, u.glide]
+        .into_iter()
+        .flatten()
+        .filter(|&(g, sg)| g.abs() > 3.0 * sg)
+        .map(|(g, _)| g.abs())
+        .fold(0.0, f64::max)
 }
 
 /// Two observed modes of one cluster (indices into [`ModeTable::modes`]).
@@ -271,6 +296,35 @@ pub struct Pole {
 /// and the amplitude rows grouped per mode ([`ModeTable`]'s `rows`, `other_rows`,
 /// `amplitude_groups`).
 #[allow(clippy::type_complexity)]
+/// Marks the glide of the weaker pole (the smaller sum of amplitudes over the channels,
+/// `loudness`) of every split pair inside its glide ([`glide_sweep`]) as shadowed: the
+/// likelihood keeps one glide row per such partial, the louder pole's.
+///
+/// Why: while a partial sweeps across both poles' frequencies the extraction cannot tell two
+/// modes apart, and the chirp fit of the weaker pole fits whatever the louder one's left, with
+/// either sign. Generator 2's gliding tubes (near-degenerate pairs a few hertz apart, glides
+/// of 0.4–1.2 %): seed 191 case 004, +5.83·10⁻³ ± 1.2·10⁻⁴ on the louder pole at 7738 Hz and
+/// −1.21·10⁻² ± 1.3·10⁻³ on the one 5 × weaker 1 Hz above; seed 179 case 008, +1.01·10⁻²
+/// and −1.11·10⁻² on poles 6 Hz apart. Two rows of opposite sign for one partial's glide
+/// are read as scatter about any glide law, and the glide floor they set swallows the glide.
+fn shadow_glide_fragments(modes: &mut [ModeEntry], pairs: &[SplitPair], loudness: &[f64]) {
+    for pair in pairs {
+        let (l, u) = (&modes[pair.lower], &modes[pair.upper]);
+        let (Some((gl, _)), Some((gu, _))) = (l.glide, u.glide) else {
+            continue;
+        };
+        if gl * gu >= 0.0 || (u.ln_f - l.ln_f).abs() >= glide_sweep(l, u) {
+            continue;
+        }
+        let weaker = if loudness[pair.lower] < loudness[pair.upper] {
+            pair.lower
+        } else {
+            pair.upper
+        };
+        modes[weaker].glide_shadowed = true;
+    }
+}
+
 fn rows_of(
     modes: &[ModeEntry],
     pairs: &[SplitPair],
@@ -350,7 +404,7 @@ fn rows_of(
         }
     }
     for (k, m) in modes.iter().enumerate() {
-        if let Some((v, s)) = m.glide {
+        if let Some((v, s)) = m.glide_row() {
             rows.push(Row {
                 kind: RowKind::Glide(k),
                 value: v,
@@ -627,6 +681,7 @@ impl ModeTable {
                 ln_d,
                 ln_a,
                 glide,
+                glide_shadowed: false,
                 energy: if max_drive2 > 0.0 {
                     drive * drive / max_drive2
                 } else {
@@ -658,6 +713,11 @@ impl ModeTable {
                 }
             }
         }
+        let loudness: Vec<f64> = modes
+            .iter()
+            .map(|m| observed[m.observed].amplitudes.iter().sum())
+            .collect();
+        shadow_glide_fragments(&mut modes, &pairs, &loudness);
         let (rows, other_rows, amplitude_groups) = rows_of(&modes, &pairs);
         ModeTable {
             modes,
@@ -1600,7 +1660,7 @@ fn residuals_with(table: &ModeTable, p: &Prediction, t: &FloorVariances) -> Mode
         .modes
         .iter()
         .enumerate()
-        .map(|(k, m)| m.glide.map(|(v, s)| (v - p.glide[k], s * s + t[4])))
+        .map(|(k, m)| m.glide_row().map(|(v, s)| (v - p.glide[k], s * s + t[4])))
         .collect();
     ModeResiduals {
         ln_f,

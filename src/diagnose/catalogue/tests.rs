@@ -1661,6 +1661,42 @@ fn a_split_inside_its_glide_sweep_is_not_a_beating_pair() {
     );
 }
 
+/// The two poles of a pair split by less than its glide, gliding opposite ways, are one
+/// partial followed by the extraction, not two glide measurements: the table keeps one glide
+/// row, the louder pole's (`model::shadow_glide_fragments`; generator 2's seed 191 case 004,
+/// +5.8·10⁻³ on the louder pole and −1.2·10⁻² on one 5 × weaker 1 Hz above). Both are kept
+/// when they glide the same way (two modes that both glide: generator 2's set m5003 case 010)
+/// or when the split is wider than either glide.
+#[test]
+fn the_weaker_pole_of_a_pair_inside_its_glide_has_no_glide_row() {
+    let settings = CatalogueSettings::default();
+    let (ev, lower, upper) = two_split_pairs();
+    // Cluster 3 is split by 0.4 %; the upper pole is made 5 × weaker.
+    let glide_rows = |g_lower: f64, g_upper: f64| {
+        let mut ev = ev.clone();
+        for a in &mut ev.fit[upper].amplitudes {
+            *a = 0.2 * *a;
+        }
+        ev.fit[lower].glide = Some((g_lower, 1e-4));
+        ev.fit[upper].glide = Some((g_upper, 1e-4));
+        let (table, _, _) = fit_and_held_tables(&ev, &settings);
+        let pair = *table
+            .pairs
+            .iter()
+            .find(|p| p.cluster == 3)
+            .expect("cluster 3 is seen split");
+        let has_row = |k: usize| table.rows.iter().any(|r| r.kind == RowKind::Glide(k));
+        (has_row(pair.lower), has_row(pair.upper))
+    };
+    // Inside the sweep (|g| 1 % > the split), opposite signs: only the louder pole's row.
+    assert_eq!(glide_rows(0.006, -0.01), (true, false));
+    assert_eq!(glide_rows(-0.01, 0.006), (true, false));
+    // The same sign: both.
+    assert_eq!(glide_rows(0.006, 0.01), (true, true));
+    // Opposite signs, but the split (0.4 %) wider than either glide: both.
+    assert_eq!(glide_rows(0.002, -0.003), (true, true));
+}
+
 /// A split pair with a third pole of its partial within one split of it is one choice among a
 /// comb (a room's fine structure), not two modes beating: a pole half a split above cluster
 /// 3's upper member at half the weaker member's level leaves only cluster 8 split. The same
