@@ -292,10 +292,6 @@ pub struct Pole {
     pub peaks: Vec<f64>,
 }
 
-/// The rows of a table's modes and split pairs, the indices of those that are not amplitudes,
-/// and the amplitude rows grouped per mode ([`ModeTable`]'s `rows`, `other_rows`,
-/// `amplitude_groups`).
-#[allow(clippy::type_complexity)]
 /// Marks the glide of the weaker pole (the smaller sum of amplitudes over the channels,
 /// `loudness`) of every split pair inside its glide ([`glide_sweep`]) as shadowed: the
 /// likelihood keeps one glide row per such partial, the louder pole's.
@@ -325,6 +321,10 @@ fn shadow_glide_fragments(modes: &mut [ModeEntry], pairs: &[SplitPair], loudness
     }
 }
 
+/// The rows of a table's modes and split pairs, the indices of those that are not amplitudes,
+/// and the amplitude rows grouped per mode ([`ModeTable`]'s `rows`, `other_rows`,
+/// `amplitude_groups`).
+#[allow(clippy::type_complexity)]
 fn rows_of(
     modes: &[ModeEntry],
     pairs: &[SplitPair],

@@ -1675,7 +1675,7 @@ fn the_weaker_pole_of_a_pair_inside_its_glide_has_no_glide_row() {
     let glide_rows = |g_lower: f64, g_upper: f64| {
         let mut ev = ev.clone();
         for a in &mut ev.fit[upper].amplitudes {
-            *a = 0.2 * *a;
+            *a *= 0.2;
         }
         ev.fit[lower].glide = Some((g_lower, 1e-4));
         ev.fit[upper].glide = Some((g_upper, 1e-4));
