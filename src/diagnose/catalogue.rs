@@ -158,7 +158,7 @@
 //! split by less than its glide's sweep whose poles glide opposite ways, only the louder
 //! pole's glide is a row ([`model::ModeEntry::glide_row`]); the weaker pole's chirp fit is
 //! of what the louder one left, and the Student-t rows still let it set the floor (generator
-//! 2's seed 191 case 004: ΔBIC 2.0 with it, 6.2 without).
+//! 2's seed 191 case 004: ΔBIC 2.0 with it, 7.3 without).
 //!
 //! The amplitudes of one mode share a level error: a drive read at a slightly wrong strike
 //! point, or a radiation efficiency, scales the mode on every microphone alike. So the C
