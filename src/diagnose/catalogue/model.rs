@@ -56,9 +56,9 @@ pub struct ModeEntry {
     /// The mode's glide observable and its σ: the chirp fit's relative offset at the onset g
     /// ([`ObservedMode::glide`]), else (f_early − f_late)/f when both halves were extracted.
     pub glide: Option<(f64, f64)>,
-    /// Whether `glide` is the weaker pole of a pair split by less than the pair's glide
-    /// sweep ([`shadow_glide_fragments`]): the likelihood then has no glide row for
-    /// it ([`ModeEntry::glide_row`]).
+    /// Whether `glide` is that of the weaker pole of a pair split by less than the pair's
+    /// glide sweep whose two poles glide opposite ways ([`shadow_glide_fragments`]): the
+    /// likelihood then has no glide row for it ([`ModeEntry::glide_row`]).
     pub glide_shadowed: bool,
     /// Relative modal energy Q² ∈ [0, 1] of the model (pitch-glide covariate): the unit's
     /// drive² over the largest drive² among all simulated modes. A unit impulse gives mode k
@@ -293,8 +293,9 @@ pub struct Pole {
 }
 
 /// Marks the glide of the weaker pole (the smaller sum of amplitudes over the channels,
-/// `loudness`) of every split pair inside its glide ([`glide_sweep`]) as shadowed: the
-/// likelihood keeps one glide row per such partial, the louder pole's.
+/// `loudness`) of every split pair inside its glide ([`glide_sweep`]) whose two poles glide
+/// opposite ways as shadowed: the likelihood keeps one glide row per such partial, the louder
+/// pole's. The fit's and the held-out tables alike.
 ///
 /// Why: while a partial sweeps across both poles' frequencies the extraction cannot tell two
 /// modes apart, and the chirp fit of the weaker pole fits whatever the louder one's left, with
@@ -303,6 +304,10 @@ pub struct Pole {
 /// −1.21·10⁻² ± 1.3·10⁻³ on the one 5 × weaker 1 Hz above; seed 179 case 008, +1.01·10⁻²
 /// and −1.11·10⁻² on poles 6 Hz apart. Two rows of opposite sign for one partial's glide
 /// are read as scatter about any glide law, and the glide floor they set swallows the glide.
+/// Poles that glide the same way keep both rows: two modes of one pair may both glide, each
+/// by its own energy (generator 2's set m5003 case 010, a tube's pair measured at 1.09·10⁻²
+/// and 7.8·10⁻³, as the members' drives say), and dropping the weaker one's row lost that
+/// case's glide.
 fn shadow_glide_fragments(modes: &mut [ModeEntry], pairs: &[SplitPair], loudness: &[f64]) {
     for pair in pairs {
         let (l, u) = (&modes[pair.lower], &modes[pair.upper]);
