@@ -1,29 +1,78 @@
-//! Experiment: the modes of a body with a lumped mass on some of its vertices, by a full solve
-//! (the reference a Ritz model of the mass is judged against).
+//! Experiment: the modes of a body with lumped masses and point springs on some of its
+//! vertices, by a full solve (the reference a Ritz model of them is judged against).
 //!
-//! `mass_probe MESH E NU RHO MASS_KG FMAX_HZ NODE...`: prints the elastic frequencies up to
-//! FMAX without the mass and with MASS_KG spread evenly over the nodes (original numbering,
-//! three components each), one line per mode.
+//! `mass_probe MESH E NU RHO FMAX_HZ [mass KG NODE...] [spring K_T K_N NODE...]`: prints the
+//! elastic frequencies up to FMAX without and with the attachments, one line per mode. `mass`
+//! spreads KG evenly over its nodes (original numbering, three components each); `spring`
+//! puts K_T \[N/m\] along x and y and K_N along z on each of its nodes. With springs the rigid
+//! motions become support modes, which are kept.
 use diffsound::assembly;
 use diffsound::eigen::{self, EigenConfig, ModeRequest};
 use diffsound::fem::Material;
 use diffsound::mesh;
 use diffsound::petsc::Petsc;
 
+/// Point masses (kg over nodes) and springs ([k_t, k_t, k_n] on each node).
+#[derive(Default)]
+struct Attachments {
+    mass: Option<(f64, Vec<usize>)>,
+    spring: Option<([f64; 3], Vec<usize>)>,
+}
+
+fn parse_attachments(args: &[String]) -> Result<Attachments, String> {
+    let num = |s: &String| s.parse::<f64>().map_err(|_| format!("not a number: {s}"));
+    let mut out = Attachments::default();
+    let mut i = 0;
+    while i < args.len() {
+        let nodes_from = |j: usize| -> (Vec<usize>, usize) {
+            let mut end = j;
+            while end < args.len() && args[end].parse::<usize>().is_ok() {
+                end += 1;
+            }
+            let nodes = args[j..end]
+                .iter()
+                .map(|s| s.parse().unwrap_or(0))
+                .collect();
+            (nodes, end)
+        };
+        match args[i].as_str() {
+            "mass" if i + 1 < args.len() => {
+                let kg = num(&args[i + 1])?;
+                let (nodes, end) = nodes_from(i + 2);
+                out.mass = Some((kg, nodes));
+                i = end;
+            }
+            "spring" if i + 2 < args.len() => {
+                let (kt, kn) = (num(&args[i + 1])?, num(&args[i + 2])?);
+                let (nodes, end) = nodes_from(i + 3);
+                out.spring = Some(([kt, kt, kn], nodes));
+                i = end;
+            }
+            other => return Err(format!("unexpected argument {other}")),
+        }
+    }
+    Ok(out)
+}
+
 fn main() {
     let universe = mpi::initialize().expect("MPI");
     let petsc = Petsc::initialize(universe, "mass_probe", &[]).expect("PETSc");
     let args: Vec<String> = std::env::args().collect();
-    if args.len() < 8 {
-        eprintln!("usage: mass_probe MESH E NU RHO MASS_KG FMAX_HZ NODE...");
+    let usage =
+        "usage: mass_probe MESH E NU RHO FMAX_HZ [mass KG NODE...] [spring K_T K_N NODE...]";
+    if args.len() < 6 {
+        eprintln!("{usage}");
         std::process::exit(2);
     }
     let num = |i: usize| -> f64 { args[i].parse().expect("a number") };
-    let (youngs, poisson, density, mass_kg, fmax) = (num(2), num(3), num(4), num(5), num(6));
-    let nodes: Vec<usize> = args[7..]
-        .iter()
-        .map(|s| s.parse().expect("a node index"))
-        .collect();
+    let (youngs, poisson, density, fmax) = (num(2), num(3), num(4), num(5));
+    let attachments = match parse_attachments(&args[6..]) {
+        Ok(a) => a,
+        Err(e) => {
+            eprintln!("{e}\n{usage}");
+            std::process::exit(2);
+        }
+    };
     let read = mesh::read_mesh(std::path::Path::new(&args[1]), &Default::default()).expect("mesh");
     let m = mesh::lift_to_quadratic(&read.mesh);
     let asm = assembly::assemble(&petsc, &m).expect("assembly");
@@ -37,15 +86,25 @@ fn main() {
         rayleigh_beta: 0.0,
     };
     let scale = eigen::spectrum_scale(material.lame_mu(), density, size);
-    let solve = |with_mass: bool| -> Vec<f64> {
-        let (k, mut mm) = asm.operators(&material).expect("operators");
-        if with_mass {
-            let per = mass_kg / nodes.len() as f64;
-            assembly::add_nodal_diagonal(&petsc, &mut mm, &asm.layout, &nodes, [per; 3])
-                .expect("mass");
+    let solve = |attached: bool| -> Vec<f64> {
+        let (mut k, mut mm) = asm.operators(&material).expect("operators");
+        let mut expected_rigid = 6;
+        if attached {
+            if let Some((kg, nodes)) = &attachments.mass {
+                let per = kg / nodes.len() as f64;
+                assembly::add_nodal_diagonal(&petsc, &mut mm, &asm.layout, nodes, [per; 3])
+                    .expect("mass");
+            }
+            if let Some((values, nodes)) = &attachments.spring {
+                assembly::add_nodal_diagonal(&petsc, &mut k, &asm.layout, nodes, *values)
+                    .expect("spring");
+                expected_rigid = 0;
+            }
             mm.set_symmetric().expect("symmetric");
+            k.set_symmetric().expect("symmetric");
         }
-        let cfg = EigenConfig::new(ModeRequest::UpTo { f_max_hz: fmax }, scale);
+        let mut cfg = EigenConfig::new(ModeRequest::UpTo { f_max_hz: fmax }, scale);
+        cfg.expected_rigid = expected_rigid;
         let modes = eigen::solve_modes(&petsc, &k, &mm, &cfg).expect("modes");
         modes
             .eigenvalues
@@ -54,13 +113,13 @@ fn main() {
             .collect()
     };
     let free = solve(false);
-    let loaded = solve(true);
+    let attached = solve(true);
     if petsc.rank() == 0 {
         println!("# body mass {:.6} kg", density * m.volume());
-        for k in 0..free.len().max(loaded.len()) {
+        for k in 0..free.len().max(attached.len()) {
             let f = free.get(k).copied().unwrap_or(f64::NAN);
-            let l = loaded.get(k).copied().unwrap_or(f64::NAN);
-            println!("{k} {f:.3} {l:.3}");
+            let a = attached.get(k).copied().unwrap_or(f64::NAN);
+            println!("{k} {f:.3} {a:.3}");
         }
     }
 }
