@@ -29,22 +29,25 @@ fn parse_attachments(args: &[String]) -> Result<Attachments, String> {
             while end < args.len() && args[end].parse::<usize>().is_ok() {
                 end += 1;
             }
-            let nodes = args[j..end]
-                .iter()
-                .map(|s| s.parse().unwrap_or(0))
-                .collect();
+            let nodes = args[j..end].iter().filter_map(|s| s.parse().ok()).collect();
             (nodes, end)
         };
         match args[i].as_str() {
             "mass" if i + 1 < args.len() => {
                 let kg = num(&args[i + 1])?;
                 let (nodes, end) = nodes_from(i + 2);
+                if nodes.is_empty() {
+                    return Err("`mass` needs at least one node".into());
+                }
                 out.mass = Some((kg, nodes));
                 i = end;
             }
             "spring" if i + 2 < args.len() => {
                 let (kt, kn) = (num(&args[i + 1])?, num(&args[i + 2])?);
                 let (nodes, end) = nodes_from(i + 3);
+                if nodes.is_empty() {
+                    return Err("`spring` needs at least one node".into());
+                }
                 out.spring = Some(([kt, kt, kn], nodes));
                 i = end;
             }
@@ -64,10 +67,16 @@ fn main() {
         eprintln!("{usage}");
         std::process::exit(2);
     }
-    let num = |i: usize| -> f64 { args[i].parse().expect("a number") };
-    let (youngs, poisson, density, fmax) = (num(2), num(3), num(4), num(5));
-    let attachments = match parse_attachments(&args[6..]) {
-        Ok(a) => a,
+    let parsed = (2..6)
+        .map(|i| {
+            args[i]
+                .parse::<f64>()
+                .map_err(|_| format!("not a number: {}", args[i]))
+        })
+        .collect::<Result<Vec<f64>, String>>()
+        .and_then(|n| parse_attachments(&args[6..]).map(|a| (n, a)));
+    let (youngs, poisson, density, fmax, attachments) = match parsed {
+        Ok((n, a)) => (n[0], n[1], n[2], n[3], a),
         Err(e) => {
             eprintln!("{e}\n{usage}");
             std::process::exit(2);
