@@ -1,14 +1,20 @@
 //! Experiment: the modes of a body with lumped masses and point springs on some of its
 //! vertices, by a full solve (the reference a Ritz model of them is judged against).
 //!
-//! `mass_probe MESH E NU RHO FMAX_HZ [mass KG NODE...] [spring K_T K_N NODE...]`: prints the
-//! elastic frequencies up to FMAX without and with the attachments, one line per mode. `mass`
-//! spreads KG evenly over its nodes (original numbering, three components each); `spring`
-//! puts K_T \[N/m\] along x and y and K_N along z on each of its nodes. With springs the rigid
-//! motions become support modes, which are kept.
+//! `mass_probe MESH E NU RHO FMAX_HZ [mass KG NODE...] [spring K_T K_N NODE...] [out FILE.h5]`:
+//! prints the elastic frequencies up to FMAX without and with the attachments, one line per
+//! mode. `mass` spreads KG evenly over its nodes (original numbering, three components each);
+//! `spring` puts K_T \[N/m\] along x and y and K_N along z on each of its nodes. With springs
+//! the rigid motions become support modes, which are kept.
+//!
+//! `out` writes the attached body's modes (eigenvalues, mass-normalised shapes in the original
+//! node order) to FILE.h5 in the modes schema of `diffsound modes` (`io::write_modes`), and
+//! skips the free solve: generator 2 (`scripts/bench/gen2/generate.py`) draws its added-mass
+//! cases from it, so that the mass it labels is the mass the recording carries.
 use diffsound::assembly;
 use diffsound::eigen::{self, EigenConfig, ModeRequest};
 use diffsound::fem::Material;
+use diffsound::io;
 use diffsound::mesh;
 use diffsound::petsc::Petsc;
 
@@ -17,6 +23,7 @@ use diffsound::petsc::Petsc;
 struct Attachments {
     mass: Option<(f64, Vec<usize>)>,
     spring: Option<([f64; 3], Vec<usize>)>,
+    out: Option<std::path::PathBuf>,
 }
 
 fn parse_attachments(args: &[String]) -> Result<Attachments, String> {
@@ -51,6 +58,10 @@ fn parse_attachments(args: &[String]) -> Result<Attachments, String> {
                 out.spring = Some(([kt, kt, kn], nodes));
                 i = end;
             }
+            "out" if i + 1 < args.len() => {
+                out.out = Some(args[i + 1].clone().into());
+                i += 2;
+            }
             other => return Err(format!("unexpected argument {other}")),
         }
     }
@@ -62,7 +73,8 @@ fn main() {
     let petsc = Petsc::initialize(universe, "mass_probe", &[]).expect("PETSc");
     let args: Vec<String> = std::env::args().collect();
     let usage =
-        "usage: mass_probe MESH E NU RHO FMAX_HZ [mass KG NODE...] [spring K_T K_N NODE...]";
+        "usage: mass_probe MESH E NU RHO FMAX_HZ [mass KG NODE...] [spring K_T K_N NODE...] \
+         [out FILE.h5]";
     if args.len() < 6 {
         eprintln!("{usage}");
         std::process::exit(2);
@@ -95,7 +107,7 @@ fn main() {
         rayleigh_beta: 0.0,
     };
     let scale = eigen::spectrum_scale(material.lame_mu(), density, size);
-    let solve = |attached: bool| -> Vec<f64> {
+    let solve = |attached: bool| -> eigen::Modes<'_> {
         let (mut k, mut mm) = asm.operators(&material).expect("operators");
         let mut expected_rigid = 6;
         if attached {
@@ -114,15 +126,67 @@ fn main() {
         }
         let mut cfg = EigenConfig::new(ModeRequest::UpTo { f_max_hz: fmax }, scale);
         cfg.expected_rigid = expected_rigid;
-        let modes = eigen::solve_modes(&petsc, &k, &mm, &cfg).expect("modes");
+        eigen::solve_modes(&petsc, &k, &mm, &cfg).expect("modes")
+    };
+    let hz = |modes: &eigen::Modes<'_>| -> Vec<f64> {
         modes
             .eigenvalues
             .iter()
             .map(|&l| eigen::frequency_hz(l))
             .collect()
     };
-    let free = solve(false);
-    let attached = solve(true);
+    let attached_modes = solve(true);
+    let attached = hz(&attached_modes);
+    if let Some(path) = &attachments.out {
+        // Collective gather, then rank 0 writes.
+        let shapes = asm
+            .layout
+            .gather_original_order(&attached_modes.vectors)
+            .expect("gather");
+        if petsc.rank() == 0 {
+            let mut provenance = vec![("mesh".to_string(), args[1].clone())];
+            if let Some((kg, nodes)) = &attachments.mass {
+                provenance.push(("attached_mass_kg".into(), kg.to_string()));
+                provenance.push(("attached_mass_nodes".into(), format!("{nodes:?}")));
+            }
+            if let Some((values, nodes)) = &attachments.spring {
+                provenance.push(("attached_springs_n_per_m".into(), format!("{values:?}")));
+                provenance.push(("attached_spring_nodes".into(), format!("{nodes:?}")));
+            }
+            let file = io::ModesFile {
+                nodes: &m.nodes,
+                connectivity: &m.connectivity,
+                nodes_per_tet: m.nodes_per_tet(),
+                material: io::MaterialRecord {
+                    name: "custom".into(),
+                    youngs_modulus: youngs,
+                    poisson_ratio: poisson,
+                    density,
+                    rayleigh_alpha: 0.0,
+                    rayleigh_beta: 0.0,
+                },
+                eigenvalues: &attached_modes.eigenvalues,
+                frequencies_hz: &attached,
+                mode_shapes: &shapes,
+                residual_norms: &attached_modes.residuals,
+                rigid_eigenvalues: &attached_modes.rigid_eigenvalues,
+                solver: Vec::new(),
+                n_ranks: petsc.size(),
+                element_order: 2,
+                timings: Vec::new(),
+                provenance,
+                extra_datasets: Vec::new(),
+                node_fields: Vec::new(),
+            };
+            if let Err(e) = io::write_modes(path, &file) {
+                eprintln!("{e}");
+                std::process::exit(1);
+            }
+            println!("# wrote {} ({} modes)", path.display(), attached.len());
+        }
+        return;
+    }
+    let free = hz(&solve(false));
     if petsc.rank() == 0 {
         println!("# body mass {:.6} kg", density * m.volume());
         for k in 0..free.len().max(attached.len()) {
