@@ -8,8 +8,8 @@ against analytic solutions); everything after it -- the objects, the strike, the
 quantity, the microphones, the radiation, the damping law, the effects and the noise -- is
 written here afresh in NumPy, with conventions chosen to differ from the first generator:
 
-* objects: a thin plate, a tube and a small bowl (``*.geo`` beside this file), not the
-  ceramic bowl of ``../shared``; 2 to 8 microphones;
+* objects: a thin plate, a tube, a small bowl and a steel bar (``*.geo`` beside this file),
+  not the ceramic bowl of ``../shared``; 2 to 8 microphones;
 * response: displacement, velocity, acceleration or pressure-like (velocity times a radiation
   efficiency rising as f^1.5 below coincidence) -- drawn per case, never told to the tool;
 * microphones: gain +-8 dB and a frequency tilt (f/1 kHz)^s with s ~ U[-0.6, 0.6] each;
@@ -23,8 +23,9 @@ Effects (each case has zero or one; names as the tool reports them):
 * non_rayleigh_damping -- a power law d = d1 (f / 1 kHz)^p, p ~ U[0.3, 1.0];
 * beating_pair -- the near-degenerate pairs of the tube and the bowl split by 0.3-1.2 %
   (each pair by its own random fraction of that);
-* support_contact -- springs and dashpots on a strip of the lowest surface (a plate on a
-  rubber strip, a tube on a rail, a bowl on its foot ring), Ritz in the free modes;
+* support_contact -- springs and dashpots on a strip of the lowest surface (a plate or a bar
+  on a rubber strip across it, a tube on a rail, a bowl on its foot ring), Ritz in the free
+  modes;
 * contact_duration -- a half-sine force of duration tau, first spectral null at 0.45-0.85 of
   the band's top;
 * reverb_noise -- each channel convolved with its own room: a direct path plus exponentially
@@ -75,6 +76,8 @@ OBJECTS = {
     "plate": ("plate.geo", 2700.0, (6.5e10, 7.5e10), (0.31, 0.34), False),
     "tube": ("tube.geo", 2230.0, (5.8e10, 6.8e10), (0.20, 0.23), True),
     "cup": ("cup.geo", 2400.0, (6.0e10, 9.0e10), (0.18, 0.22), True),
+    # Added 2026-12-06 (after seed 211), an object no rule was shaped on.
+    "bar": ("bar.geo", 7850.0, (1.9e11, 2.1e11), (0.28, 0.30), False),
 }
 EFFECTS = ["non_rayleigh_damping", "beating_pair", "support_contact", "contact_duration",
            "reverb_noise", "pitch_glide", "added_mass"]
@@ -253,7 +256,7 @@ def draw_object(rng, effect, control, np_ranks, work):
     height = z.max() - z.min()
     if effect == "support_contact":
         low = verts[z[verts] < z.min() + 0.03 * height]
-        if name == "plate":  # a rubber strip across the plate's underside
+        if name in ("plate", "bar"):  # a rubber strip across the underside
             x = nodes[low, 0]
             x0 = rng.uniform(x.min() + 0.2 * np.ptp(x), x.max() - 0.2 * np.ptp(x))
             low = low[np.abs(x - x0) < 0.012]

@@ -5,7 +5,7 @@
 # labels and score (score.py).
 #
 #   bash scripts/bench/gen2/run.sh [--cases 24] [--seed 7] [--np 2] [--out out/gen2] [--bin PATH]
-#                                  [--effect NAME|clean] [--object plate|tube|cup]
+#                                  [--effect NAME|clean] [--object plate|tube|cup|bar]
 #
 # --bin runs a given (frozen) diffsound binary instead of building target/release/diffsound, so a
 # blind run is not disturbed by development in the same tree. --effect and --object make a
