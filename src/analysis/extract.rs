@@ -631,8 +631,16 @@ fn map_to_full_rate(
         .map(|((b, vb), x)| {
             if b.norm_sqr() > 0.0 {
                 let v = vb / b.norm_sqr() + g.norm_sqr() * var_ell - 2.0 * (g.conj() * x / b).re;
-                let half = (0.5 * v.max(0.0)).sqrt();
-                (2.0 * b.norm() / gain.norm() * half, half)
+                if v > 0.0 && v.is_finite() {
+                    let half = (0.5 * v).sqrt();
+                    (2.0 * b.norm() / gain.norm() * half, half)
+                } else {
+                    // A first-order covariance that is not positive (a band model near
+                    // singular: its parameters trade off) measures nothing about this
+                    // amplitude; a clamp to 0 claimed it exact (generator 2's seed 223 case
+                    // 002, a bar: σ_a = 0 beside a = 0.128, and the diagnosis aborted).
+                    (f64::INFINITY, std::f64::consts::PI / 3f64.sqrt())
+                }
             } else {
                 (
                     2.0 / gain.norm() * (0.5 * vb).sqrt(),

@@ -11,6 +11,13 @@
 //! is its *mutual* nearest neighbour in frequency within `glide_match` (relative; default 1 %).
 //! A σ-based gate would reject exactly the glides it is meant to find (σ_f / f ~ 10⁻⁵, glides
 //! 10⁻³), and mutual nearness keeps a close pair from swapping its halves.
+//!
+//! Only measurements enter: a mode whose σ_f (or, when it decays, σ_d) is not positive and
+//! finite is left out, and a channel whose σ_a is not is taken as one that does not hold the
+//! mode (a_c = 0, the catalogue's convention). The extraction reports an infinite σ where its
+//! covariance says nothing (a band model near singular); the catalogue refuses such inputs, and
+//! one such amplitude on a bar (generator 2's seed 223 case 002) aborted a whole diagnosis.
+//!
 //! When the extraction went through the chirp-aware stage ([`crate::analysis::extract::glide`]),
 //! every mode that came out as one component carries its fitted relative glide at the onset,
 //! g ± σ_g ([`ObservedMode::glide`]); the catalogue then uses that instead of early and late
@@ -63,6 +70,7 @@
 //! `support_region_search_params`.
 
 use crate::analysis::extract::ModalExtraction;
+use crate::analysis::MeasuredMode;
 use crate::audio::stft::StftPlan;
 use crate::diagnose::catalogue::{
     weighted_regression, ObservedMode, ResidualEnvelopes, SimulatedMode,
@@ -142,7 +150,7 @@ pub fn observed_modes(
     let kept: Vec<_> = full
         .modes
         .iter()
-        .filter(|m| m.snr() >= options.min_snr_db && m.frequency_hz > 0.0)
+        .filter(|m| m.snr() >= options.min_snr_db && m.frequency_hz > 0.0 && measured(m))
         .collect();
     let freqs: Vec<f64> = kept.iter().map(|m| m.frequency_hz).collect();
     let half = |ex: Option<&ModalExtraction>| -> Vec<Option<(f64, f64)>> {
@@ -170,13 +178,35 @@ pub fn observed_modes(
             sigma_frequency_hz: m.sd().frequency_hz,
             decay_rate: m.decay_rate,
             sigma_decay_rate: m.sd().decay_rate,
-            amplitudes: m.amplitudes.clone(),
-            sigma_amplitudes: m.sd().amplitudes.clone(),
+            amplitudes: m
+                .amplitudes
+                .iter()
+                .zip(&m.sd().amplitudes)
+                .map(|(&a, &s)| if positive(s) { a } else { 0.0 })
+                .collect(),
+            sigma_amplitudes: m
+                .sd()
+                .amplitudes
+                .iter()
+                .map(|&s| if positive(s) { s } else { 0.0 })
+                .collect(),
             early_frequency_hz: e[i],
             late_frequency_hz: l[i],
             glide: m.glide.as_ref().map(|g| (g.glide, g.glide_sd)),
         })
         .collect()
+}
+
+fn positive(x: f64) -> bool {
+    x > 0.0 && x.is_finite()
+}
+
+/// Whether the extraction measured the mode's frequency (and its decay rate, when it decays):
+/// module docs, "Observed modes".
+fn measured(m: &MeasuredMode) -> bool {
+    m.sd.as_ref().is_some_and(|sd| {
+        positive(sd.frequency_hz) && (m.decay_rate <= 0.0 || positive(sd.decay_rate))
+    })
 }
 
 /// Settings of [`residual_envelopes`].
@@ -969,5 +999,59 @@ mod tests {
             ..Default::default()
         };
         assert!(observed_modes(&full, None, None, &strict).is_empty());
+    }
+
+    /// An amplitude or a frequency the extraction could not measure (σ = 0 from a clamped
+    /// covariance, or ∞) never reaches the catalogue as a measurement, which it would refuse.
+    #[test]
+    fn observed_modes_leave_out_what_was_not_measured() {
+        let fs = 16000.0;
+        let n = 16000;
+        let bank = ModalBank {
+            frequencies_hz: vec![700.0, 1500.0, 2300.0],
+            decay_rates: vec![3.0, 5.0, 4.0],
+            amplitudes: vec![0.3, 0.25, 0.2],
+            phases: vec![0.3, 1.1, -1.0],
+        };
+        let mut rng = SplitMix64::new(11);
+        let channels: Vec<Vec<f64>> = (0..2)
+            .map(|_| {
+                render_samples(&bank, fs, n)
+                    .iter()
+                    .map(|v| v + 1e-5 * rng.normal())
+                    .collect()
+            })
+            .collect();
+        let mut full = extract_modes(&channels, fs, &ExtractOptions::default()).unwrap();
+        assert_eq!(full.modes.len(), 3);
+        let sd = |m: &mut crate::analysis::MeasuredMode| m.sd.as_mut().unwrap().clone();
+        // Mode 0: channel 0's σ_a clamped to 0, channel 1's infinite.
+        let mut s0 = sd(&mut full.modes[0]);
+        s0.amplitudes = vec![0.0, f64::INFINITY];
+        full.modes[0].sd = Some(s0);
+        // Mode 1: no frequency uncertainty.
+        let mut s1 = sd(&mut full.modes[1]);
+        s1.frequency_hz = f64::NAN;
+        full.modes[1].sd = Some(s1);
+        // Mode 2: a decaying mode whose decay rate has no uncertainty.
+        let mut s2 = sd(&mut full.modes[2]);
+        s2.decay_rate = 0.0;
+        full.modes[2].sd = Some(s2);
+        let obs = observed_modes(&full, None, None, &ObservedOptions::default());
+        assert_eq!(
+            obs.len(),
+            1,
+            "only mode 0 has its frequency and decay measured"
+        );
+        let o = &obs[0];
+        assert!((o.frequency_hz - 700.0).abs() < 0.01);
+        assert_eq!(o.amplitudes, vec![0.0, 0.0]);
+        assert_eq!(o.sigma_amplitudes, vec![0.0, 0.0]);
+        // The untouched ones pass through.
+        let clean = extract_modes(&channels, fs, &ExtractOptions::default()).unwrap();
+        let all = observed_modes(&clean, None, None, &ObservedOptions::default());
+        assert_eq!(all.len(), 3);
+        assert!(all.iter().all(|o| o.amplitudes.iter().all(|&a| a > 0.0)
+            && o.sigma_amplitudes.iter().all(|&s| s > 0.0 && s.is_finite())));
     }
 }

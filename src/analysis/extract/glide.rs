@@ -887,17 +887,27 @@ impl BandFitResult {
             let (vpp, vqq, vpq) = (cov_b[(i, i)], cov_b[(k, k)], cov_b[(i, k)]);
             amplitudes.push(a2.sqrt());
             phases.push(qv.atan2(p));
+            // A variance that is not positive (a covariance near singular: components that
+            // trade off) is no measurement, not an exact one: infinite, as in the extraction.
+            let sd_or_none = |v: f64| {
+                if v > 0.0 && v.is_finite() {
+                    v.sqrt()
+                } else {
+                    f64::INFINITY
+                }
+            };
             if a2 > 0.0 {
-                amplitude_sds.push(
-                    ((p * p * vpp + qv * qv * vqq + 2.0 * p * qv * vpq) / a2)
-                        .max(0.0)
-                        .sqrt(),
-                );
-                phase_sds.push(
-                    ((qv * qv * vpp + p * p * vqq - 2.0 * p * qv * vpq) / (a2 * a2))
-                        .max(0.0)
-                        .sqrt(),
-                );
+                amplitude_sds.push(sd_or_none(
+                    (p * p * vpp + qv * qv * vqq + 2.0 * p * qv * vpq) / a2,
+                ));
+                // No measured phase: that of a uniformly distributed one.
+                let phase_sd =
+                    sd_or_none((qv * qv * vpp + p * p * vqq - 2.0 * p * qv * vpq) / (a2 * a2));
+                phase_sds.push(if phase_sd.is_finite() {
+                    phase_sd
+                } else {
+                    PI / 3f64.sqrt()
+                });
             } else {
                 amplitude_sds.push((0.5 * (vpp + vqq)).max(0.0).sqrt());
                 phase_sds.push(PI / 3f64.sqrt());
