@@ -190,7 +190,9 @@ use nalgebra::{Cholesky, DMatrix, DVector, SymmetricEigen, SVD};
 use crate::analysis::estimate::{
     self, lsq, BandData, BandReport, Decimator, EstimateError, EstimateOptions, C64,
 };
-use crate::analysis::mode::{MeasuredMode, ModeSd, RefinedFrom, Refinement};
+use crate::analysis::mode::{
+    sd_from_variance, MeasuredMode, ModeSd, RefinedFrom, Refinement, UNIFORM_PHASE_SD,
+};
 use crate::audio::synth::ModalBank;
 use crate::numerics::lm;
 
@@ -631,21 +633,15 @@ fn map_to_full_rate(
         .map(|((b, vb), x)| {
             if b.norm_sqr() > 0.0 {
                 let v = vb / b.norm_sqr() + g.norm_sqr() * var_ell - 2.0 * (g.conj() * x / b).re;
-                if v > 0.0 && v.is_finite() {
-                    let half = (0.5 * v).sqrt();
+                // σ of ln a and of φ; a band model near singular measures neither.
+                let half = sd_from_variance(0.5 * v);
+                if half.is_finite() {
                     (2.0 * b.norm() / gain.norm() * half, half)
                 } else {
-                    // A first-order covariance that is not positive (a band model near
-                    // singular: its parameters trade off) measures nothing about this
-                    // amplitude; a clamp to 0 claimed it exact (generator 2's seed 223 case
-                    // 002, a bar: σ_a = 0 beside a = 0.128, and the diagnosis aborted).
-                    (f64::INFINITY, std::f64::consts::PI / 3f64.sqrt())
+                    (f64::INFINITY, UNIFORM_PHASE_SD)
                 }
             } else {
-                (
-                    2.0 / gain.norm() * (0.5 * vb).sqrt(),
-                    std::f64::consts::PI / 3f64.sqrt(),
-                )
+                (2.0 / gain.norm() * (0.5 * vb).sqrt(), UNIFORM_PHASE_SD)
             }
         })
         .collect();

@@ -83,6 +83,21 @@ pub struct ModeSd {
     pub phases: Vec<f64>,
 }
 
+/// σ_φ of a phase the data do not determine: that of a phase uniform on (−π, π], π/√3 rad.
+pub const UNIFORM_PHASE_SD: f64 = PI / 1.732_050_807_568_877_2;
+
+/// A standard deviation from a first-order variance. A variance that is not positive and
+/// finite (a covariance near singular: parameters that trade off) measures nothing, so its σ
+/// is ∞; a clamp to 0 would claim an exact measurement (generator 2's seed 223 case 002, a
+/// bar: σ_a = 0 beside a = 0.128, which the catalogue refused, aborting the diagnosis).
+pub fn sd_from_variance(variance: f64) -> f64 {
+    if variance > 0.0 && variance.is_finite() {
+        variance.sqrt()
+    } else {
+        f64::INFINITY
+    }
+}
+
 /// Where a refinement started: the estimate's f and d.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 pub struct RefinedFrom {

@@ -173,26 +173,25 @@ pub fn observed_modes(
     let (e, l) = (half(early), half(late));
     kept.iter()
         .enumerate()
-        .map(|(i, m)| ObservedMode {
-            frequency_hz: m.frequency_hz,
-            sigma_frequency_hz: m.sd().frequency_hz,
-            decay_rate: m.decay_rate,
-            sigma_decay_rate: m.sd().decay_rate,
-            amplitudes: m
+        .map(|(i, m)| {
+            // A channel without a measured amplitude is one without the mode.
+            let (amplitudes, sigma_amplitudes) = m
                 .amplitudes
                 .iter()
                 .zip(&m.sd().amplitudes)
-                .map(|(&a, &s)| if positive(s) { a } else { 0.0 })
-                .collect(),
-            sigma_amplitudes: m
-                .sd()
-                .amplitudes
-                .iter()
-                .map(|&s| if positive(s) { s } else { 0.0 })
-                .collect(),
-            early_frequency_hz: e[i],
-            late_frequency_hz: l[i],
-            glide: m.glide.as_ref().map(|g| (g.glide, g.glide_sd)),
+                .map(|(&a, &s)| if positive(s) { (a, s) } else { (0.0, 0.0) })
+                .unzip();
+            ObservedMode {
+                frequency_hz: m.frequency_hz,
+                sigma_frequency_hz: m.sd().frequency_hz,
+                decay_rate: m.decay_rate,
+                sigma_decay_rate: m.sd().decay_rate,
+                amplitudes,
+                sigma_amplitudes,
+                early_frequency_hz: e[i],
+                late_frequency_hz: l[i],
+                glide: m.glide.as_ref().map(|g| (g.glide, g.glide_sd)),
+            }
         })
         .collect()
 }
@@ -1022,21 +1021,18 @@ mod tests {
                     .collect()
             })
             .collect();
-        let mut full = extract_modes(&channels, fs, &ExtractOptions::default()).unwrap();
-        assert_eq!(full.modes.len(), 3);
-        let sd = |m: &mut crate::analysis::MeasuredMode| m.sd.as_mut().unwrap().clone();
+        let clean = extract_modes(&channels, fs, &ExtractOptions::default()).unwrap();
+        assert_eq!(clean.modes.len(), 3);
+        let mut full = clean.clone();
+        fn sd(k: usize, full: &mut ModalExtraction) -> &mut crate::analysis::ModeSd {
+            full.modes[k].sd.as_mut().unwrap()
+        }
         // Mode 0: channel 0's σ_a clamped to 0, channel 1's infinite.
-        let mut s0 = sd(&mut full.modes[0]);
-        s0.amplitudes = vec![0.0, f64::INFINITY];
-        full.modes[0].sd = Some(s0);
+        sd(0, &mut full).amplitudes = vec![0.0, f64::INFINITY];
         // Mode 1: no frequency uncertainty.
-        let mut s1 = sd(&mut full.modes[1]);
-        s1.frequency_hz = f64::NAN;
-        full.modes[1].sd = Some(s1);
+        sd(1, &mut full).frequency_hz = f64::NAN;
         // Mode 2: a decaying mode whose decay rate has no uncertainty.
-        let mut s2 = sd(&mut full.modes[2]);
-        s2.decay_rate = 0.0;
-        full.modes[2].sd = Some(s2);
+        sd(2, &mut full).decay_rate = 0.0;
         let obs = observed_modes(&full, None, None, &ObservedOptions::default());
         assert_eq!(
             obs.len(),
@@ -1048,7 +1044,6 @@ mod tests {
         assert_eq!(o.amplitudes, vec![0.0, 0.0]);
         assert_eq!(o.sigma_amplitudes, vec![0.0, 0.0]);
         // The untouched ones pass through.
-        let clean = extract_modes(&channels, fs, &ExtractOptions::default()).unwrap();
         let all = observed_modes(&clean, None, None, &ObservedOptions::default());
         assert_eq!(all.len(), 3);
         assert!(all.iter().all(|o| o.amplitudes.iter().all(|&a| a > 0.0)

@@ -98,17 +98,21 @@ def mesh_object(name, work):
     return msh
 
 
+def fmax_at_reference(name):
+    """The highest frequency solved at E = 1e11 [Hz]: 1.7 FMAX at the softest E of the
+    object's range, so the Ritz bases of the FEM effects reach past the band."""
+    return 1.7 * FMAX * np.sqrt(1e11 / OBJECTS[name][2][0])
+
+
 def solve_modes(name, msh, nu, rho, np_ranks, work):
-    """Free modes at E = 1e11 (scaled per case: lambda ~ E at fixed nu), up to 1.7 FMAX at the
-    softest E of the object's range, so the Ritz bases of the FEM effects reach past the band."""
+    """Free modes at E = 1e11 (scaled per case: lambda ~ E at fixed nu), up to
+    fmax_at_reference."""
     out = os.path.join(work, f"{name}_nu{nu:.3f}.h5")
     if not os.path.exists(out):
-        e_lo = OBJECTS[name][2][0]
-        fmax_ref = 1.7 * FMAX * np.sqrt(1e11 / e_lo)
         cmd = ["mpirun", "--allow-run-as-root", "--oversubscribe", "-np", str(np_ranks),
                BIN, "modes", "--mesh", msh,
                "--youngs", "1e11", "--poisson", str(nu), "--density", str(rho),
-               "--fmax", f"{fmax_ref:.1f}", "--out", out]
+               "--fmax", f"{fmax_at_reference(name):.1f}", "--out", out]
         run(cmd, out + ".log")
     with h5py.File(out, "r") as f:
         lam = f["/modes/eigenvalues"][:]
@@ -154,10 +158,9 @@ def loaded_modes(name, msh, nu, rho, mass_kg, region, np_ranks, work):
     components each), at E = 1e11 like solve_modes and up to the same frequency (lambda ~ E at
     fixed nu and fixed added mass: the point masses are on M, which E does not touch)."""
     out = os.path.join(work, "added_mass.h5")
-    e_lo = OBJECTS[name][2][0]
-    fmax_ref = 1.7 * FMAX * np.sqrt(1e11 / e_lo)
     cmd = ["mpirun", "--allow-run-as-root", "--oversubscribe", "-np", str(np_ranks), PROBE, msh,
-           "1e11", str(nu), str(rho), f"{fmax_ref:.1f}", "mass", repr(float(mass_kg))]
+           "1e11", str(nu), str(rho), f"{fmax_at_reference(name):.1f}", "mass",
+           repr(float(mass_kg))]
     cmd += [str(int(v)) for v in region] + ["out", out]
     run(cmd, out + ".log")
     with h5py.File(out, "r") as f:

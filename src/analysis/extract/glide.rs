@@ -175,7 +175,7 @@ use rustfft::num_complex::Complex64 as C64;
 use rustfft::{Fft, FftPlanner};
 
 use super::{ExtractError, ModalExtraction};
-use crate::analysis::mode::{MeasuredMode, ModeSd, Refinement};
+use crate::analysis::mode::{sd_from_variance, MeasuredMode, ModeSd, Refinement, UNIFORM_PHASE_SD};
 use crate::numerics::lm::{self, symmetric_inverse};
 
 /// Singular values of B below this fraction of the largest are dropped.
@@ -887,30 +887,23 @@ impl BandFitResult {
             let (vpp, vqq, vpq) = (cov_b[(i, i)], cov_b[(k, k)], cov_b[(i, k)]);
             amplitudes.push(a2.sqrt());
             phases.push(qv.atan2(p));
-            // A variance that is not positive (a covariance near singular: components that
-            // trade off) is no measurement, not an exact one: infinite, as in the extraction.
-            let sd_or_none = |v: f64| {
-                if v > 0.0 && v.is_finite() {
-                    v.sqrt()
-                } else {
-                    f64::INFINITY
-                }
-            };
+            // Components that trade off leave a covariance near singular: σ = ∞, no
+            // measurement ([`sd_from_variance`]), and an undetermined phase.
             if a2 > 0.0 {
-                amplitude_sds.push(sd_or_none(
+                amplitude_sds.push(sd_from_variance(
                     (p * p * vpp + qv * qv * vqq + 2.0 * p * qv * vpq) / a2,
                 ));
-                // No measured phase: that of a uniformly distributed one.
-                let phase_sd =
-                    sd_or_none((qv * qv * vpp + p * p * vqq - 2.0 * p * qv * vpq) / (a2 * a2));
+                let phase_sd = sd_from_variance(
+                    (qv * qv * vpp + p * p * vqq - 2.0 * p * qv * vpq) / (a2 * a2),
+                );
                 phase_sds.push(if phase_sd.is_finite() {
                     phase_sd
                 } else {
-                    PI / 3f64.sqrt()
+                    UNIFORM_PHASE_SD
                 });
             } else {
                 amplitude_sds.push((0.5 * (vpp + vqq)).max(0.0).sqrt());
-                phase_sds.push(PI / 3f64.sqrt());
+                phase_sds.push(UNIFORM_PHASE_SD);
             }
         }
         let envelope: f64 = if comp.d > 0.0 {
