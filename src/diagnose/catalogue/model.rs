@@ -450,6 +450,29 @@ fn drive_weighted(
     }
 }
 
+/// σ of ln d that the beat of an unresolved cluster adds to the one pole `obs` standing for
+/// the simulated modes `members` ([`super::unresolved::decay_bias`]): the two members of
+/// largest drive, split as the simulation splits them (relative split times the observed
+/// frequency), at the observed decay rate, amplitude ratio that of their drives. 0 for a pole
+/// of one member, or one that does not decay.
+fn unresolved_cluster_bias(
+    simulated: &[SimulatedMode],
+    members: &[usize],
+    obs: &ObservedMode,
+) -> f64 {
+    if members.len() < 2 || !(obs.decay_rate > 0.0) {
+        return 0.0;
+    }
+    let mut by_drive: Vec<&SimulatedMode> = members.iter().map(|&j| &simulated[j]).collect();
+    by_drive.sort_by(|a, b| b.drive.abs().total_cmp(&a.drive.abs()));
+    let (a, b) = (by_drive[0], by_drive[1]);
+    if !(a.drive.abs() > 0.0) || !(a.frequency_hz > 0.0) || !(b.frequency_hz > 0.0) {
+        return 0.0;
+    }
+    let split = 2.0 * PI * obs.frequency_hz * (a.frequency_hz.ln() - b.frequency_hz.ln()).abs();
+    super::unresolved::decay_bias(split, obs.decay_rate, b.drive.abs() / a.drive.abs())
+}
+
 /// Undamped observed frequency f₀ = √(f² + (d/2π)²) (the convention of
 /// [`crate::audio::chain`]; d ≤ 0 leaves f).
 pub(super) fn undamped_hz(mode: &ObservedMode) -> f64 {
@@ -655,8 +678,17 @@ impl ModeTable {
                 None
             };
             let f0 = undamped_hz(obs);
-            let ln_d = (obs.decay_rate > 0.0)
-                .then(|| (obs.decay_rate.ln(), obs.sigma_decay_rate / obs.decay_rate));
+            // A pole standing for an unresolved cluster measures the damping only up to the
+            // beat of its members (`unresolved` module docs).
+            let beat = if unit.role == Role::Single {
+                unresolved_cluster_bias(simulated, represents, obs)
+            } else {
+                0.0
+            };
+            let ln_d = (obs.decay_rate > 0.0).then(|| {
+                let s = obs.sigma_decay_rate / obs.decay_rate;
+                (obs.decay_rate.ln(), (s * s + beat * beat).sqrt())
+            });
             let ln_a = (0..channels)
                 .map(|c| {
                     let a = obs.amplitudes[c];
