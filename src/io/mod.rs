@@ -267,6 +267,38 @@ pub struct MaterialRecord {
     pub rayleigh_beta: f64,
 }
 
+impl MaterialRecord {
+    /// The record of `material` under `name`.
+    pub fn of(name: impl Into<String>, material: &crate::fem::Material) -> Self {
+        MaterialRecord {
+            name: name.into(),
+            youngs_modulus: material.youngs_modulus,
+            poisson_ratio: material.poisson_ratio,
+            density: material.density,
+            rayleigh_alpha: material.rayleigh_alpha,
+            rayleigh_beta: material.rayleigh_beta,
+        }
+    }
+
+    /// The record of an elastic material under `name` with no damping law (α = β = 0), for
+    /// the modes files of jobs that carry none (E \[Pa\], ν, ρ \[kg/m³\]).
+    pub fn undamped(
+        name: impl Into<String>,
+        youngs_modulus: f64,
+        poisson_ratio: f64,
+        density: f64,
+    ) -> Self {
+        MaterialRecord {
+            name: name.into(),
+            youngs_modulus,
+            poisson_ratio,
+            density,
+            rayleigh_alpha: 0.0,
+            rayleigh_beta: 0.0,
+        }
+    }
+}
+
 /// Everything one modal solve produces, borrowed from the caller (rank 0).
 pub struct ModesFile<'a> {
     /// Node coordinates, m, original mesh numbering.
