@@ -191,7 +191,7 @@ use crate::analysis::estimate::{
     self, lsq, BandData, BandReport, Decimator, EstimateError, EstimateOptions, C64,
 };
 use crate::analysis::mode::{
-    sd_from_variance, MeasuredMode, ModeSd, RefinedFrom, Refinement, UNIFORM_PHASE_SD,
+    phase_sd, sd_from_variance, MeasuredMode, ModeSd, RefinedFrom, Refinement, UNIFORM_PHASE_SD,
 };
 use crate::audio::synth::ModalBank;
 use crate::numerics::lm;
@@ -635,11 +635,7 @@ fn map_to_full_rate(
                 let v = vb / b.norm_sqr() + g.norm_sqr() * var_ell - 2.0 * (g.conj() * x / b).re;
                 // σ of ln a and of φ; a band model near singular measures neither.
                 let half = sd_from_variance(0.5 * v);
-                if half.is_finite() {
-                    (2.0 * b.norm() / gain.norm() * half, half)
-                } else {
-                    (f64::INFINITY, UNIFORM_PHASE_SD)
-                }
+                (2.0 * b.norm() / gain.norm() * half, phase_sd(half))
             } else {
                 (2.0 / gain.norm() * (0.5 * vb).sqrt(), UNIFORM_PHASE_SD)
             }

@@ -98,6 +98,16 @@ pub fn sd_from_variance(variance: f64) -> f64 {
     }
 }
 
+/// σ_φ from a phase's σ that may be ∞ ([`sd_from_variance`]): a phase nothing measured is
+/// uniform ([`UNIFORM_PHASE_SD`]).
+pub fn phase_sd(sd: f64) -> f64 {
+    if sd.is_finite() {
+        sd
+    } else {
+        UNIFORM_PHASE_SD
+    }
+}
+
 /// Where a refinement started: the estimate's f and d.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 pub struct RefinedFrom {

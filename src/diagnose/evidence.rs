@@ -75,6 +75,7 @@ use crate::audio::stft::StftPlan;
 use crate::diagnose::catalogue::{
     weighted_regression, ObservedMode, ResidualEnvelopes, SimulatedMode,
 };
+use crate::numerics::nearest_sorted;
 
 /// Everything that can be wrong with the input of this module.
 #[derive(Debug, thiserror::Error, Clone, PartialEq)]
@@ -108,31 +109,13 @@ impl Default for ObservedOptions {
     }
 }
 
-/// Index of the element of `sorted` nearest to `x` (None if empty).
-fn nearest(sorted: &[f64], x: f64) -> Option<usize> {
-    if sorted.is_empty() {
-        return None;
-    }
-    let i = sorted.partition_point(|&v| v < x);
-    let mut best = None::<(usize, f64)>;
-    for j in [i.wrapping_sub(1), i] {
-        if j < sorted.len() {
-            let d = (sorted[j] - x).abs();
-            if best.is_none_or(|b| d < b.1) {
-                best = Some((j, d));
-            }
-        }
-    }
-    best.map(|b| b.0)
-}
-
 /// For each of `from` (sorted), the index in `to` (sorted) of its mutual nearest neighbour within
 /// `rtol` (relative), if any.
 pub fn mutual_nearest(from: &[f64], to: &[f64], rtol: f64) -> Vec<Option<usize>> {
     from.iter()
         .map(|&x| {
-            let j = nearest(to, x)?;
-            let back = nearest(from, to[j])?;
+            let j = nearest_sorted(to, x)?;
+            let back = nearest_sorted(from, to[j])?;
             let close = (to[j] - x).abs() <= rtol * x.abs();
             (close && from[back] == x).then_some(j)
         })
@@ -686,6 +669,14 @@ mod tests {
     use crate::audio::synth::ModalBank;
     use crate::diagnose::inject::SplitMix64;
 
+    /// `bank` rendered at `fs` for `n` samples, with white noise of σ = `sigma` from `rng`.
+    fn noisy(bank: &ModalBank, fs: f64, n: usize, sigma: f64, rng: &mut SplitMix64) -> Vec<f64> {
+        render_samples(bank, fs, n)
+            .iter()
+            .map(|v| v + sigma * rng.normal())
+            .collect()
+    }
+
     #[test]
     fn mutual_nearest_pairs_and_refuses_far_or_shared() {
         let from = [100.0, 200.0, 200.5, 400.0];
@@ -920,8 +911,7 @@ mod tests {
         };
         let mut rng = SplitMix64::new(5);
         let sigma = 1e-4;
-        let clean = render_samples(&bank, fs, n);
-        let post: Vec<Vec<f64>> = vec![clean.iter().map(|v| v + sigma * rng.normal()).collect()];
+        let post: Vec<Vec<f64>> = vec![noisy(&bank, fs, n, sigma, &mut rng)];
         let pre: Vec<Vec<f64>> = vec![(0..8000).map(|_| sigma * rng.normal()).collect()];
         let ex = extract_modes(&post, fs, &ExtractOptions::default()).unwrap();
         assert_eq!(
@@ -970,10 +960,7 @@ mod tests {
             phases: vec![0.3, -1.0],
         };
         let mut rng = SplitMix64::new(9);
-        let x: Vec<f64> = render_samples(&bank, fs, n)
-            .iter()
-            .map(|v| v + 1e-5 * rng.normal())
-            .collect();
+        let x = noisy(&bank, fs, n, 1e-5, &mut rng);
         let full = extract_modes(std::slice::from_ref(&x), fs, &ExtractOptions::default()).unwrap();
         let early = extract_modes(&[x[..n / 2].to_vec()], fs, &ExtractOptions::default()).unwrap();
         let late = extract_modes(&[x[n / 2..].to_vec()], fs, &ExtractOptions::default()).unwrap();
@@ -1014,12 +1001,7 @@ mod tests {
         };
         let mut rng = SplitMix64::new(11);
         let channels: Vec<Vec<f64>> = (0..2)
-            .map(|_| {
-                render_samples(&bank, fs, n)
-                    .iter()
-                    .map(|v| v + 1e-5 * rng.normal())
-                    .collect()
-            })
+            .map(|_| noisy(&bank, fs, n, 1e-5, &mut rng))
             .collect();
         let clean = extract_modes(&channels, fs, &ExtractOptions::default()).unwrap();
         assert_eq!(clean.modes.len(), 3);

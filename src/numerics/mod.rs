@@ -1,6 +1,7 @@
 //! Small numerical tools every stage shares, each written once: 3-vector arithmetic
 //! ([`sub`], [`dot`], [`cross`], [`norm`]), the [`median`], the golden-section search on a
-//! bracket ([`golden_section`]), ln Γ on the whole real line ([`ln_gamma`],
+//! bracket ([`golden_section`]), the nearest element of a sorted list ([`nearest_sorted`]),
+//! ln Γ on the whole real line ([`ln_gamma`],
 //! [`ln_abs_recip_gamma`]), Levenberg–Marquardt ([`lm`]: one driver for the damping
 //! curve's Rayleigh fit, the extraction's variable projection and its glide stage, and the
 //! catalogue's bounded fit, each with its own damping and stopping settings), and the
@@ -48,6 +49,25 @@ pub fn median(values: &[f64]) -> Option<f64> {
     } else {
         0.5 * (sorted[n / 2 - 1] + sorted[n / 2])
     })
+}
+
+/// Index of the element of the ascending `sorted` nearest to `x` (the lower one on a tie);
+/// None if `sorted` is empty.
+pub fn nearest_sorted(sorted: &[f64], x: f64) -> Option<usize> {
+    if sorted.is_empty() {
+        return None;
+    }
+    let i = sorted.partition_point(|&v| v < x);
+    let mut best = None::<(usize, f64)>;
+    for j in [i.wrapping_sub(1), i] {
+        if j < sorted.len() {
+            let d = (sorted[j] - x).abs();
+            if best.is_none_or(|b| d < b.1) {
+                best = Some((j, d));
+            }
+        }
+    }
+    best.map(|b| b.0)
 }
 
 /// Golden-section search on the bracket [a, b]: `steps` steps, each shrinking the bracket by

@@ -175,7 +175,9 @@ use rustfft::num_complex::Complex64 as C64;
 use rustfft::{Fft, FftPlanner};
 
 use super::{ExtractError, ModalExtraction};
-use crate::analysis::mode::{sd_from_variance, MeasuredMode, ModeSd, Refinement, UNIFORM_PHASE_SD};
+use crate::analysis::mode::{
+    phase_sd, sd_from_variance, MeasuredMode, ModeSd, Refinement, UNIFORM_PHASE_SD,
+};
 use crate::numerics::lm::{self, symmetric_inverse};
 
 /// Singular values of B below this fraction of the largest are dropped.
@@ -893,14 +895,9 @@ impl BandFitResult {
                 amplitude_sds.push(sd_from_variance(
                     (p * p * vpp + qv * qv * vqq + 2.0 * p * qv * vpq) / a2,
                 ));
-                let phase_sd = sd_from_variance(
+                phase_sds.push(phase_sd(sd_from_variance(
                     (qv * qv * vpp + p * p * vqq - 2.0 * p * qv * vpq) / (a2 * a2),
-                );
-                phase_sds.push(if phase_sd.is_finite() {
-                    phase_sd
-                } else {
-                    UNIFORM_PHASE_SD
-                });
+                )));
             } else {
                 amplitude_sds.push((0.5 * (vpp + vqq)).max(0.0).sqrt());
                 phase_sds.push(UNIFORM_PHASE_SD);

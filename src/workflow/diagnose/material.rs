@@ -58,6 +58,7 @@ use crate::eigen::reduced::PoissonBasis;
 use crate::inverse::material::{
     line_spectrum_start, LineSpectrumStart, MaterialFitSettings, MaterialProblem,
 };
+use crate::numerics::nearest_sorted;
 use crate::petsc::PetscInt;
 use std::time::Instant;
 
@@ -81,16 +82,9 @@ fn heard_lines(fit: &[ObservedMode], held: &[ObservedMode]) -> Vec<f64> {
         .iter()
         .copied()
         .filter(|&f| {
-            f > 0.0 && {
-                let x = f.ln();
-                let i = other.partition_point(|&y| y < x);
-                let near = |j: usize| {
-                    other
-                        .get(j)
-                        .is_some_and(|&y| (y - x).abs() <= HEARD_TOLERANCE)
-                };
-                near(i) || (i > 0 && near(i - 1))
-            }
+            f > 0.0
+                && nearest_sorted(&other, f.ln())
+                    .is_some_and(|j| (other[j] - f.ln()).abs() <= HEARD_TOLERANCE)
         })
         .collect();
     if heard.len() >= MIN_HEARD_LINES {
