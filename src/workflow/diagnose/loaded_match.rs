@@ -28,7 +28,9 @@ use std::rc::Rc;
 use std::time::Instant;
 
 /// The loaded line match ([`crate::inverse::loaded_match`]) runs only when the plain match
-/// leaves a distance above this (ln f): below it every line already has its partner.
+/// leaves a distance above this (ln f), both as it is and with every split pair merged
+/// ([`plain_split_free_distance`]; module docs of [`super::material`], *Splits forgiven*):
+/// below it every line already has its partner.
 pub(super) const LOADED_MATCH_MIN_DISTANCE: f64 = 1e-3;
 /// The simulation carries the loaded match's mass only when it at most halves the plain
 /// distance.
@@ -226,6 +228,64 @@ pub(super) fn farthest_points(points: &[[f64; 3]], n: usize) -> Vec<usize> {
         }
     }
     chosen
+}
+
+/// The line distance of a model's `spectrum` (θ for E/ρ = 1 with its drive², as
+/// [`split_free_fit`] takes it) against `target` with every split pair of both sides merged
+/// (module docs of [`crate::inverse::loaded_match`], "Splits against shifts"): the scale
+/// searched within ±2 % of `youngs`.
+fn split_free_distance(
+    target: &[f64],
+    ceiling: f64,
+    spectrum: &[(f64, f64)],
+    density: f64,
+    youngs: f64,
+    settings: &LoadedMatchSettings,
+) -> f64 {
+    let tolerance = CatalogueSettings::default().max_pair_split;
+    split_free_fit(
+        target, ceiling, spectrum, density, youngs, 0.02, settings, tolerance,
+    )
+    .0
+}
+
+/// The plain line match's split-free distance ([`split_free_distance`]) at its own E and ν,
+/// on the reduced basis as the match saw it: what the loaded match could cut that a verdict
+/// counts ([`loaded_model_verdict`]). `strike_dofs` are the first rows of the basis's probe
+/// values, weighted by `problem.direction_weights` as the plain match weights them.
+pub(super) fn plain_split_free_distance(
+    basis: &PoissonBasis<'_>,
+    strike_dofs: usize,
+    problem: &MaterialProblem,
+    start: &LineSpectrumStart,
+    settings: &MaterialFitSettings,
+) -> Result<f64, String> {
+    let (target, ceiling) = line_match_targets(problem).map_err(|e| e.to_string())?;
+    let modes = basis.solve(start.poisson);
+    let probes = basis.probe_all(&modes);
+    let weights = &problem.direction_weights;
+    let spectrum: Vec<(f64, f64)> = modes
+        .theta
+        .iter()
+        .enumerate()
+        .map(|(k, &theta)| {
+            let s: f64 = (0..strike_dofs).map(|d| probes[(d, k)] * weights[d]).sum();
+            (theta, s * s)
+        })
+        .collect();
+    let match_settings = LoadedMatchSettings {
+        poisson_bounds: settings.poisson_bounds,
+        cap: settings.line_match_cap,
+        ..Default::default()
+    };
+    Ok(split_free_distance(
+        &target,
+        ceiling,
+        &spectrum,
+        problem.density,
+        start.youngs,
+        &match_settings,
+    ))
 }
 
 /// The loaded line match on the basis whose probes are the strike DOFs (`strike_dofs` of them,
@@ -605,28 +665,22 @@ pub(super) fn loaded_match(
         .map(|(&theta, &s)| (theta, s * s))
         .collect();
     let split_free = SplitFree {
-        plain: split_free_fit(
+        plain: split_free_distance(
             &target,
             ceiling,
             &plain_spectrum,
             density,
             start.youngs,
-            0.02,
             &match_settings,
-            tolerance,
-        )
-        .0,
-        loaded: split_free_fit(
+        ),
+        loaded: split_free_distance(
             &target,
             ceiling,
             &found_spectrum,
             density,
             verified_youngs,
-            0.02,
             &match_settings,
-            tolerance,
-        )
-        .0,
+        ),
     };
     progress.say(format!(
         "  split-free distances (split pairs within {:.1} % merged): {:.2e} loaded against {:.2e} plain",
@@ -721,6 +775,28 @@ mod tests {
             loaded_model_verdict(Ok(()), 0, 0, -0.078, d(1.66e-3, 1.55e-2)),
             Ok(())
         );
+    }
+
+    /// The gate of the loaded match (module docs of `material`, *Splits forgiven*): a plain
+    /// match whose split-free distance is below the gate leaves no verdict a carried mass
+    /// could reach on the lines' centres, however far it cut them (to 0, ν moved by
+    /// anything): only a recorded mode it matches and the plain model does not, which a
+    /// distance below the gate rules out up to 20 target lines (each one unmatched costs the
+    /// cap, 0.02, over them).
+    #[test]
+    fn a_split_free_distance_below_the_gate_leaves_no_verdict_on_the_centres() {
+        let gate = LOADED_MATCH_MIN_DISTANCE;
+        assert!(LOADED_MATCH_MIN_SPLIT_FREE_GAIN >= gate);
+        let at_gate = Some(SplitFree {
+            plain: gate * (1.0 - 1e-9),
+            loaded: 0.0,
+        });
+        for shift in [0.0, 0.01, -0.05, 0.2] {
+            assert!(loaded_model_verdict(Ok(()), 0, 0, shift, at_gate).is_err());
+        }
+        assert_eq!(loaded_model_verdict(Ok(()), 0, 1, 0.0, at_gate), Ok(()));
+        let cap = MaterialFitSettings::default().line_match_cap;
+        assert!(cap / 20.0 >= gate, "cap {cap}");
     }
 
     /// A carried mass that cuts the split-free distance (the lines' centres) to half or less,
