@@ -233,7 +233,7 @@ pub(super) fn farthest_points(points: &[[f64; 3]], n: usize) -> Vec<usize> {
 /// The line distance of a model's `spectrum` (θ for E/ρ = 1 with its drive², as
 /// [`split_free_fit`] takes it) against `target` with every split pair of both sides merged
 /// (module docs of [`crate::inverse::loaded_match`], "Splits against shifts"): the scale
-/// searched within ±2 % of `youngs`.
+/// searched within 0.02 in ln f (±2 % in frequency) of the one `youngs` gives.
 fn split_free_distance(
     target: &[f64],
     ceiling: f64,
@@ -299,6 +299,8 @@ pub(super) fn plain_split_free_distance(
 /// [`LOADED_MATCH_CANDIDATES`] best sites, the best and those within
 /// [`LOADED_MATCH_CHECK_RATIO`] of the plain distance are each checked by a full solve.
 /// Collective: the ranks share the search's ν grid ([`Ranks`]) and all end with the same answer.
+/// `plain_split_free` is the plain match's split-free distance ([`plain_split_free_distance`]).
+#[allow(clippy::too_many_arguments)]
 pub(super) fn loaded_match(
     input: &StageInput<'_, '_>,
     basis: &PoissonBasis<'_>,
@@ -306,6 +308,7 @@ pub(super) fn loaded_match(
     strike_petsc_dofs: &[PetscInt],
     problem: &MaterialProblem,
     start: &LineSpectrumStart,
+    plain_split_free: f64,
     settings: &MaterialFitSettings,
 ) -> Result<LoadedMass, String> {
     let StageInput {
@@ -654,25 +657,12 @@ pub(super) fn loaded_match(
         .ok_or("the loaded line match found no candidate")?;
     let ritz_distance = found.distance;
     // Both models with every split forgiven (module docs of `inverse::loaded_match`, "Splits
-    // against shifts"): the plain one on the reduced basis at its ν, as the plain match saw
-    // it, the loaded one by its full solve.
+    // against shifts"): the plain one as the gate measured it (`plain_split_free`, from
+    // [`plain_split_free_distance`]: the reduced basis at the plain ν, as the plain match saw
+    // it), the loaded one by its full solve.
     let tolerance = CatalogueSettings::default().max_pair_split;
-    let plain_modes = modes_at(start.poisson);
-    let plain_spectrum: Vec<(f64, f64)> = plain_modes
-        .theta
-        .iter()
-        .zip(&plain_modes.strike)
-        .map(|(&theta, &s)| (theta, s * s))
-        .collect();
     let split_free = SplitFree {
-        plain: split_free_distance(
-            &target,
-            ceiling,
-            &plain_spectrum,
-            density,
-            start.youngs,
-            &match_settings,
-        ),
+        plain: plain_split_free,
         loaded: split_free_distance(
             &target,
             ceiling,

@@ -251,7 +251,7 @@ pub(super) fn material(input: &StageInput<'_, '_>) -> Result<MaterialStage, Stri
             } else {
                 None
             };
-            if split_free.is_some_and(|d| d >= LOADED_MATCH_MIN_DISTANCE) {
+            if let Some(plain_split_free) = split_free.filter(|&d| d >= LOADED_MATCH_MIN_DISTANCE) {
                 let t = Instant::now();
                 let found = loaded_match(
                     input,
@@ -260,6 +260,7 @@ pub(super) fn material(input: &StageInput<'_, '_>) -> Result<MaterialStage, Stri
                     &strike_petsc_dofs,
                     &problem,
                     &start,
+                    plain_split_free,
                     &settings,
                 )?;
                 let used = found.matched.distance < LOADED_MATCH_RATIO * start.distance;
