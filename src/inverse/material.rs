@@ -193,7 +193,7 @@ pub struct MaterialFit {
 }
 
 /// (φ_k(x)·n)² for ρ = 1: mode k's driving-point weight at the strike (module docs).
-fn driving_point_weight(
+pub(crate) fn driving_point_weight(
     basis: &PoissonBasis,
     modes: &ReducedModes,
     problem: &MaterialProblem,

@@ -16,7 +16,8 @@ use crate::inverse::loaded_match::{
     Enrichment, LoadedMatch, LoadedMatchProblem, LoadedMatchSettings, ModesAtPoisson, Share,
 };
 use crate::inverse::material::{
-    line_match_targets, LineSpectrumStart, MaterialFitSettings, MaterialProblem,
+    driving_point_weight, line_match_targets, LineSpectrumStart, MaterialFitSettings,
+    MaterialProblem,
 };
 use crate::mesh::locate::nearest_points;
 use crate::petsc::PetscInt;
@@ -250,42 +251,43 @@ fn split_free_distance(
 }
 
 /// The plain line match's split-free distance ([`split_free_distance`]) at its own E and ν,
-/// on the reduced basis as the match saw it: what the loaded match could cut that a verdict
-/// counts ([`loaded_model_verdict`]). `strike_dofs` are the first rows of the basis's probe
-/// values, weighted by `problem.direction_weights` as the plain match weights them.
+/// on the reduced basis with the driving-point weights the match gives its partials
+/// ([`driving_point_weight`]): what the loaded match could cut that a verdict counts
+/// ([`loaded_model_verdict`]).
 pub(super) fn plain_split_free_distance(
     basis: &PoissonBasis<'_>,
-    strike_dofs: usize,
     problem: &MaterialProblem,
     start: &LineSpectrumStart,
     settings: &MaterialFitSettings,
 ) -> Result<f64, String> {
     let (target, ceiling) = line_match_targets(problem).map_err(|e| e.to_string())?;
     let modes = basis.solve(start.poisson);
-    let probes = basis.probe_all(&modes);
-    let weights = &problem.direction_weights;
-    let spectrum: Vec<(f64, f64)> = modes
-        .theta
-        .iter()
-        .enumerate()
-        .map(|(k, &theta)| {
-            let s: f64 = (0..strike_dofs).map(|d| probes[(d, k)] * weights[d]).sum();
-            (theta, s * s)
+    let spectrum: Vec<(f64, f64)> = (0..modes.theta.len())
+        .map(|k| {
+            (
+                modes.theta[k],
+                driving_point_weight(basis, &modes, problem, k),
+            )
         })
         .collect();
-    let match_settings = LoadedMatchSettings {
-        poisson_bounds: settings.poisson_bounds,
-        cap: settings.line_match_cap,
-        ..Default::default()
-    };
     Ok(split_free_distance(
         &target,
         ceiling,
         &spectrum,
         problem.density,
         start.youngs,
-        &match_settings,
+        &line_match_settings(settings),
     ))
+}
+
+/// The loaded line match's settings: the plain match's ν range and cap.
+fn line_match_settings(settings: &MaterialFitSettings) -> LoadedMatchSettings {
+    LoadedMatchSettings {
+        poisson_bounds: settings.poisson_bounds,
+        cap: settings.line_match_cap,
+        coarse_poisson_step: LOADED_MATCH_COARSE_POISSON_STEP,
+        ..Default::default()
+    }
 }
 
 /// The loaded line match on the basis whose probes are the strike DOFs (`strike_dofs` of them,
@@ -526,12 +528,7 @@ pub(super) fn loaded_match(
         enrichment: Some(&enrich),
         anchor_poisson: start.poisson,
     };
-    let match_settings = LoadedMatchSettings {
-        poisson_bounds: settings.poisson_bounds,
-        cap: settings.line_match_cap,
-        coarse_poisson_step: LOADED_MATCH_COARSE_POISSON_STEP,
-        ..Default::default()
-    };
+    let match_settings = line_match_settings(settings);
     let candidates = loaded_line_candidates(
         &search,
         &modes_at,

@@ -239,8 +239,7 @@ pub(super) fn material(input: &StageInput<'_, '_>) -> Result<MaterialStage, Stri
             // mass could cut that its verdict counts (module docs, *Splits forgiven*).
             let split_free = if job.loaded_mass_match && start.distance > LOADED_MATCH_MIN_DISTANCE
             {
-                let d =
-                    plain_split_free_distance(&basis, strike_dofs, &problem, &start, &settings)?;
+                let d = plain_split_free_distance(&basis, &problem, &start, &settings)?;
                 if d < LOADED_MATCH_MIN_DISTANCE {
                     progress.say(format!(
                         "loaded line match not run: with the split pairs merged the plain match leaves {d:.2e} (< {LOADED_MATCH_MIN_DISTANCE:.0e}); its distance {:.2e} is the recording's splits, which no carried mass is judged on",
