@@ -27,6 +27,18 @@
 //!   not say how the sound radiates, and it cannot predict a new microphone (the held-out
 //!   check refits v for the held-out channels, with u from the fit).
 //!
+//! **Two microphones cannot test the factor.** With C = 2 a mode's mix is one number, the
+//! difference of its two levels, and the factor has one u_k per mode: K parameters for K mix
+//! values, so it fits every mode's mix exactly whatever made it (a per-mode, per-microphone
+//! radiation level, a microphone's own curvature, the extraction's scatter). The mix floor τ_a
+//! then falls to zero and the likelihood rises without bound, which is no evidence: generator
+//! 2's blind seed 263 case 006 (a plate under a uniform-shift control, 4 microphones, 2 in the
+//! fit) accepted the factor at ΔBIC 155.9 with a held-out gain of 2.1, its mix floor 0.354 → 0,
+//! and case 015 (clean, 2 in the fit) reached ΔBIC 42.3 with no held-out gain. So the factor
+//! needs at least [`MIN_FACTOR_CHANNELS`] fit channels; with two the report says it could not
+//! be tested, and the transfer variant (one parameter) is still tried when the simulation
+//! gives the transfer.
+//!
 //! Detector: the residual matrix R_kc (current ln a residuals, missing entries 0) is centred
 //! per mode and per channel; its top singular value s₁, in units of the pooled measurement σ
 //! (not σ² + τ²: the floor under the baseline has absorbed exactly the pattern looked for), is
@@ -42,6 +54,10 @@ use nalgebra::DMatrix;
 use super::{Detection, Effect, Fit, ModeKey, ModeTable, ParamSpec, Proposal, Term};
 
 pub struct Radiation;
+
+/// Fewest fit channels on which the factor variant is testable (module docs, *Two microphones
+/// cannot test the factor*): with two, its u_k per mode fit every mode's mix exactly.
+pub const MIN_FACTOR_CHANNELS: usize = 3;
 
 #[derive(Debug)]
 pub struct TransferDirectivity;
@@ -227,6 +243,12 @@ impl Effect for Radiation {
                 rows.len()
             ));
         }
+        let has_transfer = rows.iter().all(|&k| table.modes[k].transfer.is_some());
+        if c_n < MIN_FACTOR_CHANNELS && !has_transfer {
+            return Detection::NotEnoughData(format!(
+                "{c_n} channels and no acoustic transfer: a directivity per mode fits every mode's mix between {c_n} microphones exactly, so microphone dependence without positions needs at least {MIN_FACTOR_CHANNELS}"
+            ));
+        }
         let k_n = rows.len();
         let mut r = DMatrix::<f64>::zeros(k_n, c_n);
         let mut mask = DMatrix::<f64>::zeros(k_n, c_n);
@@ -278,7 +300,7 @@ impl Effect for Radiation {
         )];
 
         // Transfer variant: every mode with rows has a transfer.
-        if rows.iter().all(|&k| table.modes[k].transfer.is_some()) {
+        if has_transfer {
             let mut t = DMatrix::<f64>::zeros(k_n, c_n);
             for (i, &k) in rows.iter().enumerate() {
                 let tr = table.modes[k].transfer.as_ref().expect("checked");
@@ -297,7 +319,11 @@ impl Effect for Radiation {
                 });
             }
         }
-        if ratio > 1.0 {
+        if c_n < MIN_FACTOR_CHANNELS {
+            details.push(format!(
+                "the factor variant needs at least {MIN_FACTOR_CHANNELS} channels (it fits every mode's mix between {c_n} exactly)"
+            ));
+        } else if ratio > 1.0 {
             let u1 = svd.u.as_ref().expect("requested").column(idx).into_owned();
             let v1 = svd
                 .v_t
