@@ -90,6 +90,10 @@ pub struct ModeEntry {
     /// ∂ln f/∂ν of the simulated modes it stands for (drive²-weighted like `ln_f_sim`), when
     /// every one carries it ([`super::PoissonShift`]).
     pub ln_f_per_poisson: Option<f64>,
+    /// Whether an established room holds this pole ([`ModeTable::set_aside_room_held`]): it
+    /// decays at least as fast as the room, so its decay and level rows are set aside and the
+    /// split screen does not take a pair of two such poles for the object's split.
+    pub room_held: bool,
 }
 
 impl ModeEntry {
@@ -733,6 +737,7 @@ impl ModeTable {
                 pooled_weights,
                 transfer,
                 ln_f_per_poisson,
+                room_held: false,
             });
         }
         let mut pairs = Vec::new();
@@ -803,6 +808,7 @@ impl ModeTable {
             let m = &mut self.modes[k];
             m.ln_d = None;
             m.ln_a.iter_mut().for_each(|a| *a = None);
+            m.room_held = true;
         }
         (self.rows, self.other_rows, self.amplitude_groups) = rows_of(&self.modes, &self.pairs);
         held

@@ -4062,3 +4062,57 @@ fn two_fit_microphones_cannot_test_a_directivity_without_positions() {
         assert!(r.detail.contains("at least 3"), "seed {seed}: {}", r.detail);
     }
 }
+
+/// The held-out microphones hear a pair's partial beside both members (beating_pair module
+/// docs, *Heard beside the members*): members at 2000 and 2010 Hz (d = 20 1/s: tolerance about
+/// 1 Hz), so a held-out pole between 5 + 1 and 10 Hz outside the pair contradicts it, unless
+/// another lies at a member or at the pair's centre.
+#[test]
+fn a_pair_heard_only_beside_its_members_is_not_replicated() {
+    use super::beating_pair::pair_heard_beside_its_members;
+    let (lo, hi) = ((2000f64.ln(), 1e-5, 20.0), (2010f64.ln(), 1e-5, 20.0));
+    let at = |fs: &[f64]| fs.iter().map(|&f| observed_at(f)).collect::<Vec<_>>();
+    assert!(!pair_heard_beside_its_members(lo, hi, &at(&[])));
+    assert!(pair_heard_beside_its_members(lo, hi, &at(&[2017.0])));
+    assert!(pair_heard_beside_its_members(lo, hi, &at(&[1992.0])));
+    assert!(pair_heard_beside_its_members(hi, lo, &at(&[2017.0])));
+    // At a member, at the centre (the pair unresolved there), or too far to be this partial.
+    assert!(!pair_heard_beside_its_members(lo, hi, &at(&[2017.0, 2010.2])));
+    assert!(!pair_heard_beside_its_members(lo, hi, &at(&[2017.0, 2005.0])));
+    assert!(!pair_heard_beside_its_members(lo, hi, &at(&[2012.0])));
+    assert!(!pair_heard_beside_its_members(lo, hi, &at(&[2025.0])));
+}
+
+/// A split pair both of whose poles an established room holds is not a candidate of the split
+/// screen (beating_pair module docs, *Held by the room*); held by no room, the same pairs are.
+#[test]
+fn a_pair_of_two_poles_the_room_holds_is_not_the_objects_split() {
+    let settings = CatalogueSettings::default();
+    let truth = Truth {
+        splits: vec![(3, 0.004), (8, 0.004)],
+        ..Truth::default()
+    };
+    let (ev, _) = evidence(&truth, 7);
+    let screen = |room_rate: Option<f64>| {
+        let (mut table, _, ln_scale) = fit_and_held_tables(&ev, &settings);
+        if let Some(rate) = room_rate {
+            table.set_aside_room_held(rate);
+        }
+        let ln_f_ref = ln_scale
+            + table.modes.iter().map(|m| m.ln_f_sim).sum::<f64>() / table.modes.len() as f64;
+        let base_model = Model::new(vec![], ln_f_ref, table.channels);
+        let x0 = model::baseline_start(&table, &base_model, ln_scale);
+        let baseline = fit(&table, base_model, x0);
+        beating_pair::split_candidates(&table, ev.held_out.as_deref(), &baseline)
+    };
+    let free = screen(None).expect("two candidates without a room");
+    assert_eq!(free.splits.clusters.len(), 2, "{:?}", free.splits.clusters);
+    // A room slower than every mode holds every pole.
+    match screen(Some(1e-3)) {
+        Ok(c) => panic!("candidates {:?} from poles the room holds", c.splits.clusters),
+        Err(Detection::Nothing { detail, .. }) => {
+            assert!(detail.contains("2 of two poles the room holds"), "{detail}")
+        }
+        Err(other) => panic!("{other:?}"),
+    }
+}
