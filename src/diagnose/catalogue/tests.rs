@@ -4077,8 +4077,16 @@ fn a_pair_heard_only_beside_its_members_is_not_replicated() {
     assert!(pair_heard_beside_its_members(lo, hi, &at(&[1992.0])));
     assert!(pair_heard_beside_its_members(hi, lo, &at(&[2017.0])));
     // At a member, at the centre (the pair unresolved there), or too far to be this partial.
-    assert!(!pair_heard_beside_its_members(lo, hi, &at(&[2017.0, 2010.2])));
-    assert!(!pair_heard_beside_its_members(lo, hi, &at(&[2017.0, 2005.0])));
+    assert!(!pair_heard_beside_its_members(
+        lo,
+        hi,
+        &at(&[2017.0, 2010.2])
+    ));
+    assert!(!pair_heard_beside_its_members(
+        lo,
+        hi,
+        &at(&[2017.0, 2005.0])
+    ));
     assert!(!pair_heard_beside_its_members(lo, hi, &at(&[2012.0])));
     assert!(!pair_heard_beside_its_members(lo, hi, &at(&[2025.0])));
 }
@@ -4109,7 +4117,10 @@ fn a_pair_of_two_poles_the_room_holds_is_not_the_objects_split() {
     assert_eq!(free.splits.clusters.len(), 2, "{:?}", free.splits.clusters);
     // A room slower than every mode holds every pole.
     match screen(Some(1e-3)) {
-        Ok(c) => panic!("candidates {:?} from poles the room holds", c.splits.clusters),
+        Ok(c) => panic!(
+            "candidates {:?} from poles the room holds",
+            c.splits.clusters
+        ),
         Err(Detection::Nothing { detail, .. }) => {
             assert!(detail.contains("2 of two poles the room holds"), "{detail}")
         }
