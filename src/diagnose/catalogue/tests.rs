@@ -4127,3 +4127,61 @@ fn a_pair_of_two_poles_the_room_holds_is_not_the_objects_split() {
         Err(other) => panic!("{other:?}"),
     }
 }
+
+/// The room's T60 is measured band by band (reverb_noise module docs, "The room's T60"): a room
+/// of T60 = 0.4 s in all six bands, and in two of them the slower misfit of modes that ring
+/// longer than the room (T60 2 s, a tenth of the room's excess at t = 0). The shared fit takes
+/// some of the misfit; the lower quartile of the bands' own T60s is the room's.
+#[test]
+fn the_rooms_t60_is_the_lower_quartile_of_the_bands_own() {
+    let mut rng = Rng(97);
+    let times: Vec<f64> = (0..120).map(|j| 0.01 * j as f64).collect();
+    let (mut energy, mut floor) = (Vec::new(), Vec::new());
+    for b in 0..6 {
+        let n = 10f64.powf(rng.uniform(-7.0, -5.0));
+        let rho = 10f64.powf(rng.uniform(1.5, 2.0));
+        let misfit = if b == 1 || b == 2 { 0.1 * rho } else { 0.0 };
+        let row = times
+            .iter()
+            .map(|&t| {
+                let mean = n
+                    * (1.0
+                        + rho * (-13.815510557964274 * t / 0.4).exp()
+                        + misfit * (-13.815510557964274 * t / 2.0).exp());
+                let chi2: f64 = (0..30).map(|_| normal(&mut rng).powi(2)).sum::<f64>() / 30.0;
+                mean * chi2
+            })
+            .collect();
+        energy.push(row);
+        floor.push(n);
+    }
+    let evidence = Evidence {
+        fit: Vec::new(),
+        held_out: None,
+        simulated: Vec::new(),
+        residual_envelopes: Some(ResidualEnvelopes {
+            times_s: times,
+            band_edges_hz: vec![0.0, 500.0, 1000.0, 2000.0, 4000.0, 8000.0, 16000.0],
+            energy,
+            noise_floor_estimate: floor,
+            frames_per_window: 1.0,
+        }),
+        split_sites: None,
+    };
+    let eval = ReverbNoise
+        .evaluate_own(&evidence, &CatalogueSettings::default())
+        .expect("an evaluation");
+    let OwnOutcome::Fitted { params, .. } = eval.outcome else {
+        panic!("no fit: {:?}", eval.outcome);
+    };
+    let room = &params[0];
+    let shared = params.last().expect("the shared fit's T60");
+    assert_eq!(room.name, "reverberation time T60");
+    assert!(shared.name.starts_with("T60 of the shared fit"));
+    println!("room {room:?}, shared {shared:?}");
+    assert!((room.value / 0.4 - 1.0).abs() < 0.1, "{room:?}");
+    assert!(
+        shared.value > 1.15 * room.value,
+        "{shared:?} against {room:?}"
+    );
+}
