@@ -299,14 +299,14 @@ pub fn member_contradicted(
         .filter(|(d, _)| d.abs() <= 0.5 * split.abs())
         .peekable();
     near.peek().is_some()
-        && near.all(|(d, s)| d.abs() > replication_tolerance(ln_f, sigma, decay, s))
+        && near.all(|(d, s)| d.abs() > replication_tolerance((ln_f, sigma, decay), s))
 }
 
-/// How far in ln f a held-out pole of relative σ `sigma_pole` may lie from a split member at
-/// ln f₀ = `ln_f` ± `sigma`, decaying at `decay` \[1/s\], and still agree with it:
+/// How far in ln f a held-out pole of relative σ `sigma_pole` may lie from a split member
+/// (ln f₀, its σ, its decay rate \[1/s\]) and still agree with it:
 /// [`REPLICATION_Z`] times its σ, the pole's and [`REPLICATION_LINEWIDTHS`] of its linewidth
 /// d/2π, in quadrature (module docs, "Seen by every microphone").
-fn replication_tolerance(ln_f: f64, sigma: f64, decay: f64, sigma_pole: f64) -> f64 {
+fn replication_tolerance((ln_f, sigma, decay): (f64, f64, f64), sigma_pole: f64) -> f64 {
     let floor = REPLICATION_LINEWIDTHS * decay.max(0.0) / (2.0 * std::f64::consts::PI * ln_f.exp());
     REPLICATION_Z * (sigma * sigma + sigma_pole * sigma_pole + floor * floor).sqrt()
 }
@@ -327,9 +327,6 @@ pub fn pair_heard_beside_its_members(
     if !(s > 0.0) {
         return false;
     }
-    let tolerance = |(ln_f, sigma, decay): (f64, f64, f64), sigma_pole: f64| {
-        replication_tolerance(ln_f, sigma, decay, sigma_pole)
-    };
     let (lo, hi) = if lower.0 <= upper.0 {
         (lower, upper)
     } else {
@@ -339,7 +336,10 @@ pub fn pair_heard_beside_its_members(
     for h in held_poles.iter().filter(|h| h.frequency_hz > 0.0) {
         let x = undamped_hz(h).ln();
         let sigma_pole = h.sigma_frequency_hz / h.frequency_hz;
-        let (t_lo, t_hi) = (tolerance(lo, sigma_pole), tolerance(hi, sigma_pole));
+        let (t_lo, t_hi) = (
+            replication_tolerance(lo, sigma_pole),
+            replication_tolerance(hi, sigma_pole),
+        );
         if (x - lo.0).abs() <= 0.5 * s + t_lo || (x - hi.0).abs() <= 0.5 * s + t_hi {
             return false;
         }

@@ -421,19 +421,6 @@ impl ReverbNoise {
         }
         let held_out = HeldOutChange::new(before, count as f64, after, count as f64);
 
-        let mut params = Vec::new();
-        for b in 0..b_n {
-            params.push(FittedParam::new(
-                format!(
-                    "reverberant excess ρ = R/N at t = 0, band {:.0}–{:.0} Hz",
-                    env.band_edges_hz[b],
-                    env.band_edges_hz[b + 1]
-                ),
-                "1",
-                x[b_n + b],
-                sigma[b_n + b],
-            ));
-        }
         // Per band: the likelihood ratio of its own frames, floor only against the joint fit.
         let band_lr: Vec<f64> = (0..b_n)
             .map(|b| {
@@ -467,10 +454,24 @@ impl ReverbNoise {
         // where `room_decay_rate` reads it; the shared fit's last.
         let (t60, t60_sigma) = band_t60(&split.fit, &min_ln_floor, &significant, t_lo, t_hi)
             .unwrap_or((x[2 * b_n], sigma[2 * b_n]));
-        params.insert(
-            0,
-            FittedParam::new("reverberation time T60", "s", t60, t60_sigma),
-        );
+        let mut params = vec![FittedParam::new(
+            "reverberation time T60",
+            "s",
+            t60,
+            t60_sigma,
+        )];
+        for b in 0..b_n {
+            params.push(FittedParam::new(
+                format!(
+                    "reverberant excess ρ = R/N at t = 0, band {:.0}–{:.0} Hz",
+                    env.band_edges_hz[b],
+                    env.band_edges_hz[b + 1]
+                ),
+                "1",
+                x[b_n + b],
+                sigma[b_n + b],
+            ));
+        }
         params.push(FittedParam::new(
             "T60 of the shared fit of the excess",
             "s",
