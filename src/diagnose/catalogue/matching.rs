@@ -130,17 +130,9 @@ pub struct Matching {
     pub faint: Vec<bool>,
 }
 
-/// Nearest value of the ascending `sorted` to `x`: (index, signed distance x − value).
-fn nearest(sorted: &[f64], x: f64) -> (usize, f64) {
-    let pos = sorted.partition_point(|&v| v < x);
-    let mut best = (0, f64::INFINITY);
-    for j in [pos.saturating_sub(1), pos.min(sorted.len() - 1)] {
-        let e = x - sorted[j];
-        if e.abs() < best.1.abs() {
-            best = (j, e);
-        }
-    }
-    best
+/// Signed distance x − v from `x` to the nearest value v of the ascending, non-empty `sorted`.
+fn offset_from_nearest(sorted: &[f64], x: f64) -> f64 {
+    crate::numerics::nearest_sorted(sorted, x).map_or(f64::INFINITY, |j| x - sorted[j])
 }
 
 impl Matching {
@@ -250,7 +242,7 @@ fn search_scale(observed: &[f64], sim_sorted: &[f64], settings: &CatalogueSettin
         observed
             .iter()
             .map(|&x| {
-                let e = nearest(sim_sorted, x - ln_s).1;
+                let e = offset_from_nearest(sim_sorted, x - ln_s);
                 (e * e).min(tol * tol)
             })
             .sum()
@@ -275,7 +267,7 @@ fn search_scale(observed: &[f64], sim_sorted: &[f64], settings: &CatalogueSettin
     for _ in 0..3 {
         let within: Vec<f64> = observed
             .iter()
-            .map(|&x| nearest(sim_sorted, x - ln_s).1)
+            .map(|&x| offset_from_nearest(sim_sorted, x - ln_s))
             .filter(|e| e.abs() <= tol)
             .collect();
         let Some(m) = median(&within) else {
@@ -383,8 +375,8 @@ pub fn match_modes(
         .filter(|&i| sim_of_obs[i].is_none() && !faint[i])
         .collect();
     free.sort_by(|&a, &b| {
-        let da = nearest(&sim_sorted, observed_ln_f[a] - ln_scale).1.abs();
-        let db = nearest(&sim_sorted, observed_ln_f[b] - ln_scale).1.abs();
+        let da = offset_from_nearest(&sim_sorted, observed_ln_f[a] - ln_scale).abs();
+        let db = offset_from_nearest(&sim_sorted, observed_ln_f[b] - ln_scale).abs();
         da.total_cmp(&db)
     });
     for &i in &free {

@@ -917,6 +917,9 @@ pub struct Prediction {
     /// (f_early − f_late)/f per mode.
     pub glide: Vec<f64>,
     pub channels: usize,
+    /// ln of each mode's measured undamped frequency, the argument of the damping law (parent
+    /// docs, "A damping law at the measured frequency"): scratch, refilled by every prediction.
+    ln_f_measured: Vec<f64>,
 }
 
 impl Prediction {
@@ -927,6 +930,7 @@ impl Prediction {
             ln_a: vec![0.0; modes * channels],
             glide: vec![0.0; modes],
             channels,
+            ln_f_measured: Vec::with_capacity(modes),
         }
     }
 }
@@ -1104,7 +1108,7 @@ impl Model {
     }
 
     /// The prediction for every mode of `table` at parameters `x`, in stages: frequencies,
-    /// then decay rates (functions of the predicted frequencies), amplitudes, glides.
+    /// then decay rates (functions of the measured frequencies), amplitudes, glides.
     pub fn predict(&self, table: &ModeTable, x: &[f64], out: &mut Prediction) {
         let (ln_s, alpha, b) = (x[0], x[1], x[2]);
         for (k, m) in table.modes.iter().enumerate() {
@@ -1118,11 +1122,20 @@ impl Model {
                 }
             }
         }
-        for k in 0..table.modes.len() {
-            out.decay[k] = 0.5 * (alpha + b * (2.0 * (out.ln_f[k] - self.ln_f_ref)).exp());
+        // The damping law at each mode's measured frequency, not at the model's: a frequency
+        // misfit would otherwise come back doubled in the decay rows (parent docs).
+        out.ln_f_measured.clear();
+        out.ln_f_measured.extend(table.modes.iter().map(|m| m.ln_f));
+        for (k, &lf) in out.ln_f_measured.iter().enumerate() {
+            out.decay[k] = 0.5 * (alpha + b * (2.0 * (lf - self.ln_f_ref)).exp());
         }
         for (i, t) in self.terms.iter().enumerate() {
-            t.damping(table, self.term_params(i, x), &out.ln_f, &mut out.decay);
+            t.damping(
+                table,
+                self.term_params(i, x),
+                &out.ln_f_measured,
+                &mut out.decay,
+            );
         }
         let c_n = table.channels;
         let ln_two_pi = (2.0 * PI).ln();
@@ -2021,7 +2034,7 @@ pub fn baseline_start(table: &ModeTable, model: &Model, ln_scale: f64) -> Vec<f6
         .iter()
         .filter_map(|m| {
             m.ln_d.map(|(ln_d, s)| {
-                let u = (2.0 * (ln_scale + m.ln_f_sim - model.ln_f_ref)).exp();
+                let u = (2.0 * (m.ln_f - model.ln_f_ref)).exp();
                 let d = ln_d.exp();
                 (u, d, 1.0 / (d * d * (s * s + 0.01)))
             })

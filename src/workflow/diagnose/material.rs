@@ -102,9 +102,10 @@ fn heard_lines(fit: &[ObservedMode], held: &[ObservedMode]) -> Vec<f64> {
         .iter()
         .copied()
         .filter(|&f| {
+            let ln_f = f.ln();
             f > 0.0
-                && nearest_sorted(&other, f.ln())
-                    .is_some_and(|j| (other[j] - f.ln()).abs() <= HEARD_TOLERANCE)
+                && nearest_sorted(&other, ln_f)
+                    .is_some_and(|j| (other[j] - ln_f).abs() <= HEARD_TOLERANCE)
         })
         .collect();
     if heard.len() >= MIN_HEARD_LINES {
