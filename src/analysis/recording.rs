@@ -114,9 +114,9 @@ pub struct Recording {
     /// One name per channel (see the module docs).
     pub names: Vec<String>,
     /// Per channel, how far up to [`RecordingOptions::band_max_hz`] the strike rises over the
-    /// noise floor before it, measured on the files as read
-    /// ([`crate::audio::health::band_reach_hz`]); empty without a band.
-    pub band_reach_hz: Vec<Option<f64>>,
+    /// noise floor before it and how far over it it stands in its best sub-band, measured on
+    /// the files as read ([`crate::audio::health::band_over_floor`]); empty without a band.
+    pub band_over_floor: Vec<Option<crate::audio::health::BandOverFloor>>,
 }
 
 impl Recording {
@@ -240,7 +240,7 @@ pub fn load_recording<P: AsRef<Path>>(
         }
     })?;
     let onset_s = onset.time_s;
-    let band_reach_hz = match opts.band_max_hz {
+    let band_over_floor = match opts.band_max_hz {
         Some(band_hz) => {
             let fs = f64::from(source_rate);
             let n0 = ((onset_s * fs).round() as usize).min(channels[0].len());
@@ -249,7 +249,7 @@ pub fn load_recording<P: AsRef<Path>>(
             channels
                 .iter()
                 .map(|x| {
-                    crate::audio::health::band_reach_hz(&x[..floor_end], &x[n0..], fs, band_hz)
+                    crate::audio::health::band_over_floor(&x[..floor_end], &x[n0..], fs, band_hz)
                 })
                 .collect()
         }
@@ -314,7 +314,7 @@ pub fn load_recording<P: AsRef<Path>>(
             .collect(),
         gain,
         names,
-        band_reach_hz,
+        band_over_floor,
     })
 }
 

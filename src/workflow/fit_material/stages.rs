@@ -61,7 +61,7 @@ pub(super) fn stage_one(petsc: &Petsc, job: &Job, progress: &Progress) -> Result
         // Channel health (pre-roll 0: the floor is the track's last tenth): a dead, noise-only
         // or misaligned microphone is left out with a warning naming its file. The warning is
         // printed here, before the progress lines of the damping fit it precedes.
-        let health = crate::audio::health::assess(&rec.names, &rec.channels, 0, f64::from(rec.sample_rate), &rec.channel_onsets_s, rec.onset_s, &rec.band_reach_hz);
+        let health = crate::audio::health::assess(&rec.names, &rec.channels, 0, f64::from(rec.sample_rate), &rec.channel_onsets_s, rec.onset_s, &rec.band_over_floor);
         for h in health.iter().filter(|h| !h.is_healthy()) {
             eprintln!("{}", h.left_out_warning("the fit"));
         }
