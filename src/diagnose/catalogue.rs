@@ -1157,7 +1157,8 @@ pub trait Term: std::fmt::Debug + Send + Sync {
     fn sets_splits(&self) -> bool {
         false
     }
-    /// Damping stage: adjust (or overwrite) the decay rate d per mode, given the predicted ln f.
+    /// Damping stage: adjust (or overwrite) the decay rate d per mode, given each mode's
+    /// measured ln f (module docs, "A damping law at the measured frequency").
     fn damping(&self, _table: &ModeTable, _p: &[f64], _ln_f: &[f64], _decay: &mut [f64]) {}
     /// Amplitude stage: adjust ln a, flattened [mode · channels + channel].
     fn amplitude(&self, _table: &ModeTable, _p: &[f64], _ln_f: &[f64], _ln_a: &mut [f64]) {}

@@ -454,32 +454,36 @@ impl Effect for ContactDuration {
                     hertz = (drop, f0);
                 }
             }
-            if best.0 > 1.0 && !testable(2) {
-                untestable.push("sin^p pulse (2 parameters)".to_string());
-            } else if best.0 > 1.0 {
-                proposals.push(Proposal {
-                    term: Arc::new(SinePowerContact {
-                        min_null_hz: f_lo,
-                        max_null_hz: f_hi,
-                        power: None,
-                    }),
-                    init: vec![best.1, best.2],
-                });
-            }
-            // The Hertzian pulse: the same null with the shape physics gives it, one
-            // parameter (module docs, "A Hertzian pulse"), but tested as the sin^p pulse is:
-            // a null free to sit anywhere in the band can empty any one group of modes.
-            if hertz.0 > 1.0 && !testable(2) {
-                untestable.push("Hertzian pulse (its null anywhere in the band)".to_string());
-            } else if hertz.0 > 1.0 {
-                proposals.push(Proposal {
-                    term: Arc::new(SinePowerContact {
-                        min_null_hz: f_lo,
-                        max_null_hz: f_hi,
-                        power: Some(HERTZ_POWER),
-                    }),
-                    init: vec![hertz.1],
-                });
+            // The Hertzian pulse beside the free one: the same null with the shape physics
+            // gives it, one parameter (module docs, "A Hertzian pulse"), but tested as the
+            // sin^p pulse is: a null free to sit anywhere in the band can empty any one group
+            // of modes.
+            for (drop, init, power, what) in [
+                (
+                    best.0,
+                    vec![best.1, best.2],
+                    None,
+                    "sin^p pulse (2 parameters)",
+                ),
+                (
+                    hertz.0,
+                    vec![hertz.1],
+                    Some(HERTZ_POWER),
+                    "Hertzian pulse (its null anywhere in the band)",
+                ),
+            ] {
+                if drop > 1.0 && !testable(2) {
+                    untestable.push(what.to_string());
+                } else if drop > 1.0 {
+                    proposals.push(Proposal {
+                        term: Arc::new(SinePowerContact {
+                            min_null_hz: f_lo,
+                            max_null_hz: f_hi,
+                            power,
+                        }),
+                        init,
+                    });
+                }
             }
             detail.push_str(&format!(
                 "; a sin^p pulse with its first null in the band by {:.1} at f0 = {:.0} Hz, p = {:.1}",
