@@ -26,7 +26,7 @@
 //!
 //! A channel can carry the strike and still hold nothing but noise in the top of the band a
 //! job analyses (a far or low-passed microphone, a soft strike): modes "found" there are noise.
-//! [`band_reach_hz`] measures, per channel at the file's own rate, how far up the strike rises
+//! [`band_over_floor`] measures, per channel at the file's own rate, how far up the strike rises
 //! over the floor:
 //!
 //! * the floor's power spectrum N(f) is the Welch mean of Hann frames of L samples (hop L/2)
@@ -112,7 +112,7 @@ pub struct ChannelHealth {
     /// Own onset minus the shared onset [s]; `None` when no strike of its own was found.
     pub onset_offset_s: Option<f64>,
     pub verdict: Verdict,
-    /// How far up the band the strike rises over the floor [Hz] ([`band_reach_hz`]); `None`
+    /// How far up the band the strike rises over the floor [Hz] ([`BandOverFloor::reach_hz`]); `None`
     /// when no band was given or the pre-roll is too short to measure the floor.
     #[serde(default)]
     pub band_reach_hz: Option<f64>,
@@ -193,26 +193,22 @@ pub fn band_warnings(
         .collect())
 }
 
-/// How far up to `band_max_hz` the strike in `strike` (from the onset) rises over the floor in
-/// `noise` (the pre-roll before it, guard already removed), at `fs` Hz; see the module docs.
-/// `None` when `noise` is too short for [`MIN_FLOOR_FRAMES`] frames of 64 samples or the
-/// strike is shorter than one frame.
-pub fn band_reach_hz(noise: &[f64], strike: &[f64], fs: f64, band_max_hz: f64) -> Option<f64> {
-    band_over_floor(noise, strike, fs, band_max_hz).map(|b| b.reach_hz)
-}
-
 /// The strike against the floor across the band (module docs): how far up it rises, and how
 /// far over the floor it stands in its best sub-band.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct BandOverFloor {
-    /// [`band_reach_hz`] \[Hz\].
+    /// The reach: the top of the highest sub-band where the strike stands
+    /// [`REACH_OVER_FLOOR_DB`] over the floor (0 when none does) \[Hz\].
     pub reach_hz: f64,
     /// The band SNR: the largest 10 log₁₀(ΣS/ΣN) over the sub-bands \[dB\] (∞ over a floor
     /// of zeros, −∞ with no strike at all).
     pub snr_db: f64,
 }
 
-/// [`BandOverFloor`] of `strike` over `noise` (the arguments of [`band_reach_hz`]).
+/// How the strike in `strike` (from the onset) stands over the floor in `noise` (the pre-roll
+/// before it, guard already removed) up to `band_max_hz`, at `fs` Hz; see the module docs.
+/// `None` when `noise` is too short for [`MIN_FLOOR_FRAMES`] frames of 64 samples or the
+/// strike is shorter than one frame.
 pub fn band_over_floor(
     noise: &[f64],
     strike: &[f64],
@@ -260,18 +256,19 @@ pub fn band_over_floor(
         let hi = sixth.min(top_bin + 1);
         let (s, n): (f64, f64) = (lo..hi).fold((0.0, 0.0), |(s, n), k| (s + peak[k], n + floor[k]));
         if s > 0.0 {
-            snr_db = snr_db.max(if n > 0.0 {
+            let db = if n > 0.0 {
                 10.0 * (s / n).log10()
             } else {
                 f64::INFINITY
-            });
-        }
-        if s > 0.0 && (n <= 0.0 || 10.0 * (s / n).log10() >= REACH_OVER_FLOOR_DB) {
-            reach = if hi > top_bin {
-                band_max_hz
-            } else {
-                hi as f64 * bin_hz
             };
+            snr_db = snr_db.max(db);
+            if db >= REACH_OVER_FLOOR_DB {
+                reach = if hi > top_bin {
+                    band_max_hz
+                } else {
+                    hi as f64 * bin_hz
+                };
+            }
         }
         lo = hi;
     }
@@ -533,6 +530,11 @@ mod tests {
         // Without the band measured the broadband rule alone decides, as before.
         let bare = assess(&names, &channels, onset, fs, &own, 0.5, &[]);
         assert_eq!(bare[0].verdict, Verdict::NoiseOnly, "{bare:?}");
+    }
+
+    /// The reach alone ([`BandOverFloor::reach_hz`]).
+    fn band_reach_hz(noise: &[f64], strike: &[f64], fs: f64, band_max_hz: f64) -> Option<f64> {
+        band_over_floor(noise, strike, fs, band_max_hz).map(|b| b.reach_hz)
     }
 
     #[test]

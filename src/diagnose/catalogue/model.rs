@@ -2024,8 +2024,8 @@ fn set_gains_to_mean_residual(table: &ModeTable, p: &Prediction, x: &mut [f64]) 
 }
 
 /// Starting point of the baseline on `table` at ln s = `ln_scale`: α and b from a weighted
-/// linear fit of d on (1, (ω/ω_ref)²)/2 at the measured ω, clamped to α, b ≥ 0 with the other refitted; gains
-/// from the mean amplitude residual per channel.
+/// linear fit of d on (1, (ω/ω_ref)²)/2 at the measured ω, clamped to α, b ≥ 0 with the other
+/// refitted; gains from the mean amplitude residual per channel.
 pub fn baseline_start(table: &ModeTable, model: &Model, ln_scale: f64) -> Vec<f64> {
     let mut x = vec![0.0; model.n_params()];
     x[0] = ln_scale;
