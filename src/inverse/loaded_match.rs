@@ -104,7 +104,7 @@ pub enum LoadedMatchError {
     #[error("the loaded line match found no candidate")]
     NoCandidate,
 }
-use super::material::{line_distance, line_score, LinePattern, AUDIBLE_FRACTION};
+use super::material::{line_distance, LinePattern, AUDIBLE_FRACTION};
 
 /// The unloaded Ritz modes at one ν, as the search needs them.
 #[derive(Clone, Debug)]
@@ -594,11 +594,8 @@ pub fn loaded_line_candidates(
     let c_plain = 0.5 * (problem.plain_youngs / problem.density).ln() - two_pi_ln;
     let cap = settings.cap;
     let ceiling = problem.ceiling_ln_f;
-    // The search ranks by the plain match's score ([`line_score`]); each answer reports the
-    // symmetric distance ([`line_distance`]) at its point, the one the caller's gates compare
-    // with the plain match's.
     let distance =
-        |u: &LinePattern, c: f64| line_score(&target, u, c, ceiling, cap, settings.audible);
+        |u: &LinePattern, c: f64| line_distance(&target, u, c, ceiling, cap, settings.audible);
     let pattern = |loaded: &[(f64, f64)]| LinePattern::new(loaded.iter().copied());
     // Best scale for a pattern over c_plain − below … c_plain + above, by `step`, then ten
     // times finer around the best.
@@ -790,12 +787,7 @@ pub fn loaded_line_candidates(
                 );
             }
         }
-        let (_, c, nu, r, fraction) = best;
-        // The symmetric distance at the answer, by the model the search used there.
-        let d = region_problem(&modes_at(nu), r, anchor).map_or(f64::INFINITY, |reduced| {
-            let u = pattern(&reduced.solve(alpha_of(fraction, r)));
-            line_distance(&target, &u, c, ceiling, cap, settings.audible)
-        });
+        let (d, c, nu, r, fraction) = best;
         out.push(LoadedMatch {
             youngs: problem.density * (2.0 * (c + two_pi_ln)).exp(),
             poisson: nu,
@@ -845,22 +837,13 @@ pub fn scale_fit(
         };
         for i in 0..=n {
             let c = lo + i as f64 * step;
-            let d = line_score(&target, &u, c, ceiling_ln_f, settings.cap, settings.audible);
+            let d = line_distance(&target, &u, c, ceiling_ln_f, settings.cap, settings.audible);
             if d < best.0 {
                 best = (d, c);
             }
         }
     }
-    // Ranked by the score, reported by the symmetric distance (as the search's answers).
-    let distance = line_distance(
-        &target,
-        &u,
-        best.1,
-        ceiling_ln_f,
-        settings.cap,
-        settings.audible,
-    );
-    (distance, density * (2.0 * (best.1 + two_pi_ln)).exp())
+    (best.0, density * (2.0 * (best.1 + two_pi_ln)).exp())
 }
 
 /// Merges the split pairs of `lines` (ln f, weight), sorted by ln f in place: two neighbours
