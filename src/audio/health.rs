@@ -48,8 +48,8 @@
 //! the floor across the kHz band (blind seeds 269 case 007 and 283 case 022); left out as
 //! noise, the second case lost its only held-out microphone and with it a damping law of ΔBIC
 //! 25.1. Both microphones are kept now (band SNR over 20 dB); rerun, case 022 names its law
-//! (ΔBIC 25.0, held-out gain 2.8) and case 007 keeps its glide. Over noise alone each bin's largest frame is about 6 dB over its mean (the largest
-//! of ~35 exponentials), so 20 dB in a sub-band is no chance.
+//! (ΔBIC 25.0, held-out gain 2.8) and case 007 keeps its glide. Chance cannot reach it: over
+//! noise alone a sub-band stands at most about 6 dB over the floor (next paragraph).
 //!
 //! The threshold leaves room for chance: over white noise alone the largest of ~35 frames
 //! exceeds the mean by about 6 dB in one bin, less in a sum of bins. A healthy channel whose
@@ -112,8 +112,9 @@ pub struct ChannelHealth {
     /// Own onset minus the shared onset [s]; `None` when no strike of its own was found.
     pub onset_offset_s: Option<f64>,
     pub verdict: Verdict,
-    /// How far up the band the strike rises over the floor [Hz] ([`BandOverFloor::reach_hz`]); `None`
-    /// when no band was given or the pre-roll is too short to measure the floor.
+    /// How far up the band the strike rises over the floor [Hz]
+    /// ([`BandOverFloor::reach_hz`]); `None` when no band was given or the pre-roll is too
+    /// short to measure the floor.
     #[serde(default)]
     pub band_reach_hz: Option<f64>,
     /// The strike over the floor in its best sub-band of the band [dB] (module docs, the band
