@@ -7,7 +7,7 @@
 //!    `faint_pole_db` (default [`DEFAULT_FAINT_POLE_DB`] = 40 dB) below that of another
 //!    observed mode within the largest pair split takes no part in steps 1–3 and may not be
 //!    swapped in (step 6); step 5 makes it an extra pole of the partial it sits beside.
-//!    Why: a pole a hundredth of its neighbour's amplitude within 1.5 % is not a partial of its
+//!    Why: a pole a hundredth of its neighbour's amplitude within a few per cent is not a partial of its
 //!    own that the simulation could predict. It is what the extraction makes of the loud
 //!    partial's imperfect model (a glide, a decay that is not one exponential) or of a room:
 //!    a reverberant field convolves each partial with a response whose peaks and notches are

@@ -4218,3 +4218,34 @@ fn the_rooms_t60_is_the_lower_quartile_of_the_bands_own() {
         "{shared:?} against {room:?}"
     );
 }
+
+#[test]
+fn profiled_slope_test_is_not_capped_by_the_number_of_points() {
+    use super::profiled_slope_through_origin;
+    // Two split pairs whose upper members both decay faster by about b x, to their precision.
+    let agree = [(0.6, 4.0, 0.01), (0.6, 4.4, 0.01)];
+    let (b, z) = profiled_slope_through_origin(&agree).unwrap();
+    assert!((b - 7.0).abs() < 0.1, "slope {b}");
+    assert!(z > 3.0, "z {z}");
+    // The Wald z with the floor the null profiles (τ² = mean square less s²) stays near √2.
+    let tau2 = (16.0 + 19.36) / 2.0 - 0.01;
+    let sxx: f64 = agree.iter().map(|p| p.0 * p.0 / (p.2 + tau2)).sum();
+    let sxy: f64 = agree.iter().map(|p| p.0 * p.1 / (p.2 + tau2)).sum();
+    assert!(sxy / sxx.sqrt() < 1.5);
+    // Opposite signs: no slope to speak of.
+    let (_, z) = profiled_slope_through_origin(&[(0.6, 4.0, 0.01), (0.6, -4.0, 0.01)]).unwrap();
+    assert!(z.abs() < 0.5, "z {z}");
+    // Points that scatter about a slope by far more than their σ: the floor profiled under the
+    // alternative keeps z modest.
+    let scattered = [
+        (0.6, 4.0, 0.01),
+        (0.5, 0.3, 0.01),
+        (0.7, 1.5, 0.01),
+        (0.6, -1.0, 0.01),
+    ];
+    let (_, z) = profiled_slope_through_origin(&scattered).unwrap();
+    assert!(z > 0.0 && z < 2.5, "z {z}");
+    // Without x: none.
+    assert!(profiled_slope_through_origin(&[(0.0, 1.0, 0.1)]).is_none());
+    assert!(profiled_slope_through_origin(&[]).is_none());
+}
