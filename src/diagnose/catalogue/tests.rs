@@ -4249,3 +4249,40 @@ fn profiled_slope_test_is_not_capped_by_the_number_of_points() {
     assert!(profiled_slope_through_origin(&[(0.0, 1.0, 0.1)]).is_none());
     assert!(profiled_slope_through_origin(&[]).is_none());
 }
+
+#[test]
+fn a_supports_wide_split_of_the_lowest_pair_is_matched_as_a_pair() {
+    // A tube on a rail (generator 2's spent seed 307 case 021): the rail's spring raised the
+    // pressing member of the lowest bending pair 2.1 % above the other, the pairs above by
+    // 0.3 %. Both members must be matched to their cluster, so that their decay rates can
+    // show the support (catalogue docs, *How far a pair may split*).
+    let simulated = vec![
+        sim(2359.1, 0),
+        sim(2359.7, 0),
+        sim(5849.4, 1),
+        sim(5853.5, 1),
+        sim(6187.2, 2),
+        sim(7900.9, 3),
+    ];
+    let obs_hz = [2369.7, 2419.5, 5831.4, 5848.2, 6190.0, 7910.5];
+    let ln: Vec<f64> = obs_hz.iter().map(|f: &f64| f.ln()).collect();
+    let m = match_modes(&ln, &[], &simulated, None, &CatalogueSettings::default());
+    assert!(
+        m.unmatched_observed.is_empty(),
+        "{:?}",
+        m.unmatched_observed
+    );
+    let unit = |i: usize| m.units.iter().find(|u| u.observed == i).expect("matched");
+    assert_eq!(
+        (unit(0).role, unit(1).role),
+        (Role::SplitLower, Role::SplitUpper)
+    );
+    assert_eq!((unit(0).cluster, unit(1).cluster), (0, 0));
+    // At the old 1.5 % the raised member was left unmatched.
+    let narrow = CatalogueSettings {
+        max_pair_split: 0.015,
+        ..CatalogueSettings::default()
+    };
+    let m = match_modes(&ln, &[], &simulated, None, &narrow);
+    assert_eq!(m.unmatched_observed, vec![1]);
+}
