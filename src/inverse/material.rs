@@ -100,6 +100,13 @@ pub struct MaterialFitSettings {
     /// Learn a log-amplitude offset per mode and channel in the spectral phase (for recordings,
     /// where the microphones do not hear the driving-point amplitudes).
     pub free_amplitudes: bool,
+    /// Starts tried on each side of the line-spectrum start, `start_probe_spacing` apart in
+    /// ν, each with its own line-matched E and run `start_probe_steps` spectral steps; the fit
+    /// goes on from the one with the lowest loss ([`fit_material`], *Several starts*). 0: the
+    /// line-spectrum start alone.
+    pub start_probes: usize,
+    pub start_probe_spacing: f64,
+    pub start_probe_steps: usize,
     pub transport: PeakTransportConfig,
     pub spectral: SpectralLossConfig,
 }
@@ -128,6 +135,9 @@ impl Default for MaterialFitSettings {
             min_sample_spacing: 0.02,
             poisson_scan: 45,
             free_amplitudes: false,
+            start_probes: 2,
+            start_probe_spacing: 0.005,
+            start_probe_steps: 40,
             transport: PeakTransportConfig::default(),
             spectral: SpectralLossConfig::default(),
         }
@@ -190,6 +200,17 @@ pub struct MaterialFit {
     pub basis_samples: Vec<f64>,
     pub max_residual: f64,
     pub line_start: Option<LineSpectrumStart>,
+    /// The starts tried before the fit ([`fit_material`], *Several starts*); empty without.
+    #[serde(default)]
+    pub start_probes: Vec<StartProbe>,
+}
+
+/// One start tried before the fit: where, and the mean spectral loss of its last five steps.
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct StartProbe {
+    pub youngs: f64,
+    pub poisson: f64,
+    pub loss: f64,
 }
 
 /// (φ_k(x)·n)² for ρ = 1: mode k's driving-point weight at the strike (module docs).
@@ -545,10 +566,95 @@ pub fn line_spectrum_start(
 /// Fits E (and ν) from `start = (E, ν)`. `on_step` sees every step (progress display).
 /// `check` is called every `check_every` steps with the current ν and returns whether the basis
 /// was refreshed (the caller owns the PETSc objects): it returns the largest Ritz residual.
+///
+/// *Several starts.* From a line-spectrum start the spectral loss alone is followed, and its
+/// basin is a fraction of a partial's bandwidth wide: where it ends depends on where it
+/// starts, finer than the line match can rank starts. On the real bowl, two line-match
+/// rankings put the start at ν 0.1835 and 0.1890; the fits ended at losses 2.23 (ν 0.1905) and
+/// 2.75 (ν 0.2024), and the second basin's diagnosis explained nothing. On 64 saved benchmark
+/// cases the line match's ν was off by up to 0.006–0.009 (90th percentile,
+/// `docs/diagnose_benchmarks.md`, twenty-eighth). So with `start_probes` = m, the ν at
+/// ±`start_probe_spacing` × 1..=m around the line-spectrum start are tried too, each with the
+/// E the line match gives at that ν; each runs `start_probe_steps` spectral steps from fresh
+/// (no basis refresh), and the fit runs from the start whose last five steps' mean loss is the
+/// lowest. The basin is chosen by the loss the fit minimises, not by the line distance.
 pub fn fit_material<'p>(
     basis: &mut PoissonBasis<'p>,
     problem: &MaterialProblem,
     start: (f64, f64),
+    settings: &MaterialFitSettings,
+    check: impl FnMut(&mut PoissonBasis<'p>, f64) -> Result<f64, ReducedError>,
+    on_step: impl FnMut(&FitStep),
+) -> Result<MaterialFit, MaterialFitError> {
+    let line_start = if settings.line_spectrum_start && !problem.target_modes_hz.is_empty() {
+        Some(line_spectrum_start(basis, problem, start, settings)?)
+    } else {
+        None
+    };
+    let Some(line) = line_start else {
+        return fit_from(basis, problem, start, None, settings, check, on_step);
+    };
+    let mut chosen = (line.youngs, line.poisson);
+    let mut probes: Vec<StartProbe> = Vec::new();
+    if settings.learn_poisson && settings.start_probes > 0 && settings.start_probe_steps > 0 {
+        let probe_settings = MaterialFitSettings {
+            max_steps: settings.start_probe_steps,
+            check_every: 0,
+            ..settings.clone()
+        };
+        // E at a held ν: the line match's shift search alone, near the start's E.
+        let at_nu = MaterialFitSettings {
+            learn_poisson: false,
+            youngs_search_factor: 1.1,
+            ..settings.clone()
+        };
+        let (lo, hi) = settings.poisson_bounds;
+        let m = settings.start_probes as i64;
+        let mut best = f64::INFINITY;
+        for i in -m..=m {
+            let nu = (line.poisson + i as f64 * settings.start_probe_spacing).clamp(lo, hi);
+            if probes.iter().any(|p| (p.poisson - nu).abs() < 1e-12) {
+                continue;
+            }
+            let youngs = if i == 0 {
+                line.youngs
+            } else {
+                line_spectrum_start(basis, problem, (line.youngs, nu), &at_nu)?.youngs
+            };
+            let probe = fit_from(
+                basis,
+                problem,
+                (youngs, nu),
+                Some(line),
+                &probe_settings,
+                |_: &mut PoissonBasis<'p>, _: f64| Ok(0.0),
+                |_: &FitStep| {},
+            )?;
+            let tail: Vec<f64> = probe.history.iter().rev().take(5).map(|s| s.loss).collect();
+            let loss = tail.iter().sum::<f64>() / tail.len().max(1) as f64;
+            probes.push(StartProbe {
+                youngs,
+                poisson: nu,
+                loss,
+            });
+            if loss < best {
+                best = loss;
+                chosen = (youngs, nu);
+            }
+        }
+    }
+    let mut fit = fit_from(basis, problem, chosen, Some(line), settings, check, on_step)?;
+    fit.start_probes = probes;
+    Ok(fit)
+}
+
+/// The fit from `start`: the spectral loss alone when `line_start` is given (the start is then
+/// a line-spectrum match or a probe about one), else the transport phase first.
+fn fit_from<'p>(
+    basis: &mut PoissonBasis<'p>,
+    problem: &MaterialProblem,
+    start: (f64, f64),
+    line_start: Option<LineSpectrumStart>,
     settings: &MaterialFitSettings,
     mut check: impl FnMut(&mut PoissonBasis<'p>, f64) -> Result<f64, ReducedError>,
     mut on_step: impl FnMut(&FitStep),
@@ -587,12 +693,6 @@ pub fn fit_material<'p>(
     let mean_log_theta = |modes: &ReducedModes| {
         modes.theta.iter().map(|t| t.ln()).sum::<f64>() / modes.theta.len() as f64
     };
-    let line_start = if settings.line_spectrum_start && !problem.target_modes_hz.is_empty() {
-        Some(line_spectrum_start(basis, problem, start, settings)?)
-    } else {
-        None
-    };
-    let start = line_start.map_or(start, |l| (l.youngs, l.poisson));
     let start_nu = start.1.clamp(lo, hi);
     let mut params = vec![
         start.0.ln() + mean_log_theta(&basis.solve(start_nu)),
@@ -788,6 +888,7 @@ pub fn fit_material<'p>(
         basis_samples: basis.samples().to_vec(),
         max_residual,
         line_start,
+        start_probes: Vec::new(),
     })
 }
 

@@ -16,7 +16,9 @@
 //! 4. **Material** ([`crate::inverse::material`], every rank): the mesh (P1 or P2) is assembled,
 //!    a reduced basis in ν is built from full SLEPc solves at `basis_samples`, and E (with ρ
 //!    given), ν and per-channel gains (and, with `free_amplitudes`, per-mode amplitudes) are
-//!    fitted by the hybrid transport → spectral schedule with the damping curve held fixed.
+//!    fitted by the hybrid transport → spectral schedule with the damping curve held fixed;
+//!    from a line-spectrum start, after short runs from starts beside it
+//!    ([`crate::inverse::material::fit_material`], *Several starts*).
 //! 5. **Checks.** A full SLEPc solve at the fitted (E, ν) is compared with the reduced basis;
 //!    every recorded mode in the band is paired with its nearest simulated mode (one to one,
 //!    closest pairs first) and the frequency errors are listed; the spectrogram error
@@ -300,6 +302,21 @@ pub fn run(petsc: &Petsc, job: &Job, progress: &Progress) -> Result<Report, Erro
     // every later collective step assemble with this ν on each rank's own rows (a mismatch would
     // silently assemble a stiffness matrix mixing two materials). Rank 0's fit is authoritative.
     let fit = agree_on_fit(petsc, fit, progress).map_err(Error::Fit)?;
+    if let Some(first) = fit.history.first() {
+        if !fit.start_probes.is_empty() {
+            let tried: Vec<String> = fit
+                .start_probes
+                .iter()
+                .map(|p| format!("ν {:.4}: {:.4e}", p.poisson, p.loss))
+                .collect();
+            progress.say(format!(
+                "starts tried ({} spectral steps each, mean loss of the last five): {}; the fit ran from ν = {:.4}",
+                job.fit.start_probe_steps,
+                tried.join(", "),
+                first.poisson
+            ));
+        }
+    }
     progress.say(format!(
         "fit: E = {:.5e} Pa, ν = {:.4} after {} steps in {:.1} s",
         fit.youngs, fit.poisson, fit.steps, fit_seconds
