@@ -66,7 +66,8 @@
 //! splits its pairs where the recording's are split cuts the distance too. What a mass does
 //! that no splitting does is move the pairs' centres and the lone modes by its own pattern.
 //! [`split_free_fit`] measures that part: both sides' split pairs (neighbours within the
-//! catalogue's pair tolerance, `max_pair_split`) merged into one line each, then the same scale search.
+//! catalogue's pair tolerance, `max_pair_split`) merged into one line each, then the same
+//! scale search.
 //! The `diagnose` job compares the loaded and the plain model on it.
 //!
 //! **Sharing the work.** The coarse pass and every fine pass are grids over ν whose points are

@@ -7,11 +7,11 @@
 //!    `faint_pole_db` (default [`DEFAULT_FAINT_POLE_DB`] = 40 dB) below that of another
 //!    observed mode within the largest pair split takes no part in steps 1–3 and may not be
 //!    swapped in (step 6); step 5 makes it an extra pole of the partial it sits beside.
-//!    Why: a pole a hundredth of its neighbour's amplitude within a few per cent is not a partial of its
-//!    own that the simulation could predict. It is what the extraction makes of the loud
-//!    partial's imperfect model (a glide, a decay that is not one exponential) or of a room:
-//!    a reverberant field convolves each partial with a response whose peaks and notches are
-//!    a few hertz apart, and ESPRIT reports them as faint poles around it. Matched by
+//!    Why: a pole a hundredth of its neighbour's amplitude within a few per cent is not a
+//!    partial of its own that the simulation could predict. It is what the extraction makes
+//!    of the loud partial's imperfect model (a glide, a decay that is not one exponential) or
+//!    of a room: a reverberant field convolves each partial with a response whose peaks and
+//!    notches are a few hertz apart, and ESPRIT reports them as faint poles around it. Matched by
 //!    frequency alone, two such poles 70 and 72 dB below a partial 1.4 % from its simulated
 //!    cluster took the cluster as a "split pair" (generator 2, seed 19, case 020, a tube in a
 //!    room: split 8 Hz at z = 15, which no held-out microphone heard), and the partial itself
