@@ -17,6 +17,7 @@
 //! | `/material` attrs | `youngs_modulus` [Pa], `poisson_ratio`, `density` [kg/m³], `youngs_over_density` [m²/s²], `start_youngs_modulus`, `start_poisson_ratio`, `poisson_learned` (u8 flag) |
 //! | `/fit/history/{step,phase,loss,youngs_modulus,poisson_ratio}` | per step; `step` u64, `phase` u8: 0 = transport, 1 = spectral |
 //! | `/fit/log_gains` `[C]`, `/fit/log_amplitude_offsets` `[K, C]` | learned levels (natural log) |
+//! | `/fit/start_probes/{youngs_modulus,poisson_ratio,loss}` | the starts tried before the fit (E [Pa], ν, the mean spectral loss of their last five steps); present only when starts were tried |
 //! | `/fit` attrs | `steps` (i64), `switched_at` (i64, −1: never), `seconds`, `basis_samples` (f64 array: ν of the basis solves), `max_ritz_residual`, `line_start_youngs_modulus`, `line_start_poisson_ratio`, `line_start_distance` |
 //! | `/damping/curve/{frequencies_hz,decay_rates}` | knots of d(f) [Hz, 1/s] |
 //! | `/damping/modes/{frequency_hz,decay_rate,level_db,kept}` `[M]`, `…/amplitudes`, `…/phases` `[M, C]` | every stage-1 mode; `kept` u8 flag |
@@ -109,6 +110,9 @@ pub struct FitRecord {
     /// ν of the full solves spanning the reduced basis (an f64 array attribute).
     pub basis_samples: Vec<f64>,
     pub line_start: Option<LineStartRecord>,
+    /// The starts tried before the fit, (E [Pa], ν, mean loss of their last five steps);
+    /// empty: none tried.
+    pub start_probes: Vec<(f64, f64, f64)>,
 }
 
 /// The line-spectrum start of the fit and its frequency error.
@@ -388,6 +392,24 @@ pub fn write_result(path: &Path, r: &FitMaterialResult) -> Result<(), IoError> {
         "mean_abs_relative_frequency_error",
         e.mean_abs_relative_frequency_error,
     );
+    if !fit.start_probes.is_empty() {
+        let probes = &fit.start_probes;
+        file.column(
+            "/fit/start_probes/youngs_modulus",
+            probes.iter().map(|p| p.0).collect(),
+            "Pa",
+        )
+        .column(
+            "/fit/start_probes/poisson_ratio",
+            probes.iter().map(|p| p.1).collect(),
+            "1",
+        )
+        .column(
+            "/fit/start_probes/loss",
+            probes.iter().map(|p| p.2).collect(),
+            "1",
+        );
+    }
     if let Some(l) = &fit.line_start {
         file.number("/fit", "line_start_youngs_modulus", l.youngs_modulus)
             .number("/fit", "line_start_poisson_ratio", l.poisson_ratio)
@@ -494,6 +516,11 @@ mod tests {
                 seconds: 1.5,
                 max_ritz_residual: 1e-9,
                 basis_samples: vec![0.15, 0.35],
+                start_probes: if line_start {
+                    vec![(6e10, 0.275, 2.5), (6.1e10, 0.28, 2.25)]
+                } else {
+                    Vec::new()
+                },
                 line_start: line_start.then_some(LineStartRecord {
                     youngs_modulus: 6e10,
                     poisson_ratio: 0.28,
@@ -597,6 +624,10 @@ mod tests {
         assert_eq!((amplitudes, shape), (vec![0.5, 0.25], vec![1, 2]));
         let (error_hz, _) = read_dataset(&path, "/modes/matched/error_hz").unwrap();
         assert_eq!(error_hz, vec![-10.0]);
+        let (probe_nu, _) = read_dataset(&path, "/fit/start_probes/poisson_ratio").unwrap();
+        assert_eq!(probe_nu, vec![0.275, 0.28]);
+        let (probe_loss, _) = read_dataset(&path, "/fit/start_probes/loss").unwrap();
+        assert_eq!(probe_loss, vec![2.5, 2.25]);
 
         // Without a line-spectrum start, its attributes are absent.
         let path = dir.path("plain.h5");

@@ -54,6 +54,11 @@ pub fn result_record(job: &Job, report: &Report, command: String) -> FitMaterial
             seconds: t.fit,
             max_ritz_residual: fit.max_residual,
             basis_samples: fit.basis_samples.clone(),
+            start_probes: fit
+                .start_probes
+                .iter()
+                .map(|p| (p.youngs, p.poisson, p.loss))
+                .collect(),
             line_start: match (fit.line_start, report.line_start_check) {
                 (Some(l), Some(check)) => Some(LineStartRecord {
                     youngs_modulus: l.youngs,
