@@ -1453,65 +1453,44 @@ pub(crate) fn weighted_line(points: &[(f64, f64, f64)]) -> Option<(f64, f64, f64
 }
 
 /// Slope b of y = b x through the origin for points (x, y, s²), each y with its known variance
-/// s² plus one unknown floor τ² ≥ 0 common to all, and b's signed likelihood-ratio statistic
-/// z = sign(b) √(2 (ℓ₁ − ℓ₀)), τ² profiled under both the null (b = 0) and the alternative.
-/// `None` without points or when Σ x² is not positive.
+/// s² > 0 plus one unknown floor τ² ≥ 0 common to all, and b's signed likelihood-ratio
+/// statistic z = sign(b) √(2 (ℓ₁ − ℓ₀)), τ² profiled under both the null (b = 0,
+/// [`lm::profile_floor`]) and the alternative (b re-solved by weighted least squares at each
+/// τ², over the same range with [`lm::minimise_nonnegative`]). `None` without points, when
+/// Σ x² is not positive or when some s² is not.
 ///
 /// Why not the Wald z with the floor the null profiles: on n points that floor takes up every
 /// residual the slope would explain, and z ≤ √n whatever the precision (the support's module
 /// docs, *Within split pairs*). Under the alternative the floor shrinks to what the line
 /// leaves.
 pub(crate) fn profiled_slope_through_origin(points: &[(f64, f64, f64)]) -> Option<(f64, f64)> {
-    let sxx_plain: f64 = points.iter().map(|p| p.0 * p.0).sum();
-    if points.is_empty() || !(sxx_plain > 0.0) {
+    let sxx: f64 = points.iter().map(|p| p.0 * p.0).sum();
+    if points.is_empty() || !(sxx > 0.0) || !points.iter().all(|p| p.2 > 0.0) {
         return None;
     }
-    // −2ℓ (up to a constant) and the slope at floor τ²: b = 0, or re-solved by weighted least
-    // squares at that τ².
-    let fit = |tau2: f64, free: bool| -> (f64, f64) {
-        let v = |p: &(f64, f64, f64)| p.2.max(0.0) + tau2;
-        let b = if free {
-            let sxx: f64 = points.iter().map(|p| p.0 * p.0 / v(p)).sum();
-            let sxy: f64 = points.iter().map(|p| p.0 * p.1 / v(p)).sum();
-            sxy / sxx
-        } else {
-            0.0
-        };
-        let m2l = points
+    let y: Vec<f64> = points.iter().map(|p| p.1).collect();
+    let s2: Vec<f64> = points.iter().map(|p| p.2).collect();
+    // The slope at floor τ² and −2ℓ there (up to a constant).
+    let slope = |tau2: f64| {
+        let sxx: f64 = points.iter().map(|p| p.0 * p.0 / (p.2 + tau2)).sum();
+        let sxy: f64 = points.iter().map(|p| p.0 * p.1 / (p.2 + tau2)).sum();
+        sxy / sxx
+    };
+    let m2l = |tau2: f64, b: f64| -> f64 {
+        points
             .iter()
-            .map(|p| v(p).ln() + (p.1 - b * p.0).powi(2) / v(p))
-            .sum();
-        (m2l, b)
+            .map(|p| (p.2 + tau2).ln() + (p.1 - b * p.0).powi(2) / (p.2 + tau2))
+            .sum()
     };
-    // τ² on a log grid from a thousandth of the smallest known variance (of the mean square
-    // when none is known) to ten times the largest square, and 0 when every s² > 0: a
-    // detector's profile needs no finer search.
-    let mean_sq = points.iter().map(|p| p.1 * p.1).sum::<f64>() / points.len() as f64;
-    let s_min = points
-        .iter()
-        .map(|p| p.2)
-        .filter(|s| *s > 0.0)
-        .fold(f64::INFINITY, f64::min);
-    let lo = if s_min.is_finite() { s_min } else { mean_sq }.max(f64::MIN_POSITIVE) * 1e-3;
-    let hi = (10.0 * points.iter().map(|p| p.1 * p.1).fold(0.0, f64::max)).max(lo * 10.0);
-    let n_grid = 400;
-    let profile = |free: bool| -> (f64, f64) {
-        let mut best = if points.iter().all(|p| p.2 > 0.0) {
-            fit(0.0, free)
-        } else {
-            (f64::INFINITY, 0.0)
-        };
-        for i in 0..=n_grid {
-            let f = fit(lo * (hi / lo).powf(i as f64 / n_grid as f64), free);
-            if f.0 < best.0 {
-                best = f;
-            }
-        }
-        best
-    };
-    let (null, _) = profile(false);
-    let (alt, b) = profile(true);
-    Some((b, b.signum() * (null - alt).max(0.0).sqrt()))
+    let null = m2l(lm::profile_floor(&y, &s2), 0.0);
+    // The range `lm::profile_floor` searches.
+    let s2_min = s2.iter().cloned().fold(f64::INFINITY, f64::min);
+    let s2_max = s2.iter().cloned().fold(0.0, f64::max);
+    let y2_max = y.iter().map(|y| y * y).fold(0.0, f64::max);
+    let tau2 =
+        lm::minimise_nonnegative(|t| m2l(t, slope(t)), 1e-4 * s2_min, 10.0 * y2_max + s2_max);
+    let b = slope(tau2);
+    Some((b, b.signum() * (null - m2l(tau2, b)).max(0.0).sqrt()))
 }
 
 /// Weighted least-squares line through points (x, y, w) with an intercept: the slope and its
