@@ -916,3 +916,31 @@ fn a_recording_with_too_few_modes_gets_a_report_that_tests_nothing() {
     assert!(!dir.join("diagnosis_map.h5").exists());
     assert!(!dir.join("diagnosis_residuals.png").exists());
 }
+
+#[test]
+fn a_start_probe_spacing_that_is_not_a_positive_step_is_refused() {
+    let dir = scratch("bad_probe_spacing");
+    for (name, value) in [("nan", "nan"), ("zero", "0.0")] {
+        let config = dir.join(format!("probes_{name}.toml"));
+        std::fs::write(&config, format!("[fit]\nstart_probe_spacing = {value}\n")).unwrap();
+        let out = dir.join(format!("fit_{name}.h5"));
+        refused(
+            &[
+                "fit-material",
+                "--config",
+                s(&config),
+                "--mesh",
+                s(&bowl_mesh()),
+                "--recording",
+                s(&bowl_wav(0)),
+                "--density",
+                "2400",
+                "--out",
+                s(&out),
+            ],
+            &["start_probe_spacing must be a positive step in ν"],
+            &out,
+            30.0,
+        );
+    }
+}

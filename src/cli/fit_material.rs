@@ -133,6 +133,16 @@ pub fn resolve(args: &FitMaterialArgs) -> Result<Job, String> {
             "poisson_bounds must satisfy −0.99 ≤ lo < hi < 0.5, got ({lo}, {hi})"
         ));
     }
+    // The starts tried beside the line-spectrum start step ν by this much
+    // (`inverse::material::fit_material`, *Several starts*).
+    if fit.start_probes > 0
+        && !(fit.start_probe_spacing.is_finite() && fit.start_probe_spacing > 0.0)
+    {
+        return Err(format!(
+            "[fit] start_probe_spacing must be a positive step in ν, got {}",
+            fit.start_probe_spacing
+        ));
+    }
     if !(start_poisson >= lo && start_poisson <= hi) {
         return Err(format!(
             "the starting Poisson's ratio {start_poisson} lies outside the bounds [{lo}, {hi}]"
