@@ -696,7 +696,12 @@ impl ModeTable {
             let ln_a = (0..channels)
                 .map(|c| {
                     let a = obs.amplitudes[c];
-                    (a > 0.0 && drive > 0.0).then(|| (a.ln(), obs.sigma_amplitudes[c] / a))
+                    (a > 0.0 && drive > 0.0).then(|| {
+                        (
+                            a.ln(),
+                            (obs.sigma_amplitudes[c] / a).hypot(LEVEL_MODEL_FLOOR),
+                        )
+                    })
                 })
                 .collect();
             // The chirp fit's g (relative offset at the onset) when there is one, else the
@@ -1243,6 +1248,17 @@ fn split_sigma_of(
         + (CARRIED_MASS_SPLIT_FLOOR * carried_shift).powi(2))
     .sqrt()
 }
+/// Fixed model error of a mode's ln amplitude, in ln units (10 %): added in quadrature to
+/// every amplitude's measured σ (catalogue docs, "The least error of a level"). The model
+/// predicts a level from the simulated mode's drive at one vertex; a strike covers a patch,
+/// the vertex stands for it, and the mode shape's value there is the discretisation's, so no
+/// level is predicted better than about 10 % however well it was measured, and the
+/// profiled floors come on top. Without it, the profiled floors can fall to zero in a fit
+/// with few groups of modes, where a level shape and the channel's gain and tilt thread the
+/// two or three best-measured levels exactly (measured to 0.3 %) and the likelihood rises
+/// without bound on them alone.
+pub const LEVEL_MODEL_FLOOR: f64 = 0.1;
+
 /// Index of the per-mode amplitude level floor τ_A.
 pub const LEVEL_FLOOR: usize = 3;
 
