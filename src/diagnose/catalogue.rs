@@ -167,7 +167,8 @@
 //! # Likelihood
 //!
 //! Every observation is a row: ln f_k (σ = σ_f / f), ln d_k (σ_d / d, modes with d > 0),
-//! ln a_kc (σ_a / a, channels with a > 0, modes with drive > 0), the glide
+//! ln a_kc (σ_a / a with a fixed 10 % in quadrature, below; channels with a > 0, modes with
+//! drive > 0), the glide
 //! y_k = (f_early − f_late)/f_k (σ = √(σ_e² + σ_l²)/f), and for a split pair its mean ln f
 //! (σ = ½√(σ_l² + σ_u²)) and its split ln f_u − ln f_l (σ = √(σ_l² + σ_u²), with the split's
 //! model floors [`model::SPLIT_MODEL_FLOOR`] and [`model::CARRIED_MASS_SPLIT_FLOOR`]) instead of the

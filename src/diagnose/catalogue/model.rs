@@ -50,8 +50,9 @@ pub struct ModeEntry {
     pub sigma_ln_f: f64,
     /// ln d and σ_d / d, when the mode decays (d > 0).
     pub ln_d: Option<(f64, f64)>,
-    /// Per channel: ln a and σ_a / a, when the channel saw the mode (a > 0) and the drive is
-    /// non-zero (a mode the model does not excite has no amplitude prediction).
+    /// Per channel: ln a and its σ, √((σ_a / a)² + [`LEVEL_MODEL_FLOOR`]²), when the channel
+    /// saw the mode (a > 0) and the drive is non-zero (a mode the model does not excite has no
+    /// amplitude prediction).
     pub ln_a: Vec<Option<(f64, f64)>>,
     /// The mode's glide observable and its σ: the chirp fit's relative offset at the onset g
     /// ([`ObservedMode::glide`]), else (f_early − f_late)/f when both halves were extracted.
@@ -1248,6 +1249,7 @@ fn split_sigma_of(
         + (CARRIED_MASS_SPLIT_FLOOR * carried_shift).powi(2))
     .sqrt()
 }
+
 /// Fixed model error of a mode's ln amplitude, in ln units (10 %): added in quadrature to
 /// every amplitude's measured σ (catalogue docs, "The least error of a level"). The model
 /// predicts a level from the simulated mode's drive at one vertex; a strike covers a patch,
@@ -1255,8 +1257,8 @@ fn split_sigma_of(
 /// level is predicted better than about 10 % however well it was measured, and the
 /// profiled floors come on top. Without it, the profiled floors can fall to zero in a fit
 /// with few groups of modes, where a level shape and the channel's gain and tilt thread the
-/// two or three best-measured levels exactly (measured to 0.3 %) and the likelihood rises
-/// without bound on them alone.
+/// two or three best-measured levels exactly (measured to 0.3 %), and each of those levels
+/// alone then gains ln(τ²/σ²) in −2 ln L, about 9 on generator 2's seed 311 case 022.
 pub const LEVEL_MODEL_FLOOR: f64 = 0.1;
 
 /// Index of the per-mode amplitude level floor τ_A.
