@@ -220,7 +220,7 @@
 //! at ΔBIC 25.6 with a held-out gain of 58.6, both amplitude floors fitted at 0, where the
 //! contact's screen on the current floors had found a drop of 2.9 in Σz²: the knee, the gain
 //! and the tilt threaded those two levels exactly, and each gained ln(τ²/σ²) ≈ 9. Replayed on
-//! the saved evidence of 345 cases (generator 2's spent seeds 263–311, calibration sets
+//! the saved evidence of 274 cases (generator 2's spent seeds 263–311, calibration sets
 //! 9101–9104) and the real bowl: at 10 % that contact went and a radiation pattern beside a
 //! damping law (seed 293 case 020; radiation is not among the scored effects), no other
 //! verdict changed, and the bowl's report did not move (its profiled level floor is 1.1 in

@@ -127,7 +127,7 @@
 //! held until then, for the real bowl's pair at 11.15 kHz (53.2 and 58.5 1/s against a room
 //! of 62.9 1/s once, on an older extraction; 56.3 1/s on the shared fit's T60, which held the
 //! faster member only): the room's rate in use is ln(10³)/(T60 + 2σ), and today neither of
-//! that pair's poles is held. Replayed on the saved evidence of 370 cases (generator 2's
+//! that pair's poles is held. Replayed on the saved evidence of 297 cases (generator 2's
 //! spent seeds 263–313, calibration sets 9101–9104) and the real bowl: those two false pairs
 //! went, no other verdict changed, and the bowl's report did not move.
 //!
