@@ -11,6 +11,12 @@
 //!   at ΔBIC 25.6.
 //! - Seed 283 case 006 has a concealed 0.21 ms half-sine contact (three microphones,
 //!   recorded as a pressure): the floor must not take that one away.
+//! - Seed 307 case 018 is a plate under Rayleigh damping in a short room (T60 0.34 s, more
+//!   reverberant than direct energy; seven microphones, recorded as a velocity). The room
+//!   holds every pole decaying faster than 11.9 1/s, so the decay rows left are those
+//!   measured below it, the upper ones lowest; read as ordinary rows they bent Rayleigh's
+//!   law into a power law (ΔBIC 8.3). Read as truncated at the room's rate
+//!   (`ModeTable::decay_ceiling`) they do not.
 
 use diffsound::diagnose::catalogue::{self, CatalogueSettings, Evidence};
 use std::path::Path;
@@ -57,4 +63,22 @@ fn a_true_contact_on_a_cup_with_four_groups_of_modes_is_still_named() {
         report.accepted,
         report.rejected
     );
+}
+
+#[test]
+fn a_plate_in_a_short_room_is_not_given_a_damping_law_by_the_rooms_censoring() {
+    let report = replay("gen2_seed307_case018_room_plate_7mics.json");
+    let names = accepted(&report);
+    assert!(names.contains(&"reverb_noise"), "{:#?}", report.accepted);
+    assert!(
+        !names.contains(&"non_rayleigh_damping"),
+        "{:#?}",
+        report.accepted
+    );
+    let held = report
+        .matching
+        .room_held
+        .as_ref()
+        .expect("the room holds poles");
+    assert!(!held.frequencies_hz.is_empty(), "{held:?}");
 }

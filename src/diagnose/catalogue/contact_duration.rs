@@ -586,6 +586,7 @@ mod tests {
             other_rows: Vec::new(),
             amplitude_groups: Vec::new(),
             split_sites: None,
+            decay_ceiling: None,
             poles: Vec::new(),
         };
         let ln_f: Vec<f64> = (0..30).map(|i| (300.0 * 1.12f64.powi(i)).ln()).collect();

@@ -8,6 +8,7 @@ use std::sync::Arc;
 use super::lm;
 use super::matching::Matching;
 use super::{ObservedMode, ParamSpec, SimulatedMode, Term};
+use crate::numerics::{inverse_mills, ln_normal_cdf};
 
 /// Identifies a matched mode across data sets (fit and held-out): its simulated cluster and
 /// its position among the cluster's observed modes. Terms key per-mode parameters by it.
@@ -285,6 +286,11 @@ pub struct ModeTable {
     /// list ([`ModeEntry::observed`]): what the split screen looks at around a pair
     /// (`beating_pair` module docs, "Two poles, not a comb").
     pub poles: Vec<Pole>,
+    /// ln of the room's decay rate \[1/s\] when an established room has set aside the poles
+    /// decaying at least as fast ([`ModeTable::set_aside_room_held`]): every decay row left
+    /// was kept *because* it was measured below it, and is read as a truncated observation
+    /// ([`censored_deviance`]).
+    pub decay_ceiling: Option<f64>,
 }
 
 /// One extracted pole as the split screen sees it: ln of its undamped frequency and the height
@@ -775,6 +781,7 @@ impl ModeTable {
             other_rows,
             amplitude_groups,
             split_sites: None,
+            decay_ceiling: None,
             poles: observed
                 .iter()
                 .map(|o| Pole {
@@ -799,7 +806,11 @@ impl ModeTable {
     /// `room_decay_rate` \[1/s\] (parent docs, "A room holds up the fast modes"): the pole
     /// extracted at its frequency is the room's reverberant tail as much as the mode's. Its
     /// frequency rows stay. Returns the indices of the modes set aside.
+    ///
+    /// The decay rows that stay were kept on their measured value, so they are read as
+    /// truncated at the room's rate ([`ModeTable::decay_ceiling`], [`censored_deviance`]).
     pub fn set_aside_room_held(&mut self, room_decay_rate: f64) -> Vec<usize> {
+        self.decay_ceiling = Some(room_decay_rate.ln());
         let held: Vec<usize> = (0..self.modes.len())
             .filter(|&k| {
                 self.modes[k]
@@ -1289,6 +1300,78 @@ fn profile_glide_floor(r: &[f64], v: &[f64]) -> f64 {
     lm::profile_floor_with(r, v, |r, v| v.ln() + glide_deviance(r, v))
 }
 
+/// The ceiling \[ln 1/s\] at which `row` of `table` is truncated: the table's
+/// [`ModeTable::decay_ceiling`] for a decay row (a lone mode's ln d, a split pair's mean
+/// ln d) measured below it; None for every other row.
+///
+/// A pair's mean row stands for both members kept; its two ln d share the floor's error and
+/// differ only by the small split error, so "both below the ceiling" is taken as "the mean
+/// below it".
+fn ceiling_of(table: &ModeTable, row: &Row) -> Option<f64> {
+    table.decay_ceiling.filter(|&c| {
+        matches!(row.kind, RowKind::LnD(_) | RowKind::PairMeanLnD(..)) && row.value < c
+    })
+}
+
+/// A truncated row's −2 ln L without the constant and ln v (parent docs, "The rows the room
+/// leaves are truncated"): with residual r = y − μ, total variance v and g = c − μ the ceiling's
+/// height above the prediction, the density of y given y < c is φ(r/√v)/(√v Φ(g/√v)), so
+///
+/// D = r²/v + 2 ln Φ(g/√v).
+///
+/// The second term is ≤ 0: a prediction at or above the ceiling is not penalised for every
+/// kept row lying below it, since only rows below it could be kept.
+fn censored_deviance(r: f64, v: f64, g: f64) -> f64 {
+    r * r / v + 2.0 * ln_normal_cdf(g / v.sqrt())
+}
+
+/// The standardised distance u* = (μ* − y)/√v at which a row truncated w₀ = (c − y)/√v
+/// above its value is best predicted: the root of D'(u) = 2u − 2λ(w₀ − u) (λ the inverse
+/// Mills ratio), u* > 0. D is convex in u (D'' = 2(1 − λ(w)(w + λ(w))) > 0 with
+/// w = w₀ − u), so Newton's iteration inside a bisection bracket finds it.
+fn censored_optimum(w0: f64) -> f64 {
+    let f = |u: f64| u - inverse_mills(w0 - u);
+    let (mut lo, mut hi) = (0.0_f64, inverse_mills(w0).max(1.0));
+    // f increases from −λ(w₀) < 0 towards w₀ > 0 as u grows.
+    while f(hi) < 0.0 && hi < 1e6 {
+        lo = hi;
+        hi *= 2.0;
+    }
+    let mut u = 0.5 * (lo + hi);
+    for _ in 0..100 {
+        let fu = f(u);
+        if fu < 0.0 {
+            lo = u;
+        } else {
+            hi = u;
+        }
+        let w = w0 - u;
+        let lambda = inverse_mills(w);
+        let next = u - fu / (1.0 - lambda * (w + lambda));
+        u = if next > lo && next < hi {
+            next
+        } else {
+            0.5 * (lo + hi)
+        };
+        if fu.abs() < 1e-13 || hi - lo < 1e-13 * (1.0 + u) {
+            break;
+        }
+    }
+    u
+}
+
+/// The least-squares residual of a truncated row ([`censored_deviance`]): sign(u* − u)
+/// √(D(u) − D(u*)) with u = −r/√v, whose square differs from D by a constant of the row (so
+/// Levenberg–Marquardt at fixed floors minimises the exact −2 ln L) and which is r/√v when
+/// the ceiling is far above (u* → 0).
+fn censored_whitened(r: f64, v: f64, g: f64) -> f64 {
+    let s = v.sqrt();
+    let (u, w0) = (-r / s, (g - r) / s);
+    let u_star = censored_optimum(w0);
+    let d = |u: f64| u * u + 2.0 * ln_normal_cdf(w0 - u);
+    (d(u) - d(u_star)).max(0.0).sqrt().copysign(u_star - u)
+}
+
 /// Floors τ² (variances), indexed as [`N_FLOORS`].
 pub type FloorVariances = [f64; N_FLOORS];
 
@@ -1393,6 +1476,8 @@ fn whiten(table: &ModeTable, p: &Prediction, tau2: &FloorVariances, out: &mut [f
         let (res, v) = (row.value - row.kind.predict(p), row_variance(row, tau2));
         out[i] = if row.kind.quantity() == Quantity::Glide {
             glide_whitened(res, v)
+        } else if let Some(c) = ceiling_of(table, row) {
+            censored_whitened(res, v, c - row.kind.predict(p))
         } else {
             res / v.sqrt()
         };
@@ -1452,6 +1537,8 @@ fn minus_two_log_likelihood_where(
         let res = row.value - row.kind.predict(p);
         sum += if row.kind.quantity() == Quantity::Glide {
             GLIDE_T_NORMALISATION + v.ln() + glide_deviance(res, v)
+        } else if let Some(c) = ceiling_of(table, row) {
+            ln_two_pi + v.ln() + censored_deviance(res, v, c - row.kind.predict(p))
         } else {
             ln_two_pi + v.ln() + res * res / v
         };
@@ -1484,11 +1571,14 @@ fn profile_floors_where(
     // The decay split's floor before the ln d floor: split rows depend on it alone, and pair
     // mean rows carry a quarter of it (`own_decay_share`), so this order profiles both exactly.
     for q in [0, 4, 5, 1] {
-        let (r, v): (Vec<f64>, Vec<f64>) = table
+        let rows: Vec<&Row> = table
             .other_rows
             .iter()
             .map(|&i| &table.rows[i])
             .filter(|row| row.kind.quantity().floor_index() == Some(q) && keeps(row))
+            .collect();
+        let (r, v): (Vec<f64>, Vec<f64>) = rows
+            .iter()
             .map(|row| {
                 (
                     row.value - row.kind.predict(p),
@@ -1496,9 +1586,16 @@ fn profile_floors_where(
                 )
             })
             .unzip();
+        // The ceiling's height above each prediction, for the rows truncated at it.
+        let g: Vec<Option<f64>> = rows
+            .iter()
+            .map(|row| ceiling_of(table, row).map(|c| c - row.kind.predict(p)))
+            .collect();
         if r.iter().all(|r| r.is_finite()) {
             tau2[q] = if q == 4 {
                 profile_glide_floor(&r, &v)
+            } else if g.iter().any(Option::is_some) {
+                profile_censored_floor(&r, &v, &g)
             } else {
                 lm::profile_floor(&r, &v)
             };
@@ -1561,6 +1658,30 @@ fn profile_floors_where(
     tau2[2] = mix;
     tau2[LEVEL_FLOOR] = level;
     tau2
+}
+
+/// The floor τ² maximising the likelihood of rows some of which are truncated (`g[i]` the
+/// ceiling's height above row i's prediction: [`censored_deviance`]).
+fn profile_censored_floor(r: &[f64], v: &[f64], g: &[Option<f64>]) -> f64 {
+    let v_min = v.iter().cloned().fold(f64::INFINITY, f64::min).max(1e-300);
+    let v_max = v.iter().cloned().fold(0.0, f64::max);
+    let r2_max = r.iter().map(|r| r * r).fold(0.0, f64::max);
+    lm::minimise_nonnegative(
+        |t| {
+            (0..r.len())
+                .map(|i| {
+                    let vt = v[i] + t;
+                    vt.ln()
+                        + match g[i] {
+                            Some(g) => censored_deviance(r[i], vt, g),
+                            None => r[i] * r[i] / vt,
+                        }
+                })
+                .sum()
+        },
+        1e-4 * v_min,
+        10.0 * r2_max + v_max,
+    )
 }
 
 fn profile_floors(table: &ModeTable, p: &Prediction) -> FloorVariances {
@@ -1635,7 +1756,7 @@ impl Fit {
         table
             .rows
             .iter()
-            .map(|row| row_z(row, &self.prediction, &self.tau2))
+            .map(|row| row_z(table, row, &self.prediction, &self.tau2))
             .collect()
     }
 
@@ -1659,13 +1780,19 @@ impl Fit {
                         *t = t.max(*u);
                     }
                 }
-                row_z(row, p, &tau2)
+                row_z(table, row, p, &tau2)
             })
             .collect()
     }
 }
 
-fn row_z(row: &Row, p: &Prediction, tau2: &FloorVariances) -> f64 {
+/// A row's standardised residual; for a truncated row ([`ceiling_of`]) its signed distance
+/// from its best prediction, [`censored_whitened`].
+fn row_z(table: &ModeTable, row: &Row, p: &Prediction, tau2: &FloorVariances) -> f64 {
+    if let Some(c) = ceiling_of(table, row) {
+        let (mu, v) = (row.kind.predict(p), row_variance(row, tau2));
+        return censored_whitened(row.value - mu, v, c - mu);
+    }
     let level = if row.kind.quantity() == Quantity::LnAmplitude {
         tau2[LEVEL_FLOOR]
     } else {
@@ -2108,4 +2235,86 @@ pub fn baseline_start(table: &ModeTable, model: &Model, ln_scale: f64) -> Vec<f6
     let start = model.prediction(table, &x);
     set_gains_to_mean_residual(table, &start, &mut x);
     x
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Standard normal draws (xorshift and Box–Muller): deterministic, dependency-free.
+    fn normals(n: usize, mut state: u64) -> Vec<f64> {
+        let mut uniform = move || {
+            state ^= state << 13;
+            state ^= state >> 7;
+            state ^= state << 17;
+            ((state >> 11) as f64 + 0.5) / (1u64 << 53) as f64
+        };
+        (0..n)
+            .map(|_| {
+                let (u1, u2) = (uniform(), uniform());
+                (-2.0 * u1.ln()).sqrt() * (2.0 * PI * u2).cos()
+            })
+            .collect()
+    }
+
+    #[test]
+    fn a_truncated_rows_whitened_residual_squares_to_its_deviance_up_to_a_constant() {
+        for (y, c, v) in [
+            (-0.4, 0.0, 0.04),
+            (2.3, 2.5, 0.25),
+            (1.0, 1.001, 1e-4),
+            (0.0, 5.0, 1.0),
+        ] {
+            let k = |mu: f64| {
+                let w = censored_whitened(y - mu, v, c - mu);
+                w * w - censored_deviance(y - mu, v, c - mu)
+            };
+            let k0 = k(y);
+            for step in -20..=20 {
+                let mu = y + 0.1 * step as f64 * v.sqrt();
+                assert!(
+                    (k(mu) - k0).abs() < 1e-7 * (1.0 + k0.abs()),
+                    "{y} {c} {v} at μ = {mu}"
+                );
+            }
+            // Zero at the best prediction, which lies above the value.
+            let s = v.sqrt();
+            let mu_star = y + s * censored_optimum((c - y) / s);
+            assert!(censored_whitened(y - mu_star, v, c - mu_star).abs() < 1e-6);
+            assert!(mu_star >= y);
+        }
+        // Far below its ceiling a row is an ordinary one.
+        let w = censored_whitened(0.3, 0.01, 3.0);
+        assert!((w - 3.0).abs() < 1e-6, "{w}");
+    }
+
+    #[test]
+    fn the_truncated_likelihood_recovers_the_mean_the_kept_rows_understate() {
+        // Rows N(0, 1), kept only when measured below c = 0.3 (as a room keeps the modes
+        // measured slower than itself): their mean is −φ(0.3)/Φ(0.3) ≈ −0.62, but the
+        // truncated likelihood's estimate is the true 0.
+        let c = 0.3;
+        let kept: Vec<f64> = normals(6000, 0x9e37_79b9_7f4a_7c15)
+            .into_iter()
+            .filter(|&y| y < c)
+            .collect();
+        assert!(kept.len() > 3000);
+        let mean = kept.iter().sum::<f64>() / kept.len() as f64;
+        assert!((mean + 0.62).abs() < 0.05, "{mean}");
+        let cost = |mu: f64| -> f64 {
+            kept.iter()
+                .map(|&y| censored_deviance(y - mu, 1.0, c - mu))
+                .sum()
+        };
+        let (a, b) = crate::numerics::golden_section(-2.0, 2.0, 100, cost, |p, q| p < q);
+        let mu = 0.5 * (a + b);
+        assert!(mu.abs() < 0.06, "{mu}");
+        // The floor is profiled on the same footing: rows of variance 1 read as σ² = 0.5 plus
+        // a floor give τ² ≈ 0.5, where the kept rows' own spread (≈ 0.6) would give ≈ 0.1.
+        let r: Vec<f64> = kept.iter().map(|y| y - 0.0).collect();
+        let v = vec![0.5; r.len()];
+        let g = vec![Some(c); r.len()];
+        let tau2 = profile_censored_floor(&r, &v, &g);
+        assert!((tau2 - 0.5).abs() < 0.1, "{tau2}");
+    }
 }
