@@ -215,6 +215,10 @@
 //! of what the louder one left, and the Student-t rows still let it set the floor (generator
 //! 2's seed 191 case 004: ΔBIC 2.0 with it, 7.3 without).
 //!
+//! The decay rows of a table from which an established room has set aside its poles are the
+//! other exception: each is Gaussian truncated at the room's rate, adding 2 ln Φ((c − μ)/√v)
+//! (above, **The rows the room leaves are truncated**).
+//!
 //! The amplitudes of one mode share a level error: a drive read at a slightly wrong strike
 //! point, or a radiation efficiency, scales the mode on every microphone alike. So the C
 //! amplitude rows of mode k have covariance diag(σ_kc² + τ_a²) + τ_A² 11ᵀ: τ_a the floor of
