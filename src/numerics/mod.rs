@@ -212,8 +212,8 @@ mod tests {
             assert!((got / phi - 1.0).abs() < 5e-7, "Φ({w}) = {got}, not {phi}");
         }
         // Far in the lower tail ln Φ(w) → −w²/2 − ln(−w) − ln √(2π), and λ(w) → −w.
-        let w = -40.0;
-        let asymptote = -0.5 * w * w - (-w as f64).ln() - 0.5 * (2.0 * std::f64::consts::PI).ln();
+        let w: f64 = -40.0;
+        let asymptote = -0.5 * w * w - (-w).ln() - 0.5 * (2.0 * std::f64::consts::PI).ln();
         assert!(
             (ln_normal_cdf(w) - asymptote).abs() < 1e-3,
             "{}",
