@@ -269,13 +269,19 @@ pub(super) fn minimise_nonnegative(h: impl Fn(f64) -> f64, t_lo: f64, t_hi: f64)
 /// The maximum-likelihood extra variance τ² ≥ 0 for residuals `r` with measurement
 /// variances `v` (module docs, "Profiled floor"). 0 for no residuals.
 pub(super) fn profile_floor(r: &[f64], v: &[f64]) -> f64 {
-    profile_floor_with(r, v, |r, v| v.ln() + r * r / v)
+    profile_floor_with(r, v, |_, r, v| v.ln() + r * r / v)
 }
 
 /// [`profile_floor`] for any row likelihood: the τ² ≥ 0 minimising h(τ²) = Σ_i
-/// `row`(r_i, v_i + τ²), `row`(r, v) being a row's −2 ln L without its constant (for Gaussian
-/// rows ln v + r²/v, h(t) of the module docs), searched over [10⁻⁴ min v, 10 max r² + max v].
-pub(super) fn profile_floor_with(r: &[f64], v: &[f64], row: impl Fn(f64, f64) -> f64) -> f64 {
+/// `row`(i, r_i, v_i + τ²), `row`(i, r, v) being row i's −2 ln L without its constant (for
+/// Gaussian rows ln v + r²/v, h(t) of the module docs; the index lets a row's likelihood
+/// depend on more than its residual, as a truncated row's does on its ceiling), searched over
+/// [10⁻⁴ min v, 10 max r² + max v].
+pub(super) fn profile_floor_with(
+    r: &[f64],
+    v: &[f64],
+    row: impl Fn(usize, f64, f64) -> f64,
+) -> f64 {
     if r.is_empty() {
         return 0.0;
     }
@@ -283,7 +289,7 @@ pub(super) fn profile_floor_with(r: &[f64], v: &[f64], row: impl Fn(f64, f64) ->
     let v_max = v.iter().cloned().fold(0.0, f64::max);
     let r2_max = r.iter().map(|r| r * r).fold(0.0, f64::max);
     minimise_nonnegative(
-        |t| r.iter().zip(v).map(|(&r, &v)| row(r, v + t)).sum(),
+        |t| (0..r.len()).map(|i| row(i, r[i], v[i] + t)).sum(),
         1e-4 * v_min,
         10.0 * r2_max + v_max,
     )

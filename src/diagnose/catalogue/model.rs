@@ -1297,7 +1297,7 @@ fn glide_whitened(r: f64, v: f64) -> f64 {
 /// The glide floor τ² maximising the Student-t likelihood of residuals `r` with measurement
 /// variances `v`.
 fn profile_glide_floor(r: &[f64], v: &[f64]) -> f64 {
-    lm::profile_floor_with(r, v, |r, v| v.ln() + glide_deviance(r, v))
+    lm::profile_floor_with(r, v, |_, r, v| v.ln() + glide_deviance(r, v))
 }
 
 /// The ceiling \[ln 1/s\] at which `row` of `table` is truncated: the table's
@@ -1473,11 +1473,12 @@ fn whiten(table: &ModeTable, p: &Prediction, tau2: &FloorVariances, out: &mut [f
     let mut i = 0;
     for &r in &table.other_rows {
         let row = &table.rows[r];
-        let (res, v) = (row.value - row.kind.predict(p), row_variance(row, tau2));
+        let mu = row.kind.predict(p);
+        let (res, v) = (row.value - mu, row_variance(row, tau2));
         out[i] = if row.kind.quantity() == Quantity::Glide {
             glide_whitened(res, v)
         } else if let Some(c) = ceiling_of(table, row) {
-            censored_whitened(res, v, c - row.kind.predict(p))
+            censored_whitened(res, v, c - mu)
         } else {
             res / v.sqrt()
         };
@@ -1534,11 +1535,12 @@ fn minus_two_log_likelihood_where(
             continue;
         }
         let v = row_variance(row, tau2);
-        let res = row.value - row.kind.predict(p);
+        let mu = row.kind.predict(p);
+        let res = row.value - mu;
         sum += if row.kind.quantity() == Quantity::Glide {
             GLIDE_T_NORMALISATION + v.ln() + glide_deviance(res, v)
         } else if let Some(c) = ceiling_of(table, row) {
-            ln_two_pi + v.ln() + censored_deviance(res, v, c - row.kind.predict(p))
+            ln_two_pi + v.ln() + censored_deviance(res, v, c - mu)
         } else {
             ln_two_pi + v.ln() + res * res / v
         };
@@ -1663,25 +1665,13 @@ fn profile_floors_where(
 /// The floor τ² maximising the likelihood of rows some of which are truncated (`g[i]` the
 /// ceiling's height above row i's prediction: [`censored_deviance`]).
 fn profile_censored_floor(r: &[f64], v: &[f64], g: &[Option<f64>]) -> f64 {
-    let v_min = v.iter().cloned().fold(f64::INFINITY, f64::min).max(1e-300);
-    let v_max = v.iter().cloned().fold(0.0, f64::max);
-    let r2_max = r.iter().map(|r| r * r).fold(0.0, f64::max);
-    lm::minimise_nonnegative(
-        |t| {
-            (0..r.len())
-                .map(|i| {
-                    let vt = v[i] + t;
-                    vt.ln()
-                        + match g[i] {
-                            Some(g) => censored_deviance(r[i], vt, g),
-                            None => r[i] * r[i] / vt,
-                        }
-                })
-                .sum()
-        },
-        1e-4 * v_min,
-        10.0 * r2_max + v_max,
-    )
+    lm::profile_floor_with(r, v, |i, r, v| {
+        v.ln()
+            + match g[i] {
+                Some(g) => censored_deviance(r, v, g),
+                None => r * r / v,
+            }
+    })
 }
 
 fn profile_floors(table: &ModeTable, p: &Prediction) -> FloorVariances {
@@ -2311,10 +2301,10 @@ mod tests {
         assert!(mu.abs() < 0.06, "{mu}");
         // The floor is profiled on the same footing: rows of variance 1 read as σ² = 0.5 plus
         // a floor give τ² ≈ 0.5, where the kept rows' own spread (≈ 0.6) would give ≈ 0.1.
-        let r: Vec<f64> = kept.iter().map(|y| y - 0.0).collect();
-        let v = vec![0.5; r.len()];
-        let g = vec![Some(c); r.len()];
-        let tau2 = profile_censored_floor(&r, &v, &g);
+        // Predicted at the true mean 0, the residuals are the kept values themselves.
+        let v = vec![0.5; kept.len()];
+        let g = vec![Some(c); kept.len()];
+        let tau2 = profile_censored_floor(&kept, &v, &g);
         assert!((tau2 - 0.5).abs() < 0.1, "{tau2}");
     }
 }
