@@ -685,7 +685,8 @@ pub fn diagnose_with(
     let ln_scale = matching.ln_scale;
     // The Poisson ratio's error is a nuisance of every baseline whose modes carry their
     // sensitivity (parent docs, "The Poisson ratio is a nuisance").
-    let baseline_on = |t: &ModeTable| {
+    // `level_prior`: whether the amplitude floors have their prior (`Model::without_level_prior`).
+    let baseline_on = |t: &ModeTable, level_prior: bool| {
         let nuisance: Vec<Arc<dyn Term>> = super::poisson_shift::poisson_shift(t)
             .filter(|_| settings.poisson_nuisance)
             .into_iter()
@@ -696,6 +697,11 @@ pub fn diagnose_with(
                 ln_scale - settings.match_tolerance,
                 ln_scale + settings.match_tolerance,
             );
+        let base_model = if level_prior {
+            base_model.with_level_prior_rows(settings.level_prior_rows)
+        } else {
+            base_model.without_level_prior()
+        };
         let x0 = baseline_start(t, &base_model, ln_scale);
         fit(t, base_model, x0)
     };
@@ -709,10 +715,10 @@ pub fn diagnose_with(
         },
         matching,
         table,
-        |t| assignment_cost(&baseline_on(t), t),
+        |t| assignment_cost(&baseline_on(t, false), t),
     );
     let checked_baseline = |t: &ModeTable| {
-        let b = baseline_on(t);
+        let b = baseline_on(t, true);
         if b.minus_two_log_likelihood.is_finite() {
             Ok(b)
         } else {
