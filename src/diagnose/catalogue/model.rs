@@ -1053,7 +1053,6 @@ impl Model {
         }
     }
 
-    /// This model with the tilt bound `bound`.
     /// This model with its amplitude floors profiled on the table alone, without
     /// [`level_prior`]: for the choice of which poles are a partial's (selection, matching
     /// step 6). The prior guards the criterion against a level term that threads a few rows
@@ -1075,6 +1074,7 @@ impl Model {
         }
     }
 
+    /// This model with the tilt bound `bound`.
     pub fn with_tilt_bound(self, bound: f64) -> Model {
         Model {
             tilt_bound: bound,
@@ -1305,7 +1305,7 @@ pub const LEVEL_FLOOR: usize = 3;
 /// The ordinary spread of a mode's level about its prediction, in ln units: ln 1.5, a
 /// radiation efficiency, directivity or strike patch ±50 % off the model's (catalogue docs,
 /// "What a level's spread is known to be"). It is the centre of the prior of the two
-/// amplitude floors ([`radiation_prior`]).
+/// amplitude floors ([`level_prior`]).
 pub const ORDINARY_LEVEL_SPREAD: f64 = 0.405_465_108_108_164_4;
 
 /// The weight of that prior knowledge, in rows: the prior counts as this many levels found
