@@ -264,9 +264,10 @@
 //! patch are nuisances no user knows, and that much is what they do. The two amplitude floors
 //! are therefore profiled with a prior ([`model::level_prior`]): ν₀ = 4 pseudo-rows
 //! ([`CatalogueSettings::level_prior_rows`]), each a level s₀ = ln 1.5 off its prediction
-//! ([`model::ORDINARY_LEVEL_SPREAD`]), so that −2 ln L gains ν₀ (ln T + (s₀² + 0.1²)/T), with
-//! T = τ² + τ_A² + 0.1² the variance of one level row, least at τ² + τ_A² = s₀². The term is
-//! part of every fit's −2 ln L, so each criterion compares penalised likelihoods on one footing.
+//! ([`model::ORDINARY_LEVEL_SPREAD`]), so that −2 ln L gains
+//! ν₀ (ln T + (s₀² + 0.1²)/T), with T = τ² + τ_A² + 0.1² the variance of one level row,
+//! least at τ² + τ_A² = s₀². The term is part of every fit's −2 ln L, so each criterion
+//! compares penalised likelihoods on one footing.
 //! Why: profiled from a table alone, the floors of five or six level rows fall to the model
 //! floor as soon as a one-parameter level shape (a contact's null) threads them beside the
 //! channel's gain and tilt, and those rows then gain n ln(τ²/0.1²): generator 2's spent seed
@@ -279,8 +280,9 @@
 //! calibration sets 9101–9104) and the bowl: contact duration went from 16/6/6 (TP/FP/FN) to
 //! 15/3/7 on the seeds and from 5/0/7 to 8/0/4 on the contact set 9103; no other verdict
 //! changed. The weight 4 was set before that replay and not varied on it. The choice of a
-//! partial's poles (matching step 6) is made without the prior ([`model::Model::without_level_prior`]):
-//! its readings have the same parameters and no level term to thread the rows, and on the real
+//! partial's poles (matching step 6) is made without the prior
+//! ([`model::Model::without_level_prior`]): its readings have the same parameters and no
+//! level term to thread the rows, and on the real
 //! bowl two readings of the lowest partial lie 1.7 apart in −2 ln L, where the prior's small
 //! pull on the bowl's wide floor (1.2) sent the greedy search to the other one.
 //! Tests: `tests/diagnose_evidence.rs` (seed 307 case 022; set 9103 case 000, a true contact

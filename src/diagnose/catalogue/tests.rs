@@ -1169,6 +1169,20 @@ fn bad_input_is_an_error_not_a_panic() {
         ),
         (
             CatalogueSettings {
+                level_prior_rows: f64::NAN,
+                ..CatalogueSettings::default()
+            },
+            "level_prior_rows",
+        ),
+        (
+            CatalogueSettings {
+                level_prior_rows: -4.0,
+                ..CatalogueSettings::default()
+            },
+            "level_prior_rows",
+        ),
+        (
+            CatalogueSettings {
                 faint_pole_db: 0.0,
                 ..CatalogueSettings::default()
             },
