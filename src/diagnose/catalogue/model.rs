@@ -993,8 +993,7 @@ pub struct Model {
     /// Bounds on ln s ([`Model::with_scale_bounds`]; ±1 unless set).
     pub ln_scale_bounds: (f64, f64),
     /// Weight in rows of the amplitude floors' prior ([`level_prior`]): [`LEVEL_PRIOR_ROWS`]
-    /// unless set ([`Model::with_level_prior_rows`]), 0 for the choice of a partial's poles
-    /// ([`Model::without_level_prior`]).
+    /// unless set ([`Model::with_level_prior_rows`]), 0 for the choice of a partial's poles.
     pub level_prior_rows: f64,
     offsets: Vec<usize>,
     counts: Vec<usize>,
@@ -1053,20 +1052,9 @@ impl Model {
         }
     }
 
-    /// This model with its amplitude floors profiled on the table alone, without
-    /// [`level_prior`]: for the choice of which poles are a partial's (selection, matching
-    /// step 6). The prior guards the criterion against a level term that threads a few rows
-    /// to the model floor; the readings of a partial compared there have the same parameters
-    /// and no such term. With the prior, the real bowl's lowest partial moved from its two
-    /// 3.1 1/s poles (1681 and 1684 Hz) to 1684 and 1687 Hz: the two readings differ by 1.7 in
-    /// −2 ln L, inside the threshold that step asks of a change, and the greedy search met
-    /// them in another order.
-    pub fn without_level_prior(self) -> Model {
-        self.with_level_prior_rows(0.0)
-    }
-
     /// This model with the amplitude floors' prior weighing `rows` rows
-    /// ([`super::CatalogueSettings::level_prior_rows`]).
+    /// ([`super::CatalogueSettings::level_prior_rows`]; 0: the floors are profiled on the table
+    /// alone, as for the choice of a partial's poles).
     pub fn with_level_prior_rows(self, rows: f64) -> Model {
         Model {
             level_prior_rows: rows,
@@ -1321,9 +1309,6 @@ pub const LEVEL_PRIOR_ROWS: f64 = 4.0;
 /// floor falls from 0.29 to 0, and those rows alone gain 12.7 in −2 ln L (generator 2's seed
 /// 307 case 022, a clean bar on two microphones, named a contact at ΔBIC 8.9).
 pub fn level_prior(rows: f64, tau2_mix: f64, tau2_level: f64) -> f64 {
-    if rows == 0.0 {
-        return 0.0;
-    }
     let floor2 = LEVEL_MODEL_FLOOR * LEVEL_MODEL_FLOOR;
     let t = tau2_mix + tau2_level + floor2;
     rows * (t.ln() + (ORDINARY_LEVEL_SPREAD * ORDINARY_LEVEL_SPREAD + floor2) / t)
