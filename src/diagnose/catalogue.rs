@@ -280,10 +280,11 @@
 //! calibration sets 9101–9104) and the bowl: contact duration went from 16/6/6 (TP/FP/FN) to
 //! 15/3/7 on the seeds and from 5/0/7 to 8/0/4 on the contact set 9103; no other verdict
 //! changed. The weight 4 was set before that replay and not varied on it. The choice of a
-//! partial's poles (matching step 6) is made without the prior (its baseline fitted at weight
-//! 0, `selection`): its readings have the same parameters and no level term to thread the
-//! rows, and on the real bowl two readings of the lowest partial lie 1.7 apart in −2 ln L, where the prior's small
-//! pull on the bowl's wide floor (1.2) sent the greedy search to the other one.
+//! partial's poles (matching step 6) weighs the same likelihood. With the prior, a greedy
+//! choice sent the real bowl's lowest partial from its beating pair (1681/1684 Hz) to
+//! 1684/1687 Hz, two readings 1.7 apart in −2 ln L; the choice is now a beam search whose ends
+//! are charged for the exchanges that reached them (`selection::POLE_CHOICE_BEAM`), and keeps
+//! the pair with or without the prior.
 //! Tests: `tests/diagnose_evidence.rs` (seed 307 case 022; set 9103 case 000, a true contact
 //! on a cup whose levels scatter by 0.72, named only with the prior) and the model's unit tests.
 //!

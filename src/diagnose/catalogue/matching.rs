@@ -50,7 +50,11 @@
 //!    faint or broad poles at 1673, 1678.7 and 1687 Hz (d = 12–43 1/s), and step 2 took
 //!    1678.7 Hz because the mesh's members sit at 1678.8 and 1682.3 Hz. An extra pole may
 //!    therefore take a unit's place; the selection keeps the exchange when the baseline's
-//!    likelihood prefers it (parent docs, "Selection").
+//!    likelihood prefers it by more than the ΔBIC threshold (parent docs, "Selection"). The
+//!    exchanges are searched with a beam of readings, not greedily, and the end kept is the
+//!    one of least −2 ln L once each exchange that reached it is charged the threshold
+//!    (`selection::POLE_CHOICE_BEAM`): exchanges in different clusters can have near-equal
+//!    gains, and which a greedy search took first decided the bowl's lowest partial.
 //! 7. **Which shape is whose** ([`Matching::with_shape_exchange`], used by the selection).
 //!    Two modes of different families within a fraction of a percent of each other (an
 //!    avoided crossing) mix: each is a combination of the two shapes whose proportions turn
