@@ -544,8 +544,8 @@ fn counted_rows(table: &ModeTable) -> usize {
 ///
 /// Why 2: the search's cost grows with the beam, one baseline fit per reading costed. On the
 /// saved evidence of 595 cases a beam of 4 took 2.7 times the greedy search's time (one plate
-/// in a room with 7 microphones: 6.7 → 27 s), a beam of 2 about 1.7 times (12.6 s). Every
-/// beam from 2 to 32 keeps the bowl's pair at the shipped weight of the floors' prior.
+/// in a room with 7 microphones: 6.8 → 27 s), a beam of 2 1.55 times (13.0 s). Every beam
+/// from 2 to 32 keeps the bowl's pair at the shipped weight of the floors' prior.
 pub const POLE_CHOICE_BEAM: usize = 2;
 
 /// One reading of a side's poles in [`choose_partial_poles`]: its cost, matching and table.
