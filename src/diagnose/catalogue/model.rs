@@ -993,7 +993,7 @@ pub struct Model {
     /// Bounds on ln s ([`Model::with_scale_bounds`]; ±1 unless set).
     pub ln_scale_bounds: (f64, f64),
     /// Weight in rows of the amplitude floors' prior ([`level_prior`]): [`LEVEL_PRIOR_ROWS`]
-    /// unless set ([`Model::with_level_prior_rows`]), 0 for the choice of a partial's poles.
+    /// unless set ([`Model::with_level_prior_rows`]).
     pub level_prior_rows: f64,
     offsets: Vec<usize>,
     counts: Vec<usize>,
@@ -1054,7 +1054,7 @@ impl Model {
 
     /// This model with the amplitude floors' prior weighing `rows` rows
     /// ([`super::CatalogueSettings::level_prior_rows`]; 0: the floors are profiled on the table
-    /// alone, as for the choice of a partial's poles).
+    /// alone).
     pub fn with_level_prior_rows(self, rows: f64) -> Model {
         Model {
             level_prior_rows: rows,

@@ -590,10 +590,11 @@ fn choose_partial_poles(
     let mut beam: Vec<Reading> = vec![(seen[0].1, matching, table)];
     let threshold = side.settings.delta_bic_threshold;
     // An end reading's cost with the threshold charged for each exchange that reached it.
-    let mut best_end: Option<(f64, Matching, ModeTable)> = None;
+    let mut best_end: Option<Reading> = None;
     let rounds = beam[0].1.units.len();
     for depth in 0..rounds {
-        let mut next: Vec<Reading> = Vec::new();
+        // The next round's readings, as indices into `seen`.
+        let mut next: Vec<usize> = Vec::new();
         for (current, matching, table) in beam {
             let mut improved = false;
             for m in exchanges(&side, &ln_f, &matching) {
@@ -612,8 +613,8 @@ fn choose_partial_poles(
                 };
                 if seen[k].1 < current - threshold {
                     improved = true;
-                    if !seen[k].2 && !next.iter().any(|r| r.1 == seen[k].0) {
-                        next.push((seen[k].1, seen[k].0.clone(), build(&seen[k].0)));
+                    if !seen[k].2 && !next.contains(&k) {
+                        next.push(k);
                     }
                 }
             }
@@ -622,14 +623,16 @@ fn choose_partial_poles(
                 best_end = Some((charged, matching, table));
             }
         }
-        next.sort_by(|a, b| a.0.total_cmp(&b.0));
+        next.sort_by(|&a, &b| seen[a].1.total_cmp(&seen[b].1));
         next.truncate(POLE_CHOICE_BEAM);
-        for r in &next {
-            if let Some(s) = seen.iter_mut().find(|s| s.0 == r.1) {
-                s.2 = true;
-            }
-        }
-        beam = next;
+        // Only the readings carried get their table rebuilt.
+        beam = next
+            .into_iter()
+            .map(|k| {
+                seen[k].2 = true;
+                (seen[k].1, seen[k].0.clone(), build(&seen[k].0))
+            })
+            .collect();
         if beam.is_empty() {
             break;
         }
