@@ -918,5 +918,43 @@ pub fn split_free_fit(
     )
 }
 
+/// The least split-free distance ([`split_free_fit`]) of a plain model over ν: its spectrum at
+/// each ν of `nus` (θ for E/ρ = 1 with their drives, from `spectrum_at`) matched with every
+/// split pair merged, the scale searched within `window` of `youngs_centre`. Returns
+/// (distance, ν); ν is the first of `nus` on ties. What a carried mass must beat to stand on
+/// the lines' centres: the plain material at the ν that places them best, not at a ν chosen
+/// with the splits weighed (module docs, "Splits against shifts").
+#[allow(clippy::too_many_arguments)]
+pub fn split_free_over_poisson(
+    target_ln_f: &[f64],
+    ceiling_ln_f: f64,
+    spectrum_at: impl Fn(f64) -> Vec<(f64, f64)>,
+    nus: &[f64],
+    density: f64,
+    youngs_centre: f64,
+    window: f64,
+    settings: &LoadedMatchSettings,
+    tolerance: f64,
+) -> (f64, f64) {
+    let mut best = (f64::INFINITY, f64::NAN);
+    for &nu in nus {
+        let d = split_free_fit(
+            target_ln_f,
+            ceiling_ln_f,
+            &spectrum_at(nu),
+            density,
+            youngs_centre,
+            window,
+            settings,
+            tolerance,
+        )
+        .0;
+        if d < best.0 {
+            best = (d, nu);
+        }
+    }
+    best
+}
+
 #[cfg(test)]
 mod tests;
