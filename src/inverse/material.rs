@@ -462,6 +462,10 @@ pub(crate) fn line_distance(
     capped_nearest(target, &pattern.u, shift, cap) + capped_nearest(&heard, target, -shift, cap)
 }
 
+/// The coarse ν step of [`line_spectrum_start`]'s grid (the loaded match's split-free search
+/// uses the same grid).
+pub(crate) const LINE_MATCH_POISSON_STEP: f64 = 0.0025;
+
 /// The line-spectrum start: the (E, ν) whose audible simulated partials best match the
 /// target's modes. For each ν on a grid the pattern u_k = ½ ln θ_k(ν) is fixed and E only
 /// shifts it (ln f_k = u_k + ½ ln(E/ρ) − ln 2π), so the search is over that shift on a grid
@@ -492,7 +496,7 @@ pub fn line_spectrum_start(
     let (target, ceiling) = line_match_targets(problem)?;
     let (lo, hi) = settings.poisson_bounds;
     let nus: Vec<f64> = if settings.learn_poisson {
-        let n = ((hi - lo) / 0.0025).ceil().max(1.0) as usize;
+        let n = ((hi - lo) / LINE_MATCH_POISSON_STEP).ceil().max(1.0) as usize;
         (0..=n)
             .map(|i| lo + (hi - lo) * i as f64 / n as f64)
             .collect()

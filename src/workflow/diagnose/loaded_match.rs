@@ -18,7 +18,7 @@ use crate::inverse::loaded_match::{
 };
 use crate::inverse::material::{
     driving_point_weight, line_match_targets, LineSpectrumStart, MaterialFitSettings,
-    MaterialProblem,
+    MaterialProblem, LINE_MATCH_POISSON_STEP,
 };
 use crate::mesh::locate::nearest_points;
 use crate::petsc::PetscInt;
@@ -274,7 +274,7 @@ const SPLIT_FREE_WINDOW: f64 = 0.02;
 /// seed 419 case 008 (a cup's beating pair, four pairs split by 0.5–1 %, true ν 0.22): the
 /// plain match took ν 0.174, split-free 3.58·10⁻³ there; the loaded match carried 0.57 % at ν
 /// 0.2065, split-free 2.31·10⁻³, and the catalogue read the four splits as that mass.
-/// The grid is the plain match's (step [`SPLIT_FREE_POISSON_STEP`] over its ν range), with
+/// The grid is the plain match's (step [`LINE_MATCH_POISSON_STEP`] over its ν range), with
 /// the plain match's own ν, so the distance is never above the one at that ν.
 pub(super) fn plain_split_free_distance(
     basis: &PoissonBasis<'_>,
@@ -295,9 +295,9 @@ pub(super) fn plain_split_free_distance(
             .collect::<Vec<(f64, f64)>>()
     };
     let (lo, hi) = settings.poisson_bounds;
-    let n = ((hi - lo) / SPLIT_FREE_POISSON_STEP).ceil().max(1.0) as usize;
-    let grid: Vec<f64> = std::iter::once(start.poisson)
-        .chain((0..=n).map(|i| lo + (hi - lo) * i as f64 / n as f64))
+    let n = ((hi - lo) / LINE_MATCH_POISSON_STEP).ceil().max(1.0) as usize;
+    let grid: Vec<f64> = (0..=n)
+        .map(|i| lo + (hi - lo) * i as f64 / n as f64)
         .collect();
     let search = |nus: &[f64]| {
         split_free_over_poisson(
@@ -312,17 +312,20 @@ pub(super) fn plain_split_free_distance(
             CatalogueSettings::default().max_pair_split,
         )
     };
-    let (at_match, _) = search(&grid[..1]);
-    let (distance, poisson) = search(&grid);
+    // The match's own ν first: it is kept on ties, as when it led the grid.
+    let (at_match, _) = search(&[start.poisson]);
+    let (on_grid, nu) = search(&grid);
+    let (distance, poisson) = if on_grid < at_match {
+        (on_grid, nu)
+    } else {
+        (at_match, start.poisson)
+    };
     Ok(PlainSplitFree {
         distance,
         poisson,
         at_match,
     })
 }
-
-/// The ν step of [`plain_split_free_distance`]'s search: the plain line match's grid.
-const SPLIT_FREE_POISSON_STEP: f64 = 0.0025;
 
 /// The plain model's split-free distance at its best ν ([`plain_split_free_distance`]).
 #[derive(Clone, Copy, Debug)]
