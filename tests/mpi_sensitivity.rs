@@ -1331,6 +1331,56 @@ fn check_collective_failures(petsc: &Petsc, c: &mut Checker) {
 /// Rigid-mode deflation (`eigen::solve_modes_deflated`): the same elastic modes as the plain
 /// solve, each M-orthogonal to the six rigid motions, the six motions' Rayleigh quotients
 /// reported as the rigid eigenvalues, and a vector that is not a rigid motion refused.
+/// Every mode up to a frequency, counted first ([`eigen::UpToMethod::CountThenNearest`], the
+/// diagnosis's way) against SLEPc's spectrum slicing: the same modes below the limit (eigenvalues
+/// to 1e-9 relative), none above it, and the count proven complete by both. The limit sits in the
+/// widest relative gap among modes 8–16 of a first-20 solve, far from any eigenvalue.
+fn check_up_to_by_count(petsc: &Petsc, c: &mut Checker, label: &str, m: &TetMesh) {
+    let mat = Material::preset("ceramic").unwrap();
+    let assembled = assembly::assemble(petsc, m).expect("assembly");
+    let (k, mm) = assembled.operators(&mat).expect("operators");
+    let first = eigen::solve_modes(petsc, &k, &mm, &config(m, &mat, 20)).expect("first 20");
+    let l = &first.eigenvalues;
+    let j = (7..16)
+        .max_by(|&a, &b| (l[a + 1] / l[a]).total_cmp(&(l[b + 1] / l[b])))
+        .unwrap();
+    let upper = (l[j] * l[j + 1]).sqrt();
+    let mut cfg = config(m, &mat, 1);
+    cfg.request = ModeRequest::UpTo {
+        f_max_hz: eigen::frequency_hz(upper),
+    };
+    cfg.verify_count = true;
+    let sliced = eigen::solve_modes(petsc, &k, &mm, &cfg).expect("slicing");
+    cfg.up_to = eigen::UpToMethod::CountThenNearest;
+    let counted = eigen::solve_modes(petsc, &k, &mm, &cfg).expect("count then nearest");
+    let same_count = sliced.eigenvalues.len() == j + 1 && counted.eigenvalues.len() == j + 1;
+    let worst = sliced
+        .eigenvalues
+        .iter()
+        .zip(&counted.eigenvalues)
+        .map(|(a, b)| rel(*b, *a, *a))
+        .fold(0.0, f64::max);
+    let complete = |modes: &eigen::Modes<'_>| {
+        modes
+            .inertia_check
+            .as_ref()
+            .is_some_and(|i| matches!(i.verdict, eigen::CountVerdict::Complete))
+    };
+    let by_count = counted.setting("up_to_method") == Some("count_then_nearest");
+    c.check(
+        &format!("{label} modes up to a limit counted first, against spectrum slicing"),
+        same_count && worst < 1e-9 && complete(&sliced) && complete(&counted) && by_count,
+        format!(
+            "{} sliced, {} counted, {} expected below {upper:.4e} rad²/s²; worst relative eigenvalue difference {worst:.2e}; proofs complete {} / {}; counted path taken {by_count}",
+            sliced.eigenvalues.len(),
+            counted.eigenvalues.len(),
+            j + 1,
+            complete(&sliced),
+            complete(&counted)
+        ),
+    );
+}
+
 fn check_rigid_deflation(petsc: &Petsc, c: &mut Checker, label: &str, m: &TetMesh, n: usize) {
     let mat = Material::preset("ceramic").unwrap();
     let assembled = assembly::assemble(petsc, m).expect("assembly");
@@ -1409,6 +1459,7 @@ fn child() {
         check_mesh(&petsc, &mut c, "bowl", &load("examples/bowl/bowl.msh"), 10);
     }
     check_rigid_deflation(&petsc, &mut c, "brick", &brick, 12);
+    check_up_to_by_count(&petsc, &mut c, "brick", &brick);
     if distributed {
         check_rigid_deflation(&petsc, &mut c, "bowl", &load("examples/bowl/bowl.msh"), 16);
     }

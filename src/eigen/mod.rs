@@ -13,7 +13,8 @@
 //! **Two ways to ask.** [`ModeRequest::FirstN`] runs Krylov–Schur with shift-invert (MUMPS
 //! Cholesky) for the N + 6 eigenvalues nearest σ. [`ModeRequest::UpTo`] uses SLEPc spectrum
 //! slicing over [σ, (2π f_max)²], which finds every eigenvalue of the interval from MUMPS inertia
-//! counts.
+//! counts, or ([`UpToMethod::CountThenNearest`], the diagnosis's many short solves) counts them
+//! first with one inertia and asks Krylov–Schur for that many.
 //!
 //! **Two paths** ([`SolverPath`]). *Direct*: everything below, on MUMPS factors. *Iterative*
 //! ([`iterative`]): generalised Davidson with an algebraic-multigrid preconditioner in the
@@ -101,6 +102,23 @@ pub struct EigenConfig {
     pub iterative_tolerance: f64,
     /// The iterative path's preconditioner ([`iterative`], "Preconditioners").
     pub iterative_preconditioner: IterativePreconditioner,
+    /// How a [`ModeRequest::UpTo`] is solved on the direct path ([`UpToMethod`]).
+    pub up_to: UpToMethod,
+}
+
+/// How the direct path finds every mode up to a frequency (module docs, "Two ways to ask").
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum UpToMethod {
+    /// SLEPc's spectrum slicing over [σ, λ_max] (the default; `modes --fmax`).
+    Slicing,
+    /// Count first, then ask for that many: the inertia of K − λ_max M gives the number of
+    /// eigenvalues below λ_max, and shift-invert Krylov–Schur at σ is asked for that many (plus
+    /// the usual buffer); the modes above λ_max are dropped and the count is proven at λ_max as
+    /// for slicing. One factorisation fewer than slicing needs on a few dozen modes, and no
+    /// ScaLAPACK-free root: 5.1 s against 7.7 s for the 20 modes of a 37.6k-DOF glass tube on
+    /// 2 ranks. For the diagnosis's many solves of a few dozen modes; slicing stays the
+    /// default, whose several shifts suit long intervals better.
+    CountThenNearest,
 }
 
 /// How the eigenproblem is solved (module docs, "Two paths").
@@ -170,6 +188,7 @@ impl EigenConfig {
             path: SolverPath::Direct,
             iterative_tolerance: ITERATIVE_TOLERANCE,
             iterative_preconditioner: IterativePreconditioner::Auto,
+            up_to: UpToMethod::Slicing,
         }
     }
 
@@ -470,6 +489,22 @@ pub fn solve_modes_two_level<'p>(
     let nev_cap = dofs.saturating_sub(deflate.len());
     let mut nev = (wanted + cfg.expected_rigid.saturating_sub(deflate.len()) + 4.max(wanted / 10))
         .min(nev_cap);
+    // UpTo by count ([`UpToMethod::CountThenNearest`]): the eigenvalues below λ_max, rigid ones
+    // included, then that many nearest σ. A count with no elastic mode in it is left to slicing.
+    let mut count_log = FactorLog::default();
+    let by_count = match (interval_upper, path, cfg.up_to) {
+        (Some(upper), SolverPath::Direct, UpToMethod::CountThenNearest) => {
+            let below = inertia_below(petsc, k, m, upper, &mut count_log)?.negative;
+            let elastic_below = below.saturating_sub(cfg.expected_rigid);
+            (elastic_below > 0).then(|| {
+                nev =
+                    (below.saturating_sub(deflate.len()) + 4.max(elastic_below / 10)).min(nev_cap);
+                warnings.extend(count_log.retry_notes("inertia matrix K − λ_max M"));
+                elastic_below
+            })
+        }
+        _ => None,
+    };
     let max_attempts = 3;
     let mut attempt = 0;
     let mut solve_log = FactorLog::default();
@@ -493,8 +528,10 @@ pub fn solve_modes_two_level<'p>(
             .map_err(SolveFailure::into_error)?,
             None => solve_with_workspace(petsc, &mut solve_log, &mut warnings, |petsc| {
                 match interval_upper {
-                    Some(upper) => solve_interval(petsc, k, m, shift, upper, cfg),
-                    None => solve_nearest(petsc, k, m, shift, nev, cfg, deflate),
+                    Some(upper) if by_count.is_none() => {
+                        solve_interval(petsc, k, m, shift, upper, cfg)
+                    }
+                    _ => solve_nearest(petsc, k, m, shift, nev, cfg, deflate),
                 }
             })?,
         };
@@ -555,7 +592,18 @@ pub fn solve_modes_two_level<'p>(
                 }
                 keep
             }
-            ModeRequest::UpTo { .. } => elastic.len(),
+            ModeRequest::UpTo { .. } => match (by_count, interval_upper) {
+                (Some(_), Some(upper)) => {
+                    let below = elastic.iter().take_while(|&&l| l < upper).count();
+                    if below == elastic.len() && nev < nev_cap && attempt < max_attempts {
+                        // Every pair computed lies below λ_max: more may lie there too.
+                        nev = (nev + 4.max(nev / 4)).min(nev_cap);
+                        continue;
+                    }
+                    below
+                }
+                _ => elastic.len(),
+            },
         };
 
         let probe_check = match &precond {
@@ -615,7 +663,9 @@ pub fn solve_modes_two_level<'p>(
             warnings.extend(check.factor_log.retry_notes("inertia matrix K − τM"));
             match &check.verdict {
                 CountVerdict::Missed => {
-                    if matches!(cfg.request, ModeRequest::FirstN(_)) && attempt < max_attempts {
+                    if (matches!(cfg.request, ModeRequest::FirstN(_)) || by_count.is_some())
+                        && attempt < max_attempts
+                    {
                         warnings.push(format!(
                             "inertia count found {} eigenvalues below {:.6e} but the solver returned {}; solving again with more vectors",
                             check.below, check.threshold, check.found
@@ -659,6 +709,10 @@ pub fn solve_modes_two_level<'p>(
         }
         let clusters = find_clusters(&elastic, cfg.cluster_rtol);
         settings.push(("solver_path".into(), path.word().into()));
+        if let Some(n) = by_count {
+            settings.push(("up_to_method".into(), "count_then_nearest".into()));
+            settings.push(("up_to_counted_elastic".into(), n.to_string()));
+        }
         settings.push(("rigid_threshold_rad2_s2".into(), format!("{rigid_limit:e}")));
         settings.push(("cluster_rtol".into(), format!("{:e}", cfg.cluster_rtol)));
         settings.push(("attempts".into(), attempt.to_string()));

@@ -561,8 +561,8 @@ impl<'p> PoissonBasis<'p> {
         blocks: usize,
     ) -> Result<Vec<AttachmentProjections>, ReducedError> {
         // Columns per chunk: bounds the dense blocks (local rows × columns × blocks) and the
-        // probe values reduced at once.
-        const CHUNK_COLUMNS: usize = 192;
+        // probe values reduced at once; the factor blocks its solve by as many.
+        const CHUNK_COLUMNS: usize = crate::petsc::factor::SOLVE_RHS_BLOCK;
         let mut out = Vec::with_capacity(groups.len());
         let mut start = 0;
         while start < groups.len() {

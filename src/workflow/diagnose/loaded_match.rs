@@ -674,12 +674,14 @@ pub(super) fn loaded_match(
         )
         .map_err(|e| e.to_string())?;
         m.set_symmetric().map_err(|e| e.to_string())?;
-        let cfg = EigenConfig::new(
+        let mut cfg = EigenConfig::new(
             ModeRequest::UpTo {
                 f_max_hz: 1.15 * top_hz,
             },
             eigen::spectrum_scale(material.lame_mu(), density, diagonal),
         );
+        // A few dozen modes per solve, many solves: counted first (`UpToMethod`).
+        cfg.up_to = eigen::UpToMethod::CountThenNearest;
         let full = eigen::solve_modes(petsc, &k, &m, &cfg).map_err(|e| e.to_string())?;
         let mut loaded = Vec::with_capacity(full.eigenvalues.len());
         for (lambda, v) in full.eigenvalues.iter().zip(&full.vectors) {

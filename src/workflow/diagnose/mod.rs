@@ -534,12 +534,14 @@ pub fn run(petsc: &Petsc, job: &Job, progress: &Progress) -> Result<Option<Outco
             .map_err(solver)?;
             m.set_symmetric().map_err(solver)?;
         }
-        let cfg = EigenConfig::new(
+        let mut cfg = EigenConfig::new(
             ModeRequest::UpTo {
                 f_max_hz: 1.15 * top_observed.max(1.0),
             },
             eigen::spectrum_scale(material.lame_mu(), job.density, diagonal),
         );
+        // A few dozen modes per solve, many solves: counted first (`UpToMethod`).
+        cfg.up_to = eigen::UpToMethod::CountThenNearest;
         let modes = eigen::solve_modes(petsc, &k, &m, &cfg).map_err(solver)?;
         // ∂ln f/∂ν per mode, for the catalogue's Poisson nuisance (collective): ½ (∂λ/∂ν)/λ
         // with E and ρ held; a cluster's modes carry its mean.
