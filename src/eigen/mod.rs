@@ -114,9 +114,9 @@ pub enum UpToMethod {
     /// Count first, then ask for that many: the inertia of K − λ_max M gives the number of
     /// eigenvalues below λ_max, and shift-invert Krylov–Schur at σ is asked for that many (plus
     /// the usual buffer); the modes above λ_max are dropped and the count is proven at λ_max as
-    /// for slicing. One factorisation fewer than slicing needs on a few dozen modes, and no
-    /// ScaLAPACK-free root: 5.1 s against 7.7 s for the 20 modes of a 37.6k-DOF glass tube on
-    /// 2 ranks. For the diagnosis's many solves of a few dozen modes; slicing stays the
+    /// for slicing. One factorisation fewer than slicing needs on a few dozen modes, and a
+    /// shift-invert factor that may use ScaLAPACK at its root (slicing's may not, since it reads
+    /// inertias): 5.1 s against 7.7 s for the 20 modes of a 37.6k-DOF glass tube on 2 ranks. For the diagnosis's many solves of a few dozen modes; slicing stays the
     /// default, whose several shifts suit long intervals better.
     CountThenNearest,
 }
@@ -495,11 +495,11 @@ pub fn solve_modes_two_level<'p>(
     let by_count = match (interval_upper, path, cfg.up_to) {
         (Some(upper), SolverPath::Direct, UpToMethod::CountThenNearest) => {
             let below = inertia_below(petsc, k, m, upper, &mut count_log)?.negative;
+            warnings.extend(count_log.retry_notes("inertia matrix K − λ_max M"));
             let elastic_below = below.saturating_sub(cfg.expected_rigid);
             (elastic_below > 0).then(|| {
                 nev =
                     (below.saturating_sub(deflate.len()) + 4.max(elastic_below / 10)).min(nev_cap);
-                warnings.extend(count_log.retry_notes("inertia matrix K − λ_max M"));
                 elastic_below
             })
         }
