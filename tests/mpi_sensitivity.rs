@@ -58,7 +58,7 @@ use diffsound::audio::loss::{
     MultiScaleSpectralLoss, SpectralLossConfig, TransportLoss, TransportLossConfig,
 };
 use diffsound::audio::synth;
-use diffsound::eigen::reduced::{lame_unit, PoissonBasis};
+use diffsound::eigen::reduced::{lame_unit, AttachmentPlacement, PoissonBasis};
 use diffsound::eigen::sensitivity::{self, ClusterTreatment};
 use diffsound::eigen::{self, EigenConfig, ModeRequest};
 use diffsound::fem::Material;
@@ -1201,7 +1201,13 @@ fn check_loaded_ritz(petsc: &Petsc, c: &mut Checker) {
         .map(|k| vec![(assembled.layout.global_dof(region_nodes[0], k) as _, 1.0)])
         .collect();
     let many = basis
-        .attachments_many(petsc, &assembled, &solver, &[single, loads.clone()], 2)
+        .attachments_many(
+            petsc,
+            &assembled,
+            &solver,
+            &[single.clone(), loads.clone()],
+            2,
+        )
         .expect("batched attachments");
     let rel = |a: &nalgebra::DMatrix<f64>, b: &nalgebra::DMatrix<f64>| {
         (a - b).norm() / b.norm().max(1e-300)
@@ -1223,6 +1229,46 @@ fn check_loaded_ritz(petsc: &Petsc, c: &mut Checker) {
         "brick attachments batched",
         many.len() == 2 && batched < 1e-10,
         format!("a region's projections solved alone and beside another region: largest relative difference {batched:.1e}"),
+    );
+    // Both placements of the attachment problem (one factor over every rank, or the whole
+    // problem on each rank with the groups shared out and gathered) give the same projections
+    // and rigid motions, up to the factors' rounding.
+    let placed = |placement| {
+        let s = basis
+            .attachment_solver_placed(petsc, &assembled, &brick.nodes, nu, 0.1 * lowest, placement)
+            .expect("placed attachment solver");
+        let rigid = basis.rigid_probe_values(&s).expect("rigid motions");
+        let list = basis
+            .attachments_many(
+                petsc,
+                &assembled,
+                &s,
+                &[loads.clone(), single.clone(), loads.clone()],
+                2,
+            )
+            .expect("placed attachments");
+        (rigid, list)
+    };
+    let (rigid_d, list_d) = placed(AttachmentPlacement::Distributed);
+    let (rigid_r, list_r) = placed(AttachmentPlacement::Redundant);
+    let mut placement_diff = rel(&rigid_r, &rigid_d);
+    for (r, d) in list_r.iter().zip(&list_d) {
+        for (a, b) in [
+            (&r.cross_lambda, &d.cross_lambda),
+            (&r.cross_mu, &d.cross_mu),
+            (&r.cross_mass, &d.cross_mass),
+            (&r.self_lambda, &d.self_lambda),
+            (&r.self_mu, &d.self_mu),
+            (&r.self_mass, &d.self_mass),
+            (&r.probe_values, &d.probe_values),
+        ] {
+            placement_diff = placement_diff.max(rel(a, b));
+        }
+    }
+    c.check(
+        "brick attachments placed",
+        list_r.len() == 3 && list_d.len() == 3 && placement_diff < 1e-9,
+        format!("three groups (9 columns) on {} rank(s), redundant against distributed: largest relative difference {placement_diff:.1e}", petsc.size()),
     );
     let na = projections.probe_values.ncols();
     let extra = Enrichment {

@@ -30,12 +30,27 @@
 //! distributed mat-vecs per mode: the error estimate a fit uses to decide whether to add the
 //! current ν as a new sample ([`PoissonBasis::add_sample`], one full solve). A fit reports the
 //! agreement with a full solve at its optimum.
+//!
+//! # Attachment solves on many ranks
+//!
+//! The loaded line match solves thousands of attachment columns
+//! ([`PoissonBasis::attachments_many`]). Through a distributed MUMPS factor each multiple-
+//! right-hand-side solve pays PETSc's redistribution of the solution (a scatter built anew per
+//! call, its indices sorted: about as much as the solve itself on the 37.6k-DOF tube, 2 ranks),
+//! and the distributed solve waits on messages at every level of the elimination tree. Below
+//! [`REDUNDANT_ATTACHMENT_DOFS`] degrees of freedom each rank therefore holds the whole problem
+//! ([`AttachmentPlacement::Redundant`]): sequential copies of K_λ, K_μ, M₁ and of the basis, its
+//! own sequential factor, and its share of the groups of loads, solved with no communication;
+//! one gather gives every rank every group's projections. The numbers are those of the
+//! distributed path up to rounding (the factor's pivot order differs).
 
 use super::{solve_modes, spectrum_scale, EigenConfig, EigenError, ModeRequest};
 use crate::assembly::Assembled;
-use crate::petsc::{Dense, Mat, Petsc, PetscError, PetscInt, Vector};
+use crate::petsc::{collective, Dense, Mat, Petsc, PetscError, PetscInt, Vector};
 use mpi::collective::{CommunicatorCollectives, SystemOperation};
 use nalgebra::{DMatrix, DVector, SymmetricEigen};
+use std::cell::OnceCell;
+use std::rc::Rc;
 
 /// Extra modes a full solve asks for, so that poorly resolved rigid-body modes it has to drop
 /// (see [`PoissonBasis::full_theta`]) do not leave it short.
@@ -116,16 +131,45 @@ pub struct AttachmentProjections {
 /// Per group of a chunk: the cross projections C_• and the own Gram blocks Aᵀ K_• A.
 type Projected = (Vec<DMatrix<f64>>, Vec<DMatrix<f64>>);
 
+/// Where [`PoissonBasis::attachment_solver_placed`] puts the attachment problem (module docs,
+/// "Attachment solves on many ranks").
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum AttachmentPlacement {
+    /// Redundant on more than one rank below [`REDUNDANT_ATTACHMENT_DOFS`], else distributed.
+    Auto,
+    /// One factor over every rank; every rank takes part in every solve.
+    Distributed,
+    /// The whole problem on every rank, the groups of loads shared out.
+    Redundant,
+}
+
+/// The largest system (degrees of freedom) whose attachment problem [`AttachmentPlacement::Auto`]
+/// copies to every rank: each rank then holds a sequential factor and three sparse matrices of
+/// this size (on the 37.6k-DOF tube about 0.3 GB a rank).
+pub const REDUNDANT_ATTACHMENT_DOFS: usize = 150_000;
+
+/// The whole attachment problem on this rank: K_λ, K_μ and M₁ as sequential copies, and every
+/// row of every basis vector (global numbering).
+struct SequentialOperators<'p> {
+    k_lambda: Mat<'p>,
+    k_mu: Mat<'p>,
+    mass: Mat<'p>,
+    basis: Vec<Vec<f64>>,
+}
+
 /// The factored operator a(ν)K_λ + b(ν)K_μ + σM₁ and the M₁-orthonormal rigid-body motions,
 /// for [`PoissonBasis::attachments`].
 pub struct AttachmentSolver<'p> {
     solver: crate::petsc::MumpsCholesky<'p>,
+    /// The rigid motions: distributed, or whole on this rank when `sequential` is set.
     rigid: Vec<Vector<'p>>,
     /// M₁ times each rigid motion.
     rigid_mass: Vec<Vector<'p>>,
     /// This rank's entries of every basis vector (the projections are local dot products
-    /// summed in one reduction).
+    /// summed in one reduction); empty when `sequential` is set.
     local_basis: Vec<Vec<f64>>,
+    /// Set when each rank holds the whole problem ([`AttachmentPlacement::Redundant`]).
+    sequential: Option<Rc<SequentialOperators<'p>>>,
 }
 
 /// The basis, its projections, and the probe values of its vectors.
@@ -148,6 +192,9 @@ pub struct PoissonBasis<'p> {
     /// Full solves done.
     pub full_solves: usize,
     pub full_solve_seconds: f64,
+    /// The sequential copies of a redundant attachment solver, made once (reset when the basis
+    /// changes).
+    sequential: OnceCell<Rc<SequentialOperators<'p>>>,
 }
 
 #[derive(Debug, thiserror::Error)]
@@ -197,6 +244,7 @@ impl<'p> PoissonBasis<'p> {
             theta_floor: f64::INFINITY,
             full_solves: 0,
             full_solve_seconds: 0.0,
+            sequential: OnceCell::new(),
         };
         for &nu in samples {
             basis.solve_and_append(petsc, assembled, nu)?;
@@ -292,6 +340,7 @@ impl<'p> PoissonBasis<'p> {
     }
 
     fn project(&mut self, petsc: &'p Petsc, assembled: &Assembled<'p>) -> Result<(), ReducedError> {
+        self.sequential = OnceCell::new();
         let nb = self.vectors.len();
         let local: Vec<Vec<f64>> = self
             .vectors
@@ -432,6 +481,53 @@ impl<'p> PoissonBasis<'p> {
         nu: f64,
         shift: f64,
     ) -> Result<AttachmentSolver<'p>, ReducedError> {
+        self.attachment_solver_placed(
+            petsc,
+            assembled,
+            nodes,
+            nu,
+            shift,
+            AttachmentPlacement::Auto,
+        )
+    }
+
+    /// The sequential copies of K_λ, K_μ, M₁ and of the basis on this rank, made at the first
+    /// call. Collective.
+    fn sequential_operators(
+        &self,
+        assembled: &Assembled<'p>,
+    ) -> Result<Rc<SequentialOperators<'p>>, ReducedError> {
+        if let Some(made) = self.sequential.get() {
+            return Ok(made.clone());
+        }
+        let n = assembled.mass_unit.global_rows()?;
+        let every_row: Vec<PetscInt> = (0..n as PetscInt).collect();
+        let basis = self
+            .vectors
+            .iter()
+            .map(|v| v.gather_indices(&every_row))
+            .collect::<Result<Vec<_>, _>>()?;
+        let made = Rc::new(SequentialOperators {
+            k_lambda: assembled.k_lambda.sequential_copy()?,
+            k_mu: assembled.k_mu.sequential_copy()?,
+            mass: assembled.mass_unit.sequential_copy()?,
+            basis,
+        });
+        let _ = self.sequential.set(made.clone());
+        Ok(made)
+    }
+
+    /// [`Self::attachment_solver`] with the placement chosen (module docs, "Attachment solves on
+    /// many ranks"). Collective.
+    pub fn attachment_solver_placed(
+        &self,
+        petsc: &'p Petsc,
+        assembled: &Assembled<'p>,
+        nodes: &[[f64; 3]],
+        nu: f64,
+        shift: f64,
+        placement: AttachmentPlacement,
+    ) -> Result<AttachmentSolver<'p>, ReducedError> {
         if !(shift > 0.0) || nodes.len() != assembled.layout.n_nodes() {
             return Err(ReducedError::Invalid(format!(
                 "attachment solver: shift {shift} must be positive and {} nodes given for {}",
@@ -439,15 +535,26 @@ impl<'p> PoissonBasis<'p> {
                 assembled.layout.n_nodes()
             )));
         }
+        let n_global = assembled.mass_unit.global_rows()?;
+        let redundant = match placement {
+            AttachmentPlacement::Auto => petsc.size() > 1 && n_global <= REDUNDANT_ATTACHMENT_DOFS,
+            AttachmentPlacement::Distributed => false,
+            AttachmentPlacement::Redundant => true,
+        };
+        let sequential = if redundant {
+            Some(self.sequential_operators(assembled)?)
+        } else {
+            None
+        };
+        let (k_lambda, k_mu, mass) = match &sequential {
+            Some(s) => (&s.k_lambda, &s.k_mu, &s.mass),
+            None => (&assembled.k_lambda, &assembled.k_mu, &assembled.mass_unit),
+        };
         let (a, b) = lame_unit(nu);
-        let mut operator = assembled.k_lambda.duplicate()?;
+        let mut operator = k_lambda.duplicate()?;
         operator.scale(a)?;
-        operator.axpy(b, &assembled.k_mu, crate::petsc::NonzeroPattern::Same)?;
-        operator.axpy(
-            shift,
-            &assembled.mass_unit,
-            crate::petsc::NonzeroPattern::Subset,
-        )?;
+        operator.axpy(b, k_mu, crate::petsc::NonzeroPattern::Same)?;
+        operator.axpy(shift, mass, crate::petsc::NonzeroPattern::Subset)?;
         operator.set_symmetric()?;
         let solver = crate::petsc::MumpsCholesky::factor(
             petsc,
@@ -466,8 +573,11 @@ impl<'p> PoissonBasis<'p> {
         });
         let mut rigid: Vec<Vector<'p>> = Vec::with_capacity(6);
         let mut rigid_mass: Vec<Vector<'p>> = Vec::with_capacity(6);
+        let template = mass.create_vector()?;
+        let (lo, hi) = template.ownership_range()?;
         for motion in 0..6 {
-            let mut full = vec![0.0; 3 * n];
+            // In the global numbering, every node.
+            let mut numbered = vec![0.0; 3 * n];
             for (i, x) in nodes.iter().enumerate() {
                 let r = [x[0] - centre[0], x[1] - centre[1], x[2] - centre[2]];
                 let u = match motion {
@@ -479,33 +589,39 @@ impl<'p> PoissonBasis<'p> {
                     4 => [r[2], 0.0, -r[0]],
                     _ => [-r[1], r[0], 0.0],
                 };
-                full[3 * i..3 * i + 3].copy_from_slice(&u);
+                for (c, value) in u.into_iter().enumerate() {
+                    numbered[assembled.layout.global_dof(i, c)] = value;
+                }
             }
-            let mut v = self.vectors[0].duplicate()?;
-            v.set_local_values(&assembled.layout.local_part_of(&full))?;
+            let mut v = template.duplicate()?;
+            v.set_local_values(&numbered[lo..hi])?;
             // Modified Gram–Schmidt in the M₁ inner product.
             for (q, mq) in rigid.iter().zip(&rigid_mass) {
                 let c = v.dot(mq)?;
                 v.axpy(-c, q)?;
             }
             let mut mv = v.duplicate()?;
-            assembled.mass_unit.mult(&v, &mut mv)?;
+            mass.mult(&v, &mut mv)?;
             let scale = 1.0 / v.dot(&mv)?.sqrt();
             v.scale(scale)?;
             mv.scale(scale)?;
             rigid.push(v);
             rigid_mass.push(mv);
         }
-        let local_basis = self
-            .vectors
-            .iter()
-            .map(|v| v.local_values())
-            .collect::<Result<_, _>>()?;
+        let local_basis = if sequential.is_some() {
+            Vec::new()
+        } else {
+            self.vectors
+                .iter()
+                .map(|v| v.local_values())
+                .collect::<Result<_, _>>()?
+        };
         Ok(AttachmentSolver {
             solver,
             rigid,
             rigid_mass,
             local_basis,
+            sequential,
         })
     }
 
@@ -517,7 +633,14 @@ impl<'p> PoissonBasis<'p> {
     ) -> Result<DMatrix<f64>, ReducedError> {
         let mut out = DMatrix::zeros(self.probe_dofs.len(), solver.rigid.len());
         for (j, q) in solver.rigid.iter().enumerate() {
-            for (c, x) in q.gather_indices(&self.probe_dofs)?.into_iter().enumerate() {
+            let values = if solver.sequential.is_some() {
+                // Whole on this rank.
+                let all = q.local_values()?;
+                self.probe_dofs.iter().map(|&d| all[d as usize]).collect()
+            } else {
+                q.gather_indices(&self.probe_dofs)?
+            };
+            for (c, x) in values.into_iter().enumerate() {
                 out[(c, j)] = x;
             }
         }
@@ -560,6 +683,106 @@ impl<'p> PoissonBasis<'p> {
         groups: &[Vec<Vec<(PetscInt, f64)>>],
         blocks: usize,
     ) -> Result<Vec<AttachmentProjections>, ReducedError> {
+        if solver.sequential.is_some() && petsc.size() > 1 {
+            return self.attachments_shared(petsc, assembled, solver, groups, blocks);
+        }
+        self.attachments_chunked(petsc, assembled, solver, groups, blocks)
+    }
+
+    /// The redundant placement's sharing (module docs, "Attachment solves on many ranks"): each
+    /// rank solves a contiguous share of the groups, balanced by columns, on its own copy of the
+    /// problem; the outcome is agreed on and one gather gives every rank every group's
+    /// projections, in order. Collective.
+    fn attachments_shared(
+        &self,
+        petsc: &'p Petsc,
+        assembled: &Assembled<'p>,
+        solver: &AttachmentSolver<'p>,
+        groups: &[Vec<Vec<(PetscInt, f64)>>],
+        blocks: usize,
+    ) -> Result<Vec<AttachmentProjections>, ReducedError> {
+        let (rank, size) = (petsc.rank(), petsc.size());
+        let blocks = blocks.max(1);
+        let nr = self.whitening.ncols();
+        let n_probe = self.probe_dofs.len();
+        let length = |g: &Vec<Vec<(PetscInt, f64)>>| {
+            let na = g.len() * blocks;
+            3 * nr * na + 3 * na * na + n_probe * na
+        };
+        // Share p holds groups[starts[p]..starts[p + 1]]: the first group whose columns reach
+        // p/size of the total starts it.
+        let total: usize = groups.iter().map(|g| g.len()).sum();
+        let mut starts = vec![0usize; size + 1];
+        let mut columns = 0;
+        let mut p = 1;
+        for (i, g) in groups.iter().enumerate() {
+            while p < size && columns * size >= p * total {
+                starts[p] = i;
+                p += 1;
+            }
+            columns += g.len();
+        }
+        while p <= size {
+            starts[p] = groups.len();
+            p += 1;
+        }
+        let mine = &groups[starts[rank]..starts[rank + 1]];
+        let local = self
+            .attachments_chunked(petsc, assembled, solver, mine, blocks)
+            .map(|list| {
+                let mut flat = Vec::with_capacity(mine.iter().map(length).sum());
+                for q in &list {
+                    for m in [
+                        &q.cross_lambda,
+                        &q.cross_mu,
+                        &q.cross_mass,
+                        &q.self_lambda,
+                        &q.self_mu,
+                        &q.self_mass,
+                        &q.probe_values,
+                    ] {
+                        flat.extend_from_slice(m.as_slice());
+                    }
+                }
+                flat
+            })
+            .map_err(|e| e.to_string());
+        let local = collective::agree(petsc, local).map_err(ReducedError::Invalid)?;
+        let counts: Vec<usize> = (0..size)
+            .map(|p| groups[starts[p]..starts[p + 1]].iter().map(length).sum())
+            .collect();
+        let all = collective::all_gather_varcount(petsc, &local, &counts);
+        let mut out = Vec::with_capacity(groups.len());
+        let mut at = 0;
+        for g in groups {
+            let na = g.len() * blocks;
+            let mut take = |rows: usize| {
+                let m = DMatrix::from_column_slice(rows, na, &all[at..at + rows * na]);
+                at += rows * na;
+                m
+            };
+            out.push(AttachmentProjections {
+                cross_lambda: take(nr),
+                cross_mu: take(nr),
+                cross_mass: take(nr),
+                self_lambda: take(na),
+                self_mu: take(na),
+                self_mass: take(na),
+                probe_values: take(n_probe),
+            });
+        }
+        Ok(out)
+    }
+
+    /// The groups chunk by chunk, on this rank's solver as it is placed.
+    fn attachments_chunked(
+        &self,
+        petsc: &'p Petsc,
+        assembled: &Assembled<'p>,
+        solver: &AttachmentSolver<'p>,
+        groups: &[Vec<Vec<(PetscInt, f64)>>],
+        blocks: usize,
+    ) -> Result<Vec<AttachmentProjections>, ReducedError> {
         // Columns per chunk: bounds the dense blocks (local rows × columns × blocks) and the
         // probe values reduced at once; the factor blocks its solve by as many.
         const CHUNK_COLUMNS: usize = crate::petsc::factor::SOLVE_RHS_BLOCK;
@@ -595,9 +818,26 @@ impl<'p> PoissonBasis<'p> {
         blocks: usize,
     ) -> Result<Vec<AttachmentProjections>, ReducedError> {
         let blocks = blocks.max(1);
-        let (lo, hi) = self.vectors[0].ownership_range()?;
-        let n_local = hi - lo;
+        let sequential = solver.sequential.as_deref();
         let n_global = assembled.mass_unit.global_rows()?;
+        // Whole on this rank, or this rank's rows.
+        let (lo, hi) = match sequential {
+            Some(_) => (0, n_global),
+            None => self.vectors[0].ownership_range()?,
+        };
+        let n_local = hi - lo;
+        let (k_lambda, k_mu, mass) = match sequential {
+            Some(s) => (&s.k_lambda, &s.k_mu, &s.mass),
+            None => (&assembled.k_lambda, &assembled.k_mu, &assembled.mass_unit),
+        };
+        let basis_rows: &[Vec<f64>] = match sequential {
+            Some(s) => &s.basis,
+            None => &solver.local_basis,
+        };
+        let dense = |cols: usize| match sequential {
+            Some(_) => Dense::zeros_sequential(petsc, n_global, cols),
+            None => Dense::zeros(petsc, n_local, n_global, cols),
+        };
         let n_rhs: usize = groups.iter().map(|g| g.len()).sum();
         if groups.iter().any(|g| g.is_empty()) {
             return Err(ReducedError::Invalid(
@@ -605,7 +845,12 @@ impl<'p> PoissonBasis<'p> {
             ));
         }
         let world = petsc.world();
+        // The sums over ranks of the distributed placement; a rank holding the whole problem has
+        // nothing to add.
         let sum = |local: &[f64]| -> Vec<f64> {
+            if sequential.is_some() {
+                return local.to_vec();
+            }
             let mut global = vec![0.0; local.len()];
             world.all_reduce_into(local, &mut global[..], SystemOperation::sum());
             global
@@ -621,7 +866,7 @@ impl<'p> PoissonBasis<'p> {
             .map(|v| v.local_values())
             .collect::<Result<_, _>>()?;
         let dot = |x: &[f64], y: &[f64]| x.iter().zip(y).map(|(a, b)| a * b).sum::<f64>();
-        let mut rhs = Dense::zeros(petsc, n_local, n_global, n_rhs)?;
+        let mut rhs = dense(n_rhs)?;
         rhs.with_local(|x| {
             for (col, load) in groups.iter().flatten().enumerate() {
                 for &(dof, value) in load {
@@ -636,7 +881,7 @@ impl<'p> PoissonBasis<'p> {
         let mut solved: Vec<Dense<'p>> = Vec::with_capacity(blocks);
         let mut mass_products: Vec<Vec<f64>> = Vec::with_capacity(blocks);
         for block in 0..blocks {
-            let mut x = Dense::zeros(petsc, n_local, n_global, n_rhs)?;
+            let mut x = dense(n_rhs)?;
             solver.solver.solve_many(&rhs, &mut x)?;
             // The free body's response holds rigid motion at 1/σ: project it out (twice, for
             // rounding), then normalise.
@@ -661,7 +906,7 @@ impl<'p> PoissonBasis<'p> {
                     }
                 })?;
             }
-            let mut mx = Dense::product(&assembled.mass_unit, &x)?;
+            let mut mx = Dense::product(mass, &x)?;
             let mx_local = mx.local_values()?;
             let local_norms = x.with_local(|xs| {
                 (0..n_rhs)
@@ -719,7 +964,7 @@ impl<'p> PoissonBasis<'p> {
             .collect::<Result<_, _>>()?;
         let column = |b: usize, j: usize| &values[b][j * n_local..(j + 1) * n_local];
         let nb = self.vectors.len();
-        let basis = DMatrix::from_fn(n_local, nb, |r, i| solver.local_basis[i][r]);
+        let basis = DMatrix::from_fn(n_local, nb, |r, i| basis_rows[i][r]);
         let basis_t = basis.transpose();
         let self_len: usize = (0..groups.len()).map(|g| members(g).len().pow(2)).sum();
         // K_• x of every column (the mass's are the M x already formed above).
@@ -767,8 +1012,8 @@ impl<'p> PoissonBasis<'p> {
             }
             Ok((cross, own))
         };
-        let (cross_lambda, self_lambda) = project(&products_of(&assembled.k_lambda)?)?;
-        let (cross_mu, self_mu) = project(&products_of(&assembled.k_mu)?)?;
+        let (cross_lambda, self_lambda) = project(&products_of(k_lambda)?)?;
+        let (cross_mu, self_mu) = project(&products_of(k_mu)?)?;
         let (cross_mass, self_mass) = project(&mass_products)?;
         // Probe values: each rank fills the probe DOFs it owns, then one reduction.
         let n_probe = self.probe_dofs.len();

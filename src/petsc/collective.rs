@@ -33,6 +33,32 @@ pub fn all_gather(petsc: &Petsc, local: &[f64]) -> Vec<f64> {
     out
 }
 
+/// Every rank's `local`, concatenated in rank order, on every rank; `counts[p]` is rank p's
+/// length, known to every rank.
+pub fn all_gather_varcount(petsc: &Petsc, local: &[f64], counts: &[usize]) -> Vec<f64> {
+    assert_eq!(counts.len(), petsc.size(), "one count per rank");
+    assert_eq!(local.len(), counts[petsc.rank()], "this rank's count");
+    if petsc.size() == 1 {
+        return local.to_vec();
+    }
+    let total: usize = counts.iter().sum();
+    let mut out = vec![0.0; total];
+    let counts_c: Vec<mpi::Count> = counts.iter().map(|&c| c as mpi::Count).collect();
+    let displs: Vec<mpi::Count> = counts
+        .iter()
+        .scan(0usize, |at, &c| {
+            let d = *at;
+            *at += c;
+            Some(d as mpi::Count)
+        })
+        .collect();
+    let mut partition = mpi::datatype::PartitionMut::new(&mut out[..], counts_c, &displs[..]);
+    petsc
+        .world()
+        .all_gather_varcount_into(local, &mut partition);
+    out
+}
+
 /// Rank 0's result, on every rank. Rank 0 passes `Some(result)`, the others `None` (what they
 /// pass is ignored); `len` is the length of an `Ok` vector, the same on every rank. A rank-0
 /// `Ok` of another length is an error on every rank.

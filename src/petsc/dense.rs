@@ -26,12 +26,29 @@ impl<'p> Dense<'p> {
         global_rows: usize,
         cols: usize,
     ) -> Result<Self> {
+        Self::zeros_on(petsc.comm(), local_rows, global_rows, cols)
+    }
+
+    /// A zero dense matrix of `rows × cols` on this rank alone (`PETSC_COMM_SELF`), for the
+    /// sequential copies of [`Mat::sequential_copy`]. Not collective.
+    pub fn zeros_sequential(_petsc: &'p Petsc, rows: usize, cols: usize) -> Result<Self> {
+        // SAFETY: reads the address of MPI's predefined self communicator.
+        let comm = unsafe { mpi::ffi::RSMPI_COMM_SELF };
+        Self::zeros_on(comm, rows, rows, cols)
+    }
+
+    fn zeros_on(
+        comm: mpi::ffi::MPI_Comm,
+        local_rows: usize,
+        global_rows: usize,
+        cols: usize,
+    ) -> Result<Self> {
         let mut raw: sys::Mat = std::ptr::null_mut();
         // SAFETY: PETSc allocates the storage (null data pointer); the handle is owned here.
         unsafe {
             check(
                 sys::MatCreateDense(
-                    petsc.comm(),
+                    comm,
                     to_petsc_int(local_rows)?,
                     sys::PETSC_DECIDE as _,
                     to_petsc_int(global_rows)?,

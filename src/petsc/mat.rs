@@ -299,6 +299,58 @@ impl<'p> Mat<'p> {
         })
     }
 
+    /// The whole matrix on this rank alone: a sequential AIJ copy (`PETSC_COMM_SELF`, rows and
+    /// columns in the global numbering), made on every rank at once. For work that each rank
+    /// then does on its own, with no communication. Collective.
+    pub fn sequential_copy(&self) -> Result<Mat<'p>> {
+        let (mut m, mut n) = (0, 0);
+        // SAFETY: the index set, the array of submatrices and our extra reference are released on
+        // every path; the copy keeps one reference, owned by the returned value.
+        unsafe {
+            check(sys::MatGetSize(self.raw, &mut m, &mut n), "MatGetSize")?;
+            let mut rows: sys::IS = std::ptr::null_mut();
+            let mut cols: sys::IS = std::ptr::null_mut();
+            check(
+                sys::ISCreateStride(mpi::ffi::RSMPI_COMM_SELF, m, 0, 1, &mut rows),
+                "ISCreateStride",
+            )?;
+            if let Err(e) = check(
+                sys::ISCreateStride(mpi::ffi::RSMPI_COMM_SELF, n, 0, 1, &mut cols),
+                "ISCreateStride",
+            ) {
+                sys::ISDestroy(&mut rows);
+                return Err(e);
+            }
+            let mut subs: *mut sys::Mat = std::ptr::null_mut();
+            let made = check(
+                sys::MatCreateSubMatrices(
+                    self.raw,
+                    1,
+                    &rows,
+                    &cols,
+                    sys::MatReuse_MAT_INITIAL_MATRIX,
+                    &mut subs,
+                ),
+                "MatCreateSubMatrices",
+            );
+            sys::ISDestroy(&mut rows);
+            sys::ISDestroy(&mut cols);
+            made?;
+            let raw = *subs;
+            // Our own reference first, so that destroying PETSc's array leaves the copy alive.
+            let kept = check(
+                sys::PetscObjectReference(raw as sys::PetscObject),
+                "PetscObjectReference",
+            );
+            sys::MatDestroySubMatrices(1, &mut subs);
+            kept?;
+            Ok(Mat {
+                raw,
+                _runtime: PhantomData,
+            })
+        }
+    }
+
     /// `self ← self + a·x`.
     pub fn axpy(&mut self, a: f64, x: &Mat<'p>, pattern: NonzeroPattern) -> Result<()> {
         let structure = match pattern {

@@ -361,9 +361,9 @@ fn line_match_settings(settings: &MaterialFitSettings) -> LoadedMatchSettings {
 /// Collective: the ranks share the search's ν grid ([`Ranks`]) and all end with the same answer.
 /// `plain_split_free` is the plain match's split-free distance ([`plain_split_free_distance`]).
 #[allow(clippy::too_many_arguments)]
-pub(super) fn loaded_match(
-    input: &StageInput<'_, '_>,
-    basis: &PoissonBasis<'_>,
+pub(super) fn loaded_match<'p>(
+    input: &StageInput<'_, 'p>,
+    basis: &PoissonBasis<'p>,
     surface: &[usize],
     strike_petsc_dofs: &[PetscInt],
     problem: &MaterialProblem,
