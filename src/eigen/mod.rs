@@ -492,9 +492,14 @@ pub fn solve_modes_two_level<'p>(
     // UpTo by count ([`UpToMethod::CountThenNearest`]): the eigenvalues below λ_max, rigid ones
     // included, then that many nearest σ. A count with no elastic mode in it is left to slicing.
     let mut count_log = FactorLog::default();
+    // The count's inertia at λ_max, which the proof below reuses instead of factoring the same
+    // K − λ_max M again.
+    let mut count_at_upper: Option<Inertia> = None;
     let by_count = match (interval_upper, path, cfg.up_to) {
         (Some(upper), SolverPath::Direct, UpToMethod::CountThenNearest) => {
-            let below = inertia_below(petsc, k, m, upper, &mut count_log)?.negative;
+            let counted = inertia_below(petsc, k, m, upper, &mut count_log)?;
+            count_at_upper = Some(counted);
+            let below = counted.negative;
             warnings.extend(count_log.retry_notes("inertia matrix K − λ_max M"));
             let elastic_below = below.saturating_sub(cfg.expected_rigid);
             (elastic_below > 0).then(|| {
@@ -659,7 +664,8 @@ pub fn solve_modes_two_level<'p>(
                 residuals: &elastic_scaled,
                 keep,
             };
-            let check = prove_count(petsc, k, m, threshold, &returned)?;
+            let known = count_at_upper.filter(|_| interval_upper == Some(threshold));
+            let check = prove_count(petsc, k, m, threshold, &returned, known)?;
             warnings.extend(check.factor_log.retry_notes("inertia matrix K − τM"));
             match &check.verdict {
                 CountVerdict::Missed => {
@@ -918,13 +924,15 @@ struct Returned<'a> {
 
 /// Counts the eigenvalues below τ twice (at τ and at τ₂ in the widest gap of the returned
 /// spectrum below it) and judges the returned pairs against both counts (module docs of
-/// [`crate::petsc::factor`] for what MUMPS's count guarantees).
+/// [`crate::petsc::factor`] for what MUMPS's count guarantees). `known` is the inertia of
+/// K − τM if the caller already has it (the count of [`UpToMethod::CountThenNearest`]).
 fn prove_count<'p>(
     petsc: &'p Petsc,
     k: &Mat<'p>,
     m: &Mat<'p>,
     tau: f64,
     returned: &Returned<'_>,
+    known: Option<Inertia>,
 ) -> Result<InertiaCheck, EigenError> {
     let t0 = std::time::Instant::now();
     let &Returned {
@@ -943,7 +951,10 @@ fn prove_count<'p>(
                 .count()
     };
     let mut log = FactorLog::default();
-    let first = inertia_below(petsc, k, m, tau, &mut log)?;
+    let first = match known {
+        Some(inertia) => inertia,
+        None => inertia_below(petsc, k, m, tau, &mut log)?,
+    };
     let (found, proven) = (found_below(tau), proven_below(tau));
 
     // τ₂ in the widest relative gap among the kept modes below τ (between the rigid modes and the
