@@ -547,6 +547,34 @@ impl<'p> PoissonBasis<'p> {
             AttachmentPlacement::Distributed => false,
             AttachmentPlacement::Redundant => true,
         };
+        if !redundant {
+            return self.place_attachment_solver(petsc, assembled, nodes, nu, shift, false);
+        }
+        // Every rank's copy agreed on (a rank whose own factor failed must not leave the others
+        // in a collective); where the copies fail, Auto falls back to the distributed factor.
+        let made = self
+            .place_attachment_solver(petsc, assembled, nodes, nu, shift, true)
+            .map_err(|e| e.to_string());
+        match collective::agree(petsc, made) {
+            Ok(solver) => Ok(solver),
+            Err(_) if placement == AttachmentPlacement::Auto => {
+                self.place_attachment_solver(petsc, assembled, nodes, nu, shift, false)
+            }
+            Err(message) => Err(ReducedError::Invalid(format!(
+                "redundant attachment solver: {message}"
+            ))),
+        }
+    }
+
+    fn place_attachment_solver(
+        &self,
+        petsc: &'p Petsc,
+        assembled: &Assembled<'p>,
+        nodes: &[[f64; 3]],
+        nu: f64,
+        shift: f64,
+        redundant: bool,
+    ) -> Result<AttachmentSolver<'p>, ReducedError> {
         let sequential = if redundant {
             Some(self.sequential_operators(assembled)?)
         } else {
