@@ -84,12 +84,12 @@ impl DofLayout {
         }
         Ok(out)
     }
-    /// Takes this rank's owned entries of a vector given in original node order.
-    pub fn local_part_of(&self, original_order: &[f64]) -> Vec<f64> {
-        let mut out = Vec::with_capacity(3 * self.owned_nodes().len());
-        for new in self.owned_nodes() {
-            let old = self.partition.old_of_new[new];
-            out.extend_from_slice(&original_order[3 * old..3 * old + 3]);
+    /// Reorders a full vector from original node order into PETSc order (the inverse of
+    /// [`Self::to_original_order`]); a rank's owned entries are its ownership range of it.
+    pub fn to_petsc_order(&self, original_order: &[f64]) -> Vec<f64> {
+        let mut out = vec![0.0; original_order.len()];
+        for (old, &new) in self.partition.new_of_old.iter().enumerate() {
+            out[3 * new..3 * new + 3].copy_from_slice(&original_order[3 * old..3 * old + 3]);
         }
         out
     }

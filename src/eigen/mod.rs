@@ -114,10 +114,12 @@ pub enum UpToMethod {
     /// Count first, then ask for that many: the inertia of K − λ_max M gives the number of
     /// eigenvalues below λ_max, and shift-invert Krylov–Schur at σ is asked for that many (plus
     /// the usual buffer); the modes above λ_max are dropped and the count is proven at λ_max as
-    /// for slicing. One factorisation fewer than slicing needs on a few dozen modes, and a
-    /// shift-invert factor that may use ScaLAPACK at its root (slicing's may not, since it reads
-    /// inertias): 5.1 s against 7.7 s for the 20 modes of a 37.6k-DOF glass tube on 2 ranks. For the diagnosis's many solves of a few dozen modes; slicing stays the
-    /// default, whose several shifts suit long intervals better.
+    /// for slicing, the proof reusing the count's inertia there. Fewer factorisations than
+    /// slicing needs on a few dozen modes, and a shift-invert factor that may use ScaLAPACK at
+    /// its root (slicing's may not, since it reads inertias): 5.1 s against 7.7 s for the 20
+    /// modes of a 37.6k-DOF glass tube on 2 ranks (measured before the proof reused the count).
+    /// For the diagnosis's many solves of a few dozen modes; slicing stays the default, whose
+    /// several shifts suit long intervals better.
     CountThenNearest,
 }
 
@@ -491,25 +493,25 @@ pub fn solve_modes_two_level<'p>(
         .min(nev_cap);
     // UpTo by count ([`UpToMethod::CountThenNearest`]): the eigenvalues below λ_max, rigid ones
     // included, then that many nearest σ. A count with no elastic mode in it is left to slicing.
-    let mut count_log = FactorLog::default();
-    // The count's inertia at λ_max, which the proof below reuses instead of factoring the same
-    // K − λ_max M again.
-    let mut count_at_upper: Option<Inertia> = None;
-    let by_count = match (interval_upper, path, cfg.up_to) {
+    // The count's inertia at λ_max is also the first count of the proof below, which reuses it
+    // instead of factoring the same K − λ_max M again.
+    let count_at_upper: Option<Inertia> = match (interval_upper, path, cfg.up_to) {
         (Some(upper), SolverPath::Direct, UpToMethod::CountThenNearest) => {
+            let mut count_log = FactorLog::default();
             let counted = inertia_below(petsc, k, m, upper, &mut count_log)?;
-            count_at_upper = Some(counted);
-            let below = counted.negative;
             warnings.extend(count_log.retry_notes("inertia matrix K − λ_max M"));
-            let elastic_below = below.saturating_sub(cfg.expected_rigid);
-            (elastic_below > 0).then(|| {
-                nev =
-                    (below.saturating_sub(deflate.len()) + 4.max(elastic_below / 10)).min(nev_cap);
-                elastic_below
-            })
+            Some(counted)
         }
         _ => None,
     };
+    let by_count = count_at_upper.and_then(|counted| {
+        let below = counted.negative;
+        let elastic_below = below.saturating_sub(cfg.expected_rigid);
+        (elastic_below > 0).then(|| {
+            nev = (below.saturating_sub(deflate.len()) + 4.max(elastic_below / 10)).min(nev_cap);
+            elastic_below
+        })
+    });
     let max_attempts = 3;
     let mut attempt = 0;
     let mut solve_log = FactorLog::default();
@@ -664,8 +666,8 @@ pub fn solve_modes_two_level<'p>(
                 residuals: &elastic_scaled,
                 keep,
             };
-            let known = count_at_upper.filter(|_| interval_upper == Some(threshold));
-            let check = prove_count(petsc, k, m, threshold, &returned, known)?;
+            // On an UpTo request the threshold is λ_max, where the count (if any) was made.
+            let check = prove_count(petsc, k, m, threshold, &returned, count_at_upper)?;
             warnings.extend(check.factor_log.retry_notes("inertia matrix K − τM"));
             match &check.verdict {
                 CountVerdict::Missed => {

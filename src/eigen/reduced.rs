@@ -161,6 +161,18 @@ struct SequentialOperators<'p> {
     basis: Vec<Vec<f64>>,
 }
 
+/// K_λ, K_μ and M₁ as the placement holds them: this rank's sequential copies, or the
+/// distributed matrices.
+fn placed_operators<'a, 'p>(
+    sequential: Option<&'a SequentialOperators<'p>>,
+    assembled: &'a Assembled<'p>,
+) -> (&'a Mat<'p>, &'a Mat<'p>, &'a Mat<'p>) {
+    match sequential {
+        Some(s) => (&s.k_lambda, &s.k_mu, &s.mass),
+        None => (&assembled.k_lambda, &assembled.k_mu, &assembled.mass_unit),
+    }
+}
+
 /// The factored operator a(ν)K_λ + b(ν)K_μ + σM₁ and the M₁-orthonormal rigid-body motions,
 /// for [`PoissonBasis::attachments`].
 pub struct AttachmentSolver<'p> {
@@ -580,10 +592,7 @@ impl<'p> PoissonBasis<'p> {
         } else {
             None
         };
-        let (k_lambda, k_mu, mass) = match &sequential {
-            Some(s) => (&s.k_lambda, &s.k_mu, &s.mass),
-            None => (&assembled.k_lambda, &assembled.k_mu, &assembled.mass_unit),
-        };
+        let (k_lambda, k_mu, mass) = placed_operators(sequential.as_deref(), assembled);
         let (a, b) = lame_unit(nu);
         let mut operator = k_lambda.duplicate()?;
         operator.scale(a)?;
@@ -610,8 +619,7 @@ impl<'p> PoissonBasis<'p> {
         let template = mass.create_vector()?;
         let (lo, hi) = template.ownership_range()?;
         for motion in 0..6 {
-            // In the global numbering, every node.
-            let mut numbered = vec![0.0; 3 * n];
+            let mut full = vec![0.0; 3 * n];
             for (i, x) in nodes.iter().enumerate() {
                 let r = [x[0] - centre[0], x[1] - centre[1], x[2] - centre[2]];
                 let u = match motion {
@@ -623,12 +631,11 @@ impl<'p> PoissonBasis<'p> {
                     4 => [r[2], 0.0, -r[0]],
                     _ => [-r[1], r[0], 0.0],
                 };
-                for (c, value) in u.into_iter().enumerate() {
-                    numbered[assembled.layout.global_dof(i, c)] = value;
-                }
+                full[3 * i..3 * i + 3].copy_from_slice(&u);
             }
+            // This rank's rows of it in PETSc order: every row when the problem is whole here.
             let mut v = template.duplicate()?;
-            v.set_local_values(&numbered[lo..hi])?;
+            v.set_local_values(&assembled.layout.to_petsc_order(&full)[lo..hi])?;
             // Modified Gram–Schmidt in the M₁ inner product.
             for (q, mq) in rigid.iter().zip(&rigid_mass) {
                 let c = v.dot(mq)?;
@@ -860,10 +867,7 @@ impl<'p> PoissonBasis<'p> {
             None => self.vectors[0].ownership_range()?,
         };
         let n_local = hi - lo;
-        let (k_lambda, k_mu, mass) = match sequential {
-            Some(s) => (&s.k_lambda, &s.k_mu, &s.mass),
-            None => (&assembled.k_lambda, &assembled.k_mu, &assembled.mass_unit),
-        };
+        let (k_lambda, k_mu, mass) = placed_operators(sequential, assembled);
         let basis_rows: &[Vec<f64>] = match sequential {
             Some(s) => &s.basis,
             None => &solver.local_basis,
