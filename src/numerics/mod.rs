@@ -7,8 +7,9 @@
 //! curve's Rayleigh fit, the extraction's variable projection and its glide stage, and the
 //! catalogue's bounded fit, each with its own damping and stopping settings), and the
 //! eigenvalues of a symmetric matrix with one vector's weight on each eigenvector
-//! ([`spectral_weights`]).
+//! ([`spectral_weights`]), and the DFT at a band of bins by decimation ([`band_dft`]).
 
+pub mod band_dft;
 pub mod lm;
 pub mod spectral_weights;
 
