@@ -22,5 +22,11 @@ if [ -z "${OPENBLAS_CORETYPE:-}" ] && [ -r /proc/cpuinfo ]; then
   unset -f _ds_has
   unset _ds_flags
 fi
+# - No binding of each rank to one core: Open MPI binds 2 ranks to a core each by default, and
+#   a rank's threads (the glide stage's hypotheses, the catalogue's pole readings) then share
+#   that core while the other rank sleeps (`collective::quiet_barrier`). Unbound, a plate in a
+#   room (generator 2, seed 439 case 006) took 131 s instead of 143 (fit microphones' extraction
+#   74 s instead of 84–89). A value already set is kept.
+export OMPI_MCA_hwloc_base_binding_policy="${OMPI_MCA_hwloc_base_binding_policy:-none}"
 # Quiet OpenMPI's complaints about missing high-speed interconnects on a plain machine.
 export OMPI_MCA_btl="${OMPI_MCA_btl:-self,vader}"

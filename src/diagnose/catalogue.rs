@@ -828,6 +828,12 @@ pub struct CatalogueSettings {
     /// level's spread is known to be"; [`model::LEVEL_PRIOR_ROWS`]). 0: the floors are
     /// profiled from the table alone.
     pub level_prior_rows: f64,
+    /// Threads that cost one round's pole readings at once (the choice of each partial's
+    /// poles, matching step 6: a baseline fit per reading, most of the catalogue's time on a
+    /// recording of many modes); none: one. The answer does not depend on it. Unset, the
+    /// `diagnose` job sets its ranks' count (at most the cores here): the catalogue runs on
+    /// rank 0 while the other ranks sleep.
+    pub threads: Option<usize>,
 }
 
 impl Default for CatalogueSettings {
@@ -852,6 +858,7 @@ impl Default for CatalogueSettings {
             faint_pole_db: DEFAULT_FAINT_POLE_DB,
             max_amplitude_tilt: model::DEFAULT_TILT_BOUND,
             level_prior_rows: model::LEVEL_PRIOR_ROWS,
+            threads: None,
         }
     }
 }

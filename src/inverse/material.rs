@@ -39,6 +39,8 @@
 //! Ritz values; the fits build their basis from well-spread samples and check the answer
 //! against a full solve instead.
 
+use std::cell::RefCell;
+
 use crate::audio::chain::{ChainError, DampingModel, ModalChain, Strike};
 use crate::audio::loss::{
     HybridSchedule, LossError, LossPhase, MultiScaleSpectralLoss, PeakTransportConfig,
@@ -415,6 +417,11 @@ pub(crate) const AUDIBLE_FRACTION: f64 = 1e-3;
 pub(crate) struct LinePattern {
     u: Vec<f64>,
     weight: Vec<f64>,
+    /// The audible partials last asked for by [`line_distance`], keyed by how many partials
+    /// lie under the ceiling and the audible fraction's bits: they depend on the shift only
+    /// through that count, and a scan asks for the same set at hundreds of shifts (the loaded
+    /// match's 221 per pattern, the line match's thousands per ν).
+    heard_memo: RefCell<Option<(usize, u64, Vec<f64>)>>,
 }
 
 impl LinePattern {
@@ -429,13 +436,24 @@ impl LinePattern {
         LinePattern {
             u: kept.iter().map(|p| p.0).collect(),
             weight: kept.iter().map(|p| p.1).collect(),
+            heard_memo: RefCell::default(),
         }
     }
 
+    /// How many partials lie at or below `ceiling` (ln Hz) at `shift`.
+    fn in_band(&self, shift: f64, ceiling: f64) -> usize {
+        self.u.partition_point(|x| x + shift <= ceiling)
+    }
+
     /// u of the partials the recording should hold at `shift`: at or below `ceiling` (ln Hz)
-    /// and at least `audible` × the loudest of those.
+    /// and at least `audible` × the loudest of those ([`line_distance`] remembers them).
+    #[cfg(test)]
     pub(crate) fn heard(&self, shift: f64, ceiling: f64, audible: f64) -> Vec<f64> {
-        let in_band = self.u.partition_point(|x| x + shift <= ceiling);
+        self.heard_below(self.in_band(shift, ceiling), audible)
+    }
+
+    /// The same for the first `in_band` partials.
+    fn heard_below(&self, in_band: usize, audible: f64) -> Vec<f64> {
         let loudest = self.weight[..in_band]
             .iter()
             .fold(0.0_f64, |m, w| m.max(*w));
@@ -458,8 +476,18 @@ pub(crate) fn line_distance(
     cap: f64,
     audible: f64,
 ) -> f64 {
-    let heard = pattern.heard(shift, ceiling, audible);
-    capped_nearest(target, &pattern.u, shift, cap) + capped_nearest(&heard, target, -shift, cap)
+    let in_band = pattern.in_band(shift, ceiling);
+    let mut memo = pattern.heard_memo.borrow_mut();
+    let key = (in_band, audible.to_bits());
+    let heard = match &mut *memo {
+        Some((n, a, heard)) if (*n, *a) == key => heard,
+        slot => {
+            &mut slot
+                .insert((key.0, key.1, pattern.heard_below(in_band, audible)))
+                .2
+        }
+    };
+    capped_nearest(target, &pattern.u, shift, cap) + capped_nearest(heard, target, -shift, cap)
 }
 
 /// The coarse ν step of [`line_spectrum_start`]'s grid (the loaded match's split-free search
@@ -899,6 +927,44 @@ fn fit_from<'p>(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn the_remembered_audible_partials_give_the_distance_of_a_fresh_pattern() {
+        // Partials (θ, weight) whose band edge crosses several of them over the scan, one of
+        // them too quiet to be required: the memo must follow the edge both ways and the
+        // audible fraction.
+        let partials: Vec<(f64, f64)> = [
+            (1000.0, 1.0),
+            (1510.0, 0.5),
+            (2300.0, 1e-4),
+            (3100.0, 2.0),
+            (4700.0, 0.8),
+            (6900.0, 5.0),
+        ]
+        .iter()
+        .map(|&(f, w): &(f64, f64)| (f * f, w))
+        .collect();
+        let target: Vec<f64> = [1003.0, 1500.0, 3120.0, 4650.0]
+            .iter()
+            .map(|f: &f64| f.ln())
+            .collect();
+        let ceiling = 4800.0_f64.ln();
+        let remembered = LinePattern::new(partials.iter().copied());
+        let shifts = (0..400)
+            .map(|i| -0.6 + 0.003 * i as f64)
+            .chain((0..400).map(|i| 0.6 - 0.003 * i as f64));
+        for (i, c) in shifts.enumerate() {
+            let audible = if i % 7 == 0 { 0.3 } else { AUDIBLE_FRACTION };
+            let fresh = LinePattern::new(partials.iter().copied());
+            let a = line_distance(&target, &remembered, c, ceiling, 0.02, audible);
+            let b = line_distance(&target, &fresh, c, ceiling, 0.02, audible);
+            assert_eq!(
+                a.to_bits(),
+                b.to_bits(),
+                "shift {c}, audible {audible}: {a} vs {b}"
+            );
+        }
+    }
 
     #[test]
     fn capped_nearest_measures_shifted_lines() {

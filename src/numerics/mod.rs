@@ -7,11 +7,69 @@
 //! curve's Rayleigh fit, the extraction's variable projection and its glide stage, and the
 //! catalogue's bounded fit, each with its own damping and stopping settings), and the
 //! eigenvalues of a symmetric matrix with one vector's weight on each eigenvector
-//! ([`spectral_weights`]), and the DFT at a band of bins by decimation ([`band_dft`]).
+//! ([`spectral_weights`]), the DFT at a band of bins by decimation ([`band_dft`]), and a map over items on scoped
+//! threads whose result does not depend on their count ([`map_on_threads`]).
 
 pub mod band_dft;
 pub mod lm;
 pub mod spectral_weights;
+
+/// `f` of each item, results in the items' order, on up to `threads` scoped threads that take
+/// the next item as they finish one (the items' costs differ: a fit may take ten times
+/// another's); one thread, or one item, runs here. The result does not depend on `threads`.
+pub fn map_on_threads<T: Sync, R: Send>(
+    items: &[T],
+    threads: usize,
+    f: impl Fn(&T) -> R + Sync,
+) -> Vec<R> {
+    let threads = threads.clamp(1, items.len().max(1));
+    if threads == 1 {
+        return items.iter().map(&f).collect();
+    }
+    let next = std::sync::atomic::AtomicUsize::new(0);
+    let (f, next) = (&f, &next);
+    let mut done: Vec<(usize, R)> = std::thread::scope(|scope| {
+        let handles: Vec<_> = (0..threads)
+            .map(|_| {
+                scope.spawn(move || {
+                    let mut mine = Vec::new();
+                    loop {
+                        let i = next.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+                        let Some(item) = items.get(i) else {
+                            return mine;
+                        };
+                        mine.push((i, f(item)));
+                    }
+                })
+            })
+            .collect();
+        handles
+            .into_iter()
+            .flat_map(|h| h.join().expect("a worker thread panicked"))
+            .collect()
+    });
+    done.sort_by_key(|(i, _)| *i);
+    done.into_iter().map(|(_, r)| r).collect()
+}
+
+#[cfg(test)]
+mod map_tests {
+    #[test]
+    fn the_map_on_threads_keeps_the_order_whatever_the_count() {
+        let items: Vec<u64> = (0..37).collect();
+        // Uneven work: item i spins i² steps.
+        let f = |&i: &u64| (0..i * i).fold(i, |a, b| a.wrapping_mul(31).wrapping_add(b));
+        let one = super::map_on_threads(&items, 1, f);
+        for threads in [0, 2, 3, 8, 100] {
+            assert_eq!(
+                super::map_on_threads(&items, threads, f),
+                one,
+                "{threads} threads"
+            );
+        }
+        assert!(super::map_on_threads(&[] as &[u64], 4, f).is_empty());
+    }
+}
 
 /// a − b.
 pub fn sub(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {

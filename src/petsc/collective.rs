@@ -15,6 +15,25 @@ use super::Petsc;
 use mpi::collective::SystemOperation;
 use mpi::traits::{Communicator, CommunicatorCollectives, Root};
 
+/// A barrier that waits asleep: the request is tested every millisecond instead of being
+/// waited on (Open MPI's blocking calls poll, holding a core at 100 % while one rank works
+/// alone, e.g. rank 0's catalogue, which then runs threads on those cores).
+pub fn quiet_barrier(petsc: &Petsc) {
+    if petsc.size() == 1 {
+        return;
+    }
+    let mut request = petsc.world().immediate_barrier();
+    loop {
+        match request.test() {
+            Ok(_) => return,
+            Err(pending) => {
+                request = pending;
+                std::thread::sleep(std::time::Duration::from_millis(1));
+            }
+        }
+    }
+}
+
 /// Broadcasts `data` from rank 0 in place (every rank passes a slice of the same length).
 pub fn broadcast_slice(petsc: &Petsc, data: &mut [f64]) {
     if petsc.size() > 1 {

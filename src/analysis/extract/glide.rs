@@ -186,6 +186,7 @@ use crate::analysis::mode::{
 };
 use crate::numerics::band_dft::BandDft;
 use crate::numerics::lm::{self, symmetric_inverse};
+use crate::numerics::map_on_threads;
 
 /// Singular values of B below this fraction of the largest are dropped.
 const SVD_CUTOFF: f64 = 1e-12;
@@ -236,6 +237,10 @@ pub struct GlideOptions {
     /// "Groups"); default none. The diagnosis sets its own highest frequency here when the
     /// configuration does not: modes above it are never diagnosed.
     pub max_frequency_hz: Option<f64>,
+    /// Threads that fit a group's hypotheses at once; none: one. The answer does not depend
+    /// on it. Unset, the `diagnose` job sets its ranks' count (at most the cores here): each
+    /// microphone set is extracted on its own rank, and the rank that finishes first sleeps.
+    pub threads: Option<usize>,
 }
 
 impl Default for GlideOptions {
@@ -252,6 +257,7 @@ impl Default for GlideOptions {
             bic_margin: 0.0,
             min_glide_z: 3.0,
             max_frequency_hz: None,
+            threads: None,
         }
     }
 }
@@ -359,13 +365,25 @@ struct Spectra {
     fft: Arc<dyn Fft<f64>>,
     n: usize,
     sample_rate: f64,
-    /// The sampled path's rows and the FFT's scratch, kept between evaluations: a group's fits
-    /// take hundreds, and fresh zeroed buffers of N samples for each were a few per cent of
-    /// the stage's time.
-    work: RefCell<(Vec<Vec<C64>>, Vec<C64>)>,
-    /// The band's transform by decimation ([`BandDft`]) when it beats the whole FFT, with its
-    /// work buffer; the sampled rows then go through it instead of `fft`.
-    band: Option<(BandDft, RefCell<Vec<C64>>)>,
+    /// The band's transform by decimation ([`BandDft`]) when it beats the whole FFT; the
+    /// sampled rows then go through it instead of `fft`.
+    band: Option<BandDft>,
+}
+
+/// The buffers of [`Spectra::transforms`]: the sampled path's rows, the FFT's scratch and the
+/// band transform's work.
+#[derive(Default)]
+struct SpectraWork {
+    rows: Vec<Vec<C64>>,
+    scratch: Vec<C64>,
+    band: Vec<C64>,
+}
+
+thread_local! {
+    /// Each thread's [`SpectraWork`], kept between evaluations: a group's fits take hundreds,
+    /// and fresh zeroed buffers of N samples for each were a few per cent of the stage's time.
+    /// Per thread, so that the hypotheses of a group can be fitted on several at once.
+    static SPECTRA_WORK: RefCell<SpectraWork> = RefCell::new(SpectraWork::default());
 }
 
 /// Samples between exact re-evaluations of the recurrences in [`Spectra::transforms`]: their
@@ -425,7 +443,6 @@ impl Spectra {
             fft,
             n,
             sample_rate,
-            work: RefCell::new((Vec::new(), Vec::new())),
             band: None,
         }
     }
@@ -433,7 +450,7 @@ impl Spectra {
     /// The same, with the sampled rows transformed at `bins` alone by decimation when that is
     /// cheaper ([`BandDft::plan`]); [`Spectra::transforms`] must then be asked for `bins`.
     fn with_band(mut self, planner: &mut FftPlanner<f64>, bins: &[usize]) -> Spectra {
-        self.band = BandDft::plan(planner, self.n, bins).map(|b| (b, RefCell::new(Vec::new())));
+        self.band = BandDft::plan(planner, self.n, bins);
         self
     }
 
@@ -443,40 +460,44 @@ impl Spectra {
         if comp.g == 0.0 && self.n as f64 * comp.d / self.sample_rate >= CLOSED_FORM_MIN_DECAY {
             return self.closed_form(comp, derivatives, bins);
         }
-        let mut work = self.work.borrow_mut();
-        let (rows, scratch) = &mut *work;
-        self.sample(comp, derivatives, rows);
-        scratch.resize(self.fft.get_inplace_scratch_len(), C64::new(0.0, 0.0));
-        let n = self.n;
-        let scale = 1.0 / (n as f64).sqrt();
-        if let Some((band, band_work)) = &self.band {
-            debug_assert_eq!(
-                band.bins(),
-                bins,
-                "Spectra: asked for other bins than planned"
-            );
-            let band_work = &mut *band_work.borrow_mut();
-            return rows
-                .iter()
+        SPECTRA_WORK.with(|work| {
+            let SpectraWork {
+                rows,
+                scratch,
+                band: band_work,
+            } = &mut *work.borrow_mut();
+            self.sample(comp, derivatives, rows);
+            scratch.resize(self.fft.get_inplace_scratch_len(), C64::new(0.0, 0.0));
+            let n = self.n;
+            let scale = 1.0 / (n as f64).sqrt();
+            if let Some(band) = &self.band {
+                debug_assert_eq!(
+                    band.bins(),
+                    bins,
+                    "Spectra: asked for other bins than planned"
+                );
+                return rows
+                    .iter()
+                    .map(|v| {
+                        let mut out = Vec::with_capacity(bins.len());
+                        band.transform(v, band_work, scratch, &mut out);
+                        out.iter_mut().for_each(|(a, b)| {
+                            *a *= scale;
+                            *b *= scale;
+                        });
+                        out
+                    })
+                    .collect();
+            }
+            rows.iter_mut()
                 .map(|v| {
-                    let mut out = Vec::with_capacity(bins.len());
-                    band.transform(v, band_work, scratch, &mut out);
-                    out.iter_mut().for_each(|(a, b)| {
-                        *a *= scale;
-                        *b *= scale;
-                    });
-                    out
+                    self.fft.process_with_scratch(v, scratch);
+                    bins.iter()
+                        .map(|&k| (v[k] * scale, v[(n - k) % n] * scale))
+                        .collect()
                 })
-                .collect();
-        }
-        rows.iter_mut()
-            .map(|v| {
-                self.fft.process_with_scratch(v, scratch);
-                bins.iter()
-                    .map(|&k| (v[k] * scale, v[(n - k) % n] * scale))
-                    .collect()
-            })
-            .collect()
+                .collect()
+        })
     }
 
     /// The transforms of a constant component (g = 0) in closed form, O(bins) instead of an
@@ -1295,26 +1316,43 @@ pub fn fit_glides(
         // K' = 1 first; its glide then also starts the K' ≥ 2 hypotheses (every component at ĝ):
         // the glide at the onset can exceed the spacing of a near-degenerate pair many times
         // over, and from g = 0 each component is caught by the wrong pole.
+        // The fits of each phase are independent and run on `threads` threads; they are
+        // collected in order, so the answer does not depend on the count. The constant poles'
+        // fit runs with the first phase.
+        let threads = options.threads.unwrap_or(1);
+        let fit = |start: &Vec<Component>| problem.fit(start, &noise_var, options);
         let single = if members.len() > 1 { 3 } else { 1 };
-        let mut fits: Vec<(usize, BandFitResult)> = hypotheses[..single]
-            .iter()
+        let mut first: Vec<Vec<Component>> = hypotheses[..single].to_vec();
+        first.push(constant.clone());
+        let mut first = map_on_threads(&first, threads, fit);
+        let const_fit = first.pop().expect("the constant poles' slot");
+        let mut fits: Vec<(usize, BandFitResult)> = first
+            .into_iter()
             .enumerate()
-            .filter_map(|(h, start)| problem.fit(start, &noise_var, options).map(|f| (h, f)))
+            .filter_map(|(h, f)| f.map(|f| (h, f)))
             .collect();
         let g1 = fits
             .iter()
             .min_by(|a, b| a.1.bic.total_cmp(&b.1.bic))
             .map(|f| f.1.comps[0].g);
-        for (h, start) in hypotheses.iter().enumerate().skip(single) {
-            let mut tries = vec![start.clone()];
-            if let Some(g) = g1 {
-                tries.push(start.iter().map(|c| Component { g, ..*c }).collect());
-            }
-            if let Some(best) = tries
-                .iter()
-                .filter_map(|t| problem.fit(t, &noise_var, options))
-                .min_by(|a, b| a.bic.total_cmp(&b.bic))
-            {
+        // Each further hypothesis from its poles and, with the single glide's ĝ, from that.
+        let tries: Vec<(usize, Vec<Component>)> = hypotheses
+            .iter()
+            .enumerate()
+            .skip(single)
+            .flat_map(|(h, start)| {
+                let glided = g1.map(|g| (h, start.iter().map(|c| Component { g, ..*c }).collect()));
+                std::iter::once((h, start.clone())).chain(glided)
+            })
+            .collect();
+        let mut tried = map_on_threads(&tries, threads, |(_, start)| fit(start));
+        for h in single..hypotheses.len() {
+            // The first of the least BIC among the hypothesis's tries, as they were listed.
+            let bic = |i: usize| tried[i].as_ref().map_or(f64::NAN, |f| f.bic);
+            let best = (0..tries.len())
+                .filter(|&i| tries[i].0 == h && tried[i].is_some())
+                .min_by(|&a, &b| bic(a).total_cmp(&bic(b)));
+            if let Some(best) = best.and_then(|i| tried[i].take()) {
                 fits.push((h, best));
             }
         }
@@ -1346,20 +1384,31 @@ pub fn fit_glides(
                     .flat_map(|c| [-bin_hz, bin_hz].map(|df| Component { f: c.f + df, ..*c }));
                 // Ranked by their weighted cost as started (one evaluation each), the
                 // [`FORWARD_STARTS`] best are fitted: a fit costs tens of evaluations.
-                let mut starts: Vec<(f64, Vec<Component>)> = at_poles
+                let candidates: Vec<Vec<Component>> = at_poles
                     .chain(beside)
                     .map(|new| {
                         let mut start = comps.clone();
                         start.push(new);
                         start
                     })
-                    .filter_map(|start| Some((problem.start_cost(&start, &noise_var)?, start)))
+                    .collect();
+                let costs = map_on_threads(&candidates, threads, |start| {
+                    problem.start_cost(start, &noise_var)
+                });
+                let mut starts: Vec<(f64, Vec<Component>)> = costs
+                    .into_iter()
+                    .zip(candidates)
+                    .filter_map(|(c, start)| Some((c?, start)))
                     .collect();
                 starts.sort_by(|a, b| a.0.total_cmp(&b.0));
-                let step = starts
-                    .iter()
+                let best_starts: Vec<Vec<Component>> = starts
+                    .into_iter()
                     .take(FORWARD_STARTS)
-                    .filter_map(|(_, start)| problem.fit(start, &noise_var, options))
+                    .map(|(_, start)| start)
+                    .collect();
+                let step = map_on_threads(&best_starts, threads, fit)
+                    .into_iter()
+                    .flatten()
                     .min_by(|a, b| a.bic.total_cmp(&b.bic));
                 if let Some(next) = step.filter(|f| f.bic < bic) {
                     current = Some((next.comps.clone(), next.bic));
@@ -1367,7 +1416,6 @@ pub fn fit_glides(
                 }
             }
         }
-        let const_fit = problem.fit(&constant, &noise_var, options);
         let Some(const_fit) = const_fit else {
             out_modes.extend(members.into_iter().cloned());
             continue;

@@ -570,7 +570,7 @@ fn choose_partial_poles(
     side: PoleChoice,
     matching: Matching,
     table: ModeTable,
-    cost: impl Fn(&ModeTable) -> f64,
+    cost: impl Fn(&ModeTable) -> f64 + Sync,
 ) -> (Matching, ModeTable) {
     let ln_f: Vec<f64> = side.observed.iter().map(|m| undamped_hz(m).ln()).collect();
     let counted = counted_rows(&table);
@@ -592,25 +592,46 @@ fn choose_partial_poles(
     // An end reading's cost with the threshold charged for each exchange that reached it.
     let mut best_end: Option<Reading> = None;
     let rounds = beam[0].1.units.len();
+    let cost_of = |m: &Matching| {
+        let t = build(m);
+        if counted_rows(&t) == counted {
+            cost(&t)
+        } else {
+            f64::INFINITY
+        }
+    };
     for depth in 0..rounds {
+        // Every reading this round meets for the first time, in the order the loop below
+        // meets them, costed at once (on `threads` threads; each cost is a baseline fit).
+        let round: Vec<Vec<Matching>> = beam
+            .iter()
+            .map(|(_, matching, _)| exchanges(&side, &ln_f, matching))
+            .collect();
+        let mut fresh: Vec<&Matching> = Vec::new();
+        for m in round.iter().flatten() {
+            if !seen.iter().any(|s| &s.0 == m) && !fresh.contains(&m) {
+                fresh.push(m);
+            }
+        }
+        let costs =
+            crate::numerics::map_on_threads(&fresh, side.settings.threads.unwrap_or(1), |m| {
+                cost_of(m)
+            });
+        seen.extend(
+            fresh
+                .into_iter()
+                .zip(costs)
+                .map(|(m, c)| (m.clone(), c, false)),
+        );
         // The next round's readings, as indices into `seen`.
         let mut next: Vec<usize> = Vec::new();
-        for (current, matching, table) in beam {
+        for ((current, matching, table), exchanged) in beam.into_iter().zip(round) {
             let mut improved = false;
-            for m in exchanges(&side, &ln_f, &matching) {
-                let k = match seen.iter().position(|s| s.0 == m) {
-                    Some(k) => k,
-                    None => {
-                        let t = build(&m);
-                        let c = if counted_rows(&t) == counted {
-                            cost(&t)
-                        } else {
-                            f64::INFINITY
-                        };
-                        seen.push((m, c, false));
-                        seen.len() - 1
-                    }
-                };
+            for m in exchanged {
+                let k = seen
+                    .iter()
+                    .position(|s| s.0 == m)
+                    .expect("every exchange of the round was costed above");
                 if seen[k].1 < current - threshold {
                     improved = true;
                     if !seen[k].2 && !next.contains(&k) {

@@ -869,6 +869,40 @@ fn extra_poles_change_no_decision_on_clean_evidence() {
 }
 
 #[test]
+fn the_pole_readings_cost_on_threads_give_the_same_report() {
+    // Extra poles beside three clusters' modes give the pole choice (matching step 6) readings
+    // to cost in each round; on one thread or three the report must be the same, to the bit.
+    let (mut ev, _) = evidence(&Truth::default(), 5);
+    for (k, factor, level) in [
+        (3, 1.004, 0.3),
+        (5, 0.996, 0.1),
+        (5, 1.006, 0.5),
+        (7, 0.995, 0.4),
+    ] {
+        let mut extra = ev.fit[k].clone();
+        extra.frequency_hz *= factor;
+        extra.amplitudes.iter_mut().for_each(|a| *a *= level);
+        extra.sigma_amplitudes.iter_mut().for_each(|a| *a *= level);
+        ev.fit.push(extra);
+    }
+    let one = diagnose(&ev, &CatalogueSettings::default()).expect("valid");
+    assert!(
+        !one.matching.extra_poles.is_empty(),
+        "the pole choice had no reading to weigh: {:#?}",
+        one.matching
+    );
+    let three = diagnose(
+        &ev,
+        &CatalogueSettings {
+            threads: Some(3),
+            ..CatalogueSettings::default()
+        },
+    )
+    .expect("valid");
+    assert_eq!(format!("{one:?}"), format!("{three:?}"));
+}
+
+#[test]
 fn a_pair_split_as_the_mesh_splits_it_stands_for_its_own_members() {
     // Cluster 1: members at 1000 and 1002 Hz (split 2·10⁻³) with unlike drives and transfers.
     let mut simulated = vec![

@@ -345,7 +345,10 @@ type PassOutcome = (
 fn measure_collective(petsc: &Petsc, job: &Job, progress: &Progress) -> Result<Measured, Error> {
     let rank = petsc.rank();
     let held_on_rank_1 = petsc.size() > 1 && !job.held_channels.is_empty();
+    // Each wait below is asleep (`quiet_barrier`): the working rank's glide stage runs threads
+    // on the waiting rank's core.
     let receive_held = || -> measure::HeldExtraction {
+        crate::petsc::collective::quiet_barrier(petsc);
         crate::workflow::broadcast_from(petsc, 1, None::<measure::HeldExtraction>)?
     };
     let local = if rank == 0 {
@@ -358,10 +361,12 @@ fn measure_collective(petsc: &Petsc, job: &Job, progress: &Progress) -> Result<M
         if held_on_rank_1 {
             let mine = (rank == 1).then(|| measure::extract_held(job));
             // Every rank takes part in the broadcast; only rank 0 uses it.
+            crate::petsc::collective::quiet_barrier(petsc);
             let _ = crate::workflow::broadcast_from(petsc, 1, mine);
         }
         None
     };
+    crate::petsc::collective::quiet_barrier(petsc);
     broadcast_from_root(petsc, local)
         .map_err(Error::Broadcast)?
         .map_err(Error::Recording)
@@ -370,6 +375,16 @@ fn measure_collective(petsc: &Petsc, job: &Job, progress: &Progress) -> Result<M
 /// Runs the diagnosis (module docs, stages 0–5). Collective: every rank calls it; the report is
 /// on rank 0 (`None` elsewhere). Unhealthy microphones are left out with a warning on stderr.
 pub fn run(petsc: &Petsc, job: &Job, progress: &Progress) -> Result<Option<Outcome>, Error> {
+    // The catalogue's threads on rank 0: one per rank (the others sleep meanwhile, see
+    // `quiet_barrier` below), at most the cores this process may use.
+    let catalogue_threads = petsc
+        .size()
+        .min(std::thread::available_parallelism().map_or(1, |n| n.get()));
+    // The glide stage's too: the rank that finishes its microphone set first sleeps
+    // (`measure_collective`), and the other's threads take its core.
+    let mut threaded = job.clone();
+    threaded.glide.threads = threaded.glide.threads.or(Some(catalogue_threads));
+    let job = &threaded;
     let total = Instant::now();
     let rank = petsc.rank();
     let (mesh_model, _) = model_mesh(
@@ -626,6 +641,7 @@ pub fn run(petsc: &Petsc, job: &Job, progress: &Progress) -> Result<Option<Outco
                 }
                 let mut evidence = Evidence { fit: measured.fit.clone(), held_out: (!measured.held_out.is_empty()).then(|| measured.held_out.clone()), simulated, residual_envelopes: measured.envelopes.clone(), split_sites: Some(feats.split_sites.clone()) };
                 let mut first_settings = job.catalogue.clone();
+                first_settings.threads = first_settings.threads.or(Some(catalogue_threads));
                 if carried.is_some() || loaded_site.is_some() {
                     // The site was chosen from the same data: a 2-D location.
                     first_settings.mass_region_search_params = 2;
@@ -667,6 +683,9 @@ pub fn run(petsc: &Petsc, job: &Job, progress: &Progress) -> Result<Option<Outco
                 Ok((report, localised, feats, evidence, final_settings, diagnose_seconds))
             })()
         });
+        // The other ranks wait for rank 0's catalogue asleep, not spinning in the next
+        // collective: their cores run its threads.
+        crate::petsc::collective::quiet_barrier(petsc);
         // Rank 0 keeps each pass's outcome (an error too: every rank must still take part in
         // the next pass's solve) with what writing it needs.
         if let Some(outcome) = outcome {

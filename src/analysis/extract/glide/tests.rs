@@ -554,6 +554,44 @@ fn a_gliding_pair_inside_one_ladder_is_found_from_one_channel() {
     assert!(found >= 12, "both glides found in {found} of 20 draws");
 }
 
+#[test]
+fn the_hypotheses_fitted_on_threads_give_the_same_stage() {
+    // The four-pole ladder of `a_gliding_pair_inside_one_ladder_is_found_from_one_channel`
+    // (every phase of hypotheses and the forward addition run) and a two-pole glide: one
+    // thread or three, the same modes and decisions to the bit.
+    let mut rng = SplitMix64(61);
+    let a = Truth::random(2307.17, 9.96, 9.37e-3, 1, &mut rng);
+    let b = Truth::random(2306.58, 9.95, 2.90e-3, 1, &mut rng);
+    let x = render(&[a, b], 0.01, &mut rng);
+    let ladder = [
+        (2307.39, 10.25, 0.6),
+        (2308.55, 27.8, 0.3),
+        (2309.71, 55.4, 0.2),
+        (2320.28, 102.5, 0.1),
+    ];
+    let mut ex = stand_in(&ladder, 1, 0.02);
+    for (m, snr) in ex.modes.iter_mut().zip([40.0, 30.0, 31.0, 35.0]) {
+        m.snr_db = Some(snr);
+    }
+    let (_, x2, ex2) = glide_split_into_two_poles();
+    for (x, ex) in [(&x, &ex), (&x2, &ex2)] {
+        let one = fit_glides(x, ex, &GlideOptions::default()).unwrap();
+        let three = GlideOptions {
+            threads: Some(3),
+            ..GlideOptions::default()
+        };
+        let three = fit_glides(x, ex, &three).unwrap();
+        assert_eq!(
+            format!("{:?}", one.decisions),
+            format!("{:?}", three.decisions)
+        );
+        assert_eq!(
+            format!("{:?}", one.extraction.modes),
+            format!("{:?}", three.extraction.modes)
+        );
+    }
+}
+
 /// The transforms as defined (module docs), sample by sample with the exact phase and
 /// ∂Φ/∂d, then FFT: the reference for the closed form and the recurrences of
 /// [`Spectra::transforms`].
