@@ -10,6 +10,9 @@
 //!   (0, or the length of rank 0's error message) is broadcast before the numbers or the message.
 //! * [`agree`]: every rank computes its own part; one reduction finds the lowest rank that
 //!   failed, and that rank's message is broadcast to all.
+//!
+//! And one that only waits: [`quiet_barrier`], for ranks idle while one rank works alone on
+//! threads.
 
 use super::Petsc;
 use mpi::collective::SystemOperation;
