@@ -113,16 +113,6 @@ impl BandDft {
         &self.bins
     }
 
-    /// The sequences' length N.
-    pub fn len(&self) -> usize {
-        self.n
-    }
-
-    /// Never: a plan has at least one bin (for clippy's `len_without_is_empty`).
-    pub fn is_empty(&self) -> bool {
-        self.bins.is_empty()
-    }
-
     /// (X[k], X[(N − k) mod N]) for each planned bin k, unscaled, into `out`; `x` has length
     /// N. `work` and `scratch` are reused between calls (their contents are overwritten).
     pub fn transform(
@@ -160,17 +150,12 @@ impl BandDft {
 mod tests {
     use super::*;
 
-    /// A deterministic pseudo-random sequence (SplitMix64).
+    /// A reproducible random sequence, parts uniform in [−½, ½).
     fn sequence(n: usize, seed: u64) -> Vec<C64> {
-        let mut s = seed;
-        let mut next = || {
-            s = s.wrapping_add(0x9E37_79B9_7F4A_7C15);
-            let mut z = s;
-            z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
-            z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
-            ((z ^ (z >> 31)) >> 11) as f64 / (1u64 << 53) as f64 - 0.5
-        };
-        (0..n).map(|_| C64::new(next(), next())).collect()
+        let mut rng = crate::random::SplitMix64::new(seed);
+        (0..n)
+            .map(|_| C64::new(rng.uniform(-0.5, 0.5), rng.uniform(-0.5, 0.5)))
+            .collect()
     }
 
     #[test]
@@ -186,7 +171,7 @@ mod tests {
         ] {
             let bins: Vec<usize> = (lo..=hi).collect();
             let plan = BandDft::plan(&mut planner, n, &bins).expect("a narrow band pays");
-            assert_eq!(plan.len(), n);
+            assert_eq!(plan.n, n);
             let x = sequence(n, n as u64);
             let mut full = x.clone();
             planner.plan_fft_forward(n).process(&mut full);

@@ -513,6 +513,27 @@ fn distinct_modes_that_look_like_a_ladder_stay_constant() {
     }
 }
 
+/// One channel of a near-degenerate gliding pair (2307.17 Hz, g = 9.37·10⁻³, and 2306.58 Hz,
+/// g = 2.90·10⁻³) drawn with `seed`, and the ladder of four constant poles the extraction made
+/// of it (generator 2's seed 73).
+fn gliding_pair_in_a_ladder(seed: u64) -> (Vec<Vec<f64>>, ModalExtraction) {
+    let mut rng = SplitMix64(seed);
+    let a = Truth::random(2307.17, 9.96, 9.37e-3, 1, &mut rng);
+    let b = Truth::random(2306.58, 9.95, 2.90e-3, 1, &mut rng);
+    let x = render(&[a, b], 0.01, &mut rng);
+    let ladder = [
+        (2307.39, 10.25, 0.6),
+        (2308.55, 27.8, 0.3),
+        (2309.71, 55.4, 0.2),
+        (2320.28, 102.5, 0.1),
+    ];
+    let mut ex = stand_in(&ladder, 1, 0.02);
+    for (m, snr) in ex.modes.iter_mut().zip([40.0, 30.0, 31.0, 35.0]) {
+        m.snr_db = Some(snr);
+    }
+    (x, ex)
+}
+
 /// A near-degenerate pair of gliding modes seen by one channel, which the extraction broke
 /// into a ladder of four near-constant poles whose second loudest is the rung furthest out
 /// (generator 2's seed 73 case 017, the held-out microphone): the K' = 2 hypothesis started at
@@ -523,20 +544,7 @@ fn distinct_modes_that_look_like_a_ladder_stay_constant() {
 fn a_gliding_pair_inside_one_ladder_is_found_from_one_channel() {
     let found = (60..80)
         .filter(|&seed| {
-            let mut rng = SplitMix64(seed);
-            let a = Truth::random(2307.17, 9.96, 9.37e-3, 1, &mut rng);
-            let b = Truth::random(2306.58, 9.95, 2.90e-3, 1, &mut rng);
-            let x = render(&[a, b], 0.01, &mut rng);
-            let ladder = [
-                (2307.39, 10.25, 0.6),
-                (2308.55, 27.8, 0.3),
-                (2309.71, 55.4, 0.2),
-                (2320.28, 102.5, 0.1),
-            ];
-            let mut ex = stand_in(&ladder, 1, 0.02);
-            for (m, snr) in ex.modes.iter_mut().zip([40.0, 30.0, 31.0, 35.0]) {
-                m.snr_db = Some(snr);
-            }
+            let (x, ex) = gliding_pair_in_a_ladder(seed);
             let stage = fit_glides(&x, &ex, &GlideOptions::default()).unwrap();
             [(2307.17, 9.37e-3), (2306.58, 2.90e-3)]
                 .iter()
@@ -559,20 +567,7 @@ fn the_hypotheses_fitted_on_threads_give_the_same_stage() {
     // The four-pole ladder of `a_gliding_pair_inside_one_ladder_is_found_from_one_channel`
     // (every phase of hypotheses and the forward addition run) and a two-pole glide: one
     // thread or three, the same modes and decisions to the bit.
-    let mut rng = SplitMix64(61);
-    let a = Truth::random(2307.17, 9.96, 9.37e-3, 1, &mut rng);
-    let b = Truth::random(2306.58, 9.95, 2.90e-3, 1, &mut rng);
-    let x = render(&[a, b], 0.01, &mut rng);
-    let ladder = [
-        (2307.39, 10.25, 0.6),
-        (2308.55, 27.8, 0.3),
-        (2309.71, 55.4, 0.2),
-        (2320.28, 102.5, 0.1),
-    ];
-    let mut ex = stand_in(&ladder, 1, 0.02);
-    for (m, snr) in ex.modes.iter_mut().zip([40.0, 30.0, 31.0, 35.0]) {
-        m.snr_db = Some(snr);
-    }
+    let (x, ex) = gliding_pair_in_a_ladder(61);
     let (_, x2, ex2) = glide_split_into_two_poles();
     for (x, ex) in [(&x, &ex), (&x2, &ex2)] {
         let one = fit_glides(x, ex, &GlideOptions::default()).unwrap();
