@@ -412,6 +412,13 @@ fn small_rotation(delta: f64) -> C64 {
     if delta.abs() > TAYLOR_ROTATION_MAX {
         return C64::from_polar(1.0, delta);
     }
+    taylor_rotation(delta)
+}
+
+/// e^(iδ) by its Taylor polynomial of degree 11 ([`small_rotation`] for |δ| ≤
+/// [`TAYLOR_ROTATION_MAX`]).
+#[inline(always)]
+fn taylor_rotation(delta: f64) -> C64 {
     // Horner's scheme in δ² with the inverse factorials as constants: divisions in the loop
     // (the earlier nested form) cost as much as the rest of the sampling together.
     const C: [f64; 5] = [
@@ -560,56 +567,237 @@ impl Spectra {
     /// to transform. The samples come from recurrences (amplitude e^(−d/f_s) per step,
     /// e^(−2dt) − 1 by its expm1 step, the phase rotated by 2πf/f_s plus the glide's increment
     /// 2πfg (Φₙ₊₁ − Φₙ) = κ e^(−2dtₙ)), each restarted exactly every [`RECURRENCE_BLOCK`]
-    /// samples.
+    /// samples. The blocks are therefore independent, and whole ones are advanced
+    /// [`SAMPLE_LANES`] at a time ([`Sampler::blocks_in_lockstep`]).
     fn sample(&self, comp: &Component, derivatives: bool, out: &mut Vec<Vec<C64>>) {
         let count = if derivatives { 1 + comp.n_params() } else { 1 };
         // Every sample of every row is written below.
         out.resize_with(count, Vec::new);
         out.iter_mut()
             .for_each(|row| row.resize(self.n, C64::new(0.0, 0.0)));
-        let fs = self.sample_rate;
-        let (half_inv_d, inv_d) = (0.5 / comp.d, 1.0 / comp.d);
-        let (f, d, g) = (comp.f, comp.d, comp.g);
-        let decay_step = (-d / fs).exp();
-        let c = (-2.0 * d / fs).exp_m1();
-        let turn = C64::from_polar(1.0, 2.0 * PI * f / fs);
-        let kappa = -2.0 * PI * f * g * c / (2.0 * d);
-        let mut start = 0;
-        while start < self.n {
+        let sampler = Sampler::new(comp, self.sample_rate);
+        let whole = self.n / RECURRENCE_BLOCK;
+        let mut block = 0;
+        while block + SAMPLE_LANES <= whole {
+            sampler.blocks_in_lockstep(block * RECURRENCE_BLOCK, derivatives, out);
+            block += SAMPLE_LANES;
+        }
+        while block * RECURRENCE_BLOCK < self.n {
+            let start = block * RECURRENCE_BLOCK;
             let stop = (start + RECURRENCE_BLOCK).min(self.n);
-            let t0 = start as f64 / fs;
-            let mut amplitude = (-d * t0).exp();
-            let mut m = (-2.0 * d * t0).exp_m1();
-            let mut rotation = C64::from_polar(1.0, glide_phase(f, d, g, t0));
-            // Sample i of every row at once: an index loop, not one iterator per row.
-            #[allow(clippy::needless_range_loop)]
-            for i in start..stop {
-                let t = i as f64 / fs;
-                let s = rotation * amplitude;
-                out[0][i] = s;
-                if derivatives {
-                    let phi = if (2.0 * d * t).abs() < 1e-300 {
+            sampler.block(start, stop, derivatives, out);
+            block += 1;
+        }
+    }
+}
+
+/// Whole recurrence blocks that [`Spectra::sample`] advances side by side, one lane each, so
+/// that the compiler can keep them in vector registers. Each lane does the single block's
+/// arithmetic in its order, so the samples are the same to the bit (test
+/// `lockstep_blocks_sample_as_one_block_at_a_time`).
+const SAMPLE_LANES: usize = 4;
+
+/// One component's constants for the sampled path ([`Spectra::sample`]).
+#[derive(Clone, Copy)]
+struct Sampler {
+    fs: f64,
+    f: f64,
+    d: f64,
+    g: f64,
+    half_inv_d: f64,
+    inv_d: f64,
+    /// e^(−d/f_s), e^(−2d/f_s) − 1, e^(2πif/f_s) and the glide increment's factor κ.
+    decay_step: f64,
+    c: f64,
+    turn: C64,
+    kappa: f64,
+    glide_free: bool,
+}
+
+impl Sampler {
+    fn new(comp: &Component, fs: f64) -> Sampler {
+        let (f, d, g) = (comp.f, comp.d, comp.g);
+        let c = (-2.0 * d / fs).exp_m1();
+        Sampler {
+            fs,
+            f,
+            d,
+            g,
+            half_inv_d: 0.5 / d,
+            inv_d: 1.0 / d,
+            decay_step: (-d / fs).exp(),
+            c,
+            turn: C64::from_polar(1.0, 2.0 * PI * f / fs),
+            kappa: -2.0 * PI * f * g * c / (2.0 * d),
+            glide_free: comp.glide_free,
+        }
+    }
+
+    /// The recurrences' exact state at sample `start`: amplitude e^(−dt), m = e^(−2dt) − 1 and
+    /// the phase's rotation.
+    fn restart(&self, start: usize) -> (f64, f64, C64) {
+        let t0 = start as f64 / self.fs;
+        (
+            (-self.d * t0).exp(),
+            (-2.0 * self.d * t0).exp_m1(),
+            C64::from_polar(1.0, glide_phase(self.f, self.d, self.g, t0)),
+        )
+    }
+
+    /// ∂s/∂f, ∂s/∂d and ∂s/∂g at time t from the sample s and m = e^(−2dt) − 1.
+    #[inline(always)]
+    fn derivatives(&self, t: f64, m: f64, s: C64) -> [C64; 3] {
+        let (f, d, g) = (self.f, self.d, self.g);
+        let phi = if (2.0 * d * t).abs() < 1e-300 {
+            t
+        } else {
+            -m * self.half_inv_d
+        };
+        let phi_d = phi_decay_derivative_fast(d, self.inv_d, t, phi, 1.0 + m);
+        [
+            s * C64::new(0.0, 2.0 * PI * (t + g * phi)),
+            s * C64::new(-t, 2.0 * PI * f * g * phi_d),
+            s * C64::new(0.0, 2.0 * PI * f * phi),
+        ]
+    }
+
+    /// The phase's rotation from one sample to the next, given m at the first.
+    #[inline(always)]
+    fn step(&self, m: f64) -> C64 {
+        if self.kappa == 0.0 {
+            self.turn
+        } else {
+            self.turn * small_rotation(self.kappa * (1.0 + m))
+        }
+    }
+
+    /// Samples start..stop, one at a time.
+    fn block(&self, start: usize, stop: usize, derivatives: bool, out: &mut [Vec<C64>]) {
+        let (mut amplitude, mut m, mut rotation) = self.restart(start);
+        // Sample i of every row at once: an index loop, not one iterator per row.
+        #[allow(clippy::needless_range_loop)]
+        for i in start..stop {
+            let t = i as f64 / self.fs;
+            let s = rotation * amplitude;
+            out[0][i] = s;
+            if derivatives {
+                let [by_f, by_d, by_g] = self.derivatives(t, m, s);
+                out[1][i] = by_f;
+                out[2][i] = by_d;
+                if self.glide_free {
+                    out[3][i] = by_g;
+                }
+            }
+            rotation *= self.step(m);
+            amplitude *= self.decay_step;
+            m += self.c + m * self.c;
+        }
+    }
+
+    /// [`SAMPLE_LANES`] whole blocks from sample `first` on, side by side: the same values as
+    /// [`Sampler::block`] on each, term by term (the complex products written out as
+    /// `num_complex` forms them), with every lane's branch taken as a select so that the lanes
+    /// stay in vector registers.
+    fn blocks_in_lockstep(&self, first: usize, derivatives: bool, out: &mut [Vec<C64>]) {
+        if derivatives {
+            self.lockstep::<true>(first, out)
+        } else {
+            self.lockstep::<false>(first, out)
+        }
+    }
+
+    fn lockstep<const DERIVATIVES: bool>(&self, first: usize, out: &mut [Vec<C64>]) {
+        const L: usize = SAMPLE_LANES;
+        type Lanes = [f64; L];
+        let starts: [usize; L] = std::array::from_fn(|l| first + l * RECURRENCE_BLOCK);
+        // Sample indices as floats: exact integers, so (start + j) as f64 is start_l + j.
+        let start_f: Lanes = std::array::from_fn(|l| starts[l] as f64);
+        let (mut amplitude, mut m, mut re, mut im): (Lanes, Lanes, Lanes, Lanes) =
+            ([0.0; L], [0.0; L], [0.0; L], [0.0; L]);
+        for l in 0..L {
+            let (a, m0, r) = self.restart(starts[l]);
+            (amplitude[l], m[l], re[l], im[l]) = (a, m0, r.re, r.im);
+        }
+        let (f, d, g) = (self.f, self.d, self.g);
+        let rows = match (DERIVATIVES, self.glide_free) {
+            (false, _) => 1,
+            (true, false) => 3,
+            (true, true) => 4,
+        };
+        // Row r's (re, im) per lane.
+        let mut values = [[[0.0; L]; 2]; 4];
+        for j in 0..RECURRENCE_BLOCK {
+            let j_f = j as f64;
+            let mut t: Lanes = [0.0; L];
+            let mut s_re: Lanes = [0.0; L];
+            let mut s_im: Lanes = [0.0; L];
+            for l in 0..L {
+                t[l] = (start_f[l] + j_f) / self.fs;
+                s_re[l] = re[l] * amplitude[l];
+                s_im[l] = im[l] * amplitude[l];
+            }
+            values[0] = [s_re, s_im];
+            if DERIVATIVES {
+                for l in 0..L {
+                    let (t, m, s_re, s_im) = (t[l], m[l], s_re[l], s_im[l]);
+                    let x = 2.0 * d * t;
+                    let phi = if x.abs() < 1e-300 {
                         t
                     } else {
-                        -m * half_inv_d
+                        -m * self.half_inv_d
                     };
-                    let phi_d = phi_decay_derivative_fast(d, inv_d, t, phi, 1.0 + m);
-                    out[1][i] = s * C64::new(0.0, 2.0 * PI * (t + g * phi));
-                    out[2][i] = s * C64::new(-t, 2.0 * PI * f * g * phi_d);
-                    if comp.glide_free {
-                        out[3][i] = s * C64::new(0.0, 2.0 * PI * f * phi);
+                    // phi_decay_derivative_fast, both branches formed.
+                    let series = phi_decay_series(t, x);
+                    let formula = (t * (1.0 + m) - phi) * self.inv_d;
+                    let phi_d = if x.abs() < SERIES_BELOW {
+                        series
+                    } else {
+                        formula
+                    };
+                    let y1 = 2.0 * PI * (t + g * phi);
+                    values[1][0][l] = s_re * 0.0 - s_im * y1;
+                    values[1][1][l] = s_re * y1 + s_im * 0.0;
+                    let y2 = 2.0 * PI * f * g * phi_d;
+                    values[2][0][l] = s_re * -t - s_im * y2;
+                    values[2][1][l] = s_re * y2 + s_im * -t;
+                    let y3 = 2.0 * PI * f * phi;
+                    values[3][0][l] = s_re * 0.0 - s_im * y3;
+                    values[3][1][l] = s_re * y3 + s_im * 0.0;
+                }
+            }
+            // The step's rotation: `turn`, or `turn` times the glide's small rotation.
+            let (mut step_re, mut step_im): (Lanes, Lanes) = ([self.turn.re; L], [self.turn.im; L]);
+            if self.kappa != 0.0 {
+                let mut small: [C64; L] = [C64::new(0.0, 0.0); L];
+                let mut exact = false;
+                for l in 0..L {
+                    let delta = self.kappa * (1.0 + m[l]);
+                    small[l] = taylor_rotation(delta);
+                    exact |= delta.abs() > TAYLOR_ROTATION_MAX;
+                }
+                if exact {
+                    for (l, small) in small.iter_mut().enumerate() {
+                        *small = small_rotation(self.kappa * (1.0 + m[l]));
                     }
                 }
-                let step = if kappa == 0.0 {
-                    turn
-                } else {
-                    turn * small_rotation(kappa * (1.0 + m))
-                };
-                rotation *= step;
-                amplitude *= decay_step;
-                m += c + m * c;
+                let turn = self.turn;
+                for l in 0..L {
+                    step_re[l] = turn.re * small[l].re - turn.im * small[l].im;
+                    step_im[l] = turn.re * small[l].im + turn.im * small[l].re;
+                }
             }
-            start = stop;
+            for l in 0..L {
+                let a = re[l];
+                re[l] = re[l] * step_re[l] - im[l] * step_im[l];
+                im[l] = im[l] * step_re[l] + a * step_im[l];
+                amplitude[l] *= self.decay_step;
+                m[l] += self.c + m[l] * self.c;
+            }
+            for (row, [lane_re, lane_im]) in out[..rows].iter_mut().zip(&values) {
+                for l in 0..L {
+                    row[starts[l] + j] = C64::new(lane_re[l], lane_im[l]);
+                }
+            }
         }
     }
 }

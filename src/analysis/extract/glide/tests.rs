@@ -664,3 +664,50 @@ fn fast_transforms_match_the_sampled_definition() {
         }
     }
 }
+
+/// The sampled path's lockstep blocks give the samples that one block at a time gives, to the
+/// bit: constant and gliding components, with and without derivatives, a length whose blocks
+/// do not fill the last group of lanes and end in a partial block, and a glide large enough
+/// for the rotation's exact fallback (|κ (1 + m)| above the Taylor range, g beyond the default
+/// bound).
+#[test]
+fn lockstep_blocks_sample_as_one_block_at_a_time() {
+    let n = RECURRENCE_BLOCK * (2 * SAMPLE_LANES + 1) + 123;
+    let spectra = Spectra::new(FftPlanner::new().plan_fft_forward(n), n, FS);
+    let cases = [
+        (2000.3, 9.0, 0.0, false),
+        (3001.7, 0.083, 0.0, true),
+        (7000.0, 2.0, -4e-2, true),
+        (7900.0, 30.0, 0.05, true),
+        (23_000.0, 3000.0, 0.5, true),
+        (15_000.0, 5.0, -0.3, true),
+    ];
+    for (f, d, g, glide_free) in cases {
+        let comp = Component {
+            f,
+            d,
+            g,
+            glide_free,
+        };
+        for derivatives in [false, true] {
+            let mut got = Vec::new();
+            spectra.sample(&comp, derivatives, &mut got);
+            let sampler = Sampler::new(&comp, FS);
+            let mut want = vec![vec![C64::new(f64::NAN, f64::NAN); n]; got.len()];
+            let mut start = 0;
+            while start < n {
+                let stop = (start + RECURRENCE_BLOCK).min(n);
+                sampler.block(start, stop, derivatives, &mut want);
+                start = stop;
+            }
+            for (row, (a, b)) in got.iter().zip(&want).enumerate() {
+                for (i, (x, y)) in a.iter().zip(b).enumerate() {
+                    assert!(
+                        x.re.to_bits() == y.re.to_bits() && x.im.to_bits() == y.im.to_bits(),
+                        "f {f} d {d} g {g} derivatives {derivatives}: row {row} sample {i}: {x} vs {y}"
+                    );
+                }
+            }
+        }
+    }
+}
