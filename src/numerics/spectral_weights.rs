@@ -74,16 +74,14 @@ fn tridiagonalise(c: &DMatrix<f64>, w: &DVector<f64>) -> (Vec<f64>, Vec<f64>, Ve
     let n = c.nrows();
     // A symmetric copy filled from the lower triangle, column-major: column j is
     // a[j n .. (j + 1) n], so every inner loop below runs along a contiguous column.
-    let mut a: Vec<f64> = (0..n * n)
-        .map(|at| {
-            let (i, j) = (at % n, at / n);
-            if i >= j {
-                c[(i, j)]
-            } else {
-                c[(j, i)]
-            }
-        })
-        .collect();
+    let mut a = vec![0.0; n * n];
+    for j in 0..n {
+        for i in j..n {
+            let x = c[(i, j)];
+            a[j * n + i] = x;
+            a[i * n + j] = x;
+        }
+    }
     let mut wq: Vec<f64> = w.iter().copied().collect();
     let mut v = vec![0.0; n];
     let mut p = vec![0.0; n];
@@ -106,8 +104,16 @@ fn tridiagonalise(c: &DMatrix<f64>, w: &DVector<f64>) -> (Vec<f64>, Vec<f64>, Ve
         v[start..n].iter_mut().for_each(|x| *x /= vnorm);
         // H A H on the trailing block: p = A v (A symmetric: p_i = column i · v), K = vᵀp,
         // q = p − K v, A −= 2(v qᵀ + q vᵀ).
-        for i in start..n {
-            p[i] = dot(&a[i * n + start..(i + 1) * n], &v[start..n]);
+        // As axpys over the columns (p += A_{·j} v_j, j ascending), which vectorise across
+        // i; each p_i sums the same terms in the same order as column i · v would (A is kept
+        // exactly symmetric), from −0.0 as `Iterator::sum` does, so the result is the same.
+        p[start..n].iter_mut().for_each(|x| *x = -0.0);
+        for j in start..n {
+            let vj = v[j];
+            let col = &a[j * n + start..(j + 1) * n];
+            for (pi, aij) in p[start..n].iter_mut().zip(col) {
+                *pi += aij * vj;
+            }
         }
         let kk = dot(&v[start..n], &p[start..n]);
         for i in start..n {
