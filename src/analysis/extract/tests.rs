@@ -131,9 +131,9 @@ fn householder_qr_is_unitary_and_reproduces_r() {
         .collect();
     let qr = HouseholderQr::new(columns.clone());
     for (j, column) in columns.iter().enumerate() {
-        let mut x = column.clone();
+        let mut x = vec![column.clone()];
         qr.apply_adjoint(&mut x);
-        for (i, v) in x.iter().enumerate() {
+        for (i, v) in x[0].iter().enumerate() {
             let want = if i < k {
                 qr.r[(i, j)]
             } else {
@@ -146,11 +146,58 @@ fn householder_qr_is_unitary_and_reproduces_r() {
         }
     }
     // Qᴴ is unitary: it keeps the norm of any vector.
-    let mut x: Vec<C64> = (0..n).map(|_| random_complex(&mut rng)).collect();
-    let before: f64 = x.iter().map(|v| v.norm_sqr()).sum();
+    let mut x: Vec<Vec<C64>> = vec![(0..n).map(|_| random_complex(&mut rng)).collect()];
+    let before: f64 = x[0].iter().map(|v| v.norm_sqr()).sum();
     qr.apply_adjoint(&mut x);
-    let after: f64 = x.iter().map(|v| v.norm_sqr()).sum();
+    let after: f64 = x[0].iter().map(|v| v.norm_sqr()).sum();
     assert!((after / before - 1.0).abs() < 1e-14);
+}
+
+/// Four dot products at once are four alone, the reflections four at a time give each vector
+/// what one reflection alone gives it, to the bit, and so does Qᴴ on any number of vectors (a
+/// whole chunk of four and a remainder).
+#[test]
+fn four_reflections_at_once_are_four_alone() {
+    let mut rng = SplitMix64(11);
+    let n = 37;
+    let v: Vec<C64> = (0..n).map(|_| random_complex(&mut rng)).collect();
+    let xs: Vec<Vec<C64>> = (0..7)
+        .map(|_| (0..n + 5).map(|_| random_complex(&mut rng)).collect())
+        .collect();
+    let same = |a: &[C64], b: &[C64]| {
+        a.iter()
+            .zip(b)
+            .all(|(x, y)| x.re.to_bits() == y.re.to_bits() && x.im.to_bits() == y.im.to_bits())
+    };
+    let dots = dot_conj_four(&v, [&xs[0], &xs[1], &xs[2], &xs[3]]);
+    for (dot, x) in dots.iter().zip(&xs) {
+        assert!(same(&[*dot], &[dot_conj(&v, x)]));
+    }
+    let mut together = xs.clone();
+    reflect_all(&v, 0.37, 5, &mut together);
+    for (alone, got) in xs.iter().zip(&together) {
+        let mut alone = alone.clone();
+        reflect(&v, 0.37, &mut alone[5..]);
+        assert!(same(&alone, got));
+    }
+    let columns: Vec<Vec<C64>> = (0..4)
+        .map(|_| (0..n).map(|_| random_complex(&mut rng)).collect())
+        .collect();
+    let qr = HouseholderQr::new(columns);
+    let ys: Vec<Vec<C64>> = (0..6)
+        .map(|_| (0..n).map(|_| random_complex(&mut rng)).collect())
+        .collect();
+    let mut together = ys.clone();
+    qr.apply_adjoint(&mut together);
+    for (y, got) in ys.iter().zip(&together) {
+        let mut alone = y.clone();
+        for (j, (v, &tau)) in qr.reflectors.iter().zip(&qr.taus).enumerate() {
+            if tau != 0.0 {
+                reflect(v, tau, &mut alone[j..]);
+            }
+        }
+        assert!(same(&alone, got));
+    }
 }
 
 #[test]
