@@ -848,7 +848,12 @@ fn reflect_all(v: &[C64], tau: f64, from: usize, xs: &mut [Vec<C64>]) {
         reflect_four(
             v,
             tau,
-            [&mut a[from..], &mut b[from..], &mut c[from..], &mut d[from..]],
+            [
+                &mut a[from..],
+                &mut b[from..],
+                &mut c[from..],
+                &mut d[from..],
+            ],
         );
     }
     for x in chunks.into_remainder() {
@@ -981,7 +986,12 @@ impl BandModel {
             while l + 4 <= k {
                 let dots = dot_conj_four(
                     &qd[j][k..],
-                    [&qd[l][k..], &qd[l + 1][k..], &qd[l + 2][k..], &qd[l + 3][k..]],
+                    [
+                        &qd[l][k..],
+                        &qd[l + 1][k..],
+                        &qd[l + 2][k..],
+                        &qd[l + 3][k..],
+                    ],
                 );
                 for (o, v) in dots.into_iter().enumerate() {
                     q[(j, l + o)] = v;
