@@ -943,9 +943,9 @@ pub struct Prediction {
     /// ln of each mode's measured undamped frequency, the argument of the damping law (parent
     /// docs, "A damping law at the measured frequency"): scratch, refilled by every prediction.
     ln_f_measured: Vec<f64>,
-    /// ln of `decay` (NaN where it is not positive), formed once per prediction: the rows read
-    /// it at every evaluation of the likelihood, and the floors' profiles evaluate it dozens of
-    /// times per prediction (ln was 40 % of the catalogue's time on a six-microphone plate).
+    /// ln of `decay` (NaN where it is not positive), formed once per prediction: the decay rows
+    /// read it at every evaluation of the likelihood, and the floors' profiles evaluate that
+    /// dozens of times per prediction (ln is the largest single cost of the catalogue).
     ln_decay: Vec<f64>,
 }
 
