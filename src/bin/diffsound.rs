@@ -36,47 +36,36 @@ fn missing_cpu_features() -> Option<String> {
                 },
             )
         };
-        let has = |register: u32, bit: u32| register & (1 << bit) != 0;
-        let features = [
-            ("sse3", cfg!(target_feature = "sse3"), has(leaf1, 0)),
-            ("ssse3", cfg!(target_feature = "ssse3"), has(leaf1, 9)),
-            ("fma", cfg!(target_feature = "fma"), has(leaf1, 12)),
-            ("sse4.1", cfg!(target_feature = "sse4.1"), has(leaf1, 19)),
-            ("sse4.2", cfg!(target_feature = "sse4.2"), has(leaf1, 20)),
-            ("popcnt", cfg!(target_feature = "popcnt"), has(leaf1, 23)),
-            ("avx", cfg!(target_feature = "avx"), has(leaf1, 28)),
-            ("f16c", cfg!(target_feature = "f16c"), has(leaf1, 29)),
-            ("bmi1", cfg!(target_feature = "bmi1"), has(leaf7, 3)),
-            ("avx2", cfg!(target_feature = "avx2"), has(leaf7, 5)),
-            ("bmi2", cfg!(target_feature = "bmi2"), has(leaf7, 8)),
-            ("avx512f", cfg!(target_feature = "avx512f"), has(leaf7, 16)),
-            (
-                "avx512dq",
-                cfg!(target_feature = "avx512dq"),
-                has(leaf7, 17),
-            ),
-            (
-                "avx512cd",
-                cfg!(target_feature = "avx512cd"),
-                has(leaf7, 28),
-            ),
-            (
-                "avx512bw",
-                cfg!(target_feature = "avx512bw"),
-                has(leaf7, 30),
-            ),
-            (
-                "avx512vl",
-                cfg!(target_feature = "avx512vl"),
-                has(leaf7, 31),
-            ),
-            ("lzcnt", cfg!(target_feature = "lzcnt"), has(extended, 5)),
+        // (name, compiled in, CPUID register, bit): each name written once.
+        macro_rules! feature {
+            ($name:tt, $register:expr, $bit:expr) => {
+                ($name, cfg!(target_feature = $name), $register, $bit)
+            };
+        }
+        let features: [(&str, bool, u32, u32); 17] = [
+            feature!("sse3", leaf1, 0),
+            feature!("ssse3", leaf1, 9),
+            feature!("fma", leaf1, 12),
+            feature!("sse4.1", leaf1, 19),
+            feature!("sse4.2", leaf1, 20),
+            feature!("popcnt", leaf1, 23),
+            feature!("avx", leaf1, 28),
+            feature!("f16c", leaf1, 29),
+            feature!("bmi1", leaf7, 3),
+            feature!("avx2", leaf7, 5),
+            feature!("bmi2", leaf7, 8),
+            feature!("avx512f", leaf7, 16),
+            feature!("avx512dq", leaf7, 17),
+            feature!("avx512cd", leaf7, 28),
+            feature!("avx512bw", leaf7, 30),
+            feature!("avx512vl", leaf7, 31),
+            feature!("lzcnt", extended, 5),
         ];
         missing.extend(
             features
                 .iter()
-                .filter(|(_, compiled, present)| *compiled && !present)
-                .map(|(name, _, _)| *name),
+                .filter(|&&(_, compiled, register, bit)| compiled && register & (1 << bit) == 0)
+                .map(|&(name, ..)| name),
         );
     }
     (!missing.is_empty()).then(|| missing.join(", "))
