@@ -5,14 +5,17 @@
 # (examples/diagnose_score.rs).
 #
 #   scripts/bench_diagnose.sh [--cases 30] [--seed 101] [--mics 6] [--mesh examples/bowl/bowl.msh]
-#                             [--np 2] [--out out/bench_diagnose] [--skip-generate]
+#                             [--np 2] [--out out/bench_diagnose] [--skip-generate] [--bin PATH]
 #
+# --bin diagnoses with a given (frozen) diffsound binary instead of this tree's build, so a blind
+# run is not disturbed by development in the same tree (the generator and the scorer are still
+# built from this tree).
 # The generator and the diagnosis run under mpirun with --np ranks. Existing diagnosis.json files
 # are kept (delete them to re-run a case); each case's log is case_XXX/diagnosis.log.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 source scripts/mpi-env.sh
-cases=30; seed=101; mics=6; mesh=examples/bowl/bowl.msh; np=2; out=out/bench_diagnose; generate=1
+cases=30; seed=101; mics=6; mesh=examples/bowl/bowl.msh; np=2; out=out/bench_diagnose; generate=1; bin=""
 while [ $# -gt 0 ]; do
   case "$1" in
     --cases) cases="$2"; shift 2 ;;
@@ -22,10 +25,16 @@ while [ $# -gt 0 ]; do
     --np) np="$2"; shift 2 ;;
     --out) out="$2"; shift 2 ;;
     --skip-generate) generate=0; shift ;;
+    --bin) bin="$2"; shift 2 ;;
     *) echo "unknown option $1" >&2; exit 2 ;;
   esac
 done
-cargo build --release --features bench-generators --bin diffsound --example diagnose_generate --example diagnose_score 2>&1 | tail -n 1
+if [ -z "$bin" ]; then
+  cargo build --release --features bench-generators --bin diffsound --example diagnose_generate --example diagnose_score 2>&1 | tail -n 1
+  bin=target/release/diffsound
+else
+  cargo build --release --features bench-generators --example diagnose_generate --example diagnose_score 2>&1 | tail -n 1
+fi
 mkdir -p "$out"
 if [ "$generate" = 1 ]; then
   mpirun -np "$np" target/release/examples/diagnose_generate --out "$out" --cases "$cases" --seed "$seed" --mics "$mics" --mesh "$mesh" 2> "$out/generate.log"
@@ -36,7 +45,7 @@ for meta in "$out"/case_*/metadata.toml; do
   dir=$(dirname "$meta")
   if [ -f "$dir/diagnosis.json" ]; then continue; fi
   t0=$(date +%s)
-  if mpirun -np "$np" target/release/diffsound diagnose --case "$meta" --out "$dir/diagnosis.h5" -v > "$dir/diagnosis.log" 2>&1; then
+  if mpirun -np "$np" "$bin" diagnose --case "$meta" --out "$dir/diagnosis.h5" -v > "$dir/diagnosis.log" 2>&1; then
     echo "$(basename "$dir"): $(grep -c ACCEPTED "$dir/diagnosis.log") effect(s) accepted, $(( $(date +%s) - t0 )) s" >&2
   else
     echo "$(basename "$dir"): diagnosis FAILED (see $dir/diagnosis.log)" >&2
