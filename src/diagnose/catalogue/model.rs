@@ -241,19 +241,13 @@ impl RowKind {
             RowKind::LnF(k) => p.ln_f[k],
             RowKind::PairMean(l, u) => 0.5 * (p.ln_f[l] + p.ln_f[u]),
             RowKind::Split(l, u) => p.ln_f[u] - p.ln_f[l],
-            RowKind::LnD(k) => ln_decay(p, k),
-            RowKind::PairMeanLnD(l, u) => 0.5 * (ln_decay(p, l) + ln_decay(p, u)),
-            RowKind::DecaySplit(l, u) => ln_decay(p, u) - ln_decay(p, l),
+            RowKind::LnD(k) => p.ln_decay[k],
+            RowKind::PairMeanLnD(l, u) => 0.5 * (p.ln_decay[l] + p.ln_decay[u]),
+            RowKind::DecaySplit(l, u) => p.ln_decay[u] - p.ln_decay[l],
             RowKind::LnA(k, c) => p.ln_a[k * p.channels + c],
             RowKind::Glide(k) => p.glide[k],
         }
     }
-}
-
-/// ln of the predicted decay rate of mode k (NaN when it is not positive: no likelihood), as
-/// [`Model::predict`] left it in the prediction.
-fn ln_decay(p: &Prediction, k: usize) -> f64 {
-    p.ln_decay[k]
 }
 
 /// ln d, or NaN when d is not positive (no likelihood).
@@ -958,7 +952,7 @@ impl Prediction {
             glide: vec![0.0; modes],
             channels,
             ln_f_measured: Vec::with_capacity(modes),
-            ln_decay: vec![0.0; modes],
+            ln_decay: vec![f64::NAN; modes], // ln of the zero decay rates above
         }
     }
 }
